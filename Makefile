@@ -1,0 +1,44 @@
+# skyherd: `make run` flies the main job, `make test` runs the suite. Both create or refresh
+# .venv in the repo root and install the project into it, so they work on a fresh clone.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.skyherd-installed
+MAVPROXY_VENV := .venv-mavproxy
+MAVPROXY_STAMP := $(MAVPROXY_VENV)/.installed
+
+.PHONY: run test bench lint venv mavproxy clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+# MAVProxy pulls GUI packages: it lives in its own small environment, without them.
+$(MAVPROXY_STAMP): Makefile
+	test -x $(MAVPROXY_VENV)/bin/python || $(PY) -m venv $(MAVPROXY_VENV)
+	$(MAVPROXY_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(MAVPROXY_VENV)/bin/python -m pip install --quiet --no-deps mavproxy==1.8.75 pymavlink==2.4.50 pyserial==3.5
+	$(MAVPROXY_VENV)/bin/python -m pip install --quiet lxml==6.1.3 fastcrc==0.5.0
+	touch $(MAVPROXY_STAMP)
+
+venv: $(STAMP)
+mavproxy: $(MAVPROXY_STAMP)
+
+run: $(STAMP)
+	$(BIN)/skyherd fly
+
+test: $(STAMP) $(MAVPROXY_STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+clean:
+	rm -rf $(VENV) $(MAVPROXY_VENV) build *.egg-info

@@ -1,0 +1,14 @@
+"""`skyherd drill`: not built yet (see the open issues)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    pass
+
+
+def run(args: argparse.Namespace) -> int:
+    print("skyherd drill is not built yet")
+    return 1

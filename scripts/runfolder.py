@@ -1,0 +1,166 @@
+"""Run folders: `runs/<UTC time>-<command>/` with config, events, metrics and plots.
+
+Everything is written so that a kill mid-run leaves what was already written readable:
+whole files by write-to-temp-and-rename, streams by append + flush.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import datetime as dt
+import enum
+import json
+import os
+import platform
+import sys
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write a whole file so that readers see the old or the new content, never a part."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Dataclasses, enums, numpy values and paths → plain JSON values."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, enum.Enum):
+        return obj.value if isinstance(obj.value, int | float | str) else obj.name
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def versions() -> dict[str, str]:
+    """Versions of Python and the packages a run depends on."""
+    out = {"python": sys.version.split()[0], "platform": platform.platform()}
+    for pkg in (
+        "skyherd",
+        "numpy",
+        "torch",
+        "pymavlink",
+        "mavsdk",
+        "jsbsim",
+        "pybullet",
+        "opencv-python-headless",
+        "eclipse-zenoh",
+        "cvxpy",
+        "osqp",
+        "gymnasium",
+    ):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+class JsonlWriter:
+    """Append-only JSON-lines stream, flushed per record (events.jsonl)."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self._f = open(self.path, "a", encoding="utf-8")
+
+    def write(self, record: dict[str, Any]) -> None:
+        self._f.write(json.dumps(to_jsonable(record), sort_keys=True) + "\n")
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+
+
+class CsvWriter:
+    """Append-only CSV with a fixed header, flushed per row (metrics.csv)."""
+
+    def __init__(self, path: Path, columns: list[str]):
+        self.path = Path(path)
+        self.columns = list(columns)
+        new = not self.path.exists() or self.path.stat().st_size == 0
+        self._f = open(self.path, "a", newline="", encoding="utf-8")
+        self._w = csv.DictWriter(self._f, fieldnames=self.columns)
+        if new:
+            self._w.writeheader()
+            self._f.flush()
+
+    def write(self, row: dict[str, Any]) -> None:
+        self._w.writerow({k: to_jsonable(row.get(k, "")) for k in self.columns})
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+
+
+class RunFolder:
+    """One run's folder. `config` is written at once and is enough to repeat the run."""
+
+    def __init__(self, command: str, root: Path | str = "runs", now: dt.datetime | None = None):
+        now = now or dt.datetime.now(dt.UTC)
+        stamp = now.strftime("%Y%m%dT%H%M%SZ")
+        base = Path(root) / f"{stamp}-{command}"
+        path, n = base, 1
+        while path.exists():
+            n += 1
+            path = base.with_name(f"{base.name}-{n}")
+        path.mkdir(parents=True)
+        self.path = path
+        self.command = command
+
+    def write_config(self, config: dict[str, Any]) -> Path:
+        full = {"command": self.command, "versions": versions(), **to_jsonable(config)}
+        p = self.path / "config.json"
+        atomic_write_text(p, json.dumps(full, indent=2, sort_keys=True) + "\n")
+        return p
+
+    def events(self) -> JsonlWriter:
+        return JsonlWriter(self.path / "events.jsonl")
+
+    def metrics(self, columns: list[str]) -> CsvWriter:
+        return CsvWriter(self.path / "metrics.csv", columns)
+
+    def write_summary(self, markdown: str) -> Path:
+        p = self.path / "summary.md"
+        atomic_write_text(p, markdown)
+        return p
+
+    def file(self, name: str) -> Path:
+        return self.path / name
+
+
+def markdown_table(headers: list[str], rows: list[list[Any]]) -> str:
+    """A GitHub-style table; also readable as plain text on a terminal."""
+    cells = [[str(h) for h in headers]] + [[_fmt(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
+    line = lambda r: "| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |"  # noqa: E731
+    sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
+    return "\n".join([line(cells[0]), sep] + [line(r) for r in cells[1:]]) + "\n"
+
+
+def _fmt(c: Any) -> str:
+    if isinstance(c, float):
+        return f"{c:.3g}" if abs(c) < 1e-3 or abs(c) >= 1e4 else f"{c:.3f}".rstrip("0").rstrip(".")
+    return str(c)
