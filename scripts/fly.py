@@ -1,14 +1,275 @@
-"""`skyherd fly`: not built yet (see the open issues)."""
+"""`skyherd fly`: fly a mission end to end through skyherd's own MAVLink client.
+
+Default (the main job, `make run`): start the built-in quadrotor SITL in this process, take
+off, fly a 40 m square at 20 m in offboard position control, land, and write a run folder
+with the tlog, metrics, a track plot and a summary. `--connect ADDRESS` flies an outside
+vehicle (another `skyherd sitl`, PX4 SITL, a real autopilot) instead.
+"""
 
 from __future__ import annotations
 
 import argparse
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from hil.client import ClientTimeout, CommandError, Telemetry, VehicleClient
+from hil.link import LinkError, MavlinkLink, parse_address
+from scripts.cli import UsageError
+from scripts.runfolder import RunFolder, args_dict, markdown_table
+
+
+@dataclass(frozen=True)
+class SquareMission:
+    """Take off, fly a square of side `side` [m] at `altitude` [m] above home, land."""
+
+    altitude: float = 20.0
+    side: float = 40.0
+    accept_radius: float = 1.0  # [m] a corner counts as reached within this distance
+    settle_s: float = 1.0  # [s] of vehicle time held inside the radius at each corner
+
+    def corners_ned(self) -> list[np.ndarray]:
+        d, s = -self.altitude, self.side
+        return [np.array(p, dtype=float) for p in ([s, 0, d], [s, s, d], [0, s, d], [0, 0, d])]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    pass
+    parser.add_argument(
+        "--mission", choices=["square"], default="square", help="what to fly (default: square)"
+    )
+    parser.add_argument("--airframe", choices=["quadrotor"], default="quadrotor")
+    parser.add_argument(
+        "--connect",
+        metavar="ADDRESS",
+        help="fly an outside vehicle at this pymavlink address "
+        "(e.g. udpin:127.0.0.1:14540) instead of the built-in SITL",
+    )
+    parser.add_argument("--instance", type=int, default=0, help="built-in SITL instance N")
+    parser.add_argument(
+        "--speedup",
+        type=float,
+        default=10.0,
+        help="built-in SITL speed-up over wall time (default 10)",
+    )
+    parser.add_argument("--altitude", type=float, default=20.0, help="mission altitude [m]")
+    parser.add_argument("--side", type=float, default=40.0, help="square side [m]")
+    parser.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    parser.add_argument("--runs-dir", default="runs", help="where run folders go")
+    parser.add_argument(
+        "--timeout", type=float, default=600.0, help="wall-clock limit for the whole flight [s]"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    print("skyherd fly is not built yet")
-    return 1
+    if not (0 < args.altitude <= 120 and 0 < args.side <= 500):
+        raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
+    mission = SquareMission(altitude=args.altitude, side=args.side)
+    address = args.connect or f"udpin:127.0.0.1:{14540 + args.instance}"
+    try:
+        parse_address(address)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+    run_dir = RunFolder("fly", root=args.runs_dir)
+    run_dir.write_config({"args": args_dict(args), "mission": mission, "address": address})
+    sitl = None
+    if args.connect is None:
+        sitl = _start_embedded_sitl(args)
+    try:
+        link = MavlinkLink.open(address, tlog=run_dir.file("telemetry.tlog"))
+    except LinkError as e:
+        if sitl:
+            sitl.stop()
+        raise UsageError(f"{e}; is another skyherd or SITL using that port?") from None
+    print(f"skyherd fly: run folder {run_dir.path}")
+    ok = False
+    try:
+        with VehicleClient(link) as client:
+            ok = _fly_square(client, mission, run_dir, args.timeout)
+    finally:
+        if sitl:
+            sitl.stop()
+    return 0 if ok else 1
+
+
+def _start_embedded_sitl(args):
+    from flight.sitl import start_sitl_thread
+
+    return start_sitl_thread(
+        airframe=args.airframe, instance=args.instance, speedup=args.speedup, seed=args.seed
+    )
+
+
+def _fly_square(
+    client: VehicleClient, mission: SquareMission, run_dir: RunFolder, timeout: float
+) -> bool:
+    metrics = run_dir.metrics(
+        ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "phase"]
+    )
+    track: list[tuple[float, float, float, float]] = []
+    phase = {"name": "connect"}
+    legs: list[list] = []
+    t_end = time.monotonic() + timeout
+
+    def record(tel: Telemetry) -> None:
+        if tel.pos_ned is None:
+            return
+        t = tel.time_boot_ms / 1000.0
+        metrics.write(
+            {
+                "t": t,
+                "north": tel.pos_ned[0],
+                "east": tel.pos_ned[1],
+                "down": tel.pos_ned[2],
+                "vn": tel.vel_ned[0],
+                "ve": tel.vel_ned[1],
+                "vd": tel.vel_ned[2],
+                "mode": tel.mode,
+                "armed": int(tel.armed),
+                "phase": phase["name"],
+            }
+        )
+        track.append((t, *tel.pos_ned))
+
+    target = {"pos": None}
+
+    def setpoint(tel: Telemetry):
+        record(tel)
+        return None if target["pos"] is None else (target["pos"], None, 0.0)
+
+    def left() -> float:
+        return max(1.0, t_end - time.monotonic())
+
+    steps = (
+        ["connect", "arm", "takeoff", "offboard"] + [f"corner {i + 1}" for i in range(4)] + ["land"]
+    )
+    bar = tqdm(steps, desc="fly", unit="step", leave=True)
+    try:
+        client.stream_offboard(setpoint)
+        tel = client.telemetry
+        bar.set_description("connect: waiting for heartbeat, home and position")
+        client.wait_ready(timeout=min(30.0, left()))
+        bar.update()
+
+        phase["name"] = "arm"
+        bar.set_description("arm")
+        client.wait_until(lambda: tel.landed_state == 1, min(30.0, left()), "vehicle on ground")
+        client.arm()
+        bar.update()
+
+        phase["name"] = "takeoff"
+        bar.set_description(f"takeoff to {mission.altitude:.0f} m")
+        client.takeoff(mission.altitude)
+        client.wait_until(
+            lambda: tel.pos_ned is not None and -tel.pos_ned[2] > mission.altitude - 0.5,
+            left(),
+            f"altitude {mission.altitude:.0f} m",
+        )
+        bar.update()
+
+        phase["name"] = "offboard"
+        bar.set_description("offboard")
+        target["pos"] = np.array([tel.pos_ned[0], tel.pos_ned[1], -mission.altitude])
+        client.wait_message("LOCAL_POSITION_NED")  # setpoints flowing before the switch
+        client.wait_message("LOCAL_POSITION_NED")
+        client.set_mode("OFFBOARD")
+        bar.update()
+
+        for i, corner in enumerate(mission.corners_ned()):
+            phase["name"] = f"corner {i + 1}"
+            bar.set_description(f"corner {i + 1} of 4 ({corner[0]:.0f} N, {corner[1]:.0f} E)")
+            start = tel.pos_ned.copy()
+            t0 = tel.time_boot_ms / 1000.0
+            target["pos"] = corner
+            _wait_settled(client, corner, mission, left())
+            t1 = tel.time_boot_ms / 1000.0
+            err = _cross_track(np.array(track)[:, 1:], start, corner, t0, t1, np.array(track)[:, 0])
+            legs.append([i + 1, f"{corner[0]:.0f} N {corner[1]:.0f} E", t1 - t0, err])
+            bar.update()
+
+        phase["name"] = "land"
+        bar.set_description("land")
+        client.land()
+        client.wait_until(lambda: not tel.armed, left(), "landing and disarm")
+        bar.update()
+        ok = True
+    except (ClientTimeout, CommandError) as e:
+        bar.write(f"skyherd fly: {e}")
+        ok = False
+    finally:
+        client.stream_offboard(None)
+        bar.close()
+        metrics.close()
+
+    _plot_track(run_dir, np.array(track) if track else np.zeros((0, 4)), mission)
+    table = markdown_table(["leg", "to", "time [s]", "max cross-track [m]"], legs)
+    status = "completed" if ok else "ABORTED"
+    run_dir.write_summary(
+        f"# skyherd fly: square mission {status}\n\n"
+        f"{mission.side:.0f} m square at {mission.altitude:.0f} m.\n\n{table}"
+    )
+    print(table)
+    print(f"skyherd fly: {status}; tlog, metrics.csv, track.png and summary.md in {run_dir.path}")
+    return ok
+
+
+def _wait_settled(
+    client: VehicleClient, corner: np.ndarray, mission: SquareMission, timeout: float
+) -> None:
+    tel = client.telemetry
+    since = {"t": None}
+
+    def settled() -> bool:
+        if tel.pos_ned is None or tel.mode != "OFFBOARD":
+            if tel.mode and tel.mode != "OFFBOARD":
+                raise ClientTimeout(f"vehicle left OFFBOARD (now {tel.mode})")
+            return False
+        t = tel.time_boot_ms / 1000.0
+        if np.linalg.norm(tel.pos_ned - corner) > mission.accept_radius:
+            since["t"] = None
+            return False
+        since["t"] = t if since["t"] is None else since["t"]
+        return t - since["t"] >= mission.settle_s
+
+    client.wait_until(settled, timeout, f"corner {corner[0]:.0f} N {corner[1]:.0f} E")
+
+
+def _cross_track(
+    pos: np.ndarray, a: np.ndarray, b: np.ndarray, t0: float, t1: float, t: np.ndarray
+) -> float:
+    """Largest horizontal distance [m] from the segment a→b over the leg's samples."""
+    sel = pos[(t >= t0) & (t <= t1)][:, :2]
+    if len(sel) == 0:
+        return math.nan
+    ab = (b - a)[:2]
+    u = np.clip(((sel - a[:2]) @ ab) / max(ab @ ab, 1e-9), 0.0, 1.0)
+    closest = a[:2] + u[:, None] * ab
+    return float(np.max(np.linalg.norm(sel - closest, axis=1)))
+
+
+def _plot_track(run_dir: RunFolder, track: np.ndarray, mission: SquareMission) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
+    c = np.array(mission.corners_ned())
+    ax1.plot(np.r_[0, c[:, 1]], np.r_[0, c[:, 0]], "k--", lw=1, label="planned")
+    if len(track):
+        ax1.plot(track[:, 2], track[:, 1], "b-", lw=1.5, label="flown")
+        ax2.plot(track[:, 0], -track[:, 3], "b-")
+    ax1.set_xlabel("east [m]")
+    ax1.set_ylabel("north [m]")
+    ax1.set_aspect("equal")
+    ax1.legend()
+    ax1.set_title("track (NED, about home)")
+    ax2.set_xlabel("time [s]")
+    ax2.set_ylabel("altitude above home [m]")
+    ax2.set_title("altitude")
+    fig.tight_layout()
+    fig.savefig(run_dir.file("track.png"), dpi=110)
+    plt.close(fig)

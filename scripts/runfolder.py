@@ -164,3 +164,8 @@ def _fmt(c: Any) -> str:
     if isinstance(c, float):
         return f"{c:.3g}" if abs(c) < 1e-3 or abs(c) >= 1e4 else f"{c:.3f}".rstrip("0").rstrip(".")
     return str(c)
+
+
+def args_dict(args: Any) -> dict[str, Any]:
+    """Command-line arguments as a JSON-ready dict (internal `_` entries dropped)."""
+    return {k: to_jsonable(v) for k, v in vars(args).items() if not k.startswith("_")}

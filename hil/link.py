@@ -1,0 +1,247 @@
+"""One MAVLink link for every tool: address parsing, transports, framing and the tlog.
+
+Addresses use pymavlink's forms:
+    udpin:HOST:PORT     listen; replies go to whoever sent last
+    udpout:HOST:PORT    send to HOST:PORT (and receive on the same socket)
+    tcp:HOST:PORT       connect to a TCP server
+    /dev/ttyACM0,57600  serial port with baud rate (default 57600)
+
+MAVLink 2 framing is fixed at construction (no dialect chosen by environment variables);
+MAVLink 1 frames are still parsed. Every packet sent or received can be recorded to a
+.tlog: 8-byte big-endian microseconds since the Unix epoch, then the raw packet, appended
+and flushed per packet so a kill loses nothing already written.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+import struct
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+DEFAULT_BAUD = 57600
+
+
+class LinkError(Exception):
+    """The link cannot be opened or used; the message says what to check."""
+
+
+class Transport(Protocol):
+    def send(self, data: bytes) -> None: ...
+    def recv(self, timeout: float) -> bytes:
+        """Bytes received within `timeout` [s] (b'' if none)."""
+        ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class Address:
+    kind: str  # "udpin" | "udpout" | "tcp" | "serial"
+    host: str = ""
+    port: int = 0
+    device: str = ""
+    baud: int = DEFAULT_BAUD
+
+
+def parse_address(text: str) -> Address:
+    """Parse a pymavlink-style address. Raises ValueError with the accepted forms."""
+    forms = "udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or /dev/PATH[,BAUD]"
+    text = text.strip()
+    if text.startswith("/") or text.upper().startswith("COM"):
+        dev, _, baud = text.partition(",")
+        try:
+            return Address("serial", device=dev, baud=int(baud) if baud else DEFAULT_BAUD)
+        except ValueError:
+            raise ValueError(f"bad baud rate in {text!r}; expected {forms}") from None
+    kind, _, rest = text.partition(":")
+    host, _, port = rest.rpartition(":")
+    if kind not in ("udpin", "udpout", "udp", "tcp") or not host or not port.isdigit():
+        raise ValueError(f"cannot parse link address {text!r}; expected {forms}")
+    if not 0 < int(port) < 65536:
+        raise ValueError(f"port out of range in {text!r}")
+    return Address("udpin" if kind == "udp" else kind, host=host, port=int(port))
+
+
+class UdpTransport:
+    """UDP: `udpin` binds and answers the last sender; `udpout` sends to a fixed peer."""
+
+    def __init__(self, addr: Address):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.peer: tuple[str, int] | None = None
+        try:
+            if addr.kind == "udpin":
+                self.sock.bind((addr.host, addr.port))
+            else:
+                self.peer = (addr.host, addr.port)
+                self.sock.bind(("127.0.0.1" if addr.host.startswith("127.") else "", 0))
+        except OSError as e:
+            self.sock.close()
+            raise LinkError(f"cannot bind UDP {addr.host}:{addr.port}: {e} (port in use?)") from e
+        self.fixed_peer = addr.kind == "udpout"
+
+    def send(self, data: bytes) -> None:
+        if self.peer is not None:
+            try:
+                self.sock.sendto(data, self.peer)
+            except OSError:
+                pass  # peer gone (ICMP unreachable): the link-loss logic notices silence
+
+    def recv(self, timeout: float) -> bytes:
+        r, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
+        if not r:
+            return b""
+        try:
+            data, sender = self.sock.recvfrom(65535)
+        except OSError:
+            return b""
+        if not self.fixed_peer:
+            self.peer = sender
+        return data
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class TcpTransport:
+    def __init__(self, addr: Address, connect_timeout: float = 5.0):
+        try:
+            self.sock = socket.create_connection((addr.host, addr.port), timeout=connect_timeout)
+        except OSError as e:
+            raise LinkError(f"cannot connect TCP {addr.host}:{addr.port}: {e}") from e
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def send(self, data: bytes) -> None:
+        try:
+            self.sock.sendall(data)
+        except OSError:
+            pass
+
+    def recv(self, timeout: float) -> bytes:
+        r, _, _ = select.select([self.sock], [], [], max(0.0, timeout))
+        if not r:
+            return b""
+        try:
+            return self.sock.recv(65535)
+        except OSError:
+            return b""
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class SerialTransport:
+    def __init__(self, addr: Address):
+        import serial  # pyserial, only needed for serial links
+
+        try:
+            self.port = serial.Serial(addr.device, addr.baud, timeout=0)
+        except (serial.SerialException, OSError) as e:
+            raise LinkError(f"cannot open {addr.device} at {addr.baud} baud: {e}") from e
+
+    def send(self, data: bytes) -> None:
+        self.port.write(data)
+
+    def recv(self, timeout: float) -> bytes:
+        deadline = time.monotonic() + timeout
+        while True:
+            data = self.port.read(4096)
+            if data or time.monotonic() >= deadline:
+                return data
+            time.sleep(0.001)
+
+    def close(self) -> None:
+        self.port.close()
+
+
+def open_transport(address: str) -> Transport:
+    addr = parse_address(address)
+    if addr.kind in ("udpin", "udpout"):
+        return UdpTransport(addr)
+    if addr.kind == "tcp":
+        return TcpTransport(addr)
+    return SerialTransport(addr)
+
+
+class TlogWriter:
+    """Append-only telemetry log readable by pymavlink and MAVExplorer."""
+
+    def __init__(self, path: Path):
+        self._f = open(path, "ab")
+        self._lock = threading.Lock()
+
+    def write(self, packet: bytes, t_unix: float | None = None) -> None:
+        stamp = int((time.time() if t_unix is None else t_unix) * 1e6)
+        with self._lock:
+            self._f.write(struct.pack(">Q", stamp) + packet)
+            self._f.flush()
+
+    def close(self) -> None:
+        with self._lock:
+            self._f.close()
+
+
+class MavlinkLink:
+    """A MAVLink 2 speaker over one transport, thread-safe for sending.
+
+    source_system/component: who we are (255/190 a ground station, or our companion at
+    1+N/191 beside an autopilot).
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        source_system: int = 255,
+        source_component: int = 190,
+        tlog: Path | None = None,
+    ):
+        self.transport = transport
+        self.mav = mavlink2.MAVLink(None, source_system, source_component)
+        self.mav.robust_parsing = True  # skip garbage instead of raising
+        self.tlog = TlogWriter(tlog) if tlog else None
+        self._send_lock = threading.Lock()
+        self.bad_packets = 0
+
+    @staticmethod
+    def open(address: str, **kwargs) -> MavlinkLink:
+        return MavlinkLink(open_transport(address), **kwargs)
+
+    def send(self, msg: mavlink2.MAVLink_message) -> None:
+        with self._send_lock:
+            data = msg.pack(self.mav)
+            self.mav.seq = (self.mav.seq + 1) % 256
+            self.transport.send(data)
+        if self.tlog:
+            self.tlog.write(data)
+
+    def recv(self, timeout: float = 0.1) -> list[mavlink2.MAVLink_message]:
+        """Messages decoded from whatever arrives within `timeout` [s]. Bad bytes are skipped."""
+        data = self.transport.recv(timeout)
+        if not data:
+            return []
+        try:
+            msgs = self.mav.parse_buffer(data) or []
+        except mavlink2.MAVError:
+            self.bad_packets += 1
+            return []
+        good = []
+        for m in msgs:
+            if m.get_type() == "BAD_DATA":
+                self.bad_packets += 1
+                continue
+            good.append(m)
+            if self.tlog:
+                self.tlog.write(bytes(m.get_msgbuf()))
+        return good
+
+    def close(self) -> None:
+        self.transport.close()
+        if self.tlog:
+            self.tlog.close()
