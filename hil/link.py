@@ -74,7 +74,6 @@ class UdpTransport:
 
     def __init__(self, addr: Address):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.peer: tuple[str, int] | None = None
         try:
             if addr.kind == "udpin":
@@ -208,6 +207,7 @@ class MavlinkLink:
         self.tlog = TlogWriter(tlog) if tlog else None
         self._send_lock = threading.Lock()
         self.bad_packets = 0
+        self.datagrams = isinstance(transport, UdpTransport)
 
     @staticmethod
     def open(address: str, **kwargs) -> MavlinkLink:
@@ -231,9 +231,13 @@ class MavlinkLink:
         except mavlink2.MAVError:
             self.bad_packets += 1
             return []
+        if self.datagrams:
+            # a UDP datagram carries whole packets: never let garbage eat the next one
+            self.mav.buf, self.mav.buf_index = bytearray(), 0
+            self.mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
         good = []
         for m in msgs:
-            if m.get_type() == "BAD_DATA":
+            if m.get_type() == "BAD_DATA" or isinstance(m, mavlink2.MAVLink_unknown):
                 self.bad_packets += 1
                 continue
             good.append(m)
