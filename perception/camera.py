@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -55,17 +56,17 @@ class CameraParams:
         if not (0.0 < self.hfov_rad < math.pi):
             raise ValueError(f"hfov_rad must be in (0, pi), got {self.hfov_rad}")
 
-    @property
+    @cached_property
     def fx(self) -> float:
         """Focal length [px] (= fy)."""
         return 0.5 * self.width_px / math.tan(0.5 * self.hfov_rad)
 
-    @property
+    @cached_property
     def cx(self) -> float:
         """Principal point u [px] (image centre)."""
         return 0.5 * (self.width_px - 1)
 
-    @property
+    @cached_property
     def cy(self) -> float:
         """Principal point v [px] (image centre)."""
         return 0.5 * (self.height_px - 1)
@@ -75,12 +76,17 @@ class CameraParams:
         """Vertical field of view [rad]."""
         return 2.0 * math.atan(0.5 * self.height_px / self.fx)
 
-    @property
+    @cached_property
+    def centre_px(self) -> np.ndarray:
+        """Image centre (cx, cy) [px], shape (2,)."""
+        return np.array([self.cx, self.cy])
+
+    @cached_property
     def K(self) -> np.ndarray:
         """Intrinsic matrix (3, 3)."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fx, self.cy], [0.0, 0.0, 1.0]])
 
-    @property
+    @cached_property
     def r_body_from_cam(self) -> np.ndarray:
         """Rotation (3, 3): camera optical axes → body FRD axes, including the mount pitch."""
         c, s = math.cos(self.mount_pitch_rad), math.sin(self.mount_pitch_rad)
@@ -116,23 +122,18 @@ def project(cam: CameraParams, pose: CameraPose, points_ned: np.ndarray) -> tupl
     """
     p = (np.asarray(points_ned, dtype=float) - pose.pos_ned) @ pose.r_world_from_cam
     z = p[..., 2]
+    if (z > 1e-9).all():  # the usual case, kept lean for the fast training path
+        return p[..., :2] * (cam.fx / z)[..., None] + cam.centre_px, z
     with np.errstate(divide="ignore", invalid="ignore"):
-        zi = np.where(z > 1e-9, 1.0 / z, np.nan)
-    f = cam.fx
-    uv = np.stack([f * p[..., 0] * zi + cam.cx, f * p[..., 1] * zi + cam.cy], axis=-1)
-    return uv, z
+        zi = np.where(z > 1e-9, cam.fx / z, np.nan)
+    return p[..., :2] * zi[..., None] + cam.centre_px, z
 
 
 def in_image(cam: CameraParams, uv: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
     """Boolean (...,): pixel inside the image by at least `margin_px` (NaN → False)."""
-    u, v = uv[..., 0], uv[..., 1]
-    with np.errstate(invalid="ignore"):
-        return (
-            (u >= -0.5 + margin_px)
-            & (u <= cam.width_px - 0.5 - margin_px)
-            & (v >= -0.5 + margin_px)
-            & (v <= cam.height_px - 0.5 - margin_px)
-        )
+    lo = -0.5 + margin_px
+    hi = np.array([cam.width_px - 0.5 - margin_px, cam.height_px - 0.5 - margin_px])
+    return ((uv >= lo) & (uv <= hi)).all(axis=-1)  # NaN compares False
 
 
 def pixel_ray_ned(cam: CameraParams, pose: CameraPose, uv: np.ndarray) -> np.ndarray:

@@ -99,7 +99,8 @@ def spread_circle(points_px: np.ndarray) -> tuple[np.ndarray | None, float]:
 def measure_group(centroids_px: np.ndarray, n_expected: int) -> GroupMeasure:
     """Centre of mass and spread circle of UGV pixel centres (K, 2); non-finite rows dropped."""
     c = np.asarray(centroids_px, dtype=float).reshape(-1, 2)
-    c = c[np.isfinite(c).all(axis=1)]
+    if not np.isfinite(c).all():
+        c = c[np.isfinite(c).all(axis=1)]
     if c.shape[0] == 0:
         return GroupMeasure(c, int(n_expected), None, None, 0.0)
     centre, r = spread_circle(c)
@@ -130,8 +131,8 @@ def features(
     phi[4] = min(k / m.n_expected, 1.0)
     phi[5] = 1.0 if k >= m.n_expected else 0.0
     c = m.centroids_px
-    edge = np.minimum.reduce([c[:, 0] + 0.5, w - 0.5 - c[:, 0], c[:, 1] + 0.5, h - 0.5 - c[:, 1]])
-    phi[6] = min(max(float(edge.min()) / (0.5 * min(w, h)), 0.0), 1.0)
+    edge = min(float(c.min()) + 0.5, w - 0.5 - float(c[:, 0].max()), h - 0.5 - float(c[:, 1].max()))
+    phi[6] = min(max(edge / (0.5 * min(w, h)), 0.0), 1.0)
     return phi
 
 
