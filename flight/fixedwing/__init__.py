@@ -1,0 +1,1 @@
+"""Fixed-wing airframe: JSBSim physics (`jsbsim_model`) and its own autopilot (`autopilot`)."""
