@@ -1,0 +1,87 @@
+"""Frozen hyper-parameters of the swarm Q-learning experiments (printed and saved with each run).
+
+Symbols follow the seed paper: learning rate α, discount γ, exploration ε (greedy with
+probability 1 − ε), knowledge-sharing period N (episodes).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+
+class Algorithm(enum.Enum):
+    """The three learners compared in the seed."""
+
+    SQL = "sql"  # Algorithm 1: independent per-agent Q-learning, team bonus, no sharing
+    SQL_D = "sql-d"  # decomposition (reach ROI, then a formation slot) without sharing
+    SQL_SIE = "sql-sie"  # Algorithm 2: decomposition + knowledge sharing every N episodes
+
+
+@dataclass(frozen=True)
+class GridParams:
+    """The grid world (cells are 1-based (x, y), x to the right, y up)."""
+
+    size: int = 50
+    """M: the grid is M×M cells."""
+    n_agents: int = 9
+    """K: number of agents and of formation targets (4, 9 or 16 for the built-in layouts)."""
+    obstacle_fraction: float = 0.02
+    """Share of all cells holding an obstacle (never in the ROI or on a start cell)."""
+    map_seed: int = 0
+    """Seed of the obstacle placement (the same map for every learner and learner seed)."""
+
+
+@dataclass(frozen=True)
+class SQLHyper:
+    """Learning hyper-parameters shared by SQL, SQL-D and SQL-SIE."""
+
+    alpha: float = 0.1
+    """α: Q-learning step size (eq. Q ← Q + α (r + γ max Q' − Q))."""
+    gamma: float = 0.9
+    """γ: discount factor."""
+    eps_start: float = 1.0
+    """ε at episode 0."""
+    eps_decay: float = 0.999
+    """ε multiplied by this after every episode ..."""
+    eps_min: float = 0.05
+    """... down to this floor."""
+    max_steps: int = 1000
+    """Step limit per episode (one step = every active agent moves once)."""
+    episodes: int = 10_000
+    """Training episodes per run."""
+    share_every: int = 20
+    """N: SQL-SIE knowledge sharing period in episodes (ignored by SQL and SQL-D)."""
+    r_step: float = 0.0
+    """Reward for an ordinary step."""
+    r_collision: float = -1.0
+    """Reward for bumping into an obstacle (the agent stays)."""
+    r_goal: float = 10.0
+    """Reward for reaching a free target (SQL, SQL-SIE phase 2) or entering the ROI (phase 1)."""
+    bonus_all: float = 10.0
+    """SQL team bonus for every agent when all agents reached targets."""
+    bonus_reached: float = -1.0
+    """SQL team bonus for an agent that reached a target when not all did."""
+    bonus_missed: float = -2.0
+    """SQL team bonus for an agent that did not reach a target."""
+
+    def __post_init__(self) -> None:
+        checks = {
+            "alpha in (0, 1]": 0.0 < self.alpha <= 1.0,
+            "gamma in [0, 1)": 0.0 <= self.gamma < 1.0,
+            "0 <= eps_min <= eps_start <= 1": 0.0 <= self.eps_min <= self.eps_start <= 1.0,
+            "eps_decay in (0, 1]": 0.0 < self.eps_decay <= 1.0,
+            "max_steps >= 1": self.max_steps >= 1,
+            "episodes >= 1": self.episodes >= 1,
+            "share_every >= 0": self.share_every >= 0,
+        }
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise ValueError(f"bad SQL hyper-parameters: {', '.join(bad)}")
+
+    def epsilons(self, start: int, count: int):
+        """ε for episodes start .. start+count−1: max(ε_min, ε_0 · decay^e), shape (count,)."""
+        import numpy as np
+
+        e = np.arange(start, start + count, dtype=np.float64)
+        return np.maximum(self.eps_min, self.eps_start * self.eps_decay**e)
