@@ -100,6 +100,17 @@ class CameraParams:
 
 
 @dataclass(frozen=True)
+class UAVPose:
+    """Where the UAV is: position (3,) NED [m] and attitude (w, x, y, z) body FRD → NED.
+
+    Anything with `pos_ned` and `quat` (flight.state.VehicleState) serves as well.
+    """
+
+    pos_ned: np.ndarray
+    quat: np.ndarray
+
+
+@dataclass(frozen=True)
 class CameraPose:
     """Camera pose in the world: position of the lens (3,) NED [m] and R (3, 3) camera → NED."""
 
