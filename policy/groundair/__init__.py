@@ -1,0 +1,1 @@
+"""The GroundAir task: one UAV keeps a team of UGVs in its downward camera's view."""
