@@ -1,0 +1,847 @@
+"""The fixed-wing autopilot: TECS for height and airspeed, L1 for the track, PID attitude.
+
+`FixedWingAutopilot` implements `flight.autopilot_api.Autopilot` over a JSBSim aircraft
+(`jsbsim_model.JSBSimPlane`). Modes are PX4's: HOLD is a loiter circle at the present
+altitude, RTL returns and loiters over home (and lands if RTL_LAND_DELAY ≥ 0), LAND flies
+a descending circle to the approach gate, a straight final on a glide slope, a flare and a
+braked roll-out; TAKEOFF is a runway take-off along the present heading.
+
+Frames: NED about home, FRD body; angles [rad] except parameters PX4 keeps in degrees
+(converted where read). Positions in the horizontal plane are (north, east) [m].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from flight.autopilot_api import (
+    FlightMode,
+    LandedState,
+    MissionCommand,
+    MissionItem,
+    MissionProgress,
+    Result,
+    Setpoint,
+)
+from flight.clock import SimClock
+from flight.fixedwing import guidance
+from flight.fixedwing.jsbsim_model import JSBSimPlane, ModelParams, Surfaces
+from flight.fixedwing.tecs import Tecs, TecsGains
+from flight.frames import wrap_pi
+from flight.geo import GRAVITY, Home
+from flight.params import ParamSpec, ParamStore
+from flight.state import VehicleState
+
+# PX4 names and units (degrees where PX4 uses degrees). One source of truth for each value.
+FW_PARAM_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("FW_AIRSPD_TRIM", 24.0, 18.0, 40.0, "cruise airspeed", "m/s"),
+    ParamSpec("FW_AIRSPD_MIN", 20.0, 15.0, 30.0, "minimum commanded airspeed", "m/s"),
+    ParamSpec("FW_AIRSPD_MAX", 38.0, 25.0, 50.0, "maximum airspeed", "m/s"),
+    ParamSpec("FW_AIRSPD_STALL", 17.5, 10.0, 25.0, "1 g stall speed (J3Cub, full weight)", "m/s"),
+    ParamSpec("FW_R_LIM", 35.0, 10.0, 50.0, "bank angle limit", "deg"),
+    ParamSpec("FW_P_LIM_MAX", 15.0, 5.0, 30.0, "maximum pitch", "deg"),
+    ParamSpec("FW_P_LIM_MIN", -12.0, -30.0, -3.0, "minimum pitch", "deg"),
+    ParamSpec("FW_T_CLMB_MAX", 2.5, 0.5, 6.0, "maximum climb rate", "m/s"),
+    ParamSpec("FW_T_SINK_MAX", 3.0, 1.0, 8.0, "maximum sink rate", "m/s"),
+    ParamSpec("FW_THR_MIN", 0.0, 0.0, 1.0, "throttle floor in flight", ""),
+    ParamSpec("FW_THR_MAX", 1.0, 0.0, 1.0, "throttle ceiling", ""),
+    ParamSpec("NAV_L1_PERIOD", 17.0, 5.0, 50.0, "L1 period", "s"),
+    ParamSpec("NAV_L1_DAMPING", 0.75, 0.6, 0.9, "L1 damping", ""),
+    ParamSpec("NAV_LOITER_RAD", 0.0, 0.0, 1000.0, "loiter radius, 0 = from turn performance", "m"),
+    ParamSpec("NAV_ACC_RAD", 30.0, 5.0, 200.0, "waypoint acceptance radius", "m"),
+    ParamSpec("MIS_TAKEOFF_ALT", 40.0, 10.0, 300.0, "take-off altitude above home", "m"),
+    ParamSpec("RTL_RETURN_ALT", 60.0, 20.0, 300.0, "return altitude above home", "m"),
+    ParamSpec("RTL_LAND_DELAY", -1.0, -1.0, 600.0, "loiter before landing, -1 = loiter", "s"),
+    ParamSpec("FW_TKO_AIRSPD", 18.5, 12.0, 30.0, "take-off rotation airspeed", "m/s"),
+    ParamSpec("FW_LND_AIRSPD", 22.0, 15.0, 30.0, "approach airspeed", "m/s"),
+    ParamSpec("FW_LND_ANG", 5.0, 2.0, 12.0, "glide slope", "deg"),
+    ParamSpec("FW_LND_APP_ALT", 25.0, 10.0, 100.0, "height at the approach gate", "m"),
+    ParamSpec("FW_LND_FLALT", 3.0, 0.5, 10.0, "flare height (wheels)", "m"),
+    ParamSpec("COM_OF_LOSS_T", 0.5, 0.1, 10.0, "offboard setpoint timeout", "s"),
+    ParamSpec("COM_DISARM_LAND", 2.0, -1.0, 20.0, "disarm after landing, -1 = never", "s"),
+)
+
+
+@dataclass(frozen=True)
+class InnerGains:
+    """Attitude and ground-steering gains, at the trim airspeed (scaled by (V_trim/V)^2)."""
+
+    roll_p: float = 1.2  # aileron per rad of bank error
+    roll_d: float = 0.25  # aileron per rad/s of roll rate
+    roll_i: float = 0.2  # aileron per rad·s
+    pitch_p: float = 2.0  # elevator per rad of pitch error
+    pitch_d: float = 0.6  # elevator per rad/s of pitch rate error
+    pitch_i: float = 1.0  # elevator per rad·s
+    yaw_p: float = 1.5  # rudder per rad/s of yaw-rate error (turn coordination, yaw damper)
+    steer_p: float = 2.5  # rudder per rad of heading error on the ground
+    steer_d: float = 1.2  # rudder per rad/s of yaw rate on the ground
+    course_k: float = 0.6  # [1/s] course error → turn rate (offboard velocity, manual modes)
+
+
+class Phase(enum.Enum):
+    """Sub-state of the autopilot (what the guidance flies right now)."""
+
+    IDLE = "idle"  # on the ground
+    TAKEOFF_ROLL = "takeoff_roll"
+    TAKEOFF_CLIMB = "takeoff_climb"
+    LOITER = "loiter"
+    TRACK = "track"  # straight line a → b
+    COURSE = "course"  # offboard velocity: course and climb rate
+    LAND_DESCEND = "land_descend"
+    LAND_FINAL = "land_final"
+    FLARE = "flare"
+    ROLLOUT = "rollout"
+    LANDED = "landed"
+    DIRECT = "direct"  # manual / stabilized sticks
+
+
+@dataclass(frozen=True)
+class Runway:
+    """A landing or take-off line: touchdown (or start) point (2,) [m] and direction [rad]."""
+
+    point: np.ndarray
+    heading: float
+
+    @property
+    def dir(self) -> np.ndarray:
+        return np.array([math.cos(self.heading), math.sin(self.heading)])
+
+
+def right_of(d: np.ndarray) -> np.ndarray:
+    """Unit vector 90° clockwise of (north, east) direction `d`."""
+    return np.array([-d[1], d[0]])
+
+
+class FixedWingAutopilot:
+    """J3Cub on JSBSim with its own autopilot. See the module docstring."""
+
+    airframe = "fixedwing"
+
+    def __init__(
+        self,
+        clock: SimClock | None = None,
+        home: Home | None = None,
+        params: Mapping[str, float] | None = None,
+        *,
+        gains: InnerGains | None = None,
+        tecs_gains: TecsGains | None = None,
+        model_params: ModelParams | None = None,
+        control_dt: float = 0.02,
+        instance: int = 0,
+        **_ignored: object,
+    ):
+        self.clock = clock if clock is not None else SimClock()
+        self.home = home if home is not None else Home()
+        self.params = ParamStore(FW_PARAM_SPECS, params)
+        self.gains = gains or InnerGains()
+        self.tecs = Tecs(tecs_gains)
+        self.control_dt = control_dt
+        self.instance = instance
+        self.model = JSBSimPlane(self.home, model_params or ModelParams())
+        self._dt_us = round(control_dt * 1e6)
+        if abs(self._dt_us / 1e6 - control_dt) > 1e-9:
+            raise ValueError(f"control_dt {control_dt} s is not a whole number of microseconds")
+        self._armed = False
+        self._mode = FlightMode.HOLD
+        self._phase = Phase.IDLE
+        self._progress = MissionProgress()
+        self._mission: list[MissionItem] = []
+        self._offboard: Setpoint | None = None
+        self._offboard_t = -math.inf
+        self._sticks = (0.0, 0.0, 0.0, 0.0)
+        self._landed_t: float | None = None
+        self._phase_t = 0.0
+        self._reset_loops()
+        self._nav_init()
+        self._state = self._stamp(self.model.state())
+
+    # ---- construction helpers ----------------------------------------------------------
+    def _reset_loops(self, el_trim: float = 0.0, thr_trim: float = 0.5) -> None:
+        self._roll_i = 0.0
+        self._pitch_i = el_trim
+        self.tecs.reset(thr_trim, 0.0)
+
+    def _nav_init(self) -> None:
+        self._center = np.zeros(2)
+        self._radius = 100.0
+        self._loiter_dir = 1
+        self._a = np.zeros(2)
+        self._b = np.zeros(2)
+        self._h_dem = 0.0
+        self._v_dem = self.p("FW_AIRSPD_TRIM")
+        self._course = 0.0
+        self._climb = 0.0
+        self._runway: Runway | None = None
+        self._after_takeoff: str = "hold"
+        self._rtl_loiter_t: float | None = None
+        self._loiter_until: float | None = None
+        self._reported = -1
+
+    def start_in_air(self, altitude: float, airspeed: float, heading: float = 0.0) -> Surfaces:
+        """Put the aircraft trimmed in level flight over home, armed, in HOLD. Returns trim."""
+        trim = self.model.reset_airborne(altitude, airspeed, heading)
+        self._armed = True
+        self._reset_loops(trim.elevator, trim.throttle)
+        self._state = self._stamp(self.model.state())
+        self._enter_hold()
+        self._v_dem = airspeed
+        return trim
+
+    def _stamp(self, s: VehicleState) -> VehicleState:
+        return dataclasses.replace(s, t=self.clock.t)
+
+    def p(self, name: str) -> float:
+        return self.params[name]
+
+    # ---- Autopilot protocol: read-outs ----------------------------------------------------
+    @property
+    def state(self) -> VehicleState:
+        return self._state
+
+    @property
+    def armed(self) -> bool:
+        return self._armed
+
+    @property
+    def mode(self) -> FlightMode:
+        return self._mode
+
+    @property
+    def phase(self) -> Phase:
+        return self._phase
+
+    @property
+    def airspeed(self) -> float:
+        """True airspeed [m/s]."""
+        return self.model.airspeed
+
+    @property
+    def loiter_center(self) -> np.ndarray:
+        return self._center.copy()
+
+    @property
+    def loiter_radius(self) -> float:
+        return self._radius
+
+    @property
+    def landed_state(self) -> LandedState:
+        ph = self._phase
+        if ph in (Phase.IDLE, Phase.LANDED) or (not self._armed and self._state.on_ground):
+            return LandedState.ON_GROUND
+        if ph in (Phase.TAKEOFF_ROLL, Phase.TAKEOFF_CLIMB):
+            return LandedState.TAKEOFF
+        if ph in (Phase.LAND_DESCEND, Phase.LAND_FINAL, Phase.FLARE, Phase.ROLLOUT):
+            return LandedState.LANDING
+        return LandedState.IN_AIR
+
+    @property
+    def battery_remaining(self) -> float:
+        return self.model.fuel_fraction
+
+    @property
+    def mission_progress(self) -> MissionProgress:
+        return self._progress
+
+    def default_loiter_radius(self) -> float:
+        """NAV_LOITER_RAD, or V_trim^2 / (g tan(0.7 φ_max)) when it is 0 [m]."""
+        r = self.p("NAV_LOITER_RAD")
+        v = self.p("FW_AIRSPD_TRIM")
+        phi = math.radians(self.p("FW_R_LIM"))
+        r_min = v * v / (GRAVITY * math.tan(phi)) * 1.1  # tightest circle with margin
+        if r <= 0.0:
+            r = v * v / (GRAVITY * math.tan(0.7 * phi))
+        return max(r, r_min)
+
+    # ---- Autopilot protocol: commands ---------------------------------------------------
+    def arm(self, force: bool = False) -> Result:
+        if self._armed:
+            return Result.accepted()
+        if not self._state.on_ground and not force:
+            return Result.denied("in the air: arm only on the ground (or force)")
+        self._armed = True
+        self.model.set_engine(True)
+        self._landed_t = None
+        return Result.accepted()
+
+    def disarm(self, force: bool = False) -> Result:
+        if not self._armed:
+            return Result.accepted()
+        if not self._state.on_ground and not force:
+            return Result.denied("flying: land first (or force)")
+        if self._state.on_ground and self.model.airspeed > 3.0 and not force:
+            return Result.denied("still rolling: wait until stopped (or force)")
+        self._armed = False
+        self.model.set_engine(False)
+        if self._state.on_ground:
+            self._phase = Phase.IDLE
+        return Result.accepted()
+
+    def set_mode(self, mode: FlightMode) -> Result:
+        if not isinstance(mode, FlightMode):
+            return Result.denied(f"unknown mode {mode!r}")
+        if mode == FlightMode.HOLD:
+            if self._flying():
+                self._enter_hold()
+            self._mode = FlightMode.HOLD
+            return Result.accepted()
+        if mode == FlightMode.TAKEOFF:
+            return self.takeoff()
+        if mode == FlightMode.LAND:
+            return self.land()
+        if mode == FlightMode.RTL:
+            return self.return_to_launch()
+        if mode == FlightMode.MISSION:
+            if not self._mission:
+                return Result.denied("no mission uploaded")
+            if not self._flying() and not self._armed:
+                return Result.denied("arm first")
+            self._mode = FlightMode.MISSION
+            self._progress.finished = False
+            self._start_item(min(self._progress.current, len(self._mission) - 1))
+            return Result.accepted()
+        if mode == FlightMode.OFFBOARD:
+            if self._offboard is None or self.clock.t - self._offboard_t > self.p("COM_OF_LOSS_T"):
+                return Result.denied("stream offboard setpoints first")
+            if not self._flying():
+                return Result.denied("offboard needs a flying aircraft: take off first")
+            self._mode = FlightMode.OFFBOARD
+            self._h_dem = self._state.altitude
+            self._apply_offboard()
+            return Result.accepted()
+        if mode in (FlightMode.MANUAL, FlightMode.STABILIZED, FlightMode.ALTCTL, FlightMode.POSCTL):
+            self._mode = mode
+            self._h_dem = self._state.altitude
+            self._course = self._course_now()
+            if self._phase not in (Phase.IDLE, Phase.LANDED):
+                self._phase = Phase.DIRECT
+            return Result.accepted()
+        return Result.denied(f"mode {mode.name} not supported")
+
+    def takeoff(self, altitude: float | None = None) -> Result:
+        alt = self.p("MIS_TAKEOFF_ALT") if altitude is None else float(altitude)
+        if not (math.isfinite(alt) and 5.0 <= alt <= 1000.0):
+            return Result.denied(f"take-off altitude must be 5..1000 m, got {altitude}")
+        if self._flying():
+            self._enter_hold(alt)
+            self._mode = FlightMode.HOLD
+            return Result.accepted()
+        if not self._armed:
+            return Result.denied("arm first")
+        self._mode = FlightMode.TAKEOFF
+        self._begin_takeoff(alt, then="hold")
+        return Result.accepted()
+
+    def land(self) -> Result:
+        if not self._flying():
+            if self._state.on_ground:
+                self._mode = FlightMode.LAND
+                return Result.accepted()
+            return Result.denied("not flying")
+        self._mode = FlightMode.LAND
+        self._begin_landing(self._landing_runway())
+        return Result.accepted()
+
+    def return_to_launch(self) -> Result:
+        if not self._flying():
+            return Result.denied("not flying")
+        self._mode = FlightMode.RTL
+        self._begin_rtl()
+        return Result.accepted()
+
+    def reposition(self, pos_ned: np.ndarray, yaw: float | None = None) -> Result:
+        pos = np.asarray(pos_ned, dtype=float)
+        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+            return Result.denied("reposition needs 3 finite NED coordinates [m]")
+        if not self._flying():
+            return Result.denied("not flying")
+        alt = -pos[2] if pos[2] < -5.0 else self._state.altitude
+        self._mode = FlightMode.HOLD
+        self._set_loiter(pos[:2], self.default_loiter_radius(), 1, alt)
+        return Result.accepted()
+
+    def set_offboard_setpoint(self, setpoint: Setpoint) -> Result:
+        if not setpoint.is_finite():
+            return Result.denied("setpoint has NaN or infinite fields")
+        if setpoint.pos_ned is None and setpoint.vel_ned is None:
+            return Result.denied("a fixed-wing needs a position or a velocity setpoint")
+        self._offboard = setpoint
+        self._offboard_t = self.clock.t
+        if self._mode == FlightMode.OFFBOARD:
+            self._apply_offboard()
+        return Result.accepted()
+
+    def set_manual_control(self, x: float, y: float, z: float, r: float) -> Result:
+        vals = (x, y, z, r)
+        if not all(math.isfinite(v) for v in vals):
+            return Result.denied("manual control has NaN values")
+        self._sticks = (
+            max(-1.0, min(1.0, x)),
+            max(-1.0, min(1.0, y)),
+            max(0.0, min(1.0, z)),
+            max(-1.0, min(1.0, r)),
+        )
+        return Result.accepted()
+
+    def set_mission(self, items: list[MissionItem]) -> Result:
+        for i, it in enumerate(items):
+            if not isinstance(it.command, MissionCommand):
+                return Result.denied(f"item {i}: unsupported command {it.command}")
+            p = np.asarray(it.pos_ned, dtype=float)
+            if p.shape != (3,) or not np.all(np.isfinite(p)):
+                return Result.denied(f"item {i}: position must be 3 finite numbers")
+        self._mission = list(items)
+        self._progress = MissionProgress()
+        return Result.accepted()
+
+    def set_mission_current(self, seq: int) -> Result:
+        if not (0 <= seq < max(1, len(self._mission))):
+            return Result.denied(f"mission item {seq} does not exist")
+        self._progress.current = seq
+        self._progress.finished = False
+        if self._mode == FlightMode.MISSION and self._mission:
+            self._start_item(seq)
+        return Result.accepted()
+
+    def get_param(self, name: str) -> float | None:
+        return self.params.get(name)
+
+    def set_param(self, name: str, value: float) -> Result:
+        return self.params.set(name, value)
+
+    def param_names(self) -> list[str]:
+        return self.params.names()
+
+    # ---- guidance set-up ----------------------------------------------------------------
+    def _flying(self) -> bool:
+        return (
+            self._armed
+            and not self._state.on_ground
+            and self._phase
+            not in (
+                Phase.IDLE,
+                Phase.LANDED,
+                Phase.TAKEOFF_ROLL,
+                Phase.ROLLOUT,
+            )
+        )
+
+    def _course_now(self) -> float:
+        v = self._state.vel_ned
+        if math.hypot(v[0], v[1]) < 3.0:
+            return self._state.euler[2]
+        return math.atan2(v[1], v[0])
+
+    def _set_loiter(self, center: np.ndarray, radius: float, direction: int, alt: float) -> None:
+        self._phase = Phase.LOITER
+        self._center = np.asarray(center, dtype=float)[:2].copy()
+        self._radius = float(radius)
+        self._loiter_dir = 1 if direction >= 0 else -1
+        self._h_dem = float(alt)
+        self._v_dem = self.p("FW_AIRSPD_TRIM")
+
+    def _enter_hold(self, alt: float | None = None) -> None:
+        """Loiter on a circle that passes through the present position, tangent to the course."""
+        r = self.default_loiter_radius()
+        pos = self._state.pos_ned[:2]
+        c = pos + r * right_of(
+            np.array([math.cos(self._course_now()), math.sin(self._course_now())])
+        )
+        h = self._state.altitude if alt is None else alt
+        self._set_loiter(c, r, 1, max(h, 15.0))
+
+    def _set_track(self, a: np.ndarray, b: np.ndarray, alt: float) -> None:
+        self._phase = Phase.TRACK
+        self._a = np.asarray(a, dtype=float)[:2].copy()
+        self._b = np.asarray(b, dtype=float)[:2].copy()
+        self._h_dem = float(alt)
+        self._v_dem = self.p("FW_AIRSPD_TRIM")
+
+    def _begin_takeoff(self, alt: float, then: str) -> None:
+        psi = self._state.euler[2]
+        self._runway = Runway(self._state.pos_ned[:2].copy(), psi)
+        self._h_dem = alt
+        self._after_takeoff = then
+        self._phase = Phase.TAKEOFF_ROLL
+        self._phase_t = self.clock.t
+        self._reset_loops(0.0, 1.0)
+
+    def _landing_runway(self) -> Runway:
+        """Home's runway when near home, else a touchdown point ahead on the present course."""
+        pos = self._state.pos_ned[:2]
+        if float(np.hypot(*pos)) < 600.0:
+            return Runway(np.zeros(2), self.home.heading_rad)
+        c = self._course_now()
+        d = np.array([math.cos(c), math.sin(c)])
+        dist = self._final_length() + 2.0 * self.default_loiter_radius()
+        return Runway(pos + d * dist, c)
+
+    def _final_length(self) -> float:
+        return self.p("FW_LND_APP_ALT") / math.tan(math.radians(self.p("FW_LND_ANG")))
+
+    def _begin_landing(self, rw: Runway) -> None:
+        self._runway = rw
+        gate = rw.point - rw.dir * self._final_length()
+        r = self.default_loiter_radius()
+        # Clockwise circle tangent to the final at the gate: the aircraft passes the gate aligned.
+        self._set_loiter(gate + r * right_of(rw.dir), r, 1, self.p("FW_LND_APP_ALT"))
+        self._v_dem = self.p("FW_LND_AIRSPD")
+        self._phase = Phase.LAND_DESCEND
+
+    def _begin_rtl(self) -> None:
+        alt = max(self.p("RTL_RETURN_ALT"), self._state.altitude)
+        self._rtl_loiter_t = None
+        pos = self._state.pos_ned[:2]
+        if float(np.hypot(*pos)) < 1.5 * self.default_loiter_radius():
+            self._set_loiter(np.zeros(2), self.default_loiter_radius(), 1, alt)
+        else:
+            self._set_track(pos, np.zeros(2), alt)
+
+    # ---- missions -------------------------------------------------------------------------
+    def _start_item(self, seq: int) -> None:
+        self._progress.current = seq
+        it = self._mission[seq]
+        pos = self._state.pos_ned[:2]
+        alt = -float(it.pos_ned[2])
+        self._loiter_until = None
+        if it.command == MissionCommand.TAKEOFF:
+            if self._state.on_ground or self._phase in (Phase.IDLE, Phase.LANDED):
+                self._begin_takeoff(max(alt, 10.0), then="mission")
+            else:
+                self._item_reached()
+            return
+        if self._phase in (Phase.IDLE, Phase.LANDED, Phase.TAKEOFF_ROLL):
+            # On the ground with a mission that has no take-off item: take off first.
+            self._begin_takeoff(max(alt, self.p("MIS_TAKEOFF_ALT")), then="mission_item")
+            return
+        prev = self._a if seq == 0 else np.asarray(self._mission[seq - 1].pos_ned)[:2]
+        if seq == 0 or self._mission[seq - 1].command == MissionCommand.TAKEOFF:
+            prev = pos
+        if it.command == MissionCommand.WAYPOINT:
+            self._set_track(prev, it.pos_ned[:2], alt)
+        elif it.command in (MissionCommand.LOITER_UNLIM, MissionCommand.LOITER_TIME):
+            r = it.loiter_radius if it.loiter_radius > 0 else self.default_loiter_radius()
+            self._set_loiter(it.pos_ned[:2], max(r, self.default_loiter_radius() * 0.5), 1, alt)
+        elif it.command == MissionCommand.RETURN_TO_LAUNCH:
+            self._item_reached()
+            self._mode = FlightMode.RTL
+            self._progress.finished = True
+            self._begin_rtl()
+        elif it.command == MissionCommand.LAND:
+            b = np.asarray(it.pos_ned, dtype=float)[:2]
+            d = b - prev
+            hd = math.atan2(d[1], d[0]) if float(np.hypot(*d)) > 1.0 else self._course_now()
+            self._begin_landing(Runway(b, hd))
+
+    def _item_reached(self) -> None:
+        seq = self._progress.current
+        self._progress.reached.append(seq)
+        if seq + 1 < len(self._mission):
+            self._start_item(seq + 1)
+        else:
+            self._progress.finished = True
+            self._enter_hold()  # PX4: loiter at the end of the mission, still in MISSION
+
+    def _mission_tick(self) -> None:
+        if self._progress.finished or not self._mission:
+            return
+        it = self._mission[self._progress.current]
+        pos = self._state.pos_ned[:2]
+        if it.command == MissionCommand.WAYPOINT and self._phase == Phase.TRACK:
+            acc = it.accept_radius if it.accept_radius > 0 else self.p("NAV_ACC_RAD")
+            ab = self._b - self._a
+            n = float(np.hypot(*ab))
+            along = float((pos - self._a) @ ab) / n if n > 1e-3 else math.inf
+            if float(np.hypot(*(pos - self._b))) < acc or along >= n:
+                self._item_reached()
+        elif it.command == MissionCommand.LOITER_TIME and self._phase == Phase.LOITER:
+            on_circle = (
+                abs(float(np.hypot(*(pos - self._center))) - self._radius) < 0.2 * self._radius
+            )
+            if self._loiter_until is None and on_circle:
+                self._loiter_until = self.clock.t + max(0.0, it.hold_s)
+            if self._loiter_until is not None and self.clock.t >= self._loiter_until:
+                self._item_reached()
+        elif it.command == MissionCommand.LOITER_UNLIM and self._phase == Phase.LOITER:
+            d = abs(float(np.hypot(*(pos - self._center))) - self._radius)
+            if d < 0.2 * self._radius and self._reported != self._progress.current:
+                self._reported = self._progress.current  # reached; it still loiters for ever
+                self._progress.reached.append(self._progress.current)
+
+    # ---- offboard -------------------------------------------------------------------------
+    def _apply_offboard(self) -> None:
+        sp = self._offboard
+        if sp is None:
+            return
+        if sp.pos_ned is not None:
+            tgt = np.asarray(sp.pos_ned, dtype=float)
+            alt = -tgt[2]
+            same = self._phase == Phase.LOITER and float(np.hypot(*(self._center - tgt[:2]))) < 1.0
+            if not same:
+                self._set_loiter(tgt[:2], self.default_loiter_radius(), 1, alt)
+            self._h_dem = alt
+        elif sp.vel_ned is not None:
+            v = np.asarray(sp.vel_ned, dtype=float)
+            if self._phase != Phase.COURSE:
+                self._h_dem = self._state.altitude
+            self._phase = Phase.COURSE
+            vh = math.hypot(v[0], v[1])
+            self._course = math.atan2(v[1], v[0]) if vh > 0.5 else self._course_now()
+            self._climb = -float(v[2])
+            lo, hi = self.p("FW_AIRSPD_MIN"), self.p("FW_AIRSPD_MAX")
+            self._v_dem = min(hi, max(lo, vh)) if vh > 0.5 else self.p("FW_AIRSPD_TRIM")
+
+    # ---- the loop -------------------------------------------------------------------------
+    def step(self) -> VehicleState:
+        """Advance the clock by `control_dt`: autopilot once, JSBSim `control_dt/physics_dt` times."""
+        cmd = self._control(self._state)
+        s = self.model.step(self.control_dt, cmd)
+        self.clock.advance(self._dt_us)
+        self._state = self._stamp(s)
+        return self._state
+
+    def _control(self, st: VehicleState) -> Surfaces:
+        dt = self.control_dt
+        t = self.clock.t
+        if not self._armed:
+            return Surfaces(brake=1.0)
+        if self._mode == FlightMode.OFFBOARD and t - self._offboard_t > self.p("COM_OF_LOSS_T"):
+            self._mode = FlightMode.HOLD  # offboard lost (COM_OF_LOSS_T): hold = loiter
+            self._enter_hold()
+        if self._mode == FlightMode.MISSION:
+            self._mission_tick()
+        if self._mode == FlightMode.RTL and self._phase == Phase.TRACK:
+            if float(np.hypot(*st.pos_ned[:2])) < 1.5 * self.default_loiter_radius():
+                self._set_loiter(np.zeros(2), self.default_loiter_radius(), 1, self._h_dem)
+        if self._mode == FlightMode.RTL and self._phase == Phase.LOITER:
+            delay = self.p("RTL_LAND_DELAY")
+            if self._rtl_loiter_t is None:
+                self._rtl_loiter_t = t
+            if delay >= 0 and t - self._rtl_loiter_t >= delay:
+                self._mode = FlightMode.LAND
+                self._begin_landing(Runway(np.zeros(2), self.home.heading_rad))
+
+        if self._mode == FlightMode.MANUAL:
+            x, y, z, r = self._sticks
+            return Surfaces(aileron=y, elevator=-x, rudder=r, throttle=z)
+        ph = self._phase
+        if ph in (Phase.IDLE, Phase.LANDED):
+            return self._on_ground(st)
+        if ph == Phase.TAKEOFF_ROLL:
+            return self._takeoff_roll(st)
+        if ph == Phase.ROLLOUT:
+            return self._rollout(st)
+        if self._mode in (FlightMode.STABILIZED, FlightMode.ALTCTL, FlightMode.POSCTL):
+            return self._sticks_flight(st, dt)
+        return self._auto_flight(st, dt)
+
+    # ---- ground phases ----------------------------------------------------------------------
+    def _on_ground(self, st: VehicleState) -> Surfaces:
+        if self._phase == Phase.LANDED and self._landed_t is not None:
+            delay = self.p("COM_DISARM_LAND")
+            if delay >= 0 and self.clock.t - self._landed_t >= delay:
+                self.disarm()
+        return Surfaces(elevator=1.0, brake=1.0, throttle=0.0)
+
+    def _steer(self, st: VehicleState, rw: Runway) -> float:
+        """Rudder / tail-wheel command holding the runway centre line."""
+        g = self.gains
+        xt = guidance.cross2(rw.dir, st.pos_ned[:2] - rw.point)  # > 0 right of the line
+        psi_dem = rw.heading - max(-0.3, min(0.3, 0.05 * xt))
+        e = wrap_pi(psi_dem - st.euler[2])
+        return g.steer_p * e - g.steer_d * st.omega_frd[2]
+
+    def _takeoff_roll(self, st: VehicleState) -> Surfaces:
+        rw = self._runway
+        assert rw is not None
+        v = self.model.airspeed
+        roll, pitch, _ = st.euler
+        ail = self.gains.roll_p * (0.0 - roll) - self.gains.roll_d * st.omega_frd[0]
+        rot = self.p("FW_TKO_AIRSPD")
+        if v < 8.0:
+            el = 0.0
+        else:
+            pitch_dem = math.radians(9.0) if v >= rot else math.radians(2.0)
+            el = 2.0 * (pitch_dem - pitch) - 0.5 * st.omega_frd[1]
+        wheels_h = self.model.agl - self.model.ground_cg_height
+        if not self.model.wheels_down() and wheels_h > 1.0:
+            self._phase = Phase.TAKEOFF_CLIMB
+            self._phase_t = self.clock.t
+            self._pitch_i = el
+            self.tecs.reset(1.0, pitch)
+        return Surfaces(ail, el, self._steer(st, rw), self.p("FW_THR_MAX"), 0.0)
+
+    def _rollout(self, st: VehicleState) -> Surfaces:
+        rw = self._runway
+        assert rw is not None
+        gs = float(np.hypot(*st.vel_ned[:2]))
+        roll = st.euler[0]
+        ail = self.gains.roll_p * (0.0 - roll) - self.gains.roll_d * st.omega_frd[0]
+        brake = 0.0 if gs > 14.0 else 0.6
+        if gs < 0.3:
+            self._phase = Phase.LANDED
+            self._landed_t = self.clock.t
+        return Surfaces(ail, 1.0, self._steer(st, rw), 0.0, brake)
+
+    # ---- flight -------------------------------------------------------------------------------
+    def _bank_limit(self, v: float) -> float:
+        """FW_R_LIM, reduced so the load factor keeps 15 % above the stall: cos φ ≥ (1.15 Vs/V)^2."""
+        lim = math.radians(self.p("FW_R_LIM"))
+        ratio = (1.15 * self.p("FW_AIRSPD_STALL") / max(v, 1.0)) ** 2
+        stall_lim = math.acos(ratio) if ratio < 1.0 else 0.0
+        return max(math.radians(5.0), min(lim, stall_lim))
+
+    def _auto_flight(self, st: VehicleState, dt: float) -> Surfaces:
+        v = self.model.airspeed
+        pos, vel = st.pos_ned[:2], st.vel_ned[:2]
+        h, hdot = st.altitude, -float(st.vel_ned[2])
+        l1p = guidance.L1Params(self.p("NAV_L1_PERIOD"), self.p("NAV_L1_DAMPING"))
+        ph = self._phase
+        bank_lim = self._bank_limit(v)
+        thr_min, thr_max = self.p("FW_THR_MIN"), self.p("FW_THR_MAX")
+        pitch_min = math.radians(self.p("FW_P_LIM_MIN"))
+        pitch_max = math.radians(self.p("FW_P_LIM_MAX"))
+        climb_max, sink_max = self.p("FW_T_CLMB_MAX"), self.p("FW_T_SINK_MAX")
+        h_dem, v_dem, weight, hdot_ff = self._h_dem, self._v_dem, 1.0, 0.0
+        wheels_h = self.model.agl - self.model.ground_cg_height
+
+        if ph == Phase.TAKEOFF_CLIMB:
+            rw = self._runway
+            assert rw is not None
+            lat = guidance.track(l1p, pos, vel, rw.point, rw.point + rw.dir * 5000.0).lat_acc
+            thr_min = thr_max
+            weight = 2.0  # pitch holds the climb speed, full throttle climbs
+            v_dem = self.p("FW_AIRSPD_MIN")
+            if h < 15.0:
+                bank_lim = min(bank_lim, math.radians(8.0))
+            if h >= self._h_dem - 3.0:
+                self._takeoff_done()
+        elif ph == Phase.LOITER:
+            lat = guidance.loiter(
+                l1p, pos, vel, self._center, self._radius, self._loiter_dir
+            ).lat_acc
+        elif ph == Phase.TRACK:
+            lat = guidance.track(l1p, pos, vel, self._a, self._b).lat_acc
+        elif ph == Phase.COURSE:
+            e = wrap_pi(self._course - self._course_now())
+            lat = self.gains.course_k * e * max(v, 1.0)
+            self._h_dem += self._climb * dt
+            self._h_dem = min(max(self._h_dem, h - 10.0), h + 10.0)
+            h_dem, hdot_ff = self._h_dem, self._climb
+        elif ph == Phase.LAND_DESCEND:
+            lat = guidance.loiter(l1p, pos, vel, self._center, self._radius, 1).lat_acc
+            rw = self._runway
+            assert rw is not None
+            gate = rw.point - rw.dir * self._final_length()
+            course_err = abs(wrap_pi(self._course_now() - rw.heading))
+            if (
+                abs(h - h_dem) < 4.0
+                and float(np.hypot(*(pos - gate))) < 0.3 * self._radius
+                and course_err < math.radians(25.0)
+            ):
+                self._phase = Phase.LAND_FINAL
+        elif ph in (Phase.LAND_FINAL, Phase.FLARE):
+            rw = self._runway
+            assert rw is not None
+            gate = rw.point - rw.dir * self._final_length()
+            lat = guidance.track(l1p, pos, vel, gate, rw.point + rw.dir * 2000.0).lat_acc
+            to_td = float((rw.point - pos) @ rw.dir)
+            gam = math.radians(self.p("FW_LND_ANG"))
+            v_dem = self.p("FW_LND_AIRSPD")
+            if ph == Phase.LAND_FINAL:
+                h_dem = max(0.0, to_td) * math.tan(gam) + self.model.ground_cg_height
+                hdot_ff = -v * math.sin(gam)
+                if wheels_h < self.p("FW_LND_FLALT"):
+                    self._phase = Phase.FLARE
+                elif to_td < 0.0 and wheels_h > 10.0:  # overshot: circle down again
+                    self._begin_landing(rw)
+            if self._phase == Phase.FLARE:
+                bank_lim = min(bank_lim, math.radians(5.0))
+                thr_min = thr_max = 0.0
+                weight = 0.0  # pitch for sink rate only
+                pitch_min = 0.0
+                h_dem = h
+                hdot_ff = -max(0.25, wheels_h / 2.0)
+                if self.model.wheels_down():
+                    self._phase = Phase.ROLLOUT
+        else:  # DIRECT or anything unexpected: wings level, hold height
+            lat = 0.0
+
+        # Stall and overspeed protection (all automatic phases but the flare).
+        if self._phase != Phase.FLARE:
+            v_dem = min(self.p("FW_AIRSPD_MAX"), max(self.p("FW_AIRSPD_MIN"), v_dem))
+            if v < self.p("FW_AIRSPD_MIN") - 1.0 and wheels_h > 3.0:
+                weight, thr_min = 2.0, thr_max  # underspeed: speed first, full power
+                climb_max = 0.5 * climb_max
+            if v > self.p("FW_AIRSPD_MAX"):
+                weight, thr_max = 2.0, thr_min  # overspeed: idle, pitch up to slow
+        out = self.tecs.update(
+            dt, h, hdot, v, h_dem, v_dem,
+            climb_max=climb_max, sink_max=sink_max, thr_min=thr_min, thr_max=thr_max,
+            pitch_min=pitch_min, pitch_max=pitch_max, speed_weight=weight, hdot_ff=hdot_ff,
+        )  # fmt: skip
+        bank = max(-bank_lim, min(bank_lim, math.atan2(lat, GRAVITY)))
+        ail, el, rud = self._attitude(st, bank, out.pitch, v, dt)
+        return Surfaces(ail, el, rud, out.throttle, 0.0)
+
+    def _takeoff_done(self) -> None:
+        then = self._after_takeoff
+        if then == "mission" and self._mode == FlightMode.MISSION:
+            self._phase = Phase.TRACK
+            self._item_reached()
+        elif then == "mission_item" and self._mode == FlightMode.MISSION:
+            self._phase = Phase.TRACK
+            self._start_item(self._progress.current)
+        else:
+            if self._mode == FlightMode.TAKEOFF:
+                self._mode = FlightMode.HOLD
+            self._enter_hold(self._h_dem)
+
+    def _sticks_flight(self, st: VehicleState, dt: float) -> Surfaces:
+        """STABILIZED: sticks → bank and pitch, throttle direct. ALTCTL/POSCTL: sticks → bank
+        and climb rate, TECS holds airspeed."""
+        x, y, z, _ = self._sticks
+        v = self.model.airspeed
+        bank = y * self._bank_limit(v)
+        if self._mode == FlightMode.STABILIZED:
+            pitch = -x * math.radians(self.p("FW_P_LIM_MAX"))
+            ail, el, rud = self._attitude(st, bank, pitch, v, dt)
+            return Surfaces(ail, el, rud, z, 0.0)
+        climb = -x * self.p("FW_T_CLMB_MAX")
+        self._h_dem = min(max(self._h_dem + climb * dt, st.altitude - 10.0), st.altitude + 10.0)
+        out = self.tecs.update(
+            dt, st.altitude, -float(st.vel_ned[2]), v, self._h_dem, self.p("FW_AIRSPD_TRIM"),
+            climb_max=self.p("FW_T_CLMB_MAX"), sink_max=self.p("FW_T_SINK_MAX"),
+            thr_min=self.p("FW_THR_MIN"), thr_max=self.p("FW_THR_MAX"),
+            pitch_min=math.radians(self.p("FW_P_LIM_MIN")),
+            pitch_max=math.radians(self.p("FW_P_LIM_MAX")), hdot_ff=climb,
+        )  # fmt: skip
+        ail, el, rud = self._attitude(st, bank, out.pitch, v, dt)
+        return Surfaces(ail, el, rud, out.throttle, 0.0)
+
+    def _attitude(
+        self, st: VehicleState, bank: float, pitch_dem: float, v: float, dt: float
+    ) -> tuple[float, float, float]:
+        """Roll, pitch and yaw-rate loops → (aileron, elevator, rudder), gains ∝ (V_trim/V)^2."""
+        g = self.gains
+        roll, pitch, _ = st.euler
+        p, q, r = st.omega_frd
+        v = max(v, 5.0)
+        scale = min(2.0, max(0.5, (self.p("FW_AIRSPD_TRIM") / v) ** 2))
+        e_roll = wrap_pi(bank - roll)
+        self._roll_i = min(0.2, max(-0.2, self._roll_i + g.roll_i * e_roll * dt))
+        ail = scale * (g.roll_p * e_roll - g.roll_d * p) + self._roll_i
+        # coordinated turn: q = (g/V) tan φ sin φ, r = (g/V) sin φ cos θ
+        q_ff = GRAVITY / v * math.tan(roll) * math.sin(roll)
+        r_ff = GRAVITY / v * math.sin(roll) * math.cos(pitch)
+        e_pitch = pitch_dem - pitch
+        el_unsat = scale * (g.pitch_p * e_pitch + g.pitch_d * (q_ff - q)) + self._pitch_i
+        if abs(el_unsat) < 1.0 or el_unsat * e_pitch < 0:
+            self._pitch_i = min(1.0, max(-1.0, self._pitch_i + g.pitch_i * e_pitch * dt))
+        rud = scale * g.yaw_p * (r_ff - r)
+        return ail, el_unsat, rud
