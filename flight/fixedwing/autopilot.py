@@ -59,7 +59,7 @@ FW_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("RTL_RETURN_ALT", 60.0, 20.0, 300.0, "return altitude above home", "m"),
     ParamSpec("RTL_LAND_DELAY", -1.0, -1.0, 600.0, "loiter before landing, -1 = loiter", "s"),
     ParamSpec("FW_TKO_AIRSPD", 18.5, 12.0, 30.0, "take-off rotation airspeed", "m/s"),
-    ParamSpec("FW_LND_AIRSPD", 22.0, 15.0, 30.0, "approach airspeed", "m/s"),
+    ParamSpec("FW_LND_AIRSPD", 20.5, 15.0, 30.0, "approach airspeed", "m/s"),
     ParamSpec("FW_LND_ANG", 5.0, 2.0, 12.0, "glide slope", "deg"),
     ParamSpec("FW_LND_APP_ALT", 25.0, 10.0, 100.0, "height at the approach gate", "m"),
     ParamSpec("FW_LND_FLALT", 3.0, 0.5, 10.0, "flare height (wheels)", "m"),
@@ -474,7 +474,7 @@ class FixedWingAutopilot:
     def _landing_runway(self) -> Runway:
         """Home's runway when near home, else a touchdown point ahead on the present course."""
         pos = self._state.pos_ned[:2]
-        if float(np.hypot(*pos)) < 600.0:
+        if float(np.hypot(*pos)) < 1500.0:
             return Runway(np.zeros(2), self.home.heading_rad)
         c = self._course_now()
         d = np.array([math.cos(c), math.sin(c)])
@@ -666,8 +666,9 @@ class FixedWingAutopilot:
         if v < 8.0:
             el = 0.0
         else:
-            pitch_dem = math.radians(9.0) if v >= rot else math.radians(2.0)
-            el = 2.0 * (pitch_dem - pitch) - 0.5 * st.omega_frd[1]
+            rotate = v >= rot
+            pitch_dem = math.radians(10.0) if rotate else math.radians(2.0)
+            el = (0.4 if rotate else 0.0) + 2.0 * (pitch_dem - pitch) - 0.5 * st.omega_frd[1]
         wheels_h = self.model.agl - self.model.ground_cg_height
         if not self.model.wheels_down() and wheels_h > 1.0:
             self._phase = Phase.TAKEOFF_CLIMB
@@ -682,11 +683,13 @@ class FixedWingAutopilot:
         gs = float(np.hypot(*st.vel_ned[:2]))
         roll = st.euler[0]
         ail = self.gains.roll_p * (0.0 - roll) - self.gains.roll_d * st.omega_frd[0]
-        brake = 0.0 if gs > 14.0 else 0.6
+        # Taildragger: stick back only once slow (no balloon), gentle brakes (no nose-over).
+        el = 1.0 if gs < 14.0 else 0.2
+        brake = 0.1 if gs > 14.0 else 0.3
         if gs < 0.3:
             self._phase = Phase.LANDED
             self._landed_t = self.clock.t
-        return Surfaces(ail, 1.0, self._steer(st, rw), 0.0, brake)
+        return Surfaces(ail, el, self._steer(st, rw), 0.0, brake)
 
     # ---- flight -------------------------------------------------------------------------------
     def _bank_limit(self, v: float) -> float:
@@ -766,7 +769,8 @@ class FixedWingAutopilot:
                 weight = 0.0  # pitch for sink rate only
                 pitch_min = 0.0
                 h_dem = h
-                hdot_ff = -max(0.25, wheels_h / 2.0)
+                # Exponential flare to a gentle sink, then hold off while the speed bleeds.
+                hdot_ff = -max(0.15, wheels_h / 2.0)
                 if self.model.wheels_down():
                     self._phase = Phase.ROLLOUT
         else:  # DIRECT or anything unexpected: wings level, hold height
