@@ -243,9 +243,10 @@ def run(args: argparse.Namespace) -> int:
                         m.success.astype(int),
                         m.reached,
                         m.collisions,
+                        m.agent_steps,
                     ]
                 )
-                lines = ["episode,steps,success,reached,collisions"]
+                lines = ["episode,steps,success,reached,collisions,agent_steps"]
                 lines += [",".join(map(str, row)) for row in ep.tolist()]
                 atomic_write_text(
                     folder.path / "episodes" / f"{c.key}_seed{seed}.csv", "\n".join(lines) + "\n"

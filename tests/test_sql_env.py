@@ -120,6 +120,7 @@ def test_kernel_team_bonus_values():
         np.zeros(1, np.bool_),
         np.zeros(1, np.int64),
         np.zeros(1, np.int64),
+        np.zeros(1, np.int64),
     ]
     kernels.run_sql(
         lay.next_cell,
@@ -196,7 +197,7 @@ def test_sie_phases_claim_nearest_target_and_stay_in_roi():
     from policy.sql.train import Metrics, TrainResult
 
     z = np.zeros(1)
-    res = TrainResult(Algorithm.SQL_D, lay, h, 0, Metrics(z, z, z, z), q1, q2)
+    res = TrainResult(Algorithm.SQL_D, lay, h, 0, Metrics(z, z, z, z, z), q1, q2)
     paths, m = greedy_rollout(res)
     cells = [lay.xy(s) for s in paths[0]]
     # LEFT out of the ROI keeps it on (3,3) forever: the agent never arrives

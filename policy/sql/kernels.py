@@ -147,6 +147,7 @@ def run_sql(
     out_success,
     out_reached,
     out_collisions,
+    out_agent_steps,
     paths,
 ):
     """SQL (seed Algorithm 1) for len(eps) episodes.
@@ -227,6 +228,7 @@ def run_sql(
         out_success[e] = reached == K
         out_reached[e] = reached
         out_collisions[e] = collisions
+        out_agent_steps[e] = nsteps.sum()
 
 
 @njit(cache=True)
@@ -253,6 +255,7 @@ def run_sie(
     out_success,
     out_reached,
     out_collisions,
+    out_agent_steps,
     paths,
 ):
     """SQL-SIE (seed Algorithm 2) — or SQL-D when share_every == 0 — for len(eps) episodes.
@@ -352,3 +355,4 @@ def run_sie(
         out_success[e] = active == 0
         out_reached[e] = K - active
         out_collisions[e] = collisions
+        out_agent_steps[e] = nsteps.sum()

@@ -32,6 +32,8 @@ class Metrics:
     """Number of agents on targets at the end."""
     collisions: np.ndarray
     """Obstacle collisions (all agents)."""
+    agent_steps: np.ndarray
+    """Moves taken, summed over agents (the work done by the kernel)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,6 +61,7 @@ def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths):
     out = (
         np.zeros(E, np.int64),
         np.zeros(E, np.bool_),
+        np.zeros(E, np.int64),
         np.zeros(E, np.int64),
         np.zeros(E, np.int64),
     )
@@ -130,7 +133,7 @@ def train(
     q = np.zeros((K, S, 4))
     q2 = None if algorithm is Algorithm.SQL else np.zeros((K, layout.n_roi, 4))
     rng = rng_state(seed)
-    cols = [[], [], [], []]
+    cols = [[], [], [], [], []]
     no_paths = np.zeros((0, 0), np.int32)
     for e0 in range(0, hyper.episodes, CHUNK):
         n = min(CHUNK, hyper.episodes - e0)
