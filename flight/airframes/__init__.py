@@ -1,0 +1,1 @@
+"""Airframe data files (TOML, a unit beside every number)."""

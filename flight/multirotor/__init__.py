@@ -1,0 +1,5 @@
+"""Multirotor autopilot: cascaded control, mixer, modes; `MultirotorAutopilot`."""
+
+from flight.multirotor.autopilot import MultirotorAutopilot
+
+__all__ = ["MultirotorAutopilot"]

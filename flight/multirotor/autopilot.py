@@ -1,0 +1,775 @@
+"""`MultirotorAutopilot`: the quadrotor and its onboard autopilot (implements `Autopilot`).
+
+Per `step()` (one control period, default 4 ms = 250 Hz):
+  1. commander: failsafes (offboard / manual loss), land detector, auto-disarm;
+  2. navigator: the current mode writes a setpoint (position, velocity, attitude, thrust);
+  3. one compiled call runs the position/velocity loops once and, per 1 ms physics substep,
+     attitude, rate, mixer and physics (flight/multirotor/control.py);
+  4. the clock advances by control_dt and one VehicleState is built.
+Time comes only from the SimClock; nothing here is random (the seed is kept for
+interface symmetry and recorded).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from flight.autopilot_api import (
+    FlightMode,
+    LandedState,
+    MissionCommand,
+    MissionItem,
+    MissionProgress,
+    Result,
+    Setpoint,
+)
+from flight.clock import SimClock
+from flight.frames import wrap_pi
+from flight.geo import DEFAULT_HOME, Home
+from flight.multirotor import control as ctl
+from flight.multirotor.mixer import allocation_inverse
+from flight.multirotor.params import MULTIROTOR_PARAMS
+from flight.params import ParamStore
+from flight.quadrotor import (
+    A_ENERGY,
+    A_ON_GROUND,
+    DEFAULT_AIRFRAME,
+    N_AUX,
+    N_X,
+    X_MOTOR,
+    QuadrotorParams,
+    _level_with_yaw,
+)
+from flight.state import VehicleState
+
+_MANUAL_MODES = (FlightMode.MANUAL, FlightMode.STABILIZED, FlightMode.ALTCTL, FlightMode.POSCTL)
+_MAX_ABS_POS = 1.0e5  # [m] setpoints farther than this are refused
+_MAX_ABS_VEL = 50.0  # [m/s]
+_GROUND_Z = -0.3  # [m] a target below this height (down > −0.3) keeps a landed vehicle idle
+
+
+class MultirotorAutopilot:
+    """A quadrotor with a PX4-like autopilot on the simulation clock.
+
+    params_file: TOML with a `[params]` table of overrides; airframe: airframe file;
+    home: geodetic home; clock: the shared SimClock (a new one if None); control_dt [s]:
+    autopilot period (a multiple of the physics step); seed: recorded, unused (no noise).
+    """
+
+    airframe = "quadrotor"
+
+    def __init__(
+        self,
+        params_file: Path | str | None = None,
+        home: Home = DEFAULT_HOME,
+        clock: SimClock | None = None,
+        seed: int = 0,
+        control_dt: float = 0.004,
+        airframe_file: Path | str = DEFAULT_AIRFRAME,
+        start_pos_ned: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        start_yaw: float = 0.0,
+    ):
+        self.home = home
+        self.clock = clock if clock is not None else SimClock()
+        self.seed = int(seed)
+        self.vehicle = QuadrotorParams.from_toml(airframe_file)
+        n = round(control_dt / self.vehicle.physics_dt)
+        if n < 1 or abs(n * self.vehicle.physics_dt - control_dt) > 1e-9:
+            raise ValueError(
+                f"control_dt {control_dt} s must be a multiple of physics_dt "
+                f"{self.vehicle.physics_dt} s"
+            )
+        self.control_dt = float(control_dt)
+        self._n_sub = int(n)
+        self._dt_sub = self.vehicle.physics_dt
+        self._dt_us = round(control_dt * 1e6)
+        self.params = ParamStore(MULTIROTOR_PARAMS)
+        if params_file is not None:
+            self.params.load_toml(params_file)
+        # compiled-state arrays
+        self._p = self.vehicle.to_array()
+        self._x = np.zeros(N_X)
+        self._aux = np.zeros(N_AUX)
+        self._c = np.zeros(ctl.N_C)
+        self._cs = np.zeros(ctl.N_CS)
+        self._sp = np.zeros(ctl.N_SP)
+        self._u = np.zeros(4)
+        self._c_rev = -1
+        self._mix = allocation_inverse(
+            self.vehicle.rotor_xy,
+            np.asarray(self.vehicle.spin),
+            self.vehicle.k_thrust,
+            self.vehicle.k_torque,
+        ).ravel()
+        self._weight = self.vehicle.mass * self.vehicle.gravity
+        self._t_max = 4.0 * self.vehicle.max_thrust
+        # commander / navigator state
+        self._armed = False
+        self._mode = FlightMode.HOLD
+        self._ground_since: float | None = 0.0
+        self._armed_at = 0.0
+        self._flown = False  # took off since arming
+        self._hold_pos = np.zeros(3)
+        self._yaw_sp = 0.0
+        self._target = np.zeros(3)
+        self._takeoff_target = np.zeros(3)
+        self._land_xy = np.zeros(2)
+        self._landing = False
+        self._rtl_phase = "climb"
+        self._rtl_alt = 0.0
+        self._rtl_xy = np.zeros(2)
+        self._climb_xy = np.zeros(2)
+        self._offboard: Setpoint | None = None
+        self._offboard_t = -math.inf
+        self._manual = (0.0, 0.0, 0.0, 0.0)
+        self._manual_t = -math.inf
+        self._man_hold_xy: np.ndarray | None = None
+        self._man_hold_z: float | None = None
+        self._items: list[MissionItem] = []
+        self._progress = MissionProgress()
+        self._item_started = False
+        self._item_reached_at: float | None = None
+        self._climb_first = False
+        self._status: list[str] = []
+        self._reset_vehicle(np.asarray(start_pos_ned, dtype=float), float(start_yaw))
+        self._state = self._make_state()
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def state(self) -> VehicleState:
+        return self._state
+
+    @property
+    def armed(self) -> bool:
+        return self._armed
+
+    @property
+    def mode(self) -> FlightMode:
+        return self._mode
+
+    @property
+    def landed_state(self) -> LandedState:
+        if self._aux[A_ON_GROUND] > 0.5:
+            return LandedState.ON_GROUND
+        if self._mode == FlightMode.TAKEOFF:
+            return LandedState.TAKEOFF
+        if self._landing:
+            return LandedState.LANDING
+        return LandedState.IN_AIR
+
+    @property
+    def battery_remaining(self) -> float:
+        """Remaining charge [0, 1]: shaft energy / efficiency + avionics, over capacity."""
+        v = self.vehicle
+        used = self._aux[A_ENERGY] / v.efficiency + v.avionics_power * self.clock.t
+        return float(min(1.0, max(0.0, 1.0 - used / (v.battery_capacity_wh * 3600.0))))
+
+    @property
+    def battery_voltage(self) -> float:
+        """Pack voltage [V], linear in the remaining charge."""
+        v = self.vehicle
+        return v.voltage_empty + (v.voltage_full - v.voltage_empty) * self.battery_remaining
+
+    @property
+    def mission_progress(self) -> MissionProgress:
+        return self._progress
+
+    @property
+    def motor_commands(self) -> np.ndarray:
+        """(4,) last normalised motor commands."""
+        return self._cs[ctl.CS_U : ctl.CS_U + 4].copy()
+
+    @property
+    def motor_speed(self) -> np.ndarray:
+        return self._x[X_MOTOR:].copy()
+
+    @property
+    def on_ground(self) -> bool:
+        return bool(self._aux[A_ON_GROUND] > 0.5)
+
+    def drain_status(self) -> list[str]:
+        """Human-readable events since the last call (mode changes, failsafes)."""
+        out, self._status = self._status, []
+        return out
+
+    # ------------------------------------------------------------------ stepping
+    def step(self) -> VehicleState:
+        if self._c_rev != self.params.revision:
+            self._build_constants()
+        t = self.clock.t
+        self._commander(t)
+        sp = self._sp
+        if self._armed:
+            self._navigate(t)
+            self._ground_idle_if_landed()
+            sp[ctl.SP_ARMED] = 1.0
+        else:
+            sp[ctl.SP_ARMED] = 0.0
+        ctl.control_step(
+            self._x, self._aux, self._p, self._c, self._cs, sp, self._u, self._dt_sub, self._n_sub
+        )
+        self.clock.advance(self._dt_us)
+        self._state = self._make_state()
+        return self._state
+
+    def _make_state(self) -> VehicleState:
+        x = self._x
+        return VehicleState(
+            self.clock.t,
+            x[0:3].copy(),
+            x[3:6].copy(),
+            x[6:10].copy(),
+            x[10:13].copy(),
+            self._aux[0:3].copy(),
+            bool(self._aux[A_ON_GROUND] > 0.5),
+        )
+
+    def _reset_vehicle(self, pos: np.ndarray, yaw: float) -> None:
+        self._x[:] = 0.0
+        self._x[0:3] = pos
+        self._x[6] = math.cos(0.5 * yaw)
+        self._x[9] = math.sin(0.5 * yaw)
+        self._aux[:] = 0.0
+        if pos[2] >= 0.0:
+            self._x[2] = 0.0
+            self._aux[A_ON_GROUND] = 1.0
+            _level_with_yaw(self._x)
+        self._aux[2] = -self.vehicle.gravity
+        self._yaw_sp = yaw
+        self._hold_pos = self._x[0:3].copy()
+
+    def _build_constants(self) -> None:
+        """Parameters → the compiled controller's constant array (degrees → rad here)."""
+        P = self.params
+        c = self._c
+        d = math.radians
+        c[ctl.C_KP_XY] = P["MPC_XY_P"]
+        c[ctl.C_KP_Z] = P["MPC_Z_P"]
+        c[ctl.C_KV_XY] = P["MPC_XY_VEL_P_ACC"]
+        c[ctl.C_KI_XY] = P["MPC_XY_VEL_I_ACC"]
+        c[ctl.C_KV_Z] = P["MPC_Z_VEL_P_ACC"]
+        c[ctl.C_KI_Z] = P["MPC_Z_VEL_I_ACC"]
+        c[ctl.C_TILT_MAX] = d(P["MPC_TILTMAX_AIR"])
+        c[ctl.C_VINT_MAX] = P["MPC_VEL_I_LIM"]
+        c[ctl.C_KATT : ctl.C_KATT + 3] = (P["MC_ROLL_P"], P["MC_PITCH_P"], P["MC_YAW_P"])
+        c[ctl.C_RATE_MAX : ctl.C_RATE_MAX + 3] = (
+            d(P["MC_ROLLRATE_MAX"]),
+            d(P["MC_PITCHRATE_MAX"]),
+            d(P["MC_YAWRATE_MAX"]),
+        )
+        c[ctl.C_KRP : ctl.C_KRP + 3] = (P["MC_ROLLRATE_P"], P["MC_PITCHRATE_P"], P["MC_YAWRATE_P"])
+        c[ctl.C_KRI : ctl.C_KRI + 3] = (P["MC_ROLLRATE_I"], P["MC_PITCHRATE_I"], P["MC_YAWRATE_I"])
+        c[ctl.C_KRD : ctl.C_KRD + 3] = (P["MC_ROLLRATE_D"], P["MC_PITCHRATE_D"], P["MC_YAWRATE_D"])
+        c[ctl.C_RINT_MAX] = P["MC_RATE_I_LIM"]
+        c[ctl.C_T_MIN] = P["MPC_THR_MIN"] * self._t_max
+        c[ctl.C_T_MAX] = P["MPC_THR_MAX"] * self._t_max
+        c[ctl.C_T_IDLE] = self.vehicle.max_thrust * P["MOT_SPIN_ARM"] ** 2
+        c[ctl.C_T_ROTOR_MAX] = self.vehicle.max_thrust
+        c[ctl.C_MASS] = self.vehicle.mass
+        c[ctl.C_MIX : ctl.C_MIX + 16] = self._mix
+        # navigation limits, cached as plain floats
+        self._vxy_max = P["MPC_XY_VEL_MAX"]
+        self._vxy_cruise = P["MPC_XY_CRUISE"]
+        self._vz_up = P["MPC_Z_VEL_MAX_UP"]
+        self._vz_dn = P["MPC_Z_VEL_MAX_DN"]
+        self._c_rev = self.params.revision
+
+    # ------------------------------------------------------------------ commander
+    def _event(self, text: str) -> None:
+        self._status.append(f"{self.clock.t:.3f} {text}")
+
+    def _switch(self, mode: FlightMode) -> None:
+        """Enter a mode (no checks)."""
+        prev = self._mode
+        self._mode = mode
+        self._landing = False
+        pos = self._x[0:3]
+        if mode in (FlightMode.HOLD, FlightMode.OFFBOARD) or mode in _MANUAL_MODES:
+            self._hold_pos = pos.copy()
+            self._man_hold_xy = None
+            self._man_hold_z = None
+        if mode == FlightMode.LAND:
+            self._land_xy = pos[0:2].copy()
+            self._landing = True
+        if mode == FlightMode.RTL:
+            self._rtl_phase = "climb"
+            self._rtl_xy = pos[0:2].copy()
+            self._rtl_alt = max(-float(pos[2]), self.params["RTL_RETURN_ALT"])
+        if mode == FlightMode.MISSION:
+            self._item_started = False
+        self._yaw_sp = self._yaw()
+        if prev != mode:
+            self._event(f"mode {prev.value} -> {mode.value}")
+
+    def _yaw(self) -> float:
+        w, x, y, z = self._x[6:10]
+        return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+    def _commander(self, t: float) -> None:
+        on_ground = self._aux[A_ON_GROUND] > 0.5
+        if on_ground:
+            if self._ground_since is None:
+                self._ground_since = t
+        else:
+            self._ground_since = None
+            if self._armed:
+                self._flown = True
+        if not self._armed:
+            return
+        # auto-disarm on the ground
+        if on_ground:
+            wait = (
+                self.params["COM_DISARM_LAND"] if self._flown else self.params["COM_DISARM_PRFLT"]
+            )
+            since = max(self._ground_since, self._armed_at)
+            if wait >= 0 and t - since >= wait + (
+                self.params["LNDMC_TRIG_TIME"] if self._flown else 0.0
+            ):
+                self._armed = False
+                self._event("auto-disarmed on the ground")
+                return
+        # failsafes
+        if (
+            self._mode == FlightMode.OFFBOARD
+            and t - self._offboard_t > self.params["COM_OF_LOSS_T"]
+        ):
+            self._event("offboard setpoints lost -> hold")
+            self._switch(FlightMode.HOLD)
+        elif self._mode in _MANUAL_MODES and t - self._manual_t > self.params["COM_RC_LOSS_T"]:
+            self._event("manual control lost -> hold")
+            self._switch(FlightMode.HOLD)
+
+    def _landed_for(self, t: float) -> bool:
+        return self._ground_since is not None and (
+            t - self._ground_since >= self.params["LNDMC_TRIG_TIME"]
+        )
+
+    # ------------------------------------------------------------------ navigator
+    def _navigate(self, t: float) -> None:
+        mode = self._mode
+        if mode == FlightMode.HOLD:
+            self._goto(self._hold_pos, self._vxy_cruise)
+        elif mode == FlightMode.TAKEOFF:
+            self._goto(self._takeoff_target, self._vxy_cruise, vz_up=self.params["MPC_TKO_SPEED"])
+            if (
+                abs(self._x[2] - self._takeoff_target[2]) < 0.1 * max(1.0, -self._takeoff_target[2])
+                and abs(self._x[5]) < 0.3
+            ):
+                self._switch(FlightMode.HOLD)
+                self._hold_pos = self._takeoff_target.copy()
+        elif mode == FlightMode.LAND:
+            self._descend(self._land_xy)
+        elif mode == FlightMode.RTL:
+            self._rtl(t)
+        elif mode == FlightMode.MISSION:
+            self._mission(t)
+        elif mode == FlightMode.OFFBOARD:
+            self._offboard_nav()
+        else:
+            self._manual_nav(mode)
+
+    def _goto(self, pos: np.ndarray, vxy: float, vz_up: float | None = None) -> None:
+        sp = self._sp
+        sp[0:3] = pos
+        sp[3:6] = 0.0
+        sp[ctl.SP_XY_MODE] = ctl.XY_POS
+        sp[ctl.SP_Z_MODE] = ctl.Z_POS
+        sp[ctl.SP_YAW] = self._yaw_sp
+        sp[ctl.SP_YAWRATE] = 0.0
+        sp[ctl.SP_VXY_MAX] = vxy
+        sp[ctl.SP_VZ_UP] = self._vz_up if vz_up is None else vz_up
+        sp[ctl.SP_VZ_DN] = self._vz_dn
+
+    def _descend(self, xy: np.ndarray) -> None:
+        """Hold xy, sink at the land speed (faster high up)."""
+        sp = self._sp
+        self._landing = True
+        sp[0:2] = xy
+        sp[2] = self._x[2]
+        sp[3:6] = 0.0
+        h = -self._x[2]
+        v = self.params["MPC_LAND_SPEED"] if h < self.params["MPC_LAND_ALT1"] else self._vz_dn
+        sp[5] = v
+        sp[ctl.SP_XY_MODE] = ctl.XY_POS
+        sp[ctl.SP_Z_MODE] = ctl.Z_VEL
+        sp[ctl.SP_YAW] = self._yaw_sp
+        sp[ctl.SP_YAWRATE] = 0.0
+        sp[ctl.SP_VXY_MAX] = self._vxy_cruise
+        sp[ctl.SP_VZ_UP] = self._vz_up
+        sp[ctl.SP_VZ_DN] = max(v, self._vz_dn)
+
+    def _ground_idle_if_landed(self) -> None:
+        """A landed vehicle whose setpoint does not ask to climb idles with level attitude."""
+        if self._aux[A_ON_GROUND] < 0.5:
+            return
+        sp = self._sp
+        zm = sp[ctl.SP_Z_MODE]
+        wants_air = (
+            (zm == ctl.Z_POS and sp[2] + sp[5] * 0.0 < _GROUND_Z)
+            or (zm == ctl.Z_VEL and sp[5] < -0.1)
+            or (zm == ctl.Z_THRUST and sp[ctl.SP_THRUST] > 0.0)
+        )
+        if not wants_air:
+            sp[ctl.SP_XY_MODE] = ctl.XY_ATT
+            sp[ctl.SP_Z_MODE] = ctl.Z_THRUST
+            sp[ctl.SP_ROLL] = 0.0
+            sp[ctl.SP_PITCH] = 0.0
+            sp[ctl.SP_THRUST] = 0.0
+            sp[ctl.SP_YAW] = self._yaw()
+            sp[ctl.SP_YAWRATE] = 0.0
+            self._landing = False
+
+    def _offboard_nav(self) -> None:
+        s = self._offboard
+        sp = self._sp
+        if s is None:
+            self._goto(self._hold_pos, self._vxy_cruise)
+            return
+        if s.yaw is not None:
+            self._yaw_sp = s.yaw
+            sp[ctl.SP_YAWRATE] = 0.0
+        elif s.yaw_rate is not None:
+            self._yaw_sp = wrap_pi(self._yaw_sp + s.yaw_rate * self.control_dt)
+            sp[ctl.SP_YAWRATE] = s.yaw_rate
+        else:
+            sp[ctl.SP_YAWRATE] = 0.0
+        sp[ctl.SP_YAW] = self._yaw_sp
+        sp[ctl.SP_VXY_MAX] = self._vxy_max
+        sp[ctl.SP_VZ_UP] = self._vz_up
+        sp[ctl.SP_VZ_DN] = self._vz_dn
+        if s.pos_ned is not None:
+            sp[0:3] = s.pos_ned
+            sp[3:6] = s.vel_ned if s.vel_ned is not None else 0.0
+            sp[ctl.SP_XY_MODE] = ctl.XY_POS
+            sp[ctl.SP_Z_MODE] = ctl.Z_POS
+        else:
+            sp[0:3] = self._x[0:3]
+            sp[3:6] = s.vel_ned
+            sp[ctl.SP_XY_MODE] = ctl.XY_VEL
+            sp[ctl.SP_Z_MODE] = ctl.Z_VEL
+
+    def _rtl(self, t: float) -> None:
+        pos = self._x[0:3]
+        if self._rtl_phase == "climb":
+            self._goto(np.array([self._rtl_xy[0], self._rtl_xy[1], -self._rtl_alt]), 1.0)
+            if -pos[2] >= self._rtl_alt - 1.0:
+                self._rtl_phase = "return"
+                self._event("rtl: return leg")
+        elif self._rtl_phase == "return":
+            self._goto(np.array([0.0, 0.0, -self._rtl_alt]), self._vxy_cruise)
+            if math.hypot(pos[0], pos[1]) < 1.0 and math.hypot(self._x[3], self._x[4]) < 0.5:
+                self._rtl_phase = "land"
+                self._event("rtl: landing")
+        else:
+            self._descend(np.zeros(2))
+
+    def _manual_nav(self, mode: FlightMode) -> None:
+        x_st, y_st, z_st, r_st = self._manual
+        P = self.params
+        sp = self._sp
+        dt = self.control_dt
+        yaw_rate = r_st * math.radians(P["MPC_MAN_Y_MAX"])
+        self._yaw_sp = wrap_pi(self._yaw_sp + yaw_rate * dt)
+        sp[ctl.SP_YAW] = self._yaw_sp
+        sp[ctl.SP_YAWRATE] = yaw_rate
+        sp[ctl.SP_VXY_MAX] = P["MPC_VEL_MANUAL"]
+        sp[ctl.SP_VZ_UP] = self._vz_up
+        sp[ctl.SP_VZ_DN] = self._vz_dn
+        sp[3:6] = 0.0
+        pos = self._x[0:3]
+        tilt = math.radians(P["MPC_MAN_TILT_MAX"])
+        # horizontal
+        if mode == FlightMode.POSCTL:
+            if abs(x_st) < 0.05 and abs(y_st) < 0.05:
+                if self._man_hold_xy is None:
+                    self._man_hold_xy = pos[0:2].copy()
+                sp[0:2] = self._man_hold_xy
+                sp[ctl.SP_XY_MODE] = ctl.XY_POS
+            else:
+                self._man_hold_xy = None
+                v = P["MPC_VEL_MANUAL"]
+                c, s = math.cos(self._yaw_sp), math.sin(self._yaw_sp)
+                sp[3] = v * (x_st * c - y_st * s)
+                sp[4] = v * (x_st * s + y_st * c)
+                sp[ctl.SP_XY_MODE] = ctl.XY_VEL
+        else:
+            sp[ctl.SP_ROLL] = y_st * tilt
+            sp[ctl.SP_PITCH] = -x_st * tilt
+            sp[ctl.SP_XY_MODE] = ctl.XY_ATT
+        # vertical
+        if mode in (FlightMode.POSCTL, FlightMode.ALTCTL):
+            dz = z_st - 0.5
+            if abs(dz) < 0.05:
+                if self._man_hold_z is None:
+                    self._man_hold_z = float(pos[2])
+                sp[2] = self._man_hold_z
+                sp[ctl.SP_Z_MODE] = ctl.Z_POS
+            else:
+                self._man_hold_z = None
+                sp[5] = -2.0 * dz * (self._vz_up if dz > 0 else self._vz_dn)
+                sp[ctl.SP_Z_MODE] = ctl.Z_VEL
+        else:
+            w, tmax = self._weight, P["MPC_THR_MAX"] * self._t_max
+            thrust = 2.0 * z_st * w if z_st <= 0.5 else w + (z_st - 0.5) * 2.0 * (tmax - w)
+            sp[ctl.SP_THRUST] = thrust
+            sp[ctl.SP_Z_MODE] = ctl.Z_THRUST
+
+    # ------------------------------------------------------------------ mission
+    def _mission(self, t: float) -> None:
+        pr = self._progress
+        items = self._items
+        pos = self._x[0:3]
+        if pr.finished or not items:
+            self._goto(self._hold_pos, self._vxy_cruise)
+            return
+        item = items[pr.current]
+        cmd = item.command
+        if not self._item_started:
+            self._item_started = True
+            self._item_reached_at = None
+            self._climb_first = False
+            if cmd == MissionCommand.TAKEOFF:
+                self._target = np.array([pos[0], pos[1], item.pos_ned[2]])
+            elif cmd == MissionCommand.RETURN_TO_LAUNCH:
+                self._mark_reached(pr.current)
+                pr.finished = True
+                self._switch(FlightMode.RTL)
+                self._navigate(t)
+                return
+            else:
+                self._target = np.asarray(item.pos_ned, dtype=float).copy()
+                if cmd == MissionCommand.LAND:
+                    self._target[2] = min(pos[2], self._target[2]) if pos[2] < -0.5 else pos[2]
+                # from the ground, climb before going anywhere
+                self._climb_first = pos[2] > -1.0 and cmd != MissionCommand.LAND
+                self._climb_xy = pos[0:2].copy()
+            if item.yaw is not None:
+                self._yaw_sp = float(item.yaw)
+        if self._climb_first:
+            alt = min(self._target[2], -self.params["MIS_TAKEOFF_ALT"])
+            climb = np.array([self._climb_xy[0], self._climb_xy[1], alt])
+            self._goto(climb, self._vxy_cruise)
+            if pos[2] - climb[2] < self.params["NAV_MC_ALT_RAD"]:
+                self._climb_first = False
+            return
+        if cmd == MissionCommand.LAND:
+            d = math.hypot(pos[0] - self._target[0], pos[1] - self._target[1])
+            if self._landing or d < self._accept(item):
+                self._descend(self._target[0:2])
+                if self._landed_for(t):
+                    self._mark_reached(pr.current)
+                    pr.finished = True
+                    self._hold_pos = pos.copy()
+                    self._event("mission: landed, finished")
+            else:
+                self._goto(self._target, self._vxy_cruise)
+            return
+        self._goto(self._target, self._vxy_cruise)
+        if self._item_reached_at is None:
+            d = math.hypot(pos[0] - self._target[0], pos[1] - self._target[1])
+            dz = abs(pos[2] - self._target[2])
+            if (cmd == MissionCommand.TAKEOFF or d < self._accept(item)) and dz < self.params[
+                "NAV_MC_ALT_RAD"
+            ]:
+                self._item_reached_at = t
+                self._mark_reached(pr.current)
+        if self._item_reached_at is not None:
+            if cmd == MissionCommand.LOITER_UNLIM:
+                return
+            if t - self._item_reached_at >= item.hold_s:
+                self._hold_pos = self._target.copy()
+                if pr.current + 1 >= len(items):
+                    pr.finished = True
+                    self._event("mission finished")
+                else:
+                    pr.current += 1
+                    self._item_started = False
+
+    def _accept(self, item: MissionItem) -> float:
+        return item.accept_radius if item.accept_radius > 0 else self.params["NAV_ACC_RAD"]
+
+    def _mark_reached(self, seq: int) -> None:
+        self._progress.reached.append(seq)
+        self._event(f"mission item {seq} reached")
+
+    # ------------------------------------------------------------------ requests
+    def _state_valid(self) -> bool:
+        return bool(np.all(np.isfinite(self._x)))
+
+    def arm(self, force: bool = False) -> Result:
+        if self._armed:
+            return Result.accepted()
+        if not self._state_valid():
+            return Result.denied("vehicle state invalid")
+        if not self.on_ground and not force:
+            return Result.denied("not on the ground (use force to arm in the air)")
+        if self.battery_remaining <= 0.0:
+            return Result.denied("battery empty")
+        self._armed = True
+        self._armed_at = self.clock.t
+        self._flown = not self.on_ground
+        self._cs[:] = 0.0
+        self._hold_pos = self._x[0:3].copy()
+        self._yaw_sp = self._yaw()
+        self._item_started = False
+        self._event("armed")
+        return Result.accepted()
+
+    def disarm(self, force: bool = False) -> Result:
+        if not self._armed:
+            return Result.accepted()
+        if not self.on_ground and not force:
+            return Result.denied("in the air (use force to disarm in flight)")
+        self._armed = False
+        self._event("disarmed" + (" (forced)" if force else ""))
+        return Result.accepted()
+
+    def set_mode(self, mode: FlightMode) -> Result:
+        if not isinstance(mode, FlightMode):
+            return Result.denied(f"unknown mode {mode!r}")
+        t = self.clock.t
+        if mode == self._mode:
+            return Result.accepted()
+        if mode == FlightMode.OFFBOARD and (
+            self._offboard is None or t - self._offboard_t > self.params["COM_OF_LOSS_T"]
+        ):
+            return Result.denied("no offboard setpoint stream: send setpoints first")
+        if mode in _MANUAL_MODES and t - self._manual_t > self.params["COM_RC_LOSS_T"]:
+            return Result.denied("no manual control input")
+        if mode == FlightMode.MISSION and not self._items:
+            return Result.denied("no mission uploaded")
+        if mode == FlightMode.TAKEOFF:
+            return self.takeoff()
+        if mode == FlightMode.RTL:
+            return self.return_to_launch()
+        self._switch(mode)
+        return Result.accepted()
+
+    def takeoff(self, altitude: float | None = None) -> Result:
+        if altitude is None:
+            altitude = self.params["MIS_TAKEOFF_ALT"]
+        try:
+            altitude = float(altitude)
+        except (TypeError, ValueError):
+            return Result.denied("takeoff altitude is not a number")
+        if not math.isfinite(altitude) or not (0.5 <= altitude <= 1000.0):
+            return Result.denied(f"takeoff altitude {altitude} m outside [0.5, 1000]")
+        if not self._armed:
+            return Result.denied("not armed: arm first")
+        pos = self._x[0:3]
+        self._switch(FlightMode.TAKEOFF)
+        self._takeoff_target = np.array([pos[0], pos[1], -altitude])
+        return Result.accepted()
+
+    def land(self) -> Result:
+        self._switch(FlightMode.LAND)
+        return Result.accepted()
+
+    def return_to_launch(self) -> Result:
+        if not self._armed or self.on_ground:
+            return Result.denied("landed: nothing to return from")
+        self._switch(FlightMode.RTL)
+        return Result.accepted()
+
+    def reposition(self, pos_ned: np.ndarray, yaw: float | None = None) -> Result:
+        try:
+            p = np.asarray(pos_ned, dtype=float).reshape(3)
+        except (TypeError, ValueError):
+            return Result.denied("position must be 3 numbers (NED m)")
+        if not np.all(np.isfinite(p)) or np.any(np.abs(p) > _MAX_ABS_POS):
+            return Result.denied("position not finite or out of range")
+        if yaw is not None and not math.isfinite(yaw):
+            return Result.denied("yaw not finite")
+        if not self._armed:
+            return Result.denied("not armed")
+        self._switch(FlightMode.HOLD)
+        self._hold_pos = p.copy()
+        if yaw is not None:
+            self._yaw_sp = wrap_pi(float(yaw))
+        return Result.accepted()
+
+    def set_offboard_setpoint(self, setpoint: Setpoint) -> Result:
+        if not isinstance(setpoint, Setpoint):
+            return Result.denied("not a Setpoint")
+        if setpoint.pos_ned is None and setpoint.vel_ned is None:
+            return Result.denied("setpoint has neither position nor velocity")
+        try:
+            pos = None if setpoint.pos_ned is None else np.asarray(setpoint.pos_ned, float)
+            vel = None if setpoint.vel_ned is None else np.asarray(setpoint.vel_ned, float)
+            if (pos is not None and pos.shape != (3,)) or (vel is not None and vel.shape != (3,)):
+                return Result.denied("position and velocity must have 3 components")
+            if not setpoint.is_finite():
+                return Result.denied("setpoint not finite")
+        except (TypeError, ValueError):
+            return Result.denied("setpoint is not numeric")
+        if pos is not None and np.any(np.abs(pos) > _MAX_ABS_POS):
+            return Result.denied("position setpoint out of range")
+        if vel is not None and np.any(np.abs(vel) > _MAX_ABS_VEL):
+            return Result.denied("velocity setpoint out of range")
+        self._offboard = Setpoint(
+            pos_ned=None if pos is None else pos.copy(),
+            vel_ned=None if vel is None else vel.copy(),
+            yaw=None if setpoint.yaw is None else wrap_pi(float(setpoint.yaw)),
+            yaw_rate=setpoint.yaw_rate,
+        )
+        self._offboard_t = self.clock.t
+        return Result.accepted()
+
+    def set_manual_control(self, x: float, y: float, z: float, r: float) -> Result:
+        try:
+            vals = [float(v) for v in (x, y, z, r)]
+        except (TypeError, ValueError):
+            return Result.denied("sticks must be numbers")
+        if not all(math.isfinite(v) for v in vals):
+            return Result.denied("sticks not finite")
+        x, y, z, r = vals
+        if max(abs(x), abs(y), abs(r)) > 1.0 + 1e-6 or not (-1e-6 <= z <= 1.0 + 1e-6):
+            return Result.denied("sticks out of range: x, y, r in [-1, 1], z in [0, 1]")
+        self._manual = (x, y, min(max(z, 0.0), 1.0), r)
+        self._manual_t = self.clock.t
+        return Result.accepted()
+
+    def set_mission(self, items: list[MissionItem]) -> Result:
+        try:
+            items = list(items)
+        except TypeError:
+            return Result.denied("mission must be a list of MissionItem")
+        for i, it in enumerate(items):
+            if not isinstance(it, MissionItem) or not isinstance(it.command, MissionCommand):
+                return Result.denied(f"item {i} is not a MissionItem")
+            p = np.asarray(it.pos_ned, dtype=float)
+            finite = (
+                p.shape == (3,)
+                and bool(np.all(np.isfinite(p)))
+                and math.isfinite(it.hold_s)
+                and math.isfinite(it.accept_radius)
+                and (it.yaw is None or math.isfinite(it.yaw))
+            )
+            if not finite or np.any(np.abs(p) > _MAX_ABS_POS) or it.hold_s < 0:
+                return Result.denied(f"item {i}: position/hold/radius not finite or out of range")
+        self._items = items
+        self._progress = MissionProgress()
+        self._item_started = False
+        if self._mode == FlightMode.MISSION and not items:
+            self._switch(FlightMode.HOLD)
+        return Result.accepted()
+
+    def set_mission_current(self, seq: int) -> Result:
+        if not (0 <= int(seq) < len(self._items)):
+            return Result.denied(f"item {seq} not in mission of {len(self._items)}")
+        self._progress.current = int(seq)
+        self._progress.finished = False
+        self._item_started = False
+        return Result.accepted()
+
+    def get_param(self, name: str) -> float | None:
+        return self.params.get(name)
+
+    def set_param(self, name: str, value: float) -> Result:
+        return self.params.set(name, value)
+
+    def param_names(self) -> list[str]:
+        return self.params.names()
