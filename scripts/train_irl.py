@@ -1,14 +1,413 @@
-"""Not built yet (see the open issues)."""
+"""`skyherd train irl` / `skyherd train ab`: apprenticeship learning on the GroundAir composite task.
+
+irl  μ_E from composite demonstrations (scenario 4), projection IRL with DQN.
+ab   Apprenticeship Bootstrapping: μ_E from sub-task demonstrations (1)–(3) only, one run per
+     combination rule (policy.ab.RULES); IRL on composite demonstrations is trained beside it
+     (unless --no-irl) so the report compares AB, IRL, the scripted expert and a random policy.
+
+The run folder gets config.json, demos/ (the demonstrations used), metrics.csv (per learner,
+seed and IRL iteration), events.jsonl, eval.csv, summary.md (tables), PNG plots and the learned
+policies (policies/*.npz, loadable with policy.dqn.load_policy).
+"""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
+import math
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from scripts.cli import UsageError
+from scripts.runfolder import RunFolder, atomic_write_text, markdown_table
 
 
 def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
-    pass
+    parser.add_argument("--seeds", type=int, default=5, help="training seeds (default 5)")
+    parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    parser.add_argument("--dqn-steps", type=int, default=15_000, help="env steps per DQN solve")
+    parser.add_argument("--irl-iters", type=int, default=6, help="max projection-IRL iterations")
+    parser.add_argument("--epsilon", type=float, default=0.01, help="IRL stop: t <= epsilon")
+    parser.add_argument("--gamma", type=float, default=0.97, help="discount of μ and DQN")
+    parser.add_argument("--demo-episodes", type=int, default=20, help="demo episodes per scenario")
+    parser.add_argument(
+        "--demo-epsilon", type=float, default=0.05, help="expert random-action prob"
+    )
+    parser.add_argument("--demo-lag", type=float, default=0.05, help="expert repeat-action prob")
+    parser.add_argument(
+        "--demos",
+        type=Path,
+        default=None,
+        help="folder of recorded demos "
+        "(<scenario>.npz, e.g. from skyherd teleop) instead of the scripted expert",
+    )
+    parser.add_argument("--eval-episodes", type=int, default=30, help="test episodes per policy")
+    parser.add_argument("--workers", type=int, default=1, help="parallel training processes")
+    parser.add_argument("--out", type=Path, default=Path("runs"), help="runs root folder")
+    parser.add_argument(
+        "--save-policy",
+        type=Path,
+        default=None,
+        help="also copy the best learned policy of this learner to this file",
+    )
+    if learner == "ab":
+        from policy.ab import RULES
+
+        parser.add_argument("--rules", default=",".join(RULES), help="AB combination rules")
+        parser.add_argument("--no-irl", action="store_true", help="skip the IRL comparison runs")
+    parser.set_defaults(learner_name=learner)
 
 
+# --------------------------------------------------------------------------- one training job
+def _job(spec: dict) -> dict:
+    """Train one learner for one seed (runs in a worker process)."""
+    import torch
+
+    torch.set_num_threads(1)
+    from policy.apprentice import ApprenticeParams, run_apprenticeship
+    from policy.demos import rollout_stats
+    from policy.dqn import DQNParams
+    from policy.irl import IRLParams
+
+    p = ApprenticeParams(
+        dqn=DQNParams(total_steps=spec["dqn_steps"], gamma=spec["gamma"]),
+        irl=IRLParams(epsilon=spec["epsilon"], max_iters=spec["irl_iters"]),
+        seed=spec["seed"],
+    )
+    res = run_apprenticeship(np.asarray(spec["mu_expert"]), p)
+    _, m = rollout_stats(
+        res.policy, "composite", spec["eval_episodes"], spec["eval_seed"], spec["gamma"]
+    )
+    hist = [
+        {
+            "i": h.i,
+            "t": h.t,
+            "dist": h.dist,
+            "seconds": h.seconds,
+            "w": h.w.tolist(),
+            "mu": h.mu.tolist(),
+        }
+        for h in res.irl.history
+    ]
+    return {
+        "learner": spec["learner"],
+        "seed": spec["seed"],
+        "metrics": m,
+        "train_s": res.seconds,
+        "chosen": res.chosen,
+        "converged": res.irl.converged,
+        "t0": float(np.linalg.norm(res.irl.mu_expert - res.irl.mu0)),
+        "history": hist,
+        "mixture": res.mixture.tolist(),
+        "weights": [w.tolist() for w in res.policy.weights],
+        "biases": [b.tolist() for b in res.policy.biases],
+        "meta": res.policy.meta,
+        "params": dataclasses.asdict(p),
+    }
+
+
+# --------------------------------------------------------------------------- the command
 def run(args: argparse.Namespace) -> int:
-    print("not built yet")
-    return 1
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from tqdm import tqdm
+
+    from policy.ab import SUBTASKS, combine
+    from policy.demos import (
+        DemoFileError,
+        ExpertParams,
+        demo_feature_expectations,
+        load_demo,
+        random_policy,
+        record,
+        rollout_stats,
+        scripted_expert,
+    )
+    from policy.dqn import MLPPolicy
+    from policy.groundair.env import PSI_NAMES
+
+    learner = args.learner_name
+    if args.seeds < 1 or args.dqn_steps < 100 or args.irl_iters < 1 or args.eval_episodes < 1:
+        raise UsageError(
+            "need --seeds >= 1, --dqn-steps >= 100, --irl-iters >= 1, --eval-episodes >= 1"
+        )
+    if not (0 <= args.demo_epsilon <= 1 and 0 <= args.demo_lag <= 1 and 0 < args.gamma < 1):
+        raise UsageError("--demo-epsilon/--demo-lag must be in [0, 1] and --gamma in (0, 1)")
+    rules = [r for r in getattr(args, "rules", "").split(",") if r] if learner == "ab" else []
+    from policy.ab import RULES
+
+    bad = [r for r in rules if r not in RULES]
+    if bad:
+        raise UsageError(f"unknown AB rule(s) {', '.join(bad)}; choose from {', '.join(RULES)}")
+
+    rf = RunFolder(f"train-{learner}", root=args.out)
+    print(f"run folder: {rf.path}")
+    expert_p = ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag)
+    (rf.path / "demos").mkdir()
+    needed = (
+        ["composite"]
+        if learner == "irl"
+        else list(SUBTASKS) + ([] if args.no_irl else ["composite"])
+    )
+    demos = {}
+    for sc in needed:
+        if args.demos is not None:
+            try:
+                demos[sc] = load_demo(args.demos / f"{sc}.npz")
+            except DemoFileError as e:
+                raise UsageError(f"{e}; record it with `skyherd teleop --scenario {sc}`") from e
+        else:
+            ex = scripted_expert(sc, expert_p, seed=7)
+            demos[sc] = record(
+                sc,
+                ex,
+                args.demo_episodes,
+                1000,
+                "scripted",
+                {"expert": dataclasses.asdict(expert_p)},
+            )
+        demos[sc].save(rf.path / "demos" / f"{sc}.npz")
+    mu_e = {}
+    if "composite" in demos:
+        mu_e["irl"] = demo_feature_expectations(demos["composite"], args.gamma)
+    for r in rules:
+        mu_e[f"ab_{r}"] = combine(demos, r, args.gamma)
+    config = {
+        "learner": learner,
+        "args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
+        "expert": expert_p,
+        "mu_expert": {k: v.tolist() for k, v in mu_e.items()},
+        "psi_names": PSI_NAMES,
+        "demos": {sc: d.meta["demonstrator"] for sc, d in demos.items()},
+    }
+    rf.write_config(config)
+
+    eval_seed = 100_000
+    specs = [
+        {
+            "learner": name,
+            "seed": args.seed + s,
+            "mu_expert": mu.tolist(),
+            "dqn_steps": args.dqn_steps,
+            "irl_iters": args.irl_iters,
+            "epsilon": args.epsilon,
+            "gamma": args.gamma,
+            "eval_episodes": args.eval_episodes,
+            "eval_seed": eval_seed,
+        }
+        for s in range(args.seeds)
+        for name, mu in mu_e.items()
+    ]
+    events = rf.events()
+    metrics = rf.metrics(
+        ["learner", "seed", "iter", "t", "dist", "seconds"] + [f"mu_{n}" for n in PSI_NAMES]
+    )
+    results = []
+    bar = tqdm(total=len(specs), desc=f"train {learner}", unit="run")
+    if args.workers > 1:
+        with ProcessPoolExecutor(max_workers=args.workers) as pool:
+            for out in pool.map(_job, specs):
+                results.append(out)
+                _log(out, events, metrics, bar)
+    else:
+        for spec in specs:
+            out = _job(spec)
+            results.append(out)
+            _log(out, events, metrics, bar)
+    bar.close()
+
+    # baselines on the same test seeds: the demonstrator, the ideal expert, random
+    base = {}
+    for name, mk in (
+        ("expert (demonstrator)", lambda s: scripted_expert("composite", expert_p, seed=s)),
+        ("expert (ideal)", lambda s: scripted_expert("composite", ExpertParams(), seed=s)),
+        ("random", lambda s: random_policy(seed=s)),
+    ):
+        base[name] = [
+            rollout_stats(
+                mk(args.seed + s), "composite", args.eval_episodes, eval_seed, args.gamma
+            )[1]
+            for s in range(args.seeds)
+        ]
+
+    # policies
+    pol_dir = rf.path / "policies"
+    pol_dir.mkdir()
+    best = {}
+    for out in results:
+        pol = MLPPolicy(
+            [np.array(w) for w in out["weights"]], [np.array(b) for b in out["biases"]], out["meta"]
+        )
+        pol.meta.update({"learner": out["learner"], "seed": out["seed"], "eval": out["metrics"]})
+        pol.save(pol_dir / f"{out['learner']}_seed{out['seed']}.npz")
+        key = out["learner"]
+        if (
+            key not in best
+            or out["metrics"]["all_in_view_frac"] > best[key][0]["metrics"]["all_in_view_frac"]
+        ):
+            best[key] = (out, pol)
+
+    summary, table = _summary(results, base, learner, args)
+    rf.write_summary(summary)
+    atomic_write_text(
+        rf.file("results.json"),
+        json.dumps(
+            {
+                "learned": [
+                    {k: v for k, v in r.items() if k not in ("weights", "biases")} for r in results
+                ],
+                "baselines": base,
+            },
+            indent=1,
+            default=float,
+        ),
+    )
+    _plots(rf, results, base)
+    print(table)
+    if args.save_policy is not None:
+        key = "irl" if learner == "irl" else f"ab_{rules[0]}"
+        out, pol = best[key]
+        args.save_policy.parent.mkdir(parents=True, exist_ok=True)
+        pol.save(args.save_policy)
+        print(f"saved {key} seed {out['seed']} policy → {args.save_policy}")
+    print(f"summary: {rf.path / 'summary.md'}")
+    return 0
+
+
+def _log(out: dict, events, metrics, bar) -> None:
+    for h in out["history"]:
+        row = {
+            "learner": out["learner"],
+            "seed": out["seed"],
+            "iter": h["i"],
+            "t": h["t"],
+            "dist": h["dist"],
+            "seconds": h["seconds"],
+        }
+        row.update({f"mu_{i}": v for i, v in enumerate(h["mu"])})
+        metrics.write(row)
+    events.write(
+        {
+            "event": "trained",
+            "learner": out["learner"],
+            "seed": out["seed"],
+            "train_s": out["train_s"],
+            "metrics": out["metrics"],
+            "chosen": out["chosen"],
+        }
+    )
+    bar.update(1)
+    bar.set_postfix(
+        last=f"{out['learner']}/{out['seed']} view={out['metrics']['all_in_view_frac']:.3f}"
+    )
+
+
+def _ms(vals) -> str:
+    v = [x for x in vals if not (isinstance(x, float) and math.isnan(x))]
+    return f"{np.mean(v):.3f} ± {np.std(v):.3f}" if v else "n/a"
+
+
+def _summary(results, base, learner, args) -> tuple[str, str]:
+    learners = sorted({r["learner"] for r in results}, key=lambda s: (s != "irl", s))
+    rows = []
+    by = {k: [r for r in results if r["learner"] == k] for k in learners}
+    for k in learners:
+        rs = by[k]
+        rows.append(
+            [
+                k,
+                _ms([r["metrics"]["all_in_view_frac"] for r in rs]),
+                _ms([r["metrics"]["footprint_ratio"] for r in rs]),
+                _ms([r["metrics"]["ugv_losses"] for r in rs]),
+                _ms([r["train_s"] for r in rs]),
+                _ms([r["history"][-1]["t"] for r in rs]),
+            ]
+        )
+    for k, ms in base.items():
+        rows.append(
+            [
+                k,
+                _ms([m["all_in_view_frac"] for m in ms]),
+                _ms([m["footprint_ratio"] for m in ms]),
+                _ms([m["ugv_losses"] for m in ms]),
+                "-",
+                "-",
+            ]
+        )
+    table = markdown_table(
+        [
+            "policy",
+            "all-in-view frac",
+            "footprint/circle",
+            "UGV losses / ep",
+            "train time [s]",
+            "final t",
+        ],
+        rows,
+    )
+    view = lambda k: np.mean([r["metrics"]["all_in_view_frac"] for r in by[k]])  # noqa: E731
+    exp_d = np.mean([m["all_in_view_frac"] for m in base["expert (demonstrator)"]])
+    exp_i = np.mean([m["all_in_view_frac"] for m in base["expert (ideal)"]])
+    ratios = []
+    for k in learners:
+        row = [k, f"{view(k) / exp_d:.3f}", f"{view(k) / exp_i:.3f}"]
+        row.append(f"{view(k) / view('irl'):.3f}" if "irl" in by and k != "irl" else "-")
+        ratios.append(row)
+    rtable = markdown_table(["learner", "÷ demonstrator", "÷ ideal expert", "÷ IRL"], ratios)
+    md = (
+        f"# skyherd train {learner}\n\nComposite task (scenario 4), {args.seeds} seeds, "
+        f"{args.eval_episodes} test episodes per policy (seeds 100000+), mean ± std over seeds.\n"
+        f"DQN {args.dqn_steps} steps per IRL iteration, at most {args.irl_iters} iterations, ε = {args.epsilon}.\n\n"
+        f"{table}\nAll-in-view fraction relative to the references:\n\n{rtable}\n"
+        "Plots: irl_t.png (t per iteration), compare.png (metrics per policy).\n"
+    )
+    return md, table + "\n" + rtable
+
+
+def _plots(rf, results, base) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    learners = sorted({r["learner"] for r in results}, key=lambda s: (s != "irl", s))
+    colors = dict(zip(learners, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    for r in results:
+        its = [0] + [h["i"] for h in r["history"]]
+        ts = [r["t0"]] + [h["t"] for h in r["history"]]
+        ax.plot(
+            its,
+            ts,
+            "-o",
+            ms=3,
+            color=colors[r["learner"]],
+            alpha=0.7,
+            label=r["learner"] if r["seed"] == min(x["seed"] for x in results) else None,
+        )
+    ax.set_xlabel("IRL iteration i")
+    ax.set_ylabel("t = ‖μ_E − μ̄‖₂")
+    ax.set_yscale("log")
+    ax.legend()
+    ax.set_title("projection IRL margin")
+    fig.tight_layout()
+    fig.savefig(rf.file("irl_t.png"), dpi=100)
+    plt.close(fig)
+
+    names = learners + list(base)
+    vals = {k: [r["metrics"] for r in results if r["learner"] == k] for k in learners} | base
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    for ax, key, lab in zip(
+        axes,
+        ("all_in_view_frac", "footprint_ratio", "ugv_losses"),
+        ("all-in-view fraction", "footprint / smallest circle", "UGV losses per episode"),
+    ):
+        m = [np.nanmean([x[key] for x in vals[k]]) for k in names]
+        s = [np.nanstd([x[key] for x in vals[k]]) for k in names]
+        ax.bar(range(len(names)), m, yerr=s, capsize=3, color="tab:blue")
+        ax.set_xticks(range(len(names)), names, rotation=35, ha="right", fontsize=8)
+        ax.set_title(lab)
+    fig.tight_layout()
+    fig.savefig(rf.file("compare.png"), dpi=100)
+    plt.close(fig)

@@ -60,7 +60,8 @@ def _circumcircle(p, q, s):
 class LevelCamera:
     """Precomputed constants of a level, heading-0 downward camera."""
 
-    def __init__(self, cam: CameraParams, fparams: FeatureParams = FeatureParams()):
+    def __init__(self, cam: CameraParams, fparams: FeatureParams | None = None):
+        fparams = fparams or FeatureParams()
         if cam.mount_pitch_rad != 0.0:
             raise ValueError("the fast path assumes a straight-down camera (mount_pitch_rad = 0)")
         self.cam = cam
