@@ -17,6 +17,7 @@ J3Cub's rudder and elevator properties have the opposite sign; the mapping lives
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -86,6 +87,8 @@ class JSBSimPlane:
     def __post_init__(self) -> None:
         if not (0.0 < self.params.physics_dt <= 0.05):
             raise ValueError(f"physics_dt must be in (0, 0.05] s, got {self.params.physics_dt}")
+        if not re.fullmatch(r"[A-Za-z0-9_\-]+", self.params.aircraft):
+            raise ValueError(f"aircraft name must be a plain name, got {self.params.aircraft!r}")
         jsbsim.FGJSBBase().debug_lvl = 0  # no banner, no trim chatter
         project = PROJECT_AIRCRAFT_DIR / self.params.aircraft
         root = Path(jsbsim.get_default_root_dir())
