@@ -1,0 +1,389 @@
+"""Camera frames over Zenoh: publisher, subscriber, wire format, link statistics.
+
+Keys (CONVENTIONS.md): `skyherd/<vehicle>/camera/frame` (one frame per sample) and
+`skyherd/<vehicle>/camera/info` (camera intrinsics and mounting, JSON, sent with the first
+frame and every `info_every` frames).
+
+Frame wire format (little-endian), then the pixel data:
+
+    magic "SKYF" | version u16 | encoding u8 (0 raw RGB, 1 JPEG) | reserved u8 |
+    stream u32 (random per publisher: a restart resets the subscriber's bookkeeping) |
+    seq u64 | t_sim f64 [s] (simulation clock) | t_pub f64 [s] (publisher's wall clock) |
+    pos_ned 3×f64 [m] | quat 4×f64 (w, x, y, z body→NED) | width u16 | height u16 |
+    data_len u32 | crc32(data) u32
+
+Sessions: by default a Zenoh peer that listens on tcp/127.0.0.1 only (the publisher, port 7447)
+or connects to it (the subscriber), multicast scouting off: nothing to start by hand, nothing
+leaves the machine. `ZenohParams.config_file` hands the whole configuration to a Zenoh JSON5
+file instead (e.g. client mode towards a router on another machine; see docs/perception.md).
+
+The subscriber keeps only the newest frame. It counts frames received, lost (gaps in seq),
+out of order (older than the newest, discarded; a lost frame that turns up late moves from
+lost to out-of-order), late (wall-clock age above `late_s` on arrival, same clock only),
+skipped (superseded before the consumer took them) and corrupt (bad magic, length, CRC or
+image: dropped, never raised).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import threading
+import time
+import zlib
+from dataclasses import asdict, dataclass, field
+
+import cv2
+import numpy as np
+
+from perception.camera import CameraParams
+
+_HDR = struct.Struct("<4sHBBIQdd3d4dHHII")
+MAGIC = b"SKYF"
+VERSION = 1
+RAW, JPEG = 0, 1
+ENCODINGS = {"raw": RAW, "jpeg": JPEG}
+DEFAULT_PORT = 7447
+
+
+def frame_key(vehicle: str) -> str:
+    return f"skyherd/{vehicle}/camera/frame"
+
+
+def info_key(vehicle: str) -> str:
+    return f"skyherd/{vehicle}/camera/info"
+
+
+class CorruptFrame(ValueError):
+    """A payload that is not a valid frame."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One received camera frame. image (H, W, 3) uint8 RGB."""
+
+    stream: int
+    seq: int
+    t_sim: float
+    t_pub: float
+    pos_ned: np.ndarray
+    quat: np.ndarray
+    image: np.ndarray
+    encoding: int
+    t_recv: float = 0.0
+
+    @property
+    def latency_s(self) -> float:
+        """Publish → receive [s] on the wall clock (meaningful on one machine)."""
+        return self.t_recv - self.t_pub
+
+
+def encode_frame(
+    seq: int,
+    t_sim: float,
+    pos_ned: np.ndarray,
+    quat: np.ndarray,
+    image: np.ndarray,
+    encoding: int = RAW,
+    stream: int = 0,
+    jpeg_quality: int = 90,
+    t_pub: float | None = None,
+) -> bytes:
+    """Frame → bytes (header + pixels). image (H, W, 3) uint8 RGB."""
+    img = np.ascontiguousarray(image, dtype=np.uint8)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"expected an (H, W, 3) image, got {img.shape}")
+    h, w = img.shape[:2]
+    if encoding == RAW:
+        data = img.tobytes()
+    elif encoding == JPEG:
+        ok, buf = cv2.imencode(
+            ".jpg", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
+        )
+        if not ok:
+            raise ValueError("JPEG encoding failed")
+        data = buf.tobytes()
+    else:
+        raise ValueError(f"unknown encoding {encoding}")
+    p = np.asarray(pos_ned, dtype=float)
+    q = np.asarray(quat, dtype=float)
+    hdr = _HDR.pack(
+        MAGIC, VERSION, encoding, 0, stream & 0xFFFFFFFF, seq, float(t_sim),
+        time.time() if t_pub is None else t_pub, *p[:3], *q[:4], w, h, len(data),
+        zlib.crc32(data),
+    )  # fmt: skip
+    return hdr + data
+
+
+def decode_frame(payload: bytes, t_recv: float | None = None) -> Frame:
+    """bytes → Frame; anything malformed raises CorruptFrame."""
+    if len(payload) < _HDR.size:
+        raise CorruptFrame(f"payload of {len(payload)} bytes is shorter than the header")
+    f = _HDR.unpack_from(payload)
+    magic, version, enc, _, stream, seq, t_sim, t_pub = f[:8]
+    pos, quat = np.array(f[8:11]), np.array(f[11:15])
+    w, h, n, crc = f[15:19]
+    if magic != MAGIC or version != VERSION:
+        raise CorruptFrame(f"bad magic/version {magic!r}/{version}")
+    data = payload[_HDR.size :]
+    if len(data) != n:
+        raise CorruptFrame(f"data length {len(data)} != header's {n}")
+    if zlib.crc32(data) != crc:
+        raise CorruptFrame("CRC mismatch")
+    if not (np.isfinite(pos).all() and np.isfinite(quat).all() and math.isfinite(t_sim)):
+        raise CorruptFrame("non-finite pose or time")
+    if enc == RAW:
+        if n != w * h * 3:
+            raise CorruptFrame(f"raw size {n} != {w}x{h}x3")
+        img = np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)
+    elif enc == JPEG:
+        bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        if bgr is None or bgr.shape[:2] != (h, w):
+            raise CorruptFrame("JPEG does not decode to the header's size")
+        img = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    else:
+        raise CorruptFrame(f"unknown encoding {enc}")
+    return Frame(
+        stream, seq, t_sim, t_pub, pos, quat, img, enc, time.time() if t_recv is None else t_recv
+    )
+
+
+def camera_info(cam: CameraParams, encoding: str) -> dict:
+    """The camera_info record (JSON-able): intrinsics, mounting, pixel convention."""
+    return {
+        "width_px": cam.width_px,
+        "height_px": cam.height_px,
+        "fx_px": cam.fx,
+        "fy_px": cam.fx,
+        "cx_px": cam.cx,
+        "cy_px": cam.cy,
+        "hfov_rad": cam.hfov_rad,
+        "mount_pitch_rad": cam.mount_pitch_rad,
+        "mount_offset_frd_m": list(cam.mount_offset_frd),
+        "encoding": encoding,
+        "pixels": "RGB, row 0 at the top; integer (u, v) is a pixel centre",
+    }
+
+
+# -- sessions ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ZenohParams:
+    """How to open the Zenoh session (see the module docstring)."""
+
+    mode: str = "peer"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    config_file: str | None = None  # a Zenoh JSON5 config; replaces everything above
+
+
+def publisher_params(port: int = DEFAULT_PORT) -> ZenohParams:
+    """Default for the frame source: a peer listening on loopback only."""
+    return ZenohParams(listen=(f"tcp/127.0.0.1:{port}",))
+
+
+def subscriber_params(connect: str | None = None, port: int = DEFAULT_PORT) -> ZenohParams:
+    """Default for a viewer: a peer that connects to the source on loopback."""
+    return ZenohParams(connect=(connect or f"tcp/127.0.0.1:{port}",))
+
+
+def open_session(p: ZenohParams):
+    """Open a Zenoh session. Bad endpoints or config files raise ValueError with the reason."""
+    import zenoh
+
+    try:
+        if p.config_file:
+            if not os.path.exists(p.config_file):
+                raise ValueError(f"Zenoh config file {p.config_file} does not exist")
+            conf = zenoh.Config.from_file(p.config_file)
+        else:
+            conf = zenoh.Config()
+            conf.insert_json5("mode", json.dumps(p.mode))
+            conf.insert_json5("listen/endpoints", json.dumps(list(p.listen)))
+            conf.insert_json5("connect/endpoints", json.dumps(list(p.connect)))
+            conf.insert_json5(
+                "scouting/multicast/enabled", "true" if p.multicast_scouting else "false"
+            )
+        return zenoh.open(conf)
+    except zenoh.ZError as e:
+        raise ValueError(f"cannot open a Zenoh session ({p}): {e}") from e
+
+
+# -- publisher ---------------------------------------------------------------------------
+
+
+class FramePublisher:
+    """Publishes frames (and camera info) for one vehicle on an open session."""
+
+    def __init__(
+        self,
+        session,
+        vehicle: str,
+        cam: CameraParams,
+        encoding: str = "raw",
+        jpeg_quality: int = 90,
+        info_every: int = 30,
+        rng: np.random.Generator | None = None,
+    ):
+        import zenoh
+
+        if encoding not in ENCODINGS:
+            raise ValueError(f"encoding must be raw or jpeg, got {encoding!r}")
+        self.cam, self.encoding, self.jpeg_quality = cam, encoding, jpeg_quality
+        self.info_every = max(1, info_every)
+        self.stream = int((rng or np.random.default_rng()).integers(1, 2**32 - 1))
+        self.seq = 0
+        self._pub = session.declare_publisher(
+            frame_key(vehicle),
+            congestion_control=zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.DATA_HIGH,
+            express=True,
+        )
+        self._info = session.declare_publisher(info_key(vehicle))
+
+    def publish(
+        self, t_sim: float, uav_pos_ned: np.ndarray, uav_quat: np.ndarray, image: np.ndarray
+    ) -> int:
+        """Send one frame; returns its sequence number."""
+        if self.seq % self.info_every == 0:
+            self.publish_info(t_sim)
+        payload = encode_frame(
+            self.seq, t_sim, uav_pos_ned, uav_quat, image, ENCODINGS[self.encoding],
+            self.stream, self.jpeg_quality,
+        )  # fmt: skip
+        self._pub.put(payload)
+        self.seq += 1
+        return self.seq - 1
+
+    def publish_info(self, t_sim: float) -> None:
+        rec = {**camera_info(self.cam, self.encoding), "t_sim": t_sim, "stream": self.stream}
+        self._info.put(json.dumps(rec).encode())
+
+    def close(self) -> None:
+        for p in (self._pub, self._info):
+            try:
+                p.undeclare()
+            except Exception:  # noqa: BLE001 - already closed with its session
+                pass
+
+
+# -- subscriber --------------------------------------------------------------------------
+
+
+@dataclass
+class LinkStats:
+    received: int = 0
+    lost: int = 0
+    out_of_order: int = 0
+    late: int = 0
+    skipped: int = 0
+    corrupt: int = 0
+    info_received: int = 0
+    info_corrupt: int = 0
+    latencies_s: list[float] = field(default_factory=list, repr=False)
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("latencies_s")
+        return d
+
+
+class FrameSubscriber:
+    """Receives frames for one vehicle; always offers the newest one.
+
+    `take()` returns the newest frame not yet taken (or None); `wait(timeout_s)` blocks for one.
+    Callbacks run on Zenoh's thread; everything shared is under one lock.
+    """
+
+    def __init__(self, session, vehicle: str, late_s: float = 0.1, keep_latencies: int = 100000):
+        self.stats = LinkStats()
+        self.late_s = late_s
+        self.keep_latencies = keep_latencies
+        self.info: dict | None = None
+        self._cv = threading.Condition()
+        self._latest: Frame | None = None
+        self._taken = True
+        self._stream: int | None = None
+        self._last_seq = -1
+        self._sub = session.declare_subscriber(frame_key(vehicle), self._on_frame)
+        self._sub_info = session.declare_subscriber(info_key(vehicle), self._on_info)
+
+    def _on_frame(self, sample) -> None:
+        t_recv = time.time()
+        try:
+            fr = decode_frame(sample.payload.to_bytes(), t_recv)
+        except (CorruptFrame, struct.error, cv2.error, ValueError):
+            with self._cv:
+                self.stats.corrupt += 1
+            return
+        self.on_frame(fr)
+
+    def on_frame(self, fr: Frame) -> None:
+        """Book-keeping for one decoded frame (public so that it can be tested without a link)."""
+        with self._cv:
+            s = self.stats
+            if fr.stream != self._stream:  # new publisher (or a restart): start afresh
+                self._stream, self._last_seq = fr.stream, fr.seq - 1
+            if fr.seq <= self._last_seq:
+                s.out_of_order += 1
+                if s.lost > 0 and fr.seq < self._last_seq:
+                    s.lost -= 1
+                return
+            s.received += 1
+            s.lost += fr.seq - self._last_seq - 1
+            if not self._taken:
+                s.skipped += 1
+            if fr.latency_s > self.late_s:
+                s.late += 1
+            if len(s.latencies_s) < self.keep_latencies:
+                s.latencies_s.append(fr.latency_s)
+            self._last_seq = fr.seq
+            self._latest, self._taken = fr, False
+            self._cv.notify_all()
+
+    def _on_info(self, sample) -> None:
+        try:
+            info = json.loads(sample.payload.to_bytes().decode())
+            if not isinstance(info, dict) or "width_px" not in info:
+                raise ValueError("not a camera info record")
+        except (ValueError, UnicodeDecodeError):
+            with self._cv:
+                self.stats.info_corrupt += 1
+            return
+        with self._cv:
+            self.info = info
+            self.stats.info_received += 1
+
+    def latest(self) -> Frame | None:
+        with self._cv:
+            return self._latest
+
+    def take(self) -> Frame | None:
+        with self._cv:
+            if self._taken:
+                return None
+            self._taken = True
+            return self._latest
+
+    def wait(self, timeout_s: float) -> Frame | None:
+        """The newest untaken frame, waiting up to `timeout_s` [s] for one (None on timeout)."""
+        deadline = time.monotonic() + timeout_s
+        with self._cv:
+            while self._taken:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cv.wait(left)
+            self._taken = True
+            return self._latest
+
+    def close(self) -> None:
+        for s in (self._sub, self._sub_info):
+            try:
+                s.undeclare()
+            except Exception:  # noqa: BLE001 - already closed with its session
+                pass
