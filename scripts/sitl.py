@@ -1,14 +1,121 @@
-"""`skyherd sitl`: not built yet (see the open issues)."""
+"""`skyherd sitl`: run one simulated vehicle with its MAVLink endpoints until interrupted.
+
+Ports for instance N (CONVENTIONS.md): API/offboard UDP 14580+N → 127.0.0.1:14540+N (MAVSDK:
+`udpin://127.0.0.1:14540`), ground station UDP 18570+N → 127.0.0.1:14550 (QGroundControl,
+MAVProxy). System id 1+N. Parameters set over MAVLink persist per airframe and instance.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from flight.geo import DEFAULT_HOME, Home
+
+
+def default_state_dir() -> Path:
+    """Where parameters persist: $XDG_STATE_HOME/skyherd/sitl (or ~/.local/state/...)."""
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(base) / "skyherd" / "sitl"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    pass
+    parser.add_argument("--airframe", choices=["quadrotor", "fixedwing"], default="quadrotor")
+    parser.add_argument(
+        "--instance", type=int, default=0, help="vehicle instance N: system id 1+N, ports +N"
+    )
+    parser.add_argument(
+        "--speedup",
+        type=float,
+        default=1.0,
+        help="simulation speed over wall time (>= 1, or 0 = as fast as possible)",
+    )
+    parser.add_argument(
+        "--home",
+        default=f"{DEFAULT_HOME.lat_deg},{DEFAULT_HOME.lon_deg},{DEFAULT_HOME.alt_m}",
+        help="home LAT,LON,ALT (degrees, degrees, metres AMSL)",
+    )
+    parser.add_argument("--personality", choices=["px4", "ardupilot"], default="px4",
+                        help="present PX4 custom modes (default) or ArduCopter mode numbers")  # fmt: skip
+    parser.add_argument(
+        "--bind", default="127.0.0.1", help="address the sockets bind to (default 127.0.0.1)"
+    )
+    parser.add_argument("--state-dir", type=Path, default=None,
+                        help=f"parameter persistence root (default {default_state_dir()})")  # fmt: skip
+    parser.add_argument(
+        "--duration", type=float, default=None, help="stop after this many simulated seconds"
+    )
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--runs", type=Path, default=Path("runs"), help="root of the run folders")
+    parser.add_argument("--no-tlog", action="store_true", help="do not write telemetry.tlog")
 
 
 def run(args: argparse.Namespace) -> int:
-    print("skyherd sitl is not built yet")
-    return 1
+    from flight.airframes_registry import AirframeUnavailable, make_autopilot
+    from flight.clock import SimClock
+    from flight.mavlink import EndpointConfig, Personality
+    from flight.sitl import Sitl
+    from scripts.cli import UsageError
+    from scripts.runfolder import RunFolder, markdown_table
+
+    if not (args.speedup == 0 or args.speedup >= 1):
+        raise UsageError(f"--speedup must be 0 (as fast as possible) or >= 1, got {args.speedup}")
+    if not 0 <= args.instance <= 200:
+        raise UsageError(f"--instance must be in [0, 200], got {args.instance}")
+    if args.duration is not None and not args.duration > 0:
+        raise UsageError("--duration must be a positive number of simulated seconds")
+    try:
+        home = Home.parse(args.home)
+    except ValueError as e:
+        raise UsageError(f"--home: {e}; give LAT,LON,ALT like -35.36,149.16,584") from e
+    clock = SimClock()
+    try:
+        ap = make_autopilot(
+            args.airframe, clock=clock, home=home, seed=args.seed, instance=args.instance
+        )
+    except AirframeUnavailable as e:
+        raise UsageError(f"{e}; use --airframe quadrotor") from e
+
+    folder = RunFolder("sitl", root=args.runs)
+    state_dir = args.state_dir if args.state_dir is not None else default_state_dir()
+    config = EndpointConfig(
+        instance=args.instance,
+        personality=Personality(args.personality),
+        bind_host=args.bind,
+        state_dir=state_dir,
+        tlog=None if args.no_tlog else folder.file("telemetry.tlog"),
+    )
+    folder.write_config({"airframe": args.airframe, "speedup": args.speedup, "home": home,
+                         "seed": args.seed, "endpoint": config, "control_dt": ap.control_dt})  # fmt: skip
+    try:
+        sitl = Sitl(ap, config, speedup=args.speedup)
+    except OSError as e:
+        raise UsageError(
+            f"{e}; is another instance running? try --instance {args.instance + 1}"
+        ) from e
+    rows = [
+        ["api / offboard", f"udp {config.api_bind[0]}:{config.api_bind[1]}", f"{config.api_remote[0]}:{config.api_remote[1]}"],
+        ["ground station", f"udp {config.gcs_bind[0]}:{config.gcs_bind[1]}", f"{config.gcs_remote[0]}:{config.gcs_remote[1]}"],
+    ]  # fmt: skip
+    print(f"skyherd sitl: {args.airframe}, system id {config.system_id}, {args.personality} personality, "
+          f"speed-up {args.speedup:g}, run folder {folder.path}")  # fmt: skip
+    print(markdown_table(["link", "bound to", "sends to"], rows), flush=True)
+    stats = None
+    try:
+        with sitl:
+            stats = sitl.run(duration_s=args.duration)
+    except KeyboardInterrupt:
+        pass
+    sim_s = clock.t
+    summary = {"sim_s": sim_s, "steps": sitl.steps, "stats": dict(sitl.endpoint.stats)}
+    if stats is not None:
+        summary["real_time_factor"] = stats.real_time_factor
+    folder.write_summary(
+        "# skyherd sitl\n\n"
+        + markdown_table(["quantity", "value"], [[k, json.dumps(v)] for k, v in summary.items()])
+    )
+    print(f"skyherd sitl: stopped at t = {sim_s:.1f} s simulated", file=sys.stderr)
+    return 0

@@ -1,0 +1,57 @@
+"""Which airframes exist, and how to build one with its autopilot.
+
+`make_autopilot("quadrotor" | "fixedwing", ...)` returns an object implementing
+`flight.autopilot_api.Autopilot`. Autopilot modules are imported only when asked for, so a
+missing or broken airframe cannot break the others.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from flight.autopilot_api import Autopilot
+from flight.clock import SimClock
+from flight.geo import DEFAULT_HOME, Home
+
+# name → (module, class)
+AIRFRAMES: dict[str, tuple[str, str]] = {
+    "quadrotor": ("flight.multirotor.autopilot", "MultirotorAutopilot"),
+    "fixedwing": ("flight.fixedwing.autopilot", "FixedWingAutopilot"),
+}
+
+
+class AirframeUnavailable(Exception):
+    """The airframe is unknown or its autopilot is not available in this installation."""
+
+
+def airframe_names() -> list[str]:
+    return list(AIRFRAMES)
+
+
+def autopilot_class(airframe: str) -> type:
+    """The autopilot class for `airframe`; AirframeUnavailable if it cannot be imported."""
+    if airframe not in AIRFRAMES:
+        raise AirframeUnavailable(
+            f"unknown airframe {airframe!r}: choose one of {airframe_names()}"
+        )
+    module_name, cls_name = AIRFRAMES[airframe]
+    try:
+        module = importlib.import_module(module_name)
+        return getattr(module, cls_name)
+    except (ImportError, AttributeError) as e:
+        raise AirframeUnavailable(f"airframe {airframe!r} is not available yet ({e})") from e
+
+
+def make_autopilot(
+    airframe: str,
+    clock: SimClock | None = None,
+    home: Home = DEFAULT_HOME,
+    seed: int = 0,
+    instance: int = 0,
+) -> Autopilot:
+    """A ready autopilot for `airframe` on `clock`, at `home`, on the ground, disarmed."""
+    cls = autopilot_class(airframe)
+    clock = clock if clock is not None else SimClock()
+    if airframe == "quadrotor":
+        return cls(home=home, clock=clock, seed=seed)
+    return cls(clock=clock, home=home, instance=instance, seed=seed)

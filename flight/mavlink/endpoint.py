@@ -1,0 +1,338 @@
+"""The vehicle's MAVLink endpoint: two UDP links, telemetry streams and protocol services.
+
+`update()` is called by the SITL runner once per autopilot step (lockstep): it reads every
+waiting datagram, answers it, finishes timed protocol work and sends the streams that are
+due. Nothing here runs on its own thread and nothing reads the wall clock except the tlog
+timestamps.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from flight.autopilot_api import Autopilot
+from flight.mavlink.commands import Cmd, CommandService
+from flight.mavlink.link import Address, UdpLink
+from flight.mavlink.mission import MISSION, FenceShape, MissionService
+from flight.mavlink.modes import Personality, mode_of_packed
+from flight.mavlink.offboard import (
+    SetpointError,
+    manual_from_msg,
+    setpoint_from_global,
+    setpoint_from_local,
+)
+from flight.mavlink.params import ParamFile, ParamService
+from flight.mavlink.streams import StreamScheduler
+from flight.mavlink.telemetry import Identity, TelemetryBuilder
+
+M = mavlink
+log = logging.getLogger(__name__)
+
+# Port layout (CONVENTIONS.md, contract): for instance N.
+API_BIND_PORT, API_REMOTE_PORT = 14580, 14540
+GCS_BIND_PORT, GCS_REMOTE_PORT = 18570, 14550
+COMPONENT_ID = M.MAV_COMP_ID_AUTOPILOT1
+MAV_TYPES = {"quadrotor": M.MAV_TYPE_QUADROTOR, "fixedwing": M.MAV_TYPE_FIXED_WING}
+
+
+@dataclass(frozen=True)
+class EndpointConfig:
+    """Where and how the endpoint talks.
+
+    instance      vehicle instance N: system id 1+N, ports offset by N
+    personality   PX4 custom modes (default) or ArduCopter mode numbers
+    bind_host     address both sockets bind to (127.0.0.1 unless opted out)
+    remote_host   where the default peers (MAVSDK 14540+N, GCS 14550) listen
+    state_dir     parameter persistence root (None: parameters are not saved)
+    tlog          write every frame in and out to this .tlog file (None: no log)
+    """
+
+    instance: int = 0
+    personality: Personality = Personality.PX4
+    bind_host: str = "127.0.0.1"
+    remote_host: str = "127.0.0.1"
+    state_dir: Path | None = None
+    tlog: Path | None = None
+    params_per_update: int = 40
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.instance <= 200:
+            raise ValueError(f"instance must be in [0, 200], got {self.instance}")
+
+    @property
+    def system_id(self) -> int:
+        return 1 + self.instance
+
+    @property
+    def api_bind(self) -> Address:
+        return (self.bind_host, API_BIND_PORT + self.instance)
+
+    @property
+    def api_remote(self) -> Address:
+        return (self.remote_host, API_REMOTE_PORT + self.instance)
+
+    @property
+    def gcs_bind(self) -> Address:
+        return (self.bind_host, GCS_BIND_PORT + self.instance)
+
+    @property
+    def gcs_remote(self) -> Address:
+        return (self.remote_host, GCS_REMOTE_PORT)
+
+    def param_file(self, airframe: str) -> Path | None:
+        if self.state_dir is None:
+            return None
+        return Path(self.state_dir) / f"{airframe}-{self.instance}" / "params.json"
+
+
+class _Tlog:
+    """MAVLink telemetry log: 8-byte big-endian timestamp [us] + raw frame, appended."""
+
+    def __init__(self, path: Path, clock):
+        self._f = open(path, "ab")
+        self._clock = clock
+        self._epoch_us = int(time.time() * 1e6)  # tlog readers expect Unix time
+        self._last_flush = time.monotonic()
+
+    def write(self, direction: str, frame: bytes) -> None:
+        self._f.write(struct.pack(">Q", self._epoch_us + self._clock.time_us) + frame)
+
+    def maybe_flush(self) -> None:
+        now = time.monotonic()
+        if now - self._last_flush > 0.5:
+            self._f.flush()
+            self._last_flush = now
+
+    def close(self) -> None:
+        self._f.close()
+
+
+class MavlinkEndpoint:
+    """MAVLink 2 endpoint of one simulated vehicle (API link and ground-station link)."""
+
+    def __init__(
+        self,
+        autopilot: Autopilot,
+        config: EndpointConfig = EndpointConfig(),
+        on_fence: Callable[[list[FenceShape]], None] | None = None,
+    ):
+        self.ap = autopilot
+        self.config = config
+        self.ident = Identity(
+            config.system_id,
+            COMPONENT_ID,
+            config.personality,
+            MAV_TYPES.get(autopilot.airframe, M.MAV_TYPE_GENERIC),
+        )
+        self.mav = M.MAVLink(None, config.system_id, COMPONENT_ID)  # message builder
+        self.stats: Counter[str] = Counter()
+        self._tlog = _Tlog(config.tlog, autopilot.clock) if config.tlog else None
+        hook = self._tlog.write if self._tlog else None
+        self.links: list[UdpLink] = []
+        try:
+            self.api = UdpLink(
+                "api", config.api_bind, config.api_remote, config.system_id, COMPONENT_ID, hook
+            )
+            self.links.append(self.api)
+            self.gcs = UdpLink(
+                "gcs", config.gcs_bind, config.gcs_remote, config.system_id, COMPONENT_ID, hook
+            )
+            self.links.append(self.gcs)
+        except OSError:
+            self.close()
+            raise
+        self.streams = {link.name: StreamScheduler() for link in self.links}
+        self.last_heard: dict[str, float] = {}  # link name → sim time of the last valid frame
+        self.telemetry = TelemetryBuilder(autopilot, self.ident)
+        pf = config.param_file(autopilot.airframe)
+        self.params = ParamService(
+            autopilot, self.mav, ParamFile(pf) if pf else None, self.broadcast, self.statustext,
+            config.params_per_update,
+        )  # fmt: skip
+        self.missions = MissionService(autopilot, self.mav, self.statustext, on_fence)
+        self.commands = CommandService(
+            autopilot,
+            self.mav,
+            config.personality,
+            self.statustext,
+            self._request_message,
+            lambda link, msg_id, interval: self.streams[link.name].set_interval(msg_id, interval),
+            lambda link, msg_id: self.streams[link.name].interval_us(msg_id),
+            lambda: len(self.missions.lists[MISSION]),
+        )
+        self._sent_current: int | None = None
+        self._handlers = {
+            "HEARTBEAT": self._on_heartbeat,
+            "COMMAND_LONG": lambda m, r, k, link: self.commands.handle(Cmd.from_long(m), r, link),
+            "COMMAND_INT": lambda m, r, k, link: self.commands.handle(Cmd.from_int(m), r, link),
+            "SET_MODE": self._on_set_mode,
+            "PARAM_REQUEST_LIST": lambda m, r, k, link: self.params.request_list(r, k),
+            "PARAM_REQUEST_READ": lambda m, r, k, link: self.params.request_read(m, r),
+            "PARAM_SET": lambda m, r, k, link: self.params.set(m, r),
+            "MISSION_COUNT": lambda m, r, k, link: self.missions.on_count(m, r, k, _src(m)),
+            "MISSION_ITEM_INT": lambda m, r, k, link: self.missions.on_item(m, r, k, _src(m)),
+            "MISSION_ITEM": lambda m, r, k, link: self.missions.on_item(m, r, k, _src(m)),
+            "MISSION_REQUEST_LIST": lambda m, r, k, link: self.missions.on_request_list(
+                m, r, _src(m)
+            ),
+            "MISSION_REQUEST_INT": lambda m, r, k, link: self.missions.on_request(m, r, _src(m)),
+            "MISSION_REQUEST": lambda m, r, k, link: self.missions.on_request(m, r, _src(m)),
+            "MISSION_CLEAR_ALL": lambda m, r, k, link: self.missions.on_clear_all(m, r, _src(m)),
+            "MISSION_SET_CURRENT": self._on_mission_set_current,
+            "MISSION_ACK": lambda m, r, k, link: None,  # end of a download: nothing to do
+            "SET_POSITION_TARGET_LOCAL_NED": self._on_setpoint,
+            "SET_POSITION_TARGET_GLOBAL_INT": self._on_setpoint,
+            "MANUAL_CONTROL": self._on_manual,
+            "TIMESYNC": self._on_timesync,
+        }
+
+    # --- the lockstep hook ---------------------------------------------------------------------
+    def update(self) -> None:
+        """Answer what arrived, finish timed work, send due streams. Call once per step."""
+        for link in self.links:
+            for msg, addr in link.receive():
+                self._dispatch(link, msg, addr)
+        self.commands.service()
+        self.missions.service()
+        self.params.pump()
+        self._mission_events()
+        self._send_streams()
+        if self._tlog is not None:
+            self._tlog.maybe_flush()
+
+    def close(self) -> None:
+        for link in self.links:
+            link.close()
+        if self._tlog is not None:
+            self._tlog.close()
+
+    # --- sending -------------------------------------------------------------------------------
+    def broadcast(self, msg) -> None:
+        for link in self.links:
+            link.send(msg)
+
+    def statustext(self, severity: int, text: str) -> None:
+        self.broadcast(self.mav.statustext_encode(severity, text.encode("ascii", "replace")[:50]))
+
+    def _send_streams(self) -> None:
+        t = self.ap.clock.t
+        built: dict[int, object] = {}
+        for link in self.links:
+            for msg_id in self.streams[link.name].due(t):
+                msg = built.get(msg_id)
+                if msg is None:
+                    msg = built[msg_id] = self._build(msg_id)
+                link.send(msg)
+                self.stats["tx_stream"] += 1
+
+    def _build(self, msg_id: int):
+        if msg_id == M.MAVLINK_MSG_ID_MISSION_CURRENT:
+            return self.telemetry.mission_current(self.mav, total=len(self.missions.lists[MISSION]))
+        return self.telemetry.build(msg_id, self.mav)
+
+    def _request_message(self, msg_id: int, reply, ack) -> int | None:
+        if not self.telemetry.can_build(msg_id):
+            return M.MAV_RESULT_UNSUPPORTED
+        ack(M.MAV_RESULT_ACCEPTED)
+        reply(self._build(msg_id))
+        return None
+
+    def _mission_events(self) -> None:
+        prog = self.ap.mission_progress
+        if prog.reached:
+            reached = list(prog.reached)
+            prog.reached.clear()  # drained: each reached item is reported once
+            for seq in reached:
+                self.broadcast(self.mav.mission_item_reached_encode(int(seq)))
+        if prog.current != self._sent_current:
+            self._sent_current = prog.current
+            self.broadcast(self._build(M.MAVLINK_MSG_ID_MISSION_CURRENT))
+
+    # --- receiving -----------------------------------------------------------------------------
+    def _dispatch(self, link: UdpLink, msg, addr: Address) -> None:
+        sysid = self.config.system_id
+        ts = getattr(msg, "target_system", getattr(msg, "target", 0))
+        tc = getattr(msg, "target_component", 0)
+        if ts not in (0, sysid) or tc not in (0, COMPONENT_ID):
+            self.stats["rx_wrong_target"] += 1
+            return
+        handler = self._handlers.get(msg.get_type())
+        if handler is None:
+            self.stats["rx_ignored"] += 1
+            return
+        self.last_heard[link.name] = self.ap.clock.t
+
+        def reply(m, _link=link, _addr=addr):
+            _link.send(m, to=_addr)
+
+        key = (link.name, addr, _src(msg))
+        try:
+            handler(msg, reply, key, link)
+            self.stats["rx_handled"] += 1
+        except Exception:  # noqa: BLE001 - a malformed request must never stop the vehicle
+            self.stats["rx_handler_error"] += 1
+            log.exception("dropped %s from %s: handler failed", msg.get_type(), addr)
+
+    def _on_heartbeat(self, msg, reply, key, link) -> None:
+        pass  # last_heard is updated for every handled message
+
+    def _on_set_mode(self, msg, reply, key, link) -> None:
+        """Legacy SET_MODE (MAVProxy, ArduPilot tools): answered like ArduPilot, COMMAND_ACK 11."""
+        result = M.MAV_RESULT_DENIED
+        if msg.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            mode = mode_of_packed(self.config.personality, msg.custom_mode)
+            if mode is not None:
+                res = self.ap.set_mode(mode)
+                if res.ok:
+                    result = M.MAV_RESULT_ACCEPTED
+                else:
+                    self.statustext(M.MAV_SEVERITY_WARNING, res.reason[:50])
+        src = _src(msg)
+        reply(self.mav.command_ack_encode(M.MAVLINK_MSG_ID_SET_MODE, result, 0, 0, src[0], src[1]))
+
+    def _on_mission_set_current(self, msg, reply, key, link) -> None:
+        n = len(self.missions.lists[MISSION])
+        if 0 <= msg.seq < n:
+            res = self.ap.set_mission_current(msg.seq)
+            if not res.ok:
+                self.statustext(M.MAV_SEVERITY_WARNING, res.reason[:50])
+        reply(self._build(M.MAVLINK_MSG_ID_MISSION_CURRENT))
+
+    def _on_setpoint(self, msg, reply, key, link) -> None:
+        try:
+            if msg.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
+                sp = setpoint_from_local(msg)
+            else:
+                sp = setpoint_from_global(msg, self.ap.home)
+        except SetpointError as e:
+            self.stats["setpoint_dropped"] += 1
+            if self.stats["setpoint_dropped"] in (1, 10, 100, 1000):
+                self.statustext(M.MAV_SEVERITY_WARNING, f"setpoint dropped: {e}"[:50])
+            return
+        res = self.ap.set_offboard_setpoint(sp)
+        if not res.ok:
+            self.stats["setpoint_refused"] += 1
+
+    def _on_manual(self, msg, reply, key, link) -> None:
+        try:
+            x, y, z, r = manual_from_msg(msg)
+        except SetpointError:
+            self.stats["manual_dropped"] += 1
+            return
+        self.ap.set_manual_control(x, y, z, r)
+
+    def _on_timesync(self, msg, reply, key, link) -> None:
+        if msg.tc1 == 0:  # a request: answer with our (simulation) time in ns
+            reply(self.mav.timesync_encode(self.ap.clock.time_us * 1000, msg.ts1))
+
+
+def _src(msg) -> tuple[int, int]:
+    return (msg.get_srcSystem(), msg.get_srcComponent())

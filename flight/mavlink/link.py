@@ -1,0 +1,83 @@
+"""One UDP link of the endpoint: a non-blocking socket with a default peer.
+
+Outgoing frames go to the link's default remote address (CONVENTIONS.md) and also to
+whoever last sent us a valid frame on this socket, so clients that bind elsewhere
+(`udpout:` in pymavlink, a second ground station) are answered too.
+"""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import Callable
+
+from flight.mavlink.codec import Codec, MAVLinkMessage
+
+Address = tuple[str, int]
+MAX_DATAGRAM = 65535
+
+
+class UdpLink:
+    """A named UDP link bound to `bind`, sending to `remote` and to the last sender."""
+
+    def __init__(
+        self,
+        name: str,
+        bind: Address,
+        remote: Address,
+        system_id: int,
+        component_id: int,
+        on_frame: Callable[[str, bytes], None] | None = None,
+    ):
+        self.name = name
+        self.bind_addr = bind
+        self.remote = remote
+        self.peer: Address | None = None
+        self.codec = Codec(system_id, component_id)
+        self._on_frame = on_frame  # tlog hook: (direction "in"/"out", raw frame bytes)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.bind(bind)
+        except OSError as e:
+            self.sock.close()
+            raise OSError(f"{name} link cannot bind UDP {bind[0]}:{bind[1]}: {e.strerror}") from e
+        self.sock.setblocking(False)
+        self.send_errors = 0
+
+    def receive(self, max_datagrams: int = 256) -> list[tuple[MAVLinkMessage, Address]]:
+        """Drain up to `max_datagrams` waiting datagrams; returns decoded messages with senders."""
+        out: list[tuple[MAVLinkMessage, Address]] = []
+        for _ in range(max_datagrams):
+            try:
+                data, addr = self.sock.recvfrom(MAX_DATAGRAM)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:  # e.g. ICMP port unreachable reported on a later call
+                continue
+            msgs = self.codec.parse(data)
+            if msgs:
+                self.peer = (addr[0], addr[1])
+                if self._on_frame is not None:
+                    self._on_frame("in", data)
+            out.extend((m, self.peer) for m in msgs)
+        return out
+
+    def send(self, msg: MAVLinkMessage, to: Address | None = None) -> None:
+        """Send one message to `to`, or to the default remote and the last sender."""
+        buf = self.codec.pack(msg)
+        if self._on_frame is not None:
+            self._on_frame("out", buf)
+        if to is not None:
+            self._sendto(buf, to)
+            return
+        self._sendto(buf, self.remote)
+        if self.peer is not None and self.peer != self.remote:
+            self._sendto(buf, self.peer)
+
+    def _sendto(self, buf: bytes, addr: Address) -> None:
+        try:
+            self.sock.sendto(buf, addr)
+        except OSError:  # nobody listening, buffer full: UDP drops, so do we
+            self.send_errors += 1
+
+    def close(self) -> None:
+        self.sock.close()

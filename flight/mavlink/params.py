@@ -1,0 +1,183 @@
+"""Parameter protocol (PARAM_REQUEST_LIST / _READ / PARAM_SET → PARAM_VALUE) and its
+per-instance persistence.
+
+Values travel as MAV_PARAM_TYPE_REAL32 (every skyherd parameter is a float), so both PX4-style
+(bytewise) and ArduPilot-style (C-cast) clients read them unchanged. The autopilot owns the
+values and their limits; this module only moves them and remembers the ones set over MAVLink
+in `params.json`, written atomically. A corrupt or unreadable file → a warning and defaults.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from flight.autopilot_api import Autopilot
+
+log = logging.getLogger(__name__)
+PARAM_ID_LEN = 16
+FILE_VERSION = 1
+
+
+class ParamFile:
+    """`{"version": 1, "params": {name: value}}` holding the values set over MAVLink."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+
+    def load(self) -> dict[str, float]:
+        """Saved values; {} (with a warning) if the file is missing-but-expected, corrupt or odd."""
+        if not self.path.exists():
+            return {}
+        try:
+            doc = json.loads(self.path.read_text(encoding="utf-8"))
+            if not isinstance(doc, dict) or doc.get("version") != FILE_VERSION:
+                raise ValueError("not a skyherd parameter file (version 1)")
+            raw = doc.get("params")
+            if not isinstance(raw, dict):
+                raise ValueError("'params' is not an object")
+        except (OSError, UnicodeDecodeError, ValueError) as e:
+            log.warning("parameter file %s unreadable (%s): using defaults", self.path, e)
+            return {}
+        out: dict[str, float] = {}
+        for name, value in raw.items():
+            if (
+                isinstance(value, int | float)
+                and not isinstance(value, bool)
+                and math.isfinite(value)
+            ):
+                out[str(name)] = float(value)
+            else:
+                log.warning("parameter file %s: ignoring %s=%r", self.path, name, value)
+        return out
+
+    def save(self, values: dict[str, float]) -> None:
+        """Write atomically (temp file + fsync + rename): a kill leaves the old or new file."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        text = json.dumps(
+            {"version": FILE_VERSION, "params": dict(sorted(values.items()))}, indent=1
+        )
+        tmp = self.path.with_name(f".{self.path.name}.tmp{os.getpid()}")
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, self.path)
+
+
+Reply = Callable[[object], None]  # sends one message back to whoever asked
+
+
+class ParamService:
+    """Serves the autopilot's parameters; list requests are paced out over several updates."""
+
+    def __init__(
+        self,
+        ap: Autopilot,
+        mav: mavlink.MAVLink,
+        store: ParamFile | None,
+        broadcast: Callable[[object], None],
+        statustext: Callable[[int, str], None],
+        per_update: int = 40,
+    ):
+        self.ap = ap
+        self.mav = mav
+        self.store = store
+        self.broadcast = broadcast
+        self.statustext = statustext
+        self.per_update = per_update
+        self.names = [n for n in ap.param_names() if 0 < len(n) <= PARAM_ID_LEN]
+        skipped = [n for n in ap.param_names() if not 0 < len(n) <= PARAM_ID_LEN]
+        if skipped:
+            log.warning(
+                "parameters with names longer than 16 characters are not served: %s", skipped
+            )
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.saved: dict[str, float] = {}
+        self._queue: deque[tuple[int, Reply, object]] = deque()
+        if store is not None:
+            self._restore(store.load())
+
+    def _restore(self, values: dict[str, float]) -> None:
+        for name, value in values.items():
+            if name not in self.index:
+                log.warning("saved parameter %s is unknown to this airframe: ignored", name)
+                continue
+            res = self.ap.set_param(name, value)
+            if res.ok:
+                self.saved[name] = value
+            else:
+                log.warning(
+                    "saved parameter %s=%g refused (%s): default kept", name, value, res.reason
+                )
+
+    def value_msg(self, name: str):
+        """PARAM_VALUE for one parameter."""
+        v = self.ap.get_param(name)
+        v = float("nan") if v is None else float(v)
+        return self.mav.param_value_encode(
+            name.encode("ascii"),
+            v,
+            mavlink.MAV_PARAM_TYPE_REAL32,
+            len(self.names),
+            self.index[name],
+        )
+
+    # --- handlers --------------------------------------------------------------------------
+    def request_list(self, reply: Reply, key: object) -> None:
+        """Queue the whole list for one requester (`key` identifies it: a repeat restarts)."""
+        self._queue = deque(q for q in self._queue if q[2] != key)
+        self._queue.extend((i, reply, key) for i in range(len(self.names)))
+
+    def request_read(self, msg, reply: Reply) -> None:
+        idx = msg.param_index
+        if idx >= 0:
+            if idx < len(self.names):
+                reply(self.value_msg(self.names[idx]))
+            return
+        name = _param_id(msg.param_id)
+        if name in self.index:
+            reply(self.value_msg(name))
+
+    def set(self, msg, reply: Reply) -> None:
+        name = _param_id(msg.param_id)
+        if name not in self.index:
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"param {name!r} unknown")
+            return
+        value = float(msg.param_value)
+        if not math.isfinite(value):
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"param {name}: value not a number")
+            reply(self.value_msg(name))  # the current value: the set failed
+            return
+        res = self.ap.set_param(name, value)
+        if not res.ok:
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"param {name}: {res.reason}"[:50])
+            reply(self.value_msg(name))
+            return
+        self.saved[name] = float(self.ap.get_param(name))
+        if self.store is not None:
+            try:
+                self.store.save(self.saved)
+            except OSError as e:
+                log.warning("cannot save parameters to %s: %s", self.store.path, e)
+        self.broadcast(self.value_msg(name))
+
+    def pump(self) -> None:
+        """Send up to `per_update` queued PARAM_VALUEs of pending list requests."""
+        for _ in range(min(self.per_update, len(self._queue))):
+            i, reply, _ = self._queue.popleft()
+            reply(self.value_msg(self.names[i]))
+
+
+def _param_id(raw) -> str:
+    """param_id as text: pymavlink gives str (NUL-stripped) or bytes; junk bytes are dropped."""
+    if isinstance(raw, bytes):
+        raw = raw.split(b"\0", 1)[0].decode("ascii", errors="ignore")
+    return str(raw).split("\0", 1)[0][:PARAM_ID_LEN]

@@ -1,0 +1,83 @@
+"""Telemetry stream scheduling on simulation time, with per-message rates per link.
+
+Default rates follow what PX4 streams on a normal/onboard link. SET_MESSAGE_INTERVAL changes
+one message's rate on the link that asked (as PX4 does); interval -1 stops it, 0 restores the
+default.
+"""
+
+from __future__ import annotations
+
+import math
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+# message id → default rate [Hz] (0 = not streamed unless asked for).
+DEFAULT_RATES_HZ: dict[int, float] = {
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 2.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 2.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 20.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 10.0,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 10.0,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 5.0,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_ALTITUDE: 10.0,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 0.0,
+}
+MAX_RATE_HZ = 500.0  # faster requests are clamped
+
+
+class StreamScheduler:
+    """Which messages are due on one link at simulation time t [s]."""
+
+    def __init__(self, defaults: dict[int, float] | None = None):
+        self.defaults = dict(DEFAULT_RATES_HZ if defaults is None else defaults)
+        self.rates: dict[int, float] = dict(self.defaults)
+        self._next: dict[int, float] = {}
+
+    def supports(self, msg_id: int) -> bool:
+        return msg_id in self.defaults
+
+    def set_interval(self, msg_id: int, interval_us: float) -> bool:
+        """SET_MESSAGE_INTERVAL semantics. False if the message cannot be streamed or the
+        interval is not a number."""
+        if not self.supports(msg_id) or not math.isfinite(interval_us):
+            return False
+        if interval_us == -1:
+            rate = 0.0
+        elif interval_us == 0:
+            rate = self.defaults[msg_id]
+        elif interval_us > 0:
+            rate = min(1e6 / interval_us, MAX_RATE_HZ)
+        else:
+            return False
+        self.rates[msg_id] = rate
+        self._next.pop(msg_id, None)
+        return True
+
+    def interval_us(self, msg_id: int) -> int:
+        """MESSAGE_INTERVAL answer: -1 stopped, 0 not available, else the interval [us]."""
+        if not self.supports(msg_id):
+            return 0
+        rate = self.rates[msg_id]
+        return -1 if rate <= 0 else int(round(1e6 / rate))
+
+    def due(self, t: float) -> list[int]:
+        """Message ids to send now; each is rescheduled one period later (no catch-up bursts)."""
+        out = []
+        for msg_id, rate in self.rates.items():
+            if rate <= 0:
+                continue
+            nxt = self._next.get(msg_id)
+            if nxt is None or t >= nxt - 1e-9:
+                out.append(msg_id)
+                period = 1.0 / rate
+                nxt = t + period if nxt is None else nxt + period
+                if nxt <= t:  # fell behind (a slow step): skip, don't burst
+                    nxt = t + period
+                self._next[msg_id] = nxt
+        return out
