@@ -200,19 +200,27 @@ def record(
 ) -> Demonstration:
     """Run `n_episodes` of `scenario` with the demonstrator `act(obs) → action` and record them.
 
-    Episode k uses environment seed `seed + k`.
+    Episode k uses environment seed `seed + k`. An action < 0 means "stop": recording ends there
+    and the partial episode is kept (teleop's quit key).
     """
     env = GroundAirEnv(scenario, task=task)
     rows: dict[str, list] = {
         k: [] for k in ("obs", "actions", "psi", "episode", "t_s", "uav_ned", "ugv_ne")
     }
     seeds, lengths, metrics = [], [], []
+    stopped = False
     for k in range(n_episodes):
+        if stopped:
+            break
         obs, _ = env.reset(seed=seed + k)
         seeds.append(seed + k)
         done = False
         while not done:
             a = int(act(obs))
+            if a < 0:  # the demonstrator stopped: keep what was recorded so far
+                stopped = True
+                info = {"metrics": env.episode_metrics()}
+                break
             s = env.uav_state()
             rows["obs"].append(obs)
             rows["uav_ned"].append((s["n"], s["e"], s["d"]))

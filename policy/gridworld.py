@@ -81,3 +81,35 @@ def region_features(height: int, width: int, cells_per_feature: list[list[int]])
     for j, cells in enumerate(cells_per_feature):
         F[cells, j] = 1.0
     return F
+
+
+class GridGoalEnv:
+    """A gymnasium env on the same grid for testing DQN: reach the goal cell in the fewest moves.
+
+    obs (2,) float32 = (row, col) / (size − 1); actions as MOVES; reward −0.05 per step and +1 on
+    reaching the goal (terminates); truncation after `max_steps`. Optimal return from (0, 0):
+    1 − 0.05·(2·size − 3) in 2·(size − 1) steps.
+    """
+
+    def __init__(self, size: int = 5, max_steps: int = 30):
+        import gymnasium as gym
+
+        self.size, self.max_steps = size, max_steps
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(2,), dtype=np.float32)
+        self.action_space = gym.spaces.Discrete(len(MOVES))
+        self.r = self.c = self.k = 0
+
+    def _obs(self) -> np.ndarray:
+        return np.array([self.r, self.c], np.float32) / (self.size - 1)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.r = self.c = self.k = 0
+        return self._obs(), {}
+
+    def step(self, a: int):
+        dr, dc = MOVES[int(a)]
+        self.r = min(max(self.r + dr, 0), self.size - 1)
+        self.c = min(max(self.c + dc, 0), self.size - 1)
+        self.k += 1
+        goal = self.r == self.size - 1 and self.c == self.size - 1
+        return self._obs(), (1.0 if goal else -0.05), goal, self.k >= self.max_steps, {}

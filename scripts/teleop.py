@@ -1,14 +1,151 @@
-"""`skyherd teleop`: not built yet (see the open issues)."""
+"""`skyherd teleop`: record a demonstration of a GroundAir scenario from the keyboard.
+
+Keys (raw terminal, no Enter needed):
+    w north   s south   d east   a west   r climb   f descend   space hover   q quit (save)
+Only the manoeuvres of the chosen scenario are accepted (climb: r; descend: f; lateral: w a s d);
+any other key means hover. With --step-s S > 0 the task runs in real time: each S seconds the
+last key pressed is the action (none → hover). With --step-s 0 it waits for one key per step
+(turn-based; this is how the tests drive it through a pseudo-terminal).
+
+The view is drawn as text: the camera image scaled to 40×15 characters, 'o' a UGV, '+' the image
+centre. The demonstration is saved in the skyherd-demo format (policy.demos) and is ready for
+`skyherd train irl|ab --demos FOLDER` (name the files <scenario>.npz).
+"""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import os
+import select
+import sys
+import termios
+import time
+import tty
+from pathlib import Path
+
+from scripts.cli import UsageError
+
+KEYS = {"w": 1, "s": 2, "d": 3, "a": 4, "r": 5, "f": 6, " ": 0}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    pass
+    parser.add_argument(
+        "--scenario",
+        default="lateral",
+        choices=("lateral", "climb", "descend", "composite"),
+        help="what to demonstrate",
+    )
+    parser.add_argument("--episodes", type=int, default=1, help="episodes to record (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="environment seed of the first episode")
+    parser.add_argument(
+        "--step-s",
+        type=float,
+        default=0.5,
+        help="wall seconds per step; 0 = wait for a key each step (default 0.5)",
+    )
+    parser.add_argument(
+        "--episode-s", type=float, default=60.0, help="episode length [s] (sim time)"
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output .npz (default runs/teleop-<scenario>-<UTC>.npz)",
+    )
+    parser.add_argument("--no-view", action="store_true", help="do not draw the text view")
+
+
+def _view(env) -> str:
+    W, H = 40, 15
+    grid = [[" "] * W for _ in range(H)]
+    cam = env.cam
+    uv, seen = cam.pixels(env.n, env.e, env.alt, env.formation.positions())
+    grid[H // 2][W // 2] = "+"
+    for (u, v), s in zip(uv, seen):
+        if s:
+            grid[min(int(v / cam.H * H), H - 1)][min(int(u / cam.W * W), W - 1)] = "o"
+    lines = ["+" + "-" * W + "+"] + ["|" + "".join(r) + "|" for r in grid] + ["+" + "-" * W + "+"]
+    return "\r\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
-    print("skyherd teleop is not built yet")
-    return 1
+    from policy.demos import ALLOWED_ACTIONS, record
+    from policy.groundair.params import ACTION_NAMES, TaskParams
+
+    if args.episodes < 1 or args.step_s < 0 or args.episode_s <= 0:
+        raise UsageError("need --episodes >= 1, --step-s >= 0 and --episode-s > 0")
+    fd = sys.stdin.fileno()
+    if not os.isatty(fd):
+        raise UsageError("teleop needs a terminal on stdin (run it in a terminal, not a pipe)")
+    allowed = ALLOWED_ACTIONS[args.scenario]
+    task = TaskParams(episode_s=args.episode_s)
+    out = (
+        args.out
+        or Path("runs")
+        / f"teleop-{args.scenario}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.npz"
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    old = termios.tcgetattr(fd)
+    state = {"t_next": None, "last": 0}
+
+    def read_key(timeout: float | None) -> str | None:
+        r, _, _ = select.select([fd], [], [], timeout)
+        return os.read(fd, 1).decode(errors="ignore") if r else None
+
+    def act(obs) -> int:
+        key = None
+        if args.step_s == 0:
+            key = read_key(None)
+        else:
+            now = time.monotonic()
+            if state["t_next"] is None:
+                state["t_next"] = now + args.step_s
+            while (left := state["t_next"] - time.monotonic()) > 0:
+                k = read_key(left)
+                if k is not None:
+                    key = k
+            state["t_next"] += args.step_s
+        if key == "q" or key == "\x03":
+            return -1
+        a = KEYS.get((key or " ").lower(), 0)
+        return a if a in allowed else 0
+
+    def show(env, obs, a) -> None:
+        if args.no_view:
+            return
+        m = env.episode_metrics()
+        sys.stdout.write(
+            "\x1b[H\x1b[2J" + _view(env) + "\r\n"
+            f"{args.scenario}  t={env.formation.t:5.1f}s  alt={env.alt:5.1f} m  "
+            f"action={ACTION_NAMES[a]:8s} in view {int(obs[4] * 3)}/3  "
+            f"all-in-view so far {m['all_in_view_frac']:.2f}\r\n"
+            "w/s north/south  d/a east/west  r climb  f descend  space hover  q quit\r\n"
+        )
+        sys.stdout.flush()
+
+    try:
+        tty.setcbreak(fd)
+        demo = record(
+            args.scenario,
+            act,
+            args.episodes,
+            args.seed,
+            "teleop:keyboard",
+            {"keys": KEYS, "step_s": args.step_s},
+            task=task,
+            on_step=show,
+        )
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, old)
+    if demo.actions.shape[0] == 0:
+        print("nothing recorded (quit before the first step)")
+        return 1
+    demo.save(out)
+    m = demo.meta["episode_metrics"]
+    print(
+        f"\nrecorded {demo.actions.shape[0]} steps in {len(m)} episode(s) of {args.scenario} → {out}"
+    )
+    print(f"all-in-view fraction per episode: {[round(x['all_in_view_frac'], 3) for x in m]}")
+    print(f"task: {dataclasses.asdict(task)['episode_s']} s episodes")
+    return 0
