@@ -13,7 +13,7 @@ MULTIROTOR_PARAMS: tuple[ParamSpec, ...] = (
     # --- position / velocity loops
     ParamSpec("MPC_XY_P", 0.95, 0.0, 5.0, "horizontal position gain", "1/s"),
     ParamSpec("MPC_Z_P", 1.0, 0.0, 5.0, "vertical position gain", "1/s"),
-    ParamSpec("MPC_XY_VEL_P_ACC", 1.8, 0.0, 10.0, "horizontal velocity gain", "1/s"),
+    ParamSpec("MPC_XY_VEL_P_ACC", 2.5, 0.0, 10.0, "horizontal velocity gain", "1/s"),
     ParamSpec("MPC_XY_VEL_I_ACC", 0.4, 0.0, 10.0, "horizontal velocity integral", "1/s^2"),
     ParamSpec("MPC_Z_VEL_P_ACC", 4.0, 0.0, 15.0, "vertical velocity gain", "1/s"),
     ParamSpec("MPC_Z_VEL_I_ACC", 2.0, 0.0, 10.0, "vertical velocity integral", "1/s^2"),
