@@ -143,6 +143,12 @@ def _fmt_pm(values: list[float], digits: int = 1) -> str:
     return f"{a.mean():.{digits}f} ± {a.std():.{digits}f}"
 
 
+def _first_success(summaries) -> str:
+    firsts = [s.first_success for s in summaries if s.first_success is not None]
+    never = len(summaries) - len(firsts)
+    return _fmt_pm(firsts, 0) + (f" ({never} never)" if never else "")
+
+
 def _plot(path, title, curves, window, max_steps) -> None:
     """Learning curves: moving-average max steps per episode, log y, mean and min–max band."""
     import matplotlib
@@ -220,6 +226,7 @@ def run(args: argparse.Namespace) -> int:
             "episodes_to_converge",
             "final_steps",
             "final_success",
+            "first_success",
             "wall_s",
         ]
     )
@@ -264,6 +271,7 @@ def run(args: argparse.Namespace) -> int:
                         else "",
                         "final_steps": s.final_steps,
                         "final_success": s.final_success,
+                        "first_success": s.first_success if s.first_success is not None else "",
                         "wall_s": round(wall, 3),
                     }
                 )
@@ -275,6 +283,7 @@ def run(args: argparse.Namespace) -> int:
         "K",
         "N",
         "converged",
+        "first success",
         "episodes to converge",
         "final max steps",
         "final success rate",
@@ -293,6 +302,7 @@ def run(args: argparse.Namespace) -> int:
                     c.n_agents,
                     c.share_every or "–",
                     f"{len(conv)}/{len(ss)}",
+                    _first_success(ss),
                     _fmt_pm(conv, 0),
                     _fmt_pm([s.final_steps for s in ss]),
                     _fmt_pm([s.final_success for s in ss], 2),

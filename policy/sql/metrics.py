@@ -3,6 +3,7 @@
 Definitions (ours; the seed reads convergence off its plots):
 - final metric: mean of the per-episode metric (largest step count of any agent) over the
   last `tail` episodes; final success rate likewise.
+- first success: the first episode in which every agent reached a target (None if never).
 - episodes to converge: the first episode e such that the `window`-episode moving average of
   the metric ending at e and every later one stays within 10 % (+1 step) of the final metric;
   None ("did not converge") when the final success rate is below `min_success`.
@@ -22,6 +23,7 @@ class RunSummary:
     episodes_to_converge: int | None
     final_steps: float
     final_success: float
+    first_success: int | None
 
 
 def moving_average(x: np.ndarray, window: int) -> np.ndarray:
@@ -59,4 +61,5 @@ def summarize(m: Metrics, window: int = 100, tail: int = 500) -> RunSummary:
         convergence_episode(m.steps, m.success, window, tail),
         float(m.steps[-tail:].mean()),
         float(np.mean(m.success[-tail:])),
+        int(np.argmax(m.success)) + 1 if m.success.any() else None,
     )
