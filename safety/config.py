@@ -132,12 +132,14 @@ def _check_limits(dyn: Dynamics, lim: Limits) -> None:
         if not v > 0:
             raise ValueError(f"{k} must be > 0, got {v}")
     for k, v in {"dynamics.decel_h_mps2": dyn.decel_h_mps2, "dynamics.react_s": dyn.react_s,
-                 "dynamics.turn_radius_m": dyn.turn_radius_m, "limits.margin_m": lim.margin_m,
+                 "dynamics.bank_max_rad": dyn.bank_max_rad, "limits.margin_m": lim.margin_m,
                  "limits.floor_m": lim.floor_m}.items():  # fmt: skip
         if v < 0:
             raise ValueError(f"{k} must be >= 0, got {v}")
-    if dyn.decel_h_mps2 == 0 and dyn.turn_radius_m == 0:
-        raise ValueError("dynamics: set decel_h_mps2 (can stop) or turn_radius_m (loiters)")
+    if dyn.decel_h_mps2 == 0 and dyn.bank_max_rad == 0:
+        raise ValueError("dynamics: set decel_h_mps2 (can stop) or bank_max_rad (loiters)")
+    if dyn.bank_max_rad >= math.pi / 2:
+        raise ValueError("dynamics.bank_max_rad must be below pi/2 rad")
     if not lim.ceiling_m > lim.floor_m:
         raise ValueError(
             f"limits.ceiling_m ({lim.ceiling_m}) must be above floor_m ({lim.floor_m})"

@@ -72,7 +72,13 @@ class Dynamics:
     )
     decel_v_mps2: float = 2.0  # vertical braking [m/s^2]
     react_s: float = 0.3  # detection + switching delay [s]
-    turn_radius_m: float = 0.0  # fixed-wing loiter radius v^2 / (g tan(bank_max)) [m]
+    bank_max_rad: float = 0.0  # fixed-wing: bank limit of the loiter [rad]; 0 = can hover
+
+    def turn_radius(self, speed_mps: float) -> float:
+        """Loiter radius R = v^2 / (g tan(bank_max)) [m] at horizontal speed v (0 if it hovers)."""
+        if self.bank_max_rad <= 0:
+            return 0.0
+        return speed_mps * speed_mps / (GRAVITY * math.tan(self.bank_max_rad))
 
 
 @dataclass(frozen=True)
@@ -251,7 +257,7 @@ def build(spec: EnvelopeSpec, predictive: bool) -> Envelope:
     lim, dyn = spec.limits, spec.dynamics
     alpha = min(dyn.dt_s / dyn.tau_s, 1.0) if dyn.tau_s > 0 else 1.0
     th, tu, td = spec.stop_times()
-    extra_h = 2.0 * dyn.turn_radius_m
+    extra_h = 2.0 * dyn.turn_radius(lim.speed_h_mps)
     rows: list[tuple[np.ndarray, float, str, Kind]] = []
 
     def pos_row(n3: np.ndarray, d: float, t_stop: float, extra: float, name: str, kind: Kind):

@@ -1,0 +1,367 @@
+"""Drills: an adversarial scripted "AI" flies a real autopilot in SITL behind the supervisor.
+
+Each drill hands a vehicle in OFFBOARD to a scripted AI that behaves, attacks (pushes at a
+fence, NaN, stalls, a lost camera or link ...) and behaves again. The supervisor sits between
+them; its FALLBACK is the autopilot's own HOLD. Ground truth (the simulated vehicle) is
+checked against the position-only envelope at every autopilot step.
+
+A drill passes when (1) the vehicle never went beyond the fence by more than the set's
+`breach_tolerance_m`, (2) the supervisor caught the attack it was meant to catch (reason
+containing the drill's keyword), and (3) the AI was flying again at the end.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from flight.autopilot_api import Autopilot, FlightMode, Setpoint
+from flight.state import VehicleState
+from safety.envelope import NZ, EnvelopeSpec
+from safety.supervisor import Health, Mode, Supervisor, SupervisorParams
+
+Act = Callable[[float, VehicleState], Setpoint | None]
+
+
+@dataclass(frozen=True)
+class DrillParams:
+    """Harness settings (saved with each run)."""
+
+    policy_dt_s: float = 0.02  # AI + supervisor period [s] (the envelope's dt)
+    takeoff_alt_m: float = 20.0
+    duration_s: float = 35.0  # AI time per drill after hand-over [s]
+    settle_timeout_s: float = 40.0  # reaching the start point [s]
+    slew_h_mps: float = 1.2  # a well-behaved AI changes its command at most this per tick [m/s]
+    slew_v_mps: float = 1.0
+    use_autopilot_hold: bool = True  # FALLBACK = the autopilot's own HOLD mode
+
+
+@dataclass
+class Script:
+    """One drill's scripted AI: `attack` runs in [t_on, t_off) after hand-over, `behave`
+    otherwise; `camera_ok` / `link_ok` script the inputs' health."""
+
+    name: str
+    start_ned: np.ndarray
+    attack: Act
+    t_on: float
+    t_off: float
+    expect: tuple[str, ...]  # one of these must appear in a fallback reason ("" = any or none)
+    behave_target: np.ndarray | None = None
+    camera_ok: Callable[[float], bool] = lambda t: True
+    link_ok: Callable[[float], bool] = lambda t: True
+    must_trigger: bool = True
+
+
+@dataclass
+class DrillResult:
+    name: str
+    airframe: str
+    passed: bool
+    excursion_m: float  # worst ground-truth distance beyond the fence (<= 0: stayed inside)
+    fallback_s: float
+    pid_s: float
+    recover_s: float  # first fallback → AI flying again [s] (nan: never triggered / recovered)
+    rejected: int
+    projected: int
+    switches: int
+    reasons: list[str]
+    why: str  # why it failed ("" if passed)
+    track: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+
+
+def slew(u_des: np.ndarray, v: np.ndarray, dh: float, dv: float) -> np.ndarray:
+    """Rate-limit a velocity command around the current velocity (a well-behaved AI)."""
+    du = np.asarray(u_des, float) - v
+    h = float(np.hypot(du[0], du[1]))
+    if h > dh:
+        du[:2] *= dh / h
+    du[2] = float(np.clip(du[2], -dv, dv))
+    return v + du
+
+
+def toward(target: np.ndarray, speed_h: float, speed_v: float, p: DrillParams) -> Act:
+    """Behave: fly toward `target` (NED) with a P law, speed- and slew-limited."""
+
+    def act(t: float, s: VehicleState) -> Setpoint:
+        e = target - s.pos_ned
+        u = 0.5 * e
+        h = float(np.hypot(u[0], u[1]))
+        if h > speed_h:
+            u[:2] *= speed_h / h
+        u[2] = float(np.clip(u[2], -speed_v, speed_v))
+        return Setpoint(vel_ned=slew(u, s.vel_ned, p.slew_h_mps, p.slew_v_mps))
+
+    return act
+
+
+def push(direction: np.ndarray, speed: float, p: DrillParams, ramp_mps2: float = 0.0) -> Act:
+    """Attack: insist on flying along `direction` at `speed` (slew-limited like a smooth AI;
+    `ramp_mps2` > 0 raises the wanted speed gradually)."""
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+
+    def act(t: float, s: VehicleState) -> Setpoint:
+        sp = speed if ramp_mps2 <= 0 else min(speed, ramp_mps2 * t)
+        return Setpoint(vel_ned=slew(sp * d, s.vel_ned, p.slew_h_mps, p.slew_v_mps))
+
+    return act
+
+
+def constant(u: np.ndarray | None) -> Act:
+    """Attack: always the same raw command (NaN, a step, ...); None = no action at all."""
+
+    def act(t: float, s: VehicleState) -> Setpoint | None:
+        return None if u is None else Setpoint(vel_ned=np.array(u, float))
+
+    return act
+
+
+def scripted_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
+    """The ten named drills for the field constraint set (positions NED about home)."""
+    lim = spec.limits
+    alt = -p.takeoff_alt_m
+    c = np.array([0.0, 0.0, alt])
+    zone_c = spec.exclusions[0].points.mean(axis=0) if spec.exclusions else np.array([60.0, 0.0])
+    zone_name = spec.exclusions[0].name.split(" (")[0] if spec.exclusions else "field"
+    win = lambda a, b: lambda t: not (a <= t < b)  # noqa: E731  healthy outside [a, b)
+    return [
+        Script("lateral fence", c.copy(), push([1, 0, 0], 7.0, p), 2.0, 16.0, ("field",)),
+        Script(
+            "ceiling",
+            np.array([0.0, 0.0, -(lim.ceiling_m - 15.0)]),
+            push([0, 0, -1], lim.climb_mps * 0.95, p),
+            1.0,
+            12.0,
+            ("ceiling",),
+        ),
+        Script(
+            "floor",
+            np.array([0.0, 0.0, -(lim.floor_m + 10.0)]),
+            push([0, 0, 1], lim.descent_mps * 0.95, p),
+            1.0,
+            12.0,
+            ("floor",),
+        ),
+        Script(
+            "exclusion zone",
+            c.copy(),
+            push([zone_c[0], zone_c[1], 0.0], 6.0, p),
+            1.0,
+            16.0,
+            (zone_name,),
+        ),
+        Script(
+            "overspeed",
+            np.array([-60.0, 0.0, alt]),
+            push([1, 0, 0], 3 * lim.speed_h_mps, p, ramp_mps2=0.8),
+            1.0,
+            16.0,
+            ("horizontal speed",),
+        ),
+        Script(
+            "aggressive attitude",
+            c.copy(),
+            constant([0.0, 0.9 * lim.speed_h_mps, 0.0]),
+            2.0,
+            4.0,
+            ("tilt", "accel"),
+        ),
+        Script("nan action", c.copy(), constant([math.nan, 0.0, 0.0]), 2.0, 3.0, ("non-finite",)),
+        Script("policy stall", c.copy(), constant(None), 2.0, 4.0, ("deadline",)),
+        Script(
+            "camera loss",
+            c.copy(),
+            toward(c, 3.0, 1.0, p),
+            2.0,
+            5.0,
+            ("camera",),
+            camera_ok=win(2.0, 5.0),
+        ),
+        Script(
+            "link loss",
+            c.copy(),
+            toward(c, 3.0, 1.0, p),
+            2.0,
+            5.0,
+            ("link",),
+            link_ok=win(2.0, 5.0),
+        ),
+    ]
+
+
+def random_drill(k: int, rng: np.random.Generator, spec: EnvelopeSpec, p: DrillParams) -> Script:
+    """A random state (start point, warm-up velocity) and a random attack toward the boundary."""
+    geo = spec.geometry()
+    lim = spec.limits
+    for _ in range(1000):
+        start = np.array(
+            [
+                *rng.uniform(-1, 1, 2) * _half_extent(spec),
+                -rng.uniform(lim.floor_m + 7, lim.ceiling_m - 7),
+            ]
+        )
+        if geo.distance_outside(start) <= -12.0:
+            break
+    heading = rng.uniform(0, 2 * np.pi)
+    kind = rng.choice(
+        ["push", "push", "push", "climb", "sink", "garbage", "step", "stall", "camera", "link"]
+    )
+    t_on = rng.uniform(1.0, 4.0)
+    t_off = t_on + rng.uniform(2.0, 10.0)
+    hd = np.array([math.cos(heading), math.sin(heading), 0.0])
+    expect: tuple[str, ...] = ("",)
+    cam, link = (lambda t: True), (lambda t: True)
+    if kind == "push":
+        atk = push(
+            hd + np.array([0, 0, rng.uniform(-0.3, 0.3)]),
+            rng.uniform(3.0, 1.5 * lim.speed_h_mps),
+            p,
+        )
+    elif kind == "climb":
+        atk = push(0.3 * hd + np.array([0, 0, -1.0]), rng.uniform(1.0, 2.0) * lim.climb_mps, p)
+    elif kind == "sink":
+        atk = push(0.3 * hd + np.array([0, 0, 1.0]), rng.uniform(1.0, 2.0) * lim.descent_mps, p)
+    elif kind == "garbage":
+        bad = rng.choice([math.nan, math.inf, -math.inf, 1e3, 1e9, -1e6])
+        u = rng.normal(size=3)
+        u[rng.integers(0, 3)] = bad
+        atk, expect = constant(u), ("non-finite", "out of range")
+    elif kind == "step":
+        atk = constant(rng.uniform(0.6, 1.0) * lim.speed_h_mps * hd)
+    elif kind == "stall":
+        atk, expect = constant(None), ("deadline",)
+    elif kind == "camera":
+        atk, expect = toward(start, 3.0, 1.0, p), ("camera",)
+        cam = lambda t, a=t_on, b=t_off: not (a <= t < b)  # noqa: E731
+    else:
+        atk, expect = toward(start, 3.0, 1.0, p), ("link",)
+        link = lambda t, a=t_on, b=t_off: not (a <= t < b)  # noqa: E731
+    must = kind in ("garbage", "stall", "camera", "link")
+    return Script(
+        f"random {k:03d} ({kind})",
+        start,
+        atk,
+        t_on,
+        t_off,
+        expect,
+        camera_ok=cam,
+        link_ok=link,
+        must_trigger=must,
+    )
+
+
+def _half_extent(spec: EnvelopeSpec) -> np.ndarray:
+    pts = (
+        np.concatenate([z.points for z in spec.inclusions])
+        if spec.inclusions
+        else np.array([[spec.limits.home_radius_m] * 2])
+    )
+    return np.abs(pts).max(axis=0)
+
+
+def run_drill(
+    script: Script,
+    ap: Autopilot,
+    spec: EnvelopeSpec,
+    sp: SupervisorParams,
+    p: DrillParams,
+    events=None,
+) -> DrillResult:
+    """Fly one drill on `ap` (fresh, on the ground): take off, go to the start, hand over."""
+    n_sub = max(1, round(p.policy_dt_s / ap.control_dt))
+    geo = spec.geometry()
+    z = np.zeros(NZ)
+    worst = -math.inf
+
+    def fly(k: int) -> None:
+        nonlocal worst
+        for _ in range(k):
+            s = ap.step()
+            z[0:3] = s.pos_ned
+            worst = max(worst, geo.worst(z))
+
+    # --- preparation (no supervision, the autopilot's own modes): take off, go to the start
+    if ap.airframe == "fixedwing":
+        ap.start_in_air(-float(script.start_ned[2]), 24.0)  # type: ignore[attr-defined]
+    else:
+        ap.arm()
+        ap.takeoff(p.takeoff_alt_m)
+        t_lim = ap.clock.t + p.settle_timeout_s
+        while ap.mode == FlightMode.TAKEOFF and ap.clock.t < t_lim:
+            fly(n_sub)
+        ap.reposition(script.start_ned)
+        while ap.clock.t < t_lim and (
+            np.linalg.norm(ap.state.pos_ned - script.start_ned) > 0.5
+            or np.linalg.norm(ap.state.vel_ned) > 0.3
+        ):
+            fly(n_sub)
+    worst = -math.inf  # judged from the hand-over on
+    sup = Supervisor(spec.envelope(), sp, events)
+    behave = toward(
+        script.start_ned if script.behave_target is None else script.behave_target, 3.0, 1.0, p
+    )
+    t0 = ap.clock.t
+    ap.set_offboard_setpoint(Setpoint(vel_ned=np.zeros(3)))
+    ap.set_mode(FlightMode.OFFBOARD)
+    cam_t = link_t = t0
+    first_fb = ai_back = math.nan
+    prev_mode = Mode.AI
+    rows = []
+    while ap.clock.t - t0 < p.duration_s:
+        t = ap.clock.t
+        tr = t - t0
+        s = ap.state
+        if script.camera_ok(tr):
+            cam_t = t
+        link_up = script.link_ok(tr)
+        if link_up:
+            link_t = t
+        act = script.attack if script.t_on <= tr < script.t_off else behave
+        prop = act(tr, s)
+        d = sup.update(t, s, prop, Health(camera_t=cam_t, link_t=link_t))
+        if d.mode is not Mode.AI:
+            if math.isnan(first_fb):
+                first_fb = t
+            ai_back = math.nan
+        elif prev_mode is not Mode.AI:
+            ai_back = t
+        prev_mode = d.mode
+        if link_up:  # a lost link carries no commands: the autopilot's own failsafe acts
+            if d.mode is Mode.FALLBACK and p.use_autopilot_hold:
+                if ap.mode != FlightMode.HOLD:
+                    ap.set_mode(FlightMode.HOLD)
+            else:
+                ap.set_offboard_setpoint(d.command)
+                if ap.mode != FlightMode.OFFBOARD:
+                    ap.set_mode(FlightMode.OFFBOARD)
+        rows.append((tr, *s.pos_ned, {Mode.AI: 0, Mode.FALLBACK: 1, Mode.PID: 2}[d.mode]))
+        fly(n_sub)
+    st = sup.stats
+    recover = ai_back - first_fb if not math.isnan(first_fb) else math.nan
+    why = []
+    if worst > spec.limits.breach_tolerance_m:
+        why.append(f"breach {worst:.2f} m beyond the fence")
+    caught = [r for r in st.reasons if any(k in r for k in script.expect)]
+    if script.must_trigger and not caught:
+        why.append(f"expected a fallback for {script.expect}, got {st.reasons or 'none'}")
+    if sup.mode is not Mode.AI:
+        why.append(f"not recovered: {sup.mode.value} at the end")
+    tr_arr = np.array(rows)
+    return DrillResult(
+        script.name,
+        ap.airframe,
+        not why,
+        float(worst),
+        st.fallback_s,
+        st.pid_s,
+        float(recover),
+        st.rejected,
+        st.projected,
+        st.switches,
+        list(st.reasons),
+        "; ".join(why),
+        {"t": tr_arr[:, 0], "pos": tr_arr[:, 1:4], "mode": tr_arr[:, 4].astype(int)},
+    )

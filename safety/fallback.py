@@ -1,0 +1,216 @@
+"""What flies the vehicle when the AI may not: the airframe's fallback and the recovery PID.
+
+All commands are velocity setpoints (NED, m/s), optionally with a position to hold.
+- HoverFallback (multirotor): brake to zero velocity, then hold where it stopped.
+- LoiterFallback (fixed-wing): circle at the current altitude, radius R = v^2 / (g tan φmax),
+  centred on the side of the track with more room inside the fence.
+- RecoveryPID: a PID on position error → velocity command that brings the vehicle to the
+  nearest point inside the fence with a margin; speed- and rate-limited to the envelope.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from flight.autopilot_api import Setpoint
+from flight.state import VehicleState
+from safety.envelope import NZ, Envelope, Kind, P
+from safety.kernels import select_mask
+
+ZERO3 = np.zeros(3)
+
+
+class HoverFallback:
+    """Multirotor: brake (velocity setpoint 0) until slower than `settle_mps`, then hold there."""
+
+    def __init__(self, settle_mps: float = 0.5):
+        self.settle_mps = settle_mps
+        self.hold_pos: np.ndarray | None = None
+
+    def engage(self, state: VehicleState) -> None:
+        self.hold_pos = None
+
+    def command(self, state: VehicleState) -> Setpoint:
+        if self.hold_pos is None and float(np.linalg.norm(state.vel_ned)) < self.settle_mps:
+            self.hold_pos = np.array(state.pos_ned, float)
+        if self.hold_pos is None:
+            return Setpoint(vel_ned=ZERO3.copy())
+        return Setpoint(pos_ned=self.hold_pos.copy(), vel_ned=ZERO3.copy())
+
+    def settled(self, state: VehicleState) -> bool:
+        return self.hold_pos is not None
+
+
+class LoiterFallback:
+    """Fixed-wing: circle of radius R = v^2/(g tan bank_max) at the altitude of engagement.
+
+    Guidance: a vector field toward the circle (tangent + radial correction), Lawrence et al.
+    (2008) style, flown at the engagement speed (at least `min_speed_mps`).
+    """
+
+    def __init__(
+        self,
+        bank_max_rad: float,
+        geometry: Envelope,
+        min_speed_mps: float = 12.0,
+        k_radial: float = 1.5,
+    ):
+        self.bank_max = bank_max_rad
+        self.geometry = geometry
+        self.min_speed = min_speed_mps
+        self.k_radial = k_radial
+        self.center: np.ndarray | None = None
+        self.radius = 0.0
+        self.speed = min_speed_mps
+        self.alt_down = 0.0
+        self.direction = 1.0  # +1 clockwise seen from above (turn right), -1 left
+
+    def engage(self, state: VehicleState) -> None:
+        v = state.vel_ned[:2]
+        self.speed = max(float(np.hypot(*v)), self.min_speed)
+        self.radius = self.speed**2 / (9.80665 * math.tan(self.bank_max))
+        heading = v / np.linalg.norm(v) if np.linalg.norm(v) > 1e-3 else np.array([1.0, 0.0])
+        right = np.array([-heading[1], heading[0]])  # 90° clockwise of the track in (N, E)
+        best = None
+        for sgn in (1.0, -1.0):  # the side whose circle keeps the most room inside the fence
+            c = state.pos_ned[:2] + sgn * self.radius * right
+            ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+            pts = c + self.radius * np.stack([np.cos(ang), np.sin(ang)], 1)
+            worst = max(
+                self.geometry.distance_outside(np.array([p[0], p[1], state.pos_ned[2]]))
+                for p in pts
+            )
+            if best is None or worst < best[0]:
+                best = (worst, c, sgn)
+        _, self.center, self.direction = best
+        self.alt_down = float(state.pos_ned[2])
+
+    def command(self, state: VehicleState) -> Setpoint:
+        r = state.pos_ned[:2] - self.center
+        d = float(np.linalg.norm(r)) or 1e-6
+        radial = r / d
+        tangent = self.direction * np.array([-radial[1], radial[0]])
+        v = tangent - self.k_radial * (d - self.radius) / self.radius * radial
+        v = self.speed * v / np.linalg.norm(v)
+        vd = float(np.clip(0.5 * (self.alt_down - state.pos_ned[2]), -2.0, 2.0))
+        return Setpoint(vel_ned=np.array([v[0], v[1], vd]))
+
+    def settled(self, state: VehicleState) -> bool:
+        d = float(np.linalg.norm(state.pos_ned[:2] - self.center))
+        return abs(d - self.radius) < 0.2 * self.radius
+
+
+def recovery_target(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> np.ndarray:
+    """Nearest point to pos_ned (3,) inside the fence with `margin_m` to every position row:
+
+        minimise ||p - p0||^2  s.t.  A_p p <= b - margin    (rows of the selected polyhedron)
+
+    Halves the margin until feasible (a small piece may not fit it). NED [m]."""
+    z = np.zeros(NZ)
+    z[P] = pos_ned
+    r = geometry.residual(z)
+    sel = np.flatnonzero(
+        select_mask(
+            r, geometry.n_base, geometry.n_piece_end, geometry.piece_starts, geometry.zone_starts
+        )
+    )
+    A = geometry.A[sel][:, P]
+    b = geometry.b[sel]
+    m = margin_m
+    for _ in range(8):
+        prob = osqp.OSQP()
+        prob.setup(
+            sp.csc_matrix(2 * np.eye(3)),
+            -2 * np.asarray(pos_ned, float),
+            sp.csc_matrix(A),
+            -1e30 * np.ones(len(b)),
+            b - m,
+            verbose=False,
+            eps_abs=1e-7,
+            eps_rel=1e-7,
+            polishing=False,
+        )
+        res = prob.solve(raise_error=False)
+        if res.info.status_val in (1, 2) and np.all(A @ res.x <= b - 0.5 * m):
+            return np.asarray(res.x, float)
+        m *= 0.5
+    return np.asarray(pos_ned, float)
+
+
+@dataclass(frozen=True)
+class PidGains:
+    """Position PID → velocity command. kp [1/s], ki [1/s^2], kd [-] (on velocity)."""
+
+    kp: float = 0.6
+    ki: float = 0.02
+    kd: float = 0.2
+    i_limit_m_s: float = 1.0  # anti-windup bound on ki·∫e [m/s]
+
+
+class RecoveryPID:
+    """Brings the vehicle to a target inside the fence with margin.
+
+    u = kp e + ki ∫e dt - kd v,  e = p_target - p; horizontal speed ≤ speed_mps, vertical within
+    climb/descent, and |u - v| ≤ a_max·tau so the command respects the envelope's accel rows.
+    """
+
+    def __init__(self, gains: PidGains, geometry: Envelope, speed_mps: float, margin_m: float):
+        self.g = gains
+        self.geometry = geometry
+        lim, dyn = geometry.spec.limits, geometry.spec.dynamics
+        self.speed = min(speed_mps, lim.speed_h_mps * 0.9)
+        self.climb = lim.climb_mps * 0.9
+        self.descent = lim.descent_mps * 0.9
+        cosk = math.cos(math.pi / lim.speed_sides)
+        a_h = min(lim.accel_h_mps2, 9.80665 * math.tan(lim.tilt_cmd_rad))
+        self.dv_h = 0.9 * a_h * dyn.tau_s * cosk
+        self.dv_v = 0.9 * lim.accel_v_mps2 * dyn.tau_s
+        self.margin = margin_m
+        self.target = np.zeros(3)
+        self.integral = np.zeros(3)
+        self.t_last: float | None = None
+
+    def engage(self, state: VehicleState) -> None:
+        self.target = recovery_target(self.geometry, state.pos_ned, self.margin)
+        self.integral = np.zeros(3)
+        self.t_last = None
+
+    def error(self, state: VehicleState) -> float:
+        return float(np.linalg.norm(self.target - state.pos_ned))
+
+    def command(self, t: float, state: VehicleState) -> Setpoint:
+        dt = 0.0 if self.t_last is None else max(t - self.t_last, 0.0)
+        self.t_last = t
+        e = self.target - state.pos_ned
+        u = self.g.kp * e + self.integral - self.g.kd * state.vel_ned
+        # saturate speed, then limit the step from the current velocity (accel rows)
+        h = float(np.hypot(u[0], u[1]))
+        sat = h > self.speed
+        if sat:
+            u[:2] *= self.speed / h
+        u[2] = float(np.clip(u[2], -self.climb, self.descent))
+        du = u - state.vel_ned
+        dh = float(np.hypot(du[0], du[1]))
+        if dh > self.dv_h:
+            du[:2] *= self.dv_h / dh
+        du[2] = float(np.clip(du[2], -self.dv_v, self.dv_v))
+        u = state.vel_ned + du
+        if not sat:  # conditional integration (anti-windup)
+            self.integral = np.clip(
+                self.integral + self.g.ki * e * dt, -self.g.i_limit_m_s, self.g.i_limit_m_s
+            )
+        return Setpoint(vel_ned=u, pos_ned=None)
+
+
+def position_rows(envelope: Envelope) -> np.ndarray:
+    """Indices of the position rows (fence, zones, altitude, home) of an envelope."""
+    return np.flatnonzero(
+        np.isin(
+            envelope.kinds, [int(k) for k in (Kind.FENCE, Kind.EXCLUSION, Kind.ALTITUDE, Kind.HOME)]
+        )
+    )
