@@ -72,9 +72,9 @@ FW_PARAM_SPECS: tuple[ParamSpec, ...] = (
 class InnerGains:
     """Attitude and ground-steering gains, at the trim airspeed (scaled by (V_trim/V)^2)."""
 
-    roll_p: float = 1.2  # aileron per rad of bank error
-    roll_d: float = 0.25  # aileron per rad/s of roll rate
-    roll_i: float = 0.2  # aileron per rad·s
+    roll_p: float = 4.0  # aileron per rad of bank error
+    roll_d: float = 0.8  # aileron per rad/s of roll rate
+    roll_i: float = 2.0  # aileron per rad·s
     pitch_p: float = 2.0  # elevator per rad of pitch error
     pitch_d: float = 0.6  # elevator per rad/s of pitch rate error
     pitch_i: float = 1.0  # elevator per rad·s
@@ -489,8 +489,8 @@ class FixedWingAutopilot:
         gate = rw.point - rw.dir * self._final_length()
         r = self.default_loiter_radius()
         # Clockwise circle tangent to the final at the gate: the aircraft passes the gate aligned.
+        # Circle down at the trim airspeed (full bank authority); slow to FW_LND_AIRSPD on final.
         self._set_loiter(gate + r * right_of(rw.dir), r, 1, self.p("FW_LND_APP_ALT"))
-        self._v_dem = self.p("FW_LND_AIRSPD")
         self._phase = Phase.LAND_DESCEND
 
     def _begin_rtl(self) -> None:
@@ -742,10 +742,13 @@ class FixedWingAutopilot:
             assert rw is not None
             gate = rw.point - rw.dir * self._final_length()
             course_err = abs(wrap_pi(self._course_now() - rw.heading))
+            # At the gate: on the circle's tangent point, aligned with the final, at height.
+            ang = guidance.cross2(self._center - gate, pos - self._center)
+            ang = math.atan2(ang, float((gate - self._center) @ (pos - self._center)))
             if (
-                abs(h - h_dem) < 4.0
-                and float(np.hypot(*(pos - gate))) < 0.3 * self._radius
-                and course_err < math.radians(25.0)
+                abs(h - h_dem) < 5.0
+                and abs(ang) < math.radians(20)
+                and course_err < math.radians(30)
             ):
                 self._phase = Phase.LAND_FINAL
         elif ph in (Phase.LAND_FINAL, Phase.FLARE):
