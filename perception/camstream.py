@@ -3,7 +3,8 @@
 `python -m perception.camstream --frames 200 --rate 30` publishes what the UAV's camera sees
 (fast renderer, kinematic ground world) on `skyherd/<vehicle>/camera/frame`, so that
 `skyherd watch`, the Zenoh tests and the benchmark have a real second process to talk to.
-The UAV holds 30 m above the group's starting point; simulation time advances 1/rate per frame.
+The UAV trails the group's centre with a 3 s first-order lag at 25–35 m (so the group drifts
+in the image and sometimes leaves it); simulation time advances --sim-dt per frame.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--config", default=None, help="Zenoh JSON5 config file (replaces --port)")
     ap.add_argument("--frames", type=int, default=300, help="frames to send (0 = forever)")
     ap.add_argument("--rate", type=float, default=30.0, help="frames per second (0 = max)")
+    ap.add_argument("--sim-dt", type=float, default=0.1, help="simulation time per frame [s]")
     ap.add_argument("--size", default="320x240", help="image WxH")
     ap.add_argument("--encoding", choices=("raw", "jpeg"), default="raw")
     ap.add_argument("--behaviour", default="route")
@@ -54,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     renderer = FastRenderer(cam, UGVModel())
     uav = UAVPose(np.array([0.0, 0.0, -30.0]), euler_to_quat(0.0, 0.0, 0.0))
     time.sleep(a.wait_s)  # let the subscriber's link come up
-    dt = 1.0 / a.rate if a.rate > 0 else 1.0 / 30.0
+    dt = a.sim_dt
     t, k, next_wall = 0.0, 0, time.monotonic()
     image = renderer.render(uav, world.states)
     try:
@@ -62,7 +64,9 @@ def main(argv: list[str] | None = None) -> int:
             if not a.static:
                 states = world.step(t, dt)
                 centre = states.pos_ne.mean(axis=0)
-                uav = UAVPose(np.array([centre[0], centre[1], -30.0]), uav.quat)
+                ne = uav.pos_ned[:2] + (centre - uav.pos_ned[:2]) * min(dt / 3.0, 1.0)
+                alt = 30.0 + 5.0 * np.sin(0.2 * t)
+                uav = UAVPose(np.array([ne[0], ne[1], -alt]), uav.quat)
                 image = renderer.render(uav, states)
             pub.publish(t, uav.pos_ned, uav.quat, image)
             t += dt

@@ -101,7 +101,7 @@ def test_two_processes_exchange_frames_over_loopback():
     sub = FrameSubscriber(session, "uav0")
     pub = subprocess.Popen(
         [sys.executable, "-m", "perception.camstream", "--port", str(port),
-         "--frames", "120", "--rate", "60", "--wait-s", "1.0"],
+         "--frames", "120", "--rate", "60", "--sim-dt", "0.05", "--wait-s", "1.0"],
         stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     seen = []
@@ -125,7 +125,7 @@ def test_two_processes_exchange_frames_over_loopback():
     seqs = [f.seq for f in seen]
     assert seqs == sorted(seqs) and seqs[-1] == 119
     assert seen[-1].image.shape == (240, 320, 3)
-    assert seen[-1].t_sim == pytest.approx(119 / 60)  # simulation time travels with the frame
+    assert seen[-1].t_sim == pytest.approx(119 * 0.05)  # simulation time travels with the frame
     assert sub.info is not None and sub.info["width_px"] == 320
     assert np.median(s.latencies_s) < 0.05
 
