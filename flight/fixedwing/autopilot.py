@@ -12,7 +12,6 @@ Frames: NED about home, FRD body; angles [rad] except parameters PX4 keeps in de
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import math
 from collections.abc import Mapping
@@ -139,6 +138,8 @@ class FixedWingAutopilot:
         self.clock = clock if clock is not None else SimClock()
         self.home = home if home is not None else Home()
         self.params = ParamStore(FW_PARAM_SPECS, params)
+        self._pcache: dict[str, float] = {}
+        self._pcache_rev = -1
         self.gains = gains or InnerGains()
         self.tecs = Tecs(tecs_gains)
         self.control_dt = control_dt
@@ -194,10 +195,16 @@ class FixedWingAutopilot:
         return trim
 
     def _stamp(self, s: VehicleState) -> VehicleState:
-        return dataclasses.replace(s, t=self.clock.t)
+        """The model's state on the shared clock's time."""
+        return VehicleState(
+            self.clock.t, s.pos_ned, s.vel_ned, s.quat, s.omega_frd, s.accel_frd, s.on_ground
+        )
 
     def p(self, name: str) -> float:
-        return self.params[name]
+        """Present value of a parameter (a dict snapshot, refreshed when the store changes)."""
+        if self._pcache_rev != self.params.revision:
+            self._pcache, self._pcache_rev = self.params.as_dict(), self.params.revision
+        return self._pcache[name]
 
     # ---- Autopilot protocol: read-outs ----------------------------------------------------
     @property

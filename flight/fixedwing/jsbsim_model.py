@@ -74,7 +74,7 @@ class ModelParams:
     """
 
     aircraft: str = "J3Cub"
-    physics_dt: float = 1.0 / 200.0
+    physics_dt: float = 1.0 / 150.0
 
 
 @dataclass
@@ -199,7 +199,7 @@ class JSBSimPlane:
     def step(self, dt: float, surfaces: Surfaces) -> VehicleState:
         """Hold `surfaces` for `dt` [s] (a whole number of physics steps) and return the state."""
         n = round(dt / self.params.physics_dt)
-        if n < 1 or abs(n * self.params.physics_dt - dt) > 1e-9:
+        if n < 1 or abs(n * self.params.physics_dt - dt) > 1e-9 * max(1.0, dt):
             raise ValueError(f"dt={dt} is not a multiple of physics_dt={self.params.physics_dt}")
         self._surfaces = surfaces.clipped()
         self._apply(self._surfaces)
