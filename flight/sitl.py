@@ -76,6 +76,10 @@ class Sitl:
         self._thread.start()
         return self
 
+    def request_stop(self) -> None:
+        """Ask `run` to return after the current step (safe from a signal handler)."""
+        self._stop.set()
+
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:

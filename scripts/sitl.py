@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -104,13 +105,20 @@ def run(args: argparse.Namespace) -> int:
           f"speed-up {args.speedup:g}, run folder {folder.path}")  # fmt: skip
     print(markdown_table(["link", "bound to", "sends to"], rows), flush=True)
     stats = None
-    try:
-        with sitl:
-            stats = sitl.run(duration_s=args.duration)
-    except KeyboardInterrupt:
-        pass
+    # SIGTERM (and SIGINT, even when a shell started us in the background) end the run cleanly.
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: sitl.request_stop())
+    with sitl:
+        stats = sitl.run(duration_s=args.duration)
     sim_s = clock.t
-    summary = {"sim_s": sim_s, "steps": sitl.steps, "stats": dict(sitl.endpoint.stats)}
+    ep = sitl.endpoint
+    summary = {
+        "sim_s": sim_s,
+        "steps": sitl.steps,
+        "stats": dict(ep.stats),
+        "received": dict(ep.rx_types),
+        "commands": {str(k): v for k, v in ep.rx_commands.items()},
+    }
     if stats is not None:
         summary["real_time_factor"] = stats.real_time_factor
     folder.write_summary(

@@ -134,6 +134,8 @@ class MavlinkEndpoint:
         )
         self.mav = M.MAVLink(None, config.system_id, COMPONENT_ID)  # message builder
         self.stats: Counter[str] = Counter()
+        self.rx_types: Counter[str] = Counter()  # valid frames addressed to us, by type
+        self.rx_commands: Counter[int] = Counter()  # commands received, by MAV_CMD
         self._tlog = _Tlog(config.tlog, autopilot.clock) if config.tlog else None
         hook = self._tlog.write if self._tlog else None
         self.links: list[UdpLink] = []
@@ -171,8 +173,8 @@ class MavlinkEndpoint:
         self._sent_current: int | None = None
         self._handlers = {
             "HEARTBEAT": self._on_heartbeat,
-            "COMMAND_LONG": lambda m, r, k, link: self.commands.handle(Cmd.from_long(m), r, link),
-            "COMMAND_INT": lambda m, r, k, link: self.commands.handle(Cmd.from_int(m), r, link),
+            "COMMAND_LONG": lambda m, r, k, link: self._on_command(Cmd.from_long(m), r, link),
+            "COMMAND_INT": lambda m, r, k, link: self._on_command(Cmd.from_int(m), r, link),
             "SET_MODE": self._on_set_mode,
             "PARAM_REQUEST_LIST": lambda m, r, k, link: self.params.request_list(r, k),
             "PARAM_REQUEST_READ": lambda m, r, k, link: self.params.request_read(m, r),
@@ -204,6 +206,7 @@ class MavlinkEndpoint:
         self.missions.service()
         self.params.pump()
         self._mission_events()
+        self._forward_status()
         self._send_streams()
         if self._tlog is not None:
             self._tlog.maybe_flush()
@@ -245,6 +248,14 @@ class MavlinkEndpoint:
         reply(self._build(msg_id))
         return None
 
+    def _forward_status(self) -> None:
+        """The autopilot's own event lines (mode changes, failsafes) as STATUSTEXT INFO."""
+        drain = getattr(self.ap, "drain_status", None)
+        if drain is None:
+            return
+        for line in drain():
+            self.statustext(M.MAV_SEVERITY_INFO, str(line))
+
     def _mission_events(self) -> None:
         prog = self.ap.mission_progress
         if prog.reached:
@@ -265,6 +276,7 @@ class MavlinkEndpoint:
             self.stats["rx_wrong_target"] += 1
             return
         handler = self._handlers.get(msg.get_type())
+        self.rx_types[msg.get_type()] += 1
         if handler is None:
             self.stats["rx_ignored"] += 1
             return
@@ -280,6 +292,10 @@ class MavlinkEndpoint:
         except Exception:  # noqa: BLE001 - a malformed request must never stop the vehicle
             self.stats["rx_handler_error"] += 1
             log.exception("dropped %s from %s: handler failed", msg.get_type(), addr)
+
+    def _on_command(self, cmd: Cmd, reply, link) -> None:
+        self.rx_commands[cmd.command] += 1
+        self.commands.handle(cmd, reply, link)
 
     def _on_heartbeat(self, msg, reply, key, link) -> None:
         pass  # last_heard is updated for every handled message

@@ -148,12 +148,13 @@ class TelemetryBuilder:
             SENSORS_PRESENT if prearm_ok(ap) else SENSORS_PRESENT & ~M.MAV_SYS_STATUS_PREARM_CHECK
         )
         rem = ap.battery_remaining
+        volts = getattr(ap, "battery_voltage", None) or battery_voltage(rem)
         return mav.sys_status_encode(
             SENSORS_PRESENT,
             enabled,
             health,
             0,  # load [d%]: not measured
-            int(battery_voltage(rem) * 1000),
+            int(volts * 1000),
             -1,  # current: not modelled
             int(round(rem * 100)),
             0,
@@ -239,7 +240,8 @@ class TelemetryBuilder:
 
     def battery_status(self, mav):
         rem = self.ap.battery_remaining
-        cell_mv = int(battery_voltage(rem) / BATTERY_CELLS * 1000)
+        volts = getattr(self.ap, "battery_voltage", None) or battery_voltage(rem)
+        cell_mv = int(volts / BATTERY_CELLS * 1000)
         voltages = [cell_mv] * BATTERY_CELLS + [65535] * (10 - BATTERY_CELLS)
         return mav.battery_status_encode(
             0,
@@ -265,8 +267,11 @@ class TelemetryBuilder:
         gs = float(np.hypot(s.vel_ned[0], s.vel_ned[1]))
         hdg = int(round(math.degrees(s.euler[2]))) % 360
         lat, lon, alt = self._geodetic()
-        # No wind: airspeed = ground speed. Throttle is not exposed by the autopilot: 0.
-        return mav.vfr_hud_encode(gs, gs, hdg, 0, alt, -float(s.vel_ned[2]))
+        # No wind: airspeed = ground speed. Throttle: mean motor command when the autopilot
+        # exposes it (multirotor), else 0.
+        motors = getattr(self.ap, "motor_commands", None)
+        thr = int(round(100 * float(np.mean(motors)))) if motors is not None else 0
+        return mav.vfr_hud_encode(gs, gs, hdg, max(0, min(100, thr)), alt, -float(s.vel_ned[2]))
 
     def mission_current(self, mav, total: int = 0):
         prog = self.ap.mission_progress

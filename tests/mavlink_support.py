@@ -1,0 +1,181 @@
+"""Test support for the MAVLink endpoint tests: an in-process SITL on a thread and a small
+pymavlink client speaking to it over real UDP sockets on 127.0.0.1."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from pathlib import Path
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as M
+
+from flight.airframes_registry import make_autopilot
+from flight.clock import SimClock
+from flight.mavlink import EndpointConfig, Personality
+from flight.sitl import Sitl
+
+
+@contextlib.contextmanager
+def running_sitl(
+    instance: int,
+    speedup: float = 5.0,
+    state_dir: Path | None = None,
+    personality: Personality = Personality.PX4,
+    airframe: str = "quadrotor",
+):
+    """A real MultirotorAutopilot + endpoint, stepping on a background thread."""
+    ap = make_autopilot(airframe, clock=SimClock(), instance=instance)
+    cfg = EndpointConfig(instance=instance, personality=personality, state_dir=state_dir)
+    sitl = Sitl(ap, cfg, speedup=speedup)
+    try:
+        sitl.start()
+        yield sitl
+    finally:
+        sitl.close()
+
+
+class Client:
+    """A pymavlink ground station on the API link of instance N (udpin 14540+N)."""
+
+    def __init__(self, instance: int, port: int | None = None, source_system: int = 255):
+        port = 14540 + instance if port is None else port
+        self.target = 1 + instance
+        self.conn = mavutil.mavlink_connection(
+            f"udpin:127.0.0.1:{port}", source_system=source_system, source_component=190
+        )
+        self.mav = self.conn.mav
+        self.texts: list[str] = []  # every STATUSTEXT seen, in order
+
+    def close(self) -> None:
+        self.conn.close()
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def wait_heartbeat(self, timeout: float = 10.0):
+        hb = self.conn.wait_heartbeat(timeout=timeout)
+        assert hb is not None, "no HEARTBEAT from the vehicle"
+        self.conn.target_system = self.target
+        self.conn.target_component = 1
+        return hb
+
+    def recv(self, types, timeout: float = 5.0, cond=None):
+        """Next message of `types` (str or list) satisfying `cond`, or None after `timeout`."""
+        types = [types] if isinstance(types, str) else list(types)
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return None
+            m = self.conn.recv_match(blocking=True, timeout=left)
+            if m is None:
+                continue
+            if m.get_type() == "STATUSTEXT":
+                self.texts.append(m.text)
+            if m.get_type() in types and (cond is None or cond(m)):
+                return m
+
+    def drain(self) -> None:
+        while (m := self.conn.recv_match(blocking=False)) is not None:
+            if m.get_type() == "STATUSTEXT":
+                self.texts.append(m.text)
+
+    def saw_text(self, part: str, timeout: float = 2.0) -> bool:
+        """True once a STATUSTEXT containing `part` was seen (waiting up to `timeout`)."""
+        deadline = time.monotonic() + timeout
+        while not any(part in t for t in self.texts) and time.monotonic() < deadline:
+            self.recv("STATUSTEXT", deadline - time.monotonic())
+        return any(part in t for t in self.texts)
+
+    def command(self, cmd: int, *params: float, confirmation: int = 0, timeout: float = 3.0):
+        """COMMAND_LONG → its final COMMAND_ACK (IN_PROGRESS acks are skipped)."""
+        p = list(params) + [0.0] * (7 - len(params))
+        self.mav.command_long_send(self.target, 1, cmd, confirmation, *p)
+        return self.recv(
+            "COMMAND_ACK",
+            timeout,
+            lambda m: m.command == cmd and m.result != M.MAV_RESULT_IN_PROGRESS,
+        )
+
+    def command_int(self, cmd: int, frame: int, p1=0.0, p2=0.0, p3=0.0, p4=0.0, x=0, y=0, z=0.0):
+        self.mav.command_int_send(self.target, 1, frame, cmd, 0, 0, p1, p2, p3, p4, x, y, z)
+        return self.recv("COMMAND_ACK", 3.0, lambda m: m.command == cmd)
+
+    # --- parameters -------------------------------------------------------------------------
+    def param_list(self, timeout: float = 10.0) -> dict[str, tuple[float, int, int]]:
+        """All parameters: name → (value, index, count)."""
+        self.mav.param_request_list_send(self.target, 1)
+        out: dict[str, tuple[float, int, int]] = {}
+        count = None
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and (count is None or len(out) < count):
+            m = self.recv("PARAM_VALUE", deadline - time.monotonic())
+            if m is None:
+                break
+            out[m.param_id] = (m.param_value, m.param_index, m.param_count)
+            count = m.param_count
+        return out
+
+    def param_read(self, name: str, timeout: float = 3.0):
+        self.mav.param_request_read_send(self.target, 1, name.encode(), -1)
+        return self.recv("PARAM_VALUE", timeout, lambda m: m.param_id == name)
+
+    def param_set(self, name: str, value: float, timeout: float = 3.0):
+        self.mav.param_set_send(self.target, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
+        return self.recv("PARAM_VALUE", timeout, lambda m: m.param_id == name)
+
+    # --- missions ---------------------------------------------------------------------------
+    def mission_upload(self, items: list[tuple], mission_type: int = 0, timeout: float = 5.0):
+        """Upload MISSION_ITEM_INT field tuples (frame, command, p1..p4, x, y, z); → MISSION_ACK."""
+        self.mav.mission_count_send(self.target, 1, len(items), mission_type)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            m = self.recv(
+                ["MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"],
+                deadline - time.monotonic(),
+            )
+            if m is None:
+                return None
+            if m.get_type() == "MISSION_ACK":
+                return m
+            frame, command, p1, p2, p3, p4, x, y, z = items[m.seq]
+            self.mav.mission_item_int_send(
+                self.target, 1, m.seq, frame, command, 0, 1, p1, p2, p3, p4, x, y, z, mission_type
+            )
+        return None
+
+    def mission_download(self, mission_type: int = 0, timeout: float = 5.0) -> list | None:
+        self.mav.mission_request_list_send(self.target, 1, mission_type)
+        cnt = self.recv("MISSION_COUNT", timeout, lambda m: m.mission_type == mission_type)
+        if cnt is None:
+            return None
+        items = []
+        for seq in range(cnt.count):
+            self.mav.mission_request_int_send(self.target, 1, seq, mission_type)
+            it = self.recv("MISSION_ITEM_INT", timeout, lambda m, s=seq: m.seq == s)
+            if it is None:
+                return None
+            items.append(it)
+        self.mav.mission_ack_send(self.target, 1, M.MAV_MISSION_ACCEPTED, mission_type)
+        return items
+
+    def mission_clear(self, mission_type: int = 0):
+        self.mav.mission_clear_all_send(self.target, 1, mission_type)
+        return self.recv("MISSION_ACK", 3.0)
+
+
+def item_fields(m) -> tuple:
+    """A downloaded MISSION_ITEM_INT as the tuple `mission_upload` takes."""
+    return (m.frame, m.command, m.param1, m.param2, m.param3, m.param4, m.x, m.y, m.z)
+
+
+def same_items(a: list[tuple], b: list[tuple]) -> bool:
+    def eq(x, y):
+        return x == y or (isinstance(x, float) and math.isnan(x) and math.isnan(y))
+
+    return len(a) == len(b) and all(all(eq(x, y) for x, y in zip(p, q)) for p, q in zip(a, b))
