@@ -414,20 +414,20 @@ class Quadrotor:
         if not (dt > 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be positive and finite, got {dt}")
         u = self._u
-        u[:] = np.nan_to_num(np.asarray(motor_cmd, dtype=float).reshape(4), nan=0.0)
+        u[:] = motor_cmd  # (4,); NaN → 0 and clipping happen in the kernel
         n, h = self.substeps(dt)
         physics_steps(self.x, self.aux, self.p, u, h, n)
         self.time_us += round(dt * 1e6)
         return self.state()
 
     def state(self) -> VehicleState:
-        x = self.x
+        x = self.x.copy()
         return VehicleState(
             t=self.time_us * 1e-6,
-            pos_ned=x[0:3].copy(),
-            vel_ned=x[3:6].copy(),
-            quat=x[6:10].copy(),
-            omega_frd=x[10:13].copy(),
+            pos_ned=x[0:3],
+            vel_ned=x[3:6],
+            quat=x[6:10],
+            omega_frd=x[10:13],
             accel_frd=self.aux[0:3].copy(),
             on_ground=bool(self.aux[A_ON_GROUND] > 0.5),
         )

@@ -37,18 +37,29 @@ from flight.quadrotor import (
     A_ENERGY,
     A_ON_GROUND,
     DEFAULT_AIRFRAME,
-    N_AUX,
-    N_X,
     X_MOTOR,
     QuadrotorParams,
     _level_with_yaw,
 )
 from flight.state import VehicleState
 
+_control_step = ctl.control_step_packed
 _MANUAL_MODES = (FlightMode.MANUAL, FlightMode.STABILIZED, FlightMode.ALTCTL, FlightMode.POSCTL)
 _MAX_ABS_POS = 1.0e5  # [m] setpoints farther than this are refused
 _MAX_ABS_VEL = 50.0  # [m/s]
 _GROUND_Z = -0.3  # [m] a target below this height (down > −0.3) keeps a landed vehicle idle
+
+
+def _vec3(v, limit: float) -> np.ndarray | None:
+    """A private float copy of a (3,) vector; ValueError if not finite or |v_i| > limit."""
+    if v is None:
+        return None
+    a = np.array(v, dtype=float)
+    if a.shape != (3,):
+        raise ValueError("vectors need 3 components")
+    if not (abs(a).max() <= limit):  # also false for NaN
+        raise ValueError(f"not finite or beyond {limit:g}")
+    return a
 
 
 class MultirotorAutopilot:
@@ -90,13 +101,17 @@ class MultirotorAutopilot:
         if params_file is not None:
             self.params.load_toml(params_file)
         # compiled-state arrays
-        self._p = self.vehicle.to_array()
-        self._x = np.zeros(N_X)
-        self._aux = np.zeros(N_AUX)
-        self._c = np.zeros(ctl.N_C)
-        self._cs = np.zeros(ctl.N_CS)
-        self._sp = np.zeros(ctl.N_SP)
-        self._u = np.zeros(4)
+        # one work array and one constant array for the compiled step; named views into them
+        self._w = np.zeros(ctl.N_W)
+        self._k = np.zeros(ctl.N_K)
+        self._p = self._k[ctl.K_P : ctl.K_C]
+        self._p[:] = self.vehicle.to_array()
+        self._c = self._k[ctl.K_C : ctl.N_K]
+        self._x = self._w[ctl.W_X : ctl.W_AUX]
+        self._aux = self._w[ctl.W_AUX : ctl.W_CS]
+        self._cs = self._w[ctl.W_CS : ctl.W_SP]
+        self._sp = self._w[ctl.W_SP : ctl.W_U]
+        self._u = self._w[ctl.W_U : ctl.N_W]
         self._c_rev = -1
         self._mix = allocation_inverse(
             self.vehicle.rotor_xy,
@@ -208,21 +223,20 @@ class MultirotorAutopilot:
             sp[ctl.SP_ARMED] = 1.0
         else:
             sp[ctl.SP_ARMED] = 0.0
-        ctl.control_step(
-            self._x, self._aux, self._p, self._c, self._cs, sp, self._u, self._dt_sub, self._n_sub
-        )
+        _control_step(self._w, self._k, self._dt_sub, self._n_sub)
         self.clock.advance(self._dt_us)
         self._state = self._make_state()
         return self._state
 
     def _make_state(self) -> VehicleState:
-        x = self._x
+        """One copy of the state vector; the state's arrays are views into it (hot path)."""
+        x = self._x.copy()
         return VehicleState(
             self.clock.t,
-            x[0:3].copy(),
-            x[3:6].copy(),
-            x[6:10].copy(),
-            x[10:13].copy(),
+            x[0:3],
+            x[3:6],
+            x[6:10],
+            x[10:13],
             self._aux[0:3].copy(),
             bool(self._aux[A_ON_GROUND] > 0.5),
         )
@@ -275,6 +289,11 @@ class MultirotorAutopilot:
         self._vxy_cruise = P["MPC_XY_CRUISE"]
         self._vz_up = P["MPC_Z_VEL_MAX_UP"]
         self._vz_dn = P["MPC_Z_VEL_MAX_DN"]
+        self._of_loss_t = P["COM_OF_LOSS_T"]
+        self._rc_loss_t = P["COM_RC_LOSS_T"]
+        self._disarm_land = P["COM_DISARM_LAND"]
+        self._disarm_prflt = P["COM_DISARM_PRFLT"]
+        self._land_trig = P["LNDMC_TRIG_TIME"]
         self._c_rev = self.params.revision
 
     # ------------------------------------------------------------------ commander
@@ -321,31 +340,23 @@ class MultirotorAutopilot:
             return
         # auto-disarm on the ground
         if on_ground:
-            wait = (
-                self.params["COM_DISARM_LAND"] if self._flown else self.params["COM_DISARM_PRFLT"]
-            )
+            wait = self._disarm_land if self._flown else self._disarm_prflt
             since = max(self._ground_since, self._armed_at)
-            if wait >= 0 and t - since >= wait + (
-                self.params["LNDMC_TRIG_TIME"] if self._flown else 0.0
-            ):
+            if wait >= 0 and t - since >= wait + (self._land_trig if self._flown else 0.0):
                 self._armed = False
                 self._event("auto-disarmed on the ground")
                 return
         # failsafes
-        if (
-            self._mode == FlightMode.OFFBOARD
-            and t - self._offboard_t > self.params["COM_OF_LOSS_T"]
-        ):
+        mode = self._mode
+        if mode == FlightMode.OFFBOARD and t - self._offboard_t > self._of_loss_t:
             self._event("offboard setpoints lost -> hold")
             self._switch(FlightMode.HOLD)
-        elif self._mode in _MANUAL_MODES and t - self._manual_t > self.params["COM_RC_LOSS_T"]:
+        elif mode in _MANUAL_MODES and t - self._manual_t > self._rc_loss_t:
             self._event("manual control lost -> hold")
             self._switch(FlightMode.HOLD)
 
     def _landed_for(self, t: float) -> bool:
-        return self._ground_since is not None and (
-            t - self._ground_since >= self.params["LNDMC_TRIG_TIME"]
-        )
+        return self._ground_since is not None and t - self._ground_since >= self._land_trig
 
     # ------------------------------------------------------------------ navigator
     def _navigate(self, t: float) -> None:
@@ -697,23 +708,18 @@ class MultirotorAutopilot:
         if setpoint.pos_ned is None and setpoint.vel_ned is None:
             return Result.denied("setpoint has neither position nor velocity")
         try:
-            pos = None if setpoint.pos_ned is None else np.asarray(setpoint.pos_ned, float)
-            vel = None if setpoint.vel_ned is None else np.asarray(setpoint.vel_ned, float)
-            if (pos is not None and pos.shape != (3,)) or (vel is not None and vel.shape != (3,)):
-                return Result.denied("position and velocity must have 3 components")
-            if not setpoint.is_finite():
-                return Result.denied("setpoint not finite")
-        except (TypeError, ValueError):
-            return Result.denied("setpoint is not numeric")
-        if pos is not None and np.any(np.abs(pos) > _MAX_ABS_POS):
-            return Result.denied("position setpoint out of range")
-        if vel is not None and np.any(np.abs(vel) > _MAX_ABS_VEL):
-            return Result.denied("velocity setpoint out of range")
+            pos = _vec3(setpoint.pos_ned, _MAX_ABS_POS)
+            vel = _vec3(setpoint.vel_ned, _MAX_ABS_VEL)
+            yaw = None if setpoint.yaw is None else float(setpoint.yaw)
+            rate = None if setpoint.yaw_rate is None else float(setpoint.yaw_rate)
+        except (TypeError, ValueError) as e:
+            return Result.denied(f"setpoint refused: {e}")
+        if (yaw is not None and not abs(yaw) <= 100.0) or (
+            rate is not None and not abs(rate) <= 100.0
+        ):
+            return Result.denied("setpoint refused: yaw or yaw rate not finite or out of range")
         self._offboard = Setpoint(
-            pos_ned=None if pos is None else pos.copy(),
-            vel_ned=None if vel is None else vel.copy(),
-            yaw=None if setpoint.yaw is None else wrap_pi(float(setpoint.yaw)),
-            yaw_rate=setpoint.yaw_rate,
+            pos_ned=pos, vel_ned=vel, yaw=None if yaw is None else wrap_pi(yaw), yaw_rate=rate
         )
         self._offboard_t = self.clock.t
         return Result.accepted()

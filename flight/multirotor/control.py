@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 from flight.multirotor.mixer import mix
 from flight.quadrotor import (
     A_ON_GROUND,
+    N_AUX,
+    N_P,
+    N_X,
     P_G,
     P_IXX,
     P_IYY,
@@ -84,7 +86,9 @@ CS_RATE_SP = 16  # (3,)
 CS_U = 19  # (4,) last motor commands
 CS_SAT = 23  # last mixer flags
 CS_T = 24  # last collective [N]
-N_CS = 32
+CS_TAU = 25  # (3,) last torque setpoint [N m], body FRD
+CS_WORK = 28  # (12,) mixer scratch
+N_CS = 40
 
 
 @njit(cache=True, fastmath=False)
@@ -224,7 +228,7 @@ def _inner(x, aux, p, c, cs, sp, u, dt):
     sat = cs[CS_SAT]
     sat_rp = (sat % 2.0) >= 1.0
     sat_yaw = (sat % 4.0) >= 2.0
-    tau = np.empty(3)
+    tau = cs[CS_TAU : CS_TAU + 3]
     for k in range(3):
         w = x[X_OMEGA + k]
         err = rsp[k] - w
@@ -251,6 +255,7 @@ def _inner(x, aux, p, c, cs, sp, u, dt):
         tau[1],
         tau[2],
         u,
+        cs[CS_WORK : CS_WORK + 12],
     )
     cs[CS_SAT] = flags
     for i in range(4):
@@ -279,3 +284,31 @@ def control_step(x, aux, p, c, cs, sp, u, dt, n):
     for _ in range(n):
         _inner(x, aux, p, c, cs, sp, u, dt)
         physics_substep(x, aux, p, u, dt)
+
+
+# ---- packed form: one work array w and one constant array k (fewer arguments per call)
+W_X = 0
+W_AUX = W_X + N_X
+W_CS = W_AUX + N_AUX
+W_SP = W_CS + N_CS
+W_U = W_SP + N_SP
+N_W = W_U + 4
+K_P = 0
+K_C = N_P
+N_K = N_P + N_C
+
+
+@njit(cache=True, fastmath=False)
+def control_step_packed(w, k, dt, n):
+    """`control_step` over w = [x, aux, cs, sp, u] and k = [p, c] (views, no copies)."""
+    control_step(
+        w[W_X:W_AUX],
+        w[W_AUX:W_CS],
+        k[K_P:K_C],
+        k[K_C:N_K],
+        w[W_CS:W_SP],
+        w[W_SP:W_U],
+        w[W_U:N_W],
+        dt,
+        n,
+    )

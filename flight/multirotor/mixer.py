@@ -29,14 +29,15 @@ def allocation_inverse(rotor_xy: np.ndarray, spin: np.ndarray, k_thrust: float, 
 
 
 @njit(cache=True, fastmath=False)
-def mix(b, t_lo, t_hi, thrust, tx, ty, tz, u):
+def mix(b, t_lo, t_hi, thrust, tx, ty, tz, u, work):
     """Write motor commands u (4,) in [0, 1]; return saturation flags (sum of SAT_*).
 
-    b (16,) row-major allocation inverse; t_lo, t_hi per-rotor thrust bounds [N].
+    b (16,) row-major allocation inverse; t_lo, t_hi per-rotor thrust bounds [N];
+    work (12,) scratch space (no allocation on the hot path).
     """
-    rp = np.empty(4)
-    yw = np.empty(4)
-    s = np.empty(4)
+    rp = work[0:4]
+    yw = work[4:8]
+    s = work[8:12]
     flags = 0.0
     rmax = -1e30
     rmin = 1e30

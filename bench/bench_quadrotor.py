@@ -1,0 +1,133 @@
+"""Real-time factor of the quadrotor with its autopilot at 1 kHz physics.
+
+    .venv/bin/python bench/bench_quadrotor.py [--quick] [--control-dt 0.004]
+
+Prints a table: the physics kernel alone, the `Quadrotor.step` wrapper, and the full
+`MultirotorAutopilot.step` (commander + navigator + compiled cascade + physics) flying a
+scripted flight (takeoff, a 40 m square in offboard, RTL and landing). Goal: >= 200x.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from flight.autopilot_api import FlightMode, Setpoint  # noqa: E402
+from flight.multirotor import MultirotorAutopilot  # noqa: E402
+from flight.quadrotor import Quadrotor, QuadrotorParams, physics_steps  # noqa: E402
+from scripts.runfolder import markdown_table  # noqa: E402
+
+
+def bench_kernel(n: int) -> float:
+    """Seconds of wall time per physics step, compiled kernel alone."""
+    q = Quadrotor(QuadrotorParams.from_toml())
+    q.reset(pos_ned=(0, 0, -1e5))  # far up: it falls for the whole run
+    u = np.full(4, 0.5)
+    physics_steps(q.x, q.aux, q.p, u, 0.001, 10)  # warm-up
+    t0 = time.perf_counter()
+    physics_steps(q.x, q.aux, q.p, u, 0.001, n)
+    return (time.perf_counter() - t0) / n
+
+
+def bench_wrapper(n_calls: int, dt: float) -> float:
+    """Seconds of wall time per `Quadrotor.step(dt)` call."""
+    q = Quadrotor(QuadrotorParams.from_toml())
+    q.reset(pos_ned=(0, 0, -1e5))
+    cmd = np.full(4, 0.5)
+    q.step(dt, cmd)
+    t0 = time.perf_counter()
+    for _ in range(n_calls):
+        q.step(dt, cmd)
+    return (time.perf_counter() - t0) / n_calls
+
+
+def scripted_flight(ap: MultirotorAutopilot, sim_s: float) -> dict[str, float]:
+    """Takeoff, offboard square at 50 Hz setpoints, RTL, land; repeats until sim_s."""
+    corners = [(0, 0), (40, 0), (40, 40), (0, 40), (0, 0)]
+    n = round(sim_s / ap.control_dt)
+    every = max(1, round(0.02 / ap.control_dt))
+    leg_steps = round(10.0 / ap.control_dt)
+    phase_len = round(12.0 / ap.control_dt)
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    k = 0
+    while k < n:
+        if not ap.armed and ap.state.on_ground:
+            ap.arm()
+            ap.takeoff(20.0)
+            start = k
+        j = k - start
+        if phase_len <= j < phase_len + leg_steps * len(corners):
+            c = corners[(j - phase_len) // leg_steps]
+            if k % every == 0:
+                ap.set_offboard_setpoint(Setpoint(pos_ned=np.array([c[0], c[1], -20.0])))
+                if ap.mode != FlightMode.OFFBOARD:
+                    ap.set_mode(FlightMode.OFFBOARD)
+        elif j == phase_len + leg_steps * len(corners):
+            ap.return_to_launch()
+        ap.step()
+        k += 1
+    wall = time.perf_counter() - t0
+    cpu = time.process_time() - c0
+    return {"wall": wall, "cpu": cpu, "steps": n}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap_ = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap_.add_argument("--quick", action="store_true", help="short run (a few seconds)")
+    ap_.add_argument("--control-dt", type=float, default=0.004, help="autopilot period [s]")
+    args = ap_.parse_args(argv)
+    sim_s = 120.0 if args.quick else 1200.0
+    n_kernel = 1_000_000 if args.quick else 10_000_000
+
+    t_warm = time.perf_counter()
+    ap = MultirotorAutopilot(control_dt=args.control_dt)
+    ap.step()
+    warm = time.perf_counter() - t_warm
+
+    k = bench_kernel(n_kernel)
+    w = bench_wrapper(20_000 if args.quick else 100_000, args.control_dt)
+    ap = MultirotorAutopilot(control_dt=args.control_dt)
+    r = scripted_flight(ap, sim_s)
+    per_step = r["wall"] / r["steps"]
+    rtf = sim_s / r["wall"]
+    n_sub = round(args.control_dt / ap.vehicle.physics_dt)
+    rows = [
+        ["physics kernel alone (1 ms step)", f"{k * 1e6:.3f}", f"{0.001 / k:,.0f}x"],
+        [
+            f"Quadrotor.step({args.control_dt * 1e3:g} ms), {n_sub} substeps",
+            f"{w * 1e6:.2f}",
+            f"{args.control_dt / w:,.0f}x",
+        ],
+        [
+            f"MultirotorAutopilot.step ({1 / args.control_dt:g} Hz, {n_sub}x1 ms physics)",
+            f"{per_step * 1e6:.2f}",
+            f"{rtf:,.0f}x",
+        ],
+    ]
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"cores {os.cpu_count()}, load average {load:.2f} (a loaded machine slows every row)")
+    print(f"first autopilot step incl. compile/cache load: {warm:.2f} s")
+    print(
+        f"scripted flight: {sim_s:g} s sim in {r['wall']:.2f} s wall, battery left "
+        f"{ap.battery_remaining:.3f}, mode {ap.mode.value}"
+    )
+    print(markdown_table(["what", "wall us per call", "real-time factor"], rows))
+    per_phys = per_step / n_sub
+    print(
+        f"autopilot + physics: {per_phys * 1e6:.2f} us per 1 ms physics step; "
+        f"real-time factor {rtf:,.0f}x wall, {sim_s / r['cpu']:,.0f}x per CPU second "
+        f"(goal >= 200x: {'met' if rtf >= 200 else 'NOT met'})"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
