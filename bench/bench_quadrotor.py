@@ -79,6 +79,78 @@ def scripted_flight(ap: MultirotorAutopilot, sim_s: float) -> dict[str, float]:
     return {"wall": wall, "cpu": cpu, "steps": n}
 
 
+def _fly(ap: MultirotorAutopilot, seconds: float, target: np.ndarray | None = None) -> np.ndarray:
+    """Step for `seconds` (streaming an offboard position target if given); (n, 4) t, pos."""
+    n = round(seconds / ap.control_dt)
+    out = np.empty((n, 4))
+    for k in range(n):
+        if target is not None:
+            ap.set_offboard_setpoint(Setpoint(pos_ned=target))
+        s = ap.step()
+        out[k, 0], out[k, 1:] = s.t, s.pos_ned
+    return out
+
+
+def _settle(t: np.ndarray, y: np.ndarray, target: float, band: float) -> float:
+    out = np.nonzero(np.abs(y - target) > band)[0]
+    return float(t[out[-1] + 1] - t[0]) if len(out) else 0.0
+
+
+def step_responses(control_dt: float) -> list[list[str]]:
+    """Measured responses (the same flights the tests check)."""
+    rows = []
+    ap = MultirotorAutopilot(control_dt=control_dt)
+    ap.arm()
+    ap.takeoff(10.0)
+    r = _fly(ap, 15.0)
+    alt = -r[:, 3]
+    rows.append(
+        [
+            "takeoff climb 0 -> 10 m",
+            f"{_settle(r[:, 0], alt, 10, 0.5):.2f} s",
+            f"{100 * max(0.0, alt.max() - 10) / 10:.1f} %",
+            "-",
+        ]
+    )
+    for name, tgt, axis, size in (
+        ("climb step 10 -> 20 m (offboard)", np.array([0.0, 0.0, -20.0]), 3, -10.0),
+        ("north step 0 -> 20 m (offboard)", np.array([20.0, 0.0, -20.0]), 1, 20.0),
+    ):
+        ap.set_offboard_setpoint(Setpoint(pos_ned=tgt))
+        ap.set_mode(FlightMode.OFFBOARD)
+        r = _fly(ap, 15.0, tgt)
+        y = r[:, axis]
+        e = (y - tgt[axis - 1]) * np.sign(size)
+        sig = np.sign(e[np.abs(e) > 0.05])
+        rows.append(
+            [
+                name,
+                f"{_settle(r[:, 0], y, tgt[axis - 1], 0.05 * abs(size)):.2f} s",
+                f"{100 * max(0.0, e.max()) / abs(size):.1f} %",
+                f"{int(np.sum(sig[1:] != sig[:-1]))}",
+            ]
+        )
+    ap.set_mode(FlightMode.HOLD)
+    _fly(ap, 5.0)
+    ref = ap.state.pos_ned.copy()
+    r = _fly(ap, 60.0)
+    dev = np.linalg.norm(r[:, 1:] - ref, axis=1).max()
+    rows.append(["hover 60 s: largest deviation", f"{dev * 100:.1f} cm", "-", "-"])
+    ap.reposition(np.array([40.0, -30.0, -12.0]))
+    _fly(ap, 20.0)
+    ap.return_to_launch()
+    r = _fly(ap, 80.0)
+    rows.append(
+        [
+            "RTL from (40, -30) m: landing error",
+            f"{np.hypot(*r[-1, 1:3]) * 100:.1f} cm",
+            "-",
+            f"armed={ap.armed}",
+        ]
+    )
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap_ = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap_.add_argument("--quick", action="store_true", help="short run (a few seconds)")
@@ -120,6 +192,13 @@ def main(argv: list[str] | None = None) -> int:
         f"{ap.battery_remaining:.3f}, mode {ap.mode.value}"
     )
     print(markdown_table(["what", "wall us per call", "real-time factor"], rows))
+    print()
+    print(
+        markdown_table(
+            ["step response", "settling (5 %) / figure", "overshoot", "zero crossings (±5 cm)"],
+            step_responses(args.control_dt),
+        )
+    )
     per_phys = per_step / n_sub
     print(
         f"autopilot + physics: {per_phys * 1e6:.2f} us per 1 ms physics step; "

@@ -419,7 +419,7 @@ class MultirotorAutopilot:
         sp = self._sp
         zm = sp[ctl.SP_Z_MODE]
         wants_air = (
-            (zm == ctl.Z_POS and sp[2] + sp[5] * 0.0 < _GROUND_Z)
+            (zm == ctl.Z_POS and sp[2] < _GROUND_Z)
             or (zm == ctl.Z_VEL and sp[5] < -0.1)
             or (zm == ctl.Z_THRUST and sp[ctl.SP_THRUST] > 0.0)
         )
