@@ -269,8 +269,12 @@ def run_drill(
     sp: SupervisorParams,
     p: DrillParams,
     events=None,
+    net_spec: EnvelopeSpec | None = None,
 ) -> DrillResult:
-    """Fly one drill on `ap` (fresh, on the ground): take off, go to the start, hand over."""
+    """Fly one drill on `ap` (fresh, on the ground): take off, go to the start, hand over.
+
+    Ground truth is judged against `spec`; the safety net uses `net_spec` (default `spec`;
+    tests pass a wider one to show that the judge catches a breach)."""
     n_sub = max(1, round(p.policy_dt_s / ap.control_dt))
     geo = spec.geometry()
     z = np.zeros(NZ)
@@ -299,7 +303,7 @@ def run_drill(
         ):
             fly(n_sub)
     worst = -math.inf  # judged from the hand-over on
-    sup = Supervisor(spec.envelope(), sp, events)
+    sup = Supervisor((net_spec or spec).envelope(), sp, events)
     behave = toward(
         script.start_ned if script.behave_target is None else script.behave_target, 3.0, 1.0, p
     )

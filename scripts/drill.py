@@ -307,6 +307,9 @@ def _plot(r, spec, path: Path) -> None:
         if sel.any():
             a1.scatter(pos[sel, 1], pos[sel, 0], s=2, color=_COLORS[m], label=lab)
             a2.scatter(t[sel], -pos[sel, 2], s=2, color=_COLORS[m])
+    lo, hi = pos[:, :2].min(axis=0) - 30.0, pos[:, :2].max(axis=0) + 30.0
+    a1.set_xlim(lo[1], hi[1])
+    a1.set_ylim(lo[0], hi[0])
     a1.set_xlabel("east [m]")
     a1.set_ylabel("north [m]")
     a1.set_aspect("equal")
