@@ -282,3 +282,52 @@ def test_control_rates_other_than_250hz_fly_too():
         assert abs(ap.state.pos_ned[2] + 5.0) < 0.25
     with pytest.raises(ValueError):
         MultirotorAutopilot(control_dt=0.0025)
+
+
+def test_armed_idle_on_ground_does_not_drift_for_60s():
+    ap = MultirotorAutopilot(start_yaw=0.7)
+    assert ap.set_param("COM_DISARM_PRFLT", -1.0).ok
+    assert ap.arm().ok
+    _, p = fly(ap, 60.0)
+    assert ap.armed and ap.state.on_ground and ap.landed_state == LandedState.ON_GROUND
+    assert np.all(p == 0.0)
+    assert ap.state.euler[2] == pytest.approx(0.7, abs=1e-12)
+    assert np.all(ap.motor_commands == pytest.approx(ap.get_param("MOT_SPIN_ARM")))
+
+
+def test_altctl_holds_height_when_stick_centred():
+    ap = MultirotorAutopilot()
+    ap.set_manual_control(0, 0, 0.5, 0)
+    assert ap.set_mode(FlightMode.ALTCTL).ok and ap.arm().ok
+    fly(ap, 4.0, lambda a, s: a.set_manual_control(0, 0, 0.75, 0))  # half up
+    assert ap.state.vel_ned[2] == pytest.approx(-1.5, abs=0.1)
+    fly(ap, 3.0, lambda a, s: a.set_manual_control(0, 0, 0.5, 0))
+    z = ap.state.pos_ned[2]
+    _, p = fly(ap, 5.0, lambda a, s: a.set_manual_control(0.3, 0, 0.5, 0))  # pitch forward
+    assert np.abs(p[:, 2] - z).max() < 0.3 and ap.state.vel_ned[0] > 2.0
+    assert ap.state.euler[1] == pytest.approx(-0.3 * math.radians(35.0), abs=0.02)
+
+
+def test_mission_current_loiter_and_rtl_items():
+    ap = airborne(10.0)
+    items = [
+        MissionItem(MissionCommand.WAYPOINT, np.array([50.0, 0.0, -10.0])),
+        MissionItem(MissionCommand.LOITER_TIME, np.array([10.0, 10.0, -12.0]), hold_s=3.0),
+        MissionItem(MissionCommand.RETURN_TO_LAUNCH, np.zeros(3)),
+    ]
+    assert ap.set_mission(items).ok
+    assert not ap.set_mission_current(3).ok and not ap.set_mission_current(-1).ok
+    assert ap.set_mission_current(1).ok  # skip the first waypoint
+    assert ap.set_mode(FlightMode.MISSION).ok
+    times = {}
+
+    def watch(a, s):
+        for seq in a.mission_progress.reached:
+            times[seq] = a.clock.t
+        a.mission_progress.reached.clear()
+
+    _, p = fly(ap, 80.0, watch)
+    assert sorted(times) == [1, 2] and times[2] - times[1] >= 3.0  # loitered 3 s
+    assert p[:, 0].max() < 15.0  # never flew to item 0
+    assert ap.mode == FlightMode.RTL and ap.state.on_ground and not ap.armed
+    assert math.hypot(*ap.state.pos_ned[:2]) < 1.0
