@@ -18,6 +18,7 @@ import osqp
 import scipy.sparse as sp
 
 from flight.autopilot_api import Setpoint
+from flight.geo import GRAVITY
 from flight.state import VehicleState
 from safety.envelope import NZ, Envelope, Kind, P
 from safety.kernels import select_mask
@@ -73,7 +74,7 @@ class LoiterFallback:
     def engage(self, state: VehicleState) -> None:
         v = state.vel_ned[:2]
         self.speed = max(float(np.hypot(*v)), self.min_speed)
-        self.radius = self.speed**2 / (9.80665 * math.tan(self.bank_max))
+        self.radius = self.speed**2 / (GRAVITY * math.tan(self.bank_max))
         heading = v / np.linalg.norm(v) if np.linalg.norm(v) > 1e-3 else np.array([1.0, 0.0])
         right = np.array([-heading[1], heading[0]])  # 90° clockwise of the track in (N, E)
         best = None
@@ -150,6 +151,7 @@ class PidGains:
     ki: float = 0.02
     kd: float = 0.2
     i_limit_m_s: float = 1.0  # anti-windup bound on ki·∫e [m/s]
+    i_zone_m: float = 1.0  # integrate only this close to the target (no windup on the way) [m]
 
 
 class RecoveryPID:
@@ -167,7 +169,7 @@ class RecoveryPID:
         self.climb = lim.climb_mps * 0.9
         self.descent = lim.descent_mps * 0.9
         cosk = math.cos(math.pi / lim.speed_sides)
-        a_h = min(lim.accel_h_mps2, 9.80665 * math.tan(lim.tilt_cmd_rad))
+        a_h = min(lim.accel_h_mps2, GRAVITY * math.tan(lim.tilt_cmd_rad))
         self.dv_h = 0.9 * a_h * dyn.tau_s * cosk
         self.dv_v = 0.9 * lim.accel_v_mps2 * dyn.tau_s
         self.margin = margin_m
@@ -200,7 +202,7 @@ class RecoveryPID:
             du[:2] *= self.dv_h / dh
         du[2] = float(np.clip(du[2], -self.dv_v, self.dv_v))
         u = state.vel_ned + du
-        if not sat:  # conditional integration (anti-windup)
+        if not sat and float(np.linalg.norm(e)) < self.g.i_zone_m:  # conditional integration
             self.integral = np.clip(
                 self.integral + self.g.ki * e * dt, -self.g.i_limit_m_s, self.g.i_limit_m_s
             )
