@@ -16,33 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from flight.autopilot_api import FlightMode
+from flight.mavlink.modes import Personality, custom_mode_of, mode_of_packed
 from hil.link import MavlinkLink
-
-# PX4 custom modes: custom_mode = main << 16 | sub << 24 (PROTOCOLS.md).
-PX4_MAIN = {
-    "MANUAL": 1,
-    "ALTCTL": 2,
-    "POSCTL": 3,
-    "AUTO": 4,
-    "ACRO": 5,
-    "OFFBOARD": 6,
-    "STABILIZED": 7,
-}
-PX4_AUTO_SUB = {"READY": 1, "TAKEOFF": 2, "LOITER": 3, "MISSION": 4, "RTL": 5, "LAND": 6}
-# Our mode names → (main, sub)
-PX4_MODES: dict[str, tuple[int, int]] = {
-    "MANUAL": (1, 0),
-    "ALTCTL": (2, 0),
-    "POSCTL": (3, 0),
-    "STABILIZED": (7, 0),
-    "OFFBOARD": (6, 0),
-    "HOLD": (4, 3),
-    "TAKEOFF": (4, 2),
-    "MISSION": (4, 4),
-    "RTL": (4, 5),
-    "LAND": (4, 6),
-}
-_MODE_BY_PAIR = {v: k for k, v in PX4_MODES.items()}
 
 # type_mask bits of SET_POSITION_TARGET_*: a set bit means "ignore this field".
 IGNORE_POS = 0b000000000111
@@ -67,20 +43,14 @@ class ClientTimeout(Exception):
     """The vehicle did not answer or reach a state in time."""
 
 
-def px4_mode_name(custom_mode: int) -> str:
-    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-    if main != PX4_MAIN["AUTO"]:
-        sub = 0
-    return _MODE_BY_PAIR.get((main, sub), f"PX4({main},{sub})")
-
-
 @dataclass
 class Telemetry:
     """The client's view of the vehicle (SI, NED about home)."""
 
     time_boot_ms: int = 0
     armed: bool = False
-    mode: str = ""
+    mode: FlightMode | None = None
+    personality: Personality = Personality.PX4
     pos_ned: np.ndarray | None = None
     vel_ned: np.ndarray | None = None
     landed_state: int = 0
@@ -151,7 +121,9 @@ class VehicleClient:
         tel = self.telemetry
         if t == "HEARTBEAT" and msg.get_srcComponent() == self.target_component:
             tel.armed = bool(msg.base_mode & mavlink2.MAV_MODE_FLAG_SAFETY_ARMED)
-            tel.mode = px4_mode_name(msg.custom_mode)
+            if msg.autopilot == mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA:
+                tel.personality = Personality.ARDUPILOT
+            tel.mode = mode_of_packed(tel.personality, msg.custom_mode)
         elif t == "LOCAL_POSITION_NED":
             tel.time_boot_ms = msg.time_boot_ms
             tel.pos_ned = np.array([msg.x, msg.y, msg.z])
@@ -193,7 +165,7 @@ class VehicleClient:
 
     def wait_connected(self, timeout: float = 10.0) -> None:
         self.wait_until(
-            lambda: self.target_system is not None and self.telemetry.mode != "",
+            lambda: self.target_system is not None and self.telemetry.mode is not None,
             timeout,
             "a vehicle heartbeat",
         )
@@ -250,8 +222,12 @@ class VehicleClient:
     def disarm(self, force: bool = False) -> None:
         self.command_long(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196 if force else 0)
 
-    def set_mode(self, name: str) -> None:
-        main, sub = PX4_MODES[name]
+    def set_mode(self, mode: FlightMode) -> None:
+        packed = custom_mode_of(self.telemetry.personality, mode)
+        if self.telemetry.personality is Personality.PX4:
+            main, sub = (packed >> 16) & 0xFF, (packed >> 24) & 0xFF
+        else:
+            main, sub = packed, 0
         self.command_long(
             mavlink2.MAV_CMD_DO_SET_MODE, mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub
         )

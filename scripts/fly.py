@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
+from flight.autopilot_api import FlightMode
 from hil.client import ClientTimeout, CommandError, Telemetry, VehicleClient
 from hil.link import LinkError, MavlinkLink, parse_address
 from scripts.cli import UsageError
@@ -52,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--speedup",
         type=float,
         default=10.0,
-        help="built-in SITL speed-up over wall time (default 10)",
+        help="built-in SITL speed-up over wall time, >= 1 (default 10)",
     )
     parser.add_argument("--altitude", type=float, default=20.0, help="mission altitude [m]")
     parser.add_argument("--side", type=float, default=40.0, help="square side [m]")
@@ -66,6 +67,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if not (0 < args.altitude <= 120 and 0 < args.side <= 500):
         raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
+    if args.connect is None and args.speedup < 1:
+        raise UsageError(
+            "--speedup must be >= 1 for the built-in SITL: a MAVLink client cannot keep up "
+            "with an unpaced vehicle (offboard setpoints would time out)"
+        )
     mission = SquareMission(altitude=args.altitude, side=args.side)
     address = args.connect or f"udpin:127.0.0.1:{14540 + args.instance}"
     try:
@@ -82,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         link = MavlinkLink.open(address, tlog=run_dir.file("telemetry.tlog"))
     except LinkError as e:
         if sitl:
-            sitl.stop()
+            sitl.close()
         raise UsageError(f"{e}; is another skyherd or SITL using that port?") from None
     print(f"skyherd fly: run folder {run_dir.path}")
     ok = False
@@ -91,16 +97,18 @@ def run(args: argparse.Namespace) -> int:
             ok = _fly_square(client, mission, run_dir, args.timeout)
     finally:
         if sitl:
-            sitl.stop()
+            sitl.close()
     return 0 if ok else 1
 
 
 def _start_embedded_sitl(args):
-    from flight.sitl import start_sitl_thread
+    """The built-in vehicle on a background thread, with the standard endpoints."""
+    from flight.airframes_registry import make_autopilot
+    from flight.mavlink import EndpointConfig
+    from flight.sitl import Sitl
 
-    return start_sitl_thread(
-        airframe=args.airframe, instance=args.instance, speedup=args.speedup, seed=args.seed
-    )
+    autopilot = make_autopilot(args.airframe, seed=args.seed, instance=args.instance)
+    return Sitl(autopilot, EndpointConfig(instance=args.instance), speedup=args.speedup).start()
 
 
 def _fly_square(
@@ -175,7 +183,8 @@ def _fly_square(
         target["pos"] = np.array([tel.pos_ned[0], tel.pos_ned[1], -mission.altitude])
         client.wait_message("LOCAL_POSITION_NED")  # setpoints flowing before the switch
         client.wait_message("LOCAL_POSITION_NED")
-        client.set_mode("OFFBOARD")
+        client.set_mode(FlightMode.OFFBOARD)
+        client.wait_until(lambda: tel.mode is FlightMode.OFFBOARD, min(10.0, left()), "OFFBOARD")
         bar.update()
 
         for i, corner in enumerate(mission.corners_ned()):
@@ -223,9 +232,9 @@ def _wait_settled(
     since = {"t": None}
 
     def settled() -> bool:
-        if tel.pos_ned is None or tel.mode != "OFFBOARD":
-            if tel.mode and tel.mode != "OFFBOARD":
-                raise ClientTimeout(f"vehicle left OFFBOARD (now {tel.mode})")
+        if tel.mode is not FlightMode.OFFBOARD:
+            raise ClientTimeout(f"vehicle left OFFBOARD (now {tel.mode.name})")
+        if tel.pos_ned is None:
             return False
         t = tel.time_boot_ms / 1000.0
         if np.linalg.norm(tel.pos_ned - corner) > mission.accept_radius:
