@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     ap_.add_argument("--quick", action="store_true", help="short run (a few seconds)")
     ap_.add_argument("--control-dt", type=float, default=0.004, help="autopilot period [s]")
     args = ap_.parse_args(argv)
-    sim_s = 120.0 if args.quick else 1200.0
+    sim_s = 120.0 if args.quick else 600.0  # within one battery
     n_kernel = 1_000_000 if args.quick else 10_000_000
 
     t_warm = time.perf_counter()

@@ -331,3 +331,18 @@ def test_mission_current_loiter_and_rtl_items():
     assert p[:, 0].max() < 15.0  # never flew to item 0
     assert ap.mode == FlightMode.RTL and ap.state.on_ground and not ap.armed
     assert math.hypot(*ap.state.pos_ned[:2]) < 1.0
+
+
+def test_battery_critical_returns_and_emergency_lands():
+    ap = MultirotorAutopilot(battery_start=0.09)  # 9 %: about 2 min of hover left
+    assert ap.arm().ok and ap.takeoff(10.0).ok
+    fly(ap, 8.0)
+    assert ap.reposition(np.array([60.0, 0.0, -10.0])).ok
+    modes = []
+    _, p = fly(ap, 200.0, lambda a, s: modes.append(a.mode))
+    events = " ".join(ap.drain_status())
+    assert "critical -> return" in events and "emergency -> land" in events
+    i_rtl, i_land = modes.index(FlightMode.RTL), modes.index(FlightMode.LAND)
+    assert i_rtl < i_land
+    assert ap.state.on_ground and not ap.armed
+    assert ap.battery_remaining < 0.05

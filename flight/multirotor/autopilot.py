@@ -67,7 +67,9 @@ class MultirotorAutopilot:
 
     params_file: TOML with a `[params]` table of overrides; airframe: airframe file;
     home: geodetic home; clock: the shared SimClock (a new one if None); control_dt [s]:
-    autopilot period (a multiple of the physics step); seed: recorded, unused (no noise).
+    autopilot period (a multiple of the physics step); seed: recorded, unused (no noise);
+    start_pos_ned [m], start_yaw [rad]: where it starts (on the ground if down >= 0);
+    battery_start: charge at start [0, 1] (for battery drills).
     """
 
     airframe = "quadrotor"
@@ -82,10 +84,14 @@ class MultirotorAutopilot:
         airframe_file: Path | str = DEFAULT_AIRFRAME,
         start_pos_ned: tuple[float, float, float] = (0.0, 0.0, 0.0),
         start_yaw: float = 0.0,
+        battery_start: float = 1.0,
     ):
         self.home = home
         self.clock = clock if clock is not None else SimClock()
         self.seed = int(seed)
+        if not (0.0 <= battery_start <= 1.0):
+            raise ValueError(f"battery_start must be in [0, 1], got {battery_start}")
+        self._battery_start = float(battery_start)
         self.vehicle = QuadrotorParams.from_toml(airframe_file)
         n = round(control_dt / self.vehicle.physics_dt)
         if n < 1 or abs(n * self.vehicle.physics_dt - control_dt) > 1e-9:
@@ -149,6 +155,7 @@ class MultirotorAutopilot:
         self._item_reached_at: float | None = None
         self._climb_first = False
         self._status: list[str] = []
+        self._next_battery_check = 0.0
         self._reset_vehicle(np.asarray(start_pos_ned, dtype=float), float(start_yaw))
         self._state = self._make_state()
 
@@ -180,7 +187,8 @@ class MultirotorAutopilot:
         """Remaining charge [0, 1]: shaft energy / efficiency + avionics, over capacity."""
         v = self.vehicle
         used = self._aux[A_ENERGY] / v.efficiency + v.avionics_power * self.clock.t
-        return float(min(1.0, max(0.0, 1.0 - used / (v.battery_capacity_wh * 3600.0))))
+        rem = self._battery_start - used / (v.battery_capacity_wh * 3600.0)
+        return float(min(1.0, max(0.0, rem)))
 
     @property
     def battery_voltage(self) -> float:
@@ -294,6 +302,8 @@ class MultirotorAutopilot:
         self._disarm_land = P["COM_DISARM_LAND"]
         self._disarm_prflt = P["COM_DISARM_PRFLT"]
         self._land_trig = P["LNDMC_TRIG_TIME"]
+        self._bat_crit = P["BAT_CRIT_THR"]
+        self._bat_emergency = P["BAT_EMERGEN_THR"]
         self._c_rev = self.params.revision
 
     # ------------------------------------------------------------------ commander
@@ -348,12 +358,28 @@ class MultirotorAutopilot:
                 return
         # failsafes
         mode = self._mode
+        if t >= self._next_battery_check:  # 1 Hz is plenty for a battery
+            self._next_battery_check = t + 1.0
+            self._battery_failsafe(mode, on_ground)
+            mode = self._mode
         if mode == FlightMode.OFFBOARD and t - self._offboard_t > self._of_loss_t:
             self._event("offboard setpoints lost -> hold")
             self._switch(FlightMode.HOLD)
         elif mode in _MANUAL_MODES and t - self._manual_t > self._rc_loss_t:
             self._event("manual control lost -> hold")
             self._switch(FlightMode.HOLD)
+
+    def _battery_failsafe(self, mode: FlightMode, on_ground: bool) -> None:
+        """PX4 COM_LOW_BAT_ACT 3: critical → return, emergency → land where it is."""
+        if on_ground:
+            return
+        rem = self.battery_remaining
+        if rem <= self._bat_emergency and mode != FlightMode.LAND:
+            self._event(f"battery {rem:.0%}: emergency -> land")
+            self._switch(FlightMode.LAND)
+        elif rem <= self._bat_crit and mode not in (FlightMode.RTL, FlightMode.LAND):
+            self._event(f"battery {rem:.0%}: critical -> return")
+            self._switch(FlightMode.RTL)
 
     def _landed_for(self, t: float) -> bool:
         return self._ground_since is not None and t - self._ground_since >= self._land_trig

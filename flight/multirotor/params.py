@@ -61,4 +61,6 @@ MULTIROTOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_DISARM_PRFLT", 10.0, -1.0, 60.0, "disarm if no takeoff (<0 never)", "s"),
     ParamSpec("LNDMC_TRIG_TIME", 0.5, 0.1, 10.0, "ground contact time to detect a landing", "s"),
     ParamSpec("BAT_LOW_THR", 0.15, 0.0, 0.5, "battery fraction reported as low", "-"),
+    ParamSpec("BAT_CRIT_THR", 0.07, 0.0, 0.5, "battery fraction → return (RTL)", "-"),
+    ParamSpec("BAT_EMERGEN_THR", 0.05, 0.0, 0.5, "battery fraction → land here", "-"),
 )
