@@ -126,6 +126,10 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         tty.setcbreak(fd)
+        sys.stdout.write(
+            f"teleop ready: {args.scenario}, keys w/s/d/a/r/f, space hover, q quit\r\n"
+        )
+        sys.stdout.flush()
         demo = record(
             args.scenario,
             act,

@@ -1,0 +1,144 @@
+"""skyherd/GroundAir-v0: registration, env checker, fast φ against perception, UAV model, episodes."""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import policy
+from perception.camera import CameraParams, camera_pose
+from perception.features import features_from_truth
+from policy.demos import random_policy, rollout_stats, scripted_expert
+from policy.groundair.env import OBS_DIM, GroundAirEnv, reward_features
+from policy.groundair.fastphi import LevelCamera, min_circle
+from policy.groundair.params import TaskParams
+
+
+def test_registered_on_import_and_passes_env_checker():
+    env = gym.make(policy.ENV_ID)
+    check_env(env.unwrapped, skip_render_check=False)
+    for sc in ("lateral", "climb", "descend"):
+        check_env(gym.make(policy.ENV_ID, scenario=sc).unwrapped)
+    o, _ = env.reset(seed=0)
+    assert o.shape == (OBS_DIM,) and o.dtype == np.float32
+    with pytest.raises(ValueError):
+        GroundAirEnv("nope")
+    with pytest.raises(ValueError):
+        GroundAirEnv(reward_weights=[np.nan] * 9)
+
+
+def test_policy_import_is_light():
+    import subprocess
+    import sys
+
+    code = "import sys, policy; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_fast_phi_equals_perception_features():
+    cam = CameraParams()
+    lc = LevelCamera(cam)
+    rng = np.random.default_rng(0)
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    checked_partial = 0
+    for _ in range(300):
+        n, e, alt = rng.uniform(-10, 10), rng.uniform(-10, 10), rng.uniform(6, 55)
+        ugvs = [(rng.uniform(-25, 25), rng.uniform(-25, 25)) for _ in range(3)]
+        fast, seen, _ = lc.phi(n, e, alt, ugvs)
+        pose = camera_pose(cam, np.array([n, e, -alt]), q)
+        pts = np.array([[a, b, 0.0] for a, b in ugvs])
+        ref = features_from_truth(cam, pose, pts, alt)
+        # cv2.minEnclosingCircle works in float32: spread agrees to ~1e-5
+        np.testing.assert_allclose(fast, ref, atol=2e-5)
+        checked_partial += 0 < sum(seen) < 3
+    assert checked_partial > 20  # partial views were exercised too
+
+
+def test_min_circle_closed_forms():
+    assert min_circle([(0.0, 0.0), (4.0, 0.0)]) == (2.0, 0.0, 2.0)
+    # obtuse triangle: the circle on the longest side
+    cu, cv, r = min_circle([(0.0, 0.0), (10.0, 0.0), (5.0, 1.0)])
+    assert (cu, cv, r) == pytest.approx((5.0, 0.0, 5.0))
+    # equilateral triangle of side s: circumradius s/√3
+    cu, cv, r = min_circle([(0.0, 0.0), (2.0, 0.0), (1.0, math.sqrt(3))])
+    assert r == pytest.approx(2 / math.sqrt(3))
+
+
+def test_uav_first_order_response_is_exact():
+    env = GroundAirEnv("climb", start_noise=False)
+    env.reset(seed=1)
+    n0, alt0 = env.n, env.alt
+    u, dt = env.task.uav, env.task.dt_s
+    k = math.exp(-dt / u.tau_s)
+    env.step(1)  # north from rest
+    assert env.vn == pytest.approx(u.v_xy_mps * (1 - k), rel=1e-12)
+    assert env.n - n0 == pytest.approx(u.v_xy_mps * (dt - u.tau_s * (1 - k)), rel=1e-12)
+    for _ in range(20):
+        env.step(1)
+    assert env.vn == pytest.approx(u.v_xy_mps, rel=1e-6)  # settles at the command
+    env.step(5)  # climb: altitude rises, down-velocity negative
+    assert env.alt > alt0 and env.vd < 0
+    assert abs(env.vd) <= u.v_up_mps
+
+
+def test_altitude_geofence_and_lost_termination():
+    env = GroundAirEnv("composite", start_noise=False)
+    env.reset(seed=0)
+    for _ in range(200):
+        _, _, term, trunc, _ = env.step(6)
+        assert env.alt >= env.task.uav.alt_min_m
+        if term or trunc:
+            break
+    # flying off north loses everyone: termination after lost_s of empty frames
+    env.reset(seed=0)
+    steps = 0
+    while True:
+        _, _, term, trunc, info = env.step(1)
+        steps += 1
+        if term or trunc:
+            break
+    assert term and not trunc and steps < env.task.max_steps
+    m = info["metrics"]
+    assert m["all_in_view_frac"] < 0.5 and m["ugv_losses"] >= 3
+
+
+def test_episode_truncates_at_time_limit_and_metrics():
+    from perception.features import spread_circle
+
+    env = GroundAirEnv("descend", task=TaskParams(episode_s=10.0), start_noise=False)
+    env.reset(seed=0)
+    cam = env.task.camera
+    ratios = []
+    for i in range(20):
+        _, _, term, trunc, info = env.step(0)
+        assert trunc == (i == 19) and not term
+        z = env.alt - cam.mount_offset_frd[2]
+        area = (cam.width_px * z / cam.fx) * (cam.height_px * z / cam.fx)
+        _, r = spread_circle(np.array(env.formation.positions()))
+        ratios.append(area / (math.pi * r * r))
+    m = info["metrics"]
+    assert m["all_in_view_frac"] == 1.0 and m["ugv_losses"] == 0
+    assert m["footprint_ratio"] == pytest.approx(np.mean(ratios), rel=1e-4)
+    # the team shrinks while the UAV hovers: the ratio grows step by step
+    assert ratios[-1] > ratios[0]
+
+
+def test_reward_features():
+    psi = reward_features([0.5, 0.25, 0.35, 0.5, 1.0, 1.0, 0.4, 1.0])
+    assert psi == pytest.approx([1.0, 1.0, 0.5, 0.4, 0, 0, 1, 0, 0])
+    psi = reward_features([0.5, 0.5, 0.0, 0.3, 0.0, 0.0, 0.0, 1.0])  # nothing in view
+    assert psi == [0.0] * 9
+
+
+@pytest.mark.parametrize("scenario", ["lateral", "climb", "descend", "composite"])
+def test_scripted_expert_beats_random(scenario):
+    _, me = rollout_stats(scripted_expert(scenario), scenario, 10, 500, 0.97)
+    _, mr = rollout_stats(random_policy(0), scenario, 10, 500, 0.97)
+    assert me["all_in_view_frac"] >= 0.9
+    # random either loses the team or (descend) leaves the view far too wide
+    assert me["all_in_view_frac"] > mr["all_in_view_frac"] + 0.3 or (
+        me["footprint_ratio"] < 0.6 * mr["footprint_ratio"]
+    )
