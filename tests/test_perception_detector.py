@@ -138,3 +138,26 @@ def test_annotation_draws_figure2_marks():
     rim = np.round(rim).astype(int)
     blue = [np.all(img[y, x] == BLUE) or img[y, x, 2] > 200 for x, y in rim]
     assert np.mean(blue) > 0.7
+
+
+def test_bullet_ground_compositing_is_pixel_identical():
+    from perception.evaluate import SceneParams, random_scene
+    from perception.render_bullet import BulletRenderParams
+
+    worlds = [
+        GroundWorld(
+            initial_states(triangle_offsets(3)),
+            make_behaviour("route", 3, np.random.default_rng(0)),
+        )
+        for _ in range(2)
+    ]
+    try:
+        fast = BulletRenderer(worlds[0], CAM)
+        full = BulletRenderer(worlds[1], CAM, BulletRenderParams(composite_ground=False))
+        rng = np.random.default_rng(5)
+        for _ in range(10):
+            uav, st = random_scene(CAM, MODEL, SceneParams(), rng)
+            assert np.array_equal(fast.render(uav, st), full.render(uav, st))
+    finally:
+        for w in worlds:
+            w.close()
