@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import contextlib
 import math
+import socket
 import time
 from pathlib import Path
 
-from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from flight.airframes_registry import make_autopilot
@@ -36,15 +36,63 @@ def running_sitl(
         sitl.close()
 
 
+class V2Socket:
+    """pymavlink's MAVLink 2 `ardupilotmega` codec on a plain UDP socket.
+
+    `udpin:` binds `port` and answers whoever sent last; `udpout:` sends to `port`.
+    (mavutil's connections start in MAVLink 1 unless a process-wide environment variable
+    is set, and switch dialect on the fly; the tests use the codec directly instead.)
+    """
+
+    def __init__(self, mode: str, port: int, source_system: int = 255, source_component: int = 190):
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        if mode == "udpin":
+            self.sock.bind(("127.0.0.1", port))
+            self.peer = None
+        else:
+            self.sock.bind(("127.0.0.1", 0))
+            self.peer = ("127.0.0.1", port)
+        self.mav = M.MAVLink(self, srcSystem=source_system, srcComponent=source_component)
+        self.mav.robust_parsing = True
+        self._pending: list = []
+
+    def write(self, buf: bytes) -> None:
+        if self.peer is not None:
+            self.sock.sendto(bytes(buf), self.peer)
+
+    def recv_match(self, blocking: bool = True, timeout: float = 1.0):
+        """Next decoded message (any type) or None."""
+        deadline = time.monotonic() + (timeout if blocking else 0.0)
+        while not self._pending:
+            left = deadline - time.monotonic()
+            if blocking and left <= 0:
+                return None
+            self.sock.settimeout(left if blocking else 0.0)
+            try:
+                data, addr = self.sock.recvfrom(65535)
+            except (TimeoutError, BlockingIOError):
+                return None
+            self.peer = addr if self.peer is None or self.peer[1] != addr[1] else self.peer
+            msgs = self.mav.parse_buffer(data) or []
+            self._pending.extend(m for m in msgs if m.get_type() != "BAD_DATA")
+        return self._pending.pop(0)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def v2_connection(address: str, source_system: int = 255) -> V2Socket:
+    mode, _, port = address.rpartition(":")
+    return V2Socket(mode.split(":")[0], int(port), source_system)
+
+
 class Client:
     """A pymavlink ground station on the API link of instance N (udpin 14540+N)."""
 
     def __init__(self, instance: int, port: int | None = None, source_system: int = 255):
         port = 14540 + instance if port is None else port
         self.target = 1 + instance
-        self.conn = mavutil.mavlink_connection(
-            f"udpin:127.0.0.1:{port}", source_system=source_system, source_component=190
-        )
+        self.conn = V2Socket("udpin", port, source_system)
         self.mav = self.conn.mav
         self.texts: list[str] = []  # every STATUSTEXT seen, in order
 
@@ -58,10 +106,8 @@ class Client:
         self.close()
 
     def wait_heartbeat(self, timeout: float = 10.0):
-        hb = self.conn.wait_heartbeat(timeout=timeout)
+        hb = self.recv("HEARTBEAT", timeout)
         assert hb is not None, "no HEARTBEAT from the vehicle"
-        self.conn.target_system = self.target
-        self.conn.target_component = 1
         return hb
 
     def recv(self, types, timeout: float = 5.0, cond=None):
@@ -75,6 +121,8 @@ class Client:
             m = self.conn.recv_match(blocking=True, timeout=left)
             if m is None:
                 continue
+            if m.get_srcSystem() != self.target:
+                continue  # another vehicle (e.g. a GCS link sending to 14550)
             if m.get_type() == "STATUSTEXT":
                 self.texts.append(m.text)
             if m.get_type() in types and (cond is None or cond(m)):

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 import pytest
-from mavlink_support import Client, item_fields, running_sitl, same_items
+from mavlink_support import Client, item_fields, running_sitl, same_items, v2_connection
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from flight.autopilot_api import FlightMode, MissionCommand
@@ -330,13 +330,16 @@ def test_two_instances_side_by_side_and_reply_to_sender():
 
             MavlinkEndpoint(s7.autopilot, EndpointConfig(instance=7))
         # The ground-station socket answers whoever talks to it (here udpout from any port).
-        from pymavlink import mavutil
-
-        g = mavutil.mavlink_connection("udpout:127.0.0.1:18578", source_system=254)
+        g = v2_connection("udpout:127.0.0.1:18578", source_system=254)
         try:
             g.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-            hb = g.recv_match(type="HEARTBEAT", blocking=True, timeout=3)
-            assert hb is not None and hb.get_srcSystem() == 9
+            deadline = time.monotonic() + 3
+            hb = None
+            while hb is None and time.monotonic() < deadline:
+                m = g.recv_match(blocking=True, timeout=0.5)
+                if m is not None and m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 9:
+                    hb = m
+            assert hb is not None
         finally:
             g.close()
 

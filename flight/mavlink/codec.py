@@ -60,7 +60,8 @@ class Codec:
             return []
         out = []
         for m in msgs:
-            if isinstance(m, mavlink.MAVLink_bad_data) or m.get_type() in ("BAD_DATA", "UNKNOWN"):
+            # Unknown message ids cannot be CRC-checked (no CRC_EXTRA): dropped as malformed.
+            if isinstance(m, mavlink.MAVLink_bad_data | mavlink.MAVLink_unknown):
                 self.stats.rx_bad += 1
             else:
                 out.append(m)

@@ -42,6 +42,7 @@ class UdpLink:
             raise OSError(f"{name} link cannot bind UDP {bind[0]}:{bind[1]}: {e.strerror}") from e
         self.sock.setblocking(False)
         self.send_errors = 0
+        self.rx_datagrams = 0
 
     def receive(self, max_datagrams: int = 256) -> list[tuple[MAVLinkMessage, Address]]:
         """Drain up to `max_datagrams` waiting datagrams; returns decoded messages with senders."""
@@ -53,6 +54,7 @@ class UdpLink:
                 break
             except OSError:  # e.g. ICMP port unreachable reported on a later call
                 continue
+            self.rx_datagrams += 1
             msgs = self.codec.parse(data)
             if msgs:
                 self.peer = (addr[0], addr[1])
