@@ -125,3 +125,21 @@ def test_features_from_truth_hidden_and_out_of_view():
     assert phi[4] == 0.5 and phi[2] == 0.0
     phi = features_from_truth(CAM, pose, pts[:2], 20.0)
     assert phi[5] == 1.0 and phi[0] > 0.5 and phi[1] < 0.5  # north-east: right and up
+
+
+def test_camera_rig_rate_and_features():
+    from groundsim.ugv import UGVStates
+    from perception.camera import UAVPose
+    from perception.pipeline import CameraRig, CameraRigParams
+
+    rig = CameraRig(CameraParams(), 3, CameraRigParams(rate_hz=10.0))
+    uav = UAVPose(np.array([0.0, 0.0, -30.0]), euler_to_quat(0, 0, 0))
+    st = UGVStates(np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 4.0]]), np.zeros(3), np.zeros(3))
+    ticks = [rig.tick(k * 0.02, uav, st) for k in range(100)]  # 2 s at 50 Hz
+    got = [tk for tk in ticks if tk is not None]
+    assert len(got) == 20 and got[1].t == pytest.approx(0.1)
+    phi = got[-1].phi
+    assert phi[4] == 1.0 and phi[5] == 1.0 and phi[3] == pytest.approx(0.5)
+    assert got[-1].detections.count == 3
+    with pytest.raises(ValueError, match="GroundWorld"):
+        CameraRig(CameraParams(), 3, CameraRigParams(renderer="bullet"))

@@ -42,9 +42,9 @@ def test_fast_renderer_accuracy_1000_frames():
 
 
 def test_bullet_renderer_accuracy(world):
-    # 300 PyBullet frames here (~5 s); the full 1000 run in bench/bench_perception.py.
+    # the full 1000 PyBullet frames (~10 s with ground compositing)
     rep = evaluate(
-        BulletRenderer(world, CAM), Detector(CAM, 3), CAM, MODEL, 300, np.random.default_rng(2)
+        BulletRenderer(world, CAM), Detector(CAM, 3), CAM, MODEL, 1000, np.random.default_rng(2)
     )
     s = rep.summary()
     assert s["centroid_median_px"] <= 2.0 and s["com_median_px"] <= 2.0
