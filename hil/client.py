@@ -17,7 +17,9 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from flight.autopilot_api import FlightMode
+from flight.geo import GRAVITY
 from flight.mavlink.modes import Personality, custom_mode_of, mode_of_packed
+from flight.state import VehicleState
 from hil.link import MavlinkLink
 
 # type_mask bits of SET_POSITION_TARGET_*: a set bit means "ignore this field".
@@ -53,9 +55,25 @@ class Telemetry:
     personality: Personality = Personality.PX4
     pos_ned: np.ndarray | None = None
     vel_ned: np.ndarray | None = None
+    quat: np.ndarray | None = None  # (w, x, y, z) body FRD → NED
+    omega_frd: np.ndarray | None = None  # [rad/s]
     landed_state: int = 0
     home_ok: bool = False
     statustext: str = ""
+
+    def vehicle_state(self) -> VehicleState | None:
+        """The telemetry as a VehicleState (None until position and attitude arrived)."""
+        if self.pos_ned is None or self.quat is None:
+            return None
+        return VehicleState(
+            t=self.time_boot_ms / 1000.0,
+            pos_ned=self.pos_ned,
+            vel_ned=self.vel_ned,
+            quat=self.quat,
+            omega_frd=self.omega_frd,
+            accel_frd=np.array([0.0, 0.0, -GRAVITY]),
+            on_ground=self.landed_state == mavlink2.MAV_LANDED_STATE_ON_GROUND,
+        )
 
 
 class VehicleClient:
@@ -132,6 +150,9 @@ class VehicleClient:
                 sp = self._offboard(tel)
                 if sp is not None:
                     self.link.send(sp)
+        elif t == "ATTITUDE_QUATERNION":
+            tel.quat = np.array([msg.q1, msg.q2, msg.q3, msg.q4])
+            tel.omega_frd = np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
         elif t == "EXTENDED_SYS_STATE":
             tel.landed_state = msg.landed_state
         elif t == "HOME_POSITION":

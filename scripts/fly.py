@@ -10,15 +10,14 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
-from tqdm import tqdm
 
 from flight.autopilot_api import FlightMode
-from hil.client import ClientTimeout, CommandError, Telemetry, VehicleClient
+from hil.client import ClientTimeout, CommandError, VehicleClient
 from hil.link import LinkError, MavlinkLink, parse_address
+from hil.session import TRACK_COLUMNS, FlightSession
 from scripts.cli import UsageError
 from scripts.runfolder import RunFolder, args_dict, markdown_table
 
@@ -114,106 +113,32 @@ def _start_embedded_sitl(args):
 def _fly_square(
     client: VehicleClient, mission: SquareMission, run_dir: RunFolder, timeout: float
 ) -> bool:
-    metrics = run_dir.metrics(
-        ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "phase"]
-    )
-    track: list[tuple[float, float, float, float]] = []
-    phase = {"name": "connect"}
+    steps = ["connect", "arm", "takeoff", "offboard"] + [f"corner {i + 1}" for i in range(4)]
+    fs = FlightSession(client, run_dir.metrics(TRACK_COLUMNS), steps + ["land"], timeout)
+    tel = client.telemetry
     legs: list[list] = []
-    t_end = time.monotonic() + timeout
-
-    def record(tel: Telemetry) -> None:
-        if tel.pos_ned is None:
-            return
-        t = tel.time_boot_ms / 1000.0
-        metrics.write(
-            {
-                "t": t,
-                "north": tel.pos_ned[0],
-                "east": tel.pos_ned[1],
-                "down": tel.pos_ned[2],
-                "vn": tel.vel_ned[0],
-                "ve": tel.vel_ned[1],
-                "vd": tel.vel_ned[2],
-                "mode": tel.mode,
-                "armed": int(tel.armed),
-                "phase": phase["name"],
-            }
-        )
-        track.append((t, *tel.pos_ned))
-
-    target = {"pos": None}
-
-    def setpoint(tel: Telemetry):
-        record(tel)
-        return None if target["pos"] is None else (target["pos"], None, 0.0)
-
-    def left() -> float:
-        return max(1.0, t_end - time.monotonic())
-
-    steps = (
-        ["connect", "arm", "takeoff", "offboard"] + [f"corner {i + 1}" for i in range(4)] + ["land"]
-    )
-    bar = tqdm(steps, desc="fly", unit="step", leave=True)
     try:
-        client.stream_offboard(setpoint)
-        tel = client.telemetry
-        bar.set_description("connect: waiting for heartbeat, home and position")
-        client.wait_ready(timeout=min(30.0, left()))
-        bar.update()
-
-        phase["name"] = "arm"
-        bar.set_description("arm")
-        client.wait_until(lambda: tel.landed_state == 1, min(30.0, left()), "vehicle on ground")
-        client.arm()
-        bar.update()
-
-        phase["name"] = "takeoff"
-        bar.set_description(f"takeoff to {mission.altitude:.0f} m")
-        client.takeoff(mission.altitude)
-        client.wait_until(
-            lambda: tel.pos_ned is not None and -tel.pos_ned[2] > mission.altitude - 0.5,
-            left(),
-            f"altitude {mission.altitude:.0f} m",
-        )
-        bar.update()
-
-        phase["name"] = "offboard"
-        bar.set_description("offboard")
-        target["pos"] = np.array([tel.pos_ned[0], tel.pos_ned[1], -mission.altitude])
-        client.wait_message("LOCAL_POSITION_NED")  # setpoints flowing before the switch
-        client.wait_message("LOCAL_POSITION_NED")
-        client.set_mode(FlightMode.OFFBOARD)
-        client.wait_until(lambda: tel.mode is FlightMode.OFFBOARD, min(10.0, left()), "OFFBOARD")
-        bar.update()
-
+        fs.connect_arm_takeoff(mission.altitude)
+        fs.offboard(mission.altitude)
         for i, corner in enumerate(mission.corners_ned()):
-            phase["name"] = f"corner {i + 1}"
-            bar.set_description(f"corner {i + 1} of 4 ({corner[0]:.0f} N, {corner[1]:.0f} E)")
-            start = tel.pos_ned.copy()
-            t0 = tel.time_boot_ms / 1000.0
-            target["pos"] = corner
-            _wait_settled(client, corner, mission, left())
-            t1 = tel.time_boot_ms / 1000.0
-            err = _cross_track(np.array(track)[:, 1:], start, corner, t0, t1, np.array(track)[:, 0])
+            fs.step(
+                f"corner {i + 1}", f"corner {i + 1} of 4 ({corner[0]:.0f} N, {corner[1]:.0f} E)"
+            )
+            start, t0 = tel.pos_ned.copy(), fs.vehicle_time()
+            fs.hold_target = corner
+            _wait_settled(client, corner, mission, fs.left())
+            t1 = fs.vehicle_time()
+            track = np.array(fs.track)
+            err = _cross_track(track[:, 1:], start, corner, t0, t1, track[:, 0])
             legs.append([i + 1, f"{corner[0]:.0f} N {corner[1]:.0f} E", t1 - t0, err])
-            bar.update()
-
-        phase["name"] = "land"
-        bar.set_description("land")
-        client.land()
-        client.wait_until(lambda: not tel.armed, left(), "landing and disarm")
-        bar.update()
+            fs.done()
+        fs.land()
         ok = True
     except (ClientTimeout, CommandError) as e:
-        bar.write(f"skyherd fly: {e}")
+        fs.bar.write(f"skyherd fly: {e}")
         ok = False
-    finally:
-        client.stream_offboard(None)
-        bar.close()
-        metrics.close()
-
-    _plot_track(run_dir, np.array(track) if track else np.zeros((0, 4)), mission)
+    track = fs.close()
+    _plot_track(run_dir, track, mission)
     table = markdown_table(["leg", "to", "time [s]", "max cross-track [m]"], legs)
     status = "completed" if ok else "ABORTED"
     run_dir.write_summary(

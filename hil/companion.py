@@ -1,0 +1,151 @@
+"""The companion computer of the ground–air mission: camera → perception → policy → safety net.
+
+One `update(t, state)` per vehicle telemetry sample (simulation time t [s], the vehicle's
+clock, so air and ground share one clock at any speed-up):
+
+1. the UGV team moves to time t;
+2. every `camera_dt_s` the downward camera renders a frame, publishes it on Zenoh and the
+   detector turns it into features φ(s);
+3. every `decision_dt_s` the policy picks an action from the observation (φ, velocity, Δφ),
+   mapped to an NED velocity command exactly as in the training environment;
+4. the safety net's supervisor certifies it; what leaves is the offboard setpoint (or the
+   airframe fallback, flagged so the caller can put the autopilot in its own HOLD mode).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from flight.autopilot_api import FlightMode, Setpoint
+from flight.state import VehicleState
+from groundsim.ugv import UGVStates
+from perception.camera import CameraParams
+from perception.detector import Detections, Detector
+from perception.features import features
+from policy.groundair.params import TaskParams, action_velocity_ned
+from policy.groundair.scenarios import Formation
+from safety.supervisor import Decision, Health, Supervisor
+
+
+@dataclass(frozen=True)
+class CompanionParams:
+    """Rates of the companion's loops (simulation time)."""
+
+    camera_dt_s: float = 0.1  # camera frame period [s]
+    yaw: float = 0.0  # commanded heading [rad]; the policy was trained heading north
+
+
+@dataclass
+class CompanionSample:
+    """What happened at one decision, for metrics and plots."""
+
+    t: float
+    phi: np.ndarray
+    action: int
+    decision: Decision
+    ugvs_ne: np.ndarray
+
+
+class GroundAirCompanion:
+    """Flies a learned ground–air policy behind the safety net (see module docstring)."""
+
+    def __init__(
+        self,
+        task: TaskParams,
+        formation: Formation,
+        policy: Callable[[np.ndarray], int],
+        supervisor: Supervisor,
+        renderer,
+        detector: Detector,
+        publish: Callable[[float, VehicleState, np.ndarray], None] | None = None,
+        params: CompanionParams = CompanionParams(),
+    ):
+        self.task, self.formation, self.policy = task, formation, policy
+        self.supervisor, self.renderer, self.detector = supervisor, renderer, detector
+        self.publish = publish
+        self.p = params
+        self.cam: CameraParams = task.camera
+        self.t0: float | None = None
+        self.t_ground = 0.0
+        self.t_frame: float | None = None
+        self.t_decision: float | None = None
+        self.phi: np.ndarray | None = None
+        self.phi_prev: np.ndarray | None = None
+        self.detections: Detections | None = None
+        self.frame: np.ndarray | None = None
+        self.action = 0
+        self.samples: list[CompanionSample] = []
+        self.link_t: float | None = None
+
+    # ---- the UGV team on the shared clock ------------------------------------------------
+    def ugv_states(self) -> UGVStates:
+        pos = np.array(self.formation.positions(), dtype=float)
+        vn, ve = self.formation.centre_velocity
+        n = len(pos)
+        return UGVStates(
+            pos_ne=pos,
+            heading=np.full(n, math.atan2(ve, vn)),
+            speed=np.full(n, math.hypot(vn, ve)),
+            camouflaged=np.zeros(n, dtype=bool),
+        )
+
+    def _advance_ground(self, t_rel: float) -> None:
+        dt = t_rel - self.t_ground
+        if dt > 0:
+            self.formation.step(dt)
+            self.t_ground = t_rel
+
+    # ---- camera and perception -----------------------------------------------------------
+    def _camera(self, t: float, state: VehicleState) -> None:
+        frame = self.renderer.render(state, self.ugv_states())
+        if self.publish is not None:
+            self.publish(t, state, frame)
+        det = self.detector.detect(frame)
+        self.frame, self.detections = frame, det
+        self.phi_prev = self.phi
+        self.phi = features(det.measure, state.altitude, self.cam)
+        self.t_frame = t
+
+    def observation(self, state: VehicleState) -> np.ndarray:
+        """(φ, velocity, Δφ) as the training environment builds it (policy.groundair.env)."""
+        phi = self.phi
+        prev = self.phi_prev if self.phi_prev is not None else phi
+        both = phi[4] > 0 and prev[4] > 0
+        u = self.task.uav
+        vm = (u.v_xy_mps, u.v_xy_mps, max(u.v_up_mps, u.v_down_mps))
+        v = state.vel_ned
+        d = [(phi[i] - prev[i]) if both else 0.0 for i in range(3)]
+        o = list(phi) + [0.5 + v[i] / (2 * vm[i]) for i in range(3)]
+        o += [min(max(0.5 + 5.0 * x, 0.0), 1.0) for x in d]
+        return np.clip(np.array(o, dtype=np.float32), 0.0, 1.0)
+
+    # ---- one telemetry sample --------------------------------------------------------------
+    def update(self, t: float, state: VehicleState) -> Decision:
+        """Vehicle time t [s] and state → the certified decision to fly now."""
+        if self.t0 is None:
+            self.t0 = t
+        self._advance_ground(t - self.t0)
+        if self.t_frame is None or t - self.t_frame >= self.p.camera_dt_s - 1e-9:
+            self._camera(t, state)
+        proposed = None
+        if self.t_decision is None or t - self.t_decision >= self.task.dt_s - 1e-9:
+            self.t_decision = t
+            self.action = int(self.policy(self.observation(state)))
+            vel = np.array(action_velocity_ned(self.action, self.task.uav))
+            proposed = Setpoint(vel_ned=vel, yaw=self.p.yaw)
+        health = Health(camera_t=self.t_frame, link_t=self.link_t if self.link_t is not None else t)
+        decision = self.supervisor.update(t, state, proposed, health)
+        if proposed is not None:
+            self.samples.append(
+                CompanionSample(t, self.phi.copy(), self.action, decision, self.ugv_states().pos_ne)
+            )
+        return decision
+
+    @property
+    def wants_hold(self) -> bool:
+        """True while the safety net's fallback is flying (map to the autopilot's HOLD)."""
+        return bool(self.samples) and self.samples[-1].decision.autopilot_mode is FlightMode.HOLD
