@@ -1,0 +1,95 @@
+"""Drills in SITL: the real MultirotorAutopilot in OFFBOARD behind the supervisor."""
+
+import csv
+import json
+
+import pytest
+
+from flight.multirotor.autopilot import MultirotorAutopilot
+from safety.config import default_envelope_path, load_envelope, parse_envelope
+from safety.drills import DrillParams, run_drill, scripted_drills
+from safety.supervisor import SupervisorParams
+from scripts.cli import main
+
+SPEC, _ = load_envelope(default_envelope_path("quadrotor"))
+
+
+def test_drill_command_short_run(tmp_path, capsys):
+    rc = main(
+        [
+            "drill",
+            "--only",
+            "lateral,nan,link",
+            "--random",
+            "3",
+            "--seed",
+            "3",
+            "--duration",
+            "25",
+            "--runs-dir",
+            str(tmp_path),
+        ]
+    )
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    run = next(tmp_path.iterdir())
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["plans"][0]["constraint_set_version"] == SPEC.version and cfg["seed"] == 3
+    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    assert [r["drill"] for r in rows][:3] == ["lateral fence", "nan action", "link loss"] and len(
+        rows
+    ) == 6
+    assert all(r["passed"] == "True" and float(r["excursion_m"]) <= 0 for r in rows)
+    ev = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    first = [e for e in ev if e["drill"] == "lateral fence"][0]
+    assert (
+        first["to"] == "fallback"
+        and first["reason"].startswith("field edge")
+        and first["action"] is not None
+    )
+    assert any(
+        e["drill"] == "nan action" and e["reason"] == "non-finite action (NaN/inf)" for e in ev
+    )
+    assert any(
+        e["drill"] == "link loss" and e["reason"].startswith("MAVLink link lost") for e in ev
+    )
+    for name in ("quadrotor-lateral-fence.png", "quadrotor-nan-action.png", "quadrotor-random.png"):
+        assert (run / name).stat().st_size > 10_000
+    assert "quadrotor-field 2026.11-r1" in (run / "summary.md").read_text()
+    assert "| lateral fence" in out and "ground-truth breaches beyond the tolerance: 0" in out
+
+
+def test_judge_catches_a_breach_when_the_net_is_too_wide():
+    """Same attack, but the safety net believes the fence is 400 m out: ground truth breaches."""
+    doc = {
+        "envelope": {"name": "wide", "version": "wide-1", "airframe": "quadrotor"},
+        "fence": {
+            "inclusion": [
+                {"name": "far", "points_ne": [[-400, -400], [400, -400], [400, 400], [-400, 400]]}
+            ]
+        },
+    }
+    p = DrillParams(duration_s=25.0)
+    lateral = scripted_drills(SPEC, p)[0]
+    r = run_drill(
+        lateral, MultirotorAutopilot(), SPEC, SupervisorParams(), p, net_spec=parse_envelope(doc)
+    )
+    assert not r.passed and r.excursion_m > 5.0 and "breach" in r.why
+    assert r.switches == 0  # the too-wide net never intervened
+
+
+def test_drill_fails_when_the_attack_is_not_caught():
+    p = DrillParams(duration_s=16.0)
+    script = scripted_drills(SPEC, p)[0]
+    script.expect = ("ceiling",)  # the lateral attack is caught by a fence edge, not the ceiling
+    r = run_drill(script, MultirotorAutopilot(), SPEC, SupervisorParams(), p)
+    assert not r.passed and "expected a fallback" in r.why and r.excursion_m <= 0
+    assert r.reasons[0].startswith("field edge") and r.rejected > 0
+
+
+@pytest.mark.parametrize(
+    "argv, msg", [(["--only", "nosuchdrill"], "matches no drill"), (["--random", "-1"], "--random")]
+)
+def test_drill_bad_usage_exits_2(tmp_path, capsys, argv, msg):
+    assert main(["drill", *argv, "--runs-dir", str(tmp_path)]) == 2
+    assert msg in capsys.readouterr().err
