@@ -152,3 +152,29 @@ def test_in_process_pub_sub_and_garbage_on_the_key(tmp_path):
     finally:
         b.close()
         a.close()
+
+
+def test_config_file_client_mode_and_shipped_example(tmp_path):
+    import zenoh
+
+    shipped = zenoh.Config.from_file("perception/config/zenoh_router_client.json5")
+    assert shipped.get_json("mode") == '"client"'
+    port = free_port()
+    conf = tmp_path / "client.json5"
+    conf.write_text(
+        f'{{ mode: "client", connect: {{ endpoints: ["tcp/127.0.0.1:{port}"] }},'
+        " scouting: { multicast: { enabled: false } } }"
+    )
+    a = open_session(publisher_params(port))
+    b = open_session(ZenohParams(config_file=str(conf)))
+    try:
+        sub = FrameSubscriber(b, "uav3")
+        pub = FramePublisher(a, "uav3", CameraParams())
+        time.sleep(0.5)
+        for k in range(3):
+            pub.publish(k * 0.1, POS, QUAT, IMG)
+        f = sub.wait(5.0)
+        assert f is not None and f.image.shape == IMG.shape
+    finally:
+        b.close()
+        a.close()
