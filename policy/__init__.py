@@ -11,3 +11,14 @@ ENV_ID = "skyherd/GroundAir-v0"
 
 if ENV_ID not in gym.envs.registry:
     gym.register(id=ENV_ID, entry_point="policy.groundair.env:GroundAirEnv", max_episode_steps=None)
+
+
+def load_policy(path):
+    """Load a trained policy file → callable(obs (14,)) → action index (policy.groundair.params).
+
+    Build obs with policy.groundair.env.make_observation; map the action to an offboard velocity
+    setpoint with policy.groundair.params.action_velocity_ned. numpy only (no torch).
+    """
+    from policy.dqn import load_policy as _load
+
+    return _load(path)

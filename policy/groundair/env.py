@@ -68,6 +68,22 @@ def reward_features(phi) -> list[float]:
     return psi
 
 
+def make_observation(phi, phi_prev, vel_ned, task: TaskParams) -> np.ndarray:
+    """Observation (14,) float32 from φ (8,) now, φ at the previous step (None at the start) and
+    the UAV velocity (north, east, down) [m/s]. The one definition used in training and in flight.
+    """
+    prev = phi_prev if phi_prev is not None else phi
+    both = phi[4] > 0 and prev[4] > 0
+    u = task.uav
+    vm = (u.v_xy_mps, u.v_xy_mps, max(u.v_up_mps, u.v_down_mps))
+    o = [float(x) for x in phi[:8]]
+    o += [min(max(0.5 + float(v) / (2 * m), 0.0), 1.0) for v, m in zip(vel_ned, vm)]
+    for j in (0, 1, 2):
+        d = (phi[j] - prev[j]) if both else 0.0
+        o.append(min(max(0.5 + 5.0 * d, 0.0), 1.0))
+    return np.array(o, dtype=np.float32)
+
+
 class GroundAirEnv(gym.Env):
     """Fast path of the GroundAir task (see module docstring). Actions: params.ACTION_NAMES."""
 
@@ -96,7 +112,6 @@ class GroundAirEnv(gym.Env):
         self.action_space = gym.spaces.Discrete(N_ACTIONS)
         u = self.task.uav
         self._decay = math.exp(-self.task.dt_s / u.tau_s)
-        self._vmax = (u.v_xy_mps, u.v_xy_mps, max(u.v_up_mps, u.v_down_mps))
         self._cmds = [action_velocity_ned(a, u) for a in range(N_ACTIONS)]
         self.formation: Formation | None = None
 
@@ -104,22 +119,9 @@ class GroundAirEnv(gym.Env):
     def _observe(self):
         ugvs = self.formation.positions()
         phi, seen, r_px = self.cam.phi(self.n, self.e, self.alt, ugvs)
-        prev = self._phi_prev if self._phi_prev is not None else phi
-        both = phi[4] > 0 and prev[4] > 0
-        d = [
-            (phi[0] - prev[0]) if both else 0.0,
-            (phi[1] - prev[1]) if both else 0.0,
-            (phi[2] - prev[2]) if both else 0.0,
-        ]
-        vm = self._vmax
-        o = phi + [
-            0.5 + self.vn / (2 * vm[0]),
-            0.5 + self.ve / (2 * vm[1]),
-            0.5 + self.vd / (2 * vm[2]),
-        ]
-        o += [min(max(0.5 + 5.0 * x, 0.0), 1.0) for x in d]
+        o = make_observation(phi, self._phi_prev, (self.vn, self.ve, self.vd), self.task)
         self._phi_prev = phi
-        return np.array(o, dtype=np.float32), phi, seen, ugvs
+        return o, phi, seen, ugvs
 
     def _bookkeep(self, phi, seen, ugvs) -> None:
         self._psi = reward_features(phi)
