@@ -89,6 +89,7 @@ def test_north_step_20m_settles_without_oscillation():
     assert overshoot < 0.4, overshoot  # < 2 %
     assert crossings <= 1, crossings
     assert settling_time(t, p[:, 0], 20.0, 1.0) - t0 < 6.0
+    assert abs(e[-1]) < 0.05  # no slow integrator tail
     assert np.abs(p[:, 1]).max() < 0.1 and np.abs(p[:, 2] + 10).max() < 0.5
 
 

@@ -276,6 +276,13 @@ class MultirotorAutopilot:
         c[ctl.C_KI_Z] = P["MPC_Z_VEL_I_ACC"]
         c[ctl.C_TILT_MAX] = d(P["MPC_TILTMAX_AIR"])
         c[ctl.C_VINT_MAX] = P["MPC_VEL_I_LIM"]
+        c[ctl.C_VINT_ERR] = P["MPC_VEL_I_ERR"]
+        ff, v = P["MPC_DRAG_FF"], self.vehicle
+        c[ctl.C_DRAG_LIN : ctl.C_DRAG_LIN + 2] = ff * v.drag_linear[0], ff * v.drag_linear[2]
+        c[ctl.C_DRAG_QUAD : ctl.C_DRAG_QUAD + 2] = (
+            ff * v.drag_quadratic[0],
+            ff * v.drag_quadratic[2],
+        )
         c[ctl.C_KATT : ctl.C_KATT + 3] = (P["MC_ROLL_P"], P["MC_PITCH_P"], P["MC_YAW_P"])
         c[ctl.C_RATE_MAX : ctl.C_RATE_MAX + 3] = (
             d(P["MC_ROLLRATE_MAX"]),

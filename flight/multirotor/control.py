@@ -74,7 +74,10 @@ C_T_IDLE = 26  # [N] per-rotor thrust at idle (armed)
 C_T_ROTOR_MAX = 27  # [N] per-rotor thrust at command 1
 C_MASS = 28  # [kg] mass the controller assumes
 C_MIX = 29  # (16,) allocation inverse, row-major
-N_C = 45
+C_VINT_ERR = 45  # [m/s] velocity error the integrators see is clipped to this
+C_DRAG_LIN = 46  # (2,) [N s/m] horizontal, vertical drag estimate (× MPC_DRAG_FF)
+C_DRAG_QUAD = 48  # (2,) [N s^2/m^2]
+N_C = 50
 
 # ---- controller memory cs
 CS_VINT = 0  # (3,) [m/s^2]
@@ -162,6 +165,10 @@ def _position_velocity(x, p, c, cs, sp, dt, on_ground):
     fx = m * (c[C_KV_XY] * ex + cs[CS_VINT])
     fy = m * (c[C_KV_XY] * ey + cs[CS_VINT + 1])
     fz = m * (c[C_KV_Z] * ez + cs[CS_VINT + 2] - g)
+    # drag feed-forward at the velocity setpoint: F = c₁ v + c₂ |v| v (airframe estimate)
+    fx += c[C_DRAG_LIN] * vsx + c[C_DRAG_QUAD] * abs(vsx) * vsx
+    fy += c[C_DRAG_LIN] * vsy + c[C_DRAG_QUAD] * abs(vsy) * vsy
+    fz += c[C_DRAG_LIN + 1] * vsz + c[C_DRAG_QUAD + 1] * abs(vsz) * vsz
     if sp[SP_XY_MODE] == XY_ATT:
         fx = 0.0
         fy = 0.0
@@ -183,6 +190,12 @@ def _position_velocity(x, p, c, cs, sp, dt, on_ground):
         cs[CS_VINT + 2] = 0.0
         return
     lim = c[C_VINT_MAX]
+    emax = c[C_VINT_ERR]
+    if math.sqrt(ex * ex + ey * ey) > emax:  # a transient, not a steady disturbance
+        ex = 0.0
+        ey = 0.0
+    if abs(ez) > emax:
+        ez = 0.0
     if sp[SP_XY_MODE] != XY_ATT:
         if not ((fx - fx_s) * ex > 0.0):
             cs[CS_VINT] = _clip(cs[CS_VINT] + c[C_KI_XY] * ex * dt, -lim, lim)

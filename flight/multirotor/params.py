@@ -18,6 +18,8 @@ MULTIROTOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_Z_VEL_P_ACC", 4.0, 0.0, 15.0, "vertical velocity gain", "1/s"),
     ParamSpec("MPC_Z_VEL_I_ACC", 2.0, 0.0, 10.0, "vertical velocity integral", "1/s^2"),
     ParamSpec("MPC_VEL_I_LIM", 3.0, 0.0, 10.0, "velocity integrator limit", "m/s^2"),
+    ParamSpec("MPC_DRAG_FF", 1.0, 0.0, 2.0, "drag feed-forward (× airframe drag)", "-"),
+    ParamSpec("MPC_VEL_I_ERR", 0.5, 0.01, 20.0, "integrate only velocity errors below", "m/s"),
     ParamSpec("MPC_XY_VEL_MAX", 12.0, 0.0, 20.0, "horizontal speed limit (offboard)", "m/s"),
     ParamSpec("MPC_XY_CRUISE", 5.0, 0.0, 20.0, "horizontal speed in auto modes", "m/s"),
     ParamSpec("MPC_VEL_MANUAL", 10.0, 0.0, 20.0, "horizontal speed at full stick", "m/s"),
