@@ -87,3 +87,24 @@ def select_mask(r, n_base, n_piece_end, piece_starts, zone_starts):  # pragma: n
                 zm, zi = r[i], i
         sel[zi] = True
     return sel
+
+
+@numba.njit(cache=True)
+def nearest_active(
+    A, b, z, near, n_base, n_piece_end, piece_starts, zone_starts
+):  # pragma: no cover
+    """Index of the row with the largest residual r_i > -near_i in the polyhedron z is judged
+    against (the Envelope.select rule), or -1 when no row is nearly active."""
+    m, nz = A.shape
+    r = np.empty(m)
+    for i in range(m):
+        s = -b[i]
+        for j in range(nz):
+            s += A[i, j] * z[j]
+        r[i] = s
+    sel = select_mask(r, n_base, n_piece_end, piece_starts, zone_starts)
+    best, bi = -np.inf, -1
+    for i in range(m):
+        if sel[i] and r[i] > -near[i] and r[i] + near[i] > best:
+            best, bi = r[i] + near[i], i
+    return bi

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flight.frames import quat_to_euler
 from flight.state import VehicleState
 from safety.envelope import ATT, NZ, Envelope, P, U, V
 
@@ -23,9 +22,10 @@ def make_z(
     z = np.empty(NZ) if out is None else out
     z[P] = state.pos_ned
     z[V] = state.vel_ned
-    roll, pitch, _ = quat_to_euler(state.quat)
-    z[6] = roll
-    z[7] = pitch
+    w, x, y, q3 = state.quat.tolist()  # roll, pitch as flight.frames.quat_to_euler (ZYX)
+    z[6] = math.atan2(2 * (w * x + y * q3), 1 - 2 * (x * x + y * y))
+    sp = 2 * (w * y - q3 * x)
+    z[7] = math.asin(1.0 if sp > 1.0 else (-1.0 if sp < -1.0 else sp)) if sp == sp else math.nan
     if u_ned is None:
         z[U] = 0.0
     else:

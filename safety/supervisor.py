@@ -28,7 +28,7 @@ from flight.autopilot_api import FlightMode, Setpoint
 from flight.state import VehicleState
 from safety.envelope import NZ, Envelope, U
 from safety.fallback import HoverFallback, LoiterFallback, PidGains, RecoveryPID
-from safety.kernels import worst_residual
+from safety.kernels import nearest_active, worst_residual
 from safety.monitor import Monitor, make_z
 from safety.projection import Projector
 
@@ -167,6 +167,16 @@ class Supervisor:
         self._z = np.zeros(NZ)
         e = envelope
         self._args = (e.A, e.b, self._z, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
+        self._near_args = (
+            e.A,
+            e.b,
+            self._z,
+            e.near,
+            e.n_base,
+            e.n_piece_end,
+            e.piece_starts,
+            e.zone_starts,
+        )
 
     # ------------------------------------------------------------------ checks
     def _judge(
@@ -175,11 +185,8 @@ class Supervisor:
         """Severity and reason for the AI's (new or held) action at this state; the command it
         would fly (projected in project mode), or None."""
         p = self.p
-        if not (
-            np.all(np.isfinite(state.pos_ned))
-            and np.all(np.isfinite(state.vel_ned))
-            and np.all(np.isfinite(state.quat))
-        ):
+        z = make_z(state, None, out=self._z)  # state part; z[U] = 0 until the action is known
+        if not _finite(z):
             return Severity.FALLBACK, "non-finite vehicle state", None
         if health.link_t is not None and t - health.link_t > p.link_timeout_s:
             return Severity.FALLBACK, f"MAVLink link lost ({t - health.link_t:.1f} s)", None
@@ -191,7 +198,11 @@ class Supervisor:
             if u is None:
                 self.last_u = None
                 return Severity.FALLBACK, "malformed action (no velocity command)", None
-            u = np.asarray(u, dtype=float).reshape(-1)
+            try:
+                u = np.asarray(u, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                self.last_u = None
+                return Severity.FALLBACK, "malformed action (velocity not numeric)", None
             if u.shape != (3,):
                 self.last_u = None
                 return Severity.FALLBACK, f"malformed action (velocity of shape {u.shape})", None
@@ -206,19 +217,22 @@ class Supervisor:
         u = self.last_u
         if u is None:
             return Severity.FALLBACK, "malformed action (no velocity command)", None
-        if not np.all(np.isfinite(u)):
+        u0, u1, u2 = float(u[0]), float(u[1]), float(u[2])
+        if not (math.isfinite(u0) and math.isfinite(u1) and math.isfinite(u2)):
             return Severity.FALLBACK, "non-finite action (NaN/inf)", None
-        if float(np.max(np.abs(u))) > self.max_cmd:
+        big = max(abs(u0), abs(u1), abs(u2))
+        if big > self.max_cmd:
             return (
                 Severity.FALLBACK,
-                f"action out of range ({float(np.max(np.abs(u))):.3g} m/s > {self.max_cmd:g})",
+                f"action out of range ({big:.3g} m/s > {self.max_cmd:g})",
                 None,
             )
-        z = make_z(state, u, out=self._z)
+        z[8], z[9], z[10] = u0, u1, u2
         w = worst_residual(*self._args)
         if w <= 0.0:
-            if w > -1.0 and self.envelope.nearly_active(z):
-                return Severity.NEAR, self.envelope.nearly_active(z)[0][0], u
+            i = nearest_active(*self._near_args)
+            if i >= 0:
+                return Severity.NEAR, self.envelope.names[i], u
             return Severity.NONE, "", u
         viol = self.envelope.violated(z)
         name = viol[0][0] if viol else "non-finite state or action"
@@ -345,6 +359,10 @@ class Supervisor:
                     "pid_target": self.pid.target if to is Mode.PID else None,
                 }
             )
+
+
+def _finite(z: np.ndarray) -> bool:
+    return bool(np.isfinite(z.sum()))  # one reduction: a NaN or inf anywhere shows in the sum
 
 
 def command_u(decision: Decision) -> np.ndarray | None:

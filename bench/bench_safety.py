@@ -1,0 +1,179 @@
+"""Safety-net timings: monitor check, projection QP, supervisor overhead in the SITL loop.
+
+    .venv/bin/python bench/bench_safety.py [--quick]
+
+Prints p50 / p95 per call (each call timed on its own with perf_counter_ns, so the figures
+include ~0.1 µs of timer overhead) and the supervisor's share of a control loop running the
+real MultirotorAutopilot.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from flight.autopilot_api import FlightMode, Setpoint
+from flight.multirotor.autopilot import MultirotorAutopilot
+from safety.config import default_envelope_path, load_envelope
+from safety.drills import DrillParams, toward
+from safety.envelope import NZ, U
+from safety.monitor import make_z
+from safety.projection import Projector, qp_cvxpy
+from safety.supervisor import Health, Supervisor, SupervisorParams
+from scripts.runfolder import markdown_table
+
+
+def timed(fn, args_list) -> np.ndarray:
+    """Per-call wall times [µs] of fn(*args) over args_list (after 20 warm-up calls)."""
+    for a in args_list[:20]:
+        fn(*a)
+    out = np.empty(len(args_list))
+    pc = time.perf_counter_ns
+    for i, a in enumerate(args_list):
+        t0 = pc()
+        fn(*a)
+        out[i] = (pc() - t0) / 1e3
+    return out
+
+
+def pct(x: np.ndarray) -> tuple[float, float]:
+    return float(np.percentile(x, 50)), float(np.percentile(x, 95))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer samples (~10 s)")
+    args = ap.parse_args()
+    n = 2_000 if args.quick else 20_000
+    rng = np.random.default_rng(0)
+    spec, _ = load_envelope(default_envelope_path("quadrotor"))
+    env = spec.envelope()
+    print(
+        f"constraint set {spec.name} {spec.version}: {env.m} rows over z of {NZ}, {len(env.piece_starts)} fence piece(s), {len(env.zone_starts)} exclusion zone(s)"
+    )
+
+    zs = np.zeros((n, NZ))
+    zs[:, 0:2] = rng.uniform(-80, 80, (n, 2))
+    zs[:, 2] = -rng.uniform(5, 60, n)
+    zs[:, 3:6] = rng.normal(0, 3, (n, 3))
+    zs[:, 6:8] = rng.normal(0, 0.2, (n, 2))
+    zs[:, 8:11] = zs[:, 3:6] + rng.normal(0, 1, (n, 3))
+    rows = []
+    t_mon = timed(env.worst, [(z,) for z in zs])
+    rows.append(["monitor check (compiled, A z <= b + union)", *pct(t_mon), n])
+    t_np = timed(lambda z: env.worst_of(env.A @ z - env.b), [(z,) for z in zs])
+    rows.append(["same check in numpy (reference)", *pct(t_np), n])
+    from flight.frames import euler_to_quat
+    from flight.state import VehicleState
+
+    states = [
+        VehicleState(
+            0.0,
+            z[0:3].copy(),
+            z[3:6].copy(),
+            euler_to_quat(z[6], z[7], 0.0),
+            np.zeros(3),
+            np.zeros(3),
+            False,
+        )
+        for z in zs[: n // 4]
+    ]
+    buf = np.zeros(NZ)
+    t_state = timed(
+        lambda s, u: env.worst(make_z(s, u, buf)), [(s, z[U]) for s, z in zip(states, zs)]
+    )
+    rows.append(["monitor from a VehicleState (z assembly + check)", *pct(t_state), len(states)])
+    bad = [z for z in zs if env.worst(z) > 0][: n // 4]
+    t_expl = timed(env.violated, [(z,) for z in bad[: n // 10]])
+    rows.append(["explanation of a violation (row names)", *pct(t_expl), len(bad[: n // 10])])
+
+    pr = Projector(env)
+    fixable = [z for z in bad if pr.project(z) is not None][: n // 4]
+    t_proj = timed(pr.project, [(z,) for z in fixable])
+    rows.append(["projection, direct OSQP (set up once)", *pct(t_proj), len(fixable)])
+    m = 30 if args.quick else 200
+    cv_args = []
+    for z in fixable[:m]:
+        A, h, _ = pr.bounds(z)
+        cv_args.append((A[h < 1e29], h[h < 1e29], z[U]))
+    t_cvx = timed(qp_cvxpy, cv_args)
+    rows.append(["projection, cvxpy (Clarabel), for comparison", *pct(t_cvx), len(cv_args)])
+    agree = max(
+        float(np.max(np.abs(pr.project(z) - qp_cvxpy(*a)))) for z, a in zip(fixable[:m], cv_args)
+    )
+
+    sup = Supervisor(env, SupervisorParams())
+    s0 = VehicleState(
+        0.0,
+        np.array([0.0, 0, -20]),
+        np.zeros(3),
+        np.array([1.0, 0, 0, 0]),
+        np.zeros(3),
+        np.zeros(3),
+        False,
+    )
+    sup_args = [(0.02 * k, s0, Setpoint(vel_ned=np.array([0.3, 0.0, 0.0]))) for k in range(n // 4)]
+    t_sup = timed(sup.update, sup_args)
+    rows.append(["supervisor.update, AI in control (safe action)", *pct(t_sup), len(sup_args)])
+    print()
+    print(markdown_table(["per call", "p50 µs", "p95 µs", "calls"], rows))
+    print(
+        f"projection OSQP vs cvxpy: max |difference| {agree:.2e} m/s over {len(cv_args)} problems; p50 speed-up {np.median(t_cvx) / np.median(t_proj):.0f}x"
+    )
+    print(
+        f"compiled monitor vs numpy: {np.median(t_np) / np.median(t_mon):.1f}x faster at p50; 10 µs budget met at p95: {pct(t_mon)[1] <= 10}"
+    )
+
+    # supervisor overhead in the control loop (policy 50 Hz, autopilot 250 Hz, real SITL)
+    sim_s = 20.0 if args.quick else 120.0
+    p = DrillParams()
+    walls = {}
+    for with_net in (False, True):
+        vehicle = MultirotorAutopilot()
+        vehicle.arm()
+        vehicle.takeoff(20.0)
+        while vehicle.mode == FlightMode.TAKEOFF:
+            vehicle.step()
+        vehicle.set_offboard_setpoint(Setpoint(vel_ned=np.zeros(3)))
+        vehicle.set_mode(FlightMode.OFFBOARD)
+        net = Supervisor(env, SupervisorParams()) if with_net else None
+        goals = [np.array([40.0, -40.0, -25.0]), np.array([-40.0, 30.0, -30.0])]
+        n_sub = round(p.policy_dt_s / vehicle.control_dt)
+        t0 = vehicle.clock.t
+        w0 = time.perf_counter()
+        ticks = 0
+        while vehicle.clock.t - t0 < sim_s:
+            t = vehicle.clock.t
+            s = vehicle.state
+            prop = toward(goals[int((t - t0) // 15) % 2], 5.0, 1.5, p)(t - t0, s)
+            cmd = (
+                prop
+                if net is None
+                else net.update(t, s, prop, Health(camera_t=t, link_t=t)).command
+            )
+            vehicle.set_offboard_setpoint(cmd)
+            for _ in range(n_sub):
+                vehicle.step()
+            ticks += 1
+        walls[with_net] = (time.perf_counter() - w0) / ticks * 1e6
+    over = walls[True] - walls[False]
+    print()
+    print(
+        markdown_table(
+            ["control loop (50 Hz policy tick = 5 autopilot steps)", "µs per tick"],
+            [
+                ["autopilot + AI, no safety net", walls[False]],
+                ["autopilot + AI + supervisor", walls[True]],
+                ["supervisor overhead", over],
+            ],
+        )
+    )
+    print(
+        f"supervisor overhead: {over:.1f} µs per 20 ms tick = {100 * over / 20_000:.3f} % of real time, {100 * over / walls[False]:.0f} % of the simulated loop's cost ({sim_s:.0f} s simulated)"
+    )
+
+
+if __name__ == "__main__":
+    main()
