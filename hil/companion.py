@@ -4,7 +4,7 @@ One `update(t, state)` per vehicle telemetry sample (simulation time t [s], the 
 clock, so air and ground share one clock at any speed-up):
 
 1. the UGV team moves to time t;
-2. every `camera_dt_s` the downward camera renders a frame, publishes it on Zenoh and the
+2. at the camera rig's rate the downward camera renders a frame, publishes it on Zenoh and the
    detector turns it into features φ(s);
 3. every `decision_dt_s` the policy picks an action from the observation (φ, velocity, Δφ),
    mapped to an NED velocity command exactly as in the training environment;
@@ -23,9 +23,7 @@ import numpy as np
 from flight.autopilot_api import FlightMode, Setpoint
 from flight.state import VehicleState
 from groundsim.ugv import UGVStates
-from perception.camera import CameraParams
-from perception.detector import Detections, Detector
-from perception.features import features
+from perception.pipeline import CameraRig, CameraTick
 from policy.groundair.params import TaskParams, action_velocity_ned
 from policy.groundair.scenarios import Formation
 from safety.supervisor import Decision, Health, Supervisor
@@ -33,9 +31,8 @@ from safety.supervisor import Decision, Health, Supervisor
 
 @dataclass(frozen=True)
 class CompanionParams:
-    """Rates of the companion's loops (simulation time)."""
+    """Companion settings (the camera rate is the rig's, the decision period the task's)."""
 
-    camera_dt_s: float = 0.1  # camera frame period [s]
     yaw: float = 0.0  # commanded heading [rad]; the policy was trained heading north
 
 
@@ -59,24 +56,19 @@ class GroundAirCompanion:
         formation: Formation,
         policy: Callable[[np.ndarray], int],
         supervisor: Supervisor,
-        renderer,
-        detector: Detector,
-        publish: Callable[[float, VehicleState, np.ndarray], None] | None = None,
+        rig: CameraRig,
         params: CompanionParams = CompanionParams(),
     ):
         self.task, self.formation, self.policy = task, formation, policy
-        self.supervisor, self.renderer, self.detector = supervisor, renderer, detector
-        self.publish = publish
+        self.supervisor, self.rig = supervisor, rig
         self.p = params
-        self.cam: CameraParams = task.camera
         self.t0: float | None = None
         self.t_ground = 0.0
         self.t_frame: float | None = None
         self.t_decision: float | None = None
         self.phi: np.ndarray | None = None
         self.phi_prev: np.ndarray | None = None
-        self.detections: Detections | None = None
-        self.frame: np.ndarray | None = None
+        self.last_tick: CameraTick | None = None
         self.action = 0
         self.samples: list[CompanionSample] = []
         self.link_t: float | None = None
@@ -101,13 +93,12 @@ class GroundAirCompanion:
 
     # ---- camera and perception -----------------------------------------------------------
     def _camera(self, t: float, state: VehicleState) -> None:
-        frame = self.renderer.render(state, self.ugv_states())
-        if self.publish is not None:
-            self.publish(t, state, frame)
-        det = self.detector.detect(frame)
-        self.frame, self.detections = frame, det
+        tick = self.rig.tick(t, state, self.ugv_states())
+        if tick is None:
+            return
+        self.last_tick = tick
         self.phi_prev = self.phi
-        self.phi = features(det.measure, state.altitude, self.cam)
+        self.phi = tick.phi
         self.t_frame = t
 
     def observation(self, state: VehicleState) -> np.ndarray:
@@ -129,8 +120,7 @@ class GroundAirCompanion:
         if self.t0 is None:
             self.t0 = t
         self._advance_ground(t - self.t0)
-        if self.t_frame is None or t - self.t_frame >= self.p.camera_dt_s - 1e-9:
-            self._camera(t, state)
+        self._camera(t, state)
         proposed = None
         if self.t_decision is None or t - self.t_decision >= self.task.dt_s - 1e-9:
             self.t_decision = t

@@ -38,7 +38,11 @@ class SquareMission:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--mission", choices=["square"], default="square", help="what to fly (default: square)"
+        "--mission",
+        choices=["groundair", "square"],
+        default="groundair",
+        help="groundair: the learned policy keeps the UGVs in view behind the safety net "
+        "(default); square: a 40 m square at 20 m",
     )
     parser.add_argument("--airframe", choices=["quadrotor"], default="quadrotor")
     parser.add_argument(
@@ -54,32 +58,47 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=10.0,
         help="built-in SITL speed-up over wall time, >= 1 (default 10)",
     )
-    parser.add_argument("--altitude", type=float, default=20.0, help="mission altitude [m]")
-    parser.add_argument("--side", type=float, default=40.0, help="square side [m]")
     parser.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
     parser.add_argument("--runs-dir", default="runs", help="where run folders go")
     parser.add_argument(
         "--timeout", type=float, default=600.0, help="wall-clock limit for the whole flight [s]"
     )
+    sq = parser.add_argument_group("square mission")
+    sq.add_argument("--altitude", type=float, default=20.0, help="mission altitude [m]")
+    sq.add_argument("--side", type=float, default=40.0, help="square side [m]")
+    ga = parser.add_argument_group("ground-air mission")
+    ga.add_argument("--policy", default=None, help="policy file (default: the one the repo keeps)")
+    ga.add_argument("--envelope", default=None, help="constraint-set TOML for the safety net")
+    ga.add_argument("--duration", type=float, default=60.0, help="policy flight time [s]")
+    ga.add_argument("--renderer", choices=["fast", "bullet"], default="fast")
+    ga.add_argument("--zenoh-port", type=int, default=7447, help="Zenoh listen port (loopback)")
+    ga.add_argument("--no-zenoh", action="store_true", help="do not publish camera frames")
 
 
 def run(args: argparse.Namespace) -> int:
-    if not (0 < args.altitude <= 120 and 0 < args.side <= 500):
-        raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
     if args.connect is None and args.speedup < 1:
         raise UsageError(
             "--speedup must be >= 1 for the built-in SITL: a MAVLink client cannot keep up "
             "with an unpaced vehicle (offboard setpoints would time out)"
         )
-    mission = SquareMission(altitude=args.altitude, side=args.side)
     address = args.connect or f"udpin:127.0.0.1:{14540 + args.instance}"
     try:
         parse_address(address)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    if args.mission == "square":
+        if not (0 < args.altitude <= 120 and 0 < args.side <= 500):
+            raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
+        mission = SquareMission(altitude=args.altitude, side=args.side)
+        parts = {}
+    else:
+        mission, parts = _groundair_parts(args)
 
     run_dir = RunFolder("fly", root=args.runs_dir)
-    run_dir.write_config({"args": args_dict(args), "mission": mission, "address": address})
+    run_dir.write_config(
+        {"args": args_dict(args), "mission": mission, "address": address,
+         **{k: v for k, v in parts.items() if k in ("supervisor_params", "envelope")}}
+    )  # fmt: skip
     sitl = None
     if args.connect is None:
         sitl = _start_embedded_sitl(args)
@@ -91,13 +110,72 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{e}; is another skyherd or SITL using that port?") from None
     print(f"skyherd fly: run folder {run_dir.path}")
     ok = False
+    session = None
     try:
         with VehicleClient(link) as client:
-            ok = _fly_square(client, mission, run_dir, args.timeout)
+            if args.mission == "square":
+                ok = _fly_square(client, mission, run_dir, args.timeout)
+            else:
+                from scripts.fly_groundair import fly_groundair
+
+                session, publisher = _open_zenoh(args, mission)
+                supervisor = parts["make_supervisor"](run_dir.events())
+                ok = fly_groundair(client, mission, parts["policy"], supervisor, publisher,
+                                   run_dir, args.seed, args.timeout)  # fmt: skip
     finally:
+        if session is not None:
+            session.close()
         if sitl:
             sitl.close()
     return 0 if ok else 1
+
+
+def _groundair_parts(args):
+    """Load and check everything the ground-air mission needs before anything starts."""
+    from policy.dqn import PolicyFileError, load_policy
+    from safety.config import ENVELOPE_DIR, EnvelopeFileError, load_envelope
+    from safety.supervisor import Supervisor, SupervisorParams
+    from scripts.fly_groundair import DEFAULT_POLICY, GroundAirMission
+
+    if not 0 < args.duration <= 3600:
+        raise UsageError("--duration must be in (0, 3600] s")
+    mission = GroundAirMission(duration_s=args.duration, renderer=args.renderer)
+    policy_path = args.policy or DEFAULT_POLICY
+    try:
+        policy = load_policy(policy_path)
+    except PolicyFileError as e:
+        raise UsageError(f"{e}; train one with `skyherd train ab` or pass --policy") from None
+    env_path = args.envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
+    try:
+        spec, sup_table = load_envelope(env_path)
+        sp = SupervisorParams(**sup_table)
+    except (EnvelopeFileError, TypeError, ValueError) as e:
+        raise UsageError(f"{e}; fix the file or pass another --envelope") from None
+
+    def make_supervisor(events):
+        return Supervisor(spec.envelope(), sp, events)
+
+    return mission, {
+        "policy": policy,
+        "make_supervisor": make_supervisor,
+        "supervisor_params": sp,
+        "envelope": {"path": str(env_path), "name": spec.name, "version": spec.version},
+    }
+
+
+def _open_zenoh(args, mission):
+    if args.no_zenoh:
+        return None, None
+    from perception.transport import FramePublisher, open_session, publisher_params
+    from policy.groundair.params import TaskParams
+
+    try:
+        session = open_session(publisher_params(args.zenoh_port))
+    except ValueError as e:
+        raise UsageError(
+            f"{e}; is another flight publishing? use --zenoh-port or --no-zenoh"
+        ) from None
+    return session, FramePublisher(session, mission.vehicle, TaskParams().camera)
 
 
 def _start_embedded_sitl(args):
