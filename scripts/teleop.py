@@ -7,6 +7,13 @@ any other key means hover. With --step-s S > 0 the task runs in real time: each 
 last key pressed is the action (none → hover). With --step-s 0 it waits for one key per step
 (turn-based; this is how the tests drive it through a pseudo-terminal).
 
+Joystick or ground station: `--mavlink ADDRESS` (e.g. udpin:127.0.0.1:14560, where QGroundControl
+or a joystick bridge sends MAVLink MANUAL_CONTROL) replaces the keyboard. The stick with the largest
+deflection beyond a dead band picks the action (`manual_control_action`): x forward → north/south,
+y right → east/west, z thrust above/below its 500 centre → climb/descend; button 1 quits. With
+--step-s 0 every MANUAL_CONTROL message is one step; otherwise the newest message of each step
+counts and a stick silent for more than 1 s means hover.
+
 The view is drawn as text: the camera image scaled to 40×15 characters, 'o' a UGV, '+' the image
 centre. The demonstration is saved in the skyherd-demo format (policy.demos) and is ready for
 `skyherd train irl|ab --demos FOLDER` (name the files <scenario>.npz).
@@ -27,6 +34,17 @@ from pathlib import Path
 from scripts.cli import UsageError
 
 KEYS = {"w": 1, "s": 2, "d": 3, "a": 4, "r": 5, "f": 6, " ": 0}
+
+
+def manual_control_action(x: int, y: int, z: int, allowed, deadband: int = 300) -> int:
+    """MANUAL_CONTROL axes (x, y in −1000..1000; z thrust 0..1000, 500 = hold) → action index."""
+    cands = [(x, 1, 2), (y, 3, 4), (z - 500, 5, 6)]
+    defl, pos, neg = max(cands, key=lambda c: abs(c[0]) * (2 if c[1] == 5 else 1))
+    scale = 2 if pos == 5 else 1  # thrust spans half the range of the other sticks
+    if abs(defl) * scale < deadband:
+        return 0
+    a = pos if defl > 0 else neg
+    return a if a in allowed else 0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -53,6 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="output .npz (default runs/teleop-<scenario>-<UTC>.npz)",
     )
+    parser.add_argument(
+        "--mavlink",
+        default=None,
+        metavar="ADDRESS",
+        help="take MANUAL_CONTROL from a joystick/ground station at ADDRESS instead of keys",
+    )
     parser.add_argument("--no-view", action="store_true", help="do not draw the text view")
 
 
@@ -75,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.episodes < 1 or args.step_s < 0 or args.episode_s <= 0:
         raise UsageError("need --episodes >= 1, --step-s >= 0 and --episode-s > 0")
+    if args.mavlink:
+        return _run_mavlink(args)
     fd = sys.stdin.fileno()
     if not os.isatty(fd):
         raise UsageError("teleop needs a terminal on stdin (run it in a terminal, not a pipe)")
@@ -152,4 +178,67 @@ def run(args: argparse.Namespace) -> int:
     )
     print(f"all-in-view fraction per episode: {[round(x['all_in_view_frac'], 3) for x in m]}")
     print(f"task: {dataclasses.asdict(task)['episode_s']} s episodes")
+    return 0
+
+
+def _run_mavlink(args: argparse.Namespace) -> int:
+    """Record a demonstration from MAVLink MANUAL_CONTROL messages."""
+    from hil.link import MavlinkLink
+    from policy.demos import ALLOWED_ACTIONS, record
+    from policy.groundair.params import TaskParams
+
+    try:
+        link = MavlinkLink.open(args.mavlink)
+    except Exception as e:
+        raise UsageError(f"cannot open {args.mavlink}: {e}") from e
+    allowed = ALLOWED_ACTIONS[args.scenario]
+    task = TaskParams(episode_s=args.episode_s)
+    out = (
+        args.out
+        or Path("runs")
+        / f"teleop-{args.scenario}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.npz"
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    state = {"last": None, "t_last": -1e9, "t_next": None}
+    print(f"teleop ready: {args.scenario}, MANUAL_CONTROL on {args.mavlink}", flush=True)
+
+    def take(msg) -> int:
+        if msg.buttons & 1:
+            return -1
+        return manual_control_action(msg.x, msg.y, msg.z, allowed)
+
+    def act(obs) -> int:
+        if args.step_s == 0:
+            while True:
+                for m in link.recv(0.5):
+                    if m.get_type() == "MANUAL_CONTROL":
+                        return take(m)
+        if state["t_next"] is None:
+            state["t_next"] = time.monotonic() + args.step_s
+        while (left := state["t_next"] - time.monotonic()) > 0:
+            for m in link.recv(min(left, 0.1)):
+                if m.get_type() == "MANUAL_CONTROL":
+                    state["last"], state["t_last"] = m, time.monotonic()
+        state["t_next"] += args.step_s
+        if state["last"] is None or time.monotonic() - state["t_last"] > 1.0:
+            return 0
+        return take(state["last"])
+
+    try:
+        demo = record(
+            args.scenario,
+            act,
+            args.episodes,
+            args.seed,
+            "mavlink:MANUAL_CONTROL",
+            {"address": args.mavlink, "step_s": args.step_s},
+            task=task,
+        )
+    finally:
+        link.close()
+    if demo.actions.shape[0] == 0:
+        print("nothing recorded")
+        return 1
+    demo.save(out)
+    print(f"recorded {demo.actions.shape[0]} steps of {args.scenario} → {out}")
     return 0

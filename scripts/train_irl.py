@@ -44,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
         help="folder of recorded demos "
         "(<scenario>.npz, e.g. from skyherd teleop) instead of the scripted expert",
     )
+    parser.add_argument("--mu-episodes", type=int, default=20, help="Monte-Carlo episodes per μ(π)")
     parser.add_argument("--eval-episodes", type=int, default=30, help="test episodes per policy")
     parser.add_argument("--workers", type=int, default=1, help="parallel training processes")
     parser.add_argument("--out", type=Path, default=Path("runs"), help="runs root folder")
@@ -76,6 +77,7 @@ def _job(spec: dict) -> dict:
         dqn=DQNParams(total_steps=spec["dqn_steps"], gamma=spec["gamma"]),
         irl=IRLParams(epsilon=spec["epsilon"], max_iters=spec["irl_iters"]),
         seed=spec["seed"],
+        mu_episodes=spec["mu_episodes"],
     )
     res = run_apprenticeship(np.asarray(spec["mu_expert"]), p)
     _, m = rollout_stats(
@@ -131,7 +133,13 @@ def run(args: argparse.Namespace) -> int:
     from policy.groundair.env import PSI_NAMES
 
     learner = args.learner_name
-    if args.seeds < 1 or args.dqn_steps < 100 or args.irl_iters < 1 or args.eval_episodes < 1:
+    if (
+        args.seeds < 1
+        or args.dqn_steps < 100
+        or args.irl_iters < 1
+        or args.eval_episodes < 1
+        or args.mu_episodes < 1
+    ):
         raise UsageError(
             "need --seeds >= 1, --dqn-steps >= 100, --irl-iters >= 1, --eval-episodes >= 1"
         )
@@ -197,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
             "epsilon": args.epsilon,
             "gamma": args.gamma,
             "eval_episodes": args.eval_episodes,
+            "mu_episodes": args.mu_episodes,
             "eval_seed": eval_seed,
         }
         for s in range(args.seeds)

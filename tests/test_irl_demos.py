@@ -148,3 +148,62 @@ def test_teleop_without_terminal_is_usage_error(tmp_path):
         [str(skyherd), "teleop"], stdin=subprocess.DEVNULL, capture_output=True, text=True
     )
     assert r.returncode == 2 and "needs a terminal" in r.stderr
+
+
+def test_manual_control_mapping():
+    from scripts.teleop import manual_control_action
+
+    allc = tuple(range(7))
+    assert manual_control_action(0, 0, 500, allc) == 0
+    assert manual_control_action(800, 100, 500, allc) == 1
+    assert manual_control_action(-800, 100, 500, allc) == 2
+    assert manual_control_action(100, 900, 500, allc) == 3
+    assert manual_control_action(100, -900, 500, allc) == 4
+    assert manual_control_action(0, 0, 1000, allc) == 5
+    assert manual_control_action(0, 0, 0, allc) == 6
+    assert manual_control_action(200, -200, 600, allc) == 0  # inside the dead band
+    assert manual_control_action(800, 0, 500, (0, 5)) == 0  # climb-only scenario: north not allowed
+
+
+def test_teleop_from_mavlink_manual_control(tmp_path):
+    import socket
+
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    out = tmp_path / "d.npz"
+    skyherd = Path(sys.executable).with_name("skyherd")
+    cmd = [
+        str(skyherd),
+        "teleop",
+        "--scenario",
+        "descend",
+        "--step-s",
+        "0",
+        "--mavlink",
+        f"udpin:127.0.0.1:{port}",
+        "--out",
+        str(out),
+    ]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    assert b"teleop ready" in p.stdout.readline()
+    mav = mavlink2.MAVLink(None, 255, 190)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for x, z, buttons in [
+            (0, 0, 0),
+            (0, 0, 0),
+            (0, 500, 0),
+            (900, 500, 0),
+            (0, 0, 0),
+            (0, 500, 1),
+        ]:
+            msg = mavlink2.MAVLink_manual_control_message(1, x, 0, z, 0, buttons)
+            s.sendto(msg.pack(mav), ("127.0.0.1", port))
+            time.sleep(0.05)
+    assert p.wait(timeout=30) == 0
+    d = load_demo(out)
+    # descend, descend, hover, north (not allowed in descend → hover), descend, then button 1 quits
+    assert d.actions.tolist() == [6, 6, 0, 0, 6]
+    assert d.meta["demonstrator"] == "mavlink:MANUAL_CONTROL"
