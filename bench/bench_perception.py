@@ -115,7 +115,7 @@ def zenoh_run(size: str, frames: int, rate: float) -> dict:
     src = subprocess.Popen(
         [sys.executable, "-m", "perception.camstream", "--vehicle", "bench", "--port", str(port),
          "--frames", str(frames), "--rate", str(rate), "--size", size, "--static",
-         "--wait-s", "1.0"],
+         "--wait-s", "10"],
         stderr=subprocess.DEVNULL,
     )  # fmt: skip
     first = last = None

@@ -35,7 +35,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--size", default="320x240", help="image WxH")
     ap.add_argument("--encoding", choices=("raw", "jpeg"), default="raw")
     ap.add_argument("--behaviour", default="route")
-    ap.add_argument("--wait-s", type=float, default=0.5, help="pause before the first frame")
+    ap.add_argument(
+        "--wait-s", type=float, default=5.0, help="wait up to this long for a subscriber [s]"
+    )
     ap.add_argument("--static", action="store_true", help="send one pre-rendered frame (bench)")
     ap.add_argument("--seed", type=int, default=0)
     return ap.parse_args(argv)
@@ -55,7 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     renderer = FastRenderer(cam, UGVModel())
     uav = UAVPose(np.array([0.0, 0.0, -30.0]), euler_to_quat(0.0, 0.0, 0.0))
-    time.sleep(a.wait_s)  # let the subscriber's link come up
+    if pub.wait_for_subscriber(a.wait_s):
+        time.sleep(0.05)  # the route is known on both ends; let the link settle
     dt = a.sim_dt
     t, k, next_wall = 0.0, 0, time.monotonic()
     image = renderer.render(uav, world.states)

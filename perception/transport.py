@@ -21,7 +21,9 @@ The subscriber keeps only the newest frame. It counts frames received, lost (gap
 out of order (older than the newest, discarded; a lost frame that turns up late moves from
 lost to out-of-order), late (wall-clock age above `late_s` on arrival, same clock only),
 skipped (superseded before the consumer took them) and corrupt (bad magic, length, CRC or
-image: dropped, never raised).
+image: dropped, never raised). Only the header is parsed on arrival; CRC and pixels are checked
+when the consumer takes the frame, so a corrupt frame that is superseded first counts as
+skipped.
 """
 
 from __future__ import annotations
@@ -117,8 +119,30 @@ def encode_frame(
     return hdr + data
 
 
-def decode_frame(payload: bytes, t_recv: float | None = None) -> Frame:
-    """bytes → Frame; anything malformed raises CorruptFrame."""
+@dataclass(frozen=True)
+class FrameHeader:
+    """A frame's header, parsed without touching the pixels (cheap: done for every arrival)."""
+
+    stream: int
+    seq: int
+    t_sim: float
+    t_pub: float
+    pos_ned: np.ndarray
+    quat: np.ndarray
+    width: int
+    height: int
+    encoding: int
+    data_len: int
+    crc: int
+    t_recv: float
+
+    @property
+    def latency_s(self) -> float:
+        return self.t_recv - self.t_pub
+
+
+def decode_header(payload: bytes, t_recv: float | None = None) -> FrameHeader:
+    """Header fields; a short payload, bad magic/version or non-finite pose raise CorruptFrame."""
     if len(payload) < _HDR.size:
         raise CorruptFrame(f"payload of {len(payload)} bytes is shorter than the header")
     f = _HDR.unpack_from(payload)
@@ -127,27 +151,40 @@ def decode_frame(payload: bytes, t_recv: float | None = None) -> Frame:
     w, h, n, crc = f[15:19]
     if magic != MAGIC or version != VERSION:
         raise CorruptFrame(f"bad magic/version {magic!r}/{version}")
-    data = payload[_HDR.size :]
-    if len(data) != n:
-        raise CorruptFrame(f"data length {len(data)} != header's {n}")
-    if zlib.crc32(data) != crc:
-        raise CorruptFrame("CRC mismatch")
+    if len(payload) - _HDR.size != n:
+        raise CorruptFrame(f"data length {len(payload) - _HDR.size} != header's {n}")
     if not (np.isfinite(pos).all() and np.isfinite(quat).all() and math.isfinite(t_sim)):
         raise CorruptFrame("non-finite pose or time")
-    if enc == RAW:
-        if n != w * h * 3:
-            raise CorruptFrame(f"raw size {n} != {w}x{h}x3")
+    if enc not in (RAW, JPEG):
+        raise CorruptFrame(f"unknown encoding {enc}")
+    t_recv = time.time() if t_recv is None else t_recv
+    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, crc, t_recv)
+
+
+def decode_pixels(hdr: FrameHeader, payload: bytes) -> Frame:
+    """Check the CRC and decode the image of a payload whose header is `hdr`."""
+    data = memoryview(payload)[_HDR.size :]
+    if zlib.crc32(data) != hdr.crc:
+        raise CorruptFrame("CRC mismatch")
+    w, h = hdr.width, hdr.height
+    if hdr.encoding == RAW:
+        if hdr.data_len != w * h * 3:
+            raise CorruptFrame(f"raw size {hdr.data_len} != {w}x{h}x3")
         img = np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)
-    elif enc == JPEG:
+    else:
         bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
         if bgr is None or bgr.shape[:2] != (h, w):
             raise CorruptFrame("JPEG does not decode to the header's size")
         img = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-    else:
-        raise CorruptFrame(f"unknown encoding {enc}")
     return Frame(
-        stream, seq, t_sim, t_pub, pos, quat, img, enc, time.time() if t_recv is None else t_recv
-    )
+        hdr.stream, hdr.seq, hdr.t_sim, hdr.t_pub, hdr.pos_ned, hdr.quat, img, hdr.encoding,
+        hdr.t_recv,
+    )  # fmt: skip
+
+
+def decode_frame(payload: bytes, t_recv: float | None = None) -> Frame:
+    """bytes → Frame; anything malformed raises CorruptFrame."""
+    return decode_pixels(decode_header(payload, t_recv), payload)
 
 
 def camera_info(cam: CameraParams, encoding: str) -> dict:
@@ -259,6 +296,19 @@ class FramePublisher:
         self.seq += 1
         return self.seq - 1
 
+    def has_subscriber(self) -> bool:
+        """Whether a subscriber to the frame key is reachable (Zenoh matching status)."""
+        return bool(self._pub.matching_status.matching)
+
+    def wait_for_subscriber(self, timeout_s: float) -> bool:
+        """Block up to `timeout_s` [s] until a subscriber matches; returns whether one did."""
+        deadline = time.monotonic() + timeout_s
+        while not self.has_subscriber():
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
     def publish_info(self, t_sim: float) -> None:
         rec = {**camera_info(self.cam, self.encoding), "t_sim": t_sim, "stream": self.stream}
         self._info.put(json.dumps(rec).encode())
@@ -296,7 +346,10 @@ class FrameSubscriber:
     """Receives frames for one vehicle; always offers the newest one.
 
     `take()` returns the newest frame not yet taken (or None); `wait(timeout_s)` blocks for one.
-    Callbacks run on Zenoh's thread; everything shared is under one lock.
+    On arrival (Zenoh's thread) only the header is parsed and the books kept; the CRC check and
+    the pixel decoding happen when the consumer takes the frame, so only frames that are used
+    cost a decode, and a slow consumer never backs up the link. A frame that fails there counts
+    as corrupt and is dropped (take() then returns None).
     """
 
     def __init__(self, session, vehicle: str, late_s: float = 0.1, keep_latencies: int = 100000):
@@ -306,6 +359,7 @@ class FrameSubscriber:
         self.info: dict | None = None
         self._cv = threading.Condition()
         self._latest: Frame | None = None
+        self._pending: tuple[FrameHeader, bytes] | None = None
         self._taken = True
         self._stream: int | None = None
         self._last_seq = -1
@@ -314,35 +368,43 @@ class FrameSubscriber:
 
     def _on_frame(self, sample) -> None:
         t_recv = time.time()
+        payload = sample.payload.to_bytes()
         try:
-            fr = decode_frame(sample.payload.to_bytes(), t_recv)
-        except (CorruptFrame, struct.error, cv2.error, ValueError):
+            hdr = decode_header(payload, t_recv)
+        except (CorruptFrame, struct.error):
             with self._cv:
                 self.stats.corrupt += 1
             return
-        self.on_frame(fr)
+        self._accept(hdr, payload)
 
     def on_frame(self, fr: Frame) -> None:
         """Book-keeping for one decoded frame (public so that it can be tested without a link)."""
+        self._accept(fr, fr)
+
+    def _accept(self, hdr, body) -> None:
         with self._cv:
             s = self.stats
-            if fr.stream != self._stream:  # new publisher (or a restart): start afresh
-                self._stream, self._last_seq = fr.stream, fr.seq - 1
-            if fr.seq <= self._last_seq:
+            if hdr.stream != self._stream:  # new publisher (or a restart): start afresh
+                self._stream, self._last_seq = hdr.stream, hdr.seq - 1
+            if hdr.seq <= self._last_seq:
                 s.out_of_order += 1
-                if s.lost > 0 and fr.seq < self._last_seq:
+                if s.lost > 0 and hdr.seq < self._last_seq:
                     s.lost -= 1
                 return
             s.received += 1
-            s.lost += fr.seq - self._last_seq - 1
+            s.lost += hdr.seq - self._last_seq - 1
             if not self._taken:
                 s.skipped += 1
-            if fr.latency_s > self.late_s:
+            if hdr.latency_s > self.late_s:
                 s.late += 1
             if len(s.latencies_s) < self.keep_latencies:
-                s.latencies_s.append(fr.latency_s)
-            self._last_seq = fr.seq
-            self._latest, self._taken = fr, False
+                s.latencies_s.append(hdr.latency_s)
+            self._last_seq = hdr.seq
+            if isinstance(body, Frame):
+                self._latest, self._pending = body, None
+            else:
+                self._pending = (hdr, body)
+            self._taken = False
             self._cv.notify_all()
 
     def _on_info(self, sample) -> None:
@@ -358,8 +420,25 @@ class FrameSubscriber:
             self.info = info
             self.stats.info_received += 1
 
+    def _resolve(self) -> Frame | None:
+        """Decode the pending payload (lock held): the new frame, or None when it is corrupt
+        (counted; `_latest` keeps the last good frame)."""
+        if self._pending is None:
+            return self._latest
+        hdr, payload = self._pending
+        self._pending = None
+        try:
+            self._latest = decode_pixels(hdr, payload)
+        except (CorruptFrame, cv2.error, ValueError):
+            self.stats.corrupt += 1
+            self.stats.received -= 1
+            return None
+        return self._latest
+
     def latest(self) -> Frame | None:
+        """The newest good frame received (taken or not), or None."""
         with self._cv:
+            self._resolve()
             return self._latest
 
     def take(self) -> Frame | None:
@@ -367,7 +446,7 @@ class FrameSubscriber:
             if self._taken:
                 return None
             self._taken = True
-            return self._latest
+            return self._resolve()
 
     def wait(self, timeout_s: float) -> Frame | None:
         """The newest untaken frame, waiting up to `timeout_s` [s] for one (None on timeout)."""
@@ -379,7 +458,7 @@ class FrameSubscriber:
                     return None
                 self._cv.wait(left)
             self._taken = True
-            return self._latest
+            return self._resolve()
 
     def close(self) -> None:
         for s in (self._sub, self._sub_info):

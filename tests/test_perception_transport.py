@@ -17,6 +17,7 @@ from perception.transport import (
     FrameSubscriber,
     ZenohParams,
     decode_frame,
+    decode_header,
     encode_frame,
     open_session,
     publisher_params,
@@ -101,7 +102,7 @@ def test_two_processes_exchange_frames_over_loopback():
     sub = FrameSubscriber(session, "uav0")
     pub = subprocess.Popen(
         [sys.executable, "-m", "perception.camstream", "--port", str(port),
-         "--frames", "120", "--rate", "60", "--sim-dt", "0.05", "--wait-s", "1.0"],
+         "--frames", "120", "--rate", "60", "--sim-dt", "0.05", "--wait-s", "10"],
         stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     seen = []
@@ -138,7 +139,8 @@ def test_in_process_pub_sub_and_garbage_on_the_key(tmp_path):
         sub = FrameSubscriber(b, "uav9")
         pub = FramePublisher(a, "uav9", CameraParams(), encoding="jpeg")
         junk = a.declare_publisher("skyherd/uav9/camera/frame")
-        time.sleep(0.5)
+        assert pub.wait_for_subscriber(5.0)
+        time.sleep(0.05)
         junk.put(b"not a frame")
         a.put("skyherd/uav9/camera/info", b"{broken json")
         for k in range(5):
@@ -170,7 +172,8 @@ def test_config_file_client_mode_and_shipped_example(tmp_path):
     try:
         sub = FrameSubscriber(b, "uav3")
         pub = FramePublisher(a, "uav3", CameraParams())
-        time.sleep(0.5)
+        assert pub.wait_for_subscriber(5.0)
+        time.sleep(0.05)
         for k in range(3):
             pub.publish(k * 0.1, POS, QUAT, IMG)
         f = sub.wait(5.0)
@@ -178,3 +181,19 @@ def test_config_file_client_mode_and_shipped_example(tmp_path):
     finally:
         b.close()
         a.close()
+
+
+def test_corrupt_pixels_found_when_taken_keep_last_good_frame():
+    session = open_session(ZenohParams())
+    sub = FrameSubscriber(session, "uav0")
+    good = encode_frame(0, 0.0, POS, QUAT, IMG, stream=1)
+    bad = bytearray(encode_frame(1, 0.1, POS, QUAT, IMG, stream=1))
+    bad[-1] ^= 0xFF  # pixel damage: header fine, CRC wrong
+    hdr = decode_header(good)
+    sub._accept(hdr, good)
+    assert sub.take().seq == 0
+    sub._accept(decode_header(bytes(bad)), bytes(bad))
+    assert sub.take() is None  # corrupt: dropped, counted, no crash
+    assert sub.stats.corrupt == 1 and sub.stats.received == 1
+    assert sub.latest().seq == 0  # the last good frame is still there
+    session.close()

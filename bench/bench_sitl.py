@@ -1,0 +1,132 @@
+"""Benchmark: SITL real-time factor with and without the MAVLink endpoint, and the telemetry
+rate it sustains.
+
+Scenario (both runs identical): the quadrotor arms, takes off to 10 m and hovers, autopilot
+at 250 Hz with 1 kHz physics. "alone" steps the autopilot only; "with MAVLink" runs the SITL
+runner at --speedup 0 with both links streaming at their default rates while a separate
+process receives the API link and counts what arrives.
+
+    .venv/bin/python bench/bench_sitl.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from flight.airframes_registry import make_autopilot  # noqa: E402
+from flight.clock import SimClock  # noqa: E402
+from flight.mavlink import EndpointConfig  # noqa: E402
+from flight.sitl import Sitl  # noqa: E402
+from scripts.runfolder import markdown_table  # noqa: E402
+
+INSTANCE = 21  # API link: 127.0.0.1:14601 → 14561
+
+RECEIVER = r"""
+import socket, sys, time
+s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+s.bind(("127.0.0.1", int(sys.argv[1])))
+s.settimeout(1.0)
+print("ready", flush=True)
+n = nbytes = 0
+t_first = t_last = None
+while True:
+    try:
+        d = s.recv(65535)
+    except socket.timeout:
+        if n:
+            break
+        continue
+    t_last = time.monotonic()
+    t_first = t_first or t_last
+    n += 1
+    nbytes += len(d)
+print(n, nbytes, (t_last - t_first) if n > 1 else 0.0, flush=True)
+"""
+
+
+def _fly(ap) -> None:
+    ap.arm()
+    ap.takeoff(10.0)
+
+
+def bench_alone(sim_s: float) -> tuple[float, float]:
+    ap = make_autopilot("quadrotor", clock=SimClock())
+    _fly(ap)
+    n = round(sim_s / ap.control_dt)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        ap.step()
+    wall = time.perf_counter() - t0
+    return sim_s / wall, ap.state.altitude
+
+
+def bench_endpoint(sim_s: float) -> dict:
+    recv = subprocess.Popen(
+        [sys.executable, "-c", RECEIVER, str(14540 + INSTANCE)], stdout=subprocess.PIPE, text=True
+    )
+    assert recv.stdout.readline().strip() == "ready"
+    ap = make_autopilot("quadrotor", clock=SimClock())
+    _fly(ap)
+    with Sitl(ap, EndpointConfig(instance=INSTANCE), speedup=0.0) as sitl:
+        stats = sitl.run(duration_s=sim_s)
+        tx = {link.name: link.codec.stats.tx_frames for link in sitl.endpoint.links}
+        tx_bytes = sum(link.codec.stats.tx_bytes for link in sitl.endpoint.links)
+    n_rx, _, _ = (float(v) for v in recv.communicate(timeout=30)[0].split())
+    return {
+        "rtf": stats.real_time_factor,
+        "wall": stats.wall_s,
+        "tx_per_s": sum(tx.values()) / stats.wall_s,
+        "tx_per_sim_s": sum(tx.values()) / stats.sim_s,
+        "tx_api": tx["api"],
+        "rx_api": int(n_rx),
+        "kbytes_per_s": tx_bytes / stats.wall_s / 1e3,
+        "altitude": ap.state.altitude,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="shorter runs (20 s of simulation)")
+    p.add_argument("--sim-s", type=float, default=None, help="simulated seconds per run")
+    args = p.parse_args(argv)
+    sim_s = args.sim_s or (20.0 if args.quick else 120.0)
+    make_autopilot("quadrotor").step()  # compile (numba) outside the timings
+    rtf_alone, alt_a = bench_alone(sim_s)
+    r = bench_endpoint(sim_s)
+    rows = [
+        ["autopilot + physics alone", f"{rtf_alone:.0f}x", "-", "-", f"{alt_a:.2f}"],
+        [
+            "with MAVLink endpoint (speedup 0)",
+            f"{r['rtf']:.0f}x",
+            f"{r['tx_per_s']:.0f}",
+            f"{r['kbytes_per_s']:.0f}",
+            f"{r['altitude']:.2f}",
+        ],  # fmt: skip
+    ]
+    print(
+        f"SITL benchmark: quadrotor, {sim_s:g} s simulated per run, autopilot 250 Hz, physics 1 kHz\n"
+    )
+    print(
+        markdown_table(
+            ["run", "real-time factor", "telemetry msg/s (wall)", "kB/s", "final altitude [m]"],
+            rows,
+        )
+    )
+    print(f"endpoint cost: {rtf_alone / r['rtf']:.2f}x slower than the autopilot alone")
+    print(
+        f"telemetry per simulated second (both links, default rates): {r['tx_per_sim_s']:.1f} messages"
+    )
+    print(f"API link: {r['tx_api']} sent, {r['rx_api']} received by a separate process "
+          f"({100.0 * r['rx_api'] / max(r['tx_api'], 1):.1f} %)")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
