@@ -9,6 +9,7 @@ timestamps.
 from __future__ import annotations
 
 import logging
+import select
 import struct
 import time
 from collections import Counter
@@ -152,6 +153,10 @@ class MavlinkEndpoint:
             self.close()
             raise
         self.streams = {link.name: StreamScheduler() for link in self.links}
+        self._poller = select.poll() if hasattr(select, "poll") else None
+        if self._poller is not None:
+            for link in self.links:
+                self._poller.register(link.sock.fileno(), select.POLLIN)
         self.last_heard: dict[str, float] = {}  # link name → sim time of the last valid frame
         self.telemetry = TelemetryBuilder(autopilot, self.ident)
         pf = config.param_file(autopilot.airframe)
@@ -199,10 +204,13 @@ class MavlinkEndpoint:
     # --- the lockstep hook ---------------------------------------------------------------------
     def update(self) -> None:
         """Answer what arrived, finish timed work, send due streams. Call once per step."""
-        for link in self.links:
-            for msg, addr in link.receive():
-                self._dispatch(link, msg, addr)
-        self.commands.service()
+        ready = self._poller.poll(0) if self._poller is not None else self.links
+        if ready:  # one system call per step tells whether any socket has data
+            for link in self.links:
+                for msg, addr in link.receive():
+                    self._dispatch(link, msg, addr)
+        if self.commands.pending:
+            self.commands.service()
         self.missions.service()
         self.params.pump()
         self._mission_events()

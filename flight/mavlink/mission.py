@@ -179,7 +179,7 @@ class MissionService:
         """Re-request a missing item after RETRY_S of simulation time; give up after retries."""
         up = self._upload
         if up is None or self.ap.clock.t - up.last_request_t < RETRY_S:
-            return
+            return  # nothing running, or not yet time to re-request
         up.retries += 1
         up.last_request_t = self.ap.clock.t
         if up.retries > MAX_RETRIES:

@@ -171,6 +171,8 @@ class ParamService:
 
     def pump(self) -> None:
         """Send up to `per_update` queued PARAM_VALUEs of pending list requests."""
+        if not self._queue:
+            return
         for _ in range(min(self.per_update, len(self._queue))):
             i, reply, _ = self._queue.popleft()
             reply(self.value_msg(self.names[i]))

@@ -38,6 +38,7 @@ class StreamScheduler:
         self.defaults = dict(DEFAULT_RATES_HZ if defaults is None else defaults)
         self.rates: dict[int, float] = dict(self.defaults)
         self._next: dict[int, float] = {}
+        self._earliest = -1.0  # no message is due before this time [s]
 
     def supports(self, msg_id: int) -> bool:
         return msg_id in self.defaults
@@ -57,6 +58,7 @@ class StreamScheduler:
             return False
         self.rates[msg_id] = rate
         self._next.pop(msg_id, None)
+        self._earliest = -1.0
         return True
 
     def interval_us(self, msg_id: int) -> int:
@@ -68,6 +70,8 @@ class StreamScheduler:
 
     def due(self, t: float) -> list[int]:
         """Message ids to send now; each is rescheduled one period later (no catch-up bursts)."""
+        if t < self._earliest - 1e-9:
+            return []  # the common case, checked once per step
         out = []
         for msg_id, rate in self.rates.items():
             if rate <= 0:
@@ -80,4 +84,6 @@ class StreamScheduler:
                 if nxt <= t:  # fell behind (a slow step): skip, don't burst
                     nxt = t + period
                 self._next[msg_id] = nxt
+        # _next holds only streamed messages (set_interval drops the others).
+        self._earliest = min(self._next.values(), default=math.inf)
         return out
