@@ -229,6 +229,10 @@ def test_bad_hyper_parameters_rejected():
     with pytest.raises(ValueError):
         SQLHyper(gamma=1.0)
     with pytest.raises(ValueError):
+        SQLHyper(alpha=float("nan"))
+    with pytest.raises(ValueError):
+        GridParams(obstacle_fraction=float("nan"))
+    with pytest.raises(ValueError):
         build_layout(GridParams(n_agents=5))
     with pytest.raises(ValueError):
         train(Algorithm.SQL_SIE, build_layout(GridParams(n_agents=4)), SQLHyper(share_every=0))

@@ -31,6 +31,12 @@ class GridParams:
     map_seed: int = 0
     """Seed of the obstacle placement (the same map for every learner and learner seed)."""
 
+    def __post_init__(self) -> None:
+        if not (self.size >= 2 and self.n_agents >= 1 and self.map_seed >= 0):
+            raise ValueError("grid needs size >= 2, n_agents >= 1 and map_seed >= 0")
+        if not 0.0 <= self.obstacle_fraction < 0.5:  # False for NaN too
+            raise ValueError(f"obstacle_fraction must be in [0, 0.5), got {self.obstacle_fraction}")
+
 
 @dataclass(frozen=True)
 class SQLHyper:
