@@ -9,6 +9,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+import numpy as np
+
 
 class Algorithm(enum.Enum):
     """The three learners compared in the seed."""
@@ -85,9 +87,7 @@ class SQLHyper:
         if bad:
             raise ValueError(f"bad SQL hyper-parameters: {', '.join(bad)}")
 
-    def epsilons(self, start: int, count: int):
+    def epsilons(self, start: int, count: int) -> np.ndarray:
         """ε for episodes start .. start+count−1: max(ε_min, ε_0 · decay^e), shape (count,)."""
-        import numpy as np
-
         e = np.arange(start, start + count, dtype=np.float64)
         return np.maximum(self.eps_min, self.eps_start * self.eps_decay**e)
