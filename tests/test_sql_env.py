@@ -58,6 +58,8 @@ def test_walls_obstacles_agents_and_targets():
     env, lay = _env(max_steps=50)
     obs, _ = env.reset()
     assert list(obs["agent_0"]) == [1, 1] and list(obs["agent_1"]) == [2, 1]
+    assert env.observation_space("agent_0").contains(obs["agent_0"])
+    assert env.action_space("agent_1").n == 4 and env.agents == env.possible_agents
     # agent_0 left into the wall: stays, no penalty; agent_1 up into the obstacle: stays, −1
     obs, rew, term, trunc, info = env.step({"agent_0": LEFT, "agent_1": UP})
     assert list(obs["agent_0"]) == [1, 1] and rew["agent_0"] == 0.0
