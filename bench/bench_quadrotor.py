@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from flight.autopilot_api import FlightMode, Setpoint  # noqa: E402
 from flight.multirotor import MultirotorAutopilot  # noqa: E402
-from flight.quadrotor import Quadrotor, QuadrotorParams, physics_steps  # noqa: E402
+from flight.quadrotor import Quadrotor, QuadrotorParams, WindModel, physics_steps  # noqa: E402
 from scripts.runfolder import markdown_table  # noqa: E402
 
 
@@ -141,6 +141,15 @@ def step_responses(control_dt: float) -> list[list[str]]:
     r = _fly(ap, 60.0)
     dev = np.linalg.norm(r[:, 1:] - ref, axis=1).max()
     rows.append(["hover 60 s: largest deviation", f"{dev * 100:.1f} cm", "-", "-"])
+    windy = MultirotorAutopilot(
+        control_dt=control_dt, wind=WindModel((5.0, -3.0, 0.0), gust_std=1.0, gust_tau=2.0, seed=1)
+    )
+    windy.arm()
+    windy.takeoff(10.0)
+    _fly(windy, 15.0)
+    r = _fly(windy, 60.0)
+    dev = np.linalg.norm(r[:, 1:] - [0.0, 0.0, -10.0], axis=1).max()
+    rows.append(["hover 60 s, wind 5.8 m/s + 1 m/s gusts", f"{dev * 100:.1f} cm", "-", "-"])
     ap.reposition(np.array([40.0, -30.0, -12.0]))
     _fly(ap, 20.0)
     ap.return_to_launch()

@@ -4,11 +4,11 @@ World NED, body FRD, quaternion (w, x, y, z) body → world. Ground is the plane
 (home altitude). The hot path is a numba kernel over flat float arrays; `Quadrotor` is the
 readable wrapper.
 
-Model (per physics step dt, default 1 ms):
+Model (per physics step dt, default 1 ms; w = wind, NED):
   motors      ω̇_i = (ω_cmd,i − ω_i)/τ,  ω_cmd,i = u_i·ω_max         (exact discretisation)
   rotors      T_i = k_f ω_i²  along −z_b;   Q_i = s_i k_m ω_i²  about z_b (s_i = +1 CCW rotor)
   moments     M = Σ r_i × (0, 0, −T_i) + (0, 0, Σ Q_i)  → (−Σ y_i T_i, Σ x_i T_i, Σ Q_i)
-  drag        F_d,b = −c₁ ⊙ v_b − c₂ ⊙ |v_b| ⊙ v_b,  v_b = Rᵀ v
+  drag        F_d,b = −c₁ ⊙ v_b − c₂ ⊙ |v_b| ⊙ v_b,  v_b = Rᵀ (v − w)
   translation m v̇ = R (F_d,b + (0, 0, −ΣT_i)) + m g e_z
   rotation    I ω̇ = M − ω × I ω,   q̇ = ½ q ⊗ (0, ω)
 Integration: v, p exact for constant acceleration over the step; ω explicit Euler; q rotated
@@ -42,7 +42,8 @@ A_ON_GROUND = 3  # 1.0 while resting on the ground
 A_THRUST = 4  # total rotor thrust [N]
 A_SHAFT_POWER = 5  # total rotor shaft power [W]
 A_ENERGY = 6  # shaft energy since start [J]
-N_AUX = 8
+A_WIND = 7  # (3,) wind velocity [m/s], NED (input: set by the caller)
+N_AUX = 10
 # ---- physics parameters p (flat)
 P_MASS, P_IXX, P_IYY, P_IZZ, P_KF, P_KM, P_WMAX, P_TAU = 0, 1, 2, 3, 4, 5, 6, 7
 P_CLIN = 8  # (3,)
@@ -187,6 +188,54 @@ class QuadrotorParams:
         return p
 
 
+@dataclass(frozen=True)
+class WindModel:
+    """Mean wind plus first-order Gauss-Markov gusts, one process per NED axis.
+
+    g_{k+1} = a g_k + σ √(1 − a²) n_k,  a = exp(−dt/τ),  n_k ~ N(0, 1) from a seeded Generator
+    (stationary standard deviation σ, correlation time τ). mean_ned (3,) [m/s];
+    gust_std σ [m/s]; gust_tau τ [s]; seed for the gusts.
+    """
+
+    mean_ned: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gust_std: float = 0.0
+    gust_tau: float = 2.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        vals = [*self.mean_ned, self.gust_std, self.gust_tau]
+        if len(self.mean_ned) != 3 or not all(math.isfinite(v) for v in vals):
+            raise ValueError("wind: mean (3,) and gust figures must be finite")
+        if self.gust_std < 0 or self.gust_tau <= 0:
+            raise ValueError("wind: gust_std >= 0 and gust_tau > 0 needed")
+
+
+class WindField:
+    """The state of a `WindModel`: `sample(dt)` → wind (3,) [m/s] NED for the next dt."""
+
+    def __init__(self, model: WindModel):
+        self.model = model
+        self._rng = np.random.default_rng(model.seed)
+        self._mean = np.asarray(model.mean_ned, dtype=float)
+        self._gust = np.zeros(3)
+        self._dt = -1.0
+        self._a = self._b = 0.0
+
+    @property
+    def calm(self) -> bool:
+        return self.model.gust_std == 0.0 and not np.any(self._mean)
+
+    def sample(self, dt: float) -> np.ndarray:
+        m = self.model
+        if m.gust_std > 0.0:
+            if dt != self._dt:
+                self._dt = dt
+                self._a = math.exp(-dt / m.gust_tau)
+                self._b = m.gust_std * math.sqrt(1.0 - self._a * self._a)
+            self._gust = self._a * self._gust + self._b * self._rng.standard_normal(3)
+        return self._mean + self._gust
+
+
 # =====================================================================================
 # numba kernels (hot path). All arrays float64; nothing allocated per step.
 # =====================================================================================
@@ -252,10 +301,11 @@ def physics_substep(x, aux, p, u, dt):
     r21 = 2.0 * (qy * qz + qw * qx)
     r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
     vx, vy, vz = x[X_VEL], x[X_VEL + 1], x[X_VEL + 2]
-    # body-frame velocity and drag
-    vbx = r00 * vx + r10 * vy + r20 * vz
-    vby = r01 * vx + r11 * vy + r21 * vz
-    vbz = r02 * vx + r12 * vy + r22 * vz
+    # body-frame air-relative velocity and drag
+    avx, avy, avz = vx - aux[A_WIND], vy - aux[A_WIND + 1], vz - aux[A_WIND + 2]
+    vbx = r00 * avx + r10 * avy + r20 * avz
+    vby = r01 * avx + r11 * avy + r21 * avz
+    vbz = r02 * avx + r12 * avy + r22 * avz
     fbx = -p[P_CLIN] * vbx - p[P_CQUAD] * abs(vbx) * vbx
     fby = -p[P_CLIN + 1] * vby - p[P_CQUAD + 1] * abs(vby) * vby
     fbz = -p[P_CLIN + 2] * vbz - p[P_CQUAD + 2] * abs(vbz) * vbz - thrust
@@ -373,7 +423,9 @@ class Quadrotor:
         if vals.shape != (N_X,) or not np.all(np.isfinite(vals)):
             raise ValueError("reset needs finite pos(3), vel(3), quat(4), omega(3), motors(4)")
         self.x[:] = vals
+        wind = self.aux[A_WIND : A_WIND + 3].copy()
         self.aux[:] = 0.0
+        self.aux[A_WIND : A_WIND + 3] = wind
         if self.x[X_POS + 2] >= 0.0:
             self.x[X_POS + 2] = 0.0
             self.aux[A_ON_GROUND] = 1.0
@@ -385,6 +437,18 @@ class Quadrotor:
     @property
     def t(self) -> float:
         return self.time_us * 1e-6
+
+    @property
+    def wind_ned(self) -> np.ndarray:
+        """(3,) wind velocity [m/s], NED."""
+        return self.aux[A_WIND : A_WIND + 3].copy()
+
+    @wind_ned.setter
+    def wind_ned(self, w) -> None:
+        w = np.asarray(w, dtype=float).reshape(3)
+        if not np.all(np.isfinite(w)):
+            raise ValueError("wind must be finite")
+        self.aux[A_WIND : A_WIND + 3] = w
 
     @property
     def on_ground(self) -> bool:

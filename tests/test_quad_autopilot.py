@@ -14,6 +14,7 @@ from flight.autopilot_api import (
 )
 from flight.clock import SimClock
 from flight.multirotor import MultirotorAutopilot
+from flight.quadrotor import WindModel
 
 
 def fly(ap, seconds, each=None):
@@ -73,6 +74,19 @@ def test_hover_holds_within_20cm_for_60s():
     err = np.linalg.norm(p - ref, axis=1).max()
     assert err < 0.2, err
     assert np.linalg.norm(p[-1] - [0, 0, -10]) < 0.2
+
+
+def test_hover_in_wind_and_gusts_holds_within_20cm_for_60s():
+    wind = WindModel(mean_ned=(5.0, -3.0, 0.0), gust_std=1.0, gust_tau=2.0, seed=1)
+    ap = MultirotorAutopilot(wind=wind)
+    assert ap.arm().ok and ap.takeoff(10.0).ok
+    fly(ap, 15.0)
+    _, p = fly(ap, 60.0)
+    err = np.linalg.norm(p - [0.0, 0.0, -10.0], axis=1).max()
+    assert err < 0.2, err
+    assert np.linalg.norm(ap.wind_ned[:2]) > 2.0  # the wind really blew
+    roll, pitch, _ = ap.state.euler
+    assert math.hypot(roll, pitch) > math.radians(1.0)  # leaning into it
 
 
 def test_north_step_20m_settles_without_oscillation():
@@ -238,8 +252,9 @@ def test_manual_modes_follow_sticks():
 
 
 def test_same_seed_same_flight_bit_for_bit():
-    def run():
-        ap = MultirotorAutopilot(seed=3, clock=SimClock())
+    def run(seed=3):
+        wind = WindModel(mean_ned=(3.0, 1.0, 0.0), gust_std=1.5, gust_tau=1.0, seed=seed)
+        ap = MultirotorAutopilot(seed=seed, clock=SimClock(), wind=wind)
         ap.arm()
         ap.takeoff(8.0)
         _, p1 = fly(ap, 8.0)
@@ -250,6 +265,8 @@ def test_same_seed_same_flight_bit_for_bit():
     (a, sa), (b, sb) = run(), run()
     assert a.tobytes() == b.tobytes()
     assert sa.quat.tobytes() == sb.quat.tobytes() and sa.t == sb.t
+    c, _ = run(seed=4)  # other gusts: another flight
+    assert c.tobytes() != a.tobytes()
 
 
 def test_yaw_setpoint_tracked():

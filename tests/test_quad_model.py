@@ -127,3 +127,37 @@ def test_integration_is_deterministic_and_substeps_equal_single_steps():
             b.step(0.001, c)
     assert a.x.tobytes() == b.x.tobytes()
     assert a.time_us == b.time_us == 2_000_000
+
+
+def test_wind_drag_closed_form_and_drift_to_wind_speed():
+    q = Quadrotor(P)
+    w_h = P.hover_command * P.omega_max
+    q.reset(pos_ned=(0, 0, -100), motor_speed=[w_h] * 4)
+    q.wind_ned = (5.0, 0.0, 0.0)
+    s = q.step(0.001, [P.hover_command] * 4)
+    f = P.drag_linear[0] * 5.0 + P.drag_quadratic[0] * 25.0  # air-relative speed 5 m/s
+    assert s.accel_frd[0] == pytest.approx(f / P.mass, rel=1e-3)
+    s = q.step(200.0, [P.hover_command] * 4)  # linear-drag time constant m/c₁ = 15 s
+    assert s.vel_ned[0] == pytest.approx(5.0, abs=1e-3)  # carried along with the air
+    assert abs(s.vel_ned[2]) < 1e-9
+    with pytest.raises(ValueError):
+        q.wind_ned = (np.nan, 0, 0)
+
+
+def test_gust_process_statistics_and_seed():
+    from flight.quadrotor import WindField, WindModel
+
+    m = WindModel(mean_ned=(2.0, 0.0, 0.0), gust_std=1.5, gust_tau=2.0, seed=7)
+    a = np.array([WindField(m).sample(0.01) for _ in range(1)])
+    f1, f2 = WindField(m), WindField(m)
+    x1 = np.array([f1.sample(0.01) for _ in range(100_000)])
+    x2 = np.array([f2.sample(0.01) for _ in range(100_000)])
+    assert x1.tobytes() == x2.tobytes() and a.shape == (1, 3)
+    assert x1[:, 0].mean() == pytest.approx(2.0, abs=0.3)
+    assert x1[:, 1].std() == pytest.approx(1.5, rel=0.2)  # stationary std σ
+    lag = round(2.0 / 0.01)  # correlation at τ is e⁻¹
+    g = x1[:, 2] - x1[:, 2].mean()
+    rho = np.dot(g[:-lag], g[lag:]) / np.dot(g, g)
+    assert rho == pytest.approx(math.exp(-1.0), abs=0.15)
+    with pytest.raises(ValueError):
+        WindModel(gust_std=-1.0)

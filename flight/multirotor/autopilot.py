@@ -36,9 +36,12 @@ from flight.params import ParamStore
 from flight.quadrotor import (
     A_ENERGY,
     A_ON_GROUND,
+    A_WIND,
     DEFAULT_AIRFRAME,
     X_MOTOR,
     QuadrotorParams,
+    WindField,
+    WindModel,
     _level_with_yaw,
 )
 from flight.state import VehicleState
@@ -69,7 +72,8 @@ class MultirotorAutopilot:
     home: geodetic home; clock: the shared SimClock (a new one if None); control_dt [s]:
     autopilot period (a multiple of the physics step); seed: recorded, unused (no noise);
     start_pos_ned [m], start_yaw [rad]: where it starts (on the ground if down >= 0);
-    battery_start: charge at start [0, 1] (for battery drills).
+    battery_start: charge at start [0, 1] (for battery drills); wind: mean wind and seeded
+    gusts acting on the airframe's drag (None: calm air).
     """
 
     airframe = "quadrotor"
@@ -85,6 +89,7 @@ class MultirotorAutopilot:
         start_pos_ned: tuple[float, float, float] = (0.0, 0.0, 0.0),
         start_yaw: float = 0.0,
         battery_start: float = 1.0,
+        wind: WindModel | None = None,
     ):
         self.home = home
         self.clock = clock if clock is not None else SimClock()
@@ -156,6 +161,7 @@ class MultirotorAutopilot:
         self._climb_first = False
         self._status: list[str] = []
         self._next_battery_check = 0.0
+        self.wind = WindField(wind if wind is not None else WindModel(seed=self.seed))
         self._reset_vehicle(np.asarray(start_pos_ned, dtype=float), float(start_yaw))
         self._state = self._make_state()
 
@@ -197,6 +203,11 @@ class MultirotorAutopilot:
         return v.voltage_empty + (v.voltage_full - v.voltage_empty) * self.battery_remaining
 
     @property
+    def wind_ned(self) -> np.ndarray:
+        """(3,) wind acting now [m/s], NED."""
+        return self._aux[A_WIND : A_WIND + 3].copy()
+
+    @property
     def mission_progress(self) -> MissionProgress:
         return self._progress
 
@@ -223,6 +234,8 @@ class MultirotorAutopilot:
         if self._c_rev != self.params.revision:
             self._build_constants()
         t = self.clock.t
+        if not self._calm:
+            self._aux[A_WIND : A_WIND + 3] = self.wind.sample(self.control_dt)
         self._commander(t)
         sp = self._sp
         if self._armed:
@@ -260,6 +273,8 @@ class MultirotorAutopilot:
             self._aux[A_ON_GROUND] = 1.0
             _level_with_yaw(self._x)
         self._aux[2] = -self.vehicle.gravity
+        self._calm = self.wind.calm
+        self._aux[A_WIND : A_WIND + 3] = self.wind.sample(self.control_dt)
         self._yaw_sp = yaw
         self._hold_pos = self._x[0:3].copy()
 

@@ -19,10 +19,15 @@ the vehicle rests on the ground.
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
+from pathlib import Path
 
 from numba import njit
 
+from flight import quadrotor as _quadrotor
+from flight.multirotor import mixer as _mixer
 from flight.multirotor.mixer import mix
 from flight.quadrotor import (
     A_ON_GROUND,
@@ -39,6 +44,30 @@ from flight.quadrotor import (
     X_VEL,
     physics_substep,
 )
+
+
+def _drop_stale_cache() -> None:
+    """numba's on-disk cache is keyed on this file only, but the kernels here compile in
+    flight/quadrotor.py and mixer.py too: drop this module's cache when any of them changed."""
+    deps = [Path(__file__), Path(_quadrotor.__file__), Path(_mixer.__file__)]
+    stamp = hashlib.sha256(b"".join(p.read_bytes() for p in deps)).hexdigest()
+    dirs = [Path(__file__).parent / "__pycache__"]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        dirs.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    for d in dirs:
+        mark = d / "control.deps-stamp"
+        try:
+            if mark.exists() and mark.read_text() == stamp:
+                continue
+            for f in d.rglob("control.*.nb[ic]"):
+                f.unlink(missing_ok=True)
+            d.mkdir(parents=True, exist_ok=True)
+            mark.write_text(stamp)
+        except OSError:
+            pass  # read-only tree: numba falls back to its own cache location
+
+
+_drop_stale_cache()
 
 # ---- setpoint array sp (written by the mode logic each control step)
 SP_POS = 0  # (3,) [m] NED
