@@ -68,17 +68,10 @@ def _job(spec: dict) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    from policy.apprentice import ApprenticeParams, run_apprenticeship
+    from policy.apprentice import run_apprenticeship
     from policy.demos import rollout_stats
-    from policy.dqn import DQNParams
-    from policy.irl import IRLParams
 
-    p = ApprenticeParams(
-        dqn=DQNParams(total_steps=spec["dqn_steps"], gamma=spec["gamma"]),
-        irl=IRLParams(epsilon=spec["epsilon"], max_iters=spec["irl_iters"]),
-        seed=spec["seed"],
-        mu_episodes=spec["mu_episodes"],
-    )
+    p = dataclasses.replace(spec["params"], seed=spec["seed"])
     res = run_apprenticeship(np.asarray(spec["mu_expert"]), p)
     _, m = rollout_stats(
         res.policy, "composite", spec["eval_episodes"], spec["eval_seed"], spec["gamma"]
@@ -184,8 +177,19 @@ def run(args: argparse.Namespace) -> int:
         mu_e["irl"] = demo_feature_expectations(demos["composite"], args.gamma)
     for r in rules:
         mu_e[f"ab_{r}"] = combine(demos, r, args.gamma)
+    from policy.apprentice import ApprenticeParams
+    from policy.dqn import DQNParams
+    from policy.irl import IRLParams
+
+    hyper = ApprenticeParams(
+        dqn=DQNParams(total_steps=args.dqn_steps, gamma=args.gamma),
+        irl=IRLParams(epsilon=args.epsilon, max_iters=args.irl_iters),
+        mu_episodes=args.mu_episodes,
+    )
+    print(f"hyper-parameters (seed field varies per run): {hyper}")
     config = {
         "learner": learner,
+        "hyper_parameters": hyper,
         "args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
         "expert": expert_p,
         "mu_expert": {k: v.tolist() for k, v in mu_e.items()},
@@ -200,12 +204,9 @@ def run(args: argparse.Namespace) -> int:
             "learner": name,
             "seed": args.seed + s,
             "mu_expert": mu.tolist(),
-            "dqn_steps": args.dqn_steps,
-            "irl_iters": args.irl_iters,
-            "epsilon": args.epsilon,
+            "params": hyper,
             "gamma": args.gamma,
             "eval_episodes": args.eval_episodes,
-            "mu_episodes": args.mu_episodes,
             "eval_seed": eval_seed,
         }
         for s in range(args.seeds)
