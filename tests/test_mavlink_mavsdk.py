@@ -22,6 +22,7 @@ from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw, Veloc
 from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
 
 SPEEDUP = 4.0
+SKYHERD = str(Path(sys.executable).parent / "skyherd")  # the installed console script
 
 
 async def _until(what: str, fn, timeout: float, poll: float = 0.05):
@@ -153,7 +154,7 @@ async def _landed_is(tel, state):
 
 @pytest.fixture
 def sitl_process(tmp_path):
-    cmd = [sys.executable, "-m", "scripts.cli", "sitl", "--airframe", "quadrotor", "--speedup", str(SPEEDUP),
+    cmd = [SKYHERD, "sitl", "--airframe", "quadrotor", "--speedup", str(SPEEDUP),
            "--state-dir", str(tmp_path / "state"), "--runs", str(tmp_path / "runs"), "--duration", "600"]  # fmt: skip
     proc = subprocess.Popen(
         cmd,
