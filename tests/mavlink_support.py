@@ -89,10 +89,12 @@ def v2_connection(address: str, source_system: int = 255) -> V2Socket:
 class Client:
     """A pymavlink ground station on the API link of instance N (udpin 14540+N)."""
 
-    def __init__(self, instance: int, port: int | None = None, source_system: int = 255):
+    def __init__(
+        self, instance: int, port: int | None = None, source_system: int = 255, mode: str = "udpin"
+    ):
         port = 14540 + instance if port is None else port
         self.target = 1 + instance
-        self.conn = V2Socket("udpin", port, source_system)
+        self.conn = V2Socket(mode, port, source_system)
         self.mav = self.conn.mav
         self.texts: list[str] = []  # every STATUSTEXT seen, in order
 

@@ -367,3 +367,29 @@ def test_ardupilot_personality():
             c.command(M.MAV_CMD_DO_SET_MODE, 1, 5).result == 0
             and sitl.autopilot.mode == FlightMode.HOLD
         )
+
+
+def test_qgroundcontrol_connection_sequence_on_the_gcs_link():
+    """QGC's order (PROTOCOLS.md): heartbeat, AUTOPILOT_VERSION, component information,
+    available modes, all parameters, mission, geofence, rally — each step answered."""
+    with running_sitl(instance=18, speedup=5.0) as sitl, Client(18, port=18588, mode="udpout") as c:
+        c.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
+        hb = c.wait_heartbeat()
+        assert hb.get_srcSystem() == 19
+        assert c.command(M.MAV_CMD_REQUEST_PROTOCOL_VERSION, 1).result == M.MAV_RESULT_UNSUPPORTED
+        assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION).result == 0
+        assert c.recv("AUTOPILOT_VERSION").capabilities & M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        for msg_id in (395, 397, 435):
+            assert (
+                c.command(M.MAV_CMD_REQUEST_MESSAGE, msg_id, 1).result == M.MAV_RESULT_UNSUPPORTED
+            )
+        assert len(c.param_list()) == len(sitl.autopilot.param_names())
+        assert (
+            c.mission_download(0) == []
+            and c.mission_download(1) == []
+            and c.mission_download(2) == []
+        )
+        assert (
+            sitl.endpoint.rx_types["HEARTBEAT"] >= 1
+            and sitl.endpoint.stats["rx_handler_error"] == 0
+        )
