@@ -143,8 +143,8 @@ def zenoh_run(size: str, frames: int, rate: float) -> dict:
 
 def bench_zenoh(quick: bool) -> list[list]:
     rows = []
-    n_paced = 150 if quick else 600
-    n_flat = 300 if quick else 2000
+    n_paced = 150 if quick else 300
+    n_flat = 300 if quick else 1000
     for size in ("320x240", "640x480"):
         paced = zenoh_run(size, n_paced, 30.0)
         flat = zenoh_run(size, n_flat, 0.0)
@@ -189,8 +189,8 @@ def loop_rtf(world_kind: str, renderer_kind: str, cam_hz: float, sim_s: float) -
 
 
 def bench_loop(quick: bool) -> list[list]:
-    sim_fast = 30.0 if quick else 120.0
-    sim_bullet = 10.0 if quick else 30.0
+    sim_fast = 30.0 if quick else 60.0
+    sim_bullet = 10.0 if quick else 20.0
     rows = []
     for world_kind in ("kinematic", "pybullet"):
         for rk, sim_s, goal in (("fast", sim_fast, 50), ("pybullet", sim_bullet, 5)):
@@ -207,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     t_start = time.perf_counter()
     print("## Renderers and detector (frames/s)\n")
-    rows = bench_renderers(300 if a.quick else 2000, 30 if a.quick else 150)
+    rows = bench_renderers(300 if a.quick else 1000, 30 if a.quick else 100)
     print(markdown_table(
         ["size", "fast render", "(CPU)", "PyBullet render", "(CPU)", "PyBullet, ground drawn",
          "(CPU)", "detector", "(CPU)"], rows))  # fmt: skip
