@@ -32,11 +32,17 @@ class DrillParams:
 
     policy_dt_s: float = 0.02  # AI + supervisor period [s] (the envelope's dt)
     takeoff_alt_m: float = 20.0
-    duration_s: float = 35.0  # AI time per drill after hand-over [s]
+    duration_s: float = 35.0  # AI time per multirotor drill after hand-over [s]
+    duration_fixedwing_s: float = 90.0  # a fixed-wing needs longer: loiter, turn back, recover [s]
+    fixedwing_speed_mps: float = 24.0  # airspeed the fixed-wing starts with [m/s]
     settle_timeout_s: float = 40.0  # reaching the start point [s]
     slew_h_mps: float = 1.2  # a well-behaved AI changes its command at most this per tick [m/s]
     slew_v_mps: float = 1.0
+    lead_max_rad: float = 0.35  # a well-behaved fixed-wing AI leads its course by at most this
     use_autopilot_hold: bool = True  # FALLBACK = the autopilot's own HOLD mode
+
+    def duration(self, airframe: str) -> float:
+        return self.duration_fixedwing_s if airframe == "fixedwing" else self.duration_s
 
 
 @dataclass
@@ -54,6 +60,8 @@ class Script:
     camera_ok: Callable[[float], bool] = lambda t: True
     link_ok: Callable[[float], bool] = lambda t: True
     must_trigger: bool = True
+    start_heading: float = 0.0  # fixed-wing: initial course [rad]
+    behave: Act | None = None  # default: fly back toward the start point
 
 
 @dataclass
@@ -83,6 +91,19 @@ def slew(u_des: np.ndarray, v: np.ndarray, dh: float, dv: float) -> np.ndarray:
     return v + du
 
 
+def lead(u_des: np.ndarray, v: np.ndarray, max_lead_rad: float, dv: float) -> np.ndarray:
+    """A smooth fixed-wing AI: the commanded course leads the present one by at most
+    `max_lead_rad` (the autopilot turns at its bank limit); speed as wanted."""
+    u_des = np.asarray(u_des, float)
+    c_v = math.atan2(v[1], v[0])
+    c_d = math.atan2(u_des[1], u_des[0])
+    c = c_v + max(-max_lead_rad, min(max_lead_rad, (c_d - c_v + math.pi) % (2 * math.pi) - math.pi))
+    sp = float(np.hypot(u_des[0], u_des[1]))
+    return np.array(
+        [sp * math.cos(c), sp * math.sin(c), v[2] + float(np.clip(u_des[2] - v[2], -dv, dv))]
+    )
+
+
 def toward(target: np.ndarray, speed_h: float, speed_v: float, p: DrillParams) -> Act:
     """Behave: fly toward `target` (NED) with a P law, speed- and slew-limited."""
 
@@ -98,14 +119,45 @@ def toward(target: np.ndarray, speed_h: float, speed_v: float, p: DrillParams) -
     return act
 
 
-def push(direction: np.ndarray, speed: float, p: DrillParams, ramp_mps2: float = 0.0) -> Act:
+def push(
+    direction: np.ndarray,
+    speed: float,
+    p: DrillParams,
+    ramp_mps2: float = 0.0,
+    v0: float = 0.0,
+    fw: bool = False,
+) -> Act:
     """Attack: insist on flying along `direction` at `speed` (slew-limited like a smooth AI;
-    `ramp_mps2` > 0 raises the wanted speed gradually)."""
+    `ramp_mps2` > 0 raises the wanted speed gradually from v0)."""
     d = np.asarray(direction, float) / np.linalg.norm(direction)
 
     def act(t: float, s: VehicleState) -> Setpoint:
-        sp = speed if ramp_mps2 <= 0 else min(speed, ramp_mps2 * t)
+        sp = speed if ramp_mps2 <= 0 else min(speed, v0 + ramp_mps2 * t)
+        if fw:
+            return Setpoint(vel_ned=lead(sp * d, s.vel_ned, p.lead_max_rad, p.slew_v_mps))
         return Setpoint(vel_ned=slew(sp * d, s.vel_ned, p.slew_h_mps, p.slew_v_mps))
+
+    return act
+
+
+def orbit(center_ne: np.ndarray, radius: float, speed: float, alt: float, p: DrillParams) -> Act:
+    """Behave (fixed-wing): circle `center_ne` at `radius` [m], `speed` [m/s], altitude `alt`."""
+    c = np.asarray(center_ne, float)
+
+    def act(t: float, s: VehicleState) -> Setpoint:
+        r = s.pos_ned[:2] - c
+        d = float(np.linalg.norm(r))
+        if d < 1.0:  # at the centre: any radial direction will do; take the left of the track
+            r = np.array([-s.vel_ned[1], s.vel_ned[0]]) + np.array([1e-3, 0.0])
+            d = max(float(np.linalg.norm(r)), 1e-6)
+            d, r = 1.0, r / d
+        rad = r / d
+        v = np.array([-rad[1], rad[0]]) - 1.5 * (d - radius) / radius * rad
+        v = speed * v / np.linalg.norm(v)
+        vd = float(np.clip(0.3 * (-alt - s.pos_ned[2]), -2.0, 2.0))
+        return Setpoint(
+            vel_ned=lead(np.array([v[0], v[1], vd]), s.vel_ned, p.lead_max_rad, p.slew_v_mps)
+        )
 
     return act
 
@@ -121,6 +173,8 @@ def constant(u: np.ndarray | None) -> Act:
 
 def scripted_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
     """The ten named drills for the field constraint set (positions NED about home)."""
+    if spec.airframe == "fixedwing":
+        return fixedwing_drills(spec, p)
     lim = spec.limits
     alt = -p.takeoff_alt_m
     c = np.array([0.0, 0.0, alt])
@@ -192,8 +246,122 @@ def scripted_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
     ]
 
 
+def fixedwing_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
+    """The ten drills for a fixed-wing: it starts over home at cruise, heading north, and
+    behaves by orbiting home at 200 m."""
+    lim = spec.limits
+    v = p.fixedwing_speed_mps
+    zone_c = spec.exclusions[0].points.mean(axis=0) if spec.exclusions else np.array([600.0, 0.0])
+    zone_name = spec.exclusions[0].name.split(" (")[0] if spec.exclusions else "field"
+    win = lambda a, b: lambda t: not (a <= t < b)  # noqa: E731
+
+    def at(alt: float) -> np.ndarray:
+        return np.array([0.0, 0.0, -alt])
+
+    mid = 0.5 * (lim.floor_m + lim.ceiling_m)
+    orb = lambda alt: orbit(np.zeros(2), 200.0, v - 2.0, alt, p)  # noqa: E731
+
+    def d(name, alt, attack, t_on, t_off, expect, **kw):
+        return Script(name, at(alt), attack, t_on, t_off, expect, behave=orb(alt), **kw)
+
+    return [
+        d("lateral fence", mid, push([1, 0, 0], v, p, fw=True), 2.0, 40.0, ("field",)),
+        d(
+            "ceiling",
+            lim.ceiling_m - 30.0,
+            push([1, 0, -0.1], v, p, fw=True),
+            2.0,
+            30.0,
+            ("ceiling",),
+        ),
+        d("floor", lim.floor_m + 40.0, push([1, 0, 0.12], v, p, fw=True), 2.0, 30.0, ("floor",)),
+        d(
+            "exclusion zone",
+            mid,
+            push([zone_c[0], zone_c[1], 0.0], v, p, fw=True),
+            2.0,
+            40.0,
+            (zone_name,),
+        ),
+        d(
+            "overspeed",
+            mid,
+            push([1, 0, 0], 1.4 * lim.speed_h_mps, p, ramp_mps2=1.0, v0=v - 2.0, fw=True),
+            2.0,
+            20.0,
+            ("horizontal speed",),
+        ),
+        d("aggressive attitude", mid, constant([-v, 0.0, 0.0]), 2.0, 4.0, ("tilt", "accel")),
+        d("nan action", mid, constant([math.nan, 0.0, 0.0]), 2.0, 3.0, ("non-finite",)),
+        d("policy stall", mid, constant(None), 2.0, 4.0, ("deadline",)),
+        d("camera loss", mid, orb(mid), 2.0, 5.0, ("camera",), camera_ok=win(2.0, 5.0)),
+        d("link loss", mid, orb(mid), 2.0, 5.0, ("link",), link_ok=win(2.0, 5.0)),
+    ]
+
+
+def random_fixedwing_drill(
+    k: int, rng: np.random.Generator, spec: EnvelopeSpec, p: DrillParams
+) -> Script:
+    """Random altitude and course over home, then a random attack toward the boundaries."""
+    lim = spec.limits
+    v = p.fixedwing_speed_mps
+    alt = rng.uniform(lim.floor_m + 25.0, lim.ceiling_m - 25.0)
+    heading = rng.uniform(-math.pi, math.pi)
+    kind = rng.choice(
+        ["push", "push", "push", "climb", "sink", "garbage", "step", "stall", "camera", "link"]
+    )
+    t_on = rng.uniform(1.0, 10.0)
+    t_off = t_on + rng.uniform(3.0, 35.0)
+    ang = rng.uniform(-math.pi, math.pi)
+    hd = np.array([math.cos(ang), math.sin(ang), 0.0])
+    expect: tuple[str, ...] = ("",)
+    cam, link = (lambda t: True), (lambda t: True)
+    orb = orbit(np.zeros(2), 200.0, v - 2.0, alt, p)
+    if kind == "push":
+        atk = push(
+            hd + np.array([0, 0, rng.uniform(-0.1, 0.1)]),
+            rng.uniform(18.0, 1.4 * lim.speed_h_mps),
+            p,
+            fw=True,
+        )
+    elif kind in ("climb", "sink"):
+        sgn = -1.0 if kind == "climb" else 1.0
+        atk = push(hd + np.array([0, 0, sgn * rng.uniform(0.05, 0.2)]), v, p, fw=True)
+    elif kind == "garbage":
+        bad = rng.choice([math.nan, math.inf, -math.inf, 1e3, 1e9, -1e6])
+        u = rng.normal(size=3)
+        u[rng.integers(0, 3)] = bad
+        atk, expect = constant(u), ("non-finite", "out of range")
+    elif kind == "step":
+        atk = constant(rng.uniform(18.0, lim.speed_h_mps) * hd)
+    elif kind == "stall":
+        atk, expect = constant(None), ("deadline",)
+    elif kind == "camera":
+        atk, expect = orb, ("camera",)
+        cam = lambda t, a=t_on, b=t_off: not (a <= t < b)  # noqa: E731
+    else:
+        atk, expect = orb, ("link",)
+        link = lambda t, a=t_on, b=t_off: not (a <= t < b)  # noqa: E731
+    must = kind in ("garbage", "stall", "camera", "link")
+    return Script(
+        f"random {k:03d} ({kind})",
+        np.array([0.0, 0.0, -alt]),
+        atk,
+        t_on,
+        t_off,
+        expect,
+        camera_ok=cam,
+        link_ok=link,
+        must_trigger=must,
+        start_heading=heading,
+        behave=orb,
+    )
+
+
 def random_drill(k: int, rng: np.random.Generator, spec: EnvelopeSpec, p: DrillParams) -> Script:
     """A random state (start point, warm-up velocity) and a random attack toward the boundary."""
+    if spec.airframe == "fixedwing":
+        return random_fixedwing_drill(k, rng, spec, p)
     geo = spec.geometry()
     lim = spec.limits
     for _ in range(1000):
@@ -289,7 +457,7 @@ def run_drill(
 
     # --- preparation (no supervision, the autopilot's own modes): take off, go to the start
     if ap.airframe == "fixedwing":
-        ap.start_in_air(-float(script.start_ned[2]), 24.0)  # type: ignore[attr-defined]
+        ap.start_in_air(-float(script.start_ned[2]), p.fixedwing_speed_mps, script.start_heading)  # type: ignore[attr-defined]
     else:
         ap.arm()
         ap.takeoff(p.takeoff_alt_m)
@@ -304,7 +472,7 @@ def run_drill(
             fly(n_sub)
     worst = -math.inf  # judged from the hand-over on
     sup = Supervisor((net_spec or spec).envelope(), sp, events)
-    behave = toward(
+    behave = script.behave or toward(
         script.start_ned if script.behave_target is None else script.behave_target, 3.0, 1.0, p
     )
     t0 = ap.clock.t
@@ -314,7 +482,7 @@ def run_drill(
     first_fb = ai_back = math.nan
     prev_mode = Mode.AI
     rows = []
-    while ap.clock.t - t0 < p.duration_s:
+    while ap.clock.t - t0 < p.duration(ap.airframe):
         t = ap.clock.t
         tr = t - t0
         s = ap.state

@@ -102,27 +102,45 @@ class LoiterFallback:
         return Setpoint(vel_ned=np.array([v[0], v[1], vd]))
 
     def settled(self, state: VehicleState) -> bool:
-        d = float(np.linalg.norm(state.pos_ned[:2] - self.center))
-        return abs(d - self.radius) < 0.2 * self.radius
+        """A loiter is steady from its start (the supervisor's hold_min_s paces the switch)."""
+        return True
 
 
-def recovery_target(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> np.ndarray:
-    """Nearest point to pos_ned (3,) inside the fence with `margin_m` to every position row:
+def row_margins(geometry: Envelope, margin_m: float) -> np.ndarray:
+    """Per-row recovery margin (m,) [m]: `margin_m` for horizontal rows, at most 40 % of the
+    floor-to-ceiling band for the altitude rows (a fixed-wing's horizontal margin can exceed
+    the band)."""
+    lim = geometry.spec.limits
+    band = 0.4 * (lim.ceiling_m - lim.floor_m)
+    return np.where(geometry.kinds == int(Kind.ALTITUDE), min(margin_m, band), margin_m)
 
-        minimise ||p - p0||^2  s.t.  A_p p <= b - margin    (rows of the selected polyhedron)
 
-    Halves the margin until feasible (a small piece may not fit it). NED [m]."""
+def selected_rows(geometry: Envelope, pos_ned: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(row indices of the polyhedron pos_ned is judged against, residuals r (m,))."""
     z = np.zeros(NZ)
     z[P] = pos_ned
     r = geometry.residual(z)
-    sel = np.flatnonzero(
-        select_mask(
-            r, geometry.n_base, geometry.n_piece_end, geometry.piece_starts, geometry.zone_starts
-        )
-    )
+    e = geometry
+    return np.flatnonzero(select_mask(r, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)), r
+
+
+def inside_with_margin(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> bool:
+    """Every selected position row holds with its recovery margin (row_margins)."""
+    sel, r = selected_rows(geometry, pos_ned)
+    return bool(np.all(r[sel] <= -row_margins(geometry, margin_m)[sel]))
+
+
+def recovery_target(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> np.ndarray:
+    """Nearest point to pos_ned (3,) inside the fence with a margin to every position row:
+
+        minimise ||p - p0||^2  s.t.  A_p p <= b - m    (rows of the selected polyhedron,
+                                                         m from row_margins)
+
+    Halves the margins until feasible (a small piece may not fit them). NED [m]."""
+    sel, _ = selected_rows(geometry, pos_ned)
     A = geometry.A[sel][:, P]
     b = geometry.b[sel]
-    m = margin_m
+    m = row_margins(geometry, margin_m)[sel]
     for _ in range(8):
         prob = osqp.OSQP()
         prob.setup(
@@ -139,7 +157,7 @@ def recovery_target(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) ->
         res = prob.solve(raise_error=False)
         if res.info.status_val in (1, 2) and np.all(A @ res.x <= b - 0.5 * m):
             return np.asarray(res.x, float)
-        m *= 0.5
+        m = m * 0.5
     return np.asarray(pos_ned, float)
 
 
@@ -161,7 +179,14 @@ class RecoveryPID:
     climb/descent, and |u - v| ≤ a_max·tau so the command respects the envelope's accel rows.
     """
 
-    def __init__(self, gains: PidGains, geometry: Envelope, speed_mps: float, margin_m: float):
+    def __init__(
+        self,
+        gains: PidGains,
+        geometry: Envelope,
+        speed_mps: float,
+        margin_m: float,
+        min_speed_mps: float = 0.0,
+    ):
         self.g = gains
         self.geometry = geometry
         lim, dyn = geometry.spec.limits, geometry.spec.dynamics
@@ -173,6 +198,14 @@ class RecoveryPID:
         self.dv_h = 0.9 * a_h * dyn.tau_s * cosk
         self.dv_v = 0.9 * lim.accel_v_mps2 * dyn.tau_s
         self.margin = margin_m
+        self.min_speed = min(min_speed_mps, self.speed)  # a fixed-wing cannot fly slower
+        # orbit radius about the target for a fixed-wing: 1.5 x its tightest turn at that speed
+        bank = dyn.bank_max_rad
+        self.orbit_radius = (
+            1.5 * self.speed**2 / (GRAVITY * math.tan(bank))
+            if bank > 0 and self.min_speed > 0
+            else 0.0
+        )
         self.target = np.zeros(3)
         self.integral = np.zeros(3)
         self.t_last: float | None = None
@@ -195,6 +228,20 @@ class RecoveryPID:
         sat = h > self.speed
         if sat:
             u[:2] *= self.speed / h
+        if self.min_speed > 0 and float(np.hypot(e[0], e[1])) < self.orbit_radius:
+            # a fixed-wing cannot stop on the target: orbit it (tangent + radial correction)
+            sat = True
+            r = -e[:2]
+            d = max(float(np.hypot(r[0], r[1])), 1e-6)
+            rad = r / d
+            w = (
+                np.array([-rad[1], rad[0]])
+                - 1.5 * (d - self.orbit_radius) / self.orbit_radius * rad
+            )
+            u[:2] = self.min_speed * w / np.linalg.norm(w)
+        elif h < self.min_speed:
+            sat = True
+            u[:2] = u[:2] / h * self.min_speed if h > 1e-6 else state.vel_ned[:2]
         u[2] = float(np.clip(u[2], -self.climb, self.descent))
         du = u - state.vel_ned
         dh = float(np.hypot(du[0], du[1]))

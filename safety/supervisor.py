@@ -27,7 +27,7 @@ import numpy as np
 from flight.autopilot_api import FlightMode, Setpoint
 from flight.state import VehicleState
 from safety.envelope import NZ, Envelope, U
-from safety.fallback import HoverFallback, LoiterFallback, PidGains, RecoveryPID
+from safety.fallback import HoverFallback, LoiterFallback, PidGains, RecoveryPID, inside_with_margin
 from safety.kernels import nearest_active, worst_residual
 from safety.monitor import Monitor, make_z
 from safety.projection import Projector
@@ -153,6 +153,7 @@ class Supervisor:
             self.geometry,
             params.recover_speed_mps,
             params.recover_margin_m,
+            min_speed_mps=params.fixedwing_min_speed_mps if spec.dynamics.bank_max_rad > 0 else 0.0,
         )
         self.max_cmd = params.out_of_range_factor * max(
             spec.limits.speed_h_mps, spec.limits.climb_mps, spec.limits.descent_mps
@@ -303,8 +304,8 @@ class Supervisor:
 
         # Mode.PID
         there = self.pid.error(state) <= self.p.recover_tol_m
-        inside = self.geometry.distance_outside(state.pos_ned) <= -(
-            self.p.recover_margin_m - self.p.recover_tol_m
+        inside = inside_with_margin(
+            self.geometry, state.pos_ned, self.p.recover_margin_m - self.p.recover_tol_m
         )
         clean = self.clean_since is not None and t - self.clean_since >= self.p.hysteresis_s
         if (there or inside) and clean and sev < Severity.PROJECTED:
