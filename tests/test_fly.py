@@ -9,7 +9,7 @@ from scripts.cli import main
 
 
 def test_fly_square_end_to_end(tmp_path, capsys):
-    assert main(["fly", "--speedup", "20", "--runs-dir", str(tmp_path)]) == 0
+    assert main(["fly", "--mission", "square", "--speedup", "20", "--runs-dir", str(tmp_path)]) == 0
     (run,) = tmp_path.iterdir()
     assert {"config.json", "telemetry.tlog", "metrics.csv", "track.png", "summary.md"} <= {
         p.name for p in run.iterdir()
@@ -32,7 +32,9 @@ def test_fly_square_end_to_end(tmp_path, capsys):
 
 
 def test_fly_bad_usage_exits_2(tmp_path, capsys):
-    assert main(["fly", "--altitude", "500", "--runs-dir", str(tmp_path)]) == 2
+    assert (
+        main(["fly", "--mission", "square", "--altitude", "500", "--runs-dir", str(tmp_path)]) == 2
+    )
     assert main(["fly", "--speedup", "0", "--runs-dir", str(tmp_path)]) == 2
     assert main(["fly", "--connect", "bogus", "--runs-dir", str(tmp_path)]) == 2
     assert "expected" in capsys.readouterr().err
