@@ -9,7 +9,22 @@ from scripts.cli import main
 
 
 def test_fly_square_end_to_end(tmp_path, capsys):
-    assert main(["fly", "--mission", "square", "--speedup", "20", "--runs-dir", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "fly",
+                "--mission",
+                "square",
+                "--speedup",
+                "20",
+                "--timeout",
+                "120",
+                "--runs-dir",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     (run,) = tmp_path.iterdir()
     assert {"config.json", "telemetry.tlog", "metrics.csv", "track.png", "summary.md"} <= {
         p.name for p in run.iterdir()
