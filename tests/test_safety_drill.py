@@ -93,3 +93,28 @@ def test_drill_fails_when_the_attack_is_not_caught():
 def test_drill_bad_usage_exits_2(tmp_path, capsys, argv, msg):
     assert main(["drill", *argv, "--runs-dir", str(tmp_path)]) == 2
     assert msg in capsys.readouterr().err
+
+
+def test_fixedwing_drill_loiters_and_recovers(tmp_path, capsys):
+    """JSBSim fixed-wing: the lateral attack ends in its HOLD loiter, then the AI flies again."""
+    rc = main(
+        [
+            "drill",
+            "--airframe",
+            "fixedwing",
+            "--only",
+            "lateral",
+            "--duration",
+            "45",
+            "--runs-dir",
+            str(tmp_path),
+        ]
+    )
+    assert rc == 0, capsys.readouterr().out
+    run = next(tmp_path.iterdir())
+    row = next(csv.DictReader(open(run / "metrics.csv")))
+    assert row["airframe"] == "fixedwing" and row["passed"] == "True"
+    assert row["first_reason"] == "field edge 2" and float(row["excursion_m"]) < -20.0
+    ev = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    assert [e["to"] for e in ev][:3] == ["fallback", "pid", "ai"]
+    assert ev[1]["t"] - ev[0]["t"] == pytest.approx(6.0, abs=0.03)  # loiter hold_min_s of the set
