@@ -364,3 +364,23 @@ def test_battery_critical_returns_and_emergency_lands():
     assert i_rtl < i_land
     assert ap.state.on_ground and not ap.armed
     assert ap.battery_remaining < 0.05
+
+
+def test_hold_entered_at_speed_brakes_and_holds_where_it_stopped():
+    ap = airborne(10.0)
+    sp = Setpoint(vel_ned=np.array([8.0, 0.0, 0.0]))
+    ap.set_offboard_setpoint(sp)
+    assert ap.set_mode(FlightMode.OFFBOARD).ok
+    fly(ap, 5.0, lambda a, s: a.set_offboard_setpoint(sp))
+    assert ap.state.vel_ned[0] == pytest.approx(8.0, abs=0.2)
+    x_loss = ap.state.pos_ned[0]
+    _, p = fly(ap, 15.0)  # stream stops → HOLD
+    assert ap.mode == FlightMode.HOLD
+    x = p[:, 0]
+    stop = x.max()
+    assert stop - x_loss < 8.0 * 0.5 + 8.0**2 / (2 * 5.0)  # ran on at most loss time + braking
+    assert stop - x[-1] < 0.3  # did not fly back to where HOLD was entered
+    assert np.linalg.norm(ap.state.vel_ned) < 0.05
+    assert ap.land().ok
+    _, p = fly(ap, 20.0)
+    assert np.abs(p[:, 0] - p[-1, 0]).max() < 0.3 and ap.state.on_ground

@@ -139,6 +139,7 @@ class MultirotorAutopilot:
         self._armed_at = 0.0
         self._flown = False  # took off since arming
         self._hold_pos = np.zeros(3)
+        self._braking = False
         self._yaw_sp = 0.0
         self._target = np.zeros(3)
         self._takeoff_target = np.zeros(3)
@@ -342,6 +343,7 @@ class MultirotorAutopilot:
             self._hold_pos = pos.copy()
             self._man_hold_xy = None
             self._man_hold_z = None
+        self._braking = mode in (FlightMode.HOLD, FlightMode.LAND)
         if mode == FlightMode.LAND:
             self._land_xy = pos[0:2].copy()
             self._landing = True
@@ -410,7 +412,10 @@ class MultirotorAutopilot:
     def _navigate(self, t: float) -> None:
         mode = self._mode
         if mode == FlightMode.HOLD:
-            self._goto(self._hold_pos, self._vxy_cruise)
+            if self._braking and not self._brake():
+                self._hold_pos = self._x[0:3].copy()
+            if not self._braking:
+                self._goto(self._hold_pos, self._vxy_cruise)
         elif mode == FlightMode.TAKEOFF:
             self._goto(self._takeoff_target, self._vxy_cruise, vz_up=self.params["MPC_TKO_SPEED"])
             if (
@@ -419,8 +424,11 @@ class MultirotorAutopilot:
             ):
                 self._switch(FlightMode.HOLD)
                 self._hold_pos = self._takeoff_target.copy()
+                self._braking = False
         elif mode == FlightMode.LAND:
-            self._descend(self._land_xy)
+            if self._braking and not self._brake(z=False):
+                self._land_xy = self._x[0:2].copy()
+            self._descend(None if self._braking else self._land_xy)
         elif mode == FlightMode.RTL:
             self._rtl(t)
         elif mode == FlightMode.MISSION:
@@ -442,17 +450,39 @@ class MultirotorAutopilot:
         sp[ctl.SP_VZ_UP] = self._vz_up if vz_up is None else vz_up
         sp[ctl.SP_VZ_DN] = self._vz_dn
 
-    def _descend(self, xy: np.ndarray) -> None:
-        """Hold xy, sink at the land speed (faster high up)."""
+    def _brake(self, z: bool = True) -> bool:
+        """PX4 brakes before it holds: zero velocity setpoint (horizontal, and vertical if z)
+        while faster than 0.3 m/s. False once slow (then the caller captures its position)."""
+        v = self._x[3:6]
+        vz = v[2] if z else 0.0
+        self._braking = v[0] * v[0] + v[1] * v[1] + vz * vz > 0.09
+        if self._braking:
+            sp = self._sp
+            sp[0:3] = self._x[0:3]
+            sp[3:6] = 0.0
+            sp[ctl.SP_XY_MODE] = ctl.XY_VEL
+            sp[ctl.SP_Z_MODE] = ctl.Z_VEL if z else ctl.Z_POS
+            sp[ctl.SP_YAW] = self._yaw_sp
+            sp[ctl.SP_YAWRATE] = 0.0
+            sp[ctl.SP_VXY_MAX] = self._vxy_max
+            sp[ctl.SP_VZ_UP] = self._vz_up
+            sp[ctl.SP_VZ_DN] = self._vz_dn
+        return self._braking
+
+    def _descend(self, xy: np.ndarray | None) -> None:
+        """Hold xy (None: stop horizontally), sink at the land speed (faster high up)."""
         sp = self._sp
         self._landing = True
-        sp[0:2] = xy
+        if xy is None:
+            sp[0:2] = self._x[0:2]
+        else:
+            sp[0:2] = xy
         sp[2] = self._x[2]
         sp[3:6] = 0.0
         h = -self._x[2]
         v = self.params["MPC_LAND_SPEED"] if h < self.params["MPC_LAND_ALT1"] else self._vz_dn
         sp[5] = v
-        sp[ctl.SP_XY_MODE] = ctl.XY_POS
+        sp[ctl.SP_XY_MODE] = ctl.XY_POS if xy is not None else ctl.XY_VEL
         sp[ctl.SP_Z_MODE] = ctl.Z_VEL
         sp[ctl.SP_YAW] = self._yaw_sp
         sp[ctl.SP_YAWRATE] = 0.0
@@ -543,10 +573,13 @@ class MultirotorAutopilot:
         # horizontal
         if mode == FlightMode.POSCTL:
             if abs(x_st) < 0.05 and abs(y_st) < 0.05:
+                if self._man_hold_xy is None and math.hypot(self._x[3], self._x[4]) < 0.3:
+                    self._man_hold_xy = pos[0:2].copy()  # stopped: hold here
                 if self._man_hold_xy is None:
-                    self._man_hold_xy = pos[0:2].copy()
-                sp[0:2] = self._man_hold_xy
-                sp[ctl.SP_XY_MODE] = ctl.XY_POS
+                    sp[ctl.SP_XY_MODE] = ctl.XY_VEL  # centred sticks: brake first
+                else:
+                    sp[0:2] = self._man_hold_xy
+                    sp[ctl.SP_XY_MODE] = ctl.XY_POS
             else:
                 self._man_hold_xy = None
                 v = P["MPC_VEL_MANUAL"]
@@ -562,10 +595,13 @@ class MultirotorAutopilot:
         if mode in (FlightMode.POSCTL, FlightMode.ALTCTL):
             dz = z_st - 0.5
             if abs(dz) < 0.05:
-                if self._man_hold_z is None:
+                if self._man_hold_z is None and abs(self._x[5]) < 0.2:
                     self._man_hold_z = float(pos[2])
-                sp[2] = self._man_hold_z
-                sp[ctl.SP_Z_MODE] = ctl.Z_POS
+                if self._man_hold_z is None:
+                    sp[ctl.SP_Z_MODE] = ctl.Z_VEL
+                else:
+                    sp[2] = self._man_hold_z
+                    sp[ctl.SP_Z_MODE] = ctl.Z_POS
             else:
                 self._man_hold_z = None
                 sp[5] = -2.0 * dz * (self._vz_up if dz > 0 else self._vz_dn)
@@ -746,6 +782,7 @@ class MultirotorAutopilot:
             return Result.denied("not armed")
         self._switch(FlightMode.HOLD)
         self._hold_pos = p.copy()
+        self._braking = False
         if yaw is not None:
             self._yaw_sp = wrap_pi(float(yaw))
         return Result.accepted()
