@@ -169,6 +169,8 @@ class GroundWorld:
         pb, c, m = self.pb, self.cid, self.model
         q = pb.getQuaternionFromEuler([0, 0, yaw_enu])
         path = os.path.join(pybullet_data.getDataPath(), "husky", "husky.urdf")
+        if not os.path.exists(path):
+            raise ValueError(f"ugv_model 'husky' needs {path} (pybullet_data); use 'box'")
         body = pb.loadURDF(
             path, [pos_enu[0], pos_enu[1], HUSKY_BASE_HEIGHT_M + 0.02], q, physicsClientId=c
         )

@@ -184,7 +184,12 @@ def run(args: argparse.Namespace) -> int:
         ["latency p95 [ms]", float(np.percentile(lat, 95)) if lat.size else float("nan")],
     ]
     table = markdown_table(["quantity", "value"], rows)
-    rf.write_summary(f"# skyherd watch {args.vehicle}\n\n{table}\nRun folder: {rf.path}\n")
+    cam_line = ""
+    if detector is not None:
+        cam_line = f"Camera: {detector.cam}\n\nDetector: {detector.p}\n\n"
+    rf.write_summary(
+        f"# skyherd watch {args.vehicle}\n\n{table}\n{cam_line}Run folder: {rf.path}\n"
+    )
     print(table)
     print(f"run folder: {rf.path}")
     if processed == 0:
