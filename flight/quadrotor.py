@@ -394,8 +394,8 @@ def physics_steps(x, aux, p, u, dt, n):
 class Quadrotor:
     """The vehicle alone: `step(dt, motor_cmd)` → VehicleState. Time is kept here in µs.
 
-    motor_cmd (4,) normalised [0, 1], PX4 quad-X order; NaN or out-of-range values are
-    treated as 0 / clipped. `dt` is split into substeps of at most `params.physics_dt`.
+    motor_cmd (4,) normalised [0, 1], PX4 quad-X order; NaN (or None) counts as 0, values
+    outside [0, 1] are clipped; a wrong shape or non-numbers raise ValueError. `dt` is split into substeps of at most `params.physics_dt`.
     """
 
     params: QuadrotorParams = field(default_factory=QuadrotorParams)
