@@ -199,6 +199,7 @@ class MavlinkEndpoint:
             "SET_POSITION_TARGET_GLOBAL_INT": self._on_setpoint,
             "MANUAL_CONTROL": self._on_manual,
             "TIMESYNC": self._on_timesync,
+            "PING": self._on_ping,
         }
 
     # --- the lockstep hook ---------------------------------------------------------------------
@@ -352,6 +353,12 @@ class MavlinkEndpoint:
             self.stats["manual_dropped"] += 1
             return
         self.ap.set_manual_control(x, y, z, r)
+
+    def _on_ping(self, msg, reply, key, link) -> None:
+        """PING (MAVSDK sends it): a request has target 0; answer addressed to the sender."""
+        if msg.target_system == 0:
+            src = _src(msg)
+            reply(self.mav.ping_encode(msg.time_usec, msg.seq, src[0], src[1]))
 
     def _on_timesync(self, msg, reply, key, link) -> None:
         if msg.tc1 == 0:  # a request: answer with our (simulation) time in ns
