@@ -111,7 +111,6 @@ class MultirotorAutopilot:
         self.params = ParamStore(MULTIROTOR_PARAMS)
         if params_file is not None:
             self.params.load_toml(params_file)
-        # compiled-state arrays
         # one work array and one constant array for the compiled step; named views into them
         self._w = np.zeros(ctl.N_W)
         self._k = np.zeros(ctl.N_K)
