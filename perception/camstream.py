@@ -1,7 +1,8 @@
 """A stand-alone frame source: UGVs on a route, a UAV hovering over them, frames on Zenoh.
 
 `python -m perception.camstream --frames 200 --rate 30` publishes what the UAV's camera sees
-(fast renderer, kinematic ground world) on `skyherd/<vehicle>/camera/frame`, so that
+(fast renderer, kinematic ground world) on `skyherd/<vehicle>/camera/frame`, and the UGVs'
+states on `skyherd/ugv/<id>/state`, so that
 `skyherd watch`, the Zenoh tests and the benchmark have a real second process to talk to.
 The UAV trails the group's centre with a 3 s first-order lag at 25–35 m (so the group drifts
 in the image and sometimes leaves it); simulation time advances --sim-dt per frame.
@@ -18,6 +19,7 @@ import numpy as np
 from flight.frames import euler_to_quat
 from groundsim.behaviours import DriveParams, make_behaviour, triangle_offsets
 from groundsim.kinematic import KinematicWorld
+from groundsim.transport import UGVStatePublisher
 from groundsim.ugv import UGVModel, initial_states
 from perception.camera import CameraParams, UAVPose
 from perception.render_fast import FastRenderer
@@ -50,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     zp = ZenohParams(config_file=a.config) if a.config else publisher_params(a.port)
     session = open_session(zp)
     pub = FramePublisher(session, a.vehicle, cam, a.encoding, rng=np.random.default_rng(a.seed))
+    ugv_pub = UGVStatePublisher(session, 3)
     rng = np.random.default_rng(a.seed)
     drive = DriveParams()
     world = KinematicWorld(
@@ -72,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
                 uav = UAVPose(np.array([ne[0], ne[1], -alt]), uav.quat)
                 image = renderer.render(uav, states)
             pub.publish(t, uav.pos_ned, uav.quat, image)
+            ugv_pub.publish(t, world.states)
             t += dt
             k += 1
             if a.rate > 0:
@@ -82,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         time.sleep(0.2)  # let the last frames leave before the session closes
         pub.close()
+        ugv_pub.close()
         session.close()
     print(f"camstream: sent {k} frames", file=sys.stderr)
     return 0

@@ -1,0 +1,101 @@
+"""UGV states over Zenoh: `skyherd/ugv/<id>/state` (CONVENTIONS.md), one JSON object per UGV.
+
+Payload (UTF-8 JSON): {"id": int, "seq": int, "t_sim": s, "pos_ned": [n, e, d] m,
+"heading_rad": from north clockwise, "speed_mps": m/s, "camouflaged": bool}. JSON keeps the
+records readable by any Zenoh tool (`z_sub -k 'skyherd/ugv/**'`); at a few UGVs × 10–50 Hz
+the size does not matter.
+
+Sessions come from `perception.transport.open_session` (loopback peer by default).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+
+import numpy as np
+
+from groundsim.ugv import UGVStates
+
+
+def state_key(ugv_id: int | str) -> str:
+    return f"skyherd/ugv/{ugv_id}/state"
+
+
+class UGVStatePublisher:
+    """Publishes every UGV's state on its own key."""
+
+    def __init__(self, session, n_ugv: int):
+        self._pubs = [session.declare_publisher(state_key(i)) for i in range(n_ugv)]
+        self.seq = 0
+
+    def publish(self, t_sim: float, states: UGVStates) -> None:
+        for i, pub in enumerate(self._pubs):
+            rec = {
+                "id": i,
+                "seq": self.seq,
+                "t_sim": float(t_sim),
+                "pos_ned": [float(states.pos_ne[i, 0]), float(states.pos_ne[i, 1]), 0.0],
+                "heading_rad": float(states.heading[i]),
+                "speed_mps": float(states.speed[i]),
+                "camouflaged": bool(states.camouflaged[i]),
+            }
+            pub.put(json.dumps(rec).encode())
+        self.seq += 1
+
+    def close(self) -> None:
+        for p in self._pubs:
+            try:
+                p.undeclare()
+            except Exception:  # noqa: BLE001 - already closed with its session
+                pass
+
+
+class UGVStateSubscriber:
+    """Keeps the newest state of each UGV (`skyherd/ugv/*/state`); bad records are counted."""
+
+    def __init__(self, session):
+        self._lock = threading.Lock()
+        self.latest: dict[int, dict] = {}
+        self.received = 0
+        self.corrupt = 0
+        self._sub = session.declare_subscriber("skyherd/ugv/*/state", self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        try:
+            rec = json.loads(sample.payload.to_bytes().decode())
+            i = int(rec["id"])
+            pos = [float(x) for x in rec["pos_ned"]]
+            ok = len(pos) == 3 and all(math.isfinite(x) for x in pos)
+            ok = ok and math.isfinite(float(rec["t_sim"])) and math.isfinite(rec["heading_rad"])
+            if not ok:
+                raise ValueError("non-finite state")
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+            with self._lock:
+                self.corrupt += 1
+            return
+        with self._lock:
+            old = self.latest.get(i)
+            if old is None or rec["t_sim"] >= old["t_sim"]:
+                self.latest[i] = rec
+            self.received += 1
+
+    def states(self, n_ugv: int) -> UGVStates | None:
+        """The newest states of UGVs 0..n−1 as UGVStates, or None until all have reported."""
+        with self._lock:
+            if any(i not in self.latest for i in range(n_ugv)):
+                return None
+            recs = [self.latest[i] for i in range(n_ugv)]
+        return UGVStates(
+            np.array([r["pos_ned"][:2] for r in recs]),
+            np.array([r["heading_rad"] for r in recs]),
+            np.array([r["speed_mps"] for r in recs]),
+            np.array([bool(r["camouflaged"]) for r in recs]),
+        )
+
+    def close(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:  # noqa: BLE001 - already closed with its session
+            pass
