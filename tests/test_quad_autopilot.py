@@ -384,3 +384,24 @@ def test_hold_entered_at_speed_brakes_and_holds_where_it_stopped():
     assert ap.land().ok
     _, p = fly(ap, 20.0)
     assert np.abs(p[:, 0] - p[-1, 0]).max() < 0.3 and ap.state.on_ground
+
+
+def test_implements_the_autopilot_protocol():
+    import inspect
+
+    from flight.autopilot_api import Autopilot
+
+    ap = MultirotorAutopilot()
+    members = [n for n in dir(Autopilot) if not n.startswith("_")]
+    members += list(Autopilot.__annotations__)
+    for name in members:
+        assert hasattr(ap, name), name
+        proto = getattr(Autopilot, name, None)
+        if inspect.isfunction(proto):
+            want = list(inspect.signature(proto).parameters)[1:]
+            got = list(inspect.signature(getattr(ap, name)).parameters)
+            assert got == want, (name, got, want)
+    assert ap.airframe == "quadrotor" and ap.control_dt == 0.004
+    t0 = ap.clock.time_us
+    ap.step()
+    assert ap.clock.time_us - t0 == 4000  # step advances the shared clock by control_dt
