@@ -118,6 +118,15 @@ class CameraPose:
     r_world_from_cam: np.ndarray
 
 
+def check_pose(uav_pos_ned: np.ndarray, uav_quat: np.ndarray) -> None:
+    """Raise ValueError unless the position (3,) and quaternion (4,) are finite, |q| ≈ 1."""
+    p, q = np.asarray(uav_pos_ned, dtype=float), np.asarray(uav_quat, dtype=float)
+    if p.shape != (3,) or q.shape != (4,) or not (np.isfinite(p).all() and np.isfinite(q).all()):
+        raise ValueError(f"UAV pose must be a finite (3,) position and (4,) quaternion: {p}, {q}")
+    if abs(float(q @ q) - 1.0) > 1e-3:
+        raise ValueError(f"UAV quaternion is not unit length: {q}")
+
+
 def camera_pose(cam: CameraParams, uav_pos_ned: np.ndarray, uav_quat: np.ndarray) -> CameraPose:
     """The camera's pose from the UAV's position (3,) NED [m] and attitude (w, x, y, z)."""
     r_wb = quat_to_dcm(np.asarray(uav_quat, dtype=float))

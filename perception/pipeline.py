@@ -74,20 +74,29 @@ class CameraRig:
         self.publisher = publisher
         self._next_t: float | None = None
         self.frames = 0
+        self.bad_poses = 0  # ticks skipped because the UAV pose was not finite
 
     def due(self, t: float) -> bool:
         """Whether a frame is due at simulation time t [s]."""
         return self._next_t is None or t >= self._next_t - 1e-9
 
     def tick(self, t: float, uav, ugv_states: UGVStates) -> CameraTick | None:
-        """A frame when one is due (else None): render, publish, detect, φ(s)."""
+        """A frame when one is due (else None): render, publish, detect, φ(s).
+
+        A non-finite UAV pose produces no frame (None, counted in `bad_poses`): the consumer
+        sees what a real camera link would give, a missing frame, and φ(s) says frame_ok = 0.
+        """
         if not self.due(t):
             return None
         period = 1.0 / self.p.rate_hz
         self._next_t = (t if self._next_t is None else self._next_t) + period
         if self._next_t <= t:  # fell behind (a long pause): re-anchor, no burst
             self._next_t = t + period
-        frame = self.renderer.render(uav, ugv_states)
+        try:
+            frame = self.renderer.render(uav, ugv_states)
+        except ValueError:
+            self.bad_poses += 1
+            return None
         seq = self.frames
         if self.publisher is not None:
             seq = self.publisher.publish(t, uav.pos_ned, uav.quat, frame)

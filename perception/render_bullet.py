@@ -33,7 +33,7 @@ import numpy as np
 from flight.frames import ned_to_enu
 from groundsim.ugv import UGVStates
 from groundsim.world import GroundWorld
-from perception.camera import CameraParams, camera_pose
+from perception.camera import CameraParams, camera_pose, check_pose
 
 
 @dataclass(frozen=True)
@@ -99,6 +99,8 @@ class BulletRenderer:
         )
 
     def render(self, uav, ugv_states: UGVStates) -> np.ndarray:
+        """Frame (H, W, 3) uint8 RGB. A non-finite UAV pose raises ValueError."""
+        check_pose(uav.pos_ned, uav.quat)
         w = self.world
         if ugv_states is not w.states:
             w.place(ugv_states)

@@ -24,7 +24,7 @@ from groundsim.ugv import (
     UGVStates,
     marker_corners_ned,
 )
-from perception.camera import CameraParams, camera_pose, project
+from perception.camera import CameraParams, camera_pose, check_pose, project
 
 _SHIFT = 4  # fixed-point bits for cv2 polygon vertices
 _SCALE = float(1 << _SHIFT)
@@ -70,7 +70,9 @@ class FastRenderer:
         return out
 
     def render(self, uav, ugv_states: UGVStates) -> np.ndarray:
+        """Frame (H, W, 3) uint8 RGB. A non-finite UAV pose raises ValueError."""
         cam = self.cam
+        check_pose(uav.pos_ned, uav.quat)
         pose = camera_pose(cam, uav.pos_ned, uav.quat)
         img = self._bg.copy()
         hull_uv, hz = project(cam, pose, self._hull_corners(ugv_states))

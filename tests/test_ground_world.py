@@ -158,3 +158,21 @@ def test_bad_configuration_is_refused():
         with pytest.raises(ValueError, match="dt"):
             w.step(0.0, math.nan)
     assert UGVModel().marker_top_m > UGVModel().height_m
+
+
+def test_pybullet_world_is_deterministic_on_the_sim_clock():
+    from flight.clock import SimClock
+
+    def run(seed):
+        clock = SimClock()
+        st = initial_states(triangle_offsets(3))
+        with GroundWorld(st, make_behaviour("random", 3, np.random.default_rng(seed)), P) as w:
+            for _ in range(200):
+                w.step(clock.t, 0.05)
+                clock.advance(50_000)
+            return w.states.pos_ne.copy(), clock.t
+
+    (a, ta), (b, _), (c, _) = run(3), run(3), run(4)
+    assert ta == pytest.approx(10.0)
+    assert np.array_equal(a, b)  # bit for bit
+    assert not np.allclose(a, c)

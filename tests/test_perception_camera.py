@@ -143,3 +143,21 @@ def test_camera_rig_rate_and_features():
     assert got[-1].detections.count == 3
     with pytest.raises(ValueError, match="GroundWorld"):
         CameraRig(CameraParams(), 3, CameraRigParams(renderer="bullet"))
+
+
+def test_non_finite_pose_is_refused_and_rig_skips_the_frame():
+    from groundsim.ugv import UGVStates
+    from perception.camera import UAVPose
+    from perception.pipeline import CameraRig
+    from perception.render_fast import FastRenderer
+
+    st = UGVStates(np.zeros((3, 2)), np.zeros(3), np.zeros(3))
+    bad = UAVPose(np.array([0.0, np.nan, -30.0]), euler_to_quat(0, 0, 0))
+    with pytest.raises(ValueError, match="finite"):
+        FastRenderer(CAM).render(bad, st)
+    with pytest.raises(ValueError, match="unit"):
+        FastRenderer(CAM).render(UAVPose(np.array([0.0, 0, -30]), np.array([2.0, 0, 0, 0])), st)
+    rig = CameraRig(CAM, 3)
+    assert rig.tick(0.0, bad, st) is None and rig.bad_poses == 1
+    good = UAVPose(np.array([0.0, 0.0, -30.0]), euler_to_quat(0, 0, 0))
+    assert rig.tick(0.1, good, st) is not None
