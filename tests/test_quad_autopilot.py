@@ -405,3 +405,17 @@ def test_implements_the_autopilot_protocol():
     t0 = ap.clock.time_us
     ap.step()
     assert ap.clock.time_us - t0 == 4000  # step advances the shared clock by control_dt
+
+
+def test_mission_takeoff_item_without_height_uses_mis_takeoff_alt():
+    ap = MultirotorAutopilot()
+    items = [
+        MissionItem(MissionCommand.TAKEOFF, np.zeros(3)),
+        MissionItem(MissionCommand.LOITER_UNLIM, np.array([5.0, 0.0, -4.0])),
+    ]
+    assert ap.set_mission(items).ok and ap.set_mode(FlightMode.MISSION).ok and ap.arm().ok
+    _, p = fly(ap, 20.0)
+    assert ap.mission_progress.reached == [0, 1] and not ap.mission_progress.finished
+    i = int(np.argmax(p[:, 2] <= -2.2))  # climbed to about 2.5 m ...
+    assert i > 0 and abs(p[i, 0]) < 0.05  # ... straight up, before heading for item 1
+    assert np.linalg.norm(ap.state.pos_ned - [5.0, 0.0, -4.0]) < 0.2  # loiters there

@@ -625,8 +625,9 @@ class MultirotorAutopilot:
             self._item_started = True
             self._item_reached_at = None
             self._climb_first = False
-            if cmd == MissionCommand.TAKEOFF:
-                self._target = np.array([pos[0], pos[1], item.pos_ned[2]])
+            if cmd == MissionCommand.TAKEOFF:  # no height given (< 0.5 m): MIS_TAKEOFF_ALT
+                z = item.pos_ned[2] if item.pos_ned[2] < -0.5 else -self.params["MIS_TAKEOFF_ALT"]
+                self._target = np.array([pos[0], pos[1], z])
             elif cmd == MissionCommand.RETURN_TO_LAUNCH:
                 self._mark_reached(pr.current)
                 pr.finished = True
