@@ -16,6 +16,7 @@ import argparse
 import dataclasses
 import json
 import math
+import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -72,7 +73,9 @@ def _job(spec: dict) -> dict:
     from policy.demos import rollout_stats
 
     p = dataclasses.replace(spec["params"], seed=spec["seed"])
+    cpu0 = time.process_time()
     res = run_apprenticeship(np.asarray(spec["mu_expert"]), p)
+    cpu_s = time.process_time() - cpu0
     _, m = rollout_stats(
         res.policy, "composite", spec["eval_episodes"], spec["eval_seed"], spec["gamma"]
     )
@@ -92,6 +95,7 @@ def _job(spec: dict) -> dict:
         "seed": spec["seed"],
         "metrics": m,
         "train_s": res.seconds,
+        "train_cpu_s": cpu_s,
         "chosen": res.chosen,
         "converged": res.irl.converged,
         "t0": float(np.linalg.norm(res.irl.mu_expert - res.irl.mu0)),
@@ -334,6 +338,7 @@ def _summary(results, base, learner, args) -> tuple[str, str]:
                 _ms([r["metrics"]["footprint_ratio"] for r in rs]),
                 _ms([r["metrics"]["ugv_losses"] for r in rs]),
                 _ms([r["train_s"] for r in rs]),
+                _ms([r.get("train_cpu_s", math.nan) for r in rs]),
                 _ms([r["history"][-1]["t"] for r in rs]),
             ]
         )
@@ -346,6 +351,7 @@ def _summary(results, base, learner, args) -> tuple[str, str]:
                 _ms([m["ugv_losses"] for m in ms]),
                 "-",
                 "-",
+                "-",
             ]
         )
     table = markdown_table(
@@ -354,7 +360,8 @@ def _summary(results, base, learner, args) -> tuple[str, str]:
             "all-in-view frac",
             "footprint/circle",
             "UGV losses / ep",
-            "train time [s]",
+            "train wall [s]",
+            "train CPU [s]",
             "final t",
         ],
         rows,
