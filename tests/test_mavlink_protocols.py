@@ -393,3 +393,34 @@ def test_qgroundcontrol_connection_sequence_on_the_gcs_link():
             sitl.endpoint.rx_types["HEARTBEAT"] >= 1
             and sitl.endpoint.stats["rx_handler_error"] == 0
         )
+
+
+def test_in_progress_then_final_ack_when_the_autopilot_reports_a_running_command():
+    """An autopilot that reports takeoff as still running (Result.in_progress) gets
+    IN_PROGRESS first and ACCEPTED once it hovers at the target (the real multirotor
+    autopilot, with only its takeoff answer marked in_progress)."""
+    from flight.autopilot_api import Result
+    from flight.clock import SimClock
+    from flight.multirotor.autopilot import MultirotorAutopilot
+    from flight.sitl import Sitl
+
+    class SlowAck(MultirotorAutopilot):
+        def takeoff(self, altitude=None):
+            r = super().takeoff(altitude)
+            return Result(r.ok, r.reason, in_progress=r.ok)
+
+    with (
+        Sitl(SlowAck(clock=SimClock()), EndpointConfig(instance=19), speedup=10.0) as sitl,
+        Client(19) as c,
+    ):
+        sitl.start()
+        c.wait_heartbeat()
+        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+        c.mav.command_long_send(
+            20, 1, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, math.nan, math.nan, math.nan, HOME.alt_m + 5
+        )
+        first = c.recv("COMMAND_ACK", cond=lambda m: m.command == M.MAV_CMD_NAV_TAKEOFF)
+        assert first.result == M.MAV_RESULT_IN_PROGRESS and sitl.autopilot.state.altitude < 1.0
+        final = c.recv("COMMAND_ACK", 10, lambda m: m.command == M.MAV_CMD_NAV_TAKEOFF)
+        assert final.result == M.MAV_RESULT_ACCEPTED and final.progress == 100
+        assert abs(sitl.autopilot.state.altitude - 5.0) < 0.6
