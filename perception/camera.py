@@ -119,17 +119,20 @@ class CameraPose:
 
 
 def check_pose(uav_pos_ned: np.ndarray, uav_quat: np.ndarray) -> None:
-    """Raise ValueError unless the position (3,) and quaternion (4,) are finite, |q| ≈ 1."""
+    """Raise ValueError unless the position (3,) and quaternion (4,) are finite and |q| is
+    within [0.5, 1.5] (telemetry rounding is normalised away by `camera_pose`)."""
     p, q = np.asarray(uav_pos_ned, dtype=float), np.asarray(uav_quat, dtype=float)
     if p.shape != (3,) or q.shape != (4,) or not (np.isfinite(p).all() and np.isfinite(q).all()):
         raise ValueError(f"UAV pose must be a finite (3,) position and (4,) quaternion: {p}, {q}")
-    if abs(float(q @ q) - 1.0) > 1e-3:
-        raise ValueError(f"UAV quaternion is not unit length: {q}")
+    if not 0.25 <= float(q @ q) <= 2.25:
+        raise ValueError(f"UAV quaternion is far from unit length: {q}")
 
 
 def camera_pose(cam: CameraParams, uav_pos_ned: np.ndarray, uav_quat: np.ndarray) -> CameraPose:
-    """The camera's pose from the UAV's position (3,) NED [m] and attitude (w, x, y, z)."""
-    r_wb = quat_to_dcm(np.asarray(uav_quat, dtype=float))
+    """The camera's pose from the UAV's position (3,) NED [m] and attitude (w, x, y, z)
+    (normalised here)."""
+    q = np.asarray(uav_quat, dtype=float)
+    r_wb = quat_to_dcm(q / math.sqrt(float(q @ q)))
     pos = np.asarray(uav_pos_ned, dtype=float) + r_wb @ np.asarray(cam.mount_offset_frd)
     return CameraPose(pos, r_wb @ cam.r_body_from_cam)
 

@@ -155,9 +155,17 @@ def test_non_finite_pose_is_refused_and_rig_skips_the_frame():
     bad = UAVPose(np.array([0.0, np.nan, -30.0]), euler_to_quat(0, 0, 0))
     with pytest.raises(ValueError, match="finite"):
         FastRenderer(CAM).render(bad, st)
-    with pytest.raises(ValueError, match="unit"):
+    with pytest.raises(ValueError, match="unit length"):
         FastRenderer(CAM).render(UAVPose(np.array([0.0, 0, -30]), np.array([2.0, 0, 0, 0])), st)
     rig = CameraRig(CAM, 3)
     assert rig.tick(0.0, bad, st) is None and rig.bad_poses == 1
     good = UAVPose(np.array([0.0, 0.0, -30.0]), euler_to_quat(0, 0, 0))
     assert rig.tick(0.1, good, st) is not None
+
+
+def test_slightly_non_unit_quaternion_is_normalised():
+    q = euler_to_quat(0.1, 0.2, 0.3)
+    pts = np.array([[3.0, 4.0, 0.0]])
+    a, _ = project(CAM, camera_pose(CAM, np.array([0, 0, -20.0]), q), pts)
+    b, _ = project(CAM, camera_pose(CAM, np.array([0, 0, -20.0]), 1.01 * q), pts)
+    assert np.allclose(a, b, atol=1e-9)
