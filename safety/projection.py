@@ -38,7 +38,7 @@ def qp_cvxpy(A_u: np.ndarray, h: np.ndarray, u0: np.ndarray) -> np.ndarray | Non
 class Projector:
     """OSQP projection onto the command rows of one envelope (set up once)."""
 
-    def __init__(self, envelope: Envelope, tighten: float = 1e-4, eps: float = 1e-6):
+    def __init__(self, envelope: Envelope, tighten: float = 1e-4, eps: float = 1e-5):
         self.envelope = envelope
         self.tighten = tighten
         Au = envelope.A[:, U]
@@ -59,6 +59,7 @@ class Projector:
             polishing=True,
             max_iter=4000,
             warm_starting=True,
+            check_termination=5,  # test convergence every 5 iterations (default 25)
         )
         self._z = np.zeros(NZ)
 
