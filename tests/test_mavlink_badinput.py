@@ -228,15 +228,17 @@ def test_fuzz_12000_malformed_frames_over_the_socket():
         try:
             for i, f in enumerate(frames):
                 s.sendto(f, ("127.0.0.1", 14580 + INSTANCE))
-                if i % 25 == 24:
-                    time.sleep(0.001)  # stay under the kernel's socket buffer
+                # Stay under the kernel's socket buffer: let the vehicle catch up.
+                t_wait = time.monotonic() + 2.0
+                while i + 1 - (link.rx_datagrams - rx0) > 200 and time.monotonic() < t_wait:
+                    time.sleep(0.0005)
         finally:
             s.close()
         deadline = time.monotonic() + 10
         while link.rx_datagrams - rx0 < n and time.monotonic() < deadline:
             time.sleep(0.05)
         received = link.rx_datagrams - rx0
-        assert received >= 10_000, f"only {received} datagrams reached the endpoint"
+        assert received >= 11_900, f"only {received} of {n} datagrams reached the endpoint"
         ep = sitl.endpoint
         assert link.codec.stats.rx_bad - bad0 >= 0.8 * received
         assert ep.stats["rx_handler_error"] == 0

@@ -41,6 +41,10 @@ class UdpLink:
             self.sock.close()
             raise OSError(f"{name} link cannot bind UDP {bind[0]}:{bind[1]}: {e.strerror}") from e
         self.sock.setblocking(False)
+        try:  # room for bursts (parameter lists, mission uploads); the kernel may cap it
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        except OSError:
+            pass
         self.send_errors = 0
         self.rx_datagrams = 0
 
