@@ -5,8 +5,9 @@ loops run once, then for each physics substep the attitude loop, the rate loop, 
 the physics (flight/quadrotor.py) run in turn. Nothing is allocated per substep.
 
   position  v_sp = K_p (p_sp − p) + v_ff, limited to |v_xy| ≤ v_xy,max, −v_up ≤ v_z ≤ v_dn
-  velocity  a_sp = K_v (v_sp − v) + ∫ K_i (v_sp − v) dt    (conditional integration)
-  thrust    f = m (a_sp − g e_z)  [N, NED]; f_z ≤ −T_min; tilt |f_xy| ≤ |f_z| tan θ_max;
+  velocity  a_sp = K_v (v_sp − v) + ∫ K_i (v_sp − v) dt; the integral only while
+            |v_sp − v| < MPC_VEL_I_ERR and never further into a limit
+  thrust    f = m (a_sp − g e_z) + c₁ v_sp + c₂ |v_sp| v_sp  [N, NED] (drag feed-forward); f_z ≤ −T_min; tilt |f_xy| ≤ |f_z| tan θ_max;
             |f| ≤ T_max (horizontal gives way first)
   attitude  z_b,sp = −f/|f|, heading ψ_sp → R_sp = [x_b y_b z_b]  (Mellinger & Kumar 2011,
             eq. 6–8); collective T = f · (−z_b) projected on the current body axis
