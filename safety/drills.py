@@ -516,9 +516,11 @@ def run_drill(
     why = []
     if worst > spec.limits.breach_tolerance_m:
         why.append(f"breach {worst:.2f} m beyond the fence")
-    caught = [r for r in st.reasons if any(k in r for k in script.expect)]
+    caught = [r for r in st.reasons + st.projected_reasons if any(k in r for k in script.expect)]
     if script.must_trigger and not caught:
-        why.append(f"expected a fallback for {script.expect}, got {st.reasons or 'none'}")
+        why.append(
+            f"expected a fallback or projection for {script.expect}, got {st.reasons + st.projected_reasons or 'none'}"
+        )
     if sup.mode is not Mode.AI:
         why.append(f"not recovered: {sup.mode.value} at the end")
     tr_arr = np.array(rows)
@@ -533,7 +535,7 @@ def run_drill(
         st.rejected,
         st.projected,
         st.switches,
-        list(st.reasons),
+        list(st.reasons) + [f"projected: {r}" for r in st.projected_reasons],
         "; ".join(why),
         {"t": tr_arr[:, 0], "pos": tr_arr[:, 1:4], "mode": tr_arr[:, 4].astype(int)},
     )

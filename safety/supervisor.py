@@ -122,7 +122,8 @@ class SupervisorStats:
     near: int = 0
     fallback_s: float = 0.0
     pid_s: float = 0.0
-    reasons: list[str] = field(default_factory=list)
+    reasons: list[str] = field(default_factory=list)  # reason of each switch to FALLBACK
+    projected_reasons: list[str] = field(default_factory=list)  # distinct rows projections fixed
 
 
 class Supervisor:
@@ -269,6 +270,8 @@ class Supervisor:
             else:
                 if sev == Severity.PROJECTED:
                     self.stats.projected += 1
+                    if reason not in self.stats.projected_reasons:
+                        self.stats.projected_reasons.append(reason)
                 if rejected and proposed is not None:
                     self.stats.rejected += 1
                 return Decision(
