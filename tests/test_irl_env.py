@@ -142,3 +142,36 @@ def test_scripted_expert_beats_random(scenario):
     assert me["all_in_view_frac"] > mr["all_in_view_frac"] + 0.3 or (
         me["footprint_ratio"] < 0.6 * mr["footprint_ratio"]
     )
+
+
+def test_groundsim_behaviours_drive_the_ugvs():
+    from policy.demos import ALLOWED_ACTIONS, ExpertParams, ScriptedExpert
+    from policy.groundair.scenarios import GROUNDSIM_SCENARIOS
+
+    check_env(GroundAirEnv("groundsim:route"))
+    res = {}
+    for sc in ("groundsim:route", "groundsim:camouflage"):
+        ex = ScriptedExpert(ALLOWED_ACTIONS["composite"], ExpertParams(), np.random.default_rng(0))
+        _, res[sc] = rollout_stats(ex, sc, 2, 7, 0.97)
+    assert res["groundsim:route"]["all_in_view_frac"] > 0.9
+    # one UGV is camouflaged for 15 s of the 60 s: the expert cannot see all three then
+    assert res["groundsim:camouflage"]["all_in_view_frac"] < 0.8
+    assert len(GROUNDSIM_SCENARIOS) == 6
+
+
+def test_evaluate_cli_on_a_run_folder(tmp_path, capsys):
+    from policy.dqn import MLPPolicy
+    from policy.evaluate import main
+
+    assert main([str(tmp_path)]) == 2
+    (tmp_path / "policies").mkdir()
+    rng = np.random.default_rng(0)
+    pol = MLPPolicy(
+        [rng.normal(size=(8, 14)), rng.normal(size=(7, 8))],
+        [np.zeros(8), np.zeros(7)],
+        {"learner": "irl", "eval": {"all_in_view_frac": 0.5}},
+    )
+    pol.save(tmp_path / "policies" / "irl_seed0.npz")
+    assert main([str(tmp_path), "--episodes", "1"]) == 0
+    text = (tmp_path / "transfer.md").read_text()
+    assert "irl (irl_seed0)" in text and "groundsim:speedoff" in text and "expert (ideal)" in text

@@ -35,7 +35,7 @@ import numpy as np
 from perception.features import FeatureParams
 from policy.groundair.fastphi import LevelCamera, min_circle
 from policy.groundair.params import N_ACTIONS, TaskParams, action_velocity_ned
-from policy.groundair.scenarios import SCENARIOS, Formation, draw_plan
+from policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS, Formation, make_team
 
 OBS_DIM = 14
 PSI_NAMES: tuple[str, ...] = (
@@ -97,8 +97,9 @@ class GroundAirEnv(gym.Env):
         render_mode: str | None = None,
         start_noise: bool = True,
     ):
-        if scenario not in SCENARIOS:
-            raise ValueError(f"unknown scenario {scenario!r}; choose from {', '.join(SCENARIOS)}")
+        if scenario not in SCENARIOS + GROUNDSIM_SCENARIOS:
+            names = ", ".join(SCENARIOS + GROUNDSIM_SCENARIOS)
+            raise ValueError(f"unknown scenario {scenario!r}; choose from {names}")
         self.scenario = scenario
         self.task = task or TaskParams()
         self.cam = LevelCamera(self.task.camera, FeatureParams())
@@ -118,7 +119,7 @@ class GroundAirEnv(gym.Env):
     # ---- state → observation
     def _observe(self):
         ugvs = self.formation.positions()
-        phi, seen, r_px = self.cam.phi(self.n, self.e, self.alt, ugvs)
+        phi, seen, r_px = self.cam.phi(self.n, self.e, self.alt, ugvs, self.formation.detectable())
         o = make_observation(phi, self._phi_prev, (self.vn, self.ve, self.vd), self.task)
         self._phi_prev = phi
         return o, phi, seen, ugvs
@@ -140,17 +141,20 @@ class GroundAirEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         rng = self.np_random
-        plan = draw_plan(self.scenario, rng, self.task.n_ugvs)
-        self.formation = Formation(plan)
+        self.formation = make_team(self.scenario, rng, self.task.n_ugvs)
         u = self.task.uav
+        if isinstance(self.formation, Formation):  # the formation's centre and nominal radius
+            cn, ce, r0 = 0.0, 0.0, self.formation.plan.radius(0.0)
+        else:  # the smallest circle around the team
+            cn, ce, r0 = min_circle(self.formation.positions())
         # start above the team at the altitude that frames it at the expert's spread target
-        alt = self.cam.fx * plan.radius(0.0) / (self.task.spread_target * self.cam.half_diag)
+        alt = self.cam.fx * max(r0, 2.0) / (self.task.spread_target * self.cam.half_diag)
         alt += self.cam.off_d
         if self.start_noise:
-            self.n, self.e = float(rng.uniform(-3, 3)), float(rng.uniform(-3, 3))
+            self.n, self.e = cn + float(rng.uniform(-3, 3)), ce + float(rng.uniform(-3, 3))
             alt *= float(rng.uniform(0.9, 1.1))
         else:
-            self.n = self.e = 0.0
+            self.n, self.e = cn, ce
         self.alt = min(max(alt, u.alt_min_m), u.alt_max_m)
         self.vn = self.ve = self.vd = 0.0
         self.steps = 0

@@ -73,8 +73,13 @@ class LevelCamera:
         self.half_min = 0.5 * min(self.W, self.H)
         self.alt_max = fparams.altitude_max_m
 
-    def pixels(self, n: float, e: float, alt: float, ugvs: list[tuple[float, float]]):
-        """UGV (north, east) [m] → list of (u, v) [px] and seen flags, UAV at (n, e, alt)."""
+    def pixels(
+        self, n: float, e: float, alt: float, ugvs: list[tuple[float, float]], detectable=None
+    ):
+        """UGV (north, east) [m] → list of (u, v) [px] and seen flags, UAV at (n, e, alt).
+
+        detectable: optional list of bools (False = camouflaged: a detector misses it).
+        """
         z = alt - self.off_d  # lens depth above the ground [m]
         ln, le = n + self.off_n, e + self.off_e
         out, seen = [], []
@@ -87,11 +92,13 @@ class LevelCamera:
             v = -k * (un - ln) + self.cy
             out.append((u, v))
             seen.append(-0.5 <= u <= hi_u and -0.5 <= v <= hi_v)
+        if detectable is not None:
+            seen = [s and d for s, d in zip(seen, detectable)]
         return out, seen
 
-    def phi(self, n: float, e: float, alt: float, ugvs: list[tuple[float, float]]):
+    def phi(self, n: float, e: float, alt: float, ugvs: list[tuple[float, float]], detectable=None):
         """φ(s) as a list of 8 floats (perception.features order) and (seen flags, radius [px])."""
-        uv, seen = self.pixels(n, e, alt, ugvs)
+        uv, seen = self.pixels(n, e, alt, ugvs, detectable)
         a = alt / self.alt_max
         a = 0.0 if not math.isfinite(a) else min(max(a, 0.0), 1.0)
         vis = [p for p, s in zip(uv, seen) if s]

@@ -14,6 +14,11 @@ scenario              UGV behaviour                               manoeuvre it n
 ====================  ==========================================  ===========================
 
 All randomness is drawn at `reset` from the generator passed in; stepping is deterministic.
+
+`groundsim:<behaviour>` scenarios (GROUNDSIM_SCENARIOS) drive the UGVs with the ground world's
+kinematic unicycle model and scripted behaviours instead (groundsim.kinematic, route, convoy,
+random walk, stop-and-go, speed-off, camouflage): used to test learned policies on UGV motion
+they were not trained on.
 """
 
 from __future__ import annotations
@@ -25,6 +30,9 @@ import numpy as np
 
 SCENARIOS: tuple[str, ...] = ("lateral", "climb", "descend", "composite")
 SCENARIO_INDEX = {"lateral": 1, "climb": 2, "descend": 3, "composite": 4}
+GROUNDSIM_SCENARIOS: tuple[str, ...] = tuple(
+    f"groundsim:{b}" for b in ("route", "convoy", "random", "stopgo", "speedoff", "camouflage")
+)
 
 
 @dataclass(frozen=True)
@@ -134,6 +142,9 @@ class Formation:
         psi = p.heading0 + p.weave_amp * math.sin(p.weave_w * self.t + p.weave_phase)
         return p.speed * math.cos(psi), p.speed * math.sin(psi)
 
+    def detectable(self) -> list[bool] | None:
+        return None  # every UGV's marker is visible
+
     def positions(self) -> list[tuple[float, float]]:
         p = self.plan
         r = p.radius(self.t)
@@ -144,3 +155,35 @@ class Formation:
             )
             for a, rho in zip(p.angles, p.radii)
         ]
+
+
+class GroundsimTeam:
+    """UGVs of groundsim's KinematicWorld behind the Formation interface (t, step, positions)."""
+
+    def __init__(self, behaviour: str, rng: np.random.Generator, n_ugvs: int = 3):
+        from groundsim.behaviours import DriveParams, make_behaviour, triangle_offsets
+        from groundsim.kinematic import KinematicWorld
+        from groundsim.ugv import UGVStates
+
+        params = DriveParams()
+        states = UGVStates(triangle_offsets(n_ugvs), np.zeros(n_ugvs), np.zeros(n_ugvs))
+        self.world = KinematicWorld(states, make_behaviour(behaviour, n_ugvs, rng, params), params)
+        self.t = 0.0
+
+    def step(self, dt: float) -> None:
+        self.world.step(self.t, dt)
+        self.t += dt
+
+    def positions(self) -> list[tuple[float, float]]:
+        return [(float(a), float(b)) for a, b in self.world.states.pos_ne]
+
+    def detectable(self) -> list[bool] | None:
+        camo = getattr(self.world.states, "camouflaged", None)
+        return None if camo is None else [not bool(c) for c in camo]
+
+
+def make_team(scenario: str, rng: np.random.Generator, n_ugvs: int = 3):
+    """The UGV team of a scenario: a Formation, or a GroundsimTeam for 'groundsim:<behaviour>'."""
+    if scenario in GROUNDSIM_SCENARIOS:
+        return GroundsimTeam(scenario.split(":", 1)[1], rng, n_ugvs)
+    return Formation(draw_plan(scenario, rng, n_ugvs))
