@@ -58,8 +58,8 @@ FW_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("RTL_RETURN_ALT", 60.0, 20.0, 300.0, "return altitude above home", "m"),
     ParamSpec("RTL_LAND_DELAY", -1.0, -1.0, 600.0, "loiter before landing, -1 = loiter", "s"),
     ParamSpec("FW_TKO_AIRSPD", 18.5, 12.0, 30.0, "take-off rotation airspeed", "m/s"),
-    ParamSpec("FW_LND_AIRSPD", 20.5, 15.0, 30.0, "approach airspeed", "m/s"),
-    ParamSpec("FW_LND_ANG", 5.0, 2.0, 12.0, "glide slope", "deg"),
+    ParamSpec("FW_LND_AIRSPD", 19.5, 15.0, 30.0, "approach airspeed", "m/s"),
+    ParamSpec("FW_LND_ANG", 4.0, 2.0, 12.0, "glide slope", "deg"),
     ParamSpec("FW_LND_APP_ALT", 25.0, 10.0, 100.0, "height at the approach gate", "m"),
     ParamSpec("FW_LND_FLALT", 3.0, 0.5, 10.0, "flare height (wheels)", "m"),
     ParamSpec("COM_OF_LOSS_T", 0.5, 0.1, 10.0, "offboard setpoint timeout", "s"),
@@ -110,6 +110,9 @@ class Runway:
     @property
     def dir(self) -> np.ndarray:
         return np.array([math.cos(self.heading), math.sin(self.heading)])
+
+
+LANDING_PHASES = (Phase.LAND_DESCEND, Phase.LAND_FINAL, Phase.FLARE, Phase.ROLLOUT, Phase.LANDED)
 
 
 def right_of(d: np.ndarray) -> np.ndarray:
@@ -293,6 +296,8 @@ class FixedWingAutopilot:
         if not isinstance(mode, FlightMode):
             return Result.denied(f"unknown mode {mode!r}")
         if mode == FlightMode.HOLD:
+            if self._mode == FlightMode.HOLD and self._phase == Phase.LOITER:
+                return Result.accepted()  # already holding: keep the same circle
             if self._flying():
                 self._enter_hold()
             self._mode = FlightMode.HOLD
@@ -334,6 +339,9 @@ class FixedWingAutopilot:
         alt = self.p("MIS_TAKEOFF_ALT") if altitude is None else float(altitude)
         if not (math.isfinite(alt) and 5.0 <= alt <= 1000.0):
             return Result.denied(f"take-off altitude must be 5..1000 m, got {altitude}")
+        if self._phase in (Phase.TAKEOFF_ROLL, Phase.TAKEOFF_CLIMB):
+            self._h_dem = alt
+            return Result.accepted()  # already taking off
         if self._flying():
             self._enter_hold(alt)
             self._mode = FlightMode.HOLD
@@ -350,6 +358,8 @@ class FixedWingAutopilot:
                 self._mode = FlightMode.LAND
                 return Result.accepted()
             return Result.denied("not flying")
+        if self._mode == FlightMode.LAND and self._phase in LANDING_PHASES:
+            return Result.accepted()  # already landing: a repeated command changes nothing
         self._mode = FlightMode.LAND
         self._begin_landing(self._landing_runway())
         return Result.accepted()
@@ -357,6 +367,8 @@ class FixedWingAutopilot:
     def return_to_launch(self) -> Result:
         if not self._flying():
             return Result.denied("not flying")
+        if self._mode == FlightMode.RTL:
+            return Result.accepted()  # already returning
         self._mode = FlightMode.RTL
         self._begin_rtl()
         return Result.accepted()
@@ -692,7 +704,7 @@ class FixedWingAutopilot:
         ail = self.gains.roll_p * (0.0 - roll) - self.gains.roll_d * st.omega_frd[0]
         # Taildragger: stick back only once slow (no balloon), gentle brakes (no nose-over).
         el = 1.0 if gs < 14.0 else 0.2
-        brake = 0.1 if gs > 14.0 else 0.3
+        brake = 0.1 if gs > 14.0 else 0.45
         if gs < 0.3:
             self._phase = Phase.LANDED
             self._landed_t = self.clock.t
@@ -745,6 +757,9 @@ class FixedWingAutopilot:
             h_dem, hdot_ff = self._h_dem, self._climb
         elif ph == Phase.LAND_DESCEND:
             lat = guidance.loiter(l1p, pos, vel, self._center, self._radius, 1).lat_acc
+            # Halfway to the approach speed: enough bank authority for the circle, and less
+            # kinetic energy to lose on the final (the J3Cub cannot dive it off at idle).
+            v_dem = 0.5 * (self.p("FW_LND_AIRSPD") + self.p("FW_AIRSPD_TRIM"))
             rw = self._runway
             assert rw is not None
             gate = rw.point - rw.dir * self._final_length()
@@ -780,7 +795,7 @@ class FixedWingAutopilot:
                 pitch_min = 0.0
                 h_dem = h
                 # Exponential flare to a gentle sink, then hold off while the speed bleeds.
-                hdot_ff = -max(0.15, wheels_h / 2.0)
+                hdot_ff = -max(0.4, wheels_h / 2.0)
                 if self.model.wheels_down():
                     self._phase = Phase.ROLLOUT
         else:  # DIRECT or anything unexpected: wings level, hold height
