@@ -148,7 +148,7 @@ def test_groundsim_behaviours_drive_the_ugvs():
     from policy.demos import ALLOWED_ACTIONS, ExpertParams, ScriptedExpert
     from policy.groundair.scenarios import GROUNDSIM_SCENARIOS
 
-    check_env(GroundAirEnv("groundsim:route"))
+    check_env(gym.make(policy.ENV_ID, scenario="groundsim:route").unwrapped)
     res = {}
     for sc in ("groundsim:route", "groundsim:camouflage"):
         ex = ScriptedExpert(ALLOWED_ACTIONS["composite"], ExpertParams(), np.random.default_rng(0))
