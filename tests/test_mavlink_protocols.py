@@ -424,3 +424,59 @@ def test_in_progress_then_final_ack_when_the_autopilot_reports_a_running_command
         final = c.recv("COMMAND_ACK", 10, lambda m: m.command == M.MAV_CMD_NAV_TAKEOFF)
         assert final.result == M.MAV_RESULT_ACCEPTED and final.progress == 100
         assert abs(sitl.autopilot.state.altitude - 5.0) < 0.6
+
+
+def test_offboard_stream_loss_and_manual_control():
+    """Offboard velocity over MAVLink, then the stream stops: HOLD 0.5 s of simulation time
+    after the last setpoint (COM_OF_LOSS_T). MANUAL_CONTROL in POSCTL flies forward."""
+    with running_sitl(instance=2, speedup=5.0) as sitl, Client(2) as c:
+        ap, ep = sitl.autopilot, sitl.endpoint
+        c.wait_heartbeat()
+        assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+        assert (
+            c.command(
+                M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, HOME.alt_m + 5
+            ).result
+            == 0
+        )
+        assert c.recv("HEARTBEAT", 10, lambda m: m.custom_mode == PX4_HOLD) is not None
+
+        vel_mask = 0b0000_1101_1100_0111  # velocity + yaw
+
+        def setpoints(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                c.mav.set_position_target_local_ned_send(0, 3, 1, M.MAV_FRAME_LOCAL_NED, vel_mask,
+                                                         0, 0, 0, 1.5, 0, 0, 0, 0, 0, 0, 0)  # fmt: skip
+                time.sleep(0.04)  # 25 Hz wall = every 0.2 s of simulation time
+
+        setpoints(0.3)
+        assert c.command(M.MAV_CMD_DO_SET_MODE, 1, 6, 0).result == M.MAV_RESULT_ACCEPTED
+        setpoints(1.5)
+        c.drain()  # telemetry queued while we were only sending
+        lp = c.recv("LOCAL_POSITION_NED")
+        assert lp.vx == pytest.approx(1.5, abs=0.15) and abs(lp.z + 5) < 0.3
+        # Stop streaming: the autopilot falls back to HOLD after COM_OF_LOSS_T.
+        assert c.recv("HEARTBEAT", 3, lambda m: m.custom_mode == PX4_HOLD) is not None
+        assert c.saw_text("offboard setpoints lost")
+        t_loss = float(next(t for t in c.texts if "offboard setpoints lost" in t).split()[0])
+        assert t_loss - ep.last_setpoint_t == pytest.approx(0.5, abs=0.009)
+
+        # Manual control: sticks centred (z = 500 holds altitude), POSCTL, then full forward.
+        def sticks(x: int, seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                c.mav.manual_control_send(3, x, 0, 500, 0, 0)
+                time.sleep(0.04)
+
+        sticks(0, 0.3)
+        assert c.command(M.MAV_CMD_DO_SET_MODE, 1, 3, 0).result == M.MAV_RESULT_ACCEPTED
+        assert ap.mode == FlightMode.POSCTL
+        sticks(1000, 1.5)
+        c.drain()
+        lp = c.recv("LOCAL_POSITION_NED")
+        vmax = ap.get_param("MPC_VEL_MANUAL")
+        assert lp.vx == pytest.approx(vmax, rel=0.1) and abs(lp.vy) < 0.5 and abs(lp.z + 5) < 0.5
+        assert ep.stats["manual_dropped"] == 0
+        # Sticks stop: manual control lost → HOLD.
+        assert c.recv("HEARTBEAT", 3, lambda m: m.custom_mode == PX4_HOLD) is not None

@@ -158,6 +158,7 @@ class MavlinkEndpoint:
             for link in self.links:
                 self._poller.register(link.sock.fileno(), select.POLLIN)
         self.last_heard: dict[str, float] = {}  # link name → sim time of the last valid frame
+        self.last_setpoint_t: float | None = None  # sim time of the last accepted setpoint [s]
         self.telemetry = TelemetryBuilder(autopilot, self.ident)
         pf = config.param_file(autopilot.airframe)
         self.params = ParamService(
@@ -343,7 +344,9 @@ class MavlinkEndpoint:
                 self.statustext(M.MAV_SEVERITY_WARNING, f"setpoint dropped: {e}"[:50])
             return
         res = self.ap.set_offboard_setpoint(sp)
-        if not res.ok:
+        if res.ok:
+            self.last_setpoint_t = self.ap.clock.t
+        else:
             self.stats["setpoint_refused"] += 1
 
     def _on_manual(self, msg, reply, key, link) -> None:
