@@ -190,3 +190,34 @@ def test_deterministic():
 
     a, b = run(), run()
     assert np.array_equal(a.pos_ned, b.pos_ned) and np.array_equal(a.quat, b.quat)
+
+
+def test_loiter_in_a_5ms_crosswind():
+    """L1 flies the circle over the ground: the radius holds with wind drifting the air mass."""
+    ap = airborne(60.0, 24.0)
+    ap.model.set_wind(np.array([0.0, 5.0, 0.0]))
+    assert ap.set_mode(FlightMode.HOLD).ok
+    fly(ap, 40.0)
+    c, r0 = ap.loiter_center, ap.loiter_radius
+    d, h = [], []
+    fly(ap, 80.0, lambda s: (d.append(np.hypot(*(s.pos_ned[:2] - c))), h.append(s.altitude)))
+    assert max(abs(x - r0) for x in d) < 0.10 * r0
+    assert max(abs(x - 60.0) for x in h) < 5.0
+
+
+def test_repeated_commands_are_idempotent():
+    """MAVLink clients retry commands: a second land / RTL / hold must not restart anything."""
+    ap = airborne(60.0, 24.0)
+    assert ap.set_mode(FlightMode.HOLD).ok
+    c = ap.loiter_center
+    fly(ap, 5.0)
+    assert ap.set_mode(FlightMode.HOLD).ok and np.array_equal(ap.loiter_center, c)
+    assert ap.return_to_launch().ok
+    fly(ap, 5.0)
+    phase = ap.phase
+    assert ap.return_to_launch().ok and ap.phase == phase and ap.mode == FlightMode.RTL
+    assert ap.land().ok
+    fly(ap, 30.0)
+    phase, center = ap.phase, ap.loiter_center
+    assert phase in (Phase.LAND_DESCEND, Phase.LAND_FINAL)
+    assert ap.land().ok and ap.phase == phase and np.array_equal(ap.loiter_center, center)
