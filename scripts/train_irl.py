@@ -47,6 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
     )
     parser.add_argument("--mu-episodes", type=int, default=20, help="Monte-Carlo episodes per μ(π)")
     parser.add_argument("--eval-episodes", type=int, default=30, help="test episodes per policy")
+    parser.add_argument(
+        "--transfer-episodes",
+        type=int,
+        default=10,
+        help="episodes per groundsim behaviour for the transfer table (0: skip)",
+    )
     parser.add_argument("--workers", type=int, default=1, help="parallel training processes")
     parser.add_argument("--out", type=Path, default=Path("runs"), help="runs root folder")
     parser.add_argument(
@@ -266,6 +272,21 @@ def run(args: argparse.Namespace) -> int:
             best[key] = (out, pol)
 
     summary, table = _summary(results, base, learner, args)
+    if args.transfer_episodes > 0:
+        from policy.evaluate import baseline_factories, transfer_table
+        from policy.groundair.scenarios import GROUNDSIM_SCENARIOS
+
+        pols = {f"{k} (seed {o['seed']})": (lambda s, p=p: p) for k, (o, p) in best.items()}
+        rows = transfer_table(
+            pols | baseline_factories(), GROUNDSIM_SCENARIOS, args.transfer_episodes, 200_000
+        )
+        ttable = markdown_table(
+            ["policy", "scenario", "all-in-view frac", "footprint/circle", "UGV losses / ep"], rows
+        )
+        summary += (
+            "\n## Transfer: best seed of each learner on groundsim UGV behaviours\n\n"
+            f"{args.transfer_episodes} episodes each (not trained on these).\n\n{ttable}"
+        )
     rf.write_summary(summary)
     atomic_write_text(
         rf.file("results.json"),

@@ -26,6 +26,8 @@ def test_train_ab_end_to_end_tiny(tmp_path, capsys):
             "2",
             "--mu-episodes",
             "3",
+            "--transfer-episodes",
+            "1",
             "--demo-episodes",
             "2",
             "--rules",
@@ -57,6 +59,7 @@ def test_train_ab_end_to_end_tiny(tmp_path, capsys):
     assert set(cfg["mu_expert"]) == {"irl", "ab_mean", "ab_per_feature"}
     summary = (run / "summary.md").read_text()
     assert "expert (demonstrator)" in summary and "random" in summary and "÷ IRL" in summary
+    assert "groundsim:camouflage" in summary  # the transfer table
     lines = (run / "metrics.csv").read_text().splitlines()
     assert len(lines) == 1 + 3 * 2  # header + 3 learners × 2 iterations
     pol = load_policy(saved)
@@ -85,6 +88,8 @@ def test_train_irl_from_teleop_style_demo_folder(tmp_path):
             "1",
             "--mu-episodes",
             "2",
+            "--transfer-episodes",
+            "0",
             "--demos",
             str(demos),
             "--out",
