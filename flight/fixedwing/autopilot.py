@@ -30,57 +30,14 @@ from flight.autopilot_api import (
 )
 from flight.clock import SimClock
 from flight.fixedwing import guidance
+from flight.fixedwing.attitude import AttitudeController, InnerGains
+from flight.fixedwing.fw_params import FW_PARAM_SPECS
 from flight.fixedwing.jsbsim_model import JSBSimPlane, ModelParams, Surfaces
 from flight.fixedwing.tecs import Tecs, TecsGains
 from flight.frames import wrap_pi
 from flight.geo import GRAVITY, Home
-from flight.params import ParamSpec, ParamStore
+from flight.params import ParamStore
 from flight.state import VehicleState
-
-# PX4 names and units (degrees where PX4 uses degrees). One source of truth for each value.
-FW_PARAM_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("FW_AIRSPD_TRIM", 24.0, 18.0, 40.0, "cruise airspeed", "m/s"),
-    ParamSpec("FW_AIRSPD_MIN", 20.0, 15.0, 30.0, "minimum commanded airspeed", "m/s"),
-    ParamSpec("FW_AIRSPD_MAX", 38.0, 25.0, 50.0, "maximum airspeed", "m/s"),
-    ParamSpec("FW_AIRSPD_STALL", 17.5, 10.0, 25.0, "1 g stall speed (J3Cub, full weight)", "m/s"),
-    ParamSpec("FW_R_LIM", 35.0, 10.0, 50.0, "bank angle limit", "deg"),
-    ParamSpec("FW_P_LIM_MAX", 15.0, 5.0, 30.0, "maximum pitch", "deg"),
-    ParamSpec("FW_P_LIM_MIN", -12.0, -30.0, -3.0, "minimum pitch", "deg"),
-    ParamSpec("FW_T_CLMB_MAX", 2.5, 0.5, 6.0, "maximum climb rate", "m/s"),
-    ParamSpec("FW_T_SINK_MAX", 3.0, 1.0, 8.0, "maximum sink rate", "m/s"),
-    ParamSpec("FW_THR_MIN", 0.0, 0.0, 1.0, "throttle floor in flight", ""),
-    ParamSpec("FW_THR_MAX", 1.0, 0.0, 1.0, "throttle ceiling", ""),
-    ParamSpec("NAV_L1_PERIOD", 17.0, 5.0, 50.0, "L1 period", "s"),
-    ParamSpec("NAV_L1_DAMPING", 0.75, 0.6, 0.9, "L1 damping", ""),
-    ParamSpec("NAV_LOITER_RAD", 0.0, 0.0, 1000.0, "loiter radius, 0 = from turn performance", "m"),
-    ParamSpec("NAV_ACC_RAD", 30.0, 5.0, 200.0, "waypoint acceptance radius", "m"),
-    ParamSpec("MIS_TAKEOFF_ALT", 40.0, 10.0, 300.0, "take-off altitude above home", "m"),
-    ParamSpec("RTL_RETURN_ALT", 60.0, 20.0, 300.0, "return altitude above home", "m"),
-    ParamSpec("RTL_LAND_DELAY", -1.0, -1.0, 600.0, "loiter before landing, -1 = loiter", "s"),
-    ParamSpec("FW_TKO_AIRSPD", 18.5, 12.0, 30.0, "take-off rotation airspeed", "m/s"),
-    ParamSpec("FW_LND_AIRSPD", 19.5, 15.0, 30.0, "approach airspeed", "m/s"),
-    ParamSpec("FW_LND_ANG", 4.0, 2.0, 12.0, "glide slope", "deg"),
-    ParamSpec("FW_LND_APP_ALT", 25.0, 10.0, 100.0, "height at the approach gate", "m"),
-    ParamSpec("FW_LND_FLALT", 3.0, 0.5, 10.0, "flare height (wheels)", "m"),
-    ParamSpec("COM_OF_LOSS_T", 0.5, 0.1, 10.0, "offboard setpoint timeout", "s"),
-    ParamSpec("COM_DISARM_LAND", 2.0, -1.0, 20.0, "disarm after landing, -1 = never", "s"),
-)
-
-
-@dataclass(frozen=True)
-class InnerGains:
-    """Attitude and ground-steering gains, at the trim airspeed (scaled by (V_trim/V)^2)."""
-
-    roll_p: float = 4.0  # aileron per rad of bank error
-    roll_d: float = 0.8  # aileron per rad/s of roll rate
-    roll_i: float = 2.0  # aileron per rad·s
-    pitch_p: float = 2.0  # elevator per rad of pitch error
-    pitch_d: float = 0.6  # elevator per rad/s of pitch rate error
-    pitch_i: float = 1.0  # elevator per rad·s
-    yaw_p: float = 1.5  # rudder per rad/s of yaw-rate error (turn coordination, yaw damper)
-    steer_p: float = 2.5  # rudder per rad of heading error on the ground
-    steer_d: float = 1.2  # rudder per rad/s of yaw rate on the ground
-    course_k: float = 0.6  # [1/s] course error → turn rate (offboard velocity, manual modes)
 
 
 class Phase(enum.Enum):
@@ -136,17 +93,19 @@ class FixedWingAutopilot:
         model_params: ModelParams | None = None,
         control_dt: float = 0.02,
         instance: int = 0,
-        **_ignored: object,
+        seed: int = 0,
     ):
         self.clock = clock if clock is not None else SimClock()
         self.home = home if home is not None else Home()
         self.params = ParamStore(FW_PARAM_SPECS, params)
         self._pcache: dict[str, float] = {}
         self._pcache_rev = -1
-        self.gains = gains or InnerGains()
+        self.att = AttitudeController(gains)
+        self.gains = self.att.g
         self.tecs = Tecs(tecs_gains)
         self.control_dt = control_dt
         self.instance = instance
+        self.seed = seed  # nothing random in the fixed-wing (calm air, exact JSBSim): recorded only
         self.model = JSBSimPlane(self.home, model_params or ModelParams())
         self._dt_us = round(control_dt * 1e6)
         if abs(self._dt_us / 1e6 - control_dt) > 1e-9:
@@ -167,8 +126,7 @@ class FixedWingAutopilot:
 
     # ---- construction helpers ----------------------------------------------------------
     def _reset_loops(self, el_trim: float = 0.0, thr_trim: float = 0.5) -> None:
-        self._roll_i = 0.0
-        self._pitch_i = el_trim
+        self.att.reset(el_trim)
         self.tecs.reset(thr_trim, 0.0)
 
     def _nav_init(self) -> None:
@@ -680,7 +638,7 @@ class FixedWingAutopilot:
         assert rw is not None
         v = self.model.airspeed
         roll, pitch, _ = st.euler
-        ail = self.gains.roll_p * (0.0 - roll) - self.gains.roll_d * st.omega_frd[0]
+        ail = self.att.wings_level_aileron(st)
         rot = self.p("FW_TKO_AIRSPD")
         if v < 8.0:
             el = 0.0
@@ -692,7 +650,7 @@ class FixedWingAutopilot:
         if not self.model.wheels_down() and wheels_h > 1.0:
             self._phase = Phase.TAKEOFF_CLIMB
             self._phase_t = self.clock.t
-            self._pitch_i = el
+            self.att.pitch_i = el
             self.tecs.reset(1.0, pitch)
         return Surfaces(ail, el, self._steer(st, rw), self.p("FW_THR_MAX"), 0.0)
 
@@ -700,8 +658,7 @@ class FixedWingAutopilot:
         rw = self._runway
         assert rw is not None
         gs = float(np.hypot(*st.vel_ned[:2]))
-        roll = st.euler[0]
-        ail = self.gains.roll_p * (0.0 - roll) - self.gains.roll_d * st.omega_frd[0]
+        ail = self.att.wings_level_aileron(st)
         # Taildragger: stick back only once slow (no balloon), gentle brakes (no nose-over).
         el = 1.0 if gs < 14.0 else 0.2
         brake = 0.1 if gs > 14.0 else 0.45
@@ -815,7 +772,7 @@ class FixedWingAutopilot:
             pitch_min=pitch_min, pitch_max=pitch_max, speed_weight=weight, hdot_ff=hdot_ff,
         )  # fmt: skip
         bank = max(-bank_lim, min(bank_lim, math.atan2(lat, GRAVITY)))
-        ail, el, rud = self._attitude(st, bank, out.pitch, v, dt)
+        ail, el, rud = self.att.update(st, bank, out.pitch, v, self.p("FW_AIRSPD_TRIM"), dt)
         return Surfaces(ail, el, rud, out.throttle, 0.0)
 
     def _takeoff_done(self) -> None:
@@ -839,7 +796,7 @@ class FixedWingAutopilot:
         bank = y * self._bank_limit(v)
         if self._mode == FlightMode.STABILIZED:
             pitch = -x * math.radians(self.p("FW_P_LIM_MAX"))
-            ail, el, rud = self._attitude(st, bank, pitch, v, dt)
+            ail, el, rud = self.att.update(st, bank, pitch, v, self.p("FW_AIRSPD_TRIM"), dt)
             return Surfaces(ail, el, rud, z, 0.0)
         climb = -x * self.p("FW_T_CLMB_MAX")
         self._h_dem = min(max(self._h_dem + climb * dt, st.altitude - 10.0), st.altitude + 10.0)
@@ -850,27 +807,5 @@ class FixedWingAutopilot:
             pitch_min=math.radians(self.p("FW_P_LIM_MIN")),
             pitch_max=math.radians(self.p("FW_P_LIM_MAX")), hdot_ff=climb,
         )  # fmt: skip
-        ail, el, rud = self._attitude(st, bank, out.pitch, v, dt)
+        ail, el, rud = self.att.update(st, bank, out.pitch, v, self.p("FW_AIRSPD_TRIM"), dt)
         return Surfaces(ail, el, rud, out.throttle, 0.0)
-
-    def _attitude(
-        self, st: VehicleState, bank: float, pitch_dem: float, v: float, dt: float
-    ) -> tuple[float, float, float]:
-        """Roll, pitch and yaw-rate loops → (aileron, elevator, rudder), gains ∝ (V_trim/V)^2."""
-        g = self.gains
-        roll, pitch, _ = st.euler
-        p, q, r = st.omega_frd
-        v = max(v, 5.0)
-        scale = min(2.0, max(0.5, (self.p("FW_AIRSPD_TRIM") / v) ** 2))
-        e_roll = wrap_pi(bank - roll)
-        self._roll_i = min(0.2, max(-0.2, self._roll_i + g.roll_i * e_roll * dt))
-        ail = scale * (g.roll_p * e_roll - g.roll_d * p) + self._roll_i
-        # coordinated turn: q = (g/V) tan φ sin φ, r = (g/V) sin φ cos θ
-        q_ff = GRAVITY / v * math.tan(roll) * math.sin(roll)
-        r_ff = GRAVITY / v * math.sin(roll) * math.cos(pitch)
-        e_pitch = pitch_dem - pitch
-        el_unsat = scale * (g.pitch_p * e_pitch + g.pitch_d * (q_ff - q)) + self._pitch_i
-        if abs(el_unsat) < 1.0 or el_unsat * e_pitch < 0:
-            self._pitch_i = min(1.0, max(-1.0, self._pitch_i + g.pitch_i * e_pitch * dt))
-        rud = scale * g.yaw_p * (r_ff - r)
-        return ail, el_unsat, rud
