@@ -124,9 +124,9 @@ def test_two_processes_exchange_frames_over_loopback():
     s = sub.stats
     # Live frames use congestion control DROP: on a loaded machine a few may be dropped, and
     # then they must show up as lost. Every frame is accounted for either way.
-    assert s.received + s.lost == 120 - seen[0].seq, s
-    assert s.received >= 100 and s.corrupt == 0 and s.out_of_order == 0, s
     seqs = [f.seq for f in seen]
+    assert seqs[-1] - seqs[0] + 1 <= s.received + s.lost <= 120, s
+    assert s.received >= 100 and s.corrupt == 0 and s.out_of_order == 0, s
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs) and seqs[-1] >= 110
     assert seen[-1].image.shape == (240, 320, 3)
     assert seen[-1].t_sim == pytest.approx(119 * 0.05)  # simulation time travels with the frame
