@@ -143,6 +143,14 @@ def test_mode_numbers_px4_and_ardupilot():
         mode_name(px4, FlightMode.HOLD) == "AUTO.LOITER"
         and mode_name(apm, FlightMode.OFFBOARD) == "GUIDED"
     )
+    # A fixed-wing with the ardupilot personality shows ArduPlane numbers.
+    assert [custom_mode_of(apm, m, "fixedwing") for m in (FlightMode.HOLD, FlightMode.MISSION, FlightMode.OFFBOARD,
+                                                           FlightMode.TAKEOFF, FlightMode.RTL)] == [12, 10, 15, 13, 11]  # fmt: skip
+    assert (
+        mode_of_custom(apm, 1, 0, "fixedwing") == FlightMode.HOLD
+        and mode_of_custom(apm, 9, 0, "fixedwing") is None
+    )
+    assert mode_name(apm, FlightMode.HOLD, "fixedwing") == "LOITER"
     bm = base_mode_of(FlightMode.HOLD, armed=True)
     assert bm & M.MAV_MODE_FLAG_SAFETY_ARMED and bm & M.MAV_MODE_FLAG_AUTO_ENABLED
     assert base_mode_of(FlightMode.POSCTL, armed=False) & M.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED

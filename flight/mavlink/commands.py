@@ -238,7 +238,9 @@ class CommandService:
         base, main, sub = cmd.p[0], cmd.p[1], cmd.p[2]
         if not (math.isfinite(base) and int(base) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED):
             raise Denied("only custom modes can be set (base_mode bit 1)")
-        mode = mode_of_custom(self.personality, main, 0.0 if math.isnan(sub) else sub)
+        mode = mode_of_custom(
+            self.personality, main, 0.0 if math.isnan(sub) else sub, self.ap.airframe
+        )
         if mode is None:
             raise Denied(f"mode {main:g}/{sub:g} not available")
         return self.ap.set_mode(mode), None

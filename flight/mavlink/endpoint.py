@@ -314,7 +314,7 @@ class MavlinkEndpoint:
         """Legacy SET_MODE (MAVProxy, ArduPilot tools): answered like ArduPilot, COMMAND_ACK 11."""
         result = M.MAV_RESULT_DENIED
         if msg.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-            mode = mode_of_packed(self.config.personality, msg.custom_mode)
+            mode = mode_of_packed(self.config.personality, msg.custom_mode, self.ap.airframe)
             if mode is not None:
                 res = self.ap.set_mode(mode)
                 if res.ok:

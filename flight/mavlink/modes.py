@@ -92,6 +92,43 @@ _MODE_OF_COPTER = {
     COPTER["LAND"]: FlightMode.LAND,
 }
 
+# ArduPlane mode numbers (ArduPlane/mode.h), for a fixed-wing with the ardupilot personality.
+# ArduPlane has no LAND mode (it lands in AUTO): LAND is shown as AUTO.
+PLANE = {
+    "MANUAL": 0,
+    "CIRCLE": 1,
+    "STABILIZE": 2,
+    "FBWB": 6,
+    "CRUISE": 7,
+    "AUTO": 10,
+    "RTL": 11,
+    "LOITER": 12,
+    "TAKEOFF": 13,
+    "GUIDED": 15,
+}
+_PLANE_OF_MODE: dict[FlightMode, int] = {
+    FlightMode.MANUAL: PLANE["MANUAL"],
+    FlightMode.STABILIZED: PLANE["STABILIZE"],
+    FlightMode.ALTCTL: PLANE["FBWB"],
+    FlightMode.POSCTL: PLANE["CRUISE"],
+    FlightMode.HOLD: PLANE["LOITER"],
+    FlightMode.TAKEOFF: PLANE["TAKEOFF"],
+    FlightMode.OFFBOARD: PLANE["GUIDED"],
+    FlightMode.MISSION: PLANE["AUTO"],
+    FlightMode.RTL: PLANE["RTL"],
+    FlightMode.LAND: PLANE["AUTO"],
+}
+_MODE_OF_PLANE = {v: k for k, v in _PLANE_OF_MODE.items() if k is not FlightMode.LAND}
+_MODE_OF_PLANE[PLANE["CIRCLE"]] = FlightMode.HOLD
+
+
+def _apm_tables(airframe: str) -> tuple[dict, dict, dict]:
+    """(mode → number, number → mode, name → number) for ArduCopter or ArduPlane."""
+    if airframe == "fixedwing":
+        return _PLANE_OF_MODE, _MODE_OF_PLANE, PLANE
+    return _COPTER_OF_MODE, _MODE_OF_COPTER, COPTER
+
+
 _MANUAL_MODES = {FlightMode.MANUAL, FlightMode.STABILIZED, FlightMode.ALTCTL, FlightMode.POSCTL}
 _AUTO_MODES = {
     FlightMode.HOLD,
@@ -102,12 +139,12 @@ _AUTO_MODES = {
 }
 
 
-def custom_mode_of(personality: Personality, mode: FlightMode) -> int:
-    """HEARTBEAT `custom_mode` for a flight mode."""
+def custom_mode_of(personality: Personality, mode: FlightMode, airframe: str = "quadrotor") -> int:
+    """HEARTBEAT `custom_mode` for a flight mode (ArduPlane numbers for a fixed-wing)."""
     if personality is Personality.PX4:
         main, sub = _PX4_OF_MODE[mode]
         return (main << 16) | (sub << 24)
-    return _COPTER_OF_MODE[mode]
+    return _apm_tables(airframe)[0][mode]
 
 
 def base_mode_of(mode: FlightMode, armed: bool) -> int:
@@ -131,7 +168,7 @@ def base_mode_of(mode: FlightMode, armed: bool) -> int:
 
 
 def mode_of_custom(
-    personality: Personality, custom_main: float, custom_sub: float
+    personality: Personality, custom_main: float, custom_sub: float, airframe: str = "quadrotor"
 ) -> FlightMode | None:
     """Flight mode asked for by DO_SET_MODE params 2 and 3 (or SET_MODE's custom_mode).
 
@@ -144,21 +181,24 @@ def mode_of_custom(
         return _MODE_OF_PX4.get((int(custom_main), int(custom_sub)))
     if not _is_small_int(custom_main):
         return None
-    return _MODE_OF_COPTER.get(int(custom_main))
+    return _apm_tables(airframe)[1].get(int(custom_main))
 
 
-def mode_of_packed(personality: Personality, custom_mode: int) -> FlightMode | None:
+def mode_of_packed(
+    personality: Personality, custom_mode: int, airframe: str = "quadrotor"
+) -> FlightMode | None:
     """Flight mode from a packed 32-bit `custom_mode` (SET_MODE message)."""
     if personality is Personality.PX4:
         return mode_of_custom(personality, (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF)
-    return mode_of_custom(personality, custom_mode, 0)
+    return mode_of_custom(personality, custom_mode, 0, airframe)
 
 
-def mode_name(personality: Personality, mode: FlightMode) -> str:
+def mode_name(personality: Personality, mode: FlightMode, airframe: str = "quadrotor") -> str:
     """The name a ground station shows for a mode."""
     if personality is Personality.ARDUPILOT:
-        num = _COPTER_OF_MODE[mode]
-        return next(k for k, v in COPTER.items() if v == num)
+        to_num, _, names = _apm_tables(airframe)
+        num = to_num[mode]
+        return next(k for k, v in names.items() if v == num)
     main, sub = _PX4_OF_MODE[mode]
     main_name = next(k for k, v in PX4_MAIN.items() if v == main)
     if main_name != "AUTO":

@@ -137,7 +137,7 @@ class TelemetryBuilder:
             self.ident.mav_type,
             self.ident.personality.mav_autopilot,
             base_mode_of(ap.mode, armed),
-            custom_mode_of(self.ident.personality, ap.mode),
+            custom_mode_of(self.ident.personality, ap.mode, ap.airframe),
             status,
         )
 
