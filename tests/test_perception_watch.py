@@ -20,7 +20,7 @@ def test_watch_saves_annotated_frames_and_counts(tmp_path, capsys):
     port = free_port()
     src = subprocess.Popen(
         [sys.executable, "-m", "perception.camstream", "--port", str(port),
-         "--frames", "60", "--rate", "50", "--wait-s", "10"],
+         "--frames", "120", "--rate", "50", "--wait-s", "10"],
         stderr=subprocess.DEVNULL,
     )  # fmt: skip
     try:
