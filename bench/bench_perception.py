@@ -9,7 +9,8 @@ Prints markdown tables:
    each; 200 with --quick): median centroid error (goal ≤ 2 px), spread radius (≤ 3 px);
 4. Zenoh between two processes (perception.camstream → this process) on loopback: latency
    p50/p95 at a paced 30 frames/s, and frames/s delivered when the source sends flat out;
-5. real-time factor of the loop ground world step + render + detect + φ(s), camera at 10 and
+5. the ground world alone (kinematic, PyBullet box, PyBullet husky): real-time factor;
+6. real-time factor of the loop ground world step + render + detect + φ(s), camera at 10 and
    30 Hz of simulation time (goals ≥ 50× fast renderer, ≥ 5× PyBullet pixels).
 
 Rates are given per wall-clock second and per second of this process's CPU time: on a shared
@@ -33,7 +34,7 @@ from flight.frames import euler_to_quat  # noqa: E402
 from groundsim.behaviours import DriveParams, make_behaviour, triangle_offsets  # noqa: E402
 from groundsim.kinematic import KinematicWorld  # noqa: E402
 from groundsim.ugv import UGVModel, initial_states  # noqa: E402
-from groundsim.world import GroundWorld  # noqa: E402
+from groundsim.world import GroundWorld, WorldParams  # noqa: E402
 from perception.camera import CameraParams, UAVPose  # noqa: E402
 from perception.detector import Detector  # noqa: E402
 from perception.evaluate import SceneParams, evaluate, random_scene  # noqa: E402
@@ -188,6 +189,29 @@ def loop_rtf(world_kind: str, renderer_kind: str, cam_hz: float, sim_s: float) -
     return t / wall, t / cpu
 
 
+def bench_worlds(quick: bool) -> list[list]:
+    """Ground world alone, 3 UGVs on the route, 20 Hz steps: real-time factors."""
+    drive = DriveParams()
+    sim_s = 20.0 if quick else 60.0
+    rows = []
+    for name in ("kinematic", "box", "husky"):
+        beh = make_behaviour("route", 3, np.random.default_rng(0), drive)
+        st = initial_states(triangle_offsets(3))
+        if name == "kinematic":
+            world = KinematicWorld(st, beh, drive)
+        else:
+            world = GroundWorld(st, beh, drive, WorldParams(ugv_model=name))
+        n = int(round((sim_s if name != "husky" else sim_s / 4) / 0.05))
+        w0, c0 = time.perf_counter(), time.process_time()
+        for i in range(n):
+            world.step(i * 0.05, 0.05)
+        wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        if name != "kinematic":
+            world.close()
+        rows.append([name, n * 0.05, n * 0.05 / wall, n * 0.05 / cpu])
+    return rows
+
+
 def bench_loop(quick: bool) -> list[list]:
     sim_fast = 30.0 if quick else 60.0
     sim_bullet = 10.0 if quick else 20.0
@@ -221,6 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     print(markdown_table(
         ["size", "p50 ms @30 fps", "p95 ms @30 fps", "lost @30", "frames/s flat out",
          "received", "lost (dropped)", "p50 ms flat out"], rows))  # fmt: skip
+    print("## Ground world alone (3 UGVs, 20 Hz steps, real-time factor)\n")
+    print(markdown_table(["world", "sim s", "RTF", "RTF (CPU)"], bench_worlds(a.quick)))
     print("## Closed loop: ground world + render + detect + phi(s) (real-time factor)\n")
     rows = bench_loop(a.quick)
     print(
