@@ -34,8 +34,8 @@ class SceneParams:
 def random_scene(
     cam: CameraParams, model: UGVModel, sp: SceneParams, rng: np.random.Generator
 ) -> tuple[UAVPose, UGVStates]:
-    """One random scene (UAV pose, UGV states) satisfying `sp`."""
-    while True:
+    """One random scene (UAV pose, UGV states) satisfying `sp` (ValueError if none is found)."""
+    for _ in range(10000):
         alt = rng.uniform(*sp.alt_range_m)
         r, p = rng.uniform(-sp.tilt_max_rad, sp.tilt_max_rad, 2)
         uav = UAVPose(
@@ -60,6 +60,7 @@ def random_scene(
             ground[:, :2].copy(), rng.uniform(-np.pi, np.pi, sp.n_ugv), np.zeros(sp.n_ugv)
         )
         return uav, states
+    raise ValueError(f"no scene fits {sp} in this camera: lower n_ugv, min_sep_px or margin_px")
 
 
 @dataclass(frozen=True)
