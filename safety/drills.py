@@ -61,6 +61,7 @@ class Script:
     link_ok: Callable[[float], bool] = lambda t: True
     must_trigger: bool = True
     start_heading: float = 0.0  # fixed-wing: initial course [rad]
+    duration_s: float | None = None  # AI time after hand-over [s]; None = DrillParams default
     behave: Act | None = None  # default: fly back toward the start point
 
 
@@ -359,55 +360,102 @@ def random_fixedwing_drill(
 
 
 def random_drill(k: int, rng: np.random.Generator, spec: EnvelopeSpec, p: DrillParams) -> Script:
-    """A random state (start point, warm-up velocity) and a random attack toward the boundary."""
+    """A random state near a boundary and a random attack pushing at it (or a random fault).
+
+    Kinds: fence (fly at a random point of the inclusion fence from 15-45 m inside), zone
+    (at an exclusion zone), ceiling / floor (climb / sink at them from 8-25 m away), over
+    (speed beyond the limit), garbage (NaN, inf, huge), step (an abrupt command), stall,
+    camera, link. Boundary attacks last long enough to reach the boundary, so they must be
+    caught by a fence, zone or altitude row (or an earlier speed / tilt row)."""
     if spec.airframe == "fixedwing":
         return random_fixedwing_drill(k, rng, spec, p)
     geo = spec.geometry()
     lim = spec.limits
-    for _ in range(1000):
-        start = np.array(
-            [
-                *rng.uniform(-1, 1, 2) * _half_extent(spec),
-                -rng.uniform(lim.floor_m + 7, lim.ceiling_m - 7),
-            ]
-        )
-        if geo.distance_outside(start) <= -12.0:
-            break
-    heading = rng.uniform(0, 2 * np.pi)
-    kind = rng.choice(
-        ["push", "push", "push", "climb", "sink", "garbage", "step", "stall", "camera", "link"]
-    )
-    t_on = rng.uniform(1.0, 4.0)
-    t_off = t_on + rng.uniform(2.0, 10.0)
-    hd = np.array([math.cos(heading), math.sin(heading), 0.0])
+    kinds = ["fence"] * 6 + ["zone"] * 2 + ["ceiling"] * 2 + ["floor"] * 2
+    kinds += ["over", "garbage", "garbage", "step", "stall", "camera", "link"]
+    kind = str(rng.choice(kinds))
+    if kind == "zone" and not spec.exclusions:
+        kind = "fence"
+    t_on = rng.uniform(1.0, 3.0)
     expect: tuple[str, ...] = ("",)
     cam, link = (lambda t: True), (lambda t: True)
-    if kind == "push":
+    boundary = (
+        "edge",
+        "face",
+        "field",
+        "home radius",
+        "ceiling",
+        "floor",
+        "speed",
+        "tilt",
+        "accel",
+        "climb",
+        "descent",
+    )
+    start = _random_inside(rng, spec, geo)
+    if kind in ("fence", "zone"):
+        for _ in range(200):
+            if kind == "fence":
+                zone = (
+                    spec.inclusions[rng.integers(len(spec.inclusions))] if spec.inclusions else None
+                )
+                if zone is None:
+                    ang = rng.uniform(-math.pi, math.pi)
+                    target = lim.home_radius_m * np.array([math.cos(ang), math.sin(ang)])
+                else:
+                    pts = zone.points
+                    i = rng.integers(len(pts))
+                    target = pts[i] + rng.uniform(0.1, 0.9) * (pts[(i + 1) % len(pts)] - pts[i])
+            else:
+                target = spec.exclusions[rng.integers(len(spec.exclusions))].points.mean(axis=0)
+            ang = rng.uniform(-math.pi, math.pi)
+            off = rng.uniform(15.0, 45.0) + (10.0 if kind == "zone" else 0.0)
+            cand = np.array([*(target + off * np.array([math.cos(ang), math.sin(ang)])), start[2]])
+            if geo.distance_outside(cand) <= -12.0:
+                start = cand
+                break
+        direction = np.array([target[0] - start[0], target[1] - start[1], rng.uniform(-0.1, 0.1)])
+        speed = rng.uniform(0.5, 1.0) * lim.speed_h_mps
+        atk = push(direction, speed, p)
+        dist = float(np.linalg.norm(direction[:2]))
+        t_off = t_on + dist / speed + rng.uniform(6.0, 12.0)
+        expect = boundary
+    elif kind in ("ceiling", "floor"):
+        up = kind == "ceiling"
+        gap = rng.uniform(8.0, 25.0)
+        start[2] = -(lim.ceiling_m - gap) if up else -(lim.floor_m + gap)
+        rate = rng.uniform(0.6, 1.0) * (lim.climb_mps if up else lim.descent_mps)
+        ang = rng.uniform(-math.pi, math.pi)
         atk = push(
-            hd + np.array([0, 0, rng.uniform(-0.3, 0.3)]),
-            rng.uniform(3.0, 1.5 * lim.speed_h_mps),
-            p,
+            np.array([0.2 * math.cos(ang), 0.2 * math.sin(ang), -1.0 if up else 1.0]), rate, p
         )
-    elif kind == "climb":
-        atk = push(0.3 * hd + np.array([0, 0, -1.0]), rng.uniform(1.0, 2.0) * lim.climb_mps, p)
-    elif kind == "sink":
-        atk = push(0.3 * hd + np.array([0, 0, 1.0]), rng.uniform(1.0, 2.0) * lim.descent_mps, p)
-    elif kind == "garbage":
-        bad = rng.choice([math.nan, math.inf, -math.inf, 1e3, 1e9, -1e6])
-        u = rng.normal(size=3)
-        u[rng.integers(0, 3)] = bad
-        atk, expect = constant(u), ("non-finite", "out of range")
-    elif kind == "step":
-        atk = constant(rng.uniform(0.6, 1.0) * lim.speed_h_mps * hd)
-    elif kind == "stall":
-        atk, expect = constant(None), ("deadline",)
-    elif kind == "camera":
-        atk, expect = toward(start, 3.0, 1.0, p), ("camera",)
-        cam = lambda t, a=t_on, b=t_off: not (a <= t < b)  # noqa: E731
+        t_off = t_on + gap / rate + rng.uniform(5.0, 10.0)
+        expect = boundary
     else:
-        atk, expect = toward(start, 3.0, 1.0, p), ("link",)
-        link = lambda t, a=t_on, b=t_off: not (a <= t < b)  # noqa: E731
-    must = kind in ("garbage", "stall", "camera", "link")
+        t_off = t_on + rng.uniform(2.0, 8.0)
+        ang = rng.uniform(-math.pi, math.pi)
+        hd = np.array([math.cos(ang), math.sin(ang), 0.0])
+        if kind == "over":
+            atk, expect = (
+                push(hd, rng.uniform(1.2, 2.5) * lim.speed_h_mps, p, ramp_mps2=1.0),
+                boundary,
+            )
+            t_off = t_on + 20.0
+        elif kind == "garbage":
+            bad = rng.choice([math.nan, math.inf, -math.inf, 1e3, 1e9, -1e6])
+            u = rng.normal(size=3)
+            u[rng.integers(0, 3)] = bad
+            atk, expect = constant(u), ("non-finite", "out of range")
+        elif kind == "step":
+            atk, expect = constant(rng.uniform(0.6, 1.0) * lim.speed_h_mps * hd), ("tilt", "accel")
+        elif kind == "stall":
+            atk, expect = constant(None), ("deadline",)
+        elif kind == "camera":
+            atk, expect = toward(start, 3.0, 1.0, p), ("camera",)
+            cam = lambda t, a=t_on, b=t_off: not (a <= t < b)  # noqa: E731
+        else:
+            atk, expect = toward(start, 3.0, 1.0, p), ("link",)
+            link = lambda t, a=t_on, b=t_off: not (a <= t < b)  # noqa: E731
     return Script(
         f"random {k:03d} ({kind})",
         start,
@@ -417,8 +465,24 @@ def random_drill(k: int, rng: np.random.Generator, spec: EnvelopeSpec, p: DrillP
         expect,
         camera_ok=cam,
         link_ok=link,
-        must_trigger=must,
+        must_trigger=True,
+        duration_s=t_off + 25.0,
     )
+
+
+def _random_inside(rng: np.random.Generator, spec: EnvelopeSpec, geo) -> np.ndarray:
+    lim = spec.limits
+    start = np.array([0.0, 0.0, -0.5 * (lim.floor_m + lim.ceiling_m)])
+    for _ in range(1000):
+        cand = np.array(
+            [
+                *rng.uniform(-1, 1, 2) * _half_extent(spec),
+                -rng.uniform(lim.floor_m + 7, lim.ceiling_m - 7),
+            ]
+        )
+        if geo.distance_outside(cand) <= -12.0:
+            return cand
+    return start
 
 
 def _half_extent(spec: EnvelopeSpec) -> np.ndarray:
@@ -482,7 +546,8 @@ def run_drill(
     first_fb = ai_back = math.nan
     prev_mode = Mode.AI
     rows = []
-    while ap.clock.t - t0 < p.duration(ap.airframe):
+    duration = script.duration_s if script.duration_s is not None else p.duration(ap.airframe)
+    while ap.clock.t - t0 < duration:
         t = ap.clock.t
         tr = t - t0
         s = ap.state

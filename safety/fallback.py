@@ -232,7 +232,16 @@ class RecoveryPID:
             # a fixed-wing cannot stop on the target: orbit it (tangent + radial correction)
             sat = True
             r = -e[:2]
-            d = max(float(np.hypot(r[0], r[1])), 1e-6)
+            d = float(np.hypot(r[0], r[1]))
+            if d < 1.0:  # on the target: take the radial to the left of the track
+                vh = state.vel_ned[:2]
+                r = (
+                    np.array([-vh[1], vh[0]])
+                    if float(np.hypot(*vh)) > 0.1
+                    else np.array([1.0, 0.0])
+                )
+                r = r / float(np.hypot(r[0], r[1]))
+                d = 1.0
             rad = r / d
             w = (
                 np.array([-rad[1], rad[0]])
@@ -245,8 +254,8 @@ class RecoveryPID:
         u[2] = float(np.clip(u[2], -self.climb, self.descent))
         du = u - state.vel_ned
         dh = float(np.hypot(du[0], du[1]))
-        if dh > self.dv_h:
-            du[:2] *= self.dv_h / dh
+        if dh > self.dv_h and self.min_speed == 0:  # multirotor: respect the accel rows
+            du[:2] *= self.dv_h / dh  # (a fixed-wing turns at its own bank limit instead)
         du[2] = float(np.clip(du[2], -self.dv_v, self.dv_v))
         u = state.vel_ned + du
         if not sat and float(np.linalg.norm(e)) < self.g.i_zone_m:  # conditional integration
