@@ -108,8 +108,21 @@ def run(args: argparse.Namespace) -> int:
     # SIGTERM (and SIGINT, even when a shell started us in the background) end the run cleanly.
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: sitl.request_stop())
+    # A bounded run shows its progress in simulated seconds (on a terminal only).
+    bar = None
+    if args.duration is not None:
+        from tqdm import tqdm
+
+        bar = tqdm(total=round(args.duration), unit="sim s", disable=not sys.stderr.isatty())
+
+    def progress(s: Sitl) -> None:
+        if bar is not None and s.clock.t - bar.n >= 1.0:
+            bar.update(int(s.clock.t - bar.n))
+
     with sitl:
-        stats = sitl.run(duration_s=args.duration)
+        stats = sitl.run(duration_s=args.duration, on_step=progress if bar is not None else None)
+    if bar is not None:
+        bar.close()
     sim_s = clock.t
     ep = sitl.endpoint
     summary = {
@@ -121,9 +134,8 @@ def run(args: argparse.Namespace) -> int:
     }
     if stats is not None:
         summary["real_time_factor"] = stats.real_time_factor
-    folder.write_summary(
-        "# skyherd sitl\n\n"
-        + markdown_table(["quantity", "value"], [[k, json.dumps(v)] for k, v in summary.items()])
-    )
+    table = markdown_table(["quantity", "value"], [[k, json.dumps(v)] for k, v in summary.items()])
+    folder.write_summary("# skyherd sitl\n\n" + table)
+    print(table)
     print(f"skyherd sitl: stopped at t = {sim_s:.1f} s simulated", file=sys.stderr)
     return 0
