@@ -226,11 +226,11 @@ def test_fuzz_12000_malformed_frames_over_the_socket():
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         s.bind(("127.0.0.1", 0))
         try:
+            give_up = time.monotonic() + 60.0
             for i, f in enumerate(frames):
                 s.sendto(f, ("127.0.0.1", 14580 + INSTANCE))
                 # Stay under the kernel's socket buffer: let the vehicle catch up.
-                t_wait = time.monotonic() + 2.0
-                while i + 1 - (link.rx_datagrams - rx0) > 200 and time.monotonic() < t_wait:
+                while i + 1 - (link.rx_datagrams - rx0) > 200 and time.monotonic() < give_up:
                     time.sleep(0.0005)
         finally:
             s.close()
