@@ -32,10 +32,14 @@ class SceneParams:
 
 
 def random_scene(
-    cam: CameraParams, model: UGVModel, sp: SceneParams, rng: np.random.Generator
+    cam: CameraParams,
+    model: UGVModel,
+    sp: SceneParams,
+    rng: np.random.Generator,
+    max_tries: int = 10000,
 ) -> tuple[UAVPose, UGVStates]:
     """One random scene (UAV pose, UGV states) satisfying `sp` (ValueError if none is found)."""
-    for _ in range(10000):
+    for _ in range(max_tries):
         alt = rng.uniform(*sp.alt_range_m)
         r, p = rng.uniform(-sp.tilt_max_rad, sp.tilt_max_rad, 2)
         uav = UAVPose(

@@ -167,4 +167,6 @@ def test_impossible_scene_request_is_a_clear_error():
     from perception.evaluate import SceneParams, random_scene
 
     with pytest.raises(ValueError, match="no scene fits"):
-        random_scene(CAM, MODEL, SceneParams(n_ugv=40, min_sep_px=200), np.random.default_rng(0))
+        random_scene(
+            CAM, MODEL, SceneParams(n_ugv=40, min_sep_px=200), np.random.default_rng(0), 100
+        )
