@@ -200,3 +200,22 @@ def test_corrupt_pixels_found_when_taken_keep_last_good_frame():
     assert sub.stats.corrupt == 1 and sub.stats.received == 1
     assert sub.latest().seq == 0  # the last good frame is still there
     session.close()
+
+
+def test_detection_survives_jpeg():
+    from flight.frames import euler_to_quat
+    from groundsim.ugv import UGVModel, UGVStates
+    from perception.camera import UAVPose
+    from perception.detector import Detector
+    from perception.render_fast import FastRenderer
+
+    cam = CameraParams()
+    uav = UAVPose(np.array([0.0, 0.0, -30.0]), euler_to_quat(0.05, -0.05, 0.3))
+    st = UGVStates(np.array([[0.0, 0.0], [6.0, 3.0], [-5.0, 4.0]]), np.zeros(3), np.zeros(3))
+    frame = FastRenderer(cam, UGVModel()).render(uav, st)
+    d = Detector(cam, 3)
+    raw = d.detect(frame)
+    jpg = d.detect(decode_frame(encode_frame(0, 0.0, POS, QUAT, frame, JPEG)).image)
+    assert raw.count == jpg.count == 3
+    order = lambda c: c[np.lexsort(c.T)]  # noqa: E731
+    assert np.abs(order(raw.centroids_px) - order(jpg.centroids_px)).max() < 0.5
