@@ -27,6 +27,7 @@ import json
 import math
 import threading
 import time
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -252,7 +253,9 @@ class LockstepSwarm:
                 time.sleep(0)
                 self.sim_s, self.wall_s = self.t - sim0, time.monotonic() - wall0
         except Exception as e:  # report to the main thread instead of dying silently
-            self.error = f"simulation stopped at t={self.t:.2f} s: {type(e).__name__}: {e}"
+            where = traceback.extract_tb(e.__traceback__)[-1]
+            self.error = (f"simulation stopped at t={self.t:.2f} s: {type(e).__name__}: {e} "
+                          f"({Path(where.filename).name}:{where.lineno})")  # fmt: skip
 
     @property
     def real_time_factor(self) -> float:
@@ -598,14 +601,18 @@ def separation(tracks: list[np.ndarray], similar_alt_m: float, dt: float = 0.1) 
     )
 
 
-def tracking_error(track: np.ndarray, path_ne: np.ndarray, t0: float, step_s: float) -> float:
-    """Largest horizontal distance [m] from the plan's reference while the plan runs."""
+def tracking_error(
+    track: np.ndarray, path_ne: np.ndarray, t0: float, step_s: float
+) -> tuple[float, float]:
+    """Largest and RMS horizontal distance [m] from the plan's reference while the plan runs
+    (track rows t, north, east, down in the field frame; NaN if no sample falls in the plan)."""
     t_end = t0 + (path_ne.shape[0] - 1) * step_s
-    sel = track[(track[:, 0] >= t0) & (track[:, 0] <= t_end)]
+    sel = track[(track[:, 0] >= t0) & (track[:, 0] <= t_end)] if len(track) else track
     if len(sel) == 0:
-        return math.nan
+        return math.nan, math.nan
     refs = np.array([reference(path_ne, t - t0, step_s)[0] for t in sel[:, 0]])
-    return float(np.max(np.linalg.norm(sel[:, 1:3] - refs, axis=1)))
+    e = np.linalg.norm(sel[:, 1:3] - refs, axis=1)
+    return float(e.max()), float(np.sqrt(np.mean(e * e)))
 
 
 def default_origin() -> Home:

@@ -164,6 +164,8 @@ def run_formation(args: argparse.Namespace, run_dir: RunFolder) -> bool:
         flight.fly()
     except (ClientTimeout, CommandError) as e:
         ok, error = False, str(e)
+        if swarm.error and swarm.error not in error:
+            error += f" ({swarm.error})"
         flight.bar.write(f"skyherd fly: {e}")
     finally:
         flight.close()
@@ -196,13 +198,13 @@ def _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, err
         target = paths_ne[k, -1]
         err = float(np.hypot(*(tr[-1, 1:3] - target))) if len(tr) else math.nan
         land_err.append(err)
-        alt_end = -float(tr[-1, 3]) if len(tr) else math.nan
+        alt_end = round(-float(tr[-1, 3]), 3) + 0.0 if len(tr) else math.nan
         rows.append([args.instance + k, str(plan[k][0]), str(plan[k][-1]), params.altitude(k),
-                     moves[k], tracking_error(tr, paths_ne[k], times.plan_start, params.step_s),
+                     moves[k], *tracking_error(tr, paths_ne[k], times.plan_start, params.step_s),
                      err, alt_end])  # fmt: skip
     table = markdown_table(
         ["instance", "start cell", "target cell", "cruise alt [m]", "moves",
-         "max tracking error [m]", "landing error [m]", "final alt [m]"], rows)  # fmt: skip
+         "tracking error max [m]", "RMS [m]", "landing error [m]", "final alt [m]"], rows)  # fmt: skip
     sep = separation(tracks, params.similar_alt_m)
     landed = ok and all(e < params.cell_m / 2 for e in land_err)
     summary_rows = [

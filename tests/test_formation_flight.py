@@ -1,0 +1,219 @@
+"""`skyherd fly --mission formation`: grid → field mapping, plan checks, separations, and K
+quadrotor SITL vehicles flown end to end over MAVLink (real loopback sockets)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import socket
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from flight.geo import DEFAULT_HOME
+from hil.formation import (
+    FormationParams,
+    PlanError,
+    cell_ne,
+    field_offsets,
+    load_plan,
+    plan_moves,
+    plan_ne,
+    reference,
+    separation,
+    tracking_error,
+    validate_plan,
+    vehicle_homes,
+)
+from policy.sql.layout import STARTS, TARGET_LATTICE
+from scripts.cli import main
+
+# Instances far from the other tests' (0..10) so parallel runs do not share ports.
+BASE = 120
+
+
+def _rows(run):
+    return list(csv.DictReader(open(run / "metrics.csv")))
+
+
+# ---- pure parts ----------------------------------------------------------------------------
+
+
+def test_cell_to_field_mapping_and_vehicle_homes():
+    # cell (x, y) → north (y−1)·c, east (x−1)·c
+    assert np.allclose(cell_ne((1, 1), 2.0), [0.0, 0.0])
+    assert np.allclose(cell_ne((3, 1), 2.0), [0.0, 4.0])  # x is east
+    assert np.allclose(cell_ne((1, 50), 2.0), [98.0, 0.0])  # y is north
+    paths = [[(1, 1), (2, 1), (2, 2)], [(5, 7), (5, 8), (5, 8)]]
+    ne = plan_ne(paths, 3.0)
+    assert ne.shape == (2, 3, 2)
+    assert np.allclose(ne[0], [[0, 0], [0, 3], [3, 3]])
+    assert np.allclose(ne[1, 2], [21.0, 12.0])
+    assert plan_moves(paths) == [2, 1]
+    # each home sits on its start cell: geodetic round trip back to the field frame < 1 mm
+    starts = list(STARTS[9])
+    homes = vehicle_homes(DEFAULT_HOME, starts, 2.0)
+    offs = field_offsets(DEFAULT_HOME, homes)
+    for c, o, h in zip(starts, offs, homes):
+        assert np.linalg.norm(o - cell_ne(c, 2.0)) < 1e-3
+        assert h.alt_m == DEFAULT_HOME.alt_m
+    # (1, 9) is 16 m north: 16 m / (meridian radius 6.357e6 m) = 1.442e-4 degrees of latitude
+    assert homes[0].lat_deg - DEFAULT_HOME.lat_deg == pytest.approx(1.442e-4, rel=1e-3)
+
+
+def test_reference_moves_one_cell_per_step_with_feed_forward():
+    path = plan_ne([[(1, 1), (2, 1), (2, 1), (2, 2)]], 2.0)[0]
+    p, v = reference(path, -1.0, 1.0)  # before the start: first cell, at rest
+    assert np.allclose(p, [0, 0]) and np.allclose(v, 0)
+    p, v = reference(path, 0.25, 1.0)  # a quarter of the way east, 2 m/s east
+    assert np.allclose(p, [0, 0.5]) and np.allclose(v, [0, 2.0])
+    p, v = reference(path, 1.5, 1.0)  # a wait: still, no velocity
+    assert np.allclose(p, [0, 2]) and np.allclose(v, 0)
+    p, v = reference(path, 2.5, 0.5)  # step_s = 0.5: past the end at t = 1.5 s
+    assert np.allclose(p, [2, 2]) and np.allclose(v, 0)
+    p, v = reference(path, 2.5, 1.0)  # half of the last (north) move, 2 m/s north
+    assert np.allclose(p, [1, 2]) and np.allclose(v, [2.0, 0])
+
+
+def test_plan_validation_rejects_bad_plans(tmp_path):
+    good = [[[1, 1], [2, 1]], [[1, 2], [1, 3]]]
+    assert validate_plan(good, 2, 50) == [[(1, 1), (2, 1)], [(1, 2), (1, 3)]]
+    bad = {
+        "one path per agent": ([[[1, 1], [2, 1]]], "2 paths"),
+        "jump": ([[[1, 1], [3, 1]], [[1, 2], [1, 3]]], "jumps"),
+        "diagonal": ([[[1, 1], [2, 2]], [[1, 2], [1, 3]]], "jumps"),
+        "shared cell": ([[[1, 1], [1, 2]], [[1, 2], [1, 2]]], "share a cell"),
+        "off grid": ([[[0, 1], [1, 1]], [[1, 2], [1, 3]]], "off the"),
+        "ragged": ([[[1, 1], [2, 1], [3, 1]], [[1, 2], [1, 3]]], "same length"),
+        "float": ([[[1.5, 1], [2, 1]], [[1, 2], [1, 3]]], "integers"),
+        "bool": ([[[True, 1], [2, 1]], [[1, 2], [1, 3]]], "integers"),
+        "not a list": ({"a": 1}, "2 paths"),
+    }
+    for name, (plan, words) in bad.items():
+        with pytest.raises(PlanError, match=words):
+            validate_plan(plan, 2, 50)
+        assert name
+    f = tmp_path / "plan.json"
+    f.write_text("[[ [1, 1], [2, 1] ], [ [1, 2")  # truncated
+    with pytest.raises(PlanError, match="cannot read"):
+        load_plan(f, 2)
+    f.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(PlanError, match="cannot read"):
+        load_plan(f, 2)
+    with pytest.raises(PlanError, match="cannot read"):
+        load_plan(tmp_path / "missing.json", 2)
+
+
+def test_params_reject_nan_and_out_of_range():
+    assert FormationParams().altitude(3) == pytest.approx(8.0 + 4.5)
+    assert FormationParams(cell_m=3.0, step_s=1.5).speed == pytest.approx(2.0)
+    for bad in ({"cell_m": math.nan}, {"cell_m": 0.5}, {"step_s": 0.0}, {"altitude_step_m": 0.1}):
+        with pytest.raises(ValueError, match="bad formation parameters"):
+            FormationParams(**bad)
+
+
+def test_separation_and_tracking_error_on_hand_made_tracks():
+    t = np.linspace(0.0, 10.0, 101)
+    # A flies east at 1 m/s at 8 m; B is still at (0, 5) at 8.5 m; C is still at (0, 5) at 20 m
+    a = np.stack([t, 0 * t, t, -8 + 0 * t], -1)
+    b = np.stack([t, 0 * t, 5 + 0 * t, -8.5 + 0 * t], -1)
+    c = np.stack([t, 0 * t, 5 + 0 * t, -20 + 0 * t], -1)
+    s = separation([a, b, c], similar_alt_m=1.0)
+    assert s.min_horizontal_any == pytest.approx(0.0, abs=1e-9)  # A passes under C and B
+    assert s.min_horizontal_similar_alt == pytest.approx(0.0, abs=1e-9)  # A and B: 0.5 m apart
+    assert s.min_3d == pytest.approx(0.5)
+    s = separation([a, c], similar_alt_m=1.0)  # 12 m apart vertically: no similar pair
+    assert math.isnan(s.min_horizontal_similar_alt) and s.min_3d == pytest.approx(12.0)
+    # A against a plan that moves one 1 m cell per second east, then waits: the track is on it
+    path = plan_ne([[(1, 1), (2, 1), (3, 1), (3, 1)]], 1.0)[0]
+    emax, erms = tracking_error(a, path, 0.0, 1.0)
+    assert emax == pytest.approx(1.0, abs=1e-9)  # at t = 3 s A is 1 m past the waiting cell
+    assert 0.0 < erms < emax
+    assert all(math.isnan(x) for x in tracking_error(a, path, 50.0, 1.0))
+
+
+# ---- flown end to end ----------------------------------------------------------------------
+
+
+def test_fly_formation_k4_learned_plan_lands_every_vehicle_on_its_target(tmp_path):
+    code = main(["fly", "--mission", "formation", "--agents", "4", "--speedup", "10",
+                 "--instance", str(BASE), "--timeout", "150", "--runs-dir", str(tmp_path)])  # fmt: skip
+    (run,) = tmp_path.iterdir()
+    summary = (run / "summary.md").read_text()
+    assert code == 0, summary
+    assert {"config.json", "telemetry.tlog", "metrics.csv", "formation.png", "plan.json",
+            "summary.md"} <= {p.name for p in run.iterdir()}  # fmt: skip
+    assert "completed" in summary
+    plan = json.loads((run / "plan.json").read_text())
+    assert [tuple(p[0]) for p in plan] == list(STARTS[4])
+    lattice = TARGET_LATTICE[4]
+    assert sorted(tuple(p[-1]) for p in plan) == sorted((x, y) for x in lattice for y in lattice)
+    rows = _rows(run)
+    by = {k: [r for r in rows if r["vehicle"] == str(k)] for k in range(4)}
+    for k in range(4):
+        pos = np.array([[float(r["north"]), float(r["east"]), float(r["down"])] for r in by[k]])
+        # starts on its start cell, cruises at 8 + 1.5 k m, lands on its target cell's centre
+        assert np.linalg.norm(pos[0, :2] - cell_ne(tuple(plan[k][0]), 2.0)) < 0.05
+        assert (-pos[:, 2]).max() == pytest.approx(8.0 + 1.5 * k, abs=0.3)
+        assert np.linalg.norm(pos[-1, :2] - cell_ne(tuple(plan[k][-1]), 2.0)) < 1.0
+        assert -pos[-1, 2] < 0.3 and by[k][-1]["armed"] == "0"
+        assert {"takeoff", "plan", "land"} <= {r["phase"] for r in by[k]}
+    # one simulation clock: every vehicle's telemetry carries the same time stamps
+    times = [{r["t"] for r in by[k]} for k in range(4)]
+    common = set.intersection(*times)
+    assert len(common) > 0.95 * min(len(t) for t in times)
+    # the tlog is a real MAVLink log with all four vehicles (system ids 1 + N)
+    log = mavutil.mavlink_connection(str(run / "telemetry.tlog"))
+    seen = set()
+    while (m := log.recv_match()) is not None:
+        seen.add((m.get_type(), m.get_srcSystem()))
+    for n in range(BASE, BASE + 4):
+        assert {("HEARTBEAT", 1 + n), ("LOCAL_POSITION_NED", 1 + n)} <= seen
+    assert ("SET_POSITION_TARGET_LOCAL_NED", 255) in seen
+
+
+def test_fly_formation_from_a_plan_file_with_3m_cells(tmp_path):
+    # a short hand-made plan: four agents step east/north in lock-step, then wait
+    plan = [[[1, 5], [2, 5], [3, 5], [3, 6]], [[1, 2], [2, 2], [3, 2], [4, 2]],
+            [[2, 1], [3, 1], [4, 1], [5, 1]], [[5, 1], [6, 1], [7, 1], [7, 2]]]  # fmt: skip
+    f = tmp_path / "plan_K4.json"
+    f.write_text(json.dumps(plan))
+    out = tmp_path / "runs"
+    code = main(["fly", "--mission", "formation", "--agents", "4", "--policy-file", str(f),
+                 "--cell-m", "3", "--speedup", "10", "--instance", str(BASE + 10),
+                 "--timeout", "120", "--runs-dir", str(out)])  # fmt: skip
+    (run,) = out.iterdir()
+    assert code == 0, (run / "summary.md").read_text()
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["plan"]["source"] == "file" and cfg["formation"]["cell_m"] == 3.0
+    rows = _rows(run)
+    for k in range(4):
+        last = [r for r in rows if r["vehicle"] == str(k)][-1]
+        end = cell_ne(tuple(plan[k][-1]), 3.0)
+        assert math.hypot(float(last["north"]) - end[0], float(last["east"]) - end[1]) < 1.0
+
+
+def test_fly_formation_bad_usage_exits_2(tmp_path, capsys):
+    runs = str(tmp_path / "runs")
+    base = ["fly", "--mission", "formation", "--runs-dir", runs]
+    assert main([*base, "--connect", "udpin:127.0.0.1:14540"]) == 2
+    assert main([*base, "--cell-m", "nan", "--instance", str(BASE)]) == 2
+    assert main([*base, "--agents", "4", "--instance", "199"]) == 2
+    bad = tmp_path / "bad.json"
+    bad.write_text("[[1, 2], [3")
+    assert main([*base, "--agents", "4", "--policy-file", str(bad)]) == 2
+    with pytest.raises(SystemExit):  # argparse: K must be 4, 9 or 16
+        main([*base, "--agents", "5"])
+    # a port already taken: clear message, exit 2, nothing left running
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 14580 + BASE + 20 + 2))  # vehicle 2's API port
+        plan = tmp_path / "p.json"
+        plan.write_text(json.dumps([[[1, 5], [2, 5]], [[1, 2], [2, 2]], [[2, 1], [3, 1]],
+                                    [[5, 1], [6, 1]]]))  # fmt: skip
+        assert main([*base, "--agents", "4", "--policy-file", str(plan),
+                     "--instance", str(BASE + 20)]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "drop --connect" in err and "--cell-m" in err and "--instance" in err
+    assert "cannot read plan" in err and "pick another --instance" in err
