@@ -46,6 +46,8 @@ class V2Socket:
 
     def __init__(self, mode: str, port: int, source_system: int = 255, source_component: int = 190):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        # Room for telemetry that queues while a test is busy sending (capped by rmem_max).
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
         if mode == "udpin":
             self.sock.bind(("127.0.0.1", port))
             self.peer = None
