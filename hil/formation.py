@@ -212,6 +212,11 @@ class LockstepSwarm:
     def __init__(self, homes: list[Home], base_instance: int, speedup: float, seed: int = 0):
         self.sitls: list[Sitl] = []
         self.instances = [base_instance + k for k in range(len(homes))]
+        self.error: str = ""
+        self.wall_s = 0.0
+        self.sim_s = 0.0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
         try:
             for inst, home in zip(self.instances, homes):
                 ap = make_autopilot("quadrotor", clock=SimClock(), home=home, seed=seed,
@@ -222,11 +227,6 @@ class LockstepSwarm:
             raise
         # a stalled wall clock is not caught up in a burst (the clients could not keep up)
         self.pacer = Pacer(speedup, max_lag_s=PACER_MAX_LAG_S)
-        self.error: str = ""
-        self.wall_s = 0.0
-        self.sim_s = 0.0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
 
     @property
     def t(self) -> float:
