@@ -152,9 +152,8 @@ async def _landed_is(tel, state):
     return (await tel.landed_state()) == state
 
 
-@pytest.fixture
-def sitl_process(tmp_path):
-    cmd = [SKYHERD, "sitl", "--airframe", "quadrotor", "--speedup", str(SPEEDUP),
+def _start_sitl(tmp_path: Path, speedup: float) -> subprocess.Popen:
+    cmd = [SKYHERD, "sitl", "--airframe", "quadrotor", "--speedup", str(speedup),
            "--state-dir", str(tmp_path / "state"), "--runs", str(tmp_path / "runs"), "--duration", "600"]  # fmt: skip
     proc = subprocess.Popen(
         cmd,
@@ -163,17 +162,27 @@ def sitl_process(tmp_path):
         stderr=subprocess.STDOUT,
         text=True,
     )
+    banner = proc.stdout.readline()
+    assert "skyherd sitl" in banner, banner
+    return proc
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    proc.terminate()
     try:
-        banner = proc.stdout.readline()
-        assert "skyherd sitl" in banner, banner
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+@pytest.fixture
+def sitl_process(tmp_path):
+    proc = _start_sitl(tmp_path, SPEEDUP)
+    try:
         yield proc, tmp_path
     finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        _stop(proc)
 
 
 def test_mavsdk_flies_the_sitl(sitl_process):
@@ -194,3 +203,96 @@ def test_mavsdk_flies_the_sitl(sitl_process):
     assert proc.wait(timeout=10) == 0
     summary = next((tmp / "runs").glob("*-sitl/summary.md")).read_text()
     assert "COMMAND_LONG" in summary and "SET_POSITION_TARGET_LOCAL_NED" in summary
+
+
+async def mission_session(log) -> dict:
+    """MAVSDK's mission and geofence plugins: upload, download, fly in AUTO, RTL."""
+    import numpy as np
+    from mavsdk.asyncio.plugins.geofence import (
+        FenceType,
+        GeofenceAsync,
+        GeofenceData,
+        Point,
+        Polygon,
+    )
+    from mavsdk.asyncio.plugins.mission import MissionAsync, MissionItem, MissionPlan
+
+    from flight.geo import DEFAULT_HOME, ned_to_geodetic
+
+    def ll(n: float, e: float) -> tuple[float, float]:
+        lat, lon, _ = ned_to_geodetic(DEFAULT_HOME, np.array([n, e, 0.0]))
+        return lat, lon
+
+    out: dict = {}
+    cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+    async with Mavsdk(cfg) as mavsdk:
+        await mavsdk.add_any_connection("udpin://127.0.0.1:14540")
+        drone = await mavsdk.first_autopilot(timeout_s=15.0)
+        assert drone is not None
+        tel, act, mis, geo = (
+            TelemetryAsync(drone),
+            ActionAsync(drone),
+            MissionAsync(drone),
+            GeofenceAsync(drone),
+        )
+        corners = ((20.0, 0.0), (20.0, 15.0), (0.0, 15.0))
+        items = [
+            MissionItem(*ll(n, e), 8.0, is_fly_through=False, acceptance_radius_m=1.0)
+            for n, e in corners
+        ]
+        await mis.upload_mission(MissionPlan(items))
+        down = (await mis.download_mission()).mission_items
+        out["download"] = [(i.latitude_deg, i.longitude_deg, i.relative_altitude_m) for i in down]
+        out["upload"] = [(i.latitude_deg, i.longitude_deg, i.relative_altitude_m) for i in items]
+        log(f"mission: uploaded {len(items)} items, downloaded {len(down)}")
+        square = [Point(*ll(n, e)) for n, e in ((-100, -100), (-100, 100), (100, 100), (100, -100))]
+        await geo.upload_geofence(GeofenceData([Polygon(square, FenceType.INCLUSION)], []))
+        g = await geo.download_geofence()
+        out["fence_points"] = [(p.latitude_deg, p.longitude_deg) for p in g.polygons[0].points]
+        out["fence_sent"] = [(p.latitude_deg, p.longitude_deg) for p in square]
+        log(
+            f"geofence: uploaded 1 polygon, downloaded {len(g.polygons)} polygon of {len(g.polygons[0].points)} points"
+        )
+        await act.arm()
+        await mis.start_mission()
+        seen, corners_seen = set(), []
+        while not await mis.is_mission_finished():
+            p = await mis.mission_progress()
+            if p.current not in seen:
+                seen.add(p.current)
+                pv = (await tel.position_velocity_ned()).position
+                corners_seen.append((p.current, pv.north_m, pv.east_m, pv.down_m))
+            await asyncio.sleep(0.05)
+        prog = await mis.mission_progress()
+        out["progress"] = (prog.current, prog.total)
+        out["after_mission"] = (await tel.position_velocity_ned()).position
+        log(f"mission finished: progress {prog.current}/{prog.total}, at "
+            f"({out['after_mission'].north_m:.2f}, {out['after_mission'].east_m:.2f}, {out['after_mission'].down_m:.2f}) m")  # fmt: skip
+        await act.return_to_launch()
+
+        async def disarmed():
+            return not await tel.armed()
+
+        await _until("disarmed after RTL", disarmed, 30.0)
+        out["home_landing"] = (await tel.position_velocity_ned()).position
+        log(
+            f"RTL: landed at ({out['home_landing'].north_m:.2f}, {out['home_landing'].east_m:.2f}) m and disarmed"
+        )
+    return out
+
+
+def test_mavsdk_mission_and_geofence(tmp_path):
+    proc = _start_sitl(tmp_path, 10.0)  # no offboard stream here: 10x is fine
+    try:
+        out = asyncio.run(asyncio.wait_for(mission_session(print), timeout=120))
+    finally:
+        _stop(proc)
+    for a, b in zip(out["upload"], out["download"], strict=True):
+        assert a == pytest.approx(b, abs=1e-7)
+    for a, b in zip(out["fence_sent"], out["fence_points"], strict=True):
+        assert a == pytest.approx(b, abs=1e-7)
+    assert out["progress"] == (3, 3)
+    p = out["after_mission"]
+    assert math.hypot(p.north_m - 0.0, p.east_m - 15.0) < 1.0 and abs(p.down_m + 8.0) < 0.5
+    h = out["home_landing"]
+    assert math.hypot(h.north_m, h.east_m) < 1.0 and abs(h.down_m) < 0.2
