@@ -221,3 +221,16 @@ def test_repeated_commands_are_idempotent():
     phase, center = ap.phase, ap.loiter_center
     assert phase in (Phase.LAND_DESCEND, Phase.LAND_FINAL)
     assert ap.land().ok and ap.phase == phase and np.array_equal(ap.loiter_center, center)
+
+
+def test_force_disarm_in_flight_stops_the_engine_and_never_crashes_the_code():
+    ap = airborne(60.0, 24.0)
+    assert not ap.disarm().ok
+    assert ap.disarm(force=True).ok and not ap.armed
+    assert ap.model.get_property("propulsion/engine/set-running") == 0.0
+    fly(ap, 2.0)
+    assert ap.model.get_property("propulsion/engine/power-hp") <= 0.0  # only friction
+    fly(ap, 60.0)  # unpowered, surfaces neutral: it comes down somewhere, the code keeps going
+    s = ap.state
+    assert s.on_ground and all(np.all(np.isfinite(v)) for v in (s.pos_ned, s.vel_ned, s.quat))
+    assert ap.landed_state == LandedState.ON_GROUND

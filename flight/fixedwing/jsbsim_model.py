@@ -105,6 +105,7 @@ class JSBSimPlane:
             raise RuntimeError(f"JSBSim could not load {self.params.aircraft!r}")
         fdm.set_dt(self.params.physics_dt)
         self._fdm = fdm
+        self._n_engines = fdm.get_propulsion().get_num_engines()
         self._t = 0.0
         self._surfaces = Surfaces()
         self._engine_on = False
@@ -174,7 +175,9 @@ class JSBSimPlane:
         else:
             f["fcs/mixture-cmd-norm"] = 0.0
             f["propulsion/magneto_cmd"] = 0
-            f["propulsion/set-running"] = 0
+            # Not "propulsion/set-running" = 0: that *starts* engine 0 (its value is an index).
+            for i in range(self._n_engines):
+                f[f"propulsion/engine[{i}]/set-running"] = 0
             f["fcs/throttle-cmd-norm"] = 0.0
         self._engine_on = on
 
