@@ -33,6 +33,7 @@ def test_resting_on_gear(plane):
     assert np.allclose(f_world, [0, 0, -GRAVITY], atol=0.35)
     assert np.linalg.norm(s.vel_ned) < 0.05
     assert 0.8 < plane.ground_cg_height < 1.5 and abs(s.altitude - plane.ground_cg_height) < 0.1
+    assert plane.get_property("propulsion/engine/set-running") == 0.0  # engine off until armed
 
 
 def test_trimmed_level_flight_holds_60s(plane):
