@@ -580,13 +580,23 @@ class Separation:
     """Smallest horizontal distance between two vehicles whose altitudes differ < similar_alt_m."""
     min_horizontal_any: float
     """Smallest horizontal distance regardless of altitude (paths crossing at different heights)."""
+    pair_3d: tuple[int, int] = (-1, -1)
+    """Vehicle indices of the closest 3-D approach ..."""
+    t_3d: float = math.nan
+    """... and its simulation time [s]."""
+    times: np.ndarray | None = None
+    """(N,) time grid [s] of the series below (for plots)."""
+    series_3d: np.ndarray | None = None
+    """(N,) smallest 3-D distance over all pairs at each time [m]."""
+    series_similar: np.ndarray | None = None
+    """(N,) smallest horizontal distance over pairs at similar altitude (NaN if none) [m]."""
 
 
 def separation(tracks: list[np.ndarray], similar_alt_m: float, dt: float = 0.1) -> Separation:
     """Pairwise separations on a `dt` [s] time grid over the tracks' common span."""
     if len(tracks) < 2 or any(len(tr) < 2 for tr in tracks):
         return Separation(math.nan, math.nan, math.nan)
-    _, pos = resample(tracks, dt)  # (K, N, 3)
+    ts, pos = resample(tracks, dt)  # (K, N, 3)
     if pos.shape[1] == 0:
         return Separation(math.nan, math.nan, math.nan)
     i, j = np.triu_indices(pos.shape[0], 1)
@@ -594,10 +604,17 @@ def separation(tracks: list[np.ndarray], similar_alt_m: float, dt: float = 0.1) 
     hor = np.hypot(d[..., 0], d[..., 1])
     full = np.linalg.norm(d, axis=-1)
     similar = np.abs(d[..., 2]) < similar_alt_m
+    hor_similar = np.where(similar, hor, np.inf).min(axis=0)
+    p, n = np.unravel_index(int(np.argmin(full)), full.shape)
     return Separation(
         float(full.min()),
         float(hor[similar].min()) if similar.any() else math.nan,
         float(hor.min()),
+        (int(i[p]), int(j[p])),
+        float(ts[n]),
+        ts,
+        full.min(axis=0),
+        np.where(np.isfinite(hor_similar), hor_similar, np.nan),
     )
 
 

@@ -213,7 +213,8 @@ def _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, err
         ["landing error, largest [m]", max(land_err) if land_err else math.nan],
         ["landing error, mean [m]", float(np.mean(land_err)) if land_err else math.nan],
         ["all landed inside their target cell", landed],
-        ["min 3-D separation [m]", sep.min_3d],
+        [f"min 3-D separation [m] (vehicles {sep.pair_3d[0]}, {sep.pair_3d[1]} at "
+         f"t = {sep.t_3d:.1f} s)", sep.min_3d],
         [f"min horizontal separation, |Δalt| < {params.similar_alt_m:g} m [m]",
          sep.min_horizontal_similar_alt],
         ["min horizontal separation, any altitude [m]", sep.min_horizontal_any],
@@ -223,11 +224,13 @@ def _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, err
         ["real-time factor sustained (sim / wall)", swarm.real_time_factor],
     ]  # fmt: skip
     overview = markdown_table(["metric", "value"], summary_rows)
-    try:
+    try:  # the learned plans' map (map seed 0); not drawn under a plan that ends elsewhere
         layout = build_layout(GridParams(n_agents=K))
+        ends = sorted(layout.cell(*p[-1]) for p in plan)
+        layout = layout if ends == sorted(int(s) for s in layout.targets) else None
     except ValueError:
         layout = None
-    _plot(run_dir, params, plan, paths_ne, tracks, layout)
+    _plot(run_dir, params, plan, paths_ne, tracks, layout, sep)
     status = "completed" if ok else "ABORTED"
     run_dir.write_summary(
         f"# skyherd fly: formation mission {status}\n\n"
@@ -244,7 +247,7 @@ def _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, err
     return landed
 
 
-def _plot(run_dir: RunFolder, params, plan, paths_ne, tracks, layout) -> None:
+def _plot(run_dir: RunFolder, params, plan, paths_ne, tracks, layout, sep) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -252,7 +255,11 @@ def _plot(run_dir: RunFolder, params, plan, paths_ne, tracks, layout) -> None:
     from matplotlib.patches import Rectangle
 
     c = params.cell_m
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(14, 6.5), gridspec_kw={"width_ratios": [1.2, 1]})
+    fig = plt.figure(figsize=(15, 7))
+    grid = fig.add_gridspec(2, 2, width_ratios=[1.25, 1])
+    ax1 = fig.add_subplot(grid[:, 0])
+    ax2 = fig.add_subplot(grid[0, 1])
+    ax3 = fig.add_subplot(grid[1, 1])
     colors = plt.cm.tab20(np.linspace(0, 1, max(len(plan), 2)))
     if layout is not None:
         M = layout.size
@@ -281,9 +288,17 @@ def _plot(run_dir: RunFolder, params, plan, paths_ne, tracks, layout) -> None:
                   "green ROI)", fontsize=9)  # fmt: skip
     if len(plan) <= 16:
         ax1.legend(fontsize=7, loc="lower right", ncol=2)
-    ax2.set_xlabel("simulation time [s]")
     ax2.set_ylabel("altitude above home [m]")
     ax2.set_title("altitude")
+    if sep.times is not None:
+        ax3.plot(sep.times, sep.series_3d, "k-", lw=1, label="closest pair, 3-D")
+        ax3.plot(sep.times, sep.series_similar, "r-", lw=1,
+                 label=f"closest pair within {params.similar_alt_m:g} m of altitude, horizontal")  # fmt: skip
+        ax3.legend(fontsize=8)
+    ax3.set_xlabel("simulation time [s]")
+    ax3.set_ylabel("separation [m]")
+    ax3.set_ylim(bottom=0)
+    ax3.set_title("separation between vehicles")
     fig.tight_layout()
     fig.savefig(run_dir.file("formation.png"), dpi=110)
     plt.close(fig)

@@ -123,7 +123,7 @@ def test_separation_and_tracking_error_on_hand_made_tracks():
     s = separation([a, b, c], similar_alt_m=1.0)
     assert s.min_horizontal_any == pytest.approx(0.0, abs=1e-9)  # A passes under C and B
     assert s.min_horizontal_similar_alt == pytest.approx(0.0, abs=1e-9)  # A and B: 0.5 m apart
-    assert s.min_3d == pytest.approx(0.5)
+    assert s.min_3d == pytest.approx(0.5) and s.pair_3d == (0, 1) and s.t_3d == pytest.approx(5.0)
     s = separation([a, c], similar_alt_m=1.0)  # 12 m apart vertically: no similar pair
     assert math.isnan(s.min_horizontal_similar_alt) and s.min_3d == pytest.approx(12.0)
     # A against a plan that moves one 1 m cell per second east, then waits: the track is on it
