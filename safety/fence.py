@@ -8,6 +8,8 @@ Items follow MAVLink's MAV_CMD_NAV_FENCE_* commands:
   5004 CIRCLE_EXCLUSION         param1 = radius [m]
 A polygon is `param1` consecutive vertex items. Latitude and longitude in degrees (the only
 place degrees appear), converted to NED about home. Several inclusion areas are a union.
+Items are tuples (command, lat_deg, lon_deg, param1, ...), objects with those attributes, or
+the endpoint's stored MISSION_ITEM_INT records (x, y in degrees·1e7).
 """
 
 from __future__ import annotations
@@ -41,6 +43,13 @@ def _fields(item: Any) -> tuple[int, float, float, float]:
                 f"fence item needs (command, lat, lon, param1, ...), got {item!r}"
             )
         cmd, lat, lon, p1 = item[0], item[1], item[2], item[3]
+    elif hasattr(item, "x") and hasattr(item, "y") and not hasattr(item, "lat"):
+        # MISSION_ITEM_INT as stored by the MAVLink endpoint: x, y in degrees·1e7
+        cmd, p1 = getattr(item, "command", None), getattr(item, "param1", None)
+        try:
+            lat, lon = int(item.x) / 1e7, int(item.y) / 1e7
+        except (TypeError, ValueError) as e:
+            raise FenceItemsError(f"fence item with non-numeric x/y: {item!r}") from e
     else:
         cmd = getattr(item, "command", None)
         lat = getattr(item, "lat_deg", getattr(item, "lat", None))
