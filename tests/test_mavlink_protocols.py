@@ -279,6 +279,9 @@ def test_mission_fence_rally_and_auto_flight():
         bad = [(M.MAV_FRAME_GLOBAL, 5001, 3, 0, 0, 0, *ll, 0.0) for ll in corners[:2]]
         assert c.mission_upload(bad, mission_type=1).type != M.MAV_MISSION_ACCEPTED
         assert len(sitl.endpoint.missions.lists[1]) == 5
+        # Mission messages addressed to MAV_COMP_ID_MISSIONPLANNER (190) are answered, as by PX4.
+        c.mav.mission_request_list_send(7, M.MAV_COMP_ID_MISSIONPLANNER, 1)
+        assert c.recv("MISSION_COUNT", cond=lambda m: m.mission_type == 1).count == 5
         # Rally: none, and none accepted.
         assert c.mission_download(2) == []
         assert c.mission_upload([fence[0]], mission_type=2).type == M.MAV_MISSION_UNSUPPORTED

@@ -282,11 +282,18 @@ class MavlinkEndpoint:
         sysid = self.config.system_id
         ts = getattr(msg, "target_system", getattr(msg, "target", 0))
         tc = getattr(msg, "target_component", 0)
-        if ts not in (0, sysid) or tc not in (0, COMPONENT_ID):
+        mtype = msg.get_type()
+        # Like PX4, mission messages may also be addressed to MAV_COMP_ID_MISSIONPLANNER.
+        ok_tc = (
+            (0, COMPONENT_ID, M.MAV_COMP_ID_MISSIONPLANNER)
+            if mtype.startswith("MISSION_")
+            else (0, COMPONENT_ID)
+        )
+        if ts not in (0, sysid) or tc not in ok_tc:
             self.stats["rx_wrong_target"] += 1
             return
-        handler = self._handlers.get(msg.get_type())
-        self.rx_types[msg.get_type()] += 1
+        handler = self._handlers.get(mtype)
+        self.rx_types[mtype] += 1
         if handler is None:
             self.stats["rx_ignored"] += 1
             return
