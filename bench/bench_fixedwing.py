@@ -21,8 +21,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from flight.autopilot_api import FlightMode, MissionCommand, MissionItem  # noqa: E402
+from flight.fixedwing.attitude import InnerGains  # noqa: E402
 from flight.fixedwing.autopilot import FixedWingAutopilot, Phase  # noqa: E402
-from flight.fixedwing.jsbsim_model import JSBSimPlane  # noqa: E402
+from flight.fixedwing.jsbsim_model import JSBSimPlane, ModelParams  # noqa: E402
+from flight.fixedwing.tecs import TecsGains  # noqa: E402
 from scripts.runfolder import markdown_table  # noqa: E402
 
 GOAL = 150.0
@@ -98,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="short runs (a few seconds in all)")
     args = ap.parse_args(argv)
     sim = 120.0 if args.quick else 600.0
+    print(f"{ModelParams()}\n{InnerGains()}\n{TecsGains()}\n")
 
     rows = []
     worst: list[float] = []
