@@ -53,7 +53,8 @@ def add_formation_arguments(group) -> None:
         type=int,
         choices=AGENT_CHOICES,
         default=9,
-        help="K: vehicles and formation targets (4, 9 or 16; default 9)",
+        help="K: vehicles and formation targets (4, 9 or 16; default 9); the vehicles are "
+        "instances N..N+K-1 with N = --instance",
     )
     group.add_argument(
         "--sql-seed",
