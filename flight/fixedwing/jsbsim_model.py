@@ -215,7 +215,11 @@ class JSBSimPlane:
 
     # ---- outputs -----------------------------------------------------------------------
     def state(self) -> VehicleState:
-        """The present state in skyherd's frames (see module docstring)."""
+        """The present state in skyherd's frames (see module docstring).
+
+        accel_frd is JSBSim's `a-pilot` specific force: an accelerometer at the model's
+        eyepoint (0.5 m ahead of the CG on the J3Cub), so it carries a small p, q, r term.
+        """
         f = self._fdm
         pos = geodetic_to_ned(
             self.home,
