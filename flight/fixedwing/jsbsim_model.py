@@ -218,7 +218,7 @@ class JSBSimPlane:
         """The present state in skyherd's frames (see module docstring).
 
         accel_frd is JSBSim's `a-pilot` specific force: an accelerometer at the model's
-        eyepoint (0.5 m ahead of the CG on the J3Cub), so it carries a small p, q, r term.
+        eyepoint (about 0.6 m aft of the CG on the J3Cub), so it carries a small p, q, r term.
         """
         f = self._fdm
         pos = geodetic_to_ned(
