@@ -739,7 +739,10 @@ class FixedWingAutopilot:
             gam = math.radians(self.p("FW_LND_ANG"))
             v_dem = self.p("FW_LND_AIRSPD")
             if ph == Phase.LAND_FINAL:
-                h_dem = max(0.0, to_td) * math.tan(gam) + self.model.ground_cg_height
+                # The glide path aims short of the touchdown point by twice the flare's
+                # geometric length (2·h_flare/tan γ): the flare and float carry it that far.
+                aim = to_td - 2.0 * self.p("FW_LND_FLALT") / math.tan(gam)
+                h_dem = max(0.0, aim) * math.tan(gam) + self.model.ground_cg_height
                 hdot_ff = -v * math.sin(gam)
                 if wheels_h < self.p("FW_LND_FLALT"):
                     self._phase = Phase.FLARE
