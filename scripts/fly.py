@@ -39,10 +39,11 @@ class SquareMission:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--mission",
-        choices=["groundair", "square"],
+        choices=["groundair", "square", "formation"],
         default="groundair",
         help="groundair: the learned policy keeps the UGVs in view behind the safety net "
-        "(default); square: a 40 m square at 20 m",
+        "(default); square: a 40 m square at 20 m; formation: K vehicles fly the SQL-SIE "
+        "plan to their formation targets",
     )
     parser.add_argument("--airframe", choices=["quadrotor"], default="quadrotor")
     parser.add_argument(
@@ -73,6 +74,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ga.add_argument("--renderer", choices=["fast", "bullet"], default="fast")
     ga.add_argument("--zenoh-port", type=int, default=7447, help="Zenoh listen port (loopback)")
     ga.add_argument("--no-zenoh", action="store_true", help="do not publish camera frames")
+    from scripts.fly_formation import add_formation_arguments
+
+    add_formation_arguments(parser.add_argument_group("formation mission"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -86,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
         parse_address(address)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    if args.mission == "formation":
+        return _run_formation(args)
     if args.mission == "square":
         if not (0 < args.altitude <= 120 and 0 < args.side <= 500):
             raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
@@ -128,6 +134,18 @@ def run(args: argparse.Namespace) -> int:
         if sitl:
             sitl.close()
     return 0 if ok else 1
+
+
+def _run_formation(args) -> int:
+    """K built-in vehicles, each with its own endpoints and client (instances 0..K-1)."""
+    from scripts.fly_formation import run_formation
+
+    if args.connect is not None:
+        raise UsageError("--mission formation flies the built-in vehicles only; drop --connect")
+    run_dir = RunFolder("fly", root=args.runs_dir)
+    run_dir.write_config({"args": args_dict(args), "mission": "formation"})
+    print(f"skyherd fly: run folder {run_dir.path}")
+    return 0 if run_formation(args, run_dir) else 1
 
 
 def _groundair_parts(args):
