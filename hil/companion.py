@@ -58,9 +58,11 @@ class GroundAirCompanion:
         supervisor: Supervisor,
         rig: CameraRig,
         params: CompanionParams = CompanionParams(),
+        world=None,
     ):
         self.task, self.formation, self.policy = task, formation, policy
         self.supervisor, self.rig = supervisor, rig
+        self.world = world  # a groundsim.world.GroundWorld mirrored for PyBullet pixels, or None
         self.p = params
         self.t0: float | None = None
         self.t_ground = 0.0
@@ -75,8 +77,13 @@ class GroundAirCompanion:
 
     # ---- the UGV team on the shared clock ------------------------------------------------
     def ugv_states(self) -> UGVStates:
-        pos = np.array(self.formation.positions(), dtype=float)
-        vn, ve = self.formation.centre_velocity
+        return self.team_states(self.formation)
+
+    @staticmethod
+    def team_states(formation: Formation) -> UGVStates:
+        """The formation's UGVs as groundsim states (heading along the team's motion)."""
+        pos = np.array(formation.positions(), dtype=float)
+        vn, ve = formation.centre_velocity
         n = len(pos)
         return UGVStates(
             pos_ne=pos,
@@ -93,7 +100,12 @@ class GroundAirCompanion:
 
     # ---- camera and perception -----------------------------------------------------------
     def _camera(self, t: float, state: VehicleState) -> None:
-        tick = self.rig.tick(t, state, self.ugv_states())
+        if not self.rig.due(t):
+            return
+        ugvs = self.ugv_states()
+        if self.world is not None:
+            self.world.place(ugvs)  # PyBullet pixels of the same team
+        tick = self.rig.tick(t, state, ugvs)
         if tick is None:
             return
         self.last_tick = tick

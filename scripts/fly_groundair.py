@@ -62,9 +62,15 @@ def fly_groundair(
 ) -> bool:
     task = TaskParams()
     formation = Formation(draw_plan(mission.scenario, np.random.default_rng(seed), task.n_ugvs))
+    world = None
+    if mission.renderer == "bullet":
+        from groundsim.world import GroundWorld, WorldParams
+
+        initial = GroundAirCompanion.team_states(formation)
+        world = GroundWorld(initial, behaviour=None, params=WorldParams(n_ugv=task.n_ugvs))
     rig = CameraRig(task.camera, task.n_ugvs, CameraRigParams(mission.renderer, mission.camera_hz),
-                    publisher=publisher)  # fmt: skip
-    companion = GroundAirCompanion(task, formation, policy, supervisor, rig)
+                    world=world, publisher=publisher)  # fmt: skip
+    companion = GroundAirCompanion(task, formation, policy, supervisor, rig, world=world)
     altitude = start_altitude(task, formation)
     strip: list[np.ndarray] = []
     state = {"active": False, "t_end": math.inf, "error": ""}
@@ -123,6 +129,8 @@ def fly_groundair(
         ok = False
     state["active"] = False
     track = fs.close()
+    if world is not None:
+        world.close()
     return _report(run_dir, mission, task, companion, supervisor, track, strip, ok)
 
 
