@@ -1,7 +1,8 @@
 """Inner loops of the fixed-wing: bank and pitch angle hold, turn coordination.
 
 PID on the attitude errors with rate damping; the coordinated-turn rates
-q = (g/V) tan φ sin φ and r = (g/V) sin φ cos θ are fed forward. Surface effectiveness grows
+q = (g/V) tan φ sin φ and r = (g/V) sin φ cos θ are fed forward, and so is the extra
+incidence a turn needs, α_1g·(1/cos φ − 1) (α_1g ≈ CL/CL_α ≈ 0.2 rad for the J3Cub at 24 m/s). Surface effectiveness grows
 with dynamic pressure, so the gains are scaled by (V_trim / V)^2 (clipped to [0.5, 2]).
 Surfaces are in the `jsbsim_model.Surfaces` convention (+ rolls right, + noses up, + yaws right).
 """
@@ -30,6 +31,7 @@ class InnerGains:
     steer_p: float = 2.5  # rudder per rad of heading error on the ground
     steer_d: float = 1.2  # rudder per rad/s of yaw rate on the ground
     course_k: float = 0.6  # [1/s] course error → turn rate (offboard velocity, manual modes)
+    turn_pitch: float = 0.25  # [rad] α_1g: pitch added in a turn, α_1g·(1/cos φ − 1)
 
 
 class AttitudeController:
@@ -57,6 +59,8 @@ class AttitudeController:
         ail = scale * (g.roll_p * e_roll - g.roll_d * p) + self.roll_i
         q_ff = GRAVITY / v * math.tan(roll) * math.sin(roll)
         r_ff = GRAVITY / v * math.sin(roll) * math.cos(pitch)
+        # A banked wing needs n = 1/cos φ times the lift: about α_1g·(n − 1) more incidence.
+        pitch_dem += g.turn_pitch * (1.0 / max(0.5, math.cos(roll)) - 1.0)
         e_pitch = pitch_dem - pitch
         el = scale * (g.pitch_p * e_pitch + g.pitch_d * (q_ff - q)) + self.pitch_i
         if abs(el) < 1.0 or el * e_pitch < 0:  # anti-windup: integrate only off the stop
