@@ -20,7 +20,7 @@ import numpy as np
 
 from flight.autopilot_api import Autopilot, FlightMode, Setpoint
 from flight.state import VehicleState
-from safety.envelope import NZ, EnvelopeSpec
+from safety.envelope import NZ, EnvelopeSpec, SignedDistance
 from safety.supervisor import Health, Mode, Supervisor, SupervisorParams
 
 Act = Callable[[float, VehicleState], Setpoint | None]
@@ -509,8 +509,10 @@ def run_drill(
     tests pass a wider one to show that the judge catches a breach)."""
     n_sub = max(1, round(p.policy_dt_s / ap.control_dt))
     geo = spec.geometry()
+    signed = SignedDistance(spec)
     z = np.zeros(NZ)
-    worst = -math.inf
+    worst = -math.inf  # rows of the union, every autopilot step (breach detection)
+    clear = -math.inf  # exact signed distance at every policy tick (the excursion reported)
 
     def fly(k: int) -> None:
         nonlocal worst
@@ -575,6 +577,7 @@ def run_drill(
                 if ap.mode != FlightMode.OFFBOARD:
                     ap.set_mode(FlightMode.OFFBOARD)
         rows.append((tr, *s.pos_ned, {Mode.AI: 0, Mode.FALLBACK: 1, Mode.PID: 2}[d.mode]))
+        clear = max(clear, signed(s.pos_ned))
         fly(n_sub)
     st = sup.stats
     recover = ai_back - first_fb if not math.isnan(first_fb) else math.nan
@@ -593,7 +596,7 @@ def run_drill(
         script.name,
         ap.airframe,
         not why,
-        float(worst),
+        float(worst if worst > 0 else clear),  # clearance sampled at the policy rate
         st.fallback_s,
         st.pid_s,
         float(recover),

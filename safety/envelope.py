@@ -38,7 +38,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flight.geo import GRAVITY
-from safety.geometry import circle_polygon, convex_pieces, half_planes, validate_polygon
+from safety.geometry import (
+    circle_polygon,
+    convex_pieces,
+    half_planes,
+    outer_edges,
+    validate_polygon,
+)
 from safety.kernels import worst_residual
 
 NZ = 11
@@ -260,14 +266,22 @@ def build(spec: EnvelopeSpec, predictive: bool) -> Envelope:
     extra_h = 2.0 * dyn.turn_radius(lim.speed_h_mps)
     rows: list[tuple[np.ndarray, float, str, Kind]] = []
 
-    def pos_row(n3: np.ndarray, d: float, t_stop: float, extra: float, name: str, kind: Kind):
+    def pos_row(
+        n3: np.ndarray,
+        d: float,
+        t_stop: float,
+        extra: float,
+        name: str,
+        kind: Kind,
+        margin: bool = True,
+    ):
         a = np.zeros(NZ)
         a[P] = n3
         if predictive:
             k = dyn.dt_s + t_stop
             a[V] = k * (1 - alpha) * n3
             a[U] = k * alpha * n3
-            d = d - lim.margin_m - extra
+            d = d - (lim.margin_m + extra if margin else 0.0)
         return a, d, name, kind
 
     # --- base rows: altitude, home radius, speed, acceleration/tilt, attitude, state speed
@@ -375,17 +389,31 @@ def build(spec: EnvelopeSpec, predictive: bool) -> Envelope:
             pname = zone.name if len(pieces) == 1 else f"{zone.name} piece {k + 1}"
             piece_names.append(pname)
             n, d = half_planes(piece)
+            real = outer_edges(piece, zone.points)
             for i, (ni, di) in enumerate(zip(n, d)):
-                rows.append(
-                    pos_row(
-                        np.array([ni[0], ni[1], 0.0]),
-                        di,
-                        th,
-                        extra_h,
-                        f"{pname} edge {i + 1}",
-                        Kind.FENCE,
+                if real[i]:
+                    rows.append(
+                        pos_row(
+                            np.array([ni[0], ni[1], 0.0]),
+                            di,
+                            th,
+                            extra_h,
+                            f"{pname} edge {i + 1}",
+                            Kind.FENCE,
+                        )
                     )
-                )
+                else:  # a split between pieces: the stop point may cross it, with no margin
+                    rows.append(
+                        pos_row(
+                            np.array([ni[0], ni[1], 0.0]),
+                            di,
+                            th,
+                            0.0,
+                            f"{pname} split {i + 1}",
+                            Kind.FENCE,
+                            margin=False,
+                        )
+                    )
     n_piece_end = len(rows)
 
     # --- exclusion zones: outside = one reversed face holds (convex zones only)
@@ -445,3 +473,43 @@ def circle_zone(
 
 def polygon_zone(name: str, points_ne) -> Zone:
     return Zone(name, validate_polygon(np.asarray(points_ne, dtype=float), name))
+
+
+class SignedDistance:
+    """Exact signed distance [m] of a position to the envelope's boundary (> 0 outside).
+
+    Inside, it is minus the distance to the nearest real boundary: fence and zone edges as
+    segments (not the lines of their rows, and not the splits between convex pieces), the
+    home-radius polygon, floor and ceiling. Outside, it is the row measure of `geometry()`.
+    Drills use it for the "excursion" column; a non-convex fence needs the segment form.
+    """
+
+    def __init__(self, spec: EnvelopeSpec):
+        self.spec = spec
+        self.geometry = spec.geometry()
+        rings = [z.points for z in spec.inclusions] + [z.points for z in spec.exclusions]
+        if spec.limits.home_radius_m > 0:
+            rings.append(
+                circle_polygon(
+                    np.zeros(2), spec.limits.home_radius_m, spec.limits.circle_sides, outer=False
+                )
+            )
+        a = np.concatenate([r for r in rings]) if rings else np.zeros((0, 2))
+        b = np.concatenate([np.roll(r, -1, axis=0) for r in rings]) if rings else np.zeros((0, 2))
+        self.a, self.ab = a, b - a
+        self.ab2 = np.maximum(np.einsum("ij,ij->i", self.ab, self.ab), 1e-12)
+
+    def __call__(self, p_ned: np.ndarray) -> float:
+        out = self.geometry.distance_outside(p_ned)
+        if out > 0 or not math.isfinite(out):
+            return out
+        q = np.asarray(p_ned[:2], float)
+        s = np.clip(np.einsum("ij,ij->i", q - self.a, self.ab) / self.ab2, 0.0, 1.0)
+        d_h = (
+            float(np.min(np.hypot(*(self.a + s[:, None] * self.ab - q).T)))
+            if len(self.a)
+            else math.inf
+        )
+        alt = -float(p_ned[2])
+        d_v = min(alt - self.spec.limits.floor_m, self.spec.limits.ceiling_m - alt)
+        return -min(d_h, d_v)

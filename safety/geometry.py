@@ -76,6 +76,20 @@ def half_planes(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return nrm, d
 
 
+def outer_edges(piece: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """For each edge that half_planes(piece) keeps: is it an edge of the original polygon
+    (True) or a diagonal the decomposition added (False)? Shape (n_kept,)."""
+    a, b = piece, np.roll(piece, -1, axis=0)
+    keep = np.linalg.norm(b - a, axis=1) > 1e-9
+    pa, pb = poly, np.roll(poly, -1, axis=0)
+    out = []
+    for u, v in zip(a[keep], b[keep]):
+        fwd = np.all(np.isclose(pa, u), axis=1) & np.all(np.isclose(pb, v), axis=1)
+        bwd = np.all(np.isclose(pa, v), axis=1) & np.all(np.isclose(pb, u), axis=1)
+        out.append(bool(np.any(fwd | bwd)))
+    return np.array(out, dtype=bool)
+
+
 def convex_pieces(poly: np.ndarray) -> list[np.ndarray]:
     """Split a simple polygon into convex pieces: ear clipping, then Hertel–Mehlhorn merging.
 

@@ -118,3 +118,28 @@ def test_fixedwing_drill_loiters_and_recovers(tmp_path, capsys):
     ev = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
     assert [e["to"] for e in ev][:3] == ["fallback", "pid", "ai"]
     assert ev[1]["t"] - ev[0]["t"] == pytest.approx(6.0, abs=0.03)  # loiter hold_min_s of the set
+
+
+def test_notched_fence_drills(tmp_path, capsys):
+    """A non-convex constraint set (another mission's file) through the same command."""
+    env = default_envelope_path("quadrotor").with_name("quadrotor_notched.toml")
+    rc = main(
+        [
+            "drill",
+            "--envelope",
+            str(env),
+            "--only",
+            "lateral",
+            "--random",
+            "4",
+            "--seed",
+            "5",
+            "--runs-dir",
+            str(tmp_path),
+        ]
+    )
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "quadrotor-notched-field 2026.11-r1" in out and "breaches beyond the tolerance: 0" in out
+    rows = list(csv.DictReader(open(next(tmp_path.iterdir()) / "metrics.csv")))
+    assert float(rows[0]["excursion_m"]) < -5.0  # exact clearance, not the 0 of a split

@@ -246,3 +246,23 @@ def test_osqp_projection_matches_cvxpy_and_is_verified_safe():
         assert ref is not None and np.allclose(u, ref, atol=2e-3)
     assert n_proj >= 10
     assert pr.project(z_of((0, 0, -20), att=(1.0, 0))) is None  # state-only row: nothing helps
+
+
+def test_signed_distance_of_a_notched_fence():
+    """North-west corner cut out at (30, -30): splits between convex pieces are not fences."""
+    from safety.envelope import SignedDistance
+
+    spec, _ = load_envelope(default_envelope_path("quadrotor").with_name("quadrotor_notched.toml"))
+    sd, geo = SignedDistance(spec), spec.geometry()
+    assert len(geo.piece_starts) >= 2
+    assert sd(np.array([0.0, 0.0, -20.0])) == pytest.approx(-15.0)  # floor nearest, not a split
+    assert sd(np.array([29.0, -29.0, -30.0])) == pytest.approx(-math.sqrt(2))  # reflex corner
+    assert sd(np.array([40.0, -40.0, -30.0])) == pytest.approx(10.0)  # in the notch: outside
+    env = spec.envelope()
+    hover = z_of((0.0, 0.0, -20.0))  # on a split: allowed in either piece, no margin there
+    assert env.worst(hover) <= 0
+    split_rows = [n for n in env.names if " split " in n]
+    assert split_rows and all(n.startswith("field piece") for n in split_rows)
+    # flying into the notch from the south is refused by a real edge of the notch
+    z = z_of((26.0, -40.0, -30.0), (3, 0, 0), (3, 0, 0))
+    assert env.worst(z) > 0 and " edge " in env.violated(z)[0][0]
