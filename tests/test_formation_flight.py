@@ -7,6 +7,7 @@ import csv
 import json
 import math
 import socket
+import time
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from pymavlink import mavutil
 from flight.geo import DEFAULT_HOME
 from hil.formation import (
     FormationParams,
+    LockstepSwarm,
     PlanError,
     cell_ne,
     field_offsets,
@@ -217,3 +219,46 @@ def test_fly_formation_bad_usage_exits_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "drop --connect" in err and "--cell-m" in err and "--instance" in err
     assert "cannot read plan" in err and "pick another --instance" in err
+
+
+def test_flight_out_of_time_aborts_with_exit_1_and_frees_every_port(tmp_path):
+    plan = [[[1, 5], [2, 5]], [[1, 2], [2, 2]], [[2, 1], [3, 1]], [[5, 1], [6, 1]]]
+    f = tmp_path / "p.json"
+    f.write_text(json.dumps(plan))
+    inst = BASE + 30
+    code = main(["fly", "--mission", "formation", "--agents", "4", "--policy-file", str(f),
+                 "--timeout", "2", "--instance", str(inst), "--runs-dir", str(tmp_path / "r")])  # fmt: skip
+    assert code == 1
+    (run,) = (tmp_path / "r").iterdir()
+    summary = (run / "summary.md").read_text()
+    assert "ABORTED" in summary and "timed out waiting for" in summary
+    for port in [p + inst + k for p in (14580, 18570, 14540) for k in range(4)]:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", port))  # closed: nothing of the flight is left running
+
+
+def test_a_failing_vehicle_stops_the_swarm_with_the_reason():
+    homes = vehicle_homes(DEFAULT_HOME, [(1, 1), (3, 1)], 2.0)
+    swarm = LockstepSwarm(homes, BASE + 40, speedup=0)
+    calls = {"n": 0}
+    real_step = swarm.sitls[1].autopilot.step
+
+    def flaky_step():
+        calls["n"] += 1
+        if calls["n"] == 50:
+            raise RuntimeError("motor 3 exploded")
+        real_step()
+
+    swarm.sitls[1].autopilot.step = flaky_step
+    try:
+        swarm.start()
+        deadline = time.monotonic() + 10.0
+        while not swarm.error and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        swarm.close()
+    assert "RuntimeError: motor 3 exploded" in swarm.error
+    # vehicle 0 made its 50th 4 ms step in the iteration where vehicle 1's failed; nothing after
+    assert "t=0.20 s" in swarm.error and "test_formation_flight.py" in swarm.error
+    assert swarm.sitls[0].clock.t == pytest.approx(0.200)
+    assert swarm.sitls[1].clock.t == pytest.approx(0.196)
