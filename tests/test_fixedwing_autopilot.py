@@ -234,3 +234,16 @@ def test_force_disarm_in_flight_stops_the_engine_and_never_crashes_the_code():
     s = ap.state
     assert s.on_ground and all(np.all(np.isfinite(v)) for v in (s.pos_ned, s.vel_ned, s.quat))
     assert ap.landed_state == LandedState.ON_GROUND
+
+
+def test_land_during_the_takeoff_roll_aborts_on_the_runway():
+    ap = FixedWingAutopilot()
+    assert ap.arm().ok and ap.takeoff(40.0).ok
+    fly(ap, 8.0)
+    assert ap.phase == Phase.TAKEOFF_ROLL and ap.airspeed > 5.0
+    assert ap.land().ok and ap.phase == Phase.ROLLOUT
+    assert ap.model.surfaces.throttle == 1.0  # the last take-off command, until the next step
+    fly(ap, 30.0)
+    s = ap.state
+    assert not ap.armed and s.on_ground and np.linalg.norm(s.vel_ned) < 0.3
+    assert abs(s.pos_ned[1]) < 3.0 and s.pos_ned[0] < 150.0

@@ -258,6 +258,8 @@ class FixedWingAutopilot:
                 return Result.accepted()  # already holding: keep the same circle
             if self._flying():
                 self._enter_hold()
+            else:
+                self._abort_takeoff_roll()
             self._mode = FlightMode.HOLD
             return Result.accepted()
         if mode == FlightMode.TAKEOFF:
@@ -314,6 +316,7 @@ class FixedWingAutopilot:
         if not self._flying():
             if self._state.on_ground:
                 self._mode = FlightMode.LAND
+                self._abort_takeoff_roll()
                 return Result.accepted()
             return Result.denied("not flying")
         if self._mode == FlightMode.LAND and self._phase in LANDING_PHASES:
@@ -407,6 +410,11 @@ class FixedWingAutopilot:
                 Phase.ROLLOUT,
             )
         )
+
+    def _abort_takeoff_roll(self) -> None:
+        """On the runway at take-off power: idle, brakes and steering, as after a landing."""
+        if self._phase == Phase.TAKEOFF_ROLL:
+            self._phase = Phase.ROLLOUT
 
     def _course_now(self) -> float:
         v = self._state.vel_ned
