@@ -26,7 +26,9 @@ the reaction time and the loiter circle's diameter 2 R_turn is added to the marg
 
 The feasible set is a union of polyhedra: all *base* rows must hold, the position must be
 inside at least one convex piece of the inclusion fence, and outside every exclusion zone
-(outside a convex zone = at least one of its faces, reversed, holds).
+(outside a convex zone = at least one of its faces, reversed, holds). A non-convex fence is
+split into convex pieces; the splits are not fences, so their rows carry the prediction
+(the stop point may cross into the next piece) but no margin.
 """
 
 from __future__ import annotations

@@ -263,12 +263,3 @@ class RecoveryPID:
                 self.integral + self.g.ki * e * dt, -self.g.i_limit_m_s, self.g.i_limit_m_s
             )
         return Setpoint(vel_ned=u, pos_ned=None)
-
-
-def position_rows(envelope: Envelope) -> np.ndarray:
-    """Indices of the position rows (fence, zones, altitude, home) of an envelope."""
-    return np.flatnonzero(
-        np.isin(
-            envelope.kinds, [int(k) for k in (Kind.FENCE, Kind.EXCLUSION, Kind.ALTITUDE, Kind.HOME)]
-        )
-    )

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flight.state import VehicleState
-from safety.envelope import ATT, NZ, Envelope, P, U, V
+from safety.envelope import NZ, Envelope, P, U, V
 
 
 def make_z(
@@ -89,7 +89,3 @@ class Monitor:
         sv = abs(float(v_ned[2]))
         h = sh * sh / (2 * d.decel_h_mps2) + sh * d.react_s if d.decel_h_mps2 > 0 else math.inf
         return h, sv * sv / (2 * d.decel_v_mps2) + sv * d.react_s
-
-
-def attitude_ok(z: np.ndarray, limit_rad: float) -> bool:
-    return abs(z[ATT][0]) <= limit_rad and abs(z[ATT][1]) <= limit_rad

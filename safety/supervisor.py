@@ -26,7 +26,7 @@ import numpy as np
 
 from flight.autopilot_api import FlightMode, Setpoint
 from flight.state import VehicleState
-from safety.envelope import NZ, Envelope, U
+from safety.envelope import NZ, Envelope
 from safety.fallback import HoverFallback, LoiterFallback, PidGains, RecoveryPID, inside_with_margin
 from safety.kernels import nearest_active, worst_residual
 from safety.monitor import Monitor, make_z
@@ -367,20 +367,3 @@ class Supervisor:
 
 def _finite(z: np.ndarray) -> bool:
     return bool(np.isfinite(z.sum()))  # one reduction: a NaN or inf anywhere shows in the sum
-
-
-def command_u(decision: Decision) -> np.ndarray | None:
-    """The velocity part of a decision's command (3,) or None."""
-    return None if decision.command.vel_ned is None else np.asarray(decision.command.vel_ned)
-
-
-__all__ = [
-    "Decision",
-    "Health",
-    "Mode",
-    "Severity",
-    "Supervisor",
-    "SupervisorParams",
-    "U",
-    "command_u",
-]
