@@ -17,7 +17,7 @@ thread, then waits once on one `Pacer`. Clients: `FormationFlight` runs one `Veh
 (receive + heartbeat threads) per vehicle over real loopback UDP sockets and orchestrates the
 shared phases from the calling thread: connect, arm, take off to distinct altitudes
 (`base_altitude_m + altitude_step_m · k`), OFFBOARD hold above the start cell, the lock-step
-plan in time (one plan step per `step_s` of simulation time, linear between cell centres with
+plan in time (one plan step per cell_m / speed_mps of simulation time, linear between cell centres with
 velocity feed-forward), hold over the target cell, LAND, disarm.
 """
 
@@ -65,8 +65,8 @@ class FormationParams:
 
     cell_m: float = 2.0
     """Grid cell size [m] (one cell = one plan move)."""
-    step_s: float = 1.0
-    """Simulation time per lock-step plan step [s] (cruise speed = cell_m / step_s)."""
+    speed_mps: float = 2.0
+    """Cruise speed along a straight plan leg [m/s]: one plan step takes cell_m / speed_mps."""
     base_altitude_m: float = 8.0
     """Cruise altitude of vehicle 0 above its home [m]."""
     altitude_step_m: float = 1.5
@@ -83,7 +83,7 @@ class FormationParams:
     def __post_init__(self) -> None:
         checks = {
             "cell_m in [1, 20]": 1.0 <= self.cell_m <= 20.0,
-            "step_s in [0.2, 10]": 0.2 <= self.step_s <= 10.0,
+            "speed_mps in [0.5, 8]": 0.5 <= self.speed_mps <= 8.0,
             "base_altitude_m in [3, 60]": 3.0 <= self.base_altitude_m <= 60.0,
             "altitude_step_m in [0.5, 10]": 0.5 <= self.altitude_step_m <= 10.0,
             "lead_s >= 0": self.lead_s >= 0.0,
@@ -100,9 +100,9 @@ class FormationParams:
         return self.base_altitude_m + self.altitude_step_m * k
 
     @property
-    def speed(self) -> float:
-        """Cruise speed along a straight plan leg [m/s]."""
-        return self.cell_m / self.step_s
+    def step_s(self) -> float:
+        """Simulation time per lock-step plan step [s]."""
+        return self.cell_m / self.speed_mps
 
 
 # ---- the plan on the ground ---------------------------------------------------------------

@@ -210,7 +210,7 @@ def _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, err
     landed = ok and all(e < params.cell_m / 2 for e in land_err)
     summary_rows = [
         ["vehicles", K],
-        [f"plan steps (one per {params.step_s:g} s)", len(plan[0]) - 1],
+        [f"plan steps (one per {params.step_s:.3g} s)", len(plan[0]) - 1],
         ["landing error, largest [m]", max(land_err) if land_err else math.nan],
         ["landing error, mean [m]", float(np.mean(land_err)) if land_err else math.nan],
         ["all landed inside their target cell", landed],
@@ -236,7 +236,7 @@ def _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, err
     run_dir.write_summary(
         f"# skyherd fly: formation mission {status}\n\n"
         f"K = {K} quadrotors fly the learned lock-step grid plan ({params.cell_m:g} m cells, "
-        f"{params.speed:g} m/s, cruise at {params.altitude(0):g} + {params.altitude_step_m:g}·k m)"
+        f"{params.speed_mps:g} m/s, cruise at {params.altitude(0):g} + {params.altitude_step_m:g}·k m)"
         f" and land on their formation targets.\n"
         + (f"\nAborted: {error}\n" if error else "")
         + f"\n{table}\n{overview}"

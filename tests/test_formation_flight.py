@@ -110,8 +110,11 @@ def test_plan_validation_rejects_bad_plans(tmp_path):
 
 def test_params_reject_nan_and_out_of_range():
     assert FormationParams().altitude(3) == pytest.approx(8.0 + 4.5)
-    assert FormationParams(cell_m=3.0, step_s=1.5).speed == pytest.approx(2.0)
-    for bad in ({"cell_m": math.nan}, {"cell_m": 0.5}, {"step_s": 0.0}, {"altitude_step_m": 0.1}):
+    assert FormationParams(cell_m=3.0).step_s == pytest.approx(1.5)  # 2 m/s at any cell size
+    assert FormationParams(cell_m=20.0, speed_mps=4.0).step_s == pytest.approx(5.0)
+    bad_sets = ({"cell_m": math.nan}, {"cell_m": 0.5}, {"speed_mps": 0.0},
+                {"speed_mps": math.inf}, {"altitude_step_m": 0.1})  # fmt: skip
+    for bad in bad_sets:
         with pytest.raises(ValueError, match="bad formation parameters"):
             FormationParams(**bad)
 
@@ -190,6 +193,7 @@ def test_fly_formation_from_a_plan_file_with_3m_cells(tmp_path):
     assert code == 0, (run / "summary.md").read_text()
     cfg = json.loads((run / "config.json").read_text())
     assert cfg["plan"]["source"] == "file" and cfg["formation"]["cell_m"] == 3.0
+    assert "one per 1.5 s" in (run / "summary.md").read_text()  # 3 m cells at 2 m/s
     rows = _rows(run)
     for k in range(4):
         last = [r for r in rows if r["vehicle"] == str(k)][-1]
