@@ -247,3 +247,16 @@ def test_land_during_the_takeoff_roll_aborts_on_the_runway():
     s = ap.state
     assert not ap.armed and s.on_ground and np.linalg.norm(s.vel_ned) < 0.3
     assert abs(s.pos_ned[1]) < 3.0 and s.pos_ned[0] < 150.0
+
+
+def test_mission_replaced_in_flight_restarts_and_empty_mission_holds():
+    ap = airborne(60.0, 24.0)
+    far = [MissionItem(MissionCommand.WAYPOINT, np.array([3000.0, 0.0, -60.0]))]
+    assert ap.set_mission(far).ok and ap.set_mode(FlightMode.MISSION).ok
+    fly(ap, 5.0)
+    west = [MissionItem(MissionCommand.WAYPOINT, np.array([0.0, -800.0, -60.0]))]
+    assert ap.set_mission(west).ok
+    assert ap.mode == FlightMode.MISSION and np.allclose(ap._b, [0.0, -800.0])
+    fly(ap, 60.0)
+    assert ap.mission_progress.reached == [0]
+    assert ap.set_mission([]).ok and ap.mode == FlightMode.HOLD and ap.phase == Phase.LOITER

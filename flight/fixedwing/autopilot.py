@@ -377,6 +377,12 @@ class FixedWingAutopilot:
                 return Result.denied(f"item {i}: position must be 3 finite numbers")
         self._mission = list(items)
         self._progress = MissionProgress()
+        if self._mode == FlightMode.MISSION and self._flying():
+            if self._mission:  # a new upload mid-mission restarts from its first item
+                self._start_item(0)
+            else:
+                self._mode = FlightMode.HOLD
+                self._enter_hold()
         return Result.accepted()
 
     def set_mission_current(self, seq: int) -> Result:
