@@ -125,5 +125,6 @@ def test_mission_with_loiter_time_and_land_item():
     t_loiter = rec.rows[-1][0]
     assert t_loiter > 30.0
     run_until(ap, rec, lambda s: not ap.armed, 500.0)
+    assert ap.mission_progress.reached == [0, 1, 2] and ap.mission_progress.finished
     pos = rec.touchdown[0]
     assert abs(pos[1] - 400.0) < 10.0 and 1550.0 < pos[0] < 1700.0

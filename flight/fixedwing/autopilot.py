@@ -119,7 +119,6 @@ class FixedWingAutopilot:
         self._offboard_t = -math.inf
         self._sticks = (0.0, 0.0, 0.0, 0.0)
         self._landed_t: float | None = None
-        self._phase_t = 0.0
         self._reset_loops()
         self._nav_init()
         self._state = self._stamp(self.model.state())
@@ -459,7 +458,6 @@ class FixedWingAutopilot:
         self._h_dem = alt
         self._after_takeoff = then
         self._phase = Phase.TAKEOFF_ROLL
-        self._phase_t = self.clock.t
         self._reset_loops(0.0, 1.0)
 
     def _landing_runway(self) -> Runway:
@@ -536,7 +534,8 @@ class FixedWingAutopilot:
             self._start_item(seq + 1)
         else:
             self._progress.finished = True
-            self._enter_hold()  # PX4: loiter at the end of the mission, still in MISSION
+            if self._flying():
+                self._enter_hold()  # PX4: loiter at the end of the mission, still in MISSION
 
     def _mission_tick(self) -> None:
         if self._progress.finished or not self._mission:
@@ -663,7 +662,6 @@ class FixedWingAutopilot:
         wheels_h = self.model.agl - self.model.ground_cg_height
         if not self.model.wheels_down() and wheels_h > 1.0:
             self._phase = Phase.TAKEOFF_CLIMB
-            self._phase_t = self.clock.t
             self.att.pitch_i = el
             self.tecs.reset(1.0, pitch)
         return Surfaces(ail, el, self._steer(st, rw), self.p("FW_THR_MAX"), 0.0)
@@ -679,6 +677,13 @@ class FixedWingAutopilot:
         if gs < 0.3:
             self._phase = Phase.LANDED
             self._landed_t = self.clock.t
+            cur = self._progress.current
+            if (
+                self._mode == FlightMode.MISSION
+                and cur < len(self._mission)
+                and self._mission[cur].command == MissionCommand.LAND
+            ):
+                self._item_reached()  # a LAND item is reached once stopped on the ground
         return Surfaces(ail, el, self._steer(st, rw), 0.0, brake)
 
     # ---- flight -------------------------------------------------------------------------------
