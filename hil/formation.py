@@ -37,7 +37,7 @@ from tqdm import tqdm
 from flight.airframes_registry import make_autopilot
 from flight.autopilot_api import FlightMode
 from flight.clock import Pacer, SimClock
-from flight.geo import DEFAULT_HOME, Home, geodetic_to_ned, ned_to_geodetic
+from flight.geo import Home, geodetic_to_ned, ned_to_geodetic
 from flight.mavlink import EndpointConfig
 from flight.sitl import Sitl
 from hil.client import ClientTimeout, Telemetry, VehicleClient
@@ -273,7 +273,7 @@ class LockstepSwarm:
 # ---- the clients ---------------------------------------------------------------------------
 
 
-class _Recorder:
+class TrackRecorder:
     """Thread-safe metrics.csv rows and per-vehicle tracks (t, north, east, down) in the field frame."""
 
     def __init__(self, metrics: CsvWriter | None, n: int):
@@ -305,7 +305,7 @@ class FormationVehicle:
         altitude: float,
         path_ne: np.ndarray,
         step_s: float,
-        recorder: _Recorder,
+        recorder: TrackRecorder,
     ):
         self.index = index
         self.client = client
@@ -318,6 +318,7 @@ class FormationVehicle:
         self.phase = "connect"
         self.hold_ne: np.ndarray | None = None  # field-frame hold point while in OFFBOARD
         self.t0: float | None = None  # plan start [s, vehicle time]
+        self.error = ""
         client.stream_offboard(self._setpoint)
 
     @property
@@ -338,7 +339,15 @@ class FormationVehicle:
         return self.path_ne[-1]
 
     def _setpoint(self, tel: Telemetry):
-        """Called on every LOCAL_POSITION_NED (receive thread): record, then the setpoint."""
+        """Called on every LOCAL_POSITION_NED (receive thread): record, then the setpoint.
+        An error is kept for the flight to report (the receive thread must not die)."""
+        try:
+            return self._setpoint_unguarded(tel)
+        except Exception as e:  # noqa: BLE001
+            self.error = self.error or f"vehicle {self.index} setpoint: {type(e).__name__}: {e}"
+            return None
+
+    def _setpoint_unguarded(self, tel: Telemetry):
         t = tel.time_boot_ms / 1000.0
         ref_ne = vel_ne = None
         if self.t0 is not None:
@@ -408,6 +417,9 @@ class FormationFlight:
         while not pred():
             if self.swarm is not None and self.swarm.error:
                 raise ClientTimeout(self.swarm.error)
+            for v in self.v:
+                if v.error:
+                    raise ClientTimeout(v.error)
             if check is not None:
                 check()
             if time.monotonic() > deadline:
@@ -630,7 +642,3 @@ def tracking_error(
     refs = np.array([reference(path_ne, t - t0, step_s)[0] for t in sel[:, 0]])
     e = np.linalg.norm(sel[:, 1:3] - refs, axis=1)
     return float(e.max()), float(np.sqrt(np.mean(e * e)))
-
-
-def default_origin() -> Home:
-    return DEFAULT_HOME

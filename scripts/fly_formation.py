@@ -18,6 +18,7 @@ from dataclasses import asdict
 
 import numpy as np
 
+from flight.geo import DEFAULT_HOME
 from hil.client import ClientTimeout, CommandError
 from hil.formation import (
     TRACK_COLUMNS,
@@ -26,8 +27,7 @@ from hil.formation import (
     FormationVehicle,
     LockstepSwarm,
     PlanError,
-    _Recorder,
-    default_origin,
+    TrackRecorder,
     field_offsets,
     load_plan,
     open_clients,
@@ -129,7 +129,7 @@ def run_formation(args: argparse.Namespace, run_dir: RunFolder) -> bool:
     K = args.agents
     plan, plan_info = obtain_plan(args)
     starts = [p[0] for p in plan]
-    origin = default_origin()
+    origin = DEFAULT_HOME  # the field origin: grid cell (1, 1)
     homes = vehicle_homes(origin, starts, params.cell_m)
     instances = [args.instance + k for k in range(K)]
     run_dir.write_config(
@@ -153,7 +153,7 @@ def run_formation(args: argparse.Namespace, run_dir: RunFolder) -> bool:
           f"plan of {len(plan[0]) - 1} steps, speed-up {args.speedup:g}")  # fmt: skip
     paths_ne = plan_ne(plan, params.cell_m)
     offsets = field_offsets(origin, homes)
-    recorder = _Recorder(run_dir.metrics(TRACK_COLUMNS), K)
+    recorder = TrackRecorder(run_dir.metrics(TRACK_COLUMNS), K)
     vehicles = [
         FormationVehicle(k, c, offsets[k], params.altitude(k), paths_ne[k], params.step_s, recorder)
         for k, c in enumerate(clients)
