@@ -260,3 +260,18 @@ def test_mission_replaced_in_flight_restarts_and_empty_mission_holds():
     fly(ap, 60.0)
     assert ap.mission_progress.reached == [0]
     assert ap.set_mission([]).ok and ap.mode == FlightMode.HOLD and ap.phase == Phase.LOITER
+
+
+def test_land_far_from_home_lands_straight_ahead():
+    """Beyond 1500 m from home LAND picks a touchdown point ahead on the present course."""
+    ap = airborne(60.0, 24.0, heading=math.pi / 2)
+    sp = Setpoint(vel_ned=np.array([0.0, 24.0, 0.0]))  # east
+    assert ap.set_offboard_setpoint(sp).ok and ap.set_mode(FlightMode.OFFBOARD).ok
+    stream(ap, sp, 75.0)
+    assert ap.land().ok
+    td = ap._runway.point.copy()
+    assert td[1] > ap.state.pos_ned[1] + 400.0 and abs(ap._runway.heading - math.pi / 2) < 0.05
+    touch = []
+    fly(ap, 150.0, lambda s: touch.append(s.pos_ned.copy()) if ap.phase == Phase.ROLLOUT else None)
+    assert not ap.armed and ap.state.on_ground
+    assert abs(touch[0][0] - td[0]) < 10.0 and -50.0 < touch[0][1] - td[1] < 100.0
