@@ -48,7 +48,9 @@ def measure(k: int, sim_s: float, instance: int) -> list:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="K = 1, 4 and 5 s of simulation")
-    ap.add_argument("--instance", type=int, default=170, help="first vehicle instance (default 170)")
+    ap.add_argument(
+        "--instance", type=int, default=170, help="first vehicle instance (default 170)"
+    )
     args = ap.parse_args()
     ks, sim_s = ((1, 4), 5.0) if args.quick else ((1, 4, 9, 16), 10.0)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
