@@ -45,7 +45,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default); square: a 40 m square at 20 m; formation: K vehicles fly the SQL-SIE "
         "plan to their formation targets",
     )
-    parser.add_argument("--airframe", choices=["quadrotor"], default="quadrotor")
+    parser.add_argument(
+        "--airframe",
+        choices=["quadrotor", "fixedwing"],
+        default="quadrotor",
+        help="quadrotor (default) or fixedwing (JSBSim; flies the ground-air task as an orbit)",
+    )
     parser.add_argument(
         "--connect",
         metavar="ADDRESS",
@@ -90,9 +95,16 @@ def run(args: argparse.Namespace) -> int:
         parse_address(address)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    if args.airframe == "fixedwing" and args.mission != "groundair":
+        raise UsageError(
+            f"--mission {args.mission} is for the quadrotor; a fixed-wing flies the ground-air "
+            "task as an orbit (drop --mission)"
+        )
     if args.mission == "formation":
         return _run_formation(args)
-    if args.mission == "square":
+    if args.airframe == "fixedwing":
+        mission, parts = "orbit", {}
+    elif args.mission == "square":
         if not (0 < args.altitude <= 120 and 0 < args.side <= 500):
             raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
         mission = SquareMission(altitude=args.altitude, side=args.side)
@@ -121,10 +133,15 @@ def run(args: argparse.Namespace) -> int:
         with VehicleClient(link) as client:
             if args.mission == "square":
                 ok = _fly_square(client, mission, run_dir, args.timeout)
+            elif args.airframe == "fixedwing":
+                from scripts.fly_orbit import run_orbit
+
+                session, publisher = _open_zenoh(args)
+                ok = run_orbit(args, client, run_dir, publisher)
             else:
                 from scripts.fly_groundair import fly_groundair
 
-                session, publisher = _open_zenoh(args, mission)
+                session, publisher = _open_zenoh(args, mission.vehicle)
                 supervisor = parts["make_supervisor"](run_dir.events())
                 ok = fly_groundair(client, mission, parts["policy"], supervisor, publisher,
                                    run_dir, args.seed, args.timeout)  # fmt: skip
@@ -181,7 +198,7 @@ def _groundair_parts(args):
     }
 
 
-def _open_zenoh(args, mission):
+def _open_zenoh(args, vehicle: str = "uav0"):
     if args.no_zenoh:
         return None, None
     from perception.transport import FramePublisher, open_session, publisher_params
@@ -193,7 +210,7 @@ def _open_zenoh(args, mission):
         raise UsageError(
             f"{e}; is another flight publishing? use --zenoh-port or --no-zenoh"
         ) from None
-    return session, FramePublisher(session, mission.vehicle, TaskParams().camera)
+    return session, FramePublisher(session, vehicle, TaskParams().camera)
 
 
 def _start_embedded_sitl(args):
