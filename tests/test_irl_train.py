@@ -108,3 +108,19 @@ def test_train_bad_usage(tmp_path):
     assert main(["train", "irl", "--demos", str(tmp_path / "none"), "--out", str(tmp_path)]) == 2
     with pytest.raises(SystemExit):
         main(["train", "irl", "--help"])
+
+
+def test_committed_policy_keeps_the_team_in_view():
+    """The policy the repo keeps (AB, trained without composite demos) on fresh composite seeds."""
+    from pathlib import Path
+
+    from policy.demos import rollout_stats
+
+    path = Path(__file__).resolve().parents[1] / "policy" / "models" / "groundair_ab.npz"
+    assert path.stat().st_size < 2_000_000
+    pol = load_policy(path)
+    assert pol.meta["learner"].startswith("ab_") and pol.obs_dim == 14 and pol.n_actions == 7
+    _, m = rollout_stats(pol, "composite", 10, 300_000, 0.97)
+    assert m["all_in_view_frac"] >= 0.9 and m["ugv_losses"] <= 1.0
+    _, mr = rollout_stats(lambda o: 0, "composite", 10, 300_000, 0.97)  # hover only
+    assert m["all_in_view_frac"] > mr["all_in_view_frac"] + 0.3
