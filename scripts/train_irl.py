@@ -314,6 +314,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _log(out: dict, events, metrics, bar) -> None:
+    from policy.groundair.env import PSI_NAMES
+
     for h in out["history"]:
         row = {
             "learner": out["learner"],
@@ -323,7 +325,7 @@ def _log(out: dict, events, metrics, bar) -> None:
             "dist": h["dist"],
             "seconds": h["seconds"],
         }
-        row.update({f"mu_{i}": v for i, v in enumerate(h["mu"])})
+        row.update({f"mu_{n}": v for n, v in zip(PSI_NAMES, h["mu"])})
         metrics.write(row)
     events.write(
         {

@@ -62,6 +62,7 @@ def test_train_ab_end_to_end_tiny(tmp_path, capsys):
     assert "groundsim:camouflage" in summary  # the transfer table
     lines = (run / "metrics.csv").read_text().splitlines()
     assert len(lines) == 1 + 3 * 2  # header + 3 learners × 2 iterations
+    assert "" not in lines[1].split(",")  # every column filled, μ included
     pol = load_policy(saved)
     assert pol.meta["learner"] == "ab_mean" and pol(np.full(14, 0.5, np.float32)) in range(7)
 
