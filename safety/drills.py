@@ -21,6 +21,7 @@ import numpy as np
 from flight.autopilot_api import Autopilot, FlightMode, Setpoint
 from flight.state import VehicleState
 from safety.envelope import NZ, EnvelopeSpec, SignedDistance
+from safety.net import apply_decision
 from safety.supervisor import Health, Mode, Supervisor, SupervisorParams
 
 Act = Callable[[float, VehicleState], Setpoint | None]
@@ -569,13 +570,7 @@ def run_drill(
             ai_back = t
         prev_mode = d.mode
         if link_up:  # a lost link carries no commands: the autopilot's own failsafe acts
-            if d.mode is Mode.FALLBACK and p.use_autopilot_hold:
-                if ap.mode != FlightMode.HOLD:
-                    ap.set_mode(FlightMode.HOLD)
-            else:
-                ap.set_offboard_setpoint(d.command)
-                if ap.mode != FlightMode.OFFBOARD:
-                    ap.set_mode(FlightMode.OFFBOARD)
+            apply_decision(ap, d, p.use_autopilot_hold)
         rows.append((tr, *s.pos_ned, {Mode.AI: 0, Mode.FALLBACK: 1, Mode.PID: 2}[d.mode]))
         clear = max(clear, signed(s.pos_ned))
         fly(n_sub)

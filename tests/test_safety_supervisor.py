@@ -242,3 +242,22 @@ def test_fixedwing_envelope_adds_the_loiter_diameter():
     assert r[i] == pytest.approx(0 - (80 - 2 - 2 * fw.dynamics.turn_radius(8.0)))
     sup = Supervisor(env)
     assert isinstance(sup.fallback, LoiterFallback)
+
+
+def test_load_net_and_apply_decision_on_the_real_autopilot():
+    from flight.multirotor.autopilot import MultirotorAutopilot
+    from safety.net import apply_decision, load_net
+
+    net = load_net("quadrotor", hysteresis_s=1.0)
+    assert net.p.hysteresis_s == 1.0 and net.envelope.version == SPEC.version
+    with pytest.raises(ValueError, match="is for quadrotor"):
+        load_net("fixedwing", default_envelope_path("quadrotor"))
+    ap = MultirotorAutopilot()
+    ap.arm()
+    ap.takeoff(10.0)
+    while ap.mode is FlightMode.TAKEOFF:
+        ap.step()
+    d = net.update(ap.clock.t, ap.state, sp([0.5, 0, 0]))
+    assert apply_decision(ap, d).ok and ap.mode is FlightMode.OFFBOARD
+    d = net.update(ap.clock.t + 0.02, ap.state, sp([math.nan, 0, 0]))
+    assert apply_decision(ap, d).ok and ap.mode is FlightMode.HOLD  # the autopilot's own hover
