@@ -16,14 +16,16 @@ from __future__ import annotations
 
 import select
 import socket
-import struct
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
-from pymavlink.dialects.v20 import common as mavlink2
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from flight.mavlink.codec import Codec, MAVLinkMessage
+from flight.mavlink.tlog import TlogWriter
 
 DEFAULT_BAUD = 57600
 
@@ -169,24 +171,6 @@ def open_transport(address: str) -> Transport:
     return SerialTransport(addr)
 
 
-class TlogWriter:
-    """Append-only telemetry log readable by pymavlink and MAVExplorer."""
-
-    def __init__(self, path: Path):
-        self._f = open(path, "ab")
-        self._lock = threading.Lock()
-
-    def write(self, packet: bytes, t_unix: float | None = None) -> None:
-        stamp = int((time.time() if t_unix is None else t_unix) * 1e6)
-        with self._lock:
-            self._f.write(struct.pack(">Q", stamp) + packet)
-            self._f.flush()
-
-    def close(self) -> None:
-        with self._lock:
-            self._f.close()
-
-
 class MavlinkLink:
     """A MAVLink 2 speaker over one transport, thread-safe for sending.
 
@@ -202,48 +186,43 @@ class MavlinkLink:
         tlog: Path | None = None,
     ):
         self.transport = transport
-        self.mav = mavlink2.MAVLink(None, source_system, source_component)
-        self.mav.robust_parsing = True  # skip garbage instead of raising
+        self.codec = Codec(source_system, source_component)
+        self.mav = self.codec.mav
         self.tlog = TlogWriter(tlog) if tlog else None
         self._send_lock = threading.Lock()
-        self.bad_packets = 0
         self.datagrams = isinstance(transport, UdpTransport)
+        self._stream = Codec(source_system, source_component).rx  # byte streams (TCP, serial)
+        self._stream.robust_parsing = True
+
+    @property
+    def bad_packets(self) -> int:
+        return self.codec.stats.rx_bad
 
     @staticmethod
     def open(address: str, **kwargs) -> MavlinkLink:
         return MavlinkLink(open_transport(address), **kwargs)
 
-    def send(self, msg: mavlink2.MAVLink_message) -> None:
+    def send(self, msg: MAVLinkMessage) -> None:
         with self._send_lock:
-            data = msg.pack(self.mav)
-            self.mav.seq = (self.mav.seq + 1) % 256
+            data = self.codec.pack(msg)
             self.transport.send(data)
         if self.tlog:
             self.tlog.write(data)
 
-    def recv(self, timeout: float = 0.1) -> list[mavlink2.MAVLink_message]:
+    def recv(self, timeout: float = 0.1) -> list[MAVLinkMessage]:
         """Messages decoded from whatever arrives within `timeout` [s]. Bad bytes are skipped."""
         data = self.transport.recv(timeout)
         if not data:
             return []
-        try:
-            msgs = self.mav.parse_buffer(data) or []
-        except mavlink2.MAVError:
-            self.bad_packets += 1
-            return []
-        if self.datagrams:
-            # a UDP datagram carries whole packets: never let garbage eat the next one
-            self.mav.buf, self.mav.buf_index = bytearray(), 0
-            self.mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
-        good = []
-        for m in msgs:
-            if m.get_type() == "BAD_DATA" or isinstance(m, mavlink2.MAVLink_unknown):
-                self.bad_packets += 1
-                continue
-            good.append(m)
-            if self.tlog:
+        if self.datagrams:  # a UDP datagram carries whole frames: parse each on its own
+            msgs = self.codec.parse(data)
+        else:  # a byte stream: frames may span reads
+            msgs = [m for m in (self._stream.parse_buffer(data) or [])
+                    if not isinstance(m, mavlink.MAVLink_bad_data | mavlink.MAVLink_unknown)]  # fmt: skip
+        if self.tlog:
+            for m in msgs:
                 self.tlog.write(bytes(m.get_msgbuf()))
-        return good
+        return msgs
 
     def close(self) -> None:
         self.transport.close()

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import logging
 import select
-import struct
-import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -33,6 +31,7 @@ from flight.mavlink.offboard import (
 from flight.mavlink.params import ParamFile, ParamService
 from flight.mavlink.streams import StreamScheduler
 from flight.mavlink.telemetry import Identity, TelemetryBuilder
+from flight.mavlink.tlog import TlogWriter
 
 M = mavlink
 log = logging.getLogger(__name__)
@@ -94,28 +93,6 @@ class EndpointConfig:
         return Path(self.state_dir) / f"{airframe}-{self.instance}" / "params.json"
 
 
-class _Tlog:
-    """MAVLink telemetry log: 8-byte big-endian timestamp [us] + raw frame, appended."""
-
-    def __init__(self, path: Path, clock):
-        self._f = open(path, "ab")
-        self._clock = clock
-        self._epoch_us = int(time.time() * 1e6)  # tlog readers expect Unix time
-        self._last_flush = time.monotonic()
-
-    def write(self, direction: str, frame: bytes) -> None:
-        self._f.write(struct.pack(">Q", self._epoch_us + self._clock.time_us) + frame)
-
-    def maybe_flush(self) -> None:
-        now = time.monotonic()
-        if now - self._last_flush > 0.5:
-            self._f.flush()
-            self._last_flush = now
-
-    def close(self) -> None:
-        self._f.close()
-
-
 class MavlinkEndpoint:
     """MAVLink 2 endpoint of one simulated vehicle (API link and ground-station link)."""
 
@@ -137,8 +114,10 @@ class MavlinkEndpoint:
         self.stats: Counter[str] = Counter()
         self.rx_types: Counter[str] = Counter()  # valid frames addressed to us, by type
         self.rx_commands: Counter[int] = Counter()  # commands received, by MAV_CMD
-        self._tlog = _Tlog(config.tlog, autopilot.clock) if config.tlog else None
-        hook = self._tlog.write if self._tlog else None
+        self._tlog = (
+            TlogWriter(config.tlog, autopilot.clock, flush_interval_s=0.5) if config.tlog else None
+        )
+        hook = (lambda _direction, frame: self._tlog.write(frame)) if self._tlog else None
         self.links: list[UdpLink] = []
         try:
             self.api = UdpLink(
