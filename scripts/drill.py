@@ -53,7 +53,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="unsafe action → fallback (switch) or closest safe action first (project)",
     )
     parser.add_argument(
-        "--duration", type=float, default=None, help="AI time per drill [s] (default 35 quadrotor, 90 fixed-wing)"
+        "--duration",
+        type=float,
+        default=None,
+        help="AI time per drill [s] (default 35 quadrotor, 90 fixed-wing)",
     )
     parser.add_argument(
         "--runs-dir", type=Path, default=Path("runs"), help="where run folders go (default runs/)"
@@ -117,7 +120,11 @@ def run(args: argparse.Namespace) -> int:
         if args.intervention:
             sp = dataclasses.replace(sp, intervention=args.intervention)
         make = _factory(airframe)
-        p = DrillParams() if args.duration is None else DrillParams(duration_s=args.duration, duration_fixedwing_s=args.duration)
+        p = (
+            DrillParams()
+            if args.duration is None
+            else DrillParams(duration_s=args.duration, duration_fixedwing_s=args.duration)
+        )
         scripts = scripted_drills(spec, p)
         if args.only:
             keys = [k.strip() for k in args.only.split(",") if k.strip()]
