@@ -1,0 +1,254 @@
+"""The fixed-wing ground–air task: orbit over the UGV team's centre of mass and keep every UGV
+in a gimballed camera's view, behind the safety net.
+
+Geometry (`plan_orbit`), all SI, NED:
+
+    R = (V + s)² / (g · tan(k · φ_max))                                        (1)
+
+the loiter radius a coordinated turn at airspeed V [m/s] and bank k·φ_max can hold about a
+centre moving at up to s [m/s] (the speed relative to the centre peaks at V + s; k < 1 keeps
+bank in reserve for the guidance's corrections). The camera looks at the centre of mass from
+slant range D = √(R² + h²), depression ε = atan(h/R). A flat 1 m marker seen at that angle
+spans about
+
+    p(h) = f · m · sin ε / D = f · m · h / (R² + h²)   [px]                    (2)
+
+across its short side, which peaks at h = R (45° look-down); so h = R clamped to the envelope's
+altitude band. The team fits when its largest extent about the centre of mass, ρ ≤ 2r(n−1)/n for
+n UGVs within r of the formation centre, subtends at most a fraction `fill` of the half short
+side of the image:
+
+    f · ρ / (D − ρ) ≤ fill · min(W, H) / 2                                     (3)
+
+(the nearest UGV is at most ρ closer than the centre). `plan_orbit` raises ValueError when (3) or
+p ≥ `marker_px_min` fails, with the numbers.
+
+Companion (`OrbitCompanion.update`, once per telemetry sample, simulation time):
+1. the UGV team moves to time t; its centre of mass c(t) is the orbit centre;
+2. at the camera rate the gimbal points at c(t); the frame is rendered, published, detected;
+3. every decision period the orbit is certified: the circle about c(t) at altitude h must lie
+   inside the fence with the envelope's margin (else the centre stays at its last certified
+   position), and the safety net's supervisor judges the state and the velocity the orbit
+   flies (present horizontal velocity, climb toward h). AI → an offboard position setpoint
+   (c, −h) that the autopilot loiters about with radius R (NAV_LOITER_RAD); FALLBACK → the
+   autopilot's own HOLD (a loiter); PID → the supervisor's recovery velocity.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from flight.autopilot_api import FlightMode, Setpoint
+from flight.frames import quat_to_euler
+from flight.geo import GRAVITY
+from flight.state import VehicleState
+from groundsim.ugv import UGVStates
+from hil.orbit_gimbal import GimbalParams, gimbal_pose
+from perception.camera import CameraParams, camera_pose, in_image, project
+from perception.pipeline import CameraRig, CameraTick
+from safety.fallback import inside_with_margin
+from safety.supervisor import Decision, Health, Supervisor
+
+# The zoomed gimbal camera: 320×240 like the quadrotor's, 20° horizontal field of view
+# (f = 907 px): a 1 m marker spans ~3 px at ~190 m slant range, a 20 m team fits in 1/3 of H.
+ORBIT_CAMERA = CameraParams(hfov_rad=math.radians(20.0), mount_offset_frd=(0.0, 0.0, 0.0))
+
+
+@dataclass(frozen=True)
+class OrbitParams:
+    """What the orbit planner needs (saved in config.json)."""
+
+    airspeed_mps: float = 24.0  # V: the autopilot's FW_AIRSPD_TRIM [m/s]
+    bank_max_rad: float = math.radians(35.0)  # φ_max: the autopilot's FW_R_LIM [rad]
+    bank_fraction: float = 0.7  # k in (1): bank used by the steady orbit
+    team_speed_mps: float = 3.0  # s: fastest the team's centre drives [m/s]
+    team_radius_m: float = 10.0  # r: every UGV within r of the formation centre [m]
+    n_ugvs: int = 3
+    alt_min_m: float = 40.0  # altitude band the orbit may use [m] (envelope floor + margin)
+    alt_max_m: float = 135.0  # (envelope ceiling − margin − altitude tolerance)
+    fill: float = 0.8  # (3): share of the half short side the team may cover
+    marker_m: float = 1.0  # UGV top marker side [m] (groundsim UGVModel)
+    marker_px_min: float = 2.0  # short side of a marker in the image at least [px]
+
+    def __post_init__(self) -> None:
+        vals = [self.airspeed_mps, self.bank_max_rad, self.bank_fraction, self.team_speed_mps,
+                self.team_radius_m, self.alt_min_m, self.alt_max_m, self.fill, self.marker_m]  # fmt: skip
+        if not all(math.isfinite(v) for v in vals):
+            raise ValueError(f"orbit parameters must be finite: {self}")
+        if not (self.airspeed_mps > 0 and 0 < self.bank_max_rad < math.pi / 2):
+            raise ValueError("airspeed must be > 0 and bank_max in (0, 90°)")
+        if not (0 < self.bank_fraction <= 1 and 0 < self.fill <= 1 and self.n_ugvs >= 1):
+            raise ValueError("bank_fraction and fill must be in (0, 1], n_ugvs >= 1")
+        if not (0 < self.alt_min_m < self.alt_max_m and self.team_speed_mps >= 0):
+            raise ValueError("need 0 < alt_min_m < alt_max_m and team_speed_mps >= 0")
+
+
+@dataclass(frozen=True)
+class OrbitPlan:
+    """The orbit `plan_orbit` chose, with the figures that justify it."""
+
+    radius_m: float  # R (1)
+    altitude_m: float  # h
+    slant_m: float  # D = √(R² + h²)
+    depression_rad: float  # ε = atan(h / R)
+    bank_rad: float  # steady bank about a still centre, atan(V² / (g R))
+    extent_m: float  # ρ: largest UGV distance from the centre of mass
+    team_px: float  # (3): f ρ / (D − ρ)
+    team_px_max: float  # fill · min(W, H) / 2
+    marker_px: float  # (2)
+
+
+def turn_radius(airspeed_mps: float, bank_rad: float) -> float:
+    """Radius [m] of a level coordinated turn: V² / (g tan φ)."""
+    return airspeed_mps**2 / (GRAVITY * math.tan(bank_rad))
+
+
+def plan_orbit(p: OrbitParams, cam: CameraParams = ORBIT_CAMERA) -> OrbitPlan:
+    """Radius and altitude by (1)–(3); ValueError when the camera cannot hold the team."""
+    r = turn_radius(p.airspeed_mps + p.team_speed_mps, p.bank_fraction * p.bank_max_rad)
+    h = min(max(r, p.alt_min_m), p.alt_max_m)
+    d = math.hypot(r, h)
+    rho = 2.0 * p.team_radius_m * (p.n_ugvs - 1) / p.n_ugvs if p.n_ugvs > 1 else 0.0
+    rho = max(rho, 0.5 * p.marker_m)
+    team_px = cam.fx * rho / max(d - rho, 1e-9)
+    team_max = p.fill * 0.5 * min(cam.width_px, cam.height_px)
+    marker_px = cam.fx * p.marker_m * h / (r * r + h * h)
+    plan = OrbitPlan(r, h, d, math.atan2(h, r), math.atan(p.airspeed_mps**2 / (GRAVITY * r)),
+                     rho, team_px, team_max, marker_px)  # fmt: skip
+    if team_px > team_max:
+        raise ValueError(
+            f"the team ({2 * rho:.0f} m across) does not fit the camera at {d:.0f} m: "
+            f"{team_px:.0f} px > {team_max:.0f} px; widen the field of view"
+        )
+    if marker_px < p.marker_px_min:
+        raise ValueError(
+            f"UGV markers too small at {d:.0f} m: {marker_px:.1f} px < {p.marker_px_min:g} px; "
+            "narrow the field of view or fly a smaller orbit"
+        )
+    return plan
+
+
+def circle_certified(geometry, centre_ne, radius_m: float, alt_m: float, margin_m: float) -> bool:
+    """Every point of the orbit circle (36 points) lies inside the fence with `margin_m` [m]."""
+    a = np.linspace(0.0, 2 * math.pi, 36, endpoint=False)
+    pts = np.column_stack(
+        [centre_ne[0] + radius_m * np.cos(a), centre_ne[1] + radius_m * np.sin(a),
+         np.full(a.shape, -alt_m)]
+    )  # fmt: skip
+    return all(inside_with_margin(geometry, q, margin_m) for q in pts)
+
+
+@dataclass
+class OrbitSample:
+    """One camera frame of the orbit: what the camera saw and where everything was."""
+
+    t: float
+    pos_ned: np.ndarray  # aircraft (3,) [m]
+    centre_ne: np.ndarray  # UGV centre of mass (2,) [m]
+    ugvs_ne: np.ndarray  # (n, 2) [m]
+    detected: int  # UGVs the detector found
+    all_detected: bool  # φ all_in_view
+    all_projected: bool  # every UGV's true position projects inside the image
+    bank_rad: float
+    tilt_rad: float
+    mode: str  # the safety net's mode at this frame
+
+
+class OrbitCompanion:
+    """Camera on a gimbal → perception; orbit centre → safety net → setpoint (module docstring)."""
+
+    def __init__(self, plan: OrbitPlan, team, supervisor: Supervisor, rig: CameraRig,
+                 margin_m: float, decision_dt_s: float = 0.2,
+                 gimbal: GimbalParams | None = None, climb_tau_s: float = 5.0):  # fmt: skip
+        self.plan, self.team, self.supervisor, self.rig = plan, team, supervisor, rig
+        self.margin_m, self.decision_dt_s = margin_m, decision_dt_s
+        self.gimbal = gimbal if gimbal is not None else GimbalParams()
+        self.climb_tau_s = climb_tau_s
+        lim = supervisor.envelope.spec.limits
+        self.climb_max, self.descent_max = lim.climb_mps, lim.descent_mps
+        self.t0: float | None = None
+        self.t_ground = 0.0
+        self.t_frame: float | None = None
+        self.t_decision: float | None = None
+        self.last_tick: CameraTick | None = None
+        self.centre = self.team_centre()  # certified orbit centre (2,)
+        self.frozen = 0  # decisions where the circle was not certified
+        self.decision: Decision | None = None
+        self.samples: list[OrbitSample] = []
+
+    def team_states(self) -> UGVStates:
+        pos = np.array(self.team.positions(), dtype=float)
+        vn, ve = getattr(self.team, "centre_velocity", (0.0, 0.0))
+        n = len(pos)
+        return UGVStates(pos, np.full(n, math.atan2(ve, vn)), np.full(n, math.hypot(vn, ve)),
+                         np.zeros(n, dtype=bool))  # fmt: skip
+
+    def team_centre(self) -> np.ndarray:
+        """The UGVs' centre of mass (2,) NE [m] (equal masses)."""
+        return np.mean(np.array(self.team.positions(), dtype=float), axis=0)
+
+    def _camera(self, t: float, state: VehicleState) -> None:
+        if not self.rig.due(t):
+            return
+        ugvs = self.team_states()
+        com = np.array([*np.mean(ugvs.pos_ne, axis=0), 0.0])
+        roll, _, yaw = quat_to_euler(state.quat)
+        gp = gimbal_pose(self.rig.cam, state.pos_ned, yaw, com, self.gimbal)
+        tick = self.rig.tick(t, gp, ugvs)
+        if tick is None:
+            return
+        self.last_tick, self.t_frame = tick, t
+        pose = camera_pose(self.rig.cam, gp.pos_ned, gp.quat)
+        pts = np.column_stack([ugvs.pos_ne, np.zeros(len(ugvs.pos_ne))])
+        uv, _ = project(self.rig.cam, pose, pts)
+        mode = self.supervisor.mode.value
+        self.samples.append(
+            OrbitSample(t, state.pos_ned.copy(), com[:2], ugvs.pos_ne.copy(),
+                        len(tick.detections.centroids_px),
+                        bool(tick.phi[5] > 0.5), bool(in_image(self.rig.cam, uv).all()),
+                        roll, gp.tilt_rad, mode)
+        )  # fmt: skip
+
+    def proposal(self, state: VehicleState) -> Setpoint:
+        """The velocity the orbit flies now: present horizontal velocity, climb toward h."""
+        climb = (self.plan.altitude_m + state.pos_ned[2]) / self.climb_tau_s
+        vd = -min(max(climb, -self.descent_max), self.climb_max)
+        v = state.vel_ned
+        return Setpoint(vel_ned=np.array([v[0], v[1], vd]))
+
+    def update(self, t: float, state: VehicleState) -> Decision:
+        """Vehicle time t [s] and state → the certified decision to fly now."""
+        if self.t0 is None:
+            self.t0 = t
+        dt = (t - self.t0) - self.t_ground
+        if dt > 0:
+            self.team.step(dt)
+            self.t_ground += dt
+        self._camera(t, state)
+        proposed = None
+        if self.t_decision is None or t - self.t_decision >= self.decision_dt_s - 1e-9:
+            self.t_decision = t
+            c = self.team_centre()
+            geo = self.supervisor.geometry
+            if circle_certified(geo, c, self.plan.radius_m, self.plan.altitude_m, self.margin_m):
+                self.centre = c
+            else:
+                self.frozen += 1
+            proposed = self.proposal(state)
+        health = Health(camera_t=self.t_frame, link_t=t)
+        self.decision = self.supervisor.update(t, state, proposed, health)
+        return self.decision
+
+    def setpoint(self) -> tuple:
+        """(pos_ned, vel_ned, yaw) for the offboard stream from the last decision."""
+        d = self.decision
+        if d is None or d.mode.value == "ai":
+            return np.array([self.centre[0], self.centre[1], -self.plan.altitude_m]), None, None
+        return d.command.pos_ned, d.command.vel_ned, d.command.yaw
+
+    @property
+    def wants_hold(self) -> bool:
+        return self.decision is not None and self.decision.autopilot_mode is FlightMode.HOLD
