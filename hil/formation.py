@@ -39,9 +39,10 @@ from flight.autopilot_api import FlightMode
 from flight.clock import Pacer, SimClock
 from flight.geo import Home, geodetic_to_ned, ned_to_geodetic
 from flight.mavlink import EndpointConfig
+from flight.mavlink.tlog import TlogWriter
 from flight.sitl import Sitl
 from hil.client import ClientTimeout, Telemetry, VehicleClient
-from hil.link import MavlinkLink, TlogWriter
+from hil.link import MavlinkLink
 from scripts.runfolder import CsvWriter
 
 Cell = tuple[int, int]
@@ -529,9 +530,9 @@ class _SharedTlog:
     def __init__(self, writer: TlogWriter):
         self.writer = writer
 
-    def write(self, packet: bytes, t_unix: float | None = None) -> None:
+    def write(self, packet: bytes) -> None:
         try:
-            self.writer.write(packet, t_unix)
+            self.writer.write(packet)
         except ValueError:  # closed at shutdown while a receive thread was still finishing
             pass
 
