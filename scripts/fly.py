@@ -168,8 +168,8 @@ def _run_formation(args) -> int:
 def _groundair_parts(args):
     """Load and check everything the ground-air mission needs before anything starts."""
     from policy.dqn import PolicyFileError, load_policy
-    from safety.config import ENVELOPE_DIR, EnvelopeFileError, load_envelope
-    from safety.supervisor import Supervisor, SupervisorParams
+    from safety.config import ENVELOPE_DIR, EnvelopeFileError
+    from safety.net import load_net
     from scripts.fly_groundair import DEFAULT_POLICY, GroundAirMission
 
     if not 0 < args.duration <= 3600:
@@ -182,19 +182,18 @@ def _groundair_parts(args):
         raise UsageError(f"{e}; train one with `skyherd train ab` or pass --policy") from None
     env_path = args.envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
     try:
-        spec, sup_table = load_envelope(env_path)
-        sp = SupervisorParams(**sup_table)
-    except (EnvelopeFileError, TypeError, ValueError) as e:
+        probe = load_net("quadrotor", env_path)  # check the file before anything flies
+    except (EnvelopeFileError, ValueError) as e:
         raise UsageError(f"{e}; fix the file or pass another --envelope") from None
 
     def make_supervisor(events):
-        return Supervisor(spec.envelope(), sp, events)
+        return load_net("quadrotor", env_path, events=events)
 
     return mission, {
         "policy": policy,
         "make_supervisor": make_supervisor,
-        "supervisor_params": sp,
-        "envelope": {"path": str(env_path), "name": spec.name, "version": spec.version},
+        "supervisor_params": probe.p,
+        "envelope": probe.envelope.spec.describe(),
     }
 
 
