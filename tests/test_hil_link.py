@@ -5,7 +5,7 @@ import socket
 
 import pytest
 from pymavlink import mavutil
-from pymavlink.dialects.v20 import common as mavlink2
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from hil.link import Address, LinkError, MavlinkLink, parse_address
 
