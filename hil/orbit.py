@@ -45,7 +45,7 @@ from flight.autopilot_api import FlightMode, Setpoint
 from flight.frames import quat_to_euler
 from flight.geo import GRAVITY
 from flight.state import VehicleState
-from groundsim.ugv import UGVStates
+from groundsim.ugv import UGVModel, UGVStates
 from hil.orbit_gimbal import GimbalParams, gimbal_pose
 from perception.camera import CameraParams, camera_pose, in_image, project
 from perception.pipeline import CameraRig, CameraTick
@@ -70,7 +70,7 @@ class OrbitParams:
     alt_min_m: float = 40.0  # altitude band the orbit may use [m] (envelope floor + margin)
     alt_max_m: float = 135.0  # (envelope ceiling − margin − altitude tolerance)
     fill: float = 0.8  # (3): share of the half short side the team may cover
-    marker_m: float = 1.0  # UGV top marker side [m] (groundsim UGVModel)
+    marker_m: float = UGVModel.marker_size_m  # UGV top marker side [m]
     marker_px_min: float = 2.0  # short side of a marker in the image at least [px]
 
     def __post_init__(self) -> None:
@@ -152,6 +152,7 @@ class OrbitSample:
     detected: int  # UGVs the detector found
     all_detected: bool  # φ all_in_view
     all_projected: bool  # every UGV's true position projects inside the image
+    body_fixed: bool  # ... would, for the same camera fixed to the body looking down
     bank_rad: float
     tilt_rad: float
     mode: str  # the safety net's mode at this frame
@@ -175,6 +176,7 @@ class OrbitCompanion:
         self.t_decision: float | None = None
         self.last_tick: CameraTick | None = None
         self.centre = self.team_centre()  # certified orbit centre (2,)
+        self.switches_at_est = 0  # supervisor switches when the orbit was established
         self.frozen = 0  # decisions where the circle was not certified
         self.decision: Decision | None = None
         self.samples: list[OrbitSample] = []
@@ -204,11 +206,15 @@ class OrbitCompanion:
         pose = camera_pose(self.rig.cam, gp.pos_ned, gp.quat)
         pts = np.column_stack([ugvs.pos_ne, np.zeros(len(ugvs.pos_ne))])
         uv, _ = project(self.rig.cam, pose, pts)
+        uv_body, _ = project(
+            self.rig.cam, camera_pose(self.rig.cam, state.pos_ned, state.quat), pts
+        )
         mode = self.supervisor.mode.value
         self.samples.append(
             OrbitSample(t, state.pos_ned.copy(), com[:2], ugvs.pos_ne.copy(),
                         len(tick.detections.centroids_px),
                         bool(tick.phi[5] > 0.5), bool(in_image(self.rig.cam, uv).all()),
+                        bool(in_image(self.rig.cam, uv_body).all()),
                         roll, gp.tilt_rad, mode)
         )  # fmt: skip
 

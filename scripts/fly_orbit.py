@@ -224,6 +224,7 @@ def _fly(fs: FlightSession, client: VehicleClient, comp: OrbitCompanion, mission
         if state["t_est"] is None:
             if _established(tel, comp, mission):
                 state["t_est"] = t
+                comp.switches_at_est = comp.supervisor.stats.switches
                 t_end = t + mission.duration_s
                 fs.done()
                 fs.step("orbit established", f"orbit established, {mission.duration_s:.0f} s")
@@ -247,6 +248,7 @@ class OrbitResult:
     frames: int
     all_detected: float  # fraction of frames where the detector found every UGV
     all_projected: float  # fraction where every UGV's true position is inside the image
+    body_fixed: float  # the same for a body-fixed downward camera (not flown, for comparison)
     radius_err_mean_m: float  # mean |d − R|
     radius_err_max_m: float
     alt_err_mean_m: float  # mean |h_now − h|
@@ -254,8 +256,10 @@ class OrbitResult:
     bank_mean_deg: float
     tilt_mean_deg: float
     switches: int
+    switches_orbit: int  # after the orbit was established
     fallback_s: float
     frozen: int
+    centre_travel_m: float  # how far the UGV centre of mass moved during the established orbit
 
 
 def orbit_result(comp: OrbitCompanion | None, supervisor, t_est: float | None) -> OrbitResult:
@@ -263,19 +267,21 @@ def orbit_result(comp: OrbitCompanion | None, supervisor, t_est: float | None) -
     st = supervisor.stats
     if not sel:
         nan = math.nan
-        return OrbitResult(0, nan, nan, nan, nan, nan, nan, nan, nan, st.switches, st.fallback_s,
-                           comp.frozen if comp else 0)  # fmt: skip
+        return OrbitResult(0, nan, nan, nan, nan, nan, nan, nan, nan, nan, st.switches, 0, st.fallback_s,
+                           comp.frozen if comp else 0, nan)  # fmt: skip
     plan = comp.plan
     d = np.array([np.hypot(*(s.pos_ned[:2] - s.centre_ne)) for s in sel])
     h = np.array([-s.pos_ned[2] for s in sel])
     return OrbitResult(
         len(sel), float(np.mean([s.all_detected for s in sel])),
         float(np.mean([s.all_projected for s in sel])),
+        float(np.mean([s.body_fixed for s in sel])),
         float(np.mean(np.abs(d - plan.radius_m))), float(np.max(np.abs(d - plan.radius_m))),
         float(np.mean(np.abs(h - plan.altitude_m))), float(np.max(np.abs(h - plan.altitude_m))),
         math.degrees(float(np.mean(np.abs([s.bank_rad for s in sel])))),
         math.degrees(float(np.mean([s.tilt_rad for s in sel]))),
-        st.switches, st.fallback_s, comp.frozen,
+        st.switches, st.switches - comp.switches_at_est, st.fallback_s, comp.frozen,
+        float(np.hypot(*(sel[-1].centre_ne - sel[0].centre_ne))),
     )  # fmt: skip
 
 
@@ -291,9 +297,11 @@ def _report(run_dir, mission, plan: OrbitPlan, comp, supervisor, track, strip, t
         ["radius error mean / max [m]", f"{res.radius_err_mean_m:.1f} / {res.radius_err_max_m:.1f}"],
         ["altitude error mean / max [m]", f"{res.alt_err_mean_m:.1f} / {res.alt_err_max_m:.1f}"],
         ["mean bank / gimbal tilt [deg]", f"{res.bank_mean_deg:.1f} / {res.tilt_mean_deg:.1f}"],
-        ["safety-net switches", res.switches],
+        ["... for a body-fixed downward camera (comparison)", res.body_fixed],
+        ["safety-net switches (all / after establishment)", f"{res.switches} / {res.switches_orbit}"],
         ["time in fallback (loiter) [s]", res.fallback_s],
         ["decisions with the orbit centre frozen (fence)", res.frozen],
+        ["UGV centre of mass moved during the orbit [m]", res.centre_travel_m],
     ]  # fmt: skip
     table = markdown_table(["metric", "value"], rows)
     _plot(run_dir, comp, plan, track, t_est)
