@@ -22,7 +22,6 @@ centre. The demonstration is saved in the skyherd-demo format (policy.demos) and
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import select
 import sys
@@ -177,7 +176,6 @@ def run(args: argparse.Namespace) -> int:
         f"\nrecorded {demo.actions.shape[0]} steps in {len(m)} episode(s) of {args.scenario} → {out}"
     )
     print(f"all-in-view fraction per episode: {[round(x['all_in_view_frac'], 3) for x in m]}")
-    print(f"task: {dataclasses.asdict(task)['episode_s']} s episodes")
     return 0
 
 
