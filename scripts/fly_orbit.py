@@ -147,6 +147,8 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
 
         raise UsageError(f"orbit: {e}") from None
     supervisor = Supervisor(spec.envelope(), sp, run_dir.events())
+    if publisher is not None and getattr(publisher, "cam", ORBIT_CAMERA) != ORBIT_CAMERA:
+        publisher.cam = ORBIT_CAMERA  # camera info on Zenoh must describe the gimbal camera
     rig = CameraRig(ORBIT_CAMERA, 3, CameraRigParams("fast", mission.camera_hz),
                     publisher=publisher)  # fmt: skip
     timeout = float(getattr(args, "timeout", 600.0))
