@@ -23,10 +23,10 @@ def _timed(fn, n):
     return n / (time.perf_counter() - w), n / max(time.process_time() - c, 1e-9)
 
 
-def env_steps_per_s(n: int, scenario: str, act=None) -> float:
+def env_steps_per_s(n: int, scenario: str, act=None, pixels: bool = False) -> float:
     from policy.groundair.env import GroundAirEnv
 
-    env = GroundAirEnv(scenario)
+    env = GroundAirEnv(scenario, pixels=pixels)
     rng = np.random.default_rng(0)
     acts = rng.integers(0, 7, size=n)
     obs, _ = env.reset(seed=0)
@@ -96,6 +96,8 @@ def main(argv=None) -> int:
         w, c = env_steps_per_s(n, sc)
         ok = "ok" if c >= 20_000 else "BELOW"
         rows.append([f"env steps/s, {sc}, random actions", f(w), f(c), "20,000", ok])
+    w, c = env_steps_per_s(n // 20, "composite", pixels=True)
+    rows.append(["env steps/s, pixels (OpenCV render + detector)", f(w), f(c), "-", "-"])
     w, c = gym_make_steps_per_s(n // 2)
     rows.append(["env steps/s via gym.make (checker wrappers)", f(w), f(c), "-", "-"])
     model = Path(__file__).resolve().parents[1] / "policy" / "models" / "groundair_ab.npz"

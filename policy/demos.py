@@ -284,9 +284,13 @@ def rollout_stats(
     seed: int,
     gamma: float,
     task: TaskParams | None = None,
+    pixels: bool = False,
 ) -> tuple[np.ndarray, dict[str, float]]:
-    """Monte-Carlo μ(π) (k,) and mean episode metrics of a policy on a scenario."""
-    env = GroundAirEnv(scenario, task=task)
+    """Monte-Carlo μ(π) (k,) and mean episode metrics of a policy on a scenario.
+
+    pixels: observe through the rendered frame and the detector instead of the fast path.
+    """
+    env = GroundAirEnv(scenario, task=task, pixels=pixels)
     mus, mets = [], []
     for k in range(n_episodes):
         obs, _ = env.reset(seed=seed + k)

@@ -175,3 +175,31 @@ def test_evaluate_cli_on_a_run_folder(tmp_path, capsys):
     assert main([str(tmp_path), "--episodes", "1"]) == 0
     text = (tmp_path / "transfer.md").read_text()
     assert "irl (irl_seed0)" in text and "groundsim:speedoff" in text and "expert (ideal)" in text
+
+
+def test_pixel_observations_agree_with_the_fast_path():
+    """pixels=True: perception's OpenCV renderer + detector give nearly the fast path's φ."""
+    check_env(gym.make(policy.ENV_ID, pixels=True).unwrapped)
+    a, b = GroundAirEnv("composite"), GroundAirEnv("composite", pixels=True)
+    oa, _ = a.reset(seed=3)
+    ob, _ = b.reset(seed=3)
+    ex = scripted_expert("composite")
+    diffs = []
+    for _ in range(60):
+        act = ex(oa)
+        oa, *_ = a.step(act)
+        ob, *_ = b.step(act)
+        diffs.append(np.abs(oa - ob))
+    d = np.array(diffs)
+    assert b.last_frame.shape == (240, 320, 3)
+    # centroid within 0.01 of the image, spread within 0.015 (markers sit 0.42 m above ground)
+    assert d[:, :2].max() < 0.01 and d[:, 2].max() < 0.015
+    np.testing.assert_array_equal(d[:, 3:6], 0.0)  # altitude, fractions: identical
+
+
+def test_kept_policy_flies_through_pixels():
+    from policy.models import DEFAULT_POLICY
+
+    pol = policy.load_policy(DEFAULT_POLICY)
+    _, m = rollout_stats(pol, "composite", 6, 300_000, 0.97, pixels=True)
+    assert m["all_in_view_frac"] >= 0.9

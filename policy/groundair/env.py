@@ -1,8 +1,10 @@
 """skyherd/GroundAir-v0: keep every UGV in the downward camera's view with a tight footprint.
 
 One clock for air and ground: each step advances the UAV point model and the UGV formation by
-dt = 0.5 s. Observation = φ(s) from the perception features (fast geometric path, no pixels),
-plus the UAV's velocity and the change of φ since the last step, all in [0, 1]:
+dt = 0.5 s. Observation = φ(s) from the perception features (fast geometric path, no pixels;
+`pixels=True` renders each frame with perception's OpenCV renderer and runs the detector on it),
+plus the UAV's velocity and the change of φ since the last step, all in [0, 1]. Reward features
+and metrics always come from the true geometry:
 
 ====  =============================================================
 idx   observation (float32, shape (14,))
@@ -84,6 +86,15 @@ def make_observation(phi, phi_prev, vel_ned, task: TaskParams) -> np.ndarray:
     return np.array(o, dtype=np.float32)
 
 
+class _LevelPose:
+    """A level UAV at (north, east, altitude) for the renderer: pos_ned (3,), quat (w, x, y, z)."""
+
+    quat = np.array([1.0, 0.0, 0.0, 0.0])
+
+    def __init__(self, n: float, e: float, alt: float):
+        self.pos_ned = np.array([n, e, -alt])
+
+
 class GroundAirEnv(gym.Env):
     """Fast path of the GroundAir task (see module docstring). Actions: params.ACTION_NAMES."""
 
@@ -96,6 +107,7 @@ class GroundAirEnv(gym.Env):
         reward_weights=None,
         render_mode: str | None = None,
         start_noise: bool = True,
+        pixels: bool = False,
     ):
         if scenario not in SCENARIOS + GROUNDSIM_SCENARIOS:
             names = ", ".join(SCENARIOS + GROUNDSIM_SCENARIOS)
@@ -115,14 +127,35 @@ class GroundAirEnv(gym.Env):
         self._decay = math.exp(-self.task.dt_s / u.tau_s)
         self._cmds = [action_velocity_ned(a, u) for a in range(N_ACTIONS)]
         self.formation: Formation | None = None
+        self.pixels = bool(pixels)
+        self._renderer = self._detector = None
+        if self.pixels:  # the perception pipeline: fast OpenCV renderer + marker detector
+            from perception.detector import Detector
+            from perception.render_fast import FastRenderer
+
+            self._renderer = FastRenderer(self.task.camera)
+            self._detector = Detector(self.task.camera, self.task.n_ugvs)
 
     # ---- state → observation
     def _observe(self):
         ugvs = self.formation.positions()
-        phi, seen, r_px = self.cam.phi(self.n, self.e, self.alt, ugvs, self.formation.detectable())
-        o = make_observation(phi, self._phi_prev, (self.vn, self.ve, self.vd), self.task)
-        self._phi_prev = phi
+        det = self.formation.detectable()
+        phi, seen, r_px = self.cam.phi(self.n, self.e, self.alt, ugvs, det)
+        phi_obs = self._phi_from_pixels(ugvs, det) if self.pixels else phi
+        o = make_observation(phi_obs, self._phi_prev, (self.vn, self.ve, self.vd), self.task)
+        self._phi_prev = phi_obs
         return o, phi, seen, ugvs
+
+    def _phi_from_pixels(self, ugvs, detectable) -> list[float]:
+        """φ from a rendered frame and the detector (pixels=True): what a real camera would give."""
+        from groundsim.ugv import UGVStates
+
+        n = len(ugvs)
+        camo = np.zeros(n, bool) if detectable is None else ~np.asarray(detectable, bool)
+        states = UGVStates(np.asarray(ugvs, float), np.zeros(n), np.zeros(n), camo)
+        frame = self._renderer.render(_LevelPose(self.n, self.e, self.alt), states)
+        self.last_frame = frame
+        return [float(x) for x in self._detector.features(self._detector.detect(frame), self.alt)]
 
     def _bookkeep(self, phi, seen, ugvs) -> None:
         self._psi = reward_features(phi)
