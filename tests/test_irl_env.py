@@ -203,3 +203,14 @@ def test_kept_policy_flies_through_pixels():
     pol = policy.load_policy(DEFAULT_POLICY)
     _, m = rollout_stats(pol, "composite", 6, 300_000, 0.97, pixels=True)
     assert m["all_in_view_frac"] >= 0.9
+
+
+def test_uav_commands_inside_the_autopilot_limits():
+    from policy.groundair.params import UAVParams, autopilot_velocity_limits
+
+    lim = autopilot_velocity_limits()
+    assert lim == {"xy": 12.0, "up": 3.0, "down": 1.5}
+    with pytest.raises(ValueError, match="autopilot"):
+        UAVParams(v_down_mps=lim["down"] + 0.5)
+    with pytest.raises(ValueError):
+        UAVParams(alt_min_m=70.0)

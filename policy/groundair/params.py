@@ -31,14 +31,24 @@ DESCEND_ACTIONS = (0, 6)
 ALL_ACTIONS = tuple(range(N_ACTIONS))
 
 
+def autopilot_velocity_limits() -> dict[str, float]:
+    """The quadrotor autopilot's velocity limits [m/s]: xy, up, down (flight.multirotor.params)."""
+    from flight.multirotor.params import MULTIROTOR_PARAMS
+
+    d = {p.name: p.default for p in MULTIROTOR_PARAMS}
+    return {"xy": d["MPC_XY_VEL_MAX"], "up": d["MPC_Z_VEL_MAX_UP"], "down": d["MPC_Z_VEL_MAX_DN"]}
+
+
 @dataclass(frozen=True)
 class UAVParams:
     """First-order point model of the quadrotor under offboard velocity control.
 
-    Velocity limits are those of the quadrotor's autopilot velocity loop (PX4 defaults are
-    MPC_XY_VEL_MAX 12 m/s, MPC_Z_VEL_MAX_UP 3 m/s, MPC_Z_VEL_MAX_DN 1.5 m/s; skyherd commands at
-    most these cruise values, well inside them). The velocity follows the command with time
-    constant `tau_s`: v(t+dt) = v_cmd + (v − v_cmd)·exp(−dt/τ), integrated exactly.
+    The commanded speeds must lie inside the quadrotor autopilot's limits, read from its one
+    source (flight.multirotor.params: MPC_XY_VEL_MAX 12 m/s, MPC_Z_VEL_MAX_UP 3 m/s,
+    MPC_Z_VEL_MAX_DN 1.5 m/s); construction fails otherwise. The velocity follows the command
+    with time constant `tau_s`: v(t+dt) = v_cmd + (v − v_cmd)·exp(−dt/τ), integrated exactly.
+    τ = 0.6 s is deliberately slower than the autopilot's velocity loop alone
+    (1 / MPC_XY_VEL_P_ACC ≈ 0.29 s) to cover the attitude lag of a real vehicle.
     """
 
     v_xy_mps: float = 4.0  # lateral speed command [m/s]
@@ -47,6 +57,17 @@ class UAVParams:
     tau_s: float = 0.6  # velocity response time constant [s]
     alt_min_m: float = 5.0  # altitude floor (geofence) [m]
     alt_max_m: float = 60.0  # altitude ceiling (geofence) [m]
+
+    def __post_init__(self) -> None:
+        lim = autopilot_velocity_limits()
+        if not (
+            0 < self.v_xy_mps <= lim["xy"]
+            and 0 < self.v_up_mps <= lim["up"]
+            and 0 < self.v_down_mps <= lim["down"]
+        ):
+            raise ValueError(f"UAV speed commands must be > 0 and within the autopilot's {lim}")
+        if not (self.tau_s > 0 and 0 < self.alt_min_m < self.alt_max_m):
+            raise ValueError("need tau_s > 0 and 0 < alt_min_m < alt_max_m")
 
 
 @dataclass(frozen=True)
