@@ -38,7 +38,8 @@ class OrbitMission:
     duration_s: float = 90.0  # established orbit flown before landing [s]
     establish_s: float = 240.0  # the orbit must be established within this [s, vehicle time]
     radius_tol: float = 0.10  # established: |d − R| <= tol·R ...
-    alt_tol_m: float = 5.0  # ... and |h_now − h| <= this [m]
+    alt_tol_m: float = 2.0  # ... and |h_now − h| <= this [m]
+    alt_reserve_m: float = 5.0  # planned h stays this far below the envelope's ceiling band [m]
     camera_hz: float = 10.0
     land: bool = True
     vehicle: str = "uav0"
@@ -48,18 +49,22 @@ def add_orbit_arguments(group) -> None:
     """The orbit's options (all prefixed --orbit-, so they sit beside the other missions')."""
     group.add_argument("--orbit-scenario", choices=["lateral", "composite"], default="lateral",
                        help="UGV team behaviour (policy.groundair.scenarios), default lateral")  # fmt: skip
-    group.add_argument("--orbit-duration", type=float, default=90.0,
-                       help="established orbit time before landing [s] (default 90)")  # fmt: skip
+    group.add_argument("--orbit-duration", type=float, default=None,
+                       help="established orbit time before landing [s] (default: --duration "
+                       "when the command has one, else 90)")  # fmt: skip
     group.add_argument("--orbit-no-land", action="store_true",
                        help="end in HOLD (loiter) instead of landing")  # fmt: skip
 
 
 def _mission(args) -> OrbitMission:
-    dur = float(getattr(args, "orbit_duration", 90.0))
+    dur = getattr(args, "orbit_duration", None)  # else `skyherd fly --duration`, else 90 s
+    dur = float(dur if dur is not None else getattr(args, "duration", None) or 90.0)
     if not (math.isfinite(dur) and 0 < dur <= 3600):
         from scripts.cli import UsageError
 
-        raise UsageError("--orbit-duration must be in (0, 3600] s")
+        raise UsageError(
+            "the orbit duration (--orbit-duration / --duration) must be in (0, 3600] s"
+        )
     return OrbitMission(scenario=getattr(args, "orbit_scenario", "lateral"), duration_s=dur,
                         land=not getattr(args, "orbit_no_land", False))  # fmt: skip
 
@@ -87,7 +92,7 @@ def orbit_params_for(team: Formation, spec, mission: OrbitMission, **airframe) -
     lim = spec.limits
     return OrbitParams(team_speed_mps=p.speed, team_radius_m=r, n_ugvs=len(p.angles),
                        alt_min_m=lim.floor_m + lim.margin_m,
-                       alt_max_m=lim.ceiling_m - lim.margin_m - mission.alt_tol_m, **airframe)  # fmt: skip
+                       alt_max_m=lim.ceiling_m - lim.margin_m - mission.alt_reserve_m, **airframe)  # fmt: skip
 
 
 def read_param(client: VehicleClient, name: str, timeout: float = 3.0) -> float:

@@ -113,7 +113,7 @@ def test_orbit_bad_usage_before_flying(tmp_path):
     from safety.config import ENVELOPE_DIR
 
     run_dir = RunFolder("fly", root=tmp_path)
-    with pytest.raises(UsageError, match="orbit-duration"):
+    with pytest.raises(UsageError, match="orbit duration"):
         run_orbit(_args(orbit_duration=math.nan), None, run_dir, None)
     with pytest.raises(UsageError, match="fixed-wing"):
         run_orbit(_args(envelope=ENVELOPE_DIR / "quadrotor_groundair.toml"), None, run_dir, None)
