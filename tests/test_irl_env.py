@@ -214,3 +214,19 @@ def test_uav_commands_inside_the_autopilot_limits():
         UAVParams(v_down_mps=lim["down"] + 0.5)
     with pytest.raises(ValueError):
         UAVParams(alt_min_m=70.0)
+
+
+def test_vertical_time_constant_and_sitl_dynamics():
+    from policy.groundair.params import SITL_MEASURED, UAVParams
+    from policy.models import DEFAULT_POLICY
+
+    u = UAVParams(tau_s=0.5, tau_z_s=0.25)
+    env = GroundAirEnv("climb", task=TaskParams(uav=u), start_noise=False)
+    env.reset(seed=0)
+    env.step(5)
+    kz = math.exp(-0.5 / 0.25)
+    assert env.vd == pytest.approx(-u.v_up_mps * (1 - kz), rel=1e-12)
+    # the kept policy, trained with τ = 0.6 s, on the SITL quadrotor's measured response
+    pol = policy.load_policy(DEFAULT_POLICY)
+    _, m = rollout_stats(pol, "composite", 10, 300_000, 0.97, task=TaskParams(uav=SITL_MEASURED))
+    assert m["all_in_view_frac"] >= 0.9

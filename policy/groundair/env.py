@@ -125,6 +125,7 @@ class GroundAirEnv(gym.Env):
         self.action_space = gym.spaces.Discrete(N_ACTIONS)
         u = self.task.uav
         self._decay = math.exp(-self.task.dt_s / u.tau_s)
+        self._decay_z = math.exp(-self.task.dt_s / u.tau_z_s)
         self._cmds = [action_velocity_ned(a, u) for a in range(N_ACTIONS)]
         self.formation: Formation | None = None
         self.pixels = bool(pixels)
@@ -207,16 +208,17 @@ class GroundAirEnv(gym.Env):
         a = int(action)
         if not 0 <= a < N_ACTIONS:
             raise ValueError(f"action must be in 0..{N_ACTIONS - 1}, got {action}")
-        dt, k = self.task.dt_s, self._decay
+        dt, k, kz = self.task.dt_s, self._decay, self._decay_z
         cn, ce, cd = self._cmds[a]
         # exact solution of v' = (v_cmd − v)/τ over dt, and of the position it drives
         g = self.task.uav.tau_s * (1.0 - k)
+        gz = self.task.uav.tau_z_s * (1.0 - kz)
         self.n += cn * dt + (self.vn - cn) * g
         self.e += ce * dt + (self.ve - ce) * g
-        self.alt -= cd * dt + (self.vd - cd) * g
+        self.alt -= cd * dt + (self.vd - cd) * gz
         self.vn = cn + (self.vn - cn) * k
         self.ve = ce + (self.ve - ce) * k
-        self.vd = cd + (self.vd - cd) * k
+        self.vd = cd + (self.vd - cd) * kz
         u = self.task.uav
         if self.alt < u.alt_min_m or self.alt > u.alt_max_m:  # geofence: hold the altitude limit
             self.alt = min(max(self.alt, u.alt_min_m), u.alt_max_m)
