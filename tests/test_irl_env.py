@@ -230,3 +230,25 @@ def test_vertical_time_constant_and_sitl_dynamics():
     pol = policy.load_policy(DEFAULT_POLICY)
     _, m = rollout_stats(pol, "composite", 10, 300_000, 0.97, task=TaskParams(uav=SITL_MEASURED))
     assert m["all_in_view_frac"] >= 0.9
+
+
+def test_attitude_mode_tilts_the_camera_with_the_acceleration():
+    from flight.frames import quat_to_euler
+
+    lvl, tlt = (
+        GroundAirEnv("lateral", start_noise=False),
+        GroundAirEnv("lateral", attitude=True, start_noise=False),
+    )
+    o1, _ = lvl.reset(seed=2)
+    o2, _ = tlt.reset(seed=2)
+    np.testing.assert_allclose(o1, o2, atol=1e-5)  # at rest: level, the same view
+    tlt.step(1)  # accelerate north from rest
+    u, dt = tlt.task.uav, tlt.task.dt_s
+    a = u.v_xy_mps * math.exp(-dt / u.tau_s) / u.tau_s  # (v_cmd − v)/τ at the end of the step
+    roll, pitch, yaw = quat_to_euler(tlt.quat())
+    assert pitch == pytest.approx(-math.atan(a / 9.80665), abs=1e-9)
+    assert roll == pytest.approx(0.0, abs=1e-12) and yaw == pytest.approx(0.0, abs=1e-12)
+    # nose down: the body-fixed camera looks behind (south of) the UAV, so the team moves up
+    # the image (com_v falls) relative to the level camera after the same step
+    lvl.step(1)
+    assert tlt._phi_prev[1] < lvl._phi_prev[1] - 0.05

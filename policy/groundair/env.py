@@ -108,6 +108,7 @@ class GroundAirEnv(gym.Env):
         render_mode: str | None = None,
         start_noise: bool = True,
         pixels: bool = False,
+        attitude: bool = False,
     ):
         if scenario not in SCENARIOS + GROUNDSIM_SCENARIOS:
             names = ", ".join(SCENARIOS + GROUNDSIM_SCENARIOS)
@@ -129,6 +130,8 @@ class GroundAirEnv(gym.Env):
         self._cmds = [action_velocity_ned(a, u) for a in range(N_ACTIONS)]
         self.formation: Formation | None = None
         self.pixels = bool(pixels)
+        self.attitude = bool(attitude)
+        self._acc = (0.0, 0.0)
         self._renderer = self._detector = None
         if self.pixels:  # the perception pipeline: fast OpenCV renderer + marker detector
             from perception.detector import Detector
@@ -141,11 +144,35 @@ class GroundAirEnv(gym.Env):
     def _observe(self):
         ugvs = self.formation.positions()
         det = self.formation.detectable()
-        phi, seen, r_px = self.cam.phi(self.n, self.e, self.alt, ugvs, det)
+        if self.attitude:
+            phi, seen = self._phi_tilted(ugvs, det)
+        else:
+            phi, seen, _ = self.cam.phi(self.n, self.e, self.alt, ugvs, det)
         phi_obs = self._phi_from_pixels(ugvs, det) if self.pixels else phi
         o = make_observation(phi_obs, self._phi_prev, (self.vn, self.ve, self.vd), self.task)
         self._phi_prev = phi_obs
         return o, phi, seen, ugvs
+
+    def quat(self) -> np.ndarray:
+        """Attitude (w, x, y, z) body → NED: level, or (attitude=True) the tilt a multirotor
+        needs for its horizontal acceleration a: pitch = −atan(a_n/g), roll = atan(a_e/g)."""
+        if not self.attitude:
+            return _LevelPose.quat
+        from flight.frames import euler_to_quat
+
+        an, ae = self._acc
+        return euler_to_quat(math.atan(ae / 9.80665), -math.atan(an / 9.80665), 0.0)
+
+    def _phi_tilted(self, ugvs, detectable):
+        """φ and seen flags through the body-fixed camera of a tilting UAV (perception's geometry)."""
+        from perception.camera import camera_pose
+        from perception.features import features_from_truth, true_centroids
+
+        pts = np.array([[a, b, 0.0] for a, b in ugvs])
+        pose = camera_pose(self.task.camera, np.array([self.n, self.e, -self.alt]), self.quat())
+        phi = features_from_truth(self.task.camera, pose, pts, self.alt, detectable)
+        _, seen = true_centroids(self.task.camera, pose, pts, detectable)
+        return [float(x) for x in phi], [bool(x) for x in seen]
 
     def _phi_from_pixels(self, ugvs, detectable) -> list[float]:
         """φ from a rendered frame and the detector (pixels=True): what a real camera would give."""
@@ -154,7 +181,9 @@ class GroundAirEnv(gym.Env):
         n = len(ugvs)
         camo = np.zeros(n, bool) if detectable is None else ~np.asarray(detectable, bool)
         states = UGVStates(np.asarray(ugvs, float), np.zeros(n), np.zeros(n), camo)
-        frame = self._renderer.render(_LevelPose(self.n, self.e, self.alt), states)
+        pose = _LevelPose(self.n, self.e, self.alt)
+        pose.quat = self.quat()
+        frame = self._renderer.render(pose, states)
         self.last_frame = frame
         return [float(x) for x in self._detector.features(self._detector.detect(frame), self.alt)]
 
@@ -191,6 +220,7 @@ class GroundAirEnv(gym.Env):
             self.n, self.e = cn, ce
         self.alt = min(max(alt, u.alt_min_m), u.alt_max_m)
         self.vn = self.ve = self.vd = 0.0
+        self._acc = (0.0, 0.0)
         self.steps = 0
         self._phi_prev = None
         self._seen_prev = None
@@ -216,6 +246,10 @@ class GroundAirEnv(gym.Env):
         self.n += cn * dt + (self.vn - cn) * g
         self.e += ce * dt + (self.ve - ce) * g
         self.alt -= cd * dt + (self.vd - cd) * gz
+        self._acc = (
+            (cn - self.vn) * k / self.task.uav.tau_s,
+            (ce - self.ve) * k / self.task.uav.tau_s,
+        )
         self.vn = cn + (self.vn - cn) * k
         self.ve = ce + (self.ve - ce) * k
         self.vd = cd + (self.vd - cd) * kz
