@@ -14,6 +14,7 @@ clock, so air and ground share one clock at any speed-up):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,9 +22,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from flight.autopilot_api import FlightMode, Setpoint
+from flight.frames import euler_to_quat
 from flight.state import VehicleState
 from groundsim.ugv import UGVStates
 from perception.pipeline import CameraRig, CameraTick
+from policy.groundair.env import make_observation
 from policy.groundair.params import TaskParams, action_velocity_ned
 from policy.groundair.scenarios import Formation
 from safety.supervisor import Decision, Health, Supervisor
@@ -34,6 +37,7 @@ class CompanionParams:
     """Companion settings (the camera rate is the rig's, the decision period the task's)."""
 
     yaw: float = 0.0  # commanded heading [rad]; the policy was trained heading north
+    gimbal: bool = True  # roll/pitch-stabilised camera (the policy was trained with a level one)
 
 
 @dataclass
@@ -45,6 +49,17 @@ class CompanionSample:
     action: int
     decision: Decision
     ugvs_ne: np.ndarray
+
+
+def level_camera_mount(state: VehicleState) -> VehicleState:
+    """The state as a 2-axis (roll, pitch) stabilised gimbal sees it: heading kept, level.
+
+    A body-fixed camera swings the view by the tilt the autopilot needs to accelerate (tens of
+    degrees for the policy's velocity steps, metres on the ground at 20 m); the gimbal removes
+    that, as on most camera drones, so the image is the level view the policy was trained on.
+    """
+    _, _, yaw = state.euler
+    return dataclasses.replace(state, quat=euler_to_quat(0.0, 0.0, yaw))
 
 
 class GroundAirCompanion:
@@ -69,7 +84,7 @@ class GroundAirCompanion:
         self.t_frame: float | None = None
         self.t_decision: float | None = None
         self.phi: np.ndarray | None = None
-        self.phi_prev: np.ndarray | None = None
+        self.phi_prev: np.ndarray | None = None  # φ at the previous decision
         self.last_tick: CameraTick | None = None
         self.action = 0
         self.samples: list[CompanionSample] = []
@@ -105,26 +120,17 @@ class GroundAirCompanion:
         ugvs = self.ugv_states()
         if self.world is not None:
             self.world.place(ugvs)  # PyBullet pixels of the same team
-        tick = self.rig.tick(t, state, ugvs)
+        uav = level_camera_mount(state) if self.p.gimbal else state
+        tick = self.rig.tick(t, uav, ugvs)
         if tick is None:
             return
         self.last_tick = tick
-        self.phi_prev = self.phi
         self.phi = tick.phi
         self.t_frame = t
 
     def observation(self, state: VehicleState) -> np.ndarray:
-        """(φ, velocity, Δφ) as the training environment builds it (policy.groundair.env)."""
-        phi = self.phi
-        prev = self.phi_prev if self.phi_prev is not None else phi
-        both = phi[4] > 0 and prev[4] > 0
-        u = self.task.uav
-        vm = (u.v_xy_mps, u.v_xy_mps, max(u.v_up_mps, u.v_down_mps))
-        v = state.vel_ned
-        d = [(phi[i] - prev[i]) if both else 0.0 for i in range(3)]
-        o = list(phi) + [0.5 + v[i] / (2 * vm[i]) for i in range(3)]
-        o += [min(max(0.5 + 5.0 * x, 0.0), 1.0) for x in d]
-        return np.clip(np.array(o, dtype=np.float32), 0.0, 1.0)
+        """(φ, velocity, Δφ since the last decision), built by the training environment's code."""
+        return make_observation(self.phi, self.phi_prev, state.vel_ned, self.task)
 
     # ---- one telemetry sample --------------------------------------------------------------
     def update(self, t: float, state: VehicleState) -> Decision:
@@ -137,6 +143,7 @@ class GroundAirCompanion:
         if self.t_decision is None or t - self.t_decision >= self.task.dt_s - 1e-9:
             self.t_decision = t
             self.action = int(self.policy(self.observation(state)))
+            self.phi_prev = self.phi  # Δφ is taken over one decision period, as in training
             vel = np.array(action_velocity_ned(self.action, self.task.uav))
             proposed = Setpoint(vel_ned=vel, yaw=self.p.yaw)
         health = Health(camera_t=self.t_frame, link_t=self.link_t if self.link_t is not None else t)

@@ -168,9 +168,10 @@ def _run_formation(args) -> int:
 def _groundair_parts(args):
     """Load and check everything the ground-air mission needs before anything starts."""
     from policy.dqn import PolicyFileError, load_policy
+    from policy.models import DEFAULT_POLICY
     from safety.config import ENVELOPE_DIR, EnvelopeFileError
     from safety.net import load_net
-    from scripts.fly_groundair import DEFAULT_POLICY, GroundAirMission
+    from scripts.fly_groundair import GroundAirMission
 
     if not 0 < args.duration <= 3600:
         raise UsageError("--duration must be in (0, 3600] s")

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -26,7 +25,6 @@ from policy.groundair.scenarios import Formation, draw_plan
 from safety.supervisor import Mode, Supervisor
 from scripts.runfolder import RunFolder, markdown_table
 
-DEFAULT_POLICY = Path(__file__).resolve().parent.parent / "policy" / "models" / "groundair_ab.npz"
 STRIP_EVERY_S = 6.0  # one annotated frame in the strip per this much simulation time [s]
 
 

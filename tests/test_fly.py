@@ -1,6 +1,8 @@
 """`skyherd fly`: the main job end to end through our own MAVLink client and the built-in SITL."""
 
 import csv
+import json
+import re
 
 import numpy as np
 from pymavlink import mavutil
@@ -54,3 +56,31 @@ def test_fly_bad_usage_exits_2(tmp_path, capsys):
     assert main(["fly", "--connect", "bogus", "--runs-dir", str(tmp_path)]) == 2
     assert "expected" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
+
+
+def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
+    """The main job: the kept policy flies through MAVLink offboard behind the safety net."""
+    args = ["fly", "--duration", "30", "--speedup", "20", "--timeout", "180", "--zenoh-port",
+            "7491", "--runs-dir", str(tmp_path)]  # fmt: skip
+    assert main(args) == 0
+    (run,) = tmp_path.iterdir()
+    names = {p.name for p in run.iterdir()}
+    assert {"config.json", "telemetry.tlog", "metrics.csv", "events.jsonl", "groundair.png",
+            "frames.png", "summary.md"} <= names  # fmt: skip
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["envelope"]["name"] == "quadrotor-groundair" and cfg["envelope"]["version"]
+    summary = (run / "summary.md").read_text()
+    frac = float(re.search(r"all UGVs in view \[fraction of decisions\] \| ([0-9.]+)", summary)[1])
+    decisions = int(re.search(r"decisions +\| (\d+)", summary)[1])
+    assert decisions >= 55  # one every 0.5 s for 30 s
+    assert frac >= 0.9, summary
+    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    modes = {r["mode"] for r in rows}
+    assert "OFFBOARD" in modes and float(rows[-1]["down"]) > -0.3  # flew offboard, landed
+
+
+def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
+    bad = tmp_path / "policy.npz"
+    bad.write_bytes(b"not a policy")
+    assert main(["fly", "--policy", str(bad), "--runs-dir", str(tmp_path / "runs")]) == 2
+    assert "not a readable skyherd policy" in capsys.readouterr().err
