@@ -27,7 +27,7 @@ Companion (`OrbitCompanion.update`, once per telemetry sample, simulation time):
 1. the UGV team moves to time t; its centre of mass c(t) is the orbit centre;
 2. at the camera rate the gimbal points at c(t); the frame is rendered, published, detected;
 3. every decision period the orbit is certified: the circle about c(t) at altitude h must lie
-   inside the fence with the envelope's margin (else the centre stays at its last certified
+   inside the fence with `fence_reserve` (else the centre stays at its last certified
    position), and the safety net's supervisor judges the state and the velocity the orbit
    flies (present horizontal velocity, climb toward h). AI → an offboard position setpoint
    (c, −h) that the autopilot loiters about with radius R (NAV_LOITER_RAD); FALLBACK → the
@@ -49,7 +49,8 @@ from groundsim.ugv import UGVModel, UGVStates
 from hil.orbit_gimbal import GimbalParams, gimbal_pose
 from perception.camera import CameraParams, camera_pose, in_image, project
 from perception.pipeline import CameraRig, CameraTick
-from safety.fallback import inside_with_margin
+from safety.envelope import NZ, P
+from safety.kernels import worst_residual
 from safety.supervisor import Decision, Health, Supervisor
 
 # The zoomed gimbal camera: 320×240 like the quadrotor's, 20° horizontal field of view
@@ -131,14 +132,36 @@ def plan_orbit(p: OrbitParams, cam: CameraParams = ORBIT_CAMERA) -> OrbitPlan:
     return plan
 
 
-def circle_certified(geometry, centre_ne, radius_m: float, alt_m: float, margin_m: float) -> bool:
-    """Every point of the orbit circle (36 points) lies inside the fence with `margin_m` [m]."""
-    a = np.linspace(0.0, 2 * math.pi, 36, endpoint=False)
-    pts = np.column_stack(
-        [centre_ne[0] + radius_m * np.cos(a), centre_ne[1] + radius_m * np.sin(a),
-         np.full(a.shape, -alt_m)]
-    )  # fmt: skip
-    return all(inside_with_margin(geometry, q, margin_m) for q in pts)
+def circle_certified(geometry, centre_ne, radius_m: float, alt_m: float, reserve_m: float,
+                     margin_v_m: float = 0.0) -> bool:  # fmt: skip
+    """The orbit (circle of `radius_m` about `centre_ne` (2,) at `alt_m` [m]) with `reserve_m`
+    [m] all round — the disc of radius R + reserve — lies inside the fence: every row
+    a·p <= b of the position-only envelope `geometry` holds over the whole disc,
+
+        a_n c_n + a_e c_e − a_d h + (R + reserve)·|(a_n, a_e)| <= b  (− margin_v for the
+        altitude rows, whose horizontal part is 0),
+
+    under the envelope's union rules (one inclusion piece holds entirely, in every exclusion
+    zone one face). Exact for the half-planes, so the disc test is conservative only across
+    the splits of a non-convex fence."""
+    a = geometry.A[:, P]
+    hyp = np.hypot(a[:, 0], a[:, 1])
+    b = geometry.b - (radius_m + reserve_m) * hyp - np.where(hyp < 1e-9, margin_v_m, 0.0)
+    z = np.zeros(NZ)
+    z[P] = (centre_ne[0], centre_ne[1], -alt_m)
+    e = geometry
+    w = worst_residual(e.A, b, z, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
+    return bool(w <= 0.0)
+
+
+def fence_reserve(spec) -> float:
+    """Distance [m] the orbit circle keeps from every fence row: the envelope's margin, its
+    loiter-fallback diameter 2·R_turn(v_max) and the reaction-time run-on (dt + t_react)·v_max,
+    the reserve the envelope's own fence rows demand of a fixed-wing (safety.envelope eq. 3),
+    so an aircraft on the certified circle never trips the safety net."""
+    lim, dyn = spec.limits, spec.dynamics
+    v = lim.speed_h_mps
+    return lim.margin_m + 2.0 * dyn.turn_radius(v) + (dyn.dt_s + dyn.react_s) * v
 
 
 @dataclass
@@ -162,10 +185,11 @@ class OrbitCompanion:
     """Camera on a gimbal → perception; orbit centre → safety net → setpoint (module docstring)."""
 
     def __init__(self, plan: OrbitPlan, team, supervisor: Supervisor, rig: CameraRig,
-                 margin_m: float, decision_dt_s: float = 0.2,
+                 reserve_m: float, decision_dt_s: float = 0.2,
                  gimbal: GimbalParams | None = None, climb_tau_s: float = 5.0):  # fmt: skip
         self.plan, self.team, self.supervisor, self.rig = plan, team, supervisor, rig
-        self.margin_m, self.decision_dt_s = margin_m, decision_dt_s
+        self.reserve_m, self.decision_dt_s = reserve_m, decision_dt_s
+        self.margin_v_m = supervisor.envelope.spec.limits.margin_m  # ceiling and floor
         self.gimbal = gimbal if gimbal is not None else GimbalParams()
         self.climb_tau_s = climb_tau_s
         lim = supervisor.envelope.spec.limits
@@ -239,7 +263,8 @@ class OrbitCompanion:
             self.t_decision = t
             c = self.team_centre()
             geo = self.supervisor.geometry
-            if circle_certified(geo, c, self.plan.radius_m, self.plan.altitude_m, self.margin_m):
+            if circle_certified(geo, c, self.plan.radius_m, self.plan.altitude_m, self.reserve_m,
+                                self.margin_v_m):  # fmt: skip
                 self.centre = c
             else:
                 self.frozen += 1

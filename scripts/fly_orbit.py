@@ -20,7 +20,14 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from flight.autopilot_api import FlightMode
 from hil.client import ClientTimeout, CommandError, Telemetry, VehicleClient
-from hil.orbit import ORBIT_CAMERA, OrbitCompanion, OrbitParams, OrbitPlan, plan_orbit
+from hil.orbit import (
+    ORBIT_CAMERA,
+    OrbitCompanion,
+    OrbitParams,
+    OrbitPlan,
+    fence_reserve,
+    plan_orbit,
+)
 from hil.session import TRACK_COLUMNS, FlightSession
 from perception.pipeline import CameraRig, CameraRigParams
 from policy.groundair.scenarios import Formation, draw_plan
@@ -196,7 +203,7 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
              "team_plan": asdict(team.plan), "seed": seed}, indent=2, default=str).encode())  # fmt: skip
         fs.done()
         fs.offboard(TAKEOFF_ALT_M)
-        comp = OrbitCompanion(plan, team, supervisor, rig, spec.limits.margin_m)
+        comp = OrbitCompanion(plan, team, supervisor, rig, fence_reserve(spec))
         fs.step("orbit", f"orbit: R {plan.radius_m:.0f} m at {plan.altitude_m:.0f} m")
         state["comp"] = comp
         _fly(fs, client, comp, mission, state)

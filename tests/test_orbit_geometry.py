@@ -137,3 +137,11 @@ def test_orbit_circle_certified_against_the_fence():
     assert not circle_certified(geo, np.array([900.0, 0.0]), 150.0, 100.0, 10.0)  # past the edge
     assert not circle_certified(geo, np.array([-500.0, 400.0]), 150.0, 100.0, 10.0)  # the tower
     assert not circle_certified(geo, np.zeros(2), 150.0, 200.0, 10.0)  # above the ceiling
+    assert circle_certified(geo, np.zeros(2), 150.0, 140.0, 10.0, margin_v_m=10.0)
+    assert not circle_certified(geo, np.zeros(2), 150.0, 141.0, 10.0, margin_v_m=10.0)
+    # closed form at the north edge (1000 m): the disc reaches c + R + reserve
+    assert circle_certified(geo, np.array([839.0, 0.0]), 150.0, 100.0, 10.0)
+    assert not circle_certified(geo, np.array([841.0, 0.0]), 150.0, 100.0, 10.0)
+    # the tower (60 m about (-500, 500), a 16-gon, tested face by face: conservative by ~3 m): clears by 8 m / overlaps
+    assert circle_certified(geo, np.array([-500.0, 500.0 - 60.0 - 168.0]), 150.0, 100.0, 10.0)
+    assert not circle_certified(geo, np.array([-500.0, 500.0 - 60.0 - 157.0]), 150.0, 100.0, 10.0)
