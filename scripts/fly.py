@@ -76,6 +76,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     ga.add_argument("--policy", default=None, help="policy file (default: the one the repo keeps)")
     ga.add_argument("--envelope", default=None, help="constraint-set TOML for the safety net")
     ga.add_argument("--duration", type=float, default=60.0, help="policy flight time [s]")
+    ga.add_argument(
+        "--ugvs",
+        default="composite",
+        metavar="SCENARIO",
+        help="UGV team: lateral, climb, descend, composite (the training scenarios; default "
+        "composite) or groundsim:route|convoy|random|stopgo|speedoff|camouflage",
+    )
+    ga.add_argument(
+        "--pilot",
+        choices=["policy", "pid"],
+        default="policy",
+        help="policy: the learned policy (default); pid: the classic follower on image features",
+    )
     ga.add_argument("--renderer", choices=["fast", "bullet"], default="fast")
     ga.add_argument("--zenoh-port", type=int, default=7447, help="Zenoh listen port (loopback)")
     ga.add_argument("--no-zenoh", action="store_true", help="do not publish camera frames")
@@ -175,7 +188,16 @@ def _groundair_parts(args):
 
     if not 0 < args.duration <= 3600:
         raise UsageError("--duration must be in (0, 3600] s")
-    mission = GroundAirMission(duration_s=args.duration, renderer=args.renderer)
+    from policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS
+
+    if args.ugvs not in SCENARIOS + GROUNDSIM_SCENARIOS:
+        raise UsageError(
+            f"--ugvs {args.ugvs!r} is not a team: use one of "
+            + ", ".join(SCENARIOS + GROUNDSIM_SCENARIOS)
+        )
+    mission = GroundAirMission(
+        scenario=args.ugvs, pilot=args.pilot, duration_s=args.duration, renderer=args.renderer
+    )
     policy_path = args.policy or DEFAULT_POLICY
     try:
         policy = load_policy(policy_path)

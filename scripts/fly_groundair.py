@@ -16,12 +16,12 @@ import numpy as np
 
 from flight.autopilot_api import FlightMode
 from hil.client import ClientTimeout, CommandError, Telemetry, VehicleClient
-from hil.companion import GroundAirCompanion
+from hil.companion import GroundAirCompanion, PerceptionFollower, PolicyPilot
 from hil.session import TRACK_COLUMNS, FlightSession
 from perception.pipeline import CameraRig, CameraRigParams
 from policy.groundair.fastphi import min_circle
 from policy.groundair.params import TaskParams
-from policy.groundair.scenarios import Formation, draw_plan
+from policy.groundair.scenarios import make_team
 from safety.supervisor import Mode, Supervisor
 from scripts.runfolder import RunFolder, markdown_table
 
@@ -32,18 +32,20 @@ STRIP_EVERY_S = 6.0  # one annotated frame in the strip per this much simulation
 class GroundAirMission:
     """What the ground–air flight does (saved in config.json)."""
 
-    scenario: str = "composite"
+    scenario: str = "composite"  # UGV team: a training scenario or groundsim:<behaviour>
+    pilot: str = "policy"  # "policy" (learned) or "pid" (classic follower on φ)
     duration_s: float = 60.0  # policy flight time after the hand-over [s]
     vehicle: str = "uav0"  # Zenoh key prefix
     renderer: str = "fast"
     camera_hz: float = 10.0
 
 
-def start_altitude(task: TaskParams, formation: Formation) -> float:
+def start_altitude(task: TaskParams, team) -> float:
     """The altitude [m] that frames the team at the expert's spread target (as the env starts)."""
     cam = task.camera
     half_diag = 0.5 * math.hypot(cam.width_px, cam.height_px)
-    alt = cam.fx * formation.plan.radius(0.0) / (task.spread_target * half_diag)
+    radius = max(min_circle(team.positions())[2], 3.0)
+    alt = cam.fx * radius / (task.spread_target * half_diag)
     alt += cam.mount_offset_frd[2]
     return float(min(max(alt, task.uav.alt_min_m + 2.0), task.uav.alt_max_m - 2.0))
 
@@ -59,17 +61,18 @@ def fly_groundair(
     timeout: float,
 ) -> bool:
     task = TaskParams()
-    formation = Formation(draw_plan(mission.scenario, np.random.default_rng(seed), task.n_ugvs))
+    team = make_team(mission.scenario, np.random.default_rng(seed), task.n_ugvs)
+    pilot = PolicyPilot(policy, task) if mission.pilot == "policy" else PerceptionFollower(task)
     world = None
     if mission.renderer == "bullet":
         from groundsim.world import GroundWorld, WorldParams
 
-        initial = GroundAirCompanion.team_states(formation)
+        initial = GroundAirCompanion.team_states(team)
         world = GroundWorld(initial, behaviour=None, params=WorldParams(n_ugv=task.n_ugvs))
     rig = CameraRig(task.camera, task.n_ugvs, CameraRigParams(mission.renderer, mission.camera_hz),
                     world=world, publisher=publisher)  # fmt: skip
-    companion = GroundAirCompanion(task, formation, policy, supervisor, rig, world=world)
-    altitude = start_altitude(task, formation)
+    companion = GroundAirCompanion(task, team, pilot, supervisor, rig, world=world)
+    altitude = start_altitude(task, team)
     strip: list[np.ndarray] = []
     state = {"active": False, "t_end": math.inf, "error": ""}
 
@@ -163,8 +166,8 @@ def _report(run_dir, mission, task, companion, supervisor, track, strip, ok) -> 
     status = "completed" if ok else "ABORTED"
     run_dir.write_summary(
         f"# skyherd fly: ground–air mission {status}\n\n"
-        f"Scenario `{mission.scenario}`, {mission.duration_s:.0f} s of policy flight behind the "
-        f"safety net.\n\n{table}"
+        f"UGV team `{mission.scenario}`, pilot `{mission.pilot}`, {mission.duration_s:.0f} s of "
+        f"flight behind the safety net.\n\n{table}"
     )
     print(table)
     print(f"skyherd fly: {status}; tlog, metrics.csv, events.jsonl, groundair.png, "

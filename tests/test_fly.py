@@ -84,3 +84,16 @@ def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
     bad.write_bytes(b"not a policy")
     assert main(["fly", "--policy", str(bad), "--runs-dir", str(tmp_path / "runs")]) == 2
     assert "not a readable skyherd policy" in capsys.readouterr().err
+
+
+def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
+    """Issue 4's flight: UGVs drive a groundsim route, a classic PID follower on φ flies."""
+    args = ["fly", "--pilot", "pid", "--ugvs", "groundsim:route", "--duration", "25",
+            "--speedup", "20", "--timeout", "180", "--no-zenoh", "--runs-dir", str(tmp_path)]  # fmt: skip
+    assert main(args) == 0
+    (run,) = tmp_path.iterdir()
+    summary = (run / "summary.md").read_text()
+    assert "pilot `pid`" in summary and "groundsim:route" in summary
+    frac = float(re.search(r"all UGVs in view \[fraction of decisions\] \| ([0-9.]+)", summary)[1])
+    assert frac >= 0.9, summary
+    assert main(["fly", "--ugvs", "nowhere", "--runs-dir", str(tmp_path)]) == 2
