@@ -46,7 +46,7 @@ class OrbitMission:
     establish_s: float = 240.0  # the orbit must be established within this [s, vehicle time]
     radius_tol: float = 0.10  # established: |d − R| <= tol·R ...
     alt_tol_m: float = 2.0  # ... and |h_now − h| <= this [m]
-    alt_reserve_m: float = 5.0  # planned h stays this far below the envelope's ceiling band [m]
+    alt_reserve_m: float = 15.0  # planned h stays this far inside the envelope's ceiling margin [m]
     camera_hz: float = 10.0
     land: bool = True
     vehicle: str = "uav0"
@@ -263,7 +263,7 @@ class OrbitResult:
     all_detected: float  # fraction of frames where the detector found every UGV
     all_projected: float  # fraction where every UGV's true position is inside the image
     body_fixed: float  # the same for a body-fixed downward camera (not flown, for comparison)
-    radius_err_mean_m: float  # mean |d − R|
+    radius_err_mean_m: float  # mean |d − R|, d from the commanded orbit centre
     radius_err_max_m: float
     alt_err_mean_m: float  # mean |h_now − h|
     alt_err_max_m: float
@@ -272,8 +272,9 @@ class OrbitResult:
     switches: int
     switches_orbit: int  # after the orbit was established
     fallback_s: float
-    frozen: int
+    limited: int  # decisions where the fence held the orbit centre short of the com
     centre_travel_m: float  # how far the UGV centre of mass moved during the established orbit
+    held_back_max_m: float  # largest distance between the orbit centre and the com (fence)
 
 
 def orbit_result(comp: OrbitCompanion | None, supervisor, t_est: float | None) -> OrbitResult:
@@ -282,9 +283,10 @@ def orbit_result(comp: OrbitCompanion | None, supervisor, t_est: float | None) -
     if not sel:
         nan = math.nan
         return OrbitResult(0, nan, nan, nan, nan, nan, nan, nan, nan, nan, st.switches, 0, st.fallback_s,
-                           comp.frozen if comp else 0, nan)  # fmt: skip
+                           comp.limited if comp else 0, nan, nan)  # fmt: skip
     plan = comp.plan
-    d = np.array([np.hypot(*(s.pos_ned[:2] - s.centre_ne)) for s in sel])
+    d = np.array([np.hypot(*(s.pos_ned[:2] - s.orbit_ne)) for s in sel])
+    off = np.array([np.hypot(*(s.orbit_ne - s.centre_ne)) for s in sel])
     h = np.array([-s.pos_ned[2] for s in sel])
     return OrbitResult(
         len(sel), float(np.mean([s.all_detected for s in sel])),
@@ -294,8 +296,8 @@ def orbit_result(comp: OrbitCompanion | None, supervisor, t_est: float | None) -
         float(np.mean(np.abs(h - plan.altitude_m))), float(np.max(np.abs(h - plan.altitude_m))),
         math.degrees(float(np.mean(np.abs([s.bank_rad for s in sel])))),
         math.degrees(float(np.mean([s.tilt_rad for s in sel]))),
-        st.switches, st.switches - comp.switches_at_est, st.fallback_s, comp.frozen,
-        float(np.hypot(*(sel[-1].centre_ne - sel[0].centre_ne))),
+        st.switches, st.switches - comp.switches_at_est, st.fallback_s, comp.limited,
+        float(np.hypot(*(sel[-1].centre_ne - sel[0].centre_ne))), float(np.max(off)),
     )  # fmt: skip
 
 
@@ -308,13 +310,14 @@ def _report(run_dir, mission, plan: OrbitPlan, comp, supervisor, track, strip, t
         ["frames after the orbit was established", res.frames],
         ["all UGVs detected [fraction of frames]", res.all_detected],
         ["all UGVs inside the image (true positions)", res.all_projected],
-        ["radius error mean / max [m]", f"{res.radius_err_mean_m:.1f} / {res.radius_err_max_m:.1f}"],
+        ["radius error about the orbit centre, mean / max [m]", f"{res.radius_err_mean_m:.1f} / {res.radius_err_max_m:.1f}"],
         ["altitude error mean / max [m]", f"{res.alt_err_mean_m:.1f} / {res.alt_err_max_m:.1f}"],
         ["mean bank / gimbal tilt [deg]", f"{res.bank_mean_deg:.1f} / {res.tilt_mean_deg:.1f}"],
         ["... for a body-fixed downward camera (comparison)", res.body_fixed],
         ["safety-net switches (all / after establishment)", f"{res.switches} / {res.switches_orbit}"],
         ["time in fallback (loiter) [s]", res.fallback_s],
-        ["decisions with the orbit centre frozen (fence)", res.frozen],
+        ["decisions with the orbit centre held back by the fence", res.limited],
+        ["largest orbit centre – centre of mass distance [m]", res.held_back_max_m],
         ["UGV centre of mass moved during the orbit [m]", res.centre_travel_m],
     ]  # fmt: skip
     table = markdown_table(["metric", "value"], rows)
@@ -354,8 +357,11 @@ def _plot(run_dir, comp, plan: OrbitPlan, track: np.ndarray, t_est) -> None:
         ugv = np.array([x.ugvs_ne for x in s])
         for i in range(ugv.shape[1]):
             axs[0].plot(ugv[:, i, 1], ugv[:, i, 0], lw=1.2, label=f"UGV {i}")
-        d = np.array([np.hypot(*(x.pos_ned[:2] - x.centre_ne)) for x in s])
-        axs[1].plot(t, d, "b-", lw=1, label="distance to centre of mass")
+        d = np.array([np.hypot(*(x.pos_ned[:2] - x.orbit_ne)) for x in s])
+        axs[1].plot(t, d, "b-", lw=1, label="distance to the orbit centre")
+        off = np.array([np.hypot(*(x.orbit_ne - x.centre_ne)) for x in s])
+        if off.max() > 1.0:
+            axs[1].plot(t, off, "m-", lw=1, label="orbit centre – centre of mass (fence)")
         axs[1].axhline(plan.radius_m, color="g", ls="--", lw=0.8, label="planned R")
         inview = np.array([x.all_detected for x in s], dtype=float)
         ax = axs[1].twinx()

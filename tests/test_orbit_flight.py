@@ -92,6 +92,8 @@ def test_orbit_flight_end_to_end(tmp_path):
     # the bank it flies is the coordinated-turn bank of the plan, atan(V² / (g R)), within 3°
     assert res["bank_mean_deg"] == pytest.approx(math.degrees(plan["bank_rad"]), abs=3.0)
     assert res["tilt_mean_deg"] == pytest.approx(math.degrees(plan["depression_rad"]), abs=3.0)
+    # never held back by the fence: the orbit centre lags the com by one decision (0.2 s) only
+    assert res["limited"] == 0 and res["held_back_max_m"] < 1.0
     assert res["switches_orbit"] == 0  # the safety net never had to act in the orbit
     assert received >= 0.5 * res["frames"]  # frames really went over Zenoh
     # the tlog: NAV_LOITER_RAD set to R, offboard setpoints at h that travel with the team
