@@ -60,7 +60,7 @@ def test_fly_bad_usage_exits_2(tmp_path, capsys):
 
 def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     """The main job: the kept policy flies through MAVLink offboard behind the safety net."""
-    args = ["fly", "--duration", "30", "--speedup", "20", "--timeout", "180", "--zenoh-port",
+    args = ["fly", "--duration", "30", "--speedup", "10", "--timeout", "180", "--zenoh-port",
             "7491", "--runs-dir", str(tmp_path)]  # fmt: skip
     assert main(args) == 0
     (run,) = tmp_path.iterdir()
@@ -89,7 +89,7 @@ def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
 def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
     """Issue 4's flight: UGVs drive a groundsim route, a classic PID follower on φ flies."""
     args = ["fly", "--pilot", "pid", "--ugvs", "groundsim:route", "--duration", "25",
-            "--speedup", "20", "--timeout", "180", "--no-zenoh", "--runs-dir", str(tmp_path)]  # fmt: skip
+            "--speedup", "10", "--timeout", "180", "--no-zenoh", "--runs-dir", str(tmp_path)]  # fmt: skip
     assert main(args) == 0
     (run,) = tmp_path.iterdir()
     summary = (run / "summary.md").read_text()
