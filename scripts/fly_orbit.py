@@ -46,6 +46,7 @@ class OrbitMission:
     establish_s: float = 240.0  # the orbit must be established within this [s, vehicle time]
     radius_tol: float = 0.10  # established: |d − R| <= tol·R ...
     alt_tol_m: float = 2.0  # ... and |h_now − h| <= this [m]
+    establish_hold_s: float = 10.0  # ... both held this long (a capture crossing is not enough)
     alt_reserve_m: float = 15.0  # planned h stays this far inside the envelope's ceiling margin [m]
     camera_hz: float = 10.0
     land: bool = True
@@ -226,6 +227,7 @@ def _fly(fs: FlightSession, client: VehicleClient, comp: OrbitCompanion, mission
     tel = client.telemetry
     t_start = fs.vehicle_time()
     t_end = math.inf
+    t_in = None  # since when the aircraft has been inside the tolerances
     while fs.vehicle_time() < t_end:
         if state["error"]:
             raise ClientTimeout(state["error"])
@@ -236,7 +238,9 @@ def _fly(fs: FlightSession, client: VehicleClient, comp: OrbitCompanion, mission
         client.wait_message("LOCAL_POSITION_NED", timeout=min(5.0, fs.left()))
         t = fs.vehicle_time()
         if state["t_est"] is None:
-            if _established(tel, comp, mission):
+            inside = _established(tel, comp, mission)
+            t_in = (t_in if t_in is not None else t) if inside else None
+            if t_in is not None and t - t_in >= mission.establish_hold_s:
                 state["t_est"] = t
                 comp.switches_at_est = comp.supervisor.stats.switches
                 t_end = t + mission.duration_s
