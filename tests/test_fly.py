@@ -11,22 +11,9 @@ from scripts.cli import main
 
 
 def test_fly_square_end_to_end(tmp_path, capsys):
-    assert (
-        main(
-            [
-                "fly",
-                "--mission",
-                "square",
-                "--speedup",
-                "20",
-                "--timeout",
-                "120",
-                "--runs-dir",
-                str(tmp_path),
-            ]
-        )
-        == 0
-    )
+    args = ["fly", "--mission", "square", "--speedup", "10", "--timeout", "120",
+            "--runs-dir", str(tmp_path)]  # fmt: skip
+    assert main(args) == 0
     (run,) = tmp_path.iterdir()
     assert {"config.json", "telemetry.tlog", "metrics.csv", "track.png", "summary.md"} <= {
         p.name for p in run.iterdir()
@@ -60,7 +47,7 @@ def test_fly_bad_usage_exits_2(tmp_path, capsys):
 
 def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     """The main job: the kept policy flies through MAVLink offboard behind the safety net."""
-    args = ["fly", "--duration", "30", "--speedup", "10", "--timeout", "180", "--zenoh-port",
+    args = ["fly", "--duration", "30", "--speedup", "5", "--timeout", "180", "--zenoh-port",
             "7491", "--runs-dir", str(tmp_path)]  # fmt: skip
     assert main(args) == 0
     (run,) = tmp_path.iterdir()
@@ -89,7 +76,7 @@ def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
 def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
     """Issue 4's flight: UGVs drive a groundsim route, a classic PID follower on φ flies."""
     args = ["fly", "--pilot", "pid", "--ugvs", "groundsim:route", "--duration", "25",
-            "--speedup", "10", "--timeout", "180", "--no-zenoh", "--runs-dir", str(tmp_path)]  # fmt: skip
+            "--speedup", "5", "--timeout", "180", "--no-zenoh", "--runs-dir", str(tmp_path)]  # fmt: skip
     assert main(args) == 0
     (run,) = tmp_path.iterdir()
     summary = (run / "summary.md").read_text()
