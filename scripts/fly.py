@@ -78,6 +78,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from scripts.fly_formation import add_formation_arguments
 
     add_formation_arguments(parser.add_argument_group("formation mission"))
+    from scripts.fly_orbit import add_orbit_arguments
+
+    add_orbit_arguments(parser.add_argument_group("fixed-wing orbit (--airframe fixedwing)"))
 
 
 def run(args: argparse.Namespace) -> int:
