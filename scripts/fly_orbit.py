@@ -47,6 +47,8 @@ class OrbitMission:
     radius_tol: float = 0.10  # established: |d − R| <= tol·R ...
     alt_tol_m: float = 2.0  # ... and |h_now − h| <= this [m]
     establish_hold_s: float = 10.0  # ... both held this long (a capture crossing is not enough)
+    mode_retry_s: float = 2.0  # repeat a mode request not yet shown by the heartbeat [s]
+    mode_give_up_s: float = 30.0  # abort when the autopilot does not follow for this long [s]
     alt_reserve_m: float = 15.0  # planned h stays this far inside the envelope's ceiling margin [m]
     camera_hz: float = 10.0
     land: bool = True
@@ -168,7 +170,7 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
     steps = ["connect", "arm", "takeoff", "plan", "offboard", "orbit", "orbit established"]
     steps += ["land"] if mission.land else []
     fs = FlightSession(client, run_dir.metrics(TRACK_COLUMNS), steps, timeout)
-    state = {"comp": None, "error": "", "t_est": None}
+    state = {"comp": None, "error": "", "t_est": None, "modes": []}
     strip: list[np.ndarray] = []
 
     def setpoint(tel: Telemetry):
@@ -216,10 +218,12 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
             fs.land()
     except (ClientTimeout, CommandError, ValueError) as e:
         fs.bar.write(f"skyherd fly: orbit: {e}")
+        state["abort"] = f"aborted at t={fs.vehicle_time():.1f} s ({fs.phase}): {e}"
         ok = False
     state["comp"] = None
     track = fs.close()
-    return _report(run_dir, mission, plan, comp, supervisor, track, strip, state["t_est"], ok)
+    return _report(run_dir, mission, plan, comp, supervisor, track, strip, state["t_est"],
+                   state.get("abort", ""), state["modes"], ok)  # fmt: skip
 
 
 def _fly(fs: FlightSession, client: VehicleClient, comp: OrbitCompanion, mission: OrbitMission,
@@ -231,10 +235,7 @@ def _fly(fs: FlightSession, client: VehicleClient, comp: OrbitCompanion, mission
     while fs.vehicle_time() < t_end:
         if state["error"]:
             raise ClientTimeout(state["error"])
-        if comp.wants_hold and tel.mode is FlightMode.OFFBOARD:
-            fs.set_mode(FlightMode.HOLD)
-        elif not comp.wants_hold and tel.mode is FlightMode.HOLD:
-            fs.set_mode(FlightMode.OFFBOARD)
+        _follow_safety_net(client, comp, fs.vehicle_time(), state, mission)
         client.wait_message("LOCAL_POSITION_NED", timeout=min(5.0, fs.left()))
         t = fs.vehicle_time()
         if state["t_est"] is None:
@@ -249,6 +250,34 @@ def _fly(fs: FlightSession, client: VehicleClient, comp: OrbitCompanion, mission
             elif t - t_start > mission.establish_s:
                 raise ClientTimeout(f"orbit not established in {mission.establish_s:.0f} s")
     fs.done()
+
+
+def _follow_safety_net(client: VehicleClient, comp: OrbitCompanion, t: float, state: dict,
+                       mission: OrbitMission) -> None:  # fmt: skip
+    """Put the autopilot in the mode the safety net flies: HOLD (its loiter) in FALLBACK,
+    OFFBOARD otherwise. The request is repeated every `mode_retry_s` of vehicle time until the
+    heartbeat shows it (a denied or reverted switch is retried, not fatal); ClientTimeout when
+    the autopilot has not followed for `mode_give_up_s`."""
+    tel = client.telemetry
+    want = FlightMode.HOLD if comp.wants_hold else FlightMode.OFFBOARD
+    if tel.mode not in (FlightMode.HOLD, FlightMode.OFFBOARD) or tel.mode is want:
+        state["mode_since"] = None
+        return
+    since = state.get("mode_since")
+    if since is None or since[1] is not want:
+        since = state["mode_since"] = (t, want)
+    elif t - since[0] > mission.mode_give_up_s:
+        raise ClientTimeout(f"the autopilot stayed in {tel.mode.name} for {t - since[0]:.0f} s "
+                            f"although the safety net asks for {want.name}")  # fmt: skip
+    last = state.get("mode_asked")
+    if last is not None and last[1] is want and t - last[0] < mission.mode_retry_s:
+        return
+    state["mode_asked"] = (t, want)
+    state["modes"].append((t, want.name))
+    try:
+        client.set_mode(want)
+    except CommandError as e:
+        state["modes"].append((t, f"{want.name} refused ({e})"))
 
 
 def _established(tel: Telemetry, comp: OrbitCompanion, mission: OrbitMission) -> bool:
@@ -305,7 +334,8 @@ def orbit_result(comp: OrbitCompanion | None, supervisor, t_est: float | None) -
     )  # fmt: skip
 
 
-def _report(run_dir, mission, plan: OrbitPlan, comp, supervisor, track, strip, t_est, ok) -> bool:
+def _report(run_dir, mission, plan: OrbitPlan, comp, supervisor, track, strip, t_est, abort: str,
+            modes: list, ok) -> bool:  # fmt: skip
     res = orbit_result(comp, supervisor, t_est)
     rows = [
         ["orbit radius R (planned) [m]", plan.radius_m],
@@ -334,7 +364,10 @@ def _report(run_dir, mission, plan: OrbitPlan, comp, supervisor, track, strip, t
         f"{mission.duration_s:.0f} s of established orbit over the UGV team's centre of mass, "
         f"gimballed camera ({math.degrees(ORBIT_CAMERA.hfov_rad):.0f}° field of view).\n\n"
         f"{table}\n"
-    )
+        + (f"\n**{abort}**\n" if abort else "")
+        + ("\nAutopilot mode changes asked for by the safety net: "
+           + ", ".join(f"t={t:.1f} s {m}" for t, m in modes) + "\n" if modes else "")
+    )  # fmt: skip
     print(table)
     print(f"skyherd fly: {status}; tlog, metrics.csv, events.jsonl, orbit.json, orbit.png, "
           f"frames.png and summary.md in {run_dir.path}")  # fmt: skip
