@@ -41,7 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--zenoh-config", default=None, help="Zenoh JSON5 config file (replaces --connect)"
     )
     parser.add_argument("--frames", type=int, default=100, help="frames to process (100)")
-    parser.add_argument("--out", default="runs", help="root folder for the run folder (runs)")
+    parser.add_argument(
+        "--runs-dir", "--out", dest="runs_dir", default="runs",
+        help="where run folders go (runs); --out is the older name",
+    )  # fmt: skip
     parser.add_argument("--ugvs", type=int, default=3, help="UGVs in the team (3)")
     parser.add_argument(
         "--timeout", type=float, default=10.0, help="give up after this long without a frame [s]"
@@ -110,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         session = open_session(zp)
     except ValueError as e:
         raise UsageError(f"{e}; check --connect / --zenoh-config") from e
-    rf = RunFolder("watch", root=args.out)
+    rf = RunFolder("watch", root=args.runs_dir)
     rf.write_config({"args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
                      "zenoh": zp, "feature_params": FeatureParams()})  # fmt: skip
     (rf.path / "frames").mkdir()

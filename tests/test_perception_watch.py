@@ -26,7 +26,7 @@ def test_watch_saves_annotated_frames_and_counts(tmp_path, capsys):
     try:
         code = main(
             ["watch", "--connect", f"tcp/127.0.0.1:{port}", "--frames", "40",
-             "--out", str(tmp_path), "--timeout", "8", "--save-every", "5", "--no-show"]
+             "--runs-dir", str(tmp_path), "--timeout", "8", "--save-every", "5", "--no-show"]
         )  # fmt: skip
     finally:
         src.wait(timeout=30)
