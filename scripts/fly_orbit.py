@@ -27,6 +27,7 @@ from hil.orbit import (
     OrbitPlan,
     fence_reserve,
     plan_orbit,
+    warm_up,
 )
 from hil.session import TRACK_COLUMNS, FlightSession
 from perception.pipeline import CameraRig, CameraRigParams
@@ -161,7 +162,9 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
         from scripts.cli import UsageError
 
         raise UsageError(f"orbit: {e}") from None
-    supervisor = Supervisor(spec.envelope(), sp, run_dir.events())
+    envelope = spec.envelope()
+    warm_up(envelope, sp)
+    supervisor = Supervisor(envelope, sp, run_dir.events())
     if publisher is not None and getattr(publisher, "cam", ORBIT_CAMERA) != ORBIT_CAMERA:
         publisher.cam = ORBIT_CAMERA  # camera info on Zenoh must describe the gimbal camera
     rig = CameraRig(ORBIT_CAMERA, 3, CameraRigParams("fast", mission.camera_hz),
