@@ -51,7 +51,7 @@ from perception.camera import CameraParams, camera_pose, in_image, project
 from perception.pipeline import CameraRig, CameraTick
 from safety.envelope import NZ, P
 from safety.kernels import worst_residual
-from safety.supervisor import Decision, Health, Supervisor
+from safety.supervisor import Decision, Health, Mode, Supervisor
 
 # The zoomed gimbal camera: 320×240 like the quadrotor's, 20° horizontal field of view
 # (f = 907 px): a 1 m marker spans ~3 px at ~190 m slant range, a 20 m team fits in 1/3 of H.
@@ -313,7 +313,7 @@ class OrbitCompanion:
     def setpoint(self) -> tuple:
         """(pos_ned, vel_ned, yaw) for the offboard stream from the last decision."""
         d = self.decision
-        if d is None or d.mode.value == "ai":
+        if d is None or d.mode is Mode.AI:
             return np.array([self.centre[0], self.centre[1], -self.plan.altitude_m]), None, None
         return d.command.pos_ned, d.command.vel_ned, d.command.yaw
 

@@ -99,8 +99,12 @@ def test_orbit_flight_end_to_end(tmp_path):
     # the tlog: NAV_LOITER_RAD set to R, offboard setpoints at h that travel with the team
     log = mavutil.mavlink_connection(str(run / "telemetry.tlog"))
     sp, loiter_rad = [], None
-    while (m := log.recv_match(type=["SET_POSITION_TARGET_LOCAL_NED", "PARAM_VALUE"])) is not None:
-        if m.get_type() == "PARAM_VALUE" and m.param_id == "NAV_LOITER_RAD":
+    last_hb = None
+    types = ["SET_POSITION_TARGET_LOCAL_NED", "PARAM_VALUE", "HEARTBEAT"]
+    while (m := log.recv_match(type=types)) is not None:
+        if m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1 + INSTANCE:
+            last_hb = m
+        elif m.get_type() == "PARAM_VALUE" and m.param_id == "NAV_LOITER_RAD":
             loiter_rad = m.param_value
         elif m.get_type() == "SET_POSITION_TARGET_LOCAL_NED" and not (m.type_mask & 0b111):
             sp.append((m.x, m.y, m.z))
@@ -109,9 +113,10 @@ def test_orbit_flight_end_to_end(tmp_path):
     orbit_sp = sp[np.isclose(sp[:, 2], -h)]
     assert len(orbit_sp) > 500
     assert np.hypot(*(orbit_sp[-1, :2] - orbit_sp[0, :2])) >= 40.0
-    # and it landed: last sample on the ground, disarmed
+    # and it landed: last position on the ground, and the vehicle's last heartbeat disarmed
     rows = list(csv.DictReader(open(run / "metrics.csv")))
-    assert -float(rows[-1]["down"]) < 2.0 and rows[-1]["armed"] == "0"
+    assert -float(rows[-1]["down"]) < 2.0
+    assert not last_hb.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 
 
 def test_orbit_bad_usage_before_flying(tmp_path):
