@@ -129,3 +129,33 @@ def test_orbit_bad_usage_before_flying(tmp_path):
         run_orbit(_args(envelope=ENVELOPE_DIR / "quadrotor_groundair.toml"), None, run_dir, None)
     with pytest.raises(UsageError):
         run_orbit(_args(envelope=tmp_path / "missing.toml"), None, run_dir, None)
+
+
+@pytest.mark.timeout(120)
+def test_skyherd_fly_fixedwing_command(tmp_path):
+    """`skyherd fly --airframe fixedwing` end to end through the CLI: 20 s of orbit, no landing
+    (ends loitering in HOLD), exit 0, the run folder and the orbit's options recorded."""
+    from scripts.cli import main
+
+    argv = ["fly", "--airframe", "fixedwing", "--speedup", "20", "--instance", str(INSTANCE),
+            "--zenoh-port", str(_free_port()), "--runs-dir", str(tmp_path),
+            "--orbit-scenario", "composite", "--orbit-duration", "20", "--orbit-no-land"]  # fmt: skip
+    assert main(argv) == 0
+    (run,) = tmp_path.iterdir()
+    res = json.loads((run / "orbit_result.json").read_text())
+    mission = json.loads((run / "orbit.json").read_text())["mission"]
+    assert mission["scenario"] == "composite" and mission["duration_s"] == 20.0
+    assert mission["land"] is False
+    assert res["frames"] >= 180 and res["all_detected"] >= 0.9 and res["switches_orbit"] == 0
+    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    assert -float(rows[-1]["down"]) > 100.0 and rows[-1]["armed"] == "1"  # still up there
+    bad = [
+        "fly",
+        "--airframe",
+        "fixedwing",
+        "--mission",
+        "square",
+        "--runs-dir",
+        str(tmp_path / "x"),
+    ]
+    assert main(bad) == 2 and not (tmp_path / "x").exists()
