@@ -208,8 +208,10 @@ class OrbitCompanion:
 
     def __init__(self, plan: OrbitPlan, team, supervisor: Supervisor, rig: CameraRig,
                  reserve_m: float, decision_dt_s: float = 0.2,
-                 gimbal: GimbalParams | None = None, climb_tau_s: float = 5.0):  # fmt: skip
+                 gimbal: GimbalParams | None = None, climb_tau_s: float = 5.0,
+                 world=None):  # fmt: skip
         self.plan, self.team, self.supervisor, self.rig = plan, team, supervisor, rig
+        self.world = world  # a groundsim GroundWorld mirrored for PyBullet pixels, or None
         self.reserve_m, self.decision_dt_s = reserve_m, decision_dt_s
         self.margin_v_m = supervisor.envelope.spec.limits.margin_m  # ceiling and floor
         self.gimbal = gimbal if gimbal is not None else GimbalParams()
@@ -245,6 +247,8 @@ class OrbitCompanion:
         com = np.array([*np.mean(ugvs.pos_ne, axis=0), 0.0])
         roll, _, yaw = quat_to_euler(state.quat)
         gp = gimbal_pose(self.rig.cam, state.pos_ned, yaw, com, self.gimbal)
+        if self.world is not None:
+            self.world.place(ugvs)  # PyBullet pixels of the same team
         tick = self.rig.tick(t, gp, ugvs)
         if tick is None:
             return

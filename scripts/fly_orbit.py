@@ -19,6 +19,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from flight.autopilot_api import FlightMode
+from groundsim.ugv import UGVStates
 from hil.client import ClientTimeout, CommandError, Telemetry, VehicleClient
 from hil.orbit import (
     ORBIT_CAMERA,
@@ -52,6 +53,7 @@ class OrbitMission:
     mode_give_up_s: float = 30.0  # abort when the autopilot does not follow for this long [s]
     alt_reserve_m: float = 15.0  # planned h stays this far inside the envelope's ceiling margin [m]
     camera_hz: float = 10.0
+    renderer: str = "fast"  # "fast" (OpenCV) or "bullet" (PyBullet GroundWorld)
     land: bool = True
     vehicle: str = "uav0"
 
@@ -76,8 +78,13 @@ def _mission(args) -> OrbitMission:
         raise UsageError(
             "the orbit duration (--orbit-duration / --duration) must be in (0, 3600] s"
         )
+    renderer = getattr(args, "renderer", None) or "fast"
+    if renderer not in ("fast", "bullet"):
+        from scripts.cli import UsageError
+
+        raise UsageError(f"--renderer must be fast or bullet, got {renderer!r}")
     return OrbitMission(scenario=getattr(args, "orbit_scenario", "lateral"), duration_s=dur,
-                        land=not getattr(args, "orbit_no_land", False))  # fmt: skip
+                        land=not getattr(args, "orbit_no_land", False), renderer=renderer)  # fmt: skip
 
 
 def _envelope(args):
@@ -167,8 +174,15 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
     supervisor = Supervisor(envelope, sp, run_dir.events())
     if publisher is not None and getattr(publisher, "cam", ORBIT_CAMERA) != ORBIT_CAMERA:
         publisher.cam = ORBIT_CAMERA  # camera info on Zenoh must describe the gimbal camera
-    rig = CameraRig(ORBIT_CAMERA, 3, CameraRigParams("fast", mission.camera_hz),
-                    publisher=publisher)  # fmt: skip
+    world = None
+    if mission.renderer == "bullet":
+        from groundsim.world import GroundWorld, WorldParams
+
+        pos = np.array(team.positions(), dtype=float)
+        initial = UGVStates(pos, np.zeros(3), np.zeros(3), np.zeros(3, dtype=bool))
+        world = GroundWorld(initial, behaviour=None, params=WorldParams(n_ugv=3))
+    rig = CameraRig(ORBIT_CAMERA, 3, CameraRigParams(mission.renderer, mission.camera_hz),
+                    world=world, publisher=publisher)  # fmt: skip
     timeout = float(getattr(args, "timeout", 600.0))
     steps = ["connect", "arm", "takeoff", "plan", "offboard", "orbit", "orbit established"]
     steps += ["land"] if mission.land else []
@@ -209,7 +223,7 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
              "team_plan": asdict(team.plan), "seed": seed}, indent=2, default=str).encode())  # fmt: skip
         fs.done()
         fs.offboard(TAKEOFF_ALT_M)
-        comp = OrbitCompanion(plan, team, supervisor, rig, fence_reserve(spec))
+        comp = OrbitCompanion(plan, team, supervisor, rig, fence_reserve(spec), world=world)
         fs.step("orbit", f"orbit: R {plan.radius_m:.0f} m at {plan.altitude_m:.0f} m")
         state["comp"] = comp
         _fly(fs, client, comp, mission, state)
@@ -225,6 +239,8 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
         ok = False
     state["comp"] = None
     track = fs.close()
+    if world is not None:
+        world.close()
     return _report(run_dir, mission, plan, comp, supervisor, track, strip, state["t_est"],
                    state.get("abort", ""), state["modes"], ok)  # fmt: skip
 
