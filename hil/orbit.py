@@ -164,27 +164,6 @@ def fence_reserve(spec) -> float:
     return lim.margin_m + 2.0 * dyn.turn_radius(v) + (dyn.dt_s + dyn.react_s) * v
 
 
-def warm_up(envelope, params) -> float:
-    """Run a throwaway Supervisor over the same envelope through AI, FALLBACK and PID once, so
-    that the numba kernels load and the recovery QP is built before the flight, not inside
-    the MAVLink receive thread at the first switch (a stall there, ~1 s wall, is 20 s of vehicle
-    time at 20×). Returns the wall time it took [s]."""
-    import time
-
-    t0 = time.perf_counter()
-    sv = Supervisor(envelope, params, None)
-    for k, north in enumerate((0.0, 5000.0)):  # inside, then far outside the fence
-        st = VehicleState(t=float(k), pos_ned=np.array([north, 0.0, -100.0]),
-                vel_ned=np.array([20.0, 0.0, 0.0]), quat=np.array([1.0, 0.0, 0.0, 0.0]),
-                omega_frd=np.zeros(3), accel_frd=np.array([0.0, 0.0, -GRAVITY]), on_ground=False)  # fmt: skip
-        sv.update(float(k), st, Setpoint(vel_ned=np.array([20.0, 0.0, 0.0])), Health())
-        sv.fallback.engage(st)
-        sv.fallback.command(st)
-        sv.pid.engage(st)
-        sv.pid.command(float(k), st)
-    return time.perf_counter() - t0
-
-
 @dataclass
 class OrbitSample:
     """One camera frame of the orbit: what the camera saw and where everything was."""

@@ -144,3 +144,25 @@ def annotate(frame: np.ndarray, det: Detections, scale: int = 2) -> np.ndarray:
     text = f"UGVs {det.count}/{m.n_expected}" + ("" if det.all_in_view else "  NOT ALL IN VIEW")
     cv2.putText(img, text, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, WHITE, 1, cv2.LINE_AA)
     return img
+
+
+def contact_sheet(frames: list[np.ndarray], cols: int = 4) -> np.ndarray:
+    """Frames (H, W, 3) RGB of one size tiled row by row, `cols` per row, white padding."""
+    cols = max(1, min(cols, len(frames)))
+    rows = -(-len(frames) // cols)
+    h, w = frames[0].shape[:2]
+    sheet = np.full((rows * h, cols * w, 3), 255, np.uint8)
+    for k, f in enumerate(frames):
+        r, c = divmod(k, cols)
+        sheet[r * h : (r + 1) * h, c * w : (c + 1) * w] = f
+    return sheet
+
+
+def write_png(path, rgb: np.ndarray) -> bool:
+    """Write an RGB image as PNG atomically (write-temp-and-rename); False if encoding failed."""
+    from scripts.runfolder import atomic_write_bytes
+
+    ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    if ok:
+        atomic_write_bytes(path, png.tobytes())
+    return bool(ok)

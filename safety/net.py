@@ -7,11 +7,16 @@ apply_decision(ap, d)                                     # HOLD or the offboard
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
-from flight.autopilot_api import Autopilot, FlightMode, Result
+import numpy as np
+
+from flight.autopilot_api import Autopilot, FlightMode, Result, Setpoint
+from flight.geo import GRAVITY
+from flight.state import VehicleState
 from safety.config import default_envelope_path, fill_dataclass, load_envelope
-from safety.supervisor import Decision, EventSink, Mode, Supervisor, SupervisorParams
+from safety.supervisor import Decision, EventSink, Health, Mode, Supervisor, SupervisorParams
 
 
 def load_net(
@@ -39,3 +44,22 @@ def apply_decision(ap: Autopilot, d: Decision, use_autopilot_hold: bool = True) 
     if r.ok and ap.mode != FlightMode.OFFBOARD:
         r = ap.set_mode(FlightMode.OFFBOARD)
     return r
+
+
+def warm_up(envelope, params) -> float:
+    """Run a throwaway Supervisor over the same envelope through AI, FALLBACK and PID once, so
+    that the numba kernels load and the recovery QP is built before the flight, not inside
+    the MAVLink receive thread at the first switch (a stall there, ~1 s wall, is 20 s of vehicle
+    time at 20×). Returns the wall time it took [s]."""
+    t0 = time.perf_counter()
+    sv = Supervisor(envelope, params, None)
+    for k, north in enumerate((0.0, 5000.0)):  # inside, then far outside the fence
+        st = VehicleState(t=float(k), pos_ned=np.array([north, 0.0, -100.0]),
+                vel_ned=np.array([20.0, 0.0, 0.0]), quat=np.array([1.0, 0.0, 0.0, 0.0]),
+                omega_frd=np.zeros(3), accel_frd=np.array([0.0, 0.0, -GRAVITY]), on_ground=False)  # fmt: skip
+        sv.update(float(k), st, Setpoint(vel_ned=np.array([20.0, 0.0, 0.0])), Health())
+        sv.fallback.engage(st)
+        sv.fallback.command(st)
+        sv.pid.engage(st)
+        sv.pid.command(float(k), st)
+    return time.perf_counter() - t0

@@ -169,7 +169,7 @@ def _groundair_parts(args):
     from policy.dqn import PolicyFileError, load_policy
     from policy.models import DEFAULT_POLICY
     from safety.config import ENVELOPE_DIR, EnvelopeFileError
-    from safety.net import load_net
+    from safety.net import load_net, warm_up
     from scripts.fly_groundair import GroundAirMission
 
     if not 0 < args.duration <= 3600:
@@ -196,7 +196,9 @@ def _groundair_parts(args):
         raise UsageError(f"{e}; fix the file or pass another --envelope") from None
 
     def make_supervisor(events):
-        return load_net("quadrotor", env_path, events=events)
+        sup = load_net("quadrotor", env_path, events=events)
+        warm_up(sup.envelope, sup.p)  # compile and set up now, not at the first switch in flight
+        return sup
 
     return mission, {
         "policy": policy,

@@ -18,6 +18,7 @@ from flight.autopilot_api import FlightMode
 from hil.client import ClientTimeout, CommandError, Telemetry, VehicleClient
 from hil.companion import GroundAirCompanion, PerceptionFollower, PolicyPilot
 from hil.session import TRACK_COLUMNS, FlightSession
+from perception.detector import contact_sheet, write_png
 from perception.pipeline import CameraRig, CameraRigParams
 from policy.groundair.fastphi import min_circle
 from policy.groundair.params import TaskParams
@@ -220,17 +221,4 @@ def _plot(run_dir: RunFolder, samples, track: np.ndarray) -> None:
 
 
 def _save_strip(run_dir: RunFolder, frames: list[np.ndarray]) -> None:
-    import cv2
-
-    from scripts.runfolder import atomic_write_bytes
-
-    cols = min(4, len(frames))
-    rows = -(-len(frames) // cols)
-    h, w = frames[0].shape[:2]
-    sheet = np.full((rows * h, cols * w, 3), 255, np.uint8)
-    for k, f in enumerate(frames):
-        r, c = divmod(k, cols)
-        sheet[r * h : (r + 1) * h, c * w : (c + 1) * w] = f
-    ok, png = cv2.imencode(".png", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
-    if ok:
-        atomic_write_bytes(run_dir.file("frames.png"), png.tobytes())
+    write_png(run_dir.file("frames.png"), contact_sheet(frames, cols=4))

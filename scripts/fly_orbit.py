@@ -28,11 +28,12 @@ from hil.orbit import (
     OrbitPlan,
     fence_reserve,
     plan_orbit,
-    warm_up,
 )
 from hil.session import TRACK_COLUMNS, FlightSession
+from perception.detector import contact_sheet, write_png
 from perception.pipeline import CameraRig, CameraRigParams
 from policy.groundair.scenarios import Formation, draw_plan
+from safety.net import warm_up
 from scripts.runfolder import RunFolder, atomic_write_bytes, markdown_table
 
 TAKEOFF_ALT_M = 40.0
@@ -444,16 +445,5 @@ def _plot(run_dir, comp, plan: OrbitPlan, track: np.ndarray, t_est) -> None:
     plt.close(fig)
 
 
-def _save_strip(run_dir, frames: list[np.ndarray]) -> None:
-    import cv2
-
-    cols = min(4, len(frames))
-    rows = -(-len(frames) // cols)
-    h, w = frames[0].shape[:2]
-    sheet = np.full((rows * h, cols * w, 3), 255, np.uint8)
-    for k, f in enumerate(frames):
-        r, c = divmod(k, cols)
-        sheet[r * h : (r + 1) * h, c * w : (c + 1) * w] = f
-    ok, png = cv2.imencode(".png", cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
-    if ok:
-        atomic_write_bytes(run_dir.file("frames.png"), png.tobytes())
+def _save_strip(run_dir: RunFolder, frames: list[np.ndarray]) -> None:
+    write_png(run_dir.file("frames.png"), contact_sheet(frames, cols=4))

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from perception.camera import CameraParams
-from perception.detector import Detector, annotate
+from perception.detector import Detector, annotate, contact_sheet, write_png
 from perception.features import FEATURE_NAMES, FeatureParams
 from perception.transport import (
     FrameSubscriber,
@@ -171,12 +171,7 @@ def run(args: argparse.Namespace) -> int:
     if args.strip and strip:
         idx = np.linspace(0, len(strip) - 1, min(args.strip, len(strip))).round().astype(int)
         tiles = [cv2.resize(strip[i], None, fx=0.5, fy=0.5) for i in idx]
-        cols = min(4, len(tiles))
-        tiles += [np.zeros_like(tiles[0])] * (-len(tiles) % cols)
-        grid = np.vstack([np.hstack(tiles[r : r + cols]) for r in range(0, len(tiles), cols)])
-        ok, png = cv2.imencode(".png", cv2.cvtColor(grid, cv2.COLOR_RGB2BGR))
-        if ok:
-            atomic_write_bytes(rf.path / "strip.png", png.tobytes())
+        write_png(rf.path / "strip.png", contact_sheet(tiles, cols=4))
     lat = np.array(stats.latencies_s) * 1e3
     rows = [[k, v] for k, v in stats.as_dict().items()]
     rows += [
