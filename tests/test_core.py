@@ -102,3 +102,36 @@ def test_cli_help_lists_commands():
     ).stdout
     for name in ("sitl", "fly", "drill", "train", "teleop", "watch"):
         assert name in out
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["sitl"],
+        ["fly"],
+        ["drill"],
+        ["train"],
+        ["train", "sql"],
+        ["train", "irl"],
+        ["train", "ab"],
+        ["teleop"],
+        ["watch"],
+    ],  # fmt: skip
+)
+def test_every_command_has_help(argv, capsys):
+    from scripts.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main([*argv, "--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: skyherd " + " ".join(argv)) and "--help" in out
+
+
+def test_unknown_command_is_bad_usage(capsys):
+    from scripts.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["bogus"])
+    assert e.value.code == 2
+    assert main([]) == 2
