@@ -50,7 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--duration", type=float, default=None, help="stop after this many simulated seconds"
     )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--runs", type=Path, default=Path("runs"), help="root of the run folders")
+    parser.add_argument(
+        "--runs-dir", "--runs", dest="runs_dir", type=Path, default=Path("runs"),
+        help="where run folders go (runs); --runs is the older name",
+    )  # fmt: skip
     parser.add_argument("--no-tlog", action="store_true", help="do not write telemetry.tlog")
 
 
@@ -80,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     except AirframeUnavailable as e:
         raise UsageError(f"{e}; use --airframe quadrotor") from e
 
-    folder = RunFolder("sitl", root=args.runs)
+    folder = RunFolder("sitl", root=args.runs_dir)
     state_dir = args.state_dir if args.state_dir is not None else default_state_dir()
     config = EndpointConfig(
         instance=args.instance,

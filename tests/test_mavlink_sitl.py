@@ -85,7 +85,7 @@ def test_cli_usage_errors_exit_2(tmp_path, capsys):
         (["--instance", "999"], "--instance"),
         (["--duration", "-1"], "--duration"),
     ):
-        assert main(["sitl", *args, "--runs", str(tmp_path)]) == 2, args
+        assert main(["sitl", *args, "--runs-dir", str(tmp_path)]) == 2, args
         err = capsys.readouterr().err
         assert words in err and len(err.strip().splitlines()) == 1
 
