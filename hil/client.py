@@ -1,8 +1,8 @@
 """skyherd's own MAVLink client: talks to our SITL or a real PX4 / ArduPilot autopilot.
 
-It keeps the newest message of each type, answers the command protocol with typed errors,
-uploads missions, and streams offboard setpoints paced by the vehicle's own telemetry, so
-that the stream rate holds in simulation time at any speed-up.
+It keeps the newest message of each type, speaks the command protocol with retries and typed
+errors, and streams offboard setpoints paced by the vehicle's own telemetry (one setpoint per
+LOCAL_POSITION_NED), so the stream rate holds in simulation time at any speed-up.
 """
 
 from __future__ import annotations
@@ -19,15 +19,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from flight.autopilot_api import FlightMode
 from flight.geo import GRAVITY
 from flight.mavlink.modes import Personality, custom_mode_of, mode_of_packed
+from flight.mavlink.offboard import IGNORE_ACC, IGNORE_POS, IGNORE_VEL, IGNORE_YAW, IGNORE_YAW_RATE
 from flight.state import VehicleState
 from hil.link import MavlinkLink
-
-# type_mask bits of SET_POSITION_TARGET_*: a set bit means "ignore this field".
-IGNORE_POS = 0b000000000111
-IGNORE_VEL = 0b000000111000
-IGNORE_ACC = 0b000111000000
-IGNORE_YAW = 0b010000000000
-IGNORE_YAW_RATE = 0b100000000000
 
 
 class CommandError(Exception):
