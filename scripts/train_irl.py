@@ -54,7 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
         help="episodes per groundsim behaviour for the transfer table (0: skip)",
     )
     parser.add_argument("--workers", type=int, default=1, help="parallel training processes")
-    parser.add_argument("--out", type=Path, default=Path("runs"), help="runs root folder")
+    parser.add_argument(
+        "--runs-dir", "--out", dest="runs_dir", type=Path, default=Path("runs"),
+        help="where run folders go (runs); --out is the older name",
+    )  # fmt: skip
     parser.add_argument(
         "--save-policy",
         type=Path,
@@ -155,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     if bad:
         raise UsageError(f"unknown AB rule(s) {', '.join(bad)}; choose from {', '.join(RULES)}")
 
-    rf = RunFolder(f"train-{learner}", root=args.out)
+    rf = RunFolder(f"train-{learner}", root=args.runs_dir)
     print(f"run folder: {rf.path}")
     expert_p = ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag)
     (rf.path / "demos").mkdir()

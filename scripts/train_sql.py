@@ -95,7 +95,10 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "sql") -> None
         action="store_true",
         help="small budget: 2000 episodes, K = 4 (and 4, 9 for scalability)",
     )
-    parser.add_argument("--out", default="runs", help="root folder of run folders")
+    parser.add_argument(
+        "--runs-dir", "--out", dest="runs_dir", default="runs",
+        help="where run folders go (runs); --out is the older name",
+    )  # fmt: skip
 
 
 def _plan(args: argparse.Namespace) -> tuple[dict[str, list[Config]], dict]:
@@ -196,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
         for k in sorted({c.n_agents for c in configs})
     }
 
-    folder = RunFolder("train-sql", root=args.out)
+    folder = RunFolder("train-sql", root=args.runs_dir)
     (folder.path / "episodes").mkdir()
     config = {
         "experiments": {e: [asdict(c) for c in cs] for e, cs in plan.items()},

@@ -32,7 +32,7 @@ def test_train_ab_end_to_end_tiny(tmp_path, capsys):
             "2",
             "--rules",
             "mean,per_feature",
-            "--out",
+            "--runs-dir",
             str(out),
             "--save-policy",
             str(saved),

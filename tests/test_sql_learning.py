@@ -123,7 +123,7 @@ def test_train_sql_quick_end_to_end(tmp_path):
             "--sharing-periods",
             "1",
             "5",
-            "--out",
+            "--runs-dir",
             str(tmp_path),
         ]
     )
@@ -143,6 +143,6 @@ def test_train_sql_quick_end_to_end(tmp_path):
 
 
 def test_train_sql_bad_usage(tmp_path, capsys):
-    assert main(["train", "sql", "--agents", "5", "--out", str(tmp_path)]) == 2
-    assert main(["train", "sql", "--episodes", "0", "--out", str(tmp_path)]) == 2
+    assert main(["train", "sql", "--agents", "5", "--runs-dir", str(tmp_path)]) == 2
+    assert main(["train", "sql", "--episodes", "0", "--runs-dir", str(tmp_path)]) == 2
     assert "K=5" in capsys.readouterr().err
