@@ -166,3 +166,41 @@ class Autopilot(Protocol):
     def get_param(self, name: str) -> float | None: ...
     def set_param(self, name: str, value: float) -> Result: ...
     def param_names(self) -> list[str]: ...
+
+
+class AutopilotBase:
+    """The read-outs and parameter calls that every skyherd autopilot answers the same way.
+
+    A subclass keeps `_state` (VehicleState), `_armed`, `_mode` (FlightMode), `_progress`
+    (MissionProgress) and `params` (a flight.params store) up to date.
+    """
+
+    _state: VehicleState
+    _armed: bool
+    _mode: FlightMode
+    _progress: MissionProgress
+
+    @property
+    def state(self) -> VehicleState:
+        return self._state
+
+    @property
+    def armed(self) -> bool:
+        return self._armed
+
+    @property
+    def mode(self) -> FlightMode:
+        return self._mode
+
+    @property
+    def mission_progress(self) -> MissionProgress:
+        return self._progress
+
+    def get_param(self, name: str) -> float | None:
+        return self.params.get(name)
+
+    def set_param(self, name: str, value: float) -> Result:
+        return self.params.set(name, value)
+
+    def param_names(self) -> list[str]:
+        return self.params.names()

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flight.autopilot_api import (
+    AutopilotBase,
     FlightMode,
     LandedState,
     MissionCommand,
@@ -77,7 +78,7 @@ def right_of(d: np.ndarray) -> np.ndarray:
     return np.array([-d[1], d[0]])
 
 
-class FixedWingAutopilot:
+class FixedWingAutopilot(AutopilotBase):
     """J3Cub on JSBSim with its own autopilot. See the module docstring."""
 
     airframe = "fixedwing"
@@ -167,17 +168,6 @@ class FixedWingAutopilot:
         return self._pcache[name]
 
     # ---- Autopilot protocol: read-outs ----------------------------------------------------
-    @property
-    def state(self) -> VehicleState:
-        return self._state
-
-    @property
-    def armed(self) -> bool:
-        return self._armed
-
-    @property
-    def mode(self) -> FlightMode:
-        return self._mode
 
     @property
     def phase(self) -> Phase:
@@ -210,10 +200,6 @@ class FixedWingAutopilot:
     @property
     def battery_remaining(self) -> float:
         return self.model.fuel_fraction
-
-    @property
-    def mission_progress(self) -> MissionProgress:
-        return self._progress
 
     def default_loiter_radius(self) -> float:
         """NAV_LOITER_RAD, or V_trim^2 / (g tan(0.7 φ_max)) when it is 0 [m]."""
@@ -392,15 +378,6 @@ class FixedWingAutopilot:
         if self._mode == FlightMode.MISSION and self._mission:
             self._start_item(seq)
         return Result.accepted()
-
-    def get_param(self, name: str) -> float | None:
-        return self.params.get(name)
-
-    def set_param(self, name: str, value: float) -> Result:
-        return self.params.set(name, value)
-
-    def param_names(self) -> list[str]:
-        return self.params.names()
 
     # ---- guidance set-up ----------------------------------------------------------------
     def _flying(self) -> bool:

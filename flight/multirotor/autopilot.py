@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from flight.autopilot_api import (
+    AutopilotBase,
     FlightMode,
     LandedState,
     MissionCommand,
@@ -65,7 +66,7 @@ def _vec3(v, limit: float) -> np.ndarray | None:
     return a
 
 
-class MultirotorAutopilot:
+class MultirotorAutopilot(AutopilotBase):
     """A quadrotor with a PX4-like autopilot on the simulation clock.
 
     params_file: TOML with a `[params]` table of overrides; airframe: airframe file;
@@ -166,17 +167,6 @@ class MultirotorAutopilot:
         self._state = self._make_state()
 
     # ------------------------------------------------------------------ properties
-    @property
-    def state(self) -> VehicleState:
-        return self._state
-
-    @property
-    def armed(self) -> bool:
-        return self._armed
-
-    @property
-    def mode(self) -> FlightMode:
-        return self._mode
 
     @property
     def landed_state(self) -> LandedState:
@@ -206,10 +196,6 @@ class MultirotorAutopilot:
     def wind_ned(self) -> np.ndarray:
         """(3,) wind acting now [m/s], NED."""
         return self._aux[A_WIND : A_WIND + 3].copy()
-
-    @property
-    def mission_progress(self) -> MissionProgress:
-        return self._progress
 
     @property
     def motor_commands(self) -> np.ndarray:
@@ -855,12 +841,3 @@ class MultirotorAutopilot:
         self._progress.finished = False
         self._item_started = False
         return Result.accepted()
-
-    def get_param(self, name: str) -> float | None:
-        return self.params.get(name)
-
-    def set_param(self, name: str, value: float) -> Result:
-        return self.params.set(name, value)
-
-    def param_names(self) -> list[str]:
-        return self.params.names()
