@@ -82,6 +82,37 @@ class Frame:
         return self.t_recv - self.t_pub
 
 
+def encode_pixels(image: np.ndarray, encoding: int = RAW, jpeg_quality: int = 90) -> bytes:
+    """The pixel part of a frame. image (H, W, 3) uint8 RGB."""
+    img = np.ascontiguousarray(image, dtype=np.uint8)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"expected an (H, W, 3) image, got {img.shape}")
+    if encoding == RAW:
+        return img.tobytes()
+    if encoding == JPEG:
+        ok, buf = cv2.imencode(
+            ".jpg", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
+        )
+        if not ok:
+            raise ValueError("JPEG encoding failed")
+        return buf.tobytes()
+    raise ValueError(f"unknown encoding {encoding}")
+
+
+def encode_header(
+    seq: int, t_sim: float, pos_ned: np.ndarray, quat: np.ndarray, width: int, height: int,
+    data: bytes, encoding: int = RAW, stream: int = 0, t_pub: float | None = None,
+) -> bytes:  # fmt: skip
+    """The header of a frame whose pixel part is `data`; t_pub defaults to now (wall clock)."""
+    p = np.asarray(pos_ned, dtype=float)
+    q = np.asarray(quat, dtype=float)
+    t_pub = time.time() if t_pub is None else t_pub
+    return _HDR.pack(
+        MAGIC, VERSION, encoding, 0, stream & 0xFFFFFFFF, seq, float(t_sim), t_pub,
+        *p[:3], *q[:4], width, height, len(data), zlib.crc32(data),
+    )  # fmt: skip
+
+
 def encode_frame(
     seq: int,
     t_sim: float,
@@ -93,33 +124,14 @@ def encode_frame(
     jpeg_quality: int = 90,
     t_pub: float | None = None,
 ) -> bytes:
-    """Frame → bytes (header + pixels). image (H, W, 3) uint8 RGB."""
-    img = np.ascontiguousarray(image, dtype=np.uint8)
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise ValueError(f"expected an (H, W, 3) image, got {img.shape}")
-    h, w = img.shape[:2]
-    if encoding == RAW:
-        data = img.tobytes()
-    elif encoding == JPEG:
-        ok, buf = cv2.imencode(
-            ".jpg", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
-        )
-        if not ok:
-            raise ValueError("JPEG encoding failed")
-        data = buf.tobytes()
-    else:
-        raise ValueError(f"unknown encoding {encoding}")
-    p = np.asarray(pos_ned, dtype=float)
-    q = np.asarray(quat, dtype=float)
-    crc = zlib.crc32(data)
-    # The publish time is stamped after the payload is built (CRC: ~0.4 ms at 640×480), so
-    # latency measures the link, not the encoder.
-    t_pub = time.time() if t_pub is None else t_pub
-    hdr = _HDR.pack(
-        MAGIC, VERSION, encoding, 0, stream & 0xFFFFFFFF, seq, float(t_sim), t_pub,
-        *p[:3], *q[:4], w, h, len(data), crc,
-    )  # fmt: skip
-    return hdr + data
+    """Frame → bytes (header + pixels). image (H, W, 3) uint8 RGB.
+
+    The publish time is stamped after the pixels are encoded and checksummed (CRC: ~0.4 ms at
+    640×480), so latency measures the link, not the encoder.
+    """
+    data = encode_pixels(image, encoding, jpeg_quality)
+    h, w = np.shape(image)[:2]
+    return encode_header(seq, t_sim, pos_ned, quat, w, h, data, encoding, stream, t_pub) + data
 
 
 @dataclass(frozen=True)
@@ -218,6 +230,7 @@ class ZenohParams:
     listen: tuple[str, ...] = ()
     connect: tuple[str, ...] = ()
     multicast_scouting: bool = False
+    shared_memory: bool = True  # frames between processes on this machine skip the TCP copy
     config_file: str | None = None  # a Zenoh JSON5 config; replaces everything above
 
 
@@ -248,6 +261,9 @@ def open_session(p: ZenohParams):
             conf.insert_json5(
                 "scouting/multicast/enabled", "true" if p.multicast_scouting else "false"
             )
+            conf.insert_json5(
+                "transport/shared_memory/enabled", "true" if p.shared_memory else "false"
+            )
         return zenoh.open(conf)
     except zenoh.ZError as e:
         raise ValueError(f"cannot open a Zenoh session ({p}): {e}") from e
@@ -268,6 +284,7 @@ class FramePublisher:
         jpeg_quality: int = 90,
         info_every: int = 30,
         rng: np.random.Generator | None = None,
+        shm_frames: int = 8,
     ):
         import zenoh
 
@@ -284,6 +301,40 @@ class FramePublisher:
             express=True,
         )
         self._info = session.declare_publisher(info_key(vehicle))
+        self._shm_frames = shm_frames  # shared-memory pool size in frames; 0 = never use it
+        self._shm = None  # zenoh.shm.ShmProvider, made at the first frame (its size is known then)
+        self.shm_fallbacks = 0  # frames sent by copy because shared memory was not available
+
+    def _put(self, header: bytes, data: bytes) -> None:
+        """Send one frame through a shared-memory buffer when possible (a subscriber in another
+        process on this machine maps it instead of receiving a TCP copy), else by copy. The
+        header (with its publish time) is written last, just before the put."""
+        import zenoh
+
+        n = len(header) + len(data)
+        if self._shm is None and self._shm_frames > 0:
+            try:
+                self._shm = zenoh.shm.ShmProvider.default_backend(self._shm_frames * n)
+            except Exception:  # noqa: BLE001 - no /dev/shm, too small a limit: copy instead
+                self._shm_frames = 0
+        if self._shm is not None:
+            try:
+                buf = self._shm.alloc(n, policy=zenoh.shm.GarbageCollect())
+            except Exception:  # noqa: BLE001 - pool exhausted by slow readers: copy this one
+                self.shm_fallbacks += 1
+            else:
+                buf[len(header) : n] = data
+                buf[0 : len(header)] = self._restamp(header)
+                self._pub.put(buf)
+                return
+        self._pub.put(self._restamp(header) + data)
+
+    @staticmethod
+    def _restamp(header: bytes) -> bytes:
+        """The header with the publish time set to now."""
+        f = list(_HDR.unpack(header))
+        f[7] = time.time()
+        return _HDR.pack(*f)
 
     def publish(
         self, t_sim: float, uav_pos_ned: np.ndarray, uav_quat: np.ndarray, image: np.ndarray
@@ -291,11 +342,11 @@ class FramePublisher:
         """Send one frame; returns its sequence number."""
         if self.seq % self.info_every == 0:
             self.publish_info(t_sim)
-        payload = encode_frame(
-            self.seq, t_sim, uav_pos_ned, uav_quat, image, ENCODINGS[self.encoding],
-            self.stream, self.jpeg_quality,
-        )  # fmt: skip
-        self._pub.put(payload)
+        enc = ENCODINGS[self.encoding]
+        data = encode_pixels(image, enc, self.jpeg_quality)
+        h, w = np.shape(image)[:2]
+        header = encode_header(self.seq, t_sim, uav_pos_ned, uav_quat, w, h, data, enc, self.stream)
+        self._put(header, data)
         self.seq += 1
         return self.seq - 1
 

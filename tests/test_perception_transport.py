@@ -224,3 +224,29 @@ def test_detection_survives_jpeg():
     assert raw.count == jpg.count == 3
     order = lambda c: c[np.lexsort(c.T)]  # noqa: E731
     assert np.abs(order(raw.centroids_px) - order(jpg.centroids_px)).max() < 0.5
+
+
+@pytest.mark.parametrize("pub_shm,sub_shm", [(True, True), (True, False), (False, True)])
+def test_frames_arrive_with_and_without_shared_memory(pub_shm, sub_shm):
+    """Frames go through shared memory when both ends allow it, and by copy otherwise: the
+    pixels and header are the same either way."""
+    port = free_port()
+    a = open_session(ZenohParams(listen=(f"tcp/127.0.0.1:{port}",), shared_memory=pub_shm))
+    b = open_session(ZenohParams(connect=(f"tcp/127.0.0.1:{port}",), shared_memory=sub_shm))
+    try:
+        sub = FrameSubscriber(b, "uav7")
+        pub = FramePublisher(a, "uav7", CameraParams(), shm_frames=8 if pub_shm else 0)
+        assert pub.wait_for_subscriber(5.0)
+        for k in range(3):
+            pub.publish(0.5 * k, POS, QUAT, IMG)
+            deadline = time.monotonic() + 2.0
+            while sub.stats.received + sub.stats.lost <= k and time.monotonic() < deadline:
+                time.sleep(0.005)
+        fr = sub.latest()
+        assert fr is not None and fr.seq == 2 and fr.t_sim == 1.0
+        assert np.array_equal(fr.image, IMG) and np.allclose(fr.pos_ned, POS)
+        assert sub.stats.corrupt == 0 and pub.shm_fallbacks == 0
+        assert (pub._shm is not None) == pub_shm
+    finally:
+        b.close()
+        a.close()
