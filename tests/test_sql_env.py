@@ -10,12 +10,12 @@ from policy.sql import (
     SQLHyper,
     build_layout,
     greedy_rollout,
-    kernels,
     make_layout,
     plan_paths,
     train,
 )
 from policy.sql.layout import STARTS
+from policy.sql.train import _call
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
 
@@ -110,6 +110,12 @@ def test_bad_actions_rejected():
         env.step({"agent_0": 0})
 
 
+def _run_sql_once(lay, h, q):
+    """One greedy learning episode of the SQL kernel through the trainer's own call."""
+    eps, rng, no_paths = np.zeros(1), np.array([1], np.uint64), np.zeros((0, 0), np.int32)
+    return _call(Algorithm.SQL, lay, h, q, None, eps, True, rng, 0, no_paths)
+
+
 def test_kernel_team_bonus_values():
     """SQL kernel: a 1-step reach gives Q = α·10 then + α·bonus on the same (s, a)."""
     # one row: A . T   with the agent's Q forcing "right"
@@ -117,35 +123,7 @@ def test_kernel_team_bonus_values():
     h = SQLHyper(episodes=1, max_steps=5, eps_start=0.0, eps_min=0.0)
     q = np.zeros((1, 9, 4))
     q[0, lay.cell(2, 1), RIGHT] = 1e-9  # greedy picks right
-    out = [
-        np.zeros(1, np.int64),
-        np.zeros(1, np.bool_),
-        np.zeros(1, np.int64),
-        np.zeros(1, np.int64),
-        np.zeros(1, np.int64),
-    ]
-    kernels.run_sql(
-        lay.next_cell,
-        lay.obstacle,
-        lay.target_id,
-        lay.roi_id,
-        lay.starts,
-        q,
-        np.zeros(1),
-        h.alpha,
-        h.gamma,
-        h.max_steps,
-        h.r_step,
-        h.r_collision,
-        h.r_goal,
-        h.bonus_all,
-        h.bonus_reached,
-        h.bonus_missed,
-        True,
-        np.array([1], np.uint64),
-        *out,
-        np.zeros((0, 0), np.int32),
-    )
+    out = _run_sql_once(lay, h, q)
     # Q = 1e-9 + 0.1(10 − 1e-9) = ≈1.0, plus 0.1·10 team bonus = ≈2.0
     assert q[0, lay.cell(2, 1), RIGHT] == pytest.approx(2.0, abs=1e-8)
     assert out[0][0] == 1 and out[1][0] and out[2][0] == 1
@@ -156,28 +134,7 @@ def test_kernel_team_bonus_values():
     q[0, lay.cell(2, 1), RIGHT] = 1e-9
     q[1, lay.cell(1, 3), RIGHT] = 1e-9  # into the obstacle: −1, stays
     h = SQLHyper(max_steps=1, eps_start=0.0, eps_min=0.0)
-    kernels.run_sql(
-        lay.next_cell,
-        lay.obstacle,
-        lay.target_id,
-        lay.roi_id,
-        lay.starts,
-        q,
-        np.zeros(1),
-        h.alpha,
-        h.gamma,
-        h.max_steps,
-        h.r_step,
-        h.r_collision,
-        h.r_goal,
-        h.bonus_all,
-        h.bonus_reached,
-        h.bonus_missed,
-        True,
-        np.array([1], np.uint64),
-        *out,
-        np.zeros((0, 0), np.int32),
-    )
+    out = _run_sql_once(lay, h, q)
     assert q[0, lay.cell(2, 1), RIGHT] == pytest.approx(1.0 - 0.1, abs=1e-8)
     # agent 1: one −1 collision (max over its row is Q itself = 1e-9), then the −2 bonus
     v = 1e-9 + 0.1 * (-1 + 0.9 * 1e-9 - 1e-9)
