@@ -11,6 +11,24 @@ import numpy as np
 
 
 @numba.njit(cache=True)
+def _best_piece(r, n_base, n_piece_end, piece_starts):  # pragma: no cover
+    """The convex fence piece the point is most inside: (its worst residual, first row, end row).
+    The fence is the union of the pieces, so this piece is the one that judges the point."""
+    npc = piece_starts.shape[0]
+    best, bs, be = np.inf, 0, 0
+    for k in range(npc):
+        s0 = n_base + piece_starts[k]
+        e0 = n_base + piece_starts[k + 1] if k + 1 < npc else n_piece_end
+        pm = -np.inf
+        for i in range(s0, e0):
+            if r[i] > pm:
+                pm = r[i]
+        if pm < best:
+            best, bs, be = pm, s0, e0
+    return best, bs, be
+
+
+@numba.njit(cache=True)
 def worst_residual(A, b, z, n_base, n_piece_end, piece_starts, zone_starts):  # pragma: no cover
     """max( max_base r, min_pieces max_piece r, max_zones min_zone r ) with r = A z - b.
 
@@ -29,18 +47,8 @@ def worst_residual(A, b, z, n_base, n_piece_end, piece_starts, zone_starts):  # 
     for i in range(n_base):
         if r[i] > w:
             w = r[i]
-    npc = piece_starts.shape[0]
-    if npc > 0:
-        best = np.inf
-        for k in range(npc):
-            s0 = n_base + piece_starts[k]
-            e0 = n_base + piece_starts[k + 1] if k + 1 < npc else n_piece_end
-            pm = -np.inf
-            for i in range(s0, e0):
-                if r[i] > pm:
-                    pm = r[i]
-            if pm < best:
-                best = pm
+    if piece_starts.shape[0] > 0:
+        best, _, _ = _best_piece(r, n_base, n_piece_end, piece_starts)
         if best > w:
             w = best
     nzn = zone_starts.shape[0]
@@ -63,18 +71,8 @@ def select_mask(r, n_base, n_piece_end, piece_starts, zone_starts):  # pragma: n
     sel = np.zeros(m, dtype=np.bool_)
     for i in range(n_base):
         sel[i] = True
-    npc = piece_starts.shape[0]
-    if npc > 0:
-        best, bs, be = np.inf, 0, 0
-        for k in range(npc):
-            s0 = n_base + piece_starts[k]
-            e0 = n_base + piece_starts[k + 1] if k + 1 < npc else n_piece_end
-            pm = -np.inf
-            for i in range(s0, e0):
-                if r[i] > pm:
-                    pm = r[i]
-            if pm < best:
-                best, bs, be = pm, s0, e0
+    if piece_starts.shape[0] > 0:
+        _, bs, be = _best_piece(r, n_base, n_piece_end, piece_starts)
         for i in range(bs, be):
             sel[i] = True
     nzn = zone_starts.shape[0]
