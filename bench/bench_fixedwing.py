@@ -25,7 +25,7 @@ from flight.fixedwing.attitude import InnerGains  # noqa: E402
 from flight.fixedwing.autopilot import FixedWingAutopilot, Phase  # noqa: E402
 from flight.fixedwing.jsbsim_model import JSBSimPlane, ModelParams  # noqa: E402
 from flight.fixedwing.tecs import TecsGains  # noqa: E402
-from scripts.runfolder import markdown_table  # noqa: E402
+from runio.runfolder import markdown_table  # noqa: E402
 
 GOAL = 150.0
 

@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from flight.geo import DEFAULT_HOME  # noqa: E402
 from hil.formation import LockstepSwarm, open_clients, vehicle_homes  # noqa: E402
 from policy.sql.layout import STARTS  # noqa: E402
-from scripts.runfolder import markdown_table  # noqa: E402
+from runio.runfolder import markdown_table  # noqa: E402
 
 
 def measure(k: int, sim_s: float, instance: int) -> list:

@@ -41,7 +41,7 @@ from perception.evaluate import SceneParams, evaluate, random_scene  # noqa: E40
 from perception.render_bullet import BulletRenderer, BulletRenderParams  # noqa: E402
 from perception.render_fast import FastRenderer  # noqa: E402
 from perception.transport import FrameSubscriber, open_session, subscriber_params  # noqa: E402
-from scripts.runfolder import markdown_table  # noqa: E402
+from runio.runfolder import markdown_table  # noqa: E402
 
 SIZES = ((320, 240), (640, 480))
 MODEL = UGVModel()

@@ -87,7 +87,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="short run")
     args = ap.parse_args(argv)
     from policy.dqn import load_policy
-    from scripts.runfolder import markdown_table
+    from runio.runfolder import markdown_table
 
     n = 20_000 if args.quick else 100_000
     rows = []

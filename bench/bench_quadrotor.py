@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from flight.autopilot_api import FlightMode, Setpoint  # noqa: E402
 from flight.multirotor import MultirotorAutopilot  # noqa: E402
 from flight.quadrotor import Quadrotor, QuadrotorParams, WindModel, physics_steps  # noqa: E402
-from scripts.runfolder import markdown_table  # noqa: E402
+from runio.runfolder import markdown_table  # noqa: E402
 
 
 def bench_kernel(n: int) -> float:

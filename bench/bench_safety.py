@@ -16,13 +16,13 @@ import numpy as np
 
 from flight.autopilot_api import FlightMode, Setpoint
 from flight.multirotor.autopilot import MultirotorAutopilot
+from runio.runfolder import markdown_table
 from safety.config import default_envelope_path, load_envelope
 from safety.drills import DrillParams, toward
 from safety.envelope import NZ, U
 from safety.monitor import make_z
 from safety.projection import Projector, qp_cvxpy
 from safety.supervisor import Health, Supervisor, SupervisorParams
-from scripts.runfolder import markdown_table
 
 
 def timed(fn, args_list) -> np.ndarray:

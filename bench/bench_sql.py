@@ -11,7 +11,7 @@ import argparse
 import time
 
 from policy.sql import Algorithm, GridParams, SQLHyper, build_layout, train
-from scripts.runfolder import markdown_table
+from runio.runfolder import markdown_table
 
 
 def main(argv: list[str] | None = None) -> int:

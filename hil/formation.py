@@ -43,7 +43,7 @@ from flight.mavlink.tlog import TlogWriter
 from flight.sitl import Sitl
 from hil.client import ClientTimeout, Telemetry, VehicleClient
 from hil.link import MavlinkLink
-from scripts.runfolder import CsvWriter
+from runio.runfolder import CsvWriter
 
 Cell = tuple[int, int]
 

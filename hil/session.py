@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from flight.autopilot_api import FlightMode
 from hil.client import Telemetry, VehicleClient
-from scripts.runfolder import CsvWriter
+from runio.runfolder import CsvWriter
 
 SetpointFn = Callable[[Telemetry], tuple | None]
 

@@ -160,7 +160,7 @@ def contact_sheet(frames: list[np.ndarray], cols: int = 4) -> np.ndarray:
 
 def write_png(path, rgb: np.ndarray) -> bool:
     """Write an RGB image as PNG atomically (write-temp-and-rename); False if encoding failed."""
-    from scripts.runfolder import atomic_write_bytes
+    from runio.runfolder import atomic_write_bytes
 
     ok, png = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if ok:

@@ -44,7 +44,7 @@ from policy.groundair.params import (
     TaskParams,
 )
 from policy.groundair.scenarios import SCENARIOS
-from scripts.runfolder import atomic_write_bytes, to_jsonable
+from runio.runfolder import atomic_write_bytes, to_jsonable
 
 FORMAT = "skyherd-demo/1"
 ALLOWED_ACTIONS: dict[str, tuple[int, ...]] = {

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from scripts.runfolder import atomic_write_bytes, to_jsonable
+from runio.runfolder import atomic_write_bytes, to_jsonable
 
 
 @dataclass(frozen=True)

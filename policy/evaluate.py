@@ -64,7 +64,7 @@ def best_policies(run: Path) -> dict[str, Factory]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from scripts.runfolder import CsvWriter, atomic_write_text, markdown_table
+    from runio.runfolder import CsvWriter, atomic_write_text, markdown_table
 
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from scripts.runfolder import to_jsonable
+from runio.runfolder import to_jsonable
 
 
 def event_key(vehicle: str) -> str:

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runio.runfolder import RunFolder, markdown_table
 from scripts.cli import UsageError
-from scripts.runfolder import RunFolder, markdown_table
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

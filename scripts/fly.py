@@ -14,9 +14,9 @@ import argparse
 
 from hil.client import VehicleClient
 from hil.link import LinkError, MavlinkLink, parse_address
+from runio.runfolder import RunFolder, args_dict
 from scripts.cli import UsageError
 from scripts.fly_square import SquareMission, fly_square
-from scripts.runfolder import RunFolder, args_dict
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -39,8 +39,8 @@ from hil.formation import (
     vehicle_homes,
 )
 from hil.link import LinkError
+from runio.runfolder import RunFolder, args_dict, atomic_write_text, markdown_table
 from scripts.cli import UsageError
-from scripts.runfolder import RunFolder, args_dict, atomic_write_text, markdown_table
 
 AGENT_CHOICES = (4, 9, 16)
 MAX_INSTANCE = 200  # EndpointConfig's limit

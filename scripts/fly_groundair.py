@@ -23,8 +23,8 @@ from perception.pipeline import CameraRig, CameraRigParams
 from policy.groundair.fastphi import min_circle
 from policy.groundair.params import TaskParams
 from policy.groundair.scenarios import make_team
+from runio.runfolder import RunFolder, markdown_table
 from safety.supervisor import Mode, Supervisor
-from scripts.runfolder import RunFolder, markdown_table
 
 STRIP_EVERY_S = 6.0  # one annotated frame in the strip per this much simulation time [s]
 

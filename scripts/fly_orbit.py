@@ -33,8 +33,8 @@ from hil.session import TRACK_COLUMNS, FlightSession
 from perception.detector import contact_sheet, write_png
 from perception.pipeline import CameraRig, CameraRigParams
 from policy.groundair.scenarios import Formation, draw_plan
+from runio.runfolder import RunFolder, atomic_write_bytes, markdown_table
 from safety.net import warm_up
-from scripts.runfolder import RunFolder, atomic_write_bytes, markdown_table
 
 TAKEOFF_ALT_M = 40.0
 STRIP_EVERY_S = 8.0  # one annotated frame in frames.png per this much simulation time [s]

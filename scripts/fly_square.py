@@ -11,7 +11,7 @@ import numpy as np
 from flight.autopilot_api import FlightMode
 from hil.client import ClientTimeout, CommandError, VehicleClient
 from hil.session import TRACK_COLUMNS, FlightSession
-from scripts.runfolder import RunFolder, markdown_table
+from runio.runfolder import RunFolder, markdown_table
 
 
 @dataclass(frozen=True)

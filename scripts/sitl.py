@@ -62,8 +62,8 @@ def run(args: argparse.Namespace) -> int:
     from flight.clock import SimClock
     from flight.mavlink import EndpointConfig, Personality
     from flight.sitl import Sitl
+    from runio.runfolder import RunFolder, markdown_table
     from scripts.cli import UsageError
-    from scripts.runfolder import RunFolder, markdown_table
 
     if not (args.speedup == 0 or args.speedup >= 1):
         raise UsageError(f"--speedup must be 0 (as fast as possible) or >= 1, got {args.speedup}")

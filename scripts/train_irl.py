@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runio.runfolder import RunFolder, atomic_write_text, markdown_table
 from scripts.cli import UsageError
-from scripts.runfolder import RunFolder, atomic_write_text, markdown_table
 
 
 def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:

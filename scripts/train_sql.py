@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from scripts.runfolder import RunFolder, atomic_write_text, markdown_table
+from runio.runfolder import RunFolder, atomic_write_text, markdown_table
 
 EXPERIMENTS = ("compare", "sharing", "scalability")
 

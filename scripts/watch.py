@@ -100,8 +100,8 @@ def _try_show(img: np.ndarray, enabled: bool) -> bool:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from runio.runfolder import RunFolder, atomic_write_bytes, markdown_table
     from scripts.cli import UsageError
-    from scripts.runfolder import RunFolder, atomic_write_bytes, markdown_table
 
     _check(args)
     zp = (

@@ -20,7 +20,7 @@ from flight.frames import (
     yaw_ned_to_enu,
 )
 from flight.geo import DEFAULT_HOME, Home, geodetic_to_ned, ned_to_geodetic
-from scripts.runfolder import RunFolder, markdown_table
+from runio.runfolder import RunFolder, markdown_table
 
 
 def test_ned_enu_both_ways():

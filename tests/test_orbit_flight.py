@@ -27,9 +27,9 @@ from perception.transport import (
     publisher_params,
     subscriber_params,
 )
+from runio.runfolder import RunFolder
 from scripts.cli import UsageError
 from scripts.fly_orbit import run_orbit
-from scripts.runfolder import RunFolder
 
 INSTANCE = 73  # ports 14613/14653/18643: clear of the other tests' instances
 SPEEDUP = 20.0

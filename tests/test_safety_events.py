@@ -9,10 +9,10 @@ import numpy as np
 from flight.autopilot_api import Setpoint
 from flight.state import VehicleState
 from perception.transport import ZenohParams, open_session
+from runio.runfolder import JsonlWriter
 from safety.config import default_envelope_path, load_envelope
 from safety.events import Tee, ZenohEventSink, event_key
 from safety.supervisor import Mode, Supervisor
-from scripts.runfolder import JsonlWriter
 
 PORT = 7463  # away from the camera's 7447
 

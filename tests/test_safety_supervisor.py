@@ -10,11 +10,11 @@ from flight.autopilot_api import FlightMode, Setpoint
 from flight.frames import euler_to_quat
 from flight.geo import GRAVITY
 from flight.state import VehicleState
+from runio.runfolder import JsonlWriter
 from safety.config import default_envelope_path, load_envelope
 from safety.envelope import Dynamics
 from safety.fallback import LoiterFallback, PidGains, RecoveryPID, recovery_target
 from safety.supervisor import Health, Mode, Severity, Supervisor, SupervisorParams
-from scripts.runfolder import JsonlWriter
 
 SPEC, _ = load_envelope(default_envelope_path("quadrotor"))
 DT = 0.02
