@@ -156,6 +156,7 @@ class MavlinkEndpoint:
             lambda: len(self.missions.lists[MISSION]),
         )
         self._sent_current: int | None = None
+        self.gated: set[str] = set()  # links a lockstep gate reads instead of update()
         self._handlers = {
             "HEARTBEAT": self._on_heartbeat,
             "COMMAND_LONG": lambda m, r, k, link: self._on_command(Cmd.from_long(m), r, link),
@@ -188,6 +189,8 @@ class MavlinkEndpoint:
         ready = self._poller.poll(0) if self._poller is not None else self.links
         if ready:  # one system call per step tells whether any socket has data
             for link in self.links:
+                if link.name in self.gated:
+                    continue  # read at lockstep barriers only (world.lockstep)
                 for msg, addr in link.receive():
                     self._dispatch(link, msg, addr)
         if self.commands.pending:
@@ -257,6 +260,11 @@ class MavlinkEndpoint:
             self.broadcast(self._build(M.MAVLINK_MSG_ID_MISSION_CURRENT))
 
     # --- receiving -----------------------------------------------------------------------------
+    def dispatch(self, link: UdpLink, batch: list[tuple[object, Address]]) -> None:
+        """Handle messages a lockstep gate collected on `link`, in their arrival order."""
+        for msg, addr in batch:
+            self._dispatch(link, msg, addr)
+
     def _dispatch(self, link: UdpLink, msg, addr: Address) -> None:
         sysid = self.config.system_id
         ts = getattr(msg, "target_system", getattr(msg, "target", 0))
