@@ -6,8 +6,24 @@ Per `step()` (one control period, default 4 ms = 250 Hz):
   3. one compiled call runs the position/velocity loops once and, per 1 ms physics substep,
      attitude, rate, mixer and physics (flight/multirotor/control.py);
   4. the clock advances by control_dt and one VehicleState is built.
-Time comes only from the SimClock; nothing here is random (the seed is kept for
-interface symmetry and recorded).
+Time comes only from the SimClock. Randomness only from faults (flight/faults.py): a
+`FaultPlan` with a Generator seeded from `seed`. The autopilot flies on its estimate
+(`state`: truth + the GPS error of the fault plan, what LOCAL_POSITION_NED reports);
+`true_state` is the physics. Without GPS faults or noise both are the same object.
+
+Geofence (flight/geofence.py): an uploaded fence (`set_fence`) and GF_MAX_HOR_DIST /
+GF_MAX_VER_DIST. Targets outside are refused (reposition, offboard positions, mission items
+at upload and at start, takeoff height), arming outside is refused; a breach (GF_COUNT
+samples at 20 Hz) takes GF_ACTION: 1 warn, 2 hold, 3 return, 4/5 land.
+
+Brake rule (HOLD and LAND entered while moving): zero-velocity setpoint until the ground
+speed is below BRAKE_SPEED, or it has made no new minimum (by BRAKE_MIN_GAIN) for
+BRAKE_STALL_S (a wind stronger than the velocity loop's integrator can hold never lets it get
+slower), or BRAKE_MAX_S have passed; then the position there is captured and held.
+
+GPS loss: the estimate dead-reckons (flight/faults.py); after EKF2_NOAID_TOUT s without a fix
+the position is invalid and the vehicle lands where it is (LAND, a PX4-like "descend"),
+unless it is in a mode that needs no position (MANUAL, STABILIZED, ALTCTL).
 """
 
 from __future__ import annotations
@@ -28,8 +44,10 @@ from flight.autopilot_api import (
     Setpoint,
 )
 from flight.clock import SimClock
+from flight.faults import FaultInjector, FaultPlan
 from flight.frames import wrap_pi
 from flight.geo import DEFAULT_HOME, Home
+from flight.geofence import ACTION_HOLD, ACTION_NAMES, ACTION_NONE, ACTION_RTL, FenceMonitor
 from flight.multirotor import control as ctl
 from flight.multirotor.mixer import allocation_inverse
 from flight.multirotor.params import MULTIROTOR_PARAMS
@@ -52,6 +70,11 @@ _MANUAL_MODES = (FlightMode.MANUAL, FlightMode.STABILIZED, FlightMode.ALTCTL, Fl
 _MAX_ABS_POS = 1.0e5  # [m] setpoints farther than this are refused
 _MAX_ABS_VEL = 50.0  # [m/s]
 _GROUND_Z = -0.3  # [m] a target below this height (down > −0.3) keeps a landed vehicle idle
+_NO_POSITION_MODES = (FlightMode.MANUAL, FlightMode.STABILIZED, FlightMode.ALTCTL)
+BRAKE_SPEED = 0.3  # [m/s] braking ends below this ground speed (PX4's hold capture)
+BRAKE_MIN_GAIN = 0.05  # [m/s] a new speed minimum must be this much lower ...
+BRAKE_STALL_S = 0.5  # [s] ... within this long, or the brake has done what it can
+BRAKE_MAX_S = 4.0  # [s] braking never lasts longer
 
 
 def _vec3(v, limit: float) -> np.ndarray | None:
@@ -74,7 +97,8 @@ class MultirotorAutopilot(AutopilotBase):
     autopilot period (a multiple of the physics step); seed: recorded, unused (no noise);
     start_pos_ned [m], start_yaw [rad]: where it starts (on the ground if down >= 0);
     battery_start: charge at start [0, 1] (for battery drills); wind: mean wind and seeded
-    gusts acting on the airframe's drag (None: calm air).
+    gusts acting on the airframe's drag (None: calm air); faults: a FaultPlan (its wind
+    replaces `wind`); rng: the Generator the faults draw from (default seeded from `seed`).
     """
 
     airframe = "quadrotor"
@@ -91,6 +115,8 @@ class MultirotorAutopilot(AutopilotBase):
         start_yaw: float = 0.0,
         battery_start: float = 1.0,
         wind: WindModel | None = None,
+        faults: FaultPlan | None = None,
+        rng: np.random.Generator | None = None,
     ):
         self.home = home
         self.clock = clock if clock is not None else SimClock()
@@ -162,9 +188,29 @@ class MultirotorAutopilot(AutopilotBase):
         self._climb_first = False
         self._status: list[str] = []
         self._next_battery_check = 0.0
-        self.wind = WindField(wind if wind is not None else WindModel(seed=self.seed))
+        self._brake_t0 = 0.0
+        self._brake_vmin = math.inf
+        self._brake_vmin_t = 0.0
+        self._battery_drop = 0.0  # [0, 1] charge lost to battery faults
+        self._extra_j = 0.0  # [J] energy drawn by drain faults
+        self.fence = FenceMonitor()
+        self._fence_on = False
+        self._refused = 0  # offboard setpoints refused by the fence (STATUSTEXT rate limit)
+        self.faults = faults if faults is not None and not faults.empty else None
+        self._inj: FaultInjector | None = None
+        if self.faults is not None:
+            gen = rng if rng is not None else np.random.default_rng(self.seed)
+            self._inj = FaultInjector(self.faults, gen)
+            self.wind = self._inj.wind
+        else:
+            self.wind = WindField(wind if wind is not None else WindModel(seed=self.seed))
+        # the navigator's view of the state: the truth itself unless faults touch the estimate
+        self._est_on = self._inj is not None and self._inj.touches_estimate
+        self._ex = self._x.copy() if self._est_on else self._x
+        self._gps_fix = True
+        self._pos_valid = True
         self._reset_vehicle(np.asarray(start_pos_ned, dtype=float), float(start_yaw))
-        self._state = self._make_state()
+        self._true_state = self._state = self._make_state()
 
     # ------------------------------------------------------------------ properties
 
@@ -182,8 +228,8 @@ class MultirotorAutopilot(AutopilotBase):
     def battery_remaining(self) -> float:
         """Remaining charge [0, 1]: shaft energy / efficiency + avionics, over capacity."""
         v = self.vehicle
-        used = self._aux[A_ENERGY] / v.efficiency + v.avionics_power * self.clock.t
-        rem = self._battery_start - used / (v.battery_capacity_wh * 3600.0)
+        used = self._aux[A_ENERGY] / v.efficiency + v.avionics_power * self.clock.t + self._extra_j
+        rem = self._battery_start - self._battery_drop - used / (v.battery_capacity_wh * 3600.0)
         return float(min(1.0, max(0.0, rem)))
 
     @property
@@ -220,9 +266,14 @@ class MultirotorAutopilot(AutopilotBase):
         if self._c_rev != self.params.revision:
             self._build_constants()
         t = self.clock.t
-        if not self._calm:
+        inj = self._inj
+        if inj is not None:
+            self._apply_faults(inj, t)
+        elif not self._calm:
             self._aux[A_WIND : A_WIND + 3] = self.wind.sample(self.control_dt)
         self._commander(t)
+        if self._fence_on and self.fence.due(t):
+            self._fence_check()
         sp = self._sp
         if self._armed:
             self._navigate(t)
@@ -230,14 +281,78 @@ class MultirotorAutopilot(AutopilotBase):
             sp[ctl.SP_ARMED] = 1.0
         else:
             sp[ctl.SP_ARMED] = 0.0
-        _control_step(self._w, self._k, self._dt_sub, self._n_sub)
+        if self._est_on:
+            # fly on the estimate: p_sp − p̂ = (p_sp − e_p) − p, the same for velocity
+            e = inj.err
+            sp[0:3] -= e.pos
+            sp[3:6] -= e.vel
+            _control_step(self._w, self._k, self._dt_sub, self._n_sub)
+            sp[0:3] += e.pos
+            sp[3:6] += e.vel
+        else:
+            _control_step(self._w, self._k, self._dt_sub, self._n_sub)
         self.clock.advance(self._dt_us)
-        self._state = self._make_state()
+        self._true_state = self._make_state()
+        if self._est_on:
+            self._update_estimate()
+            self._state = self._make_state(self._ex)
+        else:
+            self._state = self._true_state
         return self._state
 
-    def _make_state(self) -> VehicleState:
+    @property
+    def true_state(self) -> VehicleState:
+        """The physics (ground truth); `state` is what the autopilot believes and reports."""
+        return self._true_state
+
+    @property
+    def gps_fix(self) -> bool:
+        return self._gps_fix
+
+    @property
+    def position_valid(self) -> bool:
+        """False once GPS has been lost for longer than EKF2_NOAID_TOUT."""
+        return self._pos_valid
+
+    def _update_estimate(self) -> None:
+        """The estimate after the physics step: truth + the injector's current error."""
+        e = self._inj.err
+        ex = self._ex
+        ex[:] = self._x
+        ex[0:3] += e.pos
+        ex[3:6] += e.vel
+
+    def _apply_faults(self, inj: FaultInjector, t: float) -> None:
+        """Wind, GPS error and battery faults for the step that starts at t."""
+        dt = self.control_dt
+        if not inj.calm:
+            self._aux[A_WIND : A_WIND + 3] = inj.wind_ned(t, dt)
+        if inj._battery_events:
+            drop, watts = inj.battery(t)
+            if drop is not None and drop < self.battery_remaining:
+                self._battery_drop += self.battery_remaining - drop
+                self._event(f"battery fault: charge {drop:.0%}")
+            self._extra_j += watts * dt
+        if not self._est_on:
+            return
+        e = inj.update(t, dt)
+        self._update_estimate()
+        if e.fix != self._gps_fix:
+            self._gps_fix = e.fix
+            self._event("gps fix regained" if e.fix else "gps fix lost: dead reckoning")
+            if e.fix and not self._pos_valid:
+                self._pos_valid = True
+                self._event("position estimate valid again")
+        if not e.fix and self._pos_valid and e.lost_s > self.params["EKF2_NOAID_TOUT"]:
+            self._pos_valid = False
+            self._event(f"no position for {e.lost_s:.1f} s: position estimate invalid")
+            if self._armed and self._mode not in _NO_POSITION_MODES + (FlightMode.LAND,):
+                self._event("failsafe: position lost -> land")
+                self._switch(FlightMode.LAND)
+
+    def _make_state(self, src: np.ndarray | None = None) -> VehicleState:
         """One copy of the state vector; the state's arrays are views into it (hot path)."""
-        x = self._x.copy()
+        x = (self._x if src is None else src).copy()
         return VehicleState(
             self.clock.t,
             x[0:3],
@@ -263,6 +378,8 @@ class MultirotorAutopilot(AutopilotBase):
         self._aux[A_WIND : A_WIND + 3] = self.wind.sample(self.control_dt)
         self._yaw_sp = yaw
         self._hold_pos = self._x[0:3].copy()
+        if self._ex is not self._x:
+            self._ex[:] = self._x
 
     def _build_constants(self) -> None:
         """Parameters → the compiled controller's constant array (degrees → rad here)."""
@@ -312,6 +429,8 @@ class MultirotorAutopilot(AutopilotBase):
         self._land_trig = P["LNDMC_TRIG_TIME"]
         self._bat_crit = P["BAT_CRIT_THR"]
         self._bat_emergency = P["BAT_EMERGEN_THR"]
+        self.fence.configure(None, P["GF_MAX_HOR_DIST"], P["GF_MAX_VER_DIST"])
+        self._fence_on = self.fence.fence.active
         self._c_rev = self.params.revision
 
     # ------------------------------------------------------------------ commander
@@ -323,12 +442,15 @@ class MultirotorAutopilot(AutopilotBase):
         prev = self._mode
         self._mode = mode
         self._landing = False
-        pos = self._x[0:3]
+        pos = self._ex[0:3]
         if mode in (FlightMode.HOLD, FlightMode.OFFBOARD) or mode in _MANUAL_MODES:
             self._hold_pos = pos.copy()
             self._man_hold_xy = None
             self._man_hold_z = None
         self._braking = mode in (FlightMode.HOLD, FlightMode.LAND)
+        if self._braking:
+            self._brake_t0 = self._brake_vmin_t = self.clock.t
+            self._brake_vmin = math.inf
         if mode == FlightMode.LAND:
             self._land_xy = pos[0:2].copy()
             self._landing = True
@@ -390,6 +512,62 @@ class MultirotorAutopilot(AutopilotBase):
             self._event(f"battery {rem:.0%}: critical -> return")
             self._switch(FlightMode.RTL)
 
+    # ------------------------------------------------------------------ geofence
+    def set_fence(self, shapes) -> None:
+        """The fence uploaded over MAVLink (FenceShape list, [] clears it): enforced from now."""
+        self.fence.configure(list(shapes or ()), self.params["GF_MAX_HOR_DIST"],
+                             self.params["GF_MAX_VER_DIST"])  # fmt: skip
+        self._fence_on = self.fence.fence.active
+        n = len(self.fence.fence.areas)
+        self._event(f"geofence: {n} area(s)" if n else "geofence: no areas")
+
+    def fence_violation(self, pos_ned) -> str | None:
+        """Why a target (3,) NED [m] is outside the vehicle's fence, or None."""
+        return self.fence.fence.violation(pos_ned) if self._fence_on else None
+
+    def _fence_check(self) -> None:
+        """One breach sample on the estimated position; the GF_ACTION when a breach completes."""
+        if not self._armed or self._aux[A_ON_GROUND] > 0.5:
+            return
+        why = self.fence.sample(self._ex[0:3], int(self.params["GF_COUNT"]))
+        if why is None:
+            return
+        act = int(self.params["GF_ACTION"])
+        self._event(f"geofence breach: {why} -> {ACTION_NAMES.get(act, act)}")
+        mode = self._mode
+        if act <= ACTION_NONE + 1 or mode == FlightMode.LAND:
+            return  # none / warning only; a landing is never undone
+        if act == ACTION_HOLD:
+            if mode != FlightMode.RTL:
+                self._switch(FlightMode.HOLD)
+        elif act == ACTION_RTL:
+            if mode != FlightMode.RTL:
+                self._switch(FlightMode.RTL)
+        else:  # 4 terminate (not simulated) and 5 land
+            self._switch(FlightMode.LAND)
+
+    def _target_refusal(self, pos: np.ndarray) -> str | None:
+        """Why the autopilot refuses to fly to pos (3,) NED, or None."""
+        if not self._pos_valid:
+            return "no position estimate"
+        why = self.fence_violation(pos)
+        return None if why is None else f"target outside geofence: {why}"
+
+    def _mission_refusal(self, items: list[MissionItem]) -> str | None:
+        """Why a mission cannot be flown inside the fence (TAKEOFF: its height, here)."""
+        if not self._fence_on:
+            return None
+        for i, it in enumerate(items):
+            if it.command == MissionCommand.RETURN_TO_LAUNCH:
+                continue
+            p = it.pos_ned
+            if it.command == MissionCommand.TAKEOFF:
+                p = (self._ex[0], self._ex[1], p[2])
+            why = self.fence_violation(p)
+            if why is not None:
+                return f"item {i} outside geofence: {why}"
+        return None
+
     def _landed_for(self, t: float) -> bool:
         return self._ground_since is not None and t - self._ground_since >= self._land_trig
 
@@ -398,21 +576,22 @@ class MultirotorAutopilot(AutopilotBase):
         mode = self._mode
         if mode == FlightMode.HOLD:
             if self._braking and not self._brake():
-                self._hold_pos = self._x[0:3].copy()
+                self._hold_pos = self._ex[0:3].copy()
             if not self._braking:
                 self._goto(self._hold_pos, self._vxy_cruise)
         elif mode == FlightMode.TAKEOFF:
             self._goto(self._takeoff_target, self._vxy_cruise, vz_up=self.params["MPC_TKO_SPEED"])
             if (
-                abs(self._x[2] - self._takeoff_target[2]) < 0.1 * max(1.0, -self._takeoff_target[2])
-                and abs(self._x[5]) < 0.3
+                abs(self._ex[2] - self._takeoff_target[2])
+                < 0.1 * max(1.0, -self._takeoff_target[2])
+                and abs(self._ex[5]) < 0.3
             ):
                 self._switch(FlightMode.HOLD)
                 self._hold_pos = self._takeoff_target.copy()
                 self._braking = False
         elif mode == FlightMode.LAND:
             if self._braking and not self._brake(z=False):
-                self._land_xy = self._x[0:2].copy()
+                self._land_xy = self._ex[0:2].copy()
             self._descend(None if self._braking else self._land_xy)
         elif mode == FlightMode.RTL:
             self._rtl(t)
@@ -436,14 +615,24 @@ class MultirotorAutopilot(AutopilotBase):
         sp[ctl.SP_VZ_DN] = self._vz_dn
 
     def _brake(self, z: bool = True) -> bool:
-        """PX4 brakes before it holds: zero velocity setpoint (horizontal, and vertical if z)
-        while faster than 0.3 m/s. False once slow (then the caller captures its position)."""
-        v = self._x[3:6]
+        """PX4 brakes before it holds: zero velocity setpoint (horizontal, and vertical if z).
+        Ends (False; the caller captures its position) on the brake rule of the module
+        docstring: slower than BRAKE_SPEED, or no new speed minimum for BRAKE_STALL_S, or
+        BRAKE_MAX_S of braking."""
+        v = self._ex[3:6]
         vz = v[2] if z else 0.0
-        self._braking = v[0] * v[0] + v[1] * v[1] + vz * vz > 0.09
+        speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + vz * vz)
+        t = self.clock.t
+        if speed < self._brake_vmin - BRAKE_MIN_GAIN:
+            self._brake_vmin, self._brake_vmin_t = speed, t
+        self._braking = (
+            speed > BRAKE_SPEED
+            and t - self._brake_vmin_t < BRAKE_STALL_S
+            and t - self._brake_t0 < BRAKE_MAX_S
+        )
         if self._braking:
             sp = self._sp
-            sp[0:3] = self._x[0:3]
+            sp[0:3] = self._ex[0:3]
             sp[3:6] = 0.0
             sp[ctl.SP_XY_MODE] = ctl.XY_VEL
             sp[ctl.SP_Z_MODE] = ctl.Z_VEL if z else ctl.Z_POS
@@ -459,12 +648,12 @@ class MultirotorAutopilot(AutopilotBase):
         sp = self._sp
         self._landing = True
         if xy is None:
-            sp[0:2] = self._x[0:2]
+            sp[0:2] = self._ex[0:2]
         else:
             sp[0:2] = xy
-        sp[2] = self._x[2]
+        sp[2] = self._ex[2]
         sp[3:6] = 0.0
-        h = -self._x[2]
+        h = -self._ex[2]
         v = self.params["MPC_LAND_SPEED"] if h < self.params["MPC_LAND_ALT1"] else self._vz_dn
         sp[5] = v
         sp[ctl.SP_XY_MODE] = ctl.XY_POS if xy is not None else ctl.XY_VEL
@@ -520,13 +709,13 @@ class MultirotorAutopilot(AutopilotBase):
             sp[ctl.SP_XY_MODE] = ctl.XY_POS
             sp[ctl.SP_Z_MODE] = ctl.Z_POS
         else:
-            sp[0:3] = self._x[0:3]
+            sp[0:3] = self._ex[0:3]
             sp[3:6] = s.vel_ned
             sp[ctl.SP_XY_MODE] = ctl.XY_VEL
             sp[ctl.SP_Z_MODE] = ctl.Z_VEL
 
     def _rtl(self, t: float) -> None:
-        pos = self._x[0:3]
+        pos = self._ex[0:3]
         if self._rtl_phase == "climb":
             self._goto(np.array([self._rtl_xy[0], self._rtl_xy[1], -self._rtl_alt]), 1.0)
             if -pos[2] >= self._rtl_alt - 1.0:
@@ -534,7 +723,7 @@ class MultirotorAutopilot(AutopilotBase):
                 self._event("rtl: return leg")
         elif self._rtl_phase == "return":
             self._goto(np.array([0.0, 0.0, -self._rtl_alt]), self._vxy_cruise)
-            if math.hypot(pos[0], pos[1]) < 1.0 and math.hypot(self._x[3], self._x[4]) < 0.5:
+            if math.hypot(pos[0], pos[1]) < 1.0 and math.hypot(self._ex[3], self._ex[4]) < 0.5:
                 self._rtl_phase = "land"
                 self._event("rtl: landing")
         else:
@@ -553,12 +742,12 @@ class MultirotorAutopilot(AutopilotBase):
         sp[ctl.SP_VZ_UP] = self._vz_up
         sp[ctl.SP_VZ_DN] = self._vz_dn
         sp[3:6] = 0.0
-        pos = self._x[0:3]
+        pos = self._ex[0:3]
         tilt = math.radians(P["MPC_MAN_TILT_MAX"])
         # horizontal
         if mode == FlightMode.POSCTL:
             if abs(x_st) < 0.05 and abs(y_st) < 0.05:
-                if self._man_hold_xy is None and math.hypot(self._x[3], self._x[4]) < 0.3:
+                if self._man_hold_xy is None and math.hypot(self._ex[3], self._ex[4]) < 0.3:
                     self._man_hold_xy = pos[0:2].copy()  # stopped: hold here
                 if self._man_hold_xy is None:
                     sp[ctl.SP_XY_MODE] = ctl.XY_VEL  # centred sticks: brake first
@@ -580,7 +769,7 @@ class MultirotorAutopilot(AutopilotBase):
         if mode in (FlightMode.POSCTL, FlightMode.ALTCTL):
             dz = z_st - 0.5
             if abs(dz) < 0.05:
-                if self._man_hold_z is None and abs(self._x[5]) < 0.2:
+                if self._man_hold_z is None and abs(self._ex[5]) < 0.2:
                     self._man_hold_z = float(pos[2])
                 if self._man_hold_z is None:
                     sp[ctl.SP_Z_MODE] = ctl.Z_VEL
@@ -601,7 +790,7 @@ class MultirotorAutopilot(AutopilotBase):
     def _mission(self, t: float) -> None:
         pr = self._progress
         items = self._items
-        pos = self._x[0:3]
+        pos = self._ex[0:3]
         if pr.finished or not items:
             self._goto(self._hold_pos, self._vxy_cruise)
             return
@@ -689,11 +878,19 @@ class MultirotorAutopilot(AutopilotBase):
             return Result.denied("not on the ground (use force to arm in the air)")
         if self.battery_remaining <= 0.0:
             return Result.denied("battery empty")
+        if not (self._gps_fix and self._pos_valid):
+            return Result.denied("no position estimate (GPS): arming refused")
+        if not (math.isfinite(self.home.lat_deg) and math.isfinite(self.home.lon_deg)):
+            return Result.denied("no home position: arming refused")
+        why = self.fence_violation(self._ex[0:3])
+        if why is not None and not force:
+            return Result.denied(f"outside geofence ({why}): arming refused")
+        self.fence.outside_count, self.fence.breached = 0, False
         self._armed = True
         self._armed_at = self.clock.t
         self._flown = not self.on_ground
         self._cs[:] = 0.0
-        self._hold_pos = self._x[0:3].copy()
+        self._hold_pos = self._ex[0:3].copy()
         self._yaw_sp = self._yaw()
         self._item_started = False
         self._event("armed")
@@ -722,6 +919,10 @@ class MultirotorAutopilot(AutopilotBase):
             return Result.denied("no manual control input")
         if mode == FlightMode.MISSION and not self._items:
             return Result.denied("no mission uploaded")
+        if mode == FlightMode.MISSION:
+            why = self._mission_refusal(self._items)
+            if why is not None or not self._pos_valid:
+                return Result.denied(why or "no position estimate")
         if mode == FlightMode.TAKEOFF:
             return self.takeoff()
         if mode == FlightMode.RTL:
@@ -740,7 +941,10 @@ class MultirotorAutopilot(AutopilotBase):
             return Result.denied(f"takeoff altitude {altitude} m outside [0.5, 1000]")
         if not self._armed:
             return Result.denied("not armed: arm first")
-        pos = self._x[0:3]
+        pos = self._ex[0:3]
+        why = self._target_refusal(np.array([pos[0], pos[1], -altitude]))
+        if why is not None:
+            return Result.denied(f"takeoff: {why}")
         self._switch(FlightMode.TAKEOFF)
         self._takeoff_target = np.array([pos[0], pos[1], -altitude])
         return Result.accepted()
@@ -766,6 +970,9 @@ class MultirotorAutopilot(AutopilotBase):
             return Result.denied("yaw not finite")
         if not self._armed:
             return Result.denied("not armed")
+        why = self._target_refusal(p)
+        if why is not None:
+            return Result.denied(why)
         self._switch(FlightMode.HOLD)
         self._hold_pos = p.copy()
         self._braking = False
@@ -789,6 +996,13 @@ class MultirotorAutopilot(AutopilotBase):
             rate is not None and not abs(rate) <= 100.0
         ):
             return Result.denied("setpoint refused: yaw or yaw rate not finite or out of range")
+        if pos is not None and (self._fence_on or not self._pos_valid):
+            why = self._target_refusal(pos)
+            if why is not None:  # the last accepted setpoint stays; the stream ages
+                self._refused += 1
+                if self._refused in (1, 10, 100) or self._refused % 1000 == 0:
+                    self._event(f"offboard setpoint refused ({self._refused}): {why}")
+                return Result.denied(why)
         self._offboard = Setpoint(
             pos_ned=pos, vel_ned=vel, yaw=None if yaw is None else wrap_pi(yaw), yaw_rate=rate
         )
@@ -827,6 +1041,9 @@ class MultirotorAutopilot(AutopilotBase):
             )
             if not finite or np.any(np.abs(p) > _MAX_ABS_POS) or it.hold_s < 0:
                 return Result.denied(f"item {i}: position/hold/radius not finite or out of range")
+        why = self._mission_refusal(items)
+        if why is not None:
+            return Result.denied(why)
         self._items = items
         self._progress = MissionProgress()
         self._item_started = False

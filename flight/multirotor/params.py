@@ -7,6 +7,7 @@ not PX4's normalised ones: keep that in mind when copying values from a PX4 vehi
 
 from __future__ import annotations
 
+from flight.geofence import GEOFENCE_PARAMS
 from flight.params import ParamSpec
 
 MULTIROTOR_PARAMS: tuple[ParamSpec, ...] = (
@@ -65,4 +66,6 @@ MULTIROTOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("BAT_LOW_THR", 0.15, 0.0, 0.5, "battery fraction reported as low", "-"),
     ParamSpec("BAT_CRIT_THR", 0.07, 0.0, 0.5, "battery fraction → return (RTL)", "-"),
     ParamSpec("BAT_EMERGEN_THR", 0.05, 0.0, 0.5, "battery fraction → land here", "-"),
+    ParamSpec("EKF2_NOAID_TOUT", 5.0, 0.5, 60.0, "dead reckoning without GPS, then land", "s"),
+    *GEOFENCE_PARAMS,
 )
