@@ -1,16 +1,21 @@
 """Command protocol: COMMAND_LONG / COMMAND_INT → autopilot calls → COMMAND_ACK.
 
-Every parameter is checked before anything changes: NaN or out-of-range values are refused
-with MAV_RESULT_DENIED and a STATUSTEXT saying why. An autopilot refusal is DENIED with its
-reason. Unknown commands are UNSUPPORTED. A retry (COMMAND_LONG with confirmation > 0 and the
-same parameters) is answered with the first answer and not executed twice. A command the
-autopilot reports as still running is acknowledged IN_PROGRESS, then finally ACCEPTED or
-FAILED when it completes (or after a timeout in simulation time).
+Every parameter is checked before anything changes: an infinite parameter, a latitude,
+longitude, altitude or yaw out of range, or NaN where the spec gives NaN no meaning is refused
+with MAV_RESULT_DENIED and a STATUSTEXT saying why (NaN means "keep the current value" where
+the spec says so). An autopilot refusal is DENIED with its reason. Unknown commands are
+UNSUPPORTED. A retry (COMMAND_LONG with confirmation > 0 and the same parameters) is answered
+with the first answer and not executed twice. A command the autopilot reports as still running
+is acknowledged IN_PROGRESS, then finally ACCEPTED or FAILED when it completes (or after a
+timeout in simulation time). The retry table and the running commands are bounded
+(MAX_RETRY_ENTRIES, MAX_PENDING; the oldest goes first), so a flood of distinct senders costs
+O(1) per packet and no memory growth.
 """
 
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -28,6 +33,14 @@ IN_PROGRESS_TIMEOUT_S = 120.0  # [s sim]
 MAX_ALTITUDE_M = 10_000.0  # [m above home] larger takeoff / reposition altitudes are refused
 MAX_RANGE_M = 100_000.0  # [m] reposition targets farther than this from home are refused
 INT32_MAX = 2**31 - 1
+MAX_RETRY_ENTRIES = 256  # (sender, command) answers remembered for retries; oldest dropped
+MAX_PENDING = 16  # IN_PROGRESS commands tracked at once; the oldest is answered FAILED
+MAX_ABS_ALT_M = 100_000.0  # [m] |altitude| of any frame beyond this is refused
+MAX_ABS_YAW = 360.0  # [deg or rad as the command gives it] |yaw| beyond this is refused
+MIN_HEARTBEAT_HZ = 1.0  # HEARTBEAT cannot be stopped or slowed below this (all clients need it)
+
+# Commands whose param5..7 are latitude [deg], longitude [deg], altitude [m] and param4 a yaw.
+_POSITIONAL = {M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND, M.MAV_CMD_DO_REPOSITION}
 
 # Messages a ground station may ask for that this vehicle does not produce: answered
 # UNSUPPORTED so that QGroundControl's connection sequence moves on.
@@ -100,7 +113,8 @@ class CommandService:
         self.set_interval = set_interval
         self.get_interval = get_interval
         self.mission_count = mission_count
-        self._last: dict[tuple, tuple[tuple, int, float]] = {}
+        # (sender, command) → (params, result, t); oldest first (t is non-decreasing).
+        self._last: OrderedDict[tuple, tuple[tuple, int, float]] = OrderedDict()
         self.pending: list[_Pending] = []
         self._handlers: dict[int, Callable] = {
             M.MAV_CMD_COMPONENT_ARM_DISARM: self._arm_disarm,
@@ -112,6 +126,8 @@ class CommandService:
             M.MAV_CMD_MISSION_START: self._mission_start,
             M.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
         }
+        # Every MAV_CMD answered other than UNSUPPORTED.
+        self.handled = frozenset(self._handlers) | _SERVICE_COMMANDS
 
     # --- entry -----------------------------------------------------------------------------
     def handle(self, cmd: Cmd, reply: Callable, link: object) -> None:
@@ -128,8 +144,21 @@ class CommandService:
             return
         result = self._execute(cmd, reply, link)
         if result is not None:
-            self._last[key] = (cmd.p, result, t)
+            self._remember(key, cmd.p, result)
             reply(self._ack(cmd, result))
+
+    def _remember(self, key: tuple, p: tuple, result: int) -> None:
+        """Keep an answer for retries: expired entries and the oldest beyond the cap go first
+        (amortised O(1): the table is ordered by time)."""
+        t = self.ap.clock.t
+        table = self._last
+        table[key] = (p, result, t)
+        table.move_to_end(key)
+        while table:
+            first = next(iter(table.values()))
+            if len(table) <= MAX_RETRY_ENTRIES and t - first[2] < RETRY_WINDOW_S:
+                break
+            table.popitem(last=False)
 
     def service(self) -> None:
         """Finish IN_PROGRESS commands that completed, failed or timed out."""
@@ -152,8 +181,12 @@ class CommandService:
     def _execute(self, cmd: Cmd, reply: Callable, link: object) -> int | None:
         c = cmd.command
         try:
+            if c not in self.handled:
+                return M.MAV_RESULT_UNSUPPORTED
+            _check_params(cmd)
             if c == M.MAV_CMD_SET_MESSAGE_INTERVAL:
                 msg_id = _int_param(cmd.p[0], 0, 2**24, "message id")
+                _check_heartbeat_interval(msg_id, cmd.p[1])
                 ok = self.set_interval(link, msg_id, cmd.p[1])
                 if not ok:
                     raise Denied(f"cannot stream message {msg_id} at that interval")
@@ -162,7 +195,7 @@ class CommandService:
                 msg_id = _int_param(cmd.p[0], 0, 2**24, "message id")
                 reply(self._ack(cmd, M.MAV_RESULT_ACCEPTED))
                 reply(self.mav.message_interval_encode(msg_id, self.get_interval(link, msg_id)))
-                self._last[(cmd.sender, c)] = (cmd.p, M.MAV_RESULT_ACCEPTED, self.ap.clock.t)
+                self._remember((cmd.sender, c), cmd.p, M.MAV_RESULT_ACCEPTED)
                 return None
             if c in (M.MAV_CMD_REQUEST_MESSAGE, M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
                 msg_id = (
@@ -179,17 +212,30 @@ class CommandService:
                 return M.MAV_RESULT_UNSUPPORTED
             res, done = handler(cmd)
         except Denied as e:
-            self.statustext(M.MAV_SEVERITY_WARNING, f"cmd {c}: {e}"[:50])
+            self.statustext(M.MAV_SEVERITY_WARNING, f"cmd {c}: {e}")
             return M.MAV_RESULT_DENIED
         if not res.ok:
-            self.statustext(M.MAV_SEVERITY_WARNING, (res.reason or f"command {c} denied")[:50])
+            self.statustext(M.MAV_SEVERITY_WARNING, res.reason or f"command {c} denied")
             return M.MAV_RESULT_DENIED
         if res.in_progress and done is not None:
             reply(self._ack(cmd, M.MAV_RESULT_IN_PROGRESS))
-            self.pending.append(_Pending(c, reply, cmd.sender, done, self.ap.clock.t))
-            self._last[(cmd.sender, c)] = (cmd.p, M.MAV_RESULT_IN_PROGRESS, self.ap.clock.t)
+            self._track(_Pending(c, reply, cmd.sender, done, self.ap.clock.t))
+            self._remember((cmd.sender, c), cmd.p, M.MAV_RESULT_IN_PROGRESS)
             return None
         return M.MAV_RESULT_ACCEPTED
+
+    def _track(self, pnd: _Pending) -> None:
+        """Follow an IN_PROGRESS command: a repeat from the same sender replaces the older
+        one; beyond MAX_PENDING the oldest is answered FAILED and dropped."""
+        self.pending = [
+            q for q in self.pending if (q.sender, q.command) != (pnd.sender, pnd.command)
+        ]
+        if len(self.pending) >= MAX_PENDING:
+            old = self.pending.pop(0)
+            old.reply(
+                self.mav.command_ack_encode(old.command, M.MAV_RESULT_FAILED, 0, 0, *old.sender)
+            )
+        self.pending.append(pnd)
 
     # --- handlers: (Result, completion predicate for IN_PROGRESS or None) -------------------
     def _arm_disarm(self, cmd: Cmd):
@@ -286,6 +332,44 @@ class CommandService:
 
     def _ack(self, cmd: Cmd, result: int):
         return self.mav.command_ack_encode(cmd.command, result, 0, 0, *cmd.sender)
+
+
+_SERVICE_COMMANDS = {
+    M.MAV_CMD_SET_MESSAGE_INTERVAL,
+    M.MAV_CMD_GET_MESSAGE_INTERVAL,
+    M.MAV_CMD_REQUEST_MESSAGE,
+    M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+}
+
+
+def _check_params(cmd: Cmd) -> None:
+    """Checks common to every handled command, before any handler runs (raises Denied).
+
+    No parameter may be infinite. Commands with a position (TAKEOFF, LAND, REPOSITION) need
+    latitude in [-90, 90], longitude in [-180, 180], |altitude| <= MAX_ABS_ALT_M and
+    |yaw| <= MAX_ABS_YAW, or NaN ("current", as the spec gives it)."""
+    for i, v in enumerate(cmd.p):
+        if math.isinf(v):
+            raise Denied(f"param{i + 1} is infinite")
+    if cmd.command in _POSITIONAL:
+        yaw, lat, lon, alt = cmd.p[3], cmd.p[4], cmd.p[5], cmd.p[6]
+        if not (math.isnan(lat) or -90.0 <= lat <= 90.0):
+            raise Denied(f"latitude {lat:.6g} out of range [-90, 90]")
+        if not (math.isnan(lon) or -180.0 <= lon <= 180.0):
+            raise Denied(f"longitude {lon:.6g} out of range [-180, 180]")
+        if not (math.isnan(alt) or abs(alt) <= MAX_ABS_ALT_M):
+            raise Denied(f"altitude {alt:.6g} m out of range")
+        if not (math.isnan(yaw) or abs(yaw) <= MAX_ABS_YAW):
+            raise Denied(f"yaw {yaw:.6g} out of range")
+
+
+def _check_heartbeat_interval(msg_id: int, interval_us: float) -> None:
+    """Every client on a link relies on HEARTBEAT for link-loss detection: one client may not
+    stop it (interval -1) or slow it below MIN_HEARTBEAT_HZ for all of them."""
+    if msg_id != M.MAVLINK_MSG_ID_HEARTBEAT or interval_us == 0:
+        return
+    if interval_us < 0 or interval_us > 1e6 / MIN_HEARTBEAT_HZ:
+        raise Denied(f"HEARTBEAT cannot be stopped or slowed below {MIN_HEARTBEAT_HZ:g} Hz")
 
 
 def _int_param(v: float, lo: int, hi: int, what: str) -> int:

@@ -4,7 +4,8 @@ per-instance persistence.
 Values travel as MAV_PARAM_TYPE_REAL32 (every skyherd parameter is a float), so both PX4-style
 (bytewise) and ArduPilot-style (C-cast) clients read them unchanged. The autopilot owns the
 values and their limits; this module only moves them and remembers the ones set over MAVLink
-in `params.json`, written atomically. A corrupt or unreadable file → a warning and defaults.
+in `params.json`, written atomically. A corrupt, oversized, too deeply nested or unreadable
+file → a one-line warning, the defaults, and the file moved aside to `params.json.corrupt`.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import json
 import logging
 import math
 import os
-from collections import deque
+from collections import OrderedDict
 from collections.abc import Callable
 from pathlib import Path
 
@@ -24,6 +25,8 @@ from flight.autopilot_api import Autopilot
 log = logging.getLogger(__name__)
 PARAM_ID_LEN = 16
 FILE_VERSION = 1
+MAX_LIST_REQUESTERS = 16  # list requests served at once; a 17th evicts the oldest
+MAX_FILE_BYTES = 1 << 20  # a parameter file larger than this is refused as corrupt
 
 
 class ParamFile:
@@ -37,14 +40,21 @@ class ParamFile:
         if not self.path.exists():
             return {}
         try:
-            doc = json.loads(self.path.read_text(encoding="utf-8"))
+            if self.path.stat().st_size > MAX_FILE_BYTES:
+                raise ValueError(f"larger than {MAX_FILE_BYTES} bytes")
+            try:
+                doc = json.loads(self.path.read_text(encoding="utf-8"))
+            except RecursionError:
+                raise ValueError("nested too deeply") from None
             if not isinstance(doc, dict) or doc.get("version") != FILE_VERSION:
                 raise ValueError("not a skyherd parameter file (version 1)")
             raw = doc.get("params")
             if not isinstance(raw, dict):
                 raise ValueError("'params' is not an object")
         except (OSError, UnicodeDecodeError, ValueError) as e:
-            log.warning("parameter file %s unreadable (%s): using defaults", self.path, e)
+            reason = " ".join(str(e).split())[:200]  # one line, whatever the file held
+            log.warning("parameter file %s unreadable (%s): using defaults%s",
+                        self.path, reason, self._set_aside())  # fmt: skip
             return {}
         out: dict[str, float] = {}
         for name, value in raw.items():
@@ -57,6 +67,15 @@ class ParamFile:
             else:
                 log.warning("parameter file %s: ignoring %s=%r", self.path, name, value)
         return out
+
+    def _set_aside(self) -> str:
+        """Rename a corrupt file to `<name>.corrupt` (the next save must not destroy it)."""
+        aside = self.path.with_name(self.path.name + ".corrupt")
+        try:
+            os.replace(self.path, aside)
+        except OSError:
+            return ""
+        return f"; the file was moved to {aside}"
 
     def save(self, values: dict[str, float]) -> None:
         """Write atomically (temp file + fsync + rename): a kill leaves the old or new file."""
@@ -101,7 +120,10 @@ class ParamService:
             )
         self.index = {n: i for i, n in enumerate(self.names)}
         self.saved: dict[str, float] = {}
-        self._queue: deque[tuple[int, Reply, object]] = deque()
+        # Pending list requests: requester key → [next index, reply], oldest first. Bounded
+        # (MAX_LIST_REQUESTERS, the oldest evicted) and served round-robin: O(1) per packet.
+        self._lists: OrderedDict[object, list] = OrderedDict()
+        self.evicted_lists = 0
         if store is not None:
             self._restore(store.load())
 
@@ -132,9 +154,21 @@ class ParamService:
 
     # --- handlers --------------------------------------------------------------------------
     def request_list(self, reply: Reply, key: object) -> None:
-        """Queue the whole list for one requester (`key` identifies it: a repeat restarts)."""
-        self._queue = deque(q for q in self._queue if q[2] != key)
-        self._queue.extend((i, reply, key) for i in range(len(self.names)))
+        """Queue the whole list for one requester (`key` identifies it: a repeat restarts).
+
+        At most MAX_LIST_REQUESTERS lists are in flight; a new requester beyond that evicts
+        the one waiting longest (it can ask again or read the missing ones by index)."""
+        if key in self._lists:
+            self._lists[key] = [0, reply]
+            return
+        if len(self._lists) >= MAX_LIST_REQUESTERS:
+            self._lists.popitem(last=False)
+            self.evicted_lists += 1
+        self._lists[key] = [0, reply]
+
+    def queued(self) -> int:
+        """PARAM_VALUEs still to send for pending list requests."""
+        return sum(len(self.names) - i for i, _ in self._lists.values())
 
     def request_read(self, msg, reply: Reply) -> None:
         idx = msg.param_index
@@ -170,12 +204,23 @@ class ParamService:
         self.broadcast(self.value_msg(name))
 
     def pump(self) -> None:
-        """Send up to `per_update` queued PARAM_VALUEs of pending list requests."""
-        if not self._queue:
-            return
-        for _ in range(min(self.per_update, len(self._queue))):
-            i, reply, _ = self._queue.popleft()
+        """Send up to `per_update` PARAM_VALUEs of pending list requests, one per requester
+        in turn (round-robin)."""
+        lists, n = self._lists, len(self.names)
+        for _ in range(self.per_update):
+            if not lists:
+                return
+            key, entry = next(iter(lists.items()))
+            i, reply = entry
+            if i >= n:
+                del lists[key]
+                continue
             reply(self.value_msg(self.names[i]))
+            entry[0] = i + 1
+            if i + 1 >= n:
+                del lists[key]
+            else:
+                lists.move_to_end(key)
 
 
 def _param_id(raw) -> str:
