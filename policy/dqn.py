@@ -292,11 +292,19 @@ class PolicyFileError(ValueError):
 
 
 def load_policy(path: str | os.PathLike) -> MLPPolicy:
-    """Load a `.npz` policy file → callable(obs) → action. Raises PolicyFileError on bad files."""
+    """Load a `.npz` policy file → callable(obs) → action. Raises PolicyFileError on bad files.
+
+    An educated modular policy (policy.education.modular) loads as a ModularPolicy: the same
+    callable, plus `explain(obs)`.
+    """
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
+            if meta.get("format") == "skyherd-modular-policy/1":  # modules + arbiter, explains
+                from policy.education.modular import from_arrays
+
+                return from_arrays(z, meta)
             n = sum(1 for k in z.files if k.startswith("W"))
             weights = [z[f"W{k}"] for k in range(n)]
             biases = [z[f"b{k}"] for k in range(n)]

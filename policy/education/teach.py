@@ -1,0 +1,311 @@
+"""Teaching a curriculum: one lesson at a time, earlier skills frozen, every lesson re-tested.
+
+Lesson i (a skill lesson) trains module m_i on its scenario with only its actions and its input
+concepts, from its demonstrations (method "irl": projection IRL, DQN as the inner solver, the
+learned policy closest to μ_E in μ kept; policy.irl) or from a given reward (method "dqn").
+The module is then frozen: later lessons never change its weights.
+
+The composite lesson trains the arbiter only: an ordered rule list over the curriculum's
+predicates (policy.education.modular.Arbiter), built greedily (Rivest's decision lists, learnt
+by forward selection): start with the best single module as default; repeatedly append the rule
+"if p then m" that most lowers the lesson's objective, stop when none does; then drop every rule
+whose removal does not raise it. Objective on fixed episodes (common random numbers):
+    ab      ‖μ_E^Primitive − μ(π)‖₂, μ_E^Primitive = policy.ab.combine of the skill lessons'
+            demonstrations (Apprenticeship Bootstrapping: no composite demonstration)
+    irl     ‖μ_E − μ(π)‖₂ with μ_E from composite demonstrations
+    reward  −wᵀμ(π)
+
+After every lesson each earlier lesson is re-tested on its own scenario (retention): before the
+composite lesson with its own module, after it with the whole modular policy. A monolithic DQN
+(policy.education.monolith) is taught the same lessons in the same order for comparison.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from policy.demos import (
+    Demonstration,
+    ExpertParams,
+    demo_feature_expectations,
+    load_demo,
+    record,
+    rollout_stats,
+    scripted_expert,
+)
+from policy.dqn import DQNParams, train_dqn
+from policy.education.concepts import compile_concepts
+from policy.education.curriculum import CompositeLesson, Curriculum, Lesson
+from policy.education.modular import Arbiter, ModularPolicy, SkillModule
+from policy.groundair.env import GroundAirEnv
+from policy.irl import IRLParams, projection_irl, select_policy
+
+
+@dataclass(frozen=True)
+class EduParams:
+    """Hyper-parameters of `skyherd educate` (saved in config.json)."""
+
+    dqn: DQNParams = DQNParams(total_steps=10_000, hidden=(32, 32))  # per DQN solve
+    irl_iters: int = 3  # projection-IRL iterations per skill lesson
+    irl_epsilon: float = 0.01  # IRL stop: t ≤ ε
+    mu_episodes: int = 10  # Monte-Carlo episodes per μ(π) estimate
+    mu_seed: int = 50_000  # first env seed of the μ estimates
+    demo_episodes: int = 20  # scripted demonstrations per lesson
+    demo_seed: int = 1_000  # first env seed of the demonstrations
+    demo_epsilon: float = 0.05  # demonstrator's random-action probability
+    demo_lag: float = 0.05  # demonstrator's repeat-action probability
+    arbiter_episodes: int = 10  # episodes per arbiter-objective estimate
+    arbiter_seed: int = 60_000  # first env seed of the arbiter search
+    max_rules: int = 8  # longest rule list
+    test_episodes: int = 20  # test episodes per lesson (retention)
+    test_seed: int = 100_000  # first env seed of the lesson tests (never trained on)
+    monolith: bool = True  # also teach a monolithic DQN the same lessons
+    seed: int = 0  # run seed (offsets every DQN seed)
+
+
+QUICK = EduParams(
+    dqn=DQNParams(total_steps=400, learning_starts=100, hidden=(16,), target_update_every=100),
+    irl_iters=1,
+    mu_episodes=2,
+    demo_episodes=2,
+    arbiter_episodes=2,
+    max_rules=2,
+    test_episodes=2,
+)
+
+
+@dataclass
+class LessonResult:
+    """What one lesson did and how every lesson taught so far scores after it."""
+
+    lesson: str
+    module: str
+    method: str
+    seconds: float
+    dqn_steps: int
+    retention: dict[str, dict[str, float]]  # lesson name → test metrics after this lesson
+    passed: dict[str, bool]
+    detail: dict[str, Any] = field(default_factory=dict)
+
+
+class ConceptEnv:
+    """GroundAirEnv seen through a module: obs = its input concepts, actions = its actions."""
+
+    def __init__(self, scenario: str, values, inputs: tuple[str, ...], actions, reward_weights):
+        self.env = GroundAirEnv(scenario, reward_weights=reward_weights)
+        self.values, self.inputs, self.actions = values, inputs, tuple(actions)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, (len(inputs),), np.float32)
+        self.action_space = gym.spaces.Discrete(len(actions))
+
+    def _x(self, obs) -> np.ndarray:
+        v = self.values(obs)
+        return np.array([v[n] for n in self.inputs], np.float32)
+
+    def reset(self, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed)
+        return self._x(obs), info
+
+    def step(self, i):
+        obs, r, term, trunc, info = self.env.step(self.actions[int(i)])
+        return self._x(obs), r, term, trunc, info
+
+
+def lesson_demos(lesson: Lesson | CompositeLesson, p: EduParams) -> Demonstration:
+    """The lesson's demonstrations: its file, or the scripted expert on its scenario."""
+    if lesson.demos != "scripted":
+        return load_demo(lesson.demos)
+    ex = scripted_expert(lesson.scenario, ExpertParams(epsilon=p.demo_epsilon, lag=p.demo_lag), 7)
+    meta = {"expert": dataclasses.asdict(ex.p)}
+    return record(lesson.scenario, ex, p.demo_episodes, p.demo_seed, "scripted", meta)
+
+
+def as_obs_policy(module: SkillModule, values) -> Callable[[np.ndarray], int]:
+    return lambda obs: module.act(values(obs))
+
+
+def test_policy(act, lesson, p: EduParams) -> dict[str, float]:
+    _, m = rollout_stats(act, lesson.scenario, p.test_episodes, p.test_seed, p.dqn.gamma)
+    return m
+
+
+# --------------------------------------------------------------------------- skill lessons
+def teach_module(
+    lesson: Lesson,
+    cur: Curriculum,
+    p: EduParams,
+    demo: Demonstration | None,
+    index: int,
+    progress: bool = False,
+) -> tuple[SkillModule, dict[str, Any]]:
+    """Train lesson's module (irl: from `demo`; dqn: on lesson.reward). Returns it and a log."""
+    values = compile_concepts(cur.concept_list())
+    gamma = p.dqn.gamma
+    steps = 0
+
+    def solve(w: np.ndarray, i: int) -> SkillModule:
+        nonlocal steps
+        wn = w / max(float(np.linalg.norm(w)), 1e-12)
+        env = ConceptEnv(lesson.scenario, values, lesson.inputs, lesson.actions, wn)
+        dq = dataclasses.replace(p.dqn, seed=p.seed * 1000 + 100 * index + i)
+        res = train_dqn(env, dq, progress=progress, desc=f"{lesson.name} dqn {i}")
+        steps += dq.total_steps
+        res.policy.meta.update({"irl_w": wn.tolist(), "module": lesson.module})
+        return SkillModule(lesson.module, lesson.name, lesson.inputs, lesson.actions, res.policy)
+
+    if lesson.method == "dqn":
+        mod = solve(np.asarray(lesson.reward, float), 1)
+        return mod, {"dqn_steps": steps, "reward_w": list(lesson.reward)}
+
+    def mu_of(pol) -> np.ndarray:
+        act = as_obs_policy(pol, values) if isinstance(pol, SkillModule) else pol
+        return rollout_stats(act, lesson.scenario, p.mu_episodes, p.mu_seed, gamma)[0]
+
+    rng = np.random.default_rng(p.seed)
+    pi0 = lambda obs: int(rng.choice(lesson.actions))  # noqa: E731
+    mu_e = demo_feature_expectations(demo, gamma)
+    irl = projection_irl(
+        mu_e, pi0, solve, mu_of, IRLParams(epsilon=p.irl_epsilon, max_iters=p.irl_iters)
+    )
+    chosen = select_policy(irl)
+    mod = irl.policies[chosen]
+    if not isinstance(mod, SkillModule):
+        raise RuntimeError(f"lesson {lesson.name}: IRL learned no module (μ_E ≈ random's)")
+    return mod, {
+        "dqn_steps": steps,
+        "irl_t": [h.t for h in irl.history],
+        "chosen": chosen,
+        "reward_w": mod.net.meta["irl_w"],
+        "mu_expert": mu_e.tolist(),
+    }
+
+
+# --------------------------------------------------------------------------- the arbiter
+def composite_target(comp: CompositeLesson, cur: Curriculum, demos: dict, p: EduParams):
+    """(kind, vector): ('mu', μ_E) for ab / irl, ('w', w) for reward."""
+    gamma = p.dqn.gamma
+    if comp.method == "reward":
+        return "w", np.asarray(comp.reward, float)
+    if comp.method == "irl":
+        return "mu", demo_feature_expectations(lesson_demos(comp, p), gamma)
+    by_scenario = {le.scenario: demos[le.name] for le in cur.lessons if le.name in demos}
+    from policy.ab import SUBTASKS, combine
+
+    if all(s in by_scenario for s in SUBTASKS):
+        return "mu", combine(by_scenario, comp.ab_rule, gamma)
+    # lessons on other scenarios: the mean of their μ_E (AB's mean rule)
+    mus = [demo_feature_expectations(d, gamma) for d in demos.values()]
+    return "mu", np.mean(mus, axis=0)
+
+
+def learn_arbiter(
+    comp: CompositeLesson,
+    policy_of: Callable[[Arbiter], ModularPolicy],
+    target,
+    p: EduParams,
+    on_eval: Callable[[], None] | None = None,
+) -> tuple[Arbiter, list[dict]]:
+    """Greedy decision-list search (module docstring). Returns the arbiter and its search log."""
+    kind, vec = target
+
+    def objective(arb: Arbiter) -> float:
+        pol = policy_of(arb)
+        mu, _ = rollout_stats(pol, comp.scenario, p.arbiter_episodes, p.arbiter_seed, p.dqn.gamma)
+        if on_eval:
+            on_eval()
+        return float(np.linalg.norm(vec - mu)) if kind == "mu" else -float(vec @ mu)
+
+    log: list[dict] = []
+    scored = [(objective(Arbiter((), m)), m) for m in comp.modules]
+    best, default = min(scored)
+    log.append({"step": "default", "module": default, "objective": best})
+    rules: list[tuple[str, str]] = []
+    for _ in range(p.max_rules):
+        used = {r[0] for r in rules}
+        cands = [(q, m) for q in comp.arbiter_inputs if q not in used for m in comp.modules]
+        if not cands:
+            break
+        trial = [(objective(Arbiter(tuple(rules + [c]), default)), c) for c in cands]
+        val, c = min(trial)
+        if val >= best - 1e-6:
+            break
+        rules.append(c)
+        best = val
+        log.append({"step": "add", "rule": list(c), "objective": val})
+    k = 0
+    while k < len(rules):  # prune: keep a rule only if it helps
+        val = objective(Arbiter(tuple(rules[:k] + rules[k + 1 :]), default))
+        if val <= best + 1e-6:
+            log.append({"step": "drop", "rule": list(rules[k]), "objective": val})
+            rules.pop(k)
+            best = min(best, val)
+        else:
+            k += 1
+    return Arbiter(tuple(rules), default), log
+
+
+# --------------------------------------------------------------------------- the whole course
+def curriculum_meta(cur: Curriculum) -> dict[str, Any]:
+    return {"name": cur.name, "version": cur.version, "sha256": cur.sha256, "path": cur.path}
+
+
+def teach(
+    cur: Curriculum,
+    p: EduParams,
+    on_lesson: Callable[[LessonResult], None] | None = None,
+    tick: Callable[[str], None] | None = None,
+    progress: bool = False,
+) -> tuple[ModularPolicy, list[LessonResult]]:
+    """Teach every lesson in order; returns the modular policy and one result per lesson."""
+    values = compile_concepts(cur.concept_list())
+    modules: dict[str, SkillModule] = {}
+    demos: dict[str, Demonstration] = {}
+    results: list[LessonResult] = []
+    taught: list[Lesson] = []
+    for i, le in enumerate(cur.lessons):
+        t0 = time.process_time()
+        if le.method == "irl":
+            demos[le.name] = lesson_demos(le, p)
+        mod, detail = teach_module(le, cur, p, demos.get(le.name), i, progress)
+        modules[le.module] = mod  # frozen from here on: nothing below trains it again
+        taught.append(le)
+        ret = {x.name: test_policy(as_obs_policy(modules[x.module], values), x, p) for x in taught}
+        res = LessonResult(
+            le.name, le.module, le.method, time.process_time() - t0, detail["dqn_steps"], ret,
+            {x.name: all(c.ok(ret[x.name]) for c in x.passes) for x in taught}, detail,
+        )  # fmt: skip
+        results.append(res)
+        if on_lesson:
+            on_lesson(res)
+    comp = cur.composite
+    meta = {"curriculum": curriculum_meta(cur), "learner": "educated", "edu": p}
+    if comp is None:  # no composite lesson: the last module flies alone
+        last = cur.lessons[-1].module
+        pol = ModularPolicy(cur.concept_list(), list(modules.values()), Arbiter((), last), meta)
+        return pol, results
+    t0 = time.process_time()
+    mods = [modules[m] for m in comp.modules]
+
+    def policy_of(arb: Arbiter) -> ModularPolicy:
+        return ModularPolicy(cur.concept_list(), mods, arb, meta)
+
+    target = composite_target(comp, cur, demos, p)
+    arb, log = learn_arbiter(
+        comp, policy_of, target, p, (lambda: tick("arbiter")) if tick else None
+    )
+    pol = policy_of(arb)
+    pol.meta["composite_target"] = {"kind": target[0], "vector": target[1].tolist()}
+    ret = {x.name: test_policy(pol, x, p) for x in list(cur.lessons) + [comp]}
+    passed = {x.name: all(c.ok(ret[x.name]) for c in x.passes) for x in list(cur.lessons) + [comp]}
+    res = LessonResult(comp.name, "arbiter", comp.method, time.process_time() - t0, 0, ret, passed,
+                       {"arbiter": arb.describe(), "search": log})  # fmt: skip
+    results.append(res)
+    if on_lesson:
+        on_lesson(res)
+    return pol, results
