@@ -144,6 +144,8 @@ class MavlinkEndpoint:
             autopilot, self.mav, ParamFile(pf) if pf else None, self.broadcast, self.statustext,
             config.params_per_update,
         )  # fmt: skip
+        if on_fence is None:  # the vehicle enforces its own uploaded fence (issue 11.3)
+            on_fence = getattr(autopilot, "set_fence", None)
         self.missions = MissionService(autopilot, self.mav, self.statustext, on_fence)
         self.commands = CommandService(
             autopilot,
