@@ -1,0 +1,183 @@
+"""Recording from Zenoh (record.zenoh.ZenohRecorder) between two real Zenoh sessions on
+loopback (ports 7462-7463), and the live Foxglove WebSocket server (record.live.LiveServer,
+port 7461) with a real WebSocket client (the `websockets` package) speaking the Foxglove
+WebSocket protocol: subscribe, receive frames and poses stamped in simulation time."""
+
+from __future__ import annotations
+
+import json
+import struct
+import time
+
+import numpy as np
+import pytest
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+from groundsim.transport import UGVStatePublisher
+from groundsim.ugv import UGVStates
+from perception.camera import CameraParams
+from perception.transport import FramePublisher, ZenohParams, open_session
+from record import LiveServer, ZenohRecorder, read_messages
+from safety.events import ZenohEventSink
+
+ZPORT = 7462
+WSPORT = 7461
+
+
+def _until(cond, what: str, timeout_s: float = 30.0) -> None:
+    """Wait for a condition of the real link; the timeout only stops a hung test."""
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.005)
+
+
+def test_zenoh_recorder_records_every_key_of_a_flight_in_another_session(tmp_path):
+    pub_s = open_session(ZenohParams(listen=(f"tcp/127.0.0.1:{ZPORT}",)))
+    rec_s = open_session(ZenohParams(connect=(f"tcp/127.0.0.1:{ZPORT}",)))
+    path = tmp_path / "flight.mcap"
+    rec = ZenohRecorder(rec_s, "uav0", path)
+    try:
+        cam = CameraParams(width_px=80, height_px=60)
+        frames = {"raw": FramePublisher(pub_s, "uav0", cam, "raw"),
+                  "jpeg": FramePublisher(pub_s, "uav0", cam, "jpeg")}  # fmt: skip
+        ugv = UGVStatePublisher(pub_s, 3)
+        events = ZenohEventSink(pub_s, "uav0")
+        dec = pub_s.declare_publisher("skyherd/uav0/decision")
+        clock = pub_s.declare_publisher("skyherd/sim/clock")
+        junk = pub_s.declare_publisher("skyherd/uav0/decision")
+        _until(lambda: frames["raw"].has_subscriber() and frames["jpeg"].has_subscriber(), "match")
+        img = (np.random.default_rng(0).random((60, 80, 3)) * 255).astype(np.uint8)
+        n = 10
+        for k in range(n):  # lockstep on what arrived: a count, not a wall-time race
+            t = 0.1 * k
+            before = sum(rec.received.values())
+            frames["raw" if k % 2 else "jpeg"].publish(
+                t, np.array([k, 0.0, -20.0]), np.array([1.0, 0, 0, 0]), img
+            )
+            ugv.publish(
+                t,
+                UGVStates(
+                    np.array([[0, 0], [5, 0], [0, 5.0]]), np.zeros(3), np.ones(3), np.zeros(3, bool)
+                ),
+            )
+            dec.put(
+                json.dumps(
+                    {
+                        "t": t,
+                        "vehicle": "uav0",
+                        "phi": [0.0] * 8,
+                        "proposed": {"vel_ned": [1, 0, 0]},
+                        "certified": {"vel_ned": [1, 0, 0]},
+                        "verdict": "accepted",
+                        "reason": "",
+                        "mode": "ai",
+                    }
+                )
+            )
+            clock.put(json.dumps({"t_sim": t}) if k % 2 else struct.pack("<d", t))
+            if k == 4:
+                events.write(
+                    {"t": t, "event": "switch", "from": "ai", "to": "fallback", "reason": "fence"}
+                )
+            _until(
+                lambda b=before, k=k: sum(rec.received.values()) >= b + 6 + (k == 4), f"step {k}"
+            )
+        junk.put(b"{not json")
+        _until(lambda: rec.corrupt.get("decision", 0) == 1, "the corrupt decision")
+    finally:
+        rec.close()
+        rec_s.close()
+        pub_s.close()
+    got = read_messages(path)
+    assert got.complete
+    c = got.counts()
+    assert c["/uav0/camera/image"] == n and c["/uav0/pose"] == n and c["/tf"] == n
+    assert c["/ugvs"] == 3 * n and c["/uav0/decision"] == n and c["/uav0/phi"] == n
+    assert c["/uav0/safety/event"] == 1 and c["/uav0/log"] == 1 and c["/sim/clock"] == n
+    assert [m.t for m in got.topic("/sim/clock")] == pytest.approx([0.1 * k for k in range(n)])
+    assert [m.t for m in got.topic("/uav0/camera/image")] == pytest.approx(
+        [0.1 * k for k in range(n)]
+    )
+    assert got.topic("/uav0/safety/event")[0].json()["reason"] == "fence"
+    # frames: JPEG kept as received, raw frames JPEG-encoded; all decode to the published size
+    import cv2
+
+    assert all(b"\xff\xd8" in m.data for m in got.topic("/uav0/camera/image"))
+    jpg = got.topic("/uav0/camera/image")[0].data
+    start = jpg.index(b"\xff\xd8")
+    im = cv2.imdecode(np.frombuffer(jpg[start:], np.uint8), cv2.IMREAD_COLOR)
+    assert im is not None and im.shape == (60, 80, 3)
+
+
+def _proto_class(schema: dict):
+    """A protobuf class from an advertised channel's schema (base64 FileDescriptorSet)."""
+    import base64
+
+    fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(schema["schema"]))
+    pool = descriptor_pool.DescriptorPool()
+    for fd in fds.file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema["schemaName"]))
+
+
+def test_live_server_serves_frames_and_poses_to_a_websocket_client():
+    from websockets.sync.client import connect
+
+    live = LiveServer(WSPORT)
+    img = (np.random.default_rng(0).random((60, 80, 3)) * 255).astype(np.uint8)
+    try:
+        live.pose(0.0, [0, 0, -20])  # channels are advertised once they exist
+        live.frame(0.0, img)
+        with connect(live.url, subprotocols=["foxglove.sdk.v1"], open_timeout=30) as ws:
+            channels: dict[str, dict] = {}
+            while not {"/uav0/pose", "/uav0/camera/image"} <= set(channels):
+                msg = ws.recv(timeout=30)
+                if isinstance(msg, str):
+                    m = json.loads(msg)
+                    if m["op"] == "advertise":
+                        channels.update({c["topic"]: c for c in m["channels"]})
+            assert channels["/uav0/camera/image"]["schemaName"] == "foxglove.CompressedImage"
+            assert channels["/uav0/pose"]["encoding"] == "protobuf"
+            subs = {1: "/uav0/pose", 2: "/uav0/camera/image"}
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": i, "channelId": channels[t]["id"]} for i, t in subs.items()]}))  # fmt: skip
+            got: dict[str, list] = {"/uav0/pose": [], "/uav0/camera/image": []}
+            k = 0
+            # the subscription takes effect asynchronously: publish until the first pose shows
+            while not got["/uav0/pose"]:
+                k += 1
+                live.pose(0.1 * k, [k, 0, -20])
+                live.frame(0.1 * k, img)
+                try:
+                    msg = ws.recv(timeout=0.2)
+                except TimeoutError:
+                    continue
+                if isinstance(msg, bytes) and msg[0] == 1:  # opcode 1: message data
+                    sub, log_time = struct.unpack_from("<IQ", msg, 1)
+                    got[subs[sub]].append((log_time, msg[13:]))
+                assert k < 500, "no message after 500 publishes"
+            first = k + 1
+            for j in range(first, first + 5):
+                live.pose(0.1 * j, [j, 0, -20])
+                live.frame(0.1 * j, img)
+            while len([1 for lt, _ in got["/uav0/camera/image"] if lt >= round(0.1 * first * 1e9)]) < 5 or \
+                    len([1 for lt, _ in got["/uav0/pose"] if lt >= round(0.1 * first * 1e9)]) < 5:  # fmt: skip
+                msg = ws.recv(timeout=30)
+                if isinstance(msg, bytes) and msg[0] == 1:
+                    sub, log_time = struct.unpack_from("<IQ", msg, 1)
+                    got[subs[sub]].append((log_time, msg[13:]))
+        pose_cls = _proto_class(channels["/uav0/pose"])
+        img_cls = _proto_class(channels["/uav0/camera/image"])
+        tail = [
+            (lt, pose_cls.FromString(d))
+            for lt, d in got["/uav0/pose"]
+            if lt >= round(0.1 * first * 1e9)
+        ]
+        assert [lt for lt, _ in tail] == [round(0.1 * j * 1e9) for j in range(first, first + 5)]
+        assert [p.pose.position.x for _, p in tail] == [float(j) for j in range(first, first + 5)]
+        frame = img_cls.FromString(got["/uav0/camera/image"][-1][1])
+        assert frame.format == "jpeg" and frame.data[:2] == b"\xff\xd8"
+    finally:
+        live.close()
