@@ -8,6 +8,14 @@ braked roll-out; TAKEOFF is a runway take-off along the present heading.
 
 Frames: NED about home, FRD body; angles [rad] except parameters PX4 keeps in degrees
 (converted where read). Positions in the horizontal plane are (north, east) [m].
+
+Faults (flight/faults.py): the plan's wind (mean + gusts + wind events) is set on JSBSim's
+atmosphere each control step; GPS faults shift the estimate the guidance flies on (`state`,
+what telemetry reports); `true_state` is JSBSim's. GPS lost for longer than EKF2_NOAID_TOUT:
+the aircraft loiters where it believes it is (HOLD on dead reckoning).
+Geofence (flight/geofence.py): loiter circles (reposition, offboard positions, loiter items)
+must lie inside, as must waypoints; a breach takes GF_ACTION (2: loiter on a circle through
+the present position, centred toward home; 3: RTL; 4/5: land).
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ from flight.autopilot_api import (
     Setpoint,
 )
 from flight.clock import SimClock
+from flight.faults import FaultInjector, FaultPlan
 from flight.fixedwing import guidance
 from flight.fixedwing.attitude import AttitudeController, InnerGains
 from flight.fixedwing.fw_params import FW_PARAM_SPECS
@@ -37,6 +46,7 @@ from flight.fixedwing.jsbsim_model import JSBSimPlane, ModelParams, Surfaces
 from flight.fixedwing.tecs import Tecs, TecsGains
 from flight.frames import wrap_pi
 from flight.geo import GRAVITY, Home
+from flight.geofence import ACTION_HOLD, ACTION_NAMES, ACTION_NONE, ACTION_RTL, FenceMonitor
 from flight.params import ParamStore
 from flight.state import VehicleState
 
@@ -95,6 +105,8 @@ class FixedWingAutopilot(AutopilotBase):
         control_dt: float = 0.02,
         instance: int = 0,
         seed: int = 0,
+        faults: FaultPlan | None = None,
+        rng: np.random.Generator | None = None,
     ):
         self.clock = clock if clock is not None else SimClock()
         self.home = home if home is not None else Home()
@@ -106,7 +118,17 @@ class FixedWingAutopilot(AutopilotBase):
         self.tecs = Tecs(tecs_gains)
         self.control_dt = control_dt
         self.instance = instance
-        self.seed = seed  # nothing random in the fixed-wing (calm air, exact JSBSim): recorded only
+        self.seed = seed  # only the fault plan draws random numbers (rng seeded from seed)
+        self.faults = faults if faults is not None and not faults.empty else None
+        self._inj = None
+        if self.faults is not None:
+            self._inj = FaultInjector(
+                self.faults, rng if rng is not None else np.random.default_rng(seed)
+            )
+        self.fence = FenceMonitor()
+        self._status: list[str] = []
+        self._gps_fix = True
+        self._pos_valid = True
         self.model = JSBSimPlane(self.home, model_params or ModelParams())
         self._dt_us = round(control_dt * 1e6)
         if abs(self._dt_us / 1e6 - control_dt) > 1e-9:
@@ -122,7 +144,7 @@ class FixedWingAutopilot(AutopilotBase):
         self._landed_t: float | None = None
         self._reset_loops()
         self._nav_init()
-        self._state = self._stamp(self.model.state())
+        self._state = self._true_state = self._stamp(self.model.state())
 
     # ---- construction helpers ----------------------------------------------------------
     def _reset_loops(self, el_trim: float = 0.0, thr_trim: float = 0.5) -> None:
@@ -150,7 +172,7 @@ class FixedWingAutopilot(AutopilotBase):
         trim = self.model.reset_airborne(altitude, airspeed, heading)
         self._armed = True
         self._reset_loops(trim.elevator, trim.throttle)
-        self._state = self._stamp(self.model.state())
+        self._state = self._true_state = self._stamp(self.model.state())
         self._enter_hold()
         self._v_dem = airspeed
         return trim
@@ -159,6 +181,127 @@ class FixedWingAutopilot(AutopilotBase):
         """The model's state on the shared clock's time."""
         return VehicleState(
             self.clock.t, s.pos_ned, s.vel_ned, s.quat, s.omega_frd, s.accel_frd, s.on_ground
+        )
+
+    @property
+    def true_state(self) -> VehicleState:
+        """JSBSim's state (ground truth); `state` is the estimate the autopilot flies on."""
+        return self._true_state
+
+    @property
+    def gps_fix(self) -> bool:
+        return self._gps_fix
+
+    @property
+    def position_valid(self) -> bool:
+        return self._pos_valid
+
+    def drain_status(self) -> list[str]:
+        """Human-readable events since the last call (breaches, failsafes, fence uploads)."""
+        out, self._status = self._status, []
+        return out
+
+    def _event(self, text: str) -> None:
+        self._status.append(f"{self.clock.t:.3f} {text}")
+
+    # ---- geofence ----------------------------------------------------------------------
+    def set_fence(self, shapes) -> None:
+        """The fence uploaded over MAVLink (FenceShape list; [] clears): enforced from now."""
+        self.fence.configure(
+            list(shapes or ()), self.p("GF_MAX_HOR_DIST"), self.p("GF_MAX_VER_DIST")
+        )
+        n = len(self.fence.fence.areas)
+        self._event(f"geofence: {n} area(s)" if n else "geofence: no areas")
+
+    def _fence_sync(self) -> None:
+        f = self.fence.fence
+        if (f.max_hor, f.max_ver) != (self.p("GF_MAX_HOR_DIST"), self.p("GF_MAX_VER_DIST")):
+            self.fence.configure(None, self.p("GF_MAX_HOR_DIST"), self.p("GF_MAX_VER_DIST"))
+
+    def fence_violation(self, pos_ned, radius: float = 0.0) -> str | None:
+        """Why a point (or a loiter circle of `radius` about it) is outside the fence, or None."""
+        self._fence_sync()
+        f = self.fence.fence
+        if not f.active:
+            return None
+        p = np.asarray(pos_ned, dtype=float)
+        return f.circle_violation(p[:2], radius, float(p[2]))
+
+    def _refusal(self, pos_ned, radius: float = 0.0) -> str | None:
+        if not self._pos_valid:
+            return "no position estimate"
+        why = self.fence_violation(pos_ned, radius)
+        return None if why is None else f"target outside geofence: {why}"
+
+    def _mission_refusal(self, items) -> str | None:
+        for i, it in enumerate(items):
+            if it.command in (MissionCommand.RETURN_TO_LAUNCH, MissionCommand.TAKEOFF):
+                continue
+            r = 0.0
+            if it.command in (MissionCommand.LOITER_UNLIM, MissionCommand.LOITER_TIME):
+                r = it.loiter_radius if it.loiter_radius > 0 else self.default_loiter_radius()
+            p = np.asarray(it.pos_ned, dtype=float)
+            if it.command == MissionCommand.LAND:
+                p = np.array([p[0], p[1], -1.0])
+            why = self.fence_violation(p, r)
+            if why is not None:
+                return f"item {i} outside geofence: {why}"
+        return None
+
+    def _fence_check(self) -> None:
+        """One breach sample (20 Hz) on the estimate; GF_ACTION when a breach completes."""
+        self._fence_sync()
+        if not self.fence.fence.active or not self._flying() or not self.fence.due(self.clock.t):
+            return
+        why = self.fence.sample(self._state.pos_ned, int(self.p("GF_COUNT")))
+        if why is None:
+            return
+        act = int(self.p("GF_ACTION"))
+        self._event(f"geofence breach: {why} -> {ACTION_NAMES.get(act, act)}")
+        if act <= ACTION_NONE + 1 or self._mode == FlightMode.LAND:
+            return
+        if act == ACTION_HOLD:
+            pos = self._state.pos_ned[:2]
+            r = self.default_loiter_radius()
+            d = -pos / max(float(np.hypot(*pos)), 1e-6)  # toward home
+            self._mode = FlightMode.HOLD
+            self._set_loiter(pos + r * d, r, 1, max(self._state.altitude, 15.0))
+            self._event("mode -> hold (geofence)")
+        elif act == ACTION_RTL:
+            if self._mode != FlightMode.RTL:
+                self._mode = FlightMode.RTL
+                self._begin_rtl()
+                self._event("mode -> rtl (geofence)")
+        else:
+            self.land()
+            self._event("mode -> land (geofence)")
+
+    def _apply_faults(self) -> None:
+        """Wind on JSBSim and the estimate's GPS error for the step that starts now."""
+        inj, t, dt = self._inj, self.clock.t, self.control_dt
+        if not inj.calm:
+            self.model.set_wind(inj.wind_ned(t, dt))
+        if not inj.touches_estimate:
+            return
+        e = inj.update(t, dt)
+        if e.fix != self._gps_fix:
+            self._gps_fix = e.fix
+            self._event("gps fix regained" if e.fix else "gps fix lost: dead reckoning")
+            if e.fix:
+                self._pos_valid = True
+        if not e.fix and self._pos_valid and e.lost_s > self.p("EKF2_NOAID_TOUT"):
+            self._pos_valid = False
+            self._event(f"no position for {e.lost_s:.1f} s: failsafe -> hold (dead reckoning)")
+            if self._flying() and self._mode not in (FlightMode.HOLD, FlightMode.LAND):
+                self._mode = FlightMode.HOLD
+                self._enter_hold()
+
+    def _estimate(self, s: VehicleState) -> VehicleState:
+        if self._inj is None or not self._inj.touches_estimate:
+            return s
+        e = self._inj.err
+        return VehicleState(
+            s.t, s.pos_ned + e.pos, s.vel_ned + e.vel, s.quat, s.omega_frd, s.accel_frd, s.on_ground
         )
 
     def p(self, name: str) -> float:
@@ -217,6 +360,13 @@ class FixedWingAutopilot(AutopilotBase):
             return Result.accepted()
         if not self._state.on_ground and not force:
             return Result.denied("in the air: arm only on the ground (or force)")
+        if not (self._gps_fix and self._pos_valid):
+            return Result.denied("no position estimate (GPS): arming refused")
+        if not (math.isfinite(self.home.lat_deg) and math.isfinite(self.home.lon_deg)):
+            return Result.denied("no home position: arming refused")
+        why = self.fence_violation(self._state.pos_ned)
+        if why is not None and not force:
+            return Result.denied(f"outside geofence ({why}): arming refused")
         self._armed = True
         self.model.set_engine(True)
         self._landed_t = None
@@ -258,6 +408,9 @@ class FixedWingAutopilot(AutopilotBase):
                 return Result.denied("no mission uploaded")
             if not self._flying() and not self._armed:
                 return Result.denied("arm first")
+            why = self._mission_refusal(self._mission)
+            if why is not None:
+                return Result.denied(why)
             self._mode = FlightMode.MISSION
             self._progress.finished = False
             self._start_item(min(self._progress.current, len(self._mission) - 1))
@@ -326,6 +479,9 @@ class FixedWingAutopilot(AutopilotBase):
         if not self._flying():
             return Result.denied("not flying")
         alt = -pos[2] if pos[2] < -5.0 else self._state.altitude
+        why = self._refusal(np.array([pos[0], pos[1], -alt]), self.default_loiter_radius())
+        if why is not None:
+            return Result.denied(why)
         self._mode = FlightMode.HOLD
         self._set_loiter(pos[:2], self.default_loiter_radius(), 1, alt)
         return Result.accepted()
@@ -335,6 +491,10 @@ class FixedWingAutopilot(AutopilotBase):
             return Result.denied("setpoint has NaN or infinite fields")
         if setpoint.pos_ned is None and setpoint.vel_ned is None:
             return Result.denied("a fixed-wing needs a position or a velocity setpoint")
+        if setpoint.pos_ned is not None:
+            why = self._refusal(setpoint.pos_ned, self.default_loiter_radius())
+            if why is not None:  # the last accepted setpoint stays; the stream ages
+                return Result.denied(why)
         self._offboard = setpoint
         self._offboard_t = self.clock.t
         if self._mode == FlightMode.OFFBOARD:
@@ -360,6 +520,9 @@ class FixedWingAutopilot(AutopilotBase):
             p = np.asarray(it.pos_ned, dtype=float)
             if p.shape != (3,) or not np.all(np.isfinite(p)):
                 return Result.denied(f"item {i}: position must be 3 finite numbers")
+        why = self._mission_refusal(items)
+        if why is not None:
+            return Result.denied(why)
         self._mission = list(items)
         self._progress = MissionProgress()
         if self._mode == FlightMode.MISSION and self._flying():
@@ -566,10 +729,15 @@ class FixedWingAutopilot(AutopilotBase):
     # ---- the loop -------------------------------------------------------------------------
     def step(self) -> VehicleState:
         """Advance the clock by `control_dt`: autopilot once, JSBSim `control_dt/physics_dt` times."""
+        if self._inj is not None:
+            self._apply_faults()
+            self._state = self._estimate(self._true_state)
+        self._fence_check()
         cmd = self._control(self._state)
         s = self.model.step(self.control_dt, cmd)
         self.clock.advance(self._dt_us)
-        self._state = self._stamp(s)
+        self._true_state = self._stamp(s)
+        self._state = self._estimate(self._true_state)
         return self._state
 
     def _control(self, st: VehicleState) -> Surfaces:

@@ -7,6 +7,7 @@ full weight: sqrt(2 W / (rho S CL_max)) with W = 5.43 kN, S = 16.6 m^2, CL_max =
 
 from __future__ import annotations
 
+from flight.geofence import GEOFENCE_PARAMS
 from flight.params import ParamSpec
 
 # PX4 names and units (degrees where PX4 uses degrees). One source of truth for each value.
@@ -36,4 +37,6 @@ FW_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("FW_LND_FLALT", 3.0, 0.5, 10.0, "flare height (wheels)", "m"),
     ParamSpec("COM_OF_LOSS_T", 0.5, 0.1, 10.0, "offboard setpoint timeout", "s"),
     ParamSpec("COM_DISARM_LAND", 2.0, -1.0, 20.0, "disarm after landing, -1 = never", "s"),
+    ParamSpec("EKF2_NOAID_TOUT", 5.0, 0.5, 60.0, "dead reckoning without GPS, then loiter", "s"),
+    *GEOFENCE_PARAMS,
 )
