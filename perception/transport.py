@@ -304,6 +304,7 @@ class FramePublisher:
         self._shm_frames = shm_frames  # shared-memory pool size in frames; 0 = never use it
         self._shm = None  # zenoh.shm.ShmProvider, made at the first frame (its size is known then)
         self.shm_fallbacks = 0  # frames sent by copy because shared memory was not available
+        self._last: tuple[bytes, bytes] | None = None  # (header, pixels) of the last frame
 
     def _put(self, header: bytes, data: bytes) -> None:
         """Send one frame through a shared-memory buffer when possible (a subscriber in another
@@ -347,8 +348,17 @@ class FramePublisher:
         h, w = np.shape(image)[:2]
         header = encode_header(self.seq, t_sim, uav_pos_ned, uav_quat, w, h, data, enc, self.stream)
         self._put(header, data)
+        self._last = (header, data)
         self.seq += 1
         return self.seq - 1
+
+    def republish(self) -> bool:
+        """Send the last frame again, same sequence number (a subscriber that has it drops the
+        copy as out of order). Lockstep uses it while it waits for a late subscriber."""
+        if self._last is None:
+            return False
+        self._put(*self._last)
+        return True
 
     def has_subscriber(self) -> bool:
         """Whether a subscriber to the frame key is reachable (Zenoh matching status)."""

@@ -15,22 +15,77 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "sitl": ("scripts.sitl", "run one simulated vehicle with its MAVLink endpoints"),
     "fly": ("scripts.fly", "fly a mission end to end (the main job)"),
+    "sim": ("scripts.sim", "the world: vehicle, UGV team and camera on one clock"),
+    "companion": ("scripts.companion", "the onboard computer: camera → policy → safety net → MAVLink"),
     "drill": ("scripts.drill", "geofence and envelope-violation drills"),
     "train": ("scripts.train", "train the learners (sql, irl, ab)"),
     "teleop": ("scripts.teleop", "fly or demonstrate from the keyboard"),
     "watch": ("scripts.watch", "watch a flight's camera frames with detections"),
+    "educate": ("scripts.educate", "teach a curriculum of lessons; a modular policy that explains"),
+    "explain": ("scripts.explain", "a run's decisions as a readable timeline (module, reason, net)"),
+    "reproduce": ("scripts.reproduce", "reproduce a published study in one command (sql)"),
 }
 
 
-class UsageError(Exception):
-    """Bad usage or configuration: reported on one line, exit code 2."""
+from runio.run import RunAborted, UsageError  # noqa: E402  (one definition, in runio)
+
+__all__ = ["COMMANDS", "UsageError", "build_parser", "main"]
+
+
+class DefaultsFormatter(argparse.HelpFormatter):
+    """Every option's help ends with its default, unless the help already states it
+    (flags and options without a default show none)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        d = action.default
+        if (
+            not action.option_strings
+            or d is None
+            or d is argparse.SUPPRESS
+            or action.nargs == 0  # store_true / store_false / count-like flags
+            or "%(default)" in text
+            or "default" in text.lower()
+        ):
+            return text
+        shown = ",".join(map(str, d)) if isinstance(d, list | tuple) else str(d)
+        if f"({shown})" in text:
+            return text.replace(f"({shown})", "(default: %(default)s)")
+        return f"{text} (default: %(default)s)"
+
+
+class Parser(argparse.ArgumentParser):
+    """The parser of `skyherd` and of every sub-command (sub-parsers are made of this class,
+    so every level shows its defaults)."""
+
+    def __init__(self, *a, **kw):
+        kw.setdefault("formatter_class", DefaultsFormatter)
+        super().__init__(*a, **kw)
+        self.set_defaults(_parser=self)  # the deepest parser that matched reports errors
+
+
+class _Version(argparse.Action):
+    """--version: the package version and the code's git commit (looked up only when asked)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from runio.provenance import code_version
+
+        v = code_version()
+        commit = v.get("git_commit")
+        extra = f" (git {commit[:12]}{', modified' if v.get('git_dirty') else ''})" if commit else ""
+        print(f"skyherd {v.get('package_version') or 'unknown'}{extra}")
+        parser.exit(0)
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="skyherd",
         description="skyherd: one UAV keeps a group of UGVs in view, behind a safety net.",
     )
+    parser.add_argument("--version", action=_Version, help="print the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module_name, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -48,7 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     if only not in COMMANDS:
         only = None
     parser = build_parser(only if only else "")
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # a typo in a sub-command's option: that sub-command's usage, not the top one
+        args._parser.error(f"unrecognized arguments: {' '.join(extra)}")
     if getattr(args, "_module", None) is None:
         parser.print_help()
         return 2
@@ -57,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as e:
         print(f"skyherd {args.command}: {e}", file=sys.stderr)
         return 2
+    except RunAborted as e:
+        print(f"skyherd {args.command}: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"skyherd {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -1,0 +1,130 @@
+"""Lockstep between the simulated vehicle and its companion, on the vehicle's MAVLink API link.
+
+The vehicle marks every camera instant t_k with a TIMESYNC request (tc1 = 0, ts1 = t_k in ns,
+the vehicle's clock). The companion takes frame k, cuts its telemetry at that mark (everything
+before it, nothing after), decides, sends its commands and setpoints, and closes the tick with
+a TIMESYNC answer carrying the same ts1 (tc1 = its own time = t_k). The simulator does not step
+past t_k + L (L, the companion's declared compute latency) until that answer has arrived; then
+every message the companion sent before its answer is handled at t_k + L, in arrival order.
+
+So what the companion sees, and when its decisions act, depends only on simulation time: the
+same seed gives the same flight at any speed-up and any machine load. Free-running (no gate)
+is what a real autopilot gives; its lag is measured instead (`Lag`).
+
+Wall time appears only as patience: while it waits, the gate re-sends the mark (and the caller
+re-publishes the frame) every `resend_s`, so a companion that starts late or lost a datagram
+still gets its tick; a reply that never comes within `timeout_s` ends the wait with
+`LockstepTimeout` (the companion is stuck or gone).
+"""
+
+from __future__ import annotations
+
+import select
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from flight.mavlink.link import Address, UdpLink
+
+NS_PER_US = 1000
+
+
+class LockstepTimeout(Exception):
+    """The companion did not close a tick in time."""
+
+
+@dataclass(frozen=True)
+class LockstepParams:
+    latency_s: float = 0.02  # the companion's declared compute latency L [s of simulation time]
+    resend_s: float = 0.25  # re-send the mark / frame while waiting, every [s of wall time]
+    timeout_s: float = 60.0  # give up on a tick after [s of wall time]
+
+    def __post_init__(self) -> None:
+        if not self.latency_s >= 0.0:
+            raise ValueError(f"latency_s must be >= 0, got {self.latency_s}")
+        if not (self.resend_s > 0.0 and self.timeout_s > self.resend_s):
+            raise ValueError("resend_s must be > 0 and timeout_s > resend_s")
+
+
+def is_mark(msg, t_ns: int | None = None) -> bool:
+    """A vehicle's tick mark (TIMESYNC request), optionally for time t_ns."""
+    return msg.get_type() == "TIMESYNC" and msg.tc1 == 0 and (t_ns is None or msg.ts1 == t_ns)
+
+
+def is_close(msg, t_ns: int | None = None) -> bool:
+    """A companion's tick close (TIMESYNC answer), optionally for time t_ns."""
+    return msg.get_type() == "TIMESYNC" and msg.tc1 != 0 and (t_ns is None or msg.ts1 == t_ns)
+
+
+@dataclass
+class GateStats:
+    ticks: int = 0
+    resends: int = 0
+    wait_wall_s: float = 0.0  # wall time spent waiting for the companion [s]
+    stale_closes: int = 0  # answers for an older tick (a re-sent mark answered twice)
+    batch_sizes: list[int] = field(default_factory=list, repr=False)
+
+
+class LockstepGate:
+    """The barrier on one UDP link of the vehicle's endpoint (which must not read it itself)."""
+
+    def __init__(self, link: UdpLink, mav, params: LockstepParams = LockstepParams()):
+        self.link, self.mav, self.p = link, mav, params
+        self.stats = GateStats()
+        self._carry: deque[tuple[object, Address]] = deque()
+
+    def mark(self, t_us: int) -> None:
+        """Mark the camera instant t_us [µs] on the link (sent to the companion)."""
+        self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US))
+
+    def collect(
+        self,
+        t_us: int,
+        stop: threading.Event | None = None,
+        on_wait: Callable[[], None] | None = None,
+    ) -> list[tuple[object, Address]] | None:
+        """Block until the companion closed tick t_us; return what it sent before the close.
+
+        `on_wait()` runs every `resend_s` of waiting (after the mark is re-sent); returns None
+        when `stop` is set. Raises LockstepTimeout after `timeout_s`."""
+        t_ns = t_us * NS_PER_US
+        batch: list[tuple[object, Address]] = []
+        wall0 = time.monotonic()
+        next_resend = wall0 + self.p.resend_s
+        sock = self.link.sock
+        while True:
+            while self._carry:
+                msg, addr = self._carry.popleft()
+                if is_close(msg, t_ns):
+                    self._finish(batch, wall0)
+                    return batch
+                if is_close(msg):
+                    self.stats.stale_closes += 1
+                    continue
+                batch.append((msg, addr))
+            got = self.link.receive()
+            if got:
+                self._carry.extend(got)
+                continue
+            if stop is not None and stop.is_set():
+                return None
+            now = time.monotonic()
+            if now - wall0 > self.p.timeout_s:
+                raise LockstepTimeout(
+                    f"the companion did not close the tick at t = {t_us / 1e6:.3f} s within "
+                    f"{self.p.timeout_s:.0f} s of wall time (stuck, or not running)"
+                )
+            if now >= next_resend:
+                self.mark(t_us)
+                self.stats.resends += 1
+                if on_wait is not None:
+                    on_wait()
+                next_resend = now + self.p.resend_s
+            select.select([sock], [], [], min(0.05, max(0.0, next_resend - now)))
+
+    def _finish(self, batch: list, wall0: float) -> None:
+        self.stats.ticks += 1
+        self.stats.wait_wall_s += time.monotonic() - wall0
+        self.stats.batch_sizes.append(len(batch))

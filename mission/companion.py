@@ -1,0 +1,129 @@
+"""The companion's loop: tick by tick, one or more vehicles, lockstep or free-running.
+
+Lockstep (the built-in vehicle of `skyherd sim`): each tick starts at the vehicle's tick mark
+(the camera instant t_k), takes frame k from Zenoh (the bytes received are the bytes detected
+on), steps the mission once, sends the setpoint stream and the heartbeat, and closes the tick.
+
+Free-running (a real autopilot, or `skyherd sim --free-run`): the link is drained continuously
+and a tick runs every `tick_s` of the autopilot's own clock; the newest frame, if any, is used.
+
+A mission is a generator (mission.steps): `next(gen)` runs one tick; its return ends the flight.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+from flight.autopilot_api import Setpoint
+from mission.vehicle import VehicleLink
+
+
+@dataclass(frozen=True)
+class CompanionParams:
+    """How the companion ticks (saved in config.json)."""
+
+    lockstep: bool = True  # tick on the vehicle's marks (built-in vehicle) or free-run
+    tick_s: float = 0.1  # free-running tick period [s of the autopilot's clock]
+    heartbeat_s: float = 1.0  # our HEARTBEAT period [s of tick time]
+    frame_patience_s: float = 10.0  # lockstep: wait this long [wall s] for tick k's frame
+    link_patience_s: float = 60.0  # wall time without any tick mark = the vehicle is gone [s]
+
+    def __post_init__(self) -> None:
+        if not (self.tick_s > 0 and self.heartbeat_s > 0):
+            raise ValueError("tick_s and heartbeat_s must be > 0")
+
+
+class FrameSource(Protocol):
+    def frame_at(self, t: float, patience_s: float) -> tuple[object | None, str]: ...
+    def newest(self) -> tuple[object | None, str]: ...
+
+
+class Mission(Protocol):
+    name: str
+
+    def on_frame(self, t: float, frame, status: str) -> None: ...
+
+
+class FrameInbox:
+    """Frames of one vehicle from Zenoh (perception.transport.FrameSubscriber), by tick time.
+
+    `frame_at(t)` returns (frame, "ok") for the frame stamped t, (None, "corrupt") when the
+    frame for t arrived damaged (CRC, size: it is dropped, as a real link would), or
+    (None, "lost") when nothing came within the patience."""
+
+    def __init__(self, subscriber):
+        self.sub = subscriber
+        self.ok = self.corrupt = self.lost = 0
+
+    def frame_at(self, t: float, patience_s: float):
+        deadline = time.monotonic() + patience_s
+        corrupt0 = self.sub.stats.corrupt
+        while True:
+            fr = self.sub.wait(0.05)
+            if fr is not None and abs(fr.t_sim - t) < 1e-6:
+                self.ok += 1
+                return fr, "ok"
+            if self.sub.stats.corrupt > corrupt0:
+                self.corrupt += 1
+                return None, "corrupt"
+            if time.monotonic() > deadline:
+                self.lost += 1
+                return None, "lost"
+
+    def newest(self):
+        fr = self.sub.take()
+        return (fr, "ok") if fr is not None else (None, "none")
+
+
+@dataclass
+class TickStats:
+    ticks: int = 0
+    decide_wall_s: list[float] | None = None  # wall time from tick start to close [s]
+
+
+def run(v: VehicleLink, mission: Mission, gen, frames: FrameSource | None,
+        p: CompanionParams, on_tick=None) -> TickStats:  # fmt: skip
+    """Step `gen` (the mission's generator) once per tick until it returns."""
+    stats = TickStats(decide_wall_s=[])
+    t_heartbeat = -1e9
+    t_next = 0.0
+    wall0 = time.monotonic()
+    while True:
+        if p.lockstep:
+            t = v.next_mark(p.link_patience_s)
+            start = time.monotonic()
+            if frames is not None:
+                mission.on_frame(t, *frames.frame_at(t, p.frame_patience_s))
+        else:
+            v.drain(0.02)
+            if v.tel.time_boot_ms == 0:  # nothing yet from the autopilot: wall time counts
+                v.t = time.monotonic() - wall0
+            if v.t < t_next:
+                continue
+            t_next = v.t + p.tick_s
+            start = time.monotonic()
+            if frames is not None:
+                fr, status = frames.newest()
+                if fr is not None:
+                    mission.on_frame(v.t, fr, status)
+        if v.t - t_heartbeat >= p.heartbeat_s - 1e-9:
+            v.heartbeat()
+            t_heartbeat = v.t
+        try:
+            next(gen)
+            done = False
+        except StopIteration:
+            done = True
+        if not done and v.setpoint is not None:
+            sp: Setpoint = v.setpoint
+            v.position_target(sp.pos_ned, sp.vel_ned, sp.yaw)
+        if on_tick is not None:
+            on_tick(v)
+        if p.lockstep:
+            v.close_tick()
+        stats.ticks += 1
+        stats.decide_wall_s.append(time.monotonic() - start)
+        if done:
+            return stats

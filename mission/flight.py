@@ -1,0 +1,193 @@
+"""One vehicle's mission: connect, arm, take off, hand over, fly a pilot behind the safety net,
+land — as one generator (mission.steps), with what the run folder records.
+
+The flying part is the same for every pilot: at each decision (every `decision_s`) the pilot
+proposes a setpoint from the observation; at every tick the safety net certifies (it may hold a
+proposal, project it, or take over with its fallback); `Authority` maps the net's mode onto the
+autopilot's (AI: OFFBOARD, fallback: the autopilot's own hold) and yields when the autopilot
+takes over by itself. Every decision goes to decisions.jsonl: proposed, certified, verdict,
+reason, mode (LAYOUT of the per-decision record in docs/mission.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from flight.autopilot_api import FlightMode, Setpoint
+from mission.authority import Authority
+from mission.pilots import Observation, Pilot, Proposal
+from mission.steps import Phase, arm, land, set_mode, takeoff, wait_ready, wait_s, wait_until
+from mission.vehicle import VehicleLink
+from runio import CsvWriter, JsonlWriter
+from safety.supervisor import Decision, Health, Mode, Supervisor
+
+TRACK_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "phase"]
+
+
+@dataclass(frozen=True)
+class FlightPlan:
+    """What one vehicle does (saved in config.json)."""
+
+    altitude_m: float = 20.0  # take-off and hand-over altitude above home [m]
+    duration_s: float = 60.0  # flight behind the safety net after the hand-over [s]
+    decision_s: float = 0.5  # the pilot decides this often [s] (the policy's training step)
+    land: bool = True  # land at the end (else hold position and stop)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.altitude_m <= 500:
+            raise ValueError(f"altitude_m must be in (0, 500] m, got {self.altitude_m}")
+        if not 0 < self.duration_s <= 36000:
+            raise ValueError(f"duration_s must be in (0, 36000] s, got {self.duration_s}")
+        if not self.decision_s > 0:
+            raise ValueError(f"decision_s must be > 0, got {self.decision_s}")
+
+
+def _vec(x) -> list[float] | None:
+    return None if x is None else [round(float(a), 6) for a in x]
+
+
+def _sp(s: Setpoint | None) -> dict | None:
+    if s is None:
+        return None
+    return {"pos_ned": _vec(s.pos_ned), "vel_ned": _vec(s.vel_ned),
+            "yaw": None if s.yaw is None else round(float(s.yaw), 6)}  # fmt: skip
+
+
+def verdict(d: Decision) -> str:
+    if d.mode is Mode.FALLBACK:
+        return "fallback"
+    if d.mode is Mode.PID:
+        return "pid"
+    return "projected" if d.ai_rejected else "accepted"
+
+
+@dataclass
+class Record:
+    """What the companion writes while it flies (each writer appends and flushes)."""
+
+    decisions: JsonlWriter | None = None
+    track: CsvWriter | None = None
+    vehicle: str = "uav0"
+    rows: list[dict] = field(default_factory=list)  # the decisions, for the report
+
+    def decision(self, row: dict) -> None:
+        self.rows.append(row)
+        if self.decisions is not None:
+            self.decisions.write(row)
+
+
+class SingleVehicleMission:
+    """connect → arm → take off → hand over → pilot behind the net → land."""
+
+    def __init__(self, pilot: Pilot, supervisor: Supervisor | None, plan: FlightPlan,
+                 record: Record, perception=None):  # fmt: skip
+        self.pilot, self.net, self.plan, self.rec = pilot, supervisor, plan, record
+        self.perception = perception  # mission.perception.Perception or None (no camera)
+        self.authority = Authority()
+        self.phase = "connect"
+        self.outcome = "running"
+        self.reason = ""
+        self.t_decision: float | None = None
+        self.pending: Proposal | None = None
+        self._written = 0
+        self.name = pilot.name
+
+    # ---- called by the companion's loop --------------------------------------------------------
+    def on_frame(self, t: float, frame, status: str) -> None:
+        if self.perception is not None:
+            self.perception.on_frame(t, frame, status)
+
+    def write_track(self, v: VehicleLink) -> None:
+        """Append the position samples that arrived this tick to metrics.csv."""
+        if self.rec.track is None:
+            return
+        for t, p, vel, mode, armed in v.positions[self._written :]:
+            self.rec.track.write({"t": t, "north": p[0], "east": p[1], "down": p[2], "vn": vel[0],
+                                  "ve": vel[1], "vd": vel[2], "mode": mode, "armed": int(armed),
+                                  "phase": self.phase})  # fmt: skip
+        self._written = len(v.positions)
+
+    # ---- the mission ---------------------------------------------------------------------------
+    def run(self, v: VehicleLink) -> Phase:
+        plan = self.plan
+        self.phase = "connect"
+        yield from wait_ready(v)
+        self.phase = "arm"
+        yield from arm(v)
+        self.phase = "takeoff"
+        yield from takeoff(v, plan.altitude_m)
+        self.phase = "offboard"
+        p = v.tel.pos_ned
+        v.setpoint = Setpoint(pos_ned=np.array([p[0], p[1], -plan.altitude_m]), yaw=0.0)
+        yield from wait_s(v, 0.2)  # PX4 wants the setpoint stream before OFFBOARD
+        yield from set_mode(v, FlightMode.OFFBOARD)
+        self.authority.adopt(FlightMode.OFFBOARD)
+        self.phase = self.pilot.name
+        t_end = v.t + plan.duration_s
+        while v.t < t_end - 1e-9 and not getattr(self.pilot, "done", False):
+            if self.authority.check(v) is not None:
+                break
+            self._tick(v)
+            yield
+        if self.authority.yielded is not None:
+            yield from self._yield_to_autopilot(v)
+            return
+        self.phase = "land"
+        if plan.land:
+            p = v.tel.pos_ned
+            v.setpoint = Setpoint(pos_ned=p.copy(), yaw=0.0)
+            yield from land(v, stop_stream=True)
+        self.outcome = "completed"
+
+    def _yield_to_autopilot(self, v: VehicleLink) -> Phase:
+        """The autopilot has the vehicle: stop streaming, ask for nothing, wait for it to land."""
+        self.phase = "autopilot"
+        v.setpoint = None
+        self.outcome, self.reason = "yielded", self.authority.yielded
+        try:
+            yield from wait_until(
+                v, lambda: not v.tel.armed, 600.0, "the autopilot to land and disarm"
+            )
+        except Exception as e:  # noqa: BLE001 - report, do not fight the autopilot
+            self.reason += f"; {e}"
+
+    def _tick(self, v: VehicleLink) -> None:
+        state = v.tel.vehicle_state()
+        if state is None:
+            return
+        t = v.t
+        proposal = None
+        phi = self.perception.phi if self.perception is not None else None
+        if self.t_decision is None or t - self.t_decision >= self.plan.decision_s - 1e-9:
+            self.t_decision = t
+            obs = self.perception.observation(state) if self.perception is not None else np.zeros(0)
+            proposal = self.pilot.propose(Observation(t, state, phi, obs, self.plan.decision_s))
+            if self.perception is not None:
+                self.perception.decided()
+        if self.net is None:
+            if proposal is not None:
+                v.setpoint = proposal.setpoint
+                self._write(t, phi, proposal, proposal.setpoint, "accepted", "no safety net", "ai",
+                            v.tel.mode)  # fmt: skip
+            return
+        camera_t = self.perception.camera_t if self.perception is not None else t
+        d = self.net.update(t, state, None if proposal is None else proposal.setpoint,
+                            Health(camera_t=camera_t, link_t=v.heartbeat_t))  # fmt: skip
+        ai_mode = FlightMode.HOLD if d.autopilot_mode is FlightMode.HOLD else FlightMode.OFFBOARD
+        self.authority.want(v, ai_mode)
+        v.setpoint = d.command
+        if proposal is not None:
+            self._write(t, phi, proposal, d.command, verdict(d), d.reason, d.mode.value, ai_mode)
+
+    def _write(self, t, phi, proposal: Proposal, certified: Setpoint, verdict_: str, reason: str,
+               mode: str, autopilot_mode) -> None:  # fmt: skip
+        row = {"t": round(t, 6), "vehicle": self.rec.vehicle, "pilot": self.pilot.name,
+               "phi": _vec(phi), "action": proposal.action,
+               "proposed": _sp(proposal.setpoint), "certified": _sp(certified),
+               "verdict": verdict_, "reason": reason, "mode": mode,
+               "autopilot_mode": autopilot_mode.name if autopilot_mode else ""}  # fmt: skip
+        if proposal.explanation is not None:
+            row["explanation"] = proposal.explanation
+        self.rec.decision(row)

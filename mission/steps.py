@@ -1,0 +1,141 @@
+"""The phases every mission shares, as generators stepped once per tick.
+
+A phase reads like the blocking script it replaces — arm, take off, wait for the altitude —
+but each `yield` ends the tick: the companion sends what the phase queued, closes the tick,
+and the next call resumes with the telemetry of the next tick. Timeouts count tick time
+(simulation time in lockstep, the autopilot's time when free-running), so a phase takes the
+same number of ticks at any speed-up and any machine load.
+
+    def mission(v):
+        yield from wait_ready(v)
+        yield from arm(v)
+        yield from takeoff(v, 10.0)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Generator
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from flight.autopilot_api import FlightMode
+from flight.mavlink.modes import Personality, custom_mode_of
+from mission.vehicle import VehicleLink
+
+M = mavlink2
+Phase = Generator[None, None, None]
+
+STATUSTEXT_WAIT_S = 0.3  # a refused command's reason arrives ~100 ms after its ACK (PX4)
+
+
+class MissionError(Exception):
+    """A phase could not be completed; the message says what was seen."""
+
+
+class CommandRefused(MissionError):
+    def __init__(self, command: int, result: int | None, reason: str = ""):
+        cmd = M.enums["MAV_CMD"].get(command)
+        name = cmd.name if cmd else str(command)
+        res = "no answer" if result is None else M.enums["MAV_RESULT"][result].name
+        super().__init__(
+            f"{name} failed: {res}" + (f" — the autopilot says: {reason}" if reason else "")
+        )
+        self.command, self.result = command, result
+
+
+def wait_until(v: VehicleLink, predicate: Callable[[], bool], timeout_s: float, what: str) -> Phase:
+    """Yield ticks until `predicate()` holds; MissionError after `timeout_s` of tick time."""
+    t0 = v.t
+    while not predicate():
+        if v.t - t0 > timeout_s:
+            raise MissionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
+        yield
+
+
+def wait_s(v: VehicleLink, seconds: float) -> Phase:
+    t0 = v.t
+    while v.t - t0 < seconds - 1e-9:
+        yield
+
+
+def command(
+    v: VehicleLink, cmd: int, *params: float, retries: int = 3, retry_s: float = 1.5
+) -> Phase:
+    """COMMAND_LONG until acknowledged (confirmation counts up on each retry, as the protocol
+    asks); a refusal raises CommandRefused with the autopilot's STATUSTEXT reason."""
+    for confirmation in range(retries):
+        v.acks.pop(cmd, None)
+        n_text = len(v.statustexts)
+        v.command_long(cmd, params, confirmation)
+        t0 = v.t
+        while v.acks.get(cmd, M.MAV_RESULT_IN_PROGRESS) == M.MAV_RESULT_IN_PROGRESS:
+            if v.t - t0 > retry_s:
+                break
+            yield
+        else:
+            result = v.acks[cmd]
+            if result == M.MAV_RESULT_ACCEPTED:
+                return
+            yield from wait_s(v, STATUSTEXT_WAIT_S)
+            reason = "; ".join(text for _, text in v.statustexts[n_text:])
+            raise CommandRefused(cmd, result, reason)
+    raise CommandRefused(cmd, None)
+
+
+def mode_params(personality: Personality, mode: FlightMode) -> tuple[float, float, float]:
+    """DO_SET_MODE params 1-3 for `mode` (PX4: main and sub mode; ArduPilot: the mode number)."""
+    packed = custom_mode_of(personality, mode)
+    if personality is Personality.PX4:
+        main, sub = (packed >> 16) & 0xFF, (packed >> 24) & 0xFF
+    else:
+        main, sub = packed, 0
+    return (M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub)
+
+
+def set_mode(v: VehicleLink, mode: FlightMode, timeout_s: float = 5.0) -> Phase:
+    """DO_SET_MODE, then wait until the heartbeat shows the mode."""
+    yield from command(v, M.MAV_CMD_DO_SET_MODE, *mode_params(v.tel.personality, mode))
+    yield from wait_until(v, lambda: v.tel.mode is mode, timeout_s, f"mode {mode.name}")
+
+
+def wait_ready(v: VehicleLink, timeout_s: float = 60.0) -> Phase:
+    """A heartbeat, home and a local position (asks for HOME_POSITION every 2 s)."""
+    t_ask = -math.inf
+    t0 = v.t
+    while not (v.tel.mode is not None and v.tel.home_ok and v.tel.pos_ned is not None):
+        if v.t - t0 > timeout_s:
+            raise MissionError(
+                f"timed out after {timeout_s:.0f} s waiting for a heartbeat, home and local "
+                "position: is the vehicle running and its link address right?"
+            )
+        if v.target_system is not None and v.t - t_ask >= 2.0:
+            v.command_long(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), 0)
+            t_ask = v.t
+        yield
+
+
+def arm(v: VehicleLink, timeout_s: float = 30.0) -> Phase:
+    yield from wait_until(v, lambda: v.tel.landed_state == M.MAV_LANDED_STATE_ON_GROUND,
+                          timeout_s, "the vehicle on the ground")  # fmt: skip
+    yield from command(v, M.MAV_CMD_COMPONENT_ARM_DISARM, 1, 0)
+    yield from wait_until(v, lambda: v.tel.armed, 5.0, "armed")
+
+
+def takeoff(v: VehicleLink, altitude_m: float, timeout_s: float = 60.0) -> Phase:
+    """NAV_TAKEOFF (PX4 reads param 7 as AMSL), then wait until within 0.5 m of `altitude_m`."""
+    nan = math.nan
+    yield from command(v, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, nan, nan, nan, altitude_m + v.home_amsl_m)
+    yield from wait_until(v, lambda: v.tel.pos_ned is not None and -v.tel.pos_ned[2] > altitude_m - 0.5,
+                          timeout_s, f"altitude {altitude_m:.0f} m")  # fmt: skip
+
+
+def land(v: VehicleLink, timeout_s: float = 120.0, stop_stream: bool = True) -> Phase:
+    """NAV_LAND, then wait for the disarm. The setpoint stream stops once the landing is
+    accepted: a stream still running when PX4 disarms puts it back in OFFBOARD, and the next
+    arm is TEMPORARILY_REJECTED."""
+    nan = math.nan
+    yield from command(v, M.MAV_CMD_NAV_LAND, 0, 0, 0, nan, nan, nan, nan)
+    if stop_stream:
+        v.setpoint = None
+    yield from wait_until(v, lambda: not v.tel.armed, timeout_s, "landing and disarm")

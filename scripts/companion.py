@@ -1,0 +1,293 @@
+"""`skyherd companion --connect ADDRESS`: the onboard computer.
+
+MAVLink client of the autopilot (component 191); camera frames from Zenoh; detector → φ(s) →
+pilot (learned policy, PID follower, or the square's waypoints) → safety net → setpoints. It
+owns no physics and no world. Against `skyherd sim` it ticks in lockstep on the vehicle's
+marks; `--free-run` ticks on the autopilot's own clock (a real autopilot).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from runio import JsonlWriter, RunFolder, args_dict, atomic_write_text
+from scripts.cli import UsageError
+
+
+def add_arguments(parser: argparse.ArgumentParser, standalone: bool = True) -> None:
+    if standalone:
+        parser.add_argument(
+            "--connect",
+            metavar="ADDRESS",
+            default=None,
+            help="the autopilot's MAVLink address (pymavlink form; default udpin:127.0.0.1:14540+N)",
+        )
+        parser.add_argument(
+            "--instance",
+            type=int,
+            default=0,
+            help="vehicle instance N (system id 1+N, default address)",
+        )
+        parser.add_argument(
+            "--free-run",
+            action="store_true",
+            help="tick on the autopilot's clock instead of the simulator's marks (a real autopilot)",
+        )
+        parser.add_argument(
+            "--zenoh-connect",
+            default="tcp:127.0.0.1:7447",
+            metavar="ADDRESS",
+            help="where the camera frames are published (tcp:HOST:PORT)",
+        )
+        parser.add_argument(
+            "--zenoh-config",
+            default=None,
+            metavar="FILE",
+            help="a Zenoh JSON5 configuration instead",
+        )
+        parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
+        parser.add_argument(
+            "--run-dir",
+            default=None,
+            help="write into this existing run folder (used by `skyherd fly`)",
+        )
+    parser.add_argument(
+        "--mission",
+        choices=["groundair", "square"],
+        default="groundair",
+        help="groundair: keep the UGVs in view behind the safety net; square: fly a square",
+    )
+    parser.add_argument(
+        "--pilot",
+        choices=["policy", "pid"],
+        default="policy",
+        help="groundair pilot: the learned policy or the classic PID follower on φ(s)",
+    )
+    parser.add_argument(
+        "--policy",
+        default=None,
+        metavar="FILE",
+        help="policy file (default: the one the repository keeps)",
+    )
+    parser.add_argument(
+        "--envelope", default=None, metavar="FILE", help="constraint-set TOML of the safety net"
+    )
+    parser.add_argument(
+        "--altitude",
+        type=float,
+        default=None,
+        metavar="M",
+        help="take-off altitude above home [m] (default: 20; `fly` frames the team)",
+    )
+    parser.add_argument(
+        "--duration", type=float, default=60.0, metavar="S", help="flight behind the safety net [s]"
+    )
+    parser.add_argument("--side", type=float, default=40.0, metavar="M", help="square side [m]")
+    parser.add_argument(
+        "--no-camera",
+        action="store_true",
+        help="fly without camera frames (square, or no simulator)",
+    )
+
+
+def build_mission(args, run_dir: Path | None):
+    """Policy, safety net, pilot and the mission generator's owner (UsageError on bad input)."""
+    from mission.flight import FlightPlan, Record, SingleVehicleMission
+    from mission.perception import Perception
+    from mission.pilots import PerceptionFollower, PolicyPilot, WaypointPilot
+    from policy.groundair.params import TaskParams
+    from runio import CsvWriter
+
+    task = TaskParams()
+    altitude = 20.0 if args.altitude is None else args.altitude
+    try:
+        if args.mission == "square":
+            if not (0 < altitude <= 120 and 0 < args.side <= 500):
+                raise ValueError("--altitude must be in (0, 120] m and --side in (0, 500] m")
+            s, z = args.side, -altitude
+            wps = [np.array(w, dtype=float) for w in ([s, 0, z], [s, s, z], [0, s, z], [0, 0, z])]
+            pilot, net, perception = WaypointPilot(wps), None, None
+            plan = FlightPlan(altitude_m=altitude, duration_s=600.0)
+        else:
+            plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
+            pilot = (
+                PolicyPilot(_load_policy(args.policy), task)
+                if args.pilot == "policy"
+                else PerceptionFollower(task)
+            )
+            net = _load_net(args.envelope, run_dir)
+            perception = Perception(task)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    record = Record(
+        decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
+        track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
+    )
+    return SingleVehicleMission(pilot, net, plan, record, perception), plan
+
+
+def _track_columns():
+    from mission.flight import TRACK_COLUMNS
+
+    return TRACK_COLUMNS
+
+
+def _load_policy(path):
+    from policy.dqn import PolicyFileError, load_policy
+    from policy.models import DEFAULT_POLICY
+
+    try:
+        return load_policy(path or DEFAULT_POLICY)
+    except PolicyFileError as e:
+        raise UsageError(f"{e}; train one with `skyherd train ab` or pass --policy") from None
+
+
+def _load_net(envelope, run_dir):
+    from safety.config import ENVELOPE_DIR, EnvelopeFileError
+    from safety.net import load_net, warm_up
+
+    path = envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
+    try:
+        net = load_net(
+            "quadrotor", path, events=JsonlWriter(run_dir / "events.jsonl") if run_dir else None
+        )
+    except (EnvelopeFileError, ValueError) as e:
+        raise UsageError(f"{e}; fix the file or pass another --envelope") from None
+    warm_up(net.envelope, net.p)  # compile now, not at the first switch in flight
+    return net
+
+
+def zenoh_endpoint(address: str) -> str:
+    """pymavlink-style `tcp:HOST:PORT` → Zenoh's `tcp/HOST:PORT` (one address syntax)."""
+    kind, _, rest = address.partition(":")
+    host, _, port = rest.rpartition(":")
+    if kind not in ("tcp", "udp") or not host or not port.isdigit():
+        raise UsageError(f"cannot parse Zenoh address {address!r}; expected tcp:HOST:PORT")
+    return f"{kind}/{host}:{port}"
+
+
+def open_frames(args, vehicle: str = "uav0"):
+    from mission.companion import FrameInbox
+    from perception.transport import FrameSubscriber, ZenohParams, open_session, subscriber_params
+
+    p = (
+        ZenohParams(config_file=args.zenoh_config)
+        if args.zenoh_config
+        else subscriber_params(zenoh_endpoint(args.zenoh_connect))
+    )
+    try:
+        session = open_session(p)
+    except ValueError as e:
+        raise UsageError(f"{e}; check --zenoh-connect / --zenoh-config") from None
+    return session, FrameInbox(FrameSubscriber(session, vehicle))
+
+
+def run(args: argparse.Namespace) -> int:
+    from hil.link import LinkError, MavlinkLink, parse_address
+    from mission.companion import CompanionParams
+    from mission.companion import run as run_companion
+    from mission.vehicle import COMPANION_COMPONENT, VehicleLink
+
+    address = args.connect or f"udpin:127.0.0.1:{14540 + args.instance}"
+    try:
+        parse_address(address)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if not 0 < args.duration <= 36000:
+        raise UsageError("--duration must be in (0, 36000] s")
+    use_camera = args.mission == "groundair" and not args.no_camera
+    if args.run_dir is not None:
+        run_dir = Path(args.run_dir)
+        if not run_dir.is_dir():
+            raise UsageError(f"--run-dir {run_dir} is not a folder")
+    else:
+        run_dir = None
+    folder = None
+    if run_dir is None:
+        folder = RunFolder("companion", root=args.runs_dir)
+        run_dir = folder.path
+    try:
+        mission, plan = build_mission(args, run_dir)
+    except UsageError:
+        if folder is not None:  # no run folder for a usage error
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise
+    if folder is not None:
+        folder.write_config({"args": args_dict(args), "plan": plan, "address": address})
+    session = frames = None
+    if use_camera:
+        session, frames = open_frames(args)
+    try:
+        link = MavlinkLink.open(address, source_system=1 + args.instance, source_component=COMPANION_COMPONENT,
+                                tlog=run_dir / "telemetry.tlog")  # fmt: skip
+    except LinkError as e:
+        if session is not None:
+            session.close()
+        raise UsageError(f"{e}; is another companion using that port?") from None
+    v = VehicleLink(link)
+    params = CompanionParams(lockstep=not args.free_run)
+    print(f"skyherd companion: {args.mission} via {address}, "
+          f"{'free-running' if args.free_run else 'lockstep'}; run folder {run_dir}", file=sys.stderr, flush=True)  # fmt: skip
+    error = ""
+    stats = None
+    from tqdm import tqdm
+
+    bar = tqdm(
+        total=None, desc="connect", unit=" ticks", file=sys.stderr, leave=True, mininterval=0.5
+    )
+
+    def on_tick(veh):
+        mission.write_track(veh)
+        if bar.desc != mission.phase:
+            bar.set_description(mission.phase)
+        bar.update()
+
+    try:
+        stats = run_companion(v, mission, mission.run(v), frames, params, on_tick)
+    except Exception as e:  # noqa: BLE001 - the flight ends; say why, keep what was recorded
+        error = f"{type(e).__name__}: {e}" if not str(e).startswith(type(e).__name__) else str(e)
+        mission.outcome, mission.reason = "aborted", str(e)
+    finally:
+        bar.close()
+        mission.write_track(v)
+        link.close()
+        if session is not None:
+            session.close()
+    _write_outcome(run_dir, mission, stats, frames)
+    if error:
+        print(f"skyherd companion: aborted: {error}", file=sys.stderr)
+    return 0 if mission.outcome == "completed" else 1
+
+
+def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
+    """companion.json: how the mission ended, its counters, the decision latency."""
+    lat = np.array(stats.decide_wall_s if stats and stats.decide_wall_s else [np.nan])
+    out = {
+        "outcome": mission.outcome,
+        "reason": mission.reason,
+        "phase": mission.phase,
+        "ticks": stats.ticks if stats else 0,
+        "decisions": len(mission.rec.rows),
+        "decide_wall_p50_s": float(np.nanpercentile(lat, 50)) if np.isfinite(lat).any() else None,
+        "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if np.isfinite(lat).any() else None,
+        "mode_requests": mission.authority.requests,
+        "yielded": mission.authority.yielded,
+        "frames": None if mission.perception is None else mission.perception.counts,
+    }
+    if mission.net is not None:
+        st = mission.net.stats
+        out["net"] = {"switches": st.switches, "rejected": st.rejected, "projected": st.projected,
+                      "fallback_s": st.fallback_s, "pid_s": st.pid_s}  # fmt: skip
+    atomic_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
+    if mission.perception is not None and mission.perception.strip:
+        from perception.detector import contact_sheet, write_png
+
+        write_png(
+            run_dir / "frames.png", contact_sheet([f for _, f in mission.perception.strip], cols=4)
+        )

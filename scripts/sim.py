@@ -1,0 +1,189 @@
+"""`skyherd sim`: the world — one vehicle with its autopilot and MAVLink endpoints, the UGV team,
+the downward camera on Zenoh — owning the one simulation clock, until interrupted.
+
+With `--lockstep` (the default) the simulation holds at every camera frame for the companion's
+decision (`skyherd companion` closes each tick), so a flight is the same at any speed-up and
+any machine load; `--free-run` steps on the pacer alone, as a real autopilot would, and
+measures how late the companion's setpoints act.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+
+from runio import RunFolder, args_dict
+from scripts.cli import UsageError
+
+DEFAULT_ZENOH_PORT = 7447
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--airframe",
+        choices=["quadrotor"],
+        default="quadrotor",
+        help="the vehicle (the fixed-wing flies through `skyherd fly --airframe fixedwing`)",
+    )
+    parser.add_argument(
+        "--instance",
+        type=int,
+        default=0,
+        help="vehicle instance N: MAVLink ports and system id 1+N",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed of the vehicle, the UGV team and every random source",
+    )
+    parser.add_argument(
+        "--ugvs",
+        default="composite",
+        metavar="SCENARIO",
+        help="UGV team: lateral, climb, descend, composite or groundsim:route|convoy|random|stopgo|speedoff|camouflage",
+    )
+    parser.add_argument(
+        "--ugv-start",
+        default="offboard",
+        metavar="WHEN",
+        help="when the UGVs start to drive: 'offboard' (when the vehicle is handed to the companion) or a simulation time [s]",
+    )
+    parser.add_argument(
+        "--speedup",
+        type=float,
+        default=10.0,
+        help="simulation seconds per wall second; 0 = as fast as possible",
+    )
+    parser.add_argument(
+        "--camera-hz",
+        type=float,
+        default=10.0,
+        help="camera frames per simulated second (the companion's tick)",
+    )
+    parser.add_argument(
+        "--free-run",
+        action="store_true",
+        help="do not wait for the companion (measure its lag instead)",
+    )
+    parser.add_argument(
+        "--latency",
+        type=float,
+        default=0.02,
+        metavar="S",
+        help="lockstep: the companion's declared compute latency [s of simulation time]",
+    )
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="stop after this much simulation time [s] (default: until interrupted)",
+    )
+    parser.add_argument(
+        "--zenoh-port", type=int, default=DEFAULT_ZENOH_PORT, help="Zenoh listen port on 127.0.0.1"
+    )
+    parser.add_argument(
+        "--zenoh-config",
+        default=None,
+        metavar="FILE",
+        help="a Zenoh JSON5 configuration instead (e.g. a router for two hosts; docs/topology.md)",
+    )
+    parser.add_argument(
+        "--bind", default="127.0.0.1", metavar="HOST", help="address the MAVLink sockets bind to"
+    )
+    parser.add_argument(
+        "--remote",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="host the companion and the ground station listen on",
+    )
+    parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
+    parser.add_argument(
+        "--run-dir",
+        default=None,
+        help="write into this existing run folder (used by `skyherd fly`)",
+    )
+
+
+def build_world(args):
+    """Check the arguments and build the world (UsageError on bad usage)."""
+    from flight.lockstep import LockstepParams
+    from flight.mavlink import EndpointConfig
+    from policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS
+    from world.sim import WorldParams
+
+    if args.ugvs not in SCENARIOS + GROUNDSIM_SCENARIOS:
+        raise UsageError(
+            f"--ugvs {args.ugvs!r} is not a team: use one of "
+            + ", ".join(SCENARIOS + GROUNDSIM_SCENARIOS)
+        )
+    if not (args.speedup == 0 or args.speedup >= 1):
+        raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
+    if args.free_run and args.speedup == 0:
+        raise UsageError(
+            "--free-run needs a pacer: give --speedup >= 1 (a free-running companion cannot keep up with 0)"
+        )
+    try:
+        params = WorldParams(
+            airframe=args.airframe, instance=args.instance, seed=args.seed, scenario=args.ugvs,
+            camera_hz=args.camera_hz, ugv_start=args.ugv_start, lockstep=not args.free_run,
+            lockstep_params=LockstepParams(latency_s=args.latency), speedup=args.speedup,
+        )  # fmt: skip
+        endpoint = EndpointConfig(
+            instance=args.instance, bind_host=args.bind, remote_host=args.remote
+        )
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    return params, endpoint
+
+
+def open_zenoh(port: int, config_file: str | None):
+    from perception.transport import ZenohParams, open_session, publisher_params
+
+    p = ZenohParams(config_file=config_file) if config_file else publisher_params(port)
+    try:
+        return open_session(p)
+    except ValueError as e:
+        raise UsageError(
+            f"{e}; is another simulator using Zenoh port {port}? use --zenoh-port"
+        ) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from world.sim import World
+
+    params, endpoint = build_world(args)
+    if args.run_dir is not None:
+        run_dir = Path(args.run_dir)
+        if not run_dir.is_dir():
+            raise UsageError(f"--run-dir {run_dir} is not a folder")
+    else:
+        folder = RunFolder("sim", root=args.runs_dir)
+        folder.write_config({"args": args_dict(args), "world": params})
+        run_dir = folder.path
+    session = open_zenoh(args.zenoh_port, args.zenoh_config)
+    try:
+        world = World(params, session=session, run_dir=run_dir, endpoint_config=endpoint)
+    except OSError as e:
+        session.close()
+        raise UsageError(f"{e}; is another vehicle using instance {args.instance}?") from None
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: world.stop())
+    mode = "free-running" if args.free_run else f"lockstep (latency {args.latency:g} s)"
+    print(f"skyherd sim: instance {args.instance}, {mode}, speed-up {args.speedup:g}; run folder {run_dir}",
+          file=sys.stderr, flush=True)  # fmt: skip
+    try:
+        stats = world.run(args.duration)
+    except Exception as e:  # noqa: BLE001 - say what stopped the world, then close its sockets
+        print(f"skyherd sim: stopped: {type(e).__name__}: {e}", file=sys.stderr)
+        return 1
+    finally:
+        world.close()
+        session.close()
+    print(json.dumps(stats), file=sys.stderr)
+    return 0

@@ -1,0 +1,289 @@
+"""`skyherd sim`'s world: the vehicle, the UGV team and the downward camera on one clock.
+
+Per autopilot step (4 ms for the quadrotor) the autopilot and its physics step and the MAVLink
+endpoint answers and streams. At every camera instant t_k (10 Hz of simulation time):
+
+1. the UGV team moves to t_k (it stays parked until `ugv_start`: at once, at a time, or when the
+   vehicle is first handed to the companion, i.e. enters OFFBOARD);
+2. lockstep: the endpoint marks t_k on the API link (flight.lockstep);
+3. the camera renders the team from the vehicle's true pose (through a roll/pitch gimbal) and
+   publishes the frame on Zenoh `skyherd/<vehicle>/camera/frame`, with t_k and the camera pose
+   in its header; the UGVs' truth goes to `skyherd/ugv/<id>/state`, the clock to
+   `skyherd/sim/clock`, and one row to world.csv;
+4. lockstep: at t_k + L the world waits for the companion's close of tick k and hands the
+   messages it sent to the endpoint, in order. Free-running: the API link is read every step
+   and each setpoint's lag (now − the frame time it is stamped with) is measured.
+
+Pacing (`speedup`) sleeps once per `pace_s` of simulation time, not once per step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from flight.clock import Pacer
+from flight.frames import euler_to_quat
+from flight.lockstep import LockstepGate, LockstepParams
+from flight.state import VehicleState
+from groundsim.ugv import UGVModel
+from perception.render_fast import FastRenderer
+from policy.groundair.params import TaskParams
+from runio import CsvWriter, atomic_write_text
+from world.team import new_team, team_states
+
+CLOCK_KEY = "skyherd/sim/clock"
+
+
+def ugv_key(i: int) -> str:
+    return f"skyherd/ugv/{i}/state"
+
+
+@dataclass(frozen=True)
+class WorldParams:
+    """What `skyherd sim` simulates (saved in config.json)."""
+
+    airframe: str = "quadrotor"
+    instance: int = 0  # MAVLink vehicle instance N (ports, system id 1+N)
+    seed: int = 0  # one seed for the vehicle, the UGV team and every other random source
+    scenario: str = "composite"  # UGV team: a training scenario or groundsim:<behaviour>
+    vehicle: str = "uav0"  # Zenoh key prefix
+    camera_hz: float = 10.0  # camera frames per simulated second (the companion's tick)
+    ugv_start: str = "offboard"  # "offboard" | "0" | seconds: when the team starts to drive
+    lockstep: bool = True  # hold the simulation for the companion's decisions
+    lockstep_params: LockstepParams = field(default_factory=LockstepParams)
+    speedup: float = 10.0  # simulation seconds per wall second; 0 = as fast as possible
+    pace_s: float = 0.02  # the pacer sleeps once per this much simulation time [s]
+    gimbal: bool = True  # roll/pitch-stabilised camera (the policy was trained with one)
+
+    def __post_init__(self) -> None:
+        if not self.camera_hz > 0:
+            raise ValueError(f"camera_hz must be > 0, got {self.camera_hz}")
+        if self.lockstep and self.lockstep_params.latency_s >= 1.0 / self.camera_hz:
+            raise ValueError(
+                f"the companion's latency {self.lockstep_params.latency_s} s must be shorter "
+                f"than the camera period {1.0 / self.camera_hz} s"
+            )
+        if self.ugv_start != "offboard":
+            try:
+                ok = float(self.ugv_start) >= 0
+            except ValueError:
+                ok = False
+            if not ok:
+                raise ValueError(
+                    f"ugv_start must be 'offboard' or seconds >= 0, not {self.ugv_start!r}"
+                )
+
+
+def level_camera_mount(state: VehicleState) -> VehicleState:
+    """The state as a 2-axis (roll, pitch) stabilised gimbal sees it: heading kept, level."""
+    _, _, yaw = state.euler
+    return dataclasses.replace(state, quat=euler_to_quat(0.0, 0.0, yaw))
+
+
+@dataclass
+class Lag:
+    """Free-running: how late each setpoint acted, now − its stamp [s of simulation time]."""
+
+    samples: list[float] = field(default_factory=list)
+
+    def summary(self) -> dict[str, float]:
+        if not self.samples:
+            return {"setpoints": 0}
+        a = np.array(self.samples)
+        return {"setpoints": len(a), "p50_s": float(np.percentile(a, 50)),
+                "p95_s": float(np.percentile(a, 95)), "max_s": float(a.max())}  # fmt: skip
+
+
+class World:
+    """One vehicle with its endpoints, the UGV team and the camera. `run()` until `stop()`."""
+
+    def __init__(self, params: WorldParams, session=None, run_dir: Path | None = None,
+                 task: TaskParams | None = None, endpoint_config=None):  # fmt: skip
+        from flight.airframes_registry import make_autopilot
+        from flight.mavlink import EndpointConfig, MavlinkEndpoint
+
+        self.p = params
+        self.task = task if task is not None else TaskParams()
+        self.autopilot = make_autopilot(params.airframe, seed=params.seed, instance=params.instance)
+        self.clock = self.autopilot.clock
+        cfg = endpoint_config or EndpointConfig(instance=params.instance)
+        self.endpoint = MavlinkEndpoint(self.autopilot, cfg)
+        self.endpoint.gated.add("api")  # read by the gate (lockstep) or by this loop (free-run)
+        self.gate = LockstepGate(self.endpoint.api, self.endpoint.mav, params.lockstep_params)
+        self.team = new_team(params.scenario, params.seed, self.task.n_ugvs)
+        self.team_t: float | None = None  # team time [s]; None while parked
+        self.renderer = FastRenderer(self.task.camera, UGVModel())
+        self.pacer = Pacer(params.speedup)
+        self.lag = Lag()
+        self._stop = threading.Event()
+        self._session = session
+        self.publisher = None
+        self._ugv_pubs: list = []
+        self._clock_pub = None
+        if session is not None:
+            from perception.transport import FramePublisher
+
+            self.publisher = FramePublisher(session, params.vehicle, self.task.camera,
+                                            rng=np.random.default_rng(params.seed))  # fmt: skip
+            self._ugv_pubs = [
+                session.declare_publisher(ugv_key(i)) for i in range(self.task.n_ugvs)
+            ]
+            self._clock_pub = session.declare_publisher(CLOCK_KEY)
+        self.run_dir = Path(run_dir) if run_dir is not None else None
+        cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
+        cols += [f"ugv{i}_{ax}" for i in range(self.task.n_ugvs) for ax in ("n", "e")]
+        self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
+        self.frames = 0
+        self.render_failures = 0
+
+    # ---- the loop ------------------------------------------------------------------------------
+    def stop(self) -> None:
+        """Ask `run` to return (safe from a signal handler or another thread)."""
+        self._stop.set()
+
+    def run(self, duration_s: float | None = None) -> dict:
+        """Step until `stop()` (or `duration_s` of simulation time); return the run's stats."""
+        p, clock, ep = self.p, self.clock, self.endpoint
+        step_us = round(self.autopilot.control_dt * 1e6)
+        period_us = round(1e6 / p.camera_hz)
+        latency_us = round(p.lockstep_params.latency_s * 1e6 / step_us) * step_us
+        pace_us = max(step_us, round(p.pace_s * 1e6))
+        t_end_us = None if duration_s is None else clock.time_us + round(duration_s * 1e6)
+        next_frame_us = clock.time_us
+        next_pace_us = clock.time_us
+        open_tick: int | None = None  # camera instant whose close is awaited [µs]
+        wall0, sim0 = time.monotonic(), clock.t
+        ep.update()
+        while not self._stop.is_set():
+            t_us = clock.time_us
+            if t_end_us is not None and t_us >= t_end_us:
+                break
+            if t_us >= next_frame_us:
+                self._camera_instant(t_us)
+                next_frame_us += period_us
+                open_tick = t_us if p.lockstep else None
+            if open_tick is not None and t_us >= open_tick + latency_us:
+                batch = self.gate.collect(open_tick, self._stop, self._republish)
+                if batch is None:
+                    break
+                ep.dispatch(ep.api, batch)
+                open_tick = None
+            if not p.lockstep:
+                self._free_run_receive()
+            self.autopilot.step()
+            ep.update()
+            if clock.time_us >= next_pace_us:
+                self.pacer.wait_until(clock.t)
+                next_pace_us += pace_us
+        wall = time.monotonic() - wall0
+        return self._stats(clock.t - sim0, wall)
+
+    def _camera_instant(self, t_us: int) -> None:
+        t = t_us / 1e6
+        self._move_team(t)
+        if self.p.lockstep:
+            self.gate.mark(t_us)
+        state = self.autopilot.state
+        uav = level_camera_mount(state) if self.p.gimbal else state
+        ugvs = team_states(self.team)
+        if self.publisher is not None:
+            try:
+                image = self.renderer.render(uav, ugvs)
+            except ValueError:  # a non-finite pose: no frame, as a real camera link would give
+                self.render_failures += 1
+            else:
+                self.publisher.publish(t, uav.pos_ned, uav.quat, image)
+                self.frames += 1
+            self._publish_truth(t, ugvs)
+        if self.truth is not None:
+            self._write_truth(t, state, ugvs)
+
+    def _move_team(self, t: float) -> None:
+        if self.team_t is None:
+            start = self.p.ugv_start
+            from flight.autopilot_api import FlightMode
+
+            go = (
+                (self.autopilot.mode is FlightMode.OFFBOARD)
+                if start == "offboard"
+                else t >= float(start)
+            )
+            if not go:
+                return
+            self.team_t = 0.0
+            self._team_t0 = t
+            return
+        dt = (t - self._team_t0) - self.team_t
+        if dt > 0:
+            self.team.step(dt)
+            self.team_t += dt
+
+    def _republish(self) -> None:
+        if self.publisher is not None:
+            self.publisher.republish()
+
+    def _free_run_receive(self) -> None:
+        got = self.endpoint.api.receive()
+        if not got:
+            return
+        now = self.clock.t
+        for msg, _ in got:
+            if msg.get_type().startswith("SET_POSITION_TARGET"):
+                self.lag.samples.append(now - msg.time_boot_ms / 1000.0)
+        self.endpoint.dispatch(self.endpoint.api, got)
+
+    def _publish_truth(self, t: float, ugvs) -> None:
+        for i, pub in enumerate(self._ugv_pubs):
+            rec = {"t": t, "id": i, "north": float(ugvs.pos_ne[i, 0]), "east": float(ugvs.pos_ne[i, 1]),
+                   "heading": float(ugvs.heading[i]), "speed": float(ugvs.speed[i]),
+                   "camouflaged": bool(ugvs.camouflaged[i])}  # fmt: skip
+            pub.put(json.dumps(rec).encode())
+        self._clock_pub.put(json.dumps({"t": t}).encode())
+
+    def _write_truth(self, t: float, state: VehicleState, ugvs) -> None:
+        p, v = state.pos_ned, state.vel_ned
+        row = {"t": t, "north": p[0], "east": p[1], "down": p[2], "vn": v[0], "ve": v[1],
+               "vd": v[2], "mode": self.autopilot.mode.name, "armed": int(self.autopilot.armed),
+               "team_t": "" if self.team_t is None else round(self.team_t, 6)}  # fmt: skip
+        for i in range(ugvs.n):
+            row[f"ugv{i}_n"], row[f"ugv{i}_e"] = ugvs.pos_ne[i, 0], ugvs.pos_ne[i, 1]
+        self.truth.write(row)
+
+    def _stats(self, sim_s: float, wall_s: float) -> dict:
+        g = self.gate.stats
+        stats = {
+            "sim_s": sim_s,
+            "wall_s": wall_s,
+            "real_time_factor": sim_s / wall_s if wall_s > 0 else math.inf,
+            "frames": self.frames,
+            "render_failures": self.render_failures,
+            "lockstep": self.p.lockstep,
+            "ticks_closed": g.ticks,
+            "mark_resends": g.resends,
+            "wait_for_companion_wall_s": g.wait_wall_s,
+            "free_run_lag": self.lag.summary(),
+        }
+        if self.run_dir is not None:
+            atomic_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")
+        return stats
+
+    def close(self) -> None:
+        if self.truth is not None:
+            self.truth.close()
+        if self.publisher is not None:
+            self.publisher.close()
+        for pub in [*self._ugv_pubs, self._clock_pub]:
+            if pub is not None:
+                try:
+                    pub.undeclare()
+                except Exception:  # noqa: BLE001 - already closed with its session
+                    pass
+        self.endpoint.close()
