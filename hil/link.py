@@ -7,9 +7,15 @@ Addresses use pymavlink's forms:
     /dev/ttyACM0,57600  serial port with baud rate (default 57600)
 
 MAVLink 2 framing is fixed at construction (no dialect chosen by environment variables);
-MAVLink 1 frames are still parsed. Every packet sent or received can be recorded to a
-.tlog: 8-byte big-endian microseconds since the Unix epoch, then the raw packet, appended
-and flushed per packet so a kill loses nothing already written.
+MAVLink 1 frames are still parsed. Every frame sent or received (each parsed frame on its
+own, never a raw datagram) can be recorded to a .tlog: 8-byte big-endian microseconds since
+the Unix epoch, then the frame, appended and flushed per frame so a kill loses nothing already
+written. A logging failure (full disk, read-only directory) is reported once on stderr and in
+`tlog_error`; logging stops, the link goes on.
+
+With `signing_key` (a 32-byte key file) the link signs what it sends and accepts only
+correctly signed, fresh frames (plus RADIO_STATUS unsigned), as flight.mavlink.signing
+describes. `StatustextAssembler` puts chunked STATUSTEXT back together.
 """
 
 from __future__ import annotations
@@ -25,7 +31,18 @@ from typing import Protocol
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from flight.mavlink.codec import Codec, MAVLinkMessage
+from flight.mavlink.signing import Signing, load_key, now_units
+from flight.mavlink.statustext import StatustextAssembler
 from flight.mavlink.tlog import TlogWriter
+
+__all__ = [
+    "Address",
+    "LinkError",
+    "MavlinkLink",
+    "StatustextAssembler",
+    "open_transport",
+    "parse_address",
+]
 
 DEFAULT_BAUD = 57600
 
@@ -175,7 +192,8 @@ class MavlinkLink:
     """A MAVLink 2 speaker over one transport, thread-safe for sending.
 
     source_system/component: who we are (255/190 a ground station, or our companion at
-    1+N/191 beside an autopilot).
+    1+N/191 beside an autopilot). signing_key: a 32-byte key file, MAVLink 2 signing on
+    (raises signing.SigningError for a bad file); link_id: our link id in the signatures.
     """
 
     def __init__(
@@ -184,9 +202,12 @@ class MavlinkLink:
         source_system: int = 255,
         source_component: int = 190,
         tlog: Path | None = None,
+        signing_key: Path | None = None,
+        link_id: int = 0,
     ):
+        self.signing = Signing(load_key(signing_key)) if signing_key is not None else None
         self.transport = transport
-        self.codec = Codec(source_system, source_component)
+        self.codec = Codec(source_system, source_component, self.signing, link_id)
         self.mav = self.codec.mav
         self.tlog = TlogWriter(tlog) if tlog else None
         self._send_lock = threading.Lock()
@@ -198,8 +219,31 @@ class MavlinkLink:
     def bad_packets(self) -> int:
         return self.codec.stats.rx_bad
 
+    @property
+    def rejected_packets(self) -> int:
+        """Valid frames refused by signing (unsigned, wrongly signed, replayed)."""
+        return self.codec.stats.rx_rejected
+
+    @property
+    def tlog_error(self) -> str | None:
+        """Why the tlog stopped (a full disk...), None while it works or with no tlog."""
+        return getattr(self.tlog, "error", None)
+
+    def setup_signing(self, target_system: int, target_component: int = 1) -> None:
+        """Send our key to a vehicle (SETUP_SIGNING; never written to the tlog). A vehicle
+        without a key takes it; one already signing takes it only if we hold its current key."""
+        if self.signing is None or self.signing.key is None:
+            raise LinkError("setup_signing needs a link opened with signing_key")
+        self.send(self.mav.setup_signing_encode(
+            target_system, target_component, list(self.signing.key), now_units()
+        ))  # fmt: skip
+
     @staticmethod
     def open(address: str, **kwargs) -> MavlinkLink:
+        """`MavlinkLink.open("udpin:127.0.0.1:14540", signing_key=Path("uav.key"), tlog=...)`."""
+        signing_key = kwargs.get("signing_key")
+        if signing_key is not None:
+            load_key(signing_key)  # a bad key file fails before any socket is opened
         return MavlinkLink(open_transport(address), **kwargs)
 
     def send(self, msg: MAVLinkMessage) -> None:
@@ -218,7 +262,8 @@ class MavlinkLink:
             msgs = self.codec.parse(data)
         else:  # a byte stream: frames may span reads
             msgs = [m for m in (self._stream.parse_buffer(data) or [])
-                    if not isinstance(m, mavlink.MAVLink_bad_data | mavlink.MAVLink_unknown)]  # fmt: skip
+                    if not isinstance(m, mavlink.MAVLink_bad_data | mavlink.MAVLink_unknown)
+                    and self.codec.accept(m)]  # fmt: skip
         if self.tlog:
             for m in msgs:
                 self.tlog.write(bytes(m.get_msgbuf()))

@@ -29,6 +29,8 @@ from flight.mavlink.offboard import (
     setpoint_from_local,
 )
 from flight.mavlink.params import ParamFile, ParamService
+from flight.mavlink.signing import Signing, load_key, save_key
+from flight.mavlink.statustext import split_text
 from flight.mavlink.streams import StreamScheduler
 from flight.mavlink.telemetry import Identity, TelemetryBuilder
 from flight.mavlink.tlog import TlogWriter
@@ -53,6 +55,8 @@ class EndpointConfig:
     remote_host   where the default peers (MAVSDK 14540+N, GCS 14550) listen
     state_dir     parameter persistence root (None: parameters are not saved)
     tlog          write every frame in and out to this .tlog file (None: no log)
+    signing_key   MAVLink 2 signing key file (32 bytes): signing on from the start. None:
+                  the vehicle's own key file (`key_file`) if a SETUP_SIGNING stored one
     """
 
     instance: int = 0
@@ -62,6 +66,7 @@ class EndpointConfig:
     state_dir: Path | None = None
     tlog: Path | None = None
     params_per_update: int = 40
+    signing_key: Path | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.instance <= 200:
@@ -92,6 +97,12 @@ class EndpointConfig:
             return None
         return Path(self.state_dir) / f"{airframe}-{self.instance}" / "params.json"
 
+    def key_file(self, airframe: str) -> Path | None:
+        """Where SETUP_SIGNING stores this vehicle's key (None: kept in memory only)."""
+        if self.state_dir is None:
+            return None
+        return Path(self.state_dir) / f"{airframe}-{self.instance}" / "signing.key"
+
 
 class MavlinkEndpoint:
     """MAVLink 2 endpoint of one simulated vehicle (API link and ground-station link)."""
@@ -114,19 +125,24 @@ class MavlinkEndpoint:
         self.stats: Counter[str] = Counter()
         self.rx_types: Counter[str] = Counter()  # valid frames addressed to us, by type
         self.rx_commands: Counter[int] = Counter()  # commands received, by MAV_CMD
+        self.signing = Signing(self._initial_key())  # raises SigningError on a bad key file
         self._tlog = (
             TlogWriter(config.tlog, autopilot.clock, flush_interval_s=0.5) if config.tlog else None
         )
+        self._tlog_warned = False  # the tlog's failure was announced on STATUSTEXT
+        self._text_id = 0  # id of the last chunked STATUSTEXT
         hook = (lambda _direction, frame: self._tlog.write(frame)) if self._tlog else None
         self.links: list[UdpLink] = []
         try:
             self.api = UdpLink(
-                "api", config.api_bind, config.api_remote, config.system_id, COMPONENT_ID, hook
-            )
+                "api", config.api_bind, config.api_remote, config.system_id, COMPONENT_ID, hook,
+                self.signing, link_id=0,
+            )  # fmt: skip
             self.links.append(self.api)
             self.gcs = UdpLink(
-                "gcs", config.gcs_bind, config.gcs_remote, config.system_id, COMPONENT_ID, hook
-            )
+                "gcs", config.gcs_bind, config.gcs_remote, config.system_id, COMPONENT_ID, hook,
+                self.signing, link_id=1,
+            )  # fmt: skip
             self.links.append(self.gcs)
         except OSError:
             self.close()
@@ -183,6 +199,7 @@ class MavlinkEndpoint:
             "MANUAL_CONTROL": self._on_manual,
             "TIMESYNC": self._on_timesync,
             "PING": self._on_ping,
+            "SETUP_SIGNING": self._on_setup_signing,
         }
 
     # --- the lockstep hook ---------------------------------------------------------------------
@@ -192,7 +209,7 @@ class MavlinkEndpoint:
         if ready:  # one system call per step tells whether any socket has data
             for link in self.links:
                 if link.name in self.gated:
-                    continue  # read at lockstep barriers only (world.lockstep)
+                    continue  # read at lockstep barriers only (flight.lockstep)
                 for msg, addr in link.receive():
                     self._dispatch(link, msg, addr)
         if self.commands.pending:
@@ -204,6 +221,9 @@ class MavlinkEndpoint:
         self._send_streams()
         if self._tlog is not None:
             self._tlog.maybe_flush()
+            if self._tlog.error and not self._tlog_warned:  # a full disk: say so, keep flying
+                self._tlog_warned = True
+                self.statustext(M.MAV_SEVERITY_WARNING, self._tlog.error)
 
     def close(self) -> None:
         for link in self.links:
@@ -217,7 +237,11 @@ class MavlinkEndpoint:
             link.send(msg)
 
     def statustext(self, severity: int, text: str) -> None:
-        self.broadcast(self.mav.statustext_encode(severity, text.encode("ascii", "replace")[:50]))
+        """STATUSTEXT to every link; a text over 50 characters goes out in chunks (id, seq)."""
+        if len(text) > 50:
+            self._text_id = self._text_id % 65535 + 1
+        for text_id, seq, chunk in split_text(text, self._text_id or 1):
+            self.broadcast(self.mav.statustext_encode(severity, chunk, text_id, seq))
 
     def _send_streams(self) -> None:
         t = self.ap.clock.t
@@ -316,7 +340,7 @@ class MavlinkEndpoint:
                 if res.ok:
                     result = M.MAV_RESULT_ACCEPTED
                 else:
-                    self.statustext(M.MAV_SEVERITY_WARNING, res.reason[:50])
+                    self.statustext(M.MAV_SEVERITY_WARNING, res.reason)
         src = _src(msg)
         reply(self.mav.command_ack_encode(M.MAVLINK_MSG_ID_SET_MODE, result, 0, 0, src[0], src[1]))
 
@@ -325,7 +349,7 @@ class MavlinkEndpoint:
         if 0 <= msg.seq < n:
             res = self.ap.set_mission_current(msg.seq)
             if not res.ok:
-                self.statustext(M.MAV_SEVERITY_WARNING, res.reason[:50])
+                self.statustext(M.MAV_SEVERITY_WARNING, res.reason)
         reply(self._build(M.MAVLINK_MSG_ID_MISSION_CURRENT))
 
     def _on_setpoint(self, msg, reply, key, link) -> None:
@@ -337,7 +361,7 @@ class MavlinkEndpoint:
         except SetpointError as e:
             self.stats["setpoint_dropped"] += 1
             if self.stats["setpoint_dropped"] in (1, 10, 100, 1000):
-                self.statustext(M.MAV_SEVERITY_WARNING, f"setpoint dropped: {e}"[:50])
+                self.statustext(M.MAV_SEVERITY_WARNING, f"setpoint dropped: {e}")
             return
         res = self.ap.set_offboard_setpoint(sp)
         if res.ok:
@@ -352,6 +376,37 @@ class MavlinkEndpoint:
             self.stats["manual_dropped"] += 1
             return
         self.ap.set_manual_control(x, y, z, r)
+
+    def _initial_key(self) -> bytes | None:
+        path = self.config.signing_key or self.config.key_file(self.ap.airframe)
+        if path is None or (self.config.signing_key is None and not Path(path).exists()):
+            return None
+        return load_key(path)
+
+    def _on_setup_signing(self, msg, reply, key, link) -> None:
+        """SETUP_SIGNING: a new key (signing on, saved to `key_file`), or 32 zero bytes (off).
+
+        Once signing is on, only a correctly signed SETUP_SIGNING gets here (the codec drops
+        the others), so only a holder of the current key can change or remove it."""
+        new = bytes(msg.secret_key)
+        path = self.config.key_file(self.ap.airframe)
+        if not any(new):
+            if self.signing.enabled:
+                self.signing.set_key(None)
+                if path is not None:
+                    path.unlink(missing_ok=True)
+                self.statustext(M.MAV_SEVERITY_NOTICE, "signing disabled")
+            return
+        self.signing.set_key(new, msg.initial_timestamp)
+        where = "kept in memory only (no state dir)"
+        if path is not None:
+            try:
+                save_key(path, new)
+                where = f"saved to {path}"
+            except OSError as e:
+                where = f"not saved ({e.strerror or e})"
+        self.stats["setup_signing"] += 1
+        self.statustext(M.MAV_SEVERITY_NOTICE, f"signing on: key {where}")
 
     def _on_ping(self, msg, reply, key, link) -> None:
         """PING (MAVSDK sends it): a request has target 0; answer addressed to the sender."""

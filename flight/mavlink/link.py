@@ -11,6 +11,7 @@ import socket
 from collections.abc import Callable
 
 from flight.mavlink.codec import Codec, MAVLinkMessage
+from flight.mavlink.signing import Signing
 
 Address = tuple[str, int]
 MAX_DATAGRAM = 65535
@@ -27,13 +28,15 @@ class UdpLink:
         system_id: int,
         component_id: int,
         on_frame: Callable[[str, bytes], None] | None = None,
+        signing: Signing | None = None,
+        link_id: int = 0,
     ):
         self.name = name
         self.bind_addr = bind
         self.remote = remote
         self.peer: Address | None = None
-        self.codec = Codec(system_id, component_id)
-        self._on_frame = on_frame  # tlog hook: (direction "in"/"out", raw frame bytes)
+        self.codec = Codec(system_id, component_id, signing, link_id)
+        self._on_frame = on_frame  # tlog hook: (direction "in"/"out", one frame's bytes)
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.bind(bind)
@@ -62,8 +65,9 @@ class UdpLink:
             msgs = self.codec.parse(data)
             if msgs:
                 self.peer = (addr[0], addr[1])
-                if self._on_frame is not None:
-                    self._on_frame("in", data)
+                if self._on_frame is not None:  # each parsed frame, never the raw datagram
+                    for m in msgs:
+                        self._on_frame("in", bytes(m.get_msgbuf()))
             out.extend((m, self.peer) for m in msgs)
         return out
 

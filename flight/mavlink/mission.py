@@ -8,7 +8,9 @@ Missions are converted to `MissionItem`s and handed to the autopilot; a mission 
 leaves the old one in place. Fences are validated and kept here (as uploaded, and as NED
 shapes) for the safety net. Rally points: this vehicle has none; downloads answer an empty
 list and uploads of points are refused (MAV_MISSION_UNSUPPORTED).
-Upload timeouts run on the simulation clock.
+Upload timeouts run on the simulation clock. One upload runs at a time: a MISSION_COUNT from
+another client while one is in progress is answered MISSION_ACK DENIED (the same client may
+restart its own); a stalled upload is cancelled after RETRY_S x MAX_RETRIES without items.
 """
 
 from __future__ import annotations
@@ -141,6 +143,14 @@ class MissionService:
             result = M.MAV_MISSION_UNSUPPORTED if mtype == RALLY else M.MAV_MISSION_NO_SPACE
             reply(self._ack(sender, result, mtype))
             return
+        up = self._upload
+        if up is not None and up.key != key:
+            # One upload at a time: another client's transfer is not replaced. It finishes,
+            # or times out after RETRY_S x MAX_RETRIES of simulation time without an item.
+            self.statustext(M.MAV_SEVERITY_WARNING,
+                            f"mission upload from {up.sender[0]}/{up.sender[1]} in progress: try later")  # fmt: skip
+            reply(self._ack(sender, M.MAV_MISSION_DENIED, mtype))
+            return
         if msg.count == 0:
             self._apply(mtype, [], reply, sender)
             return
@@ -158,12 +168,12 @@ class MissionService:
             self._check_raw(item)
         except ItemError as e:
             self._upload = None
-            self.statustext(M.MAV_SEVERITY_WARNING, f"mission item {msg.seq}: {e}"[:50])
+            self.statustext(M.MAV_SEVERITY_WARNING, f"mission item {msg.seq}: {e}")
             reply(self._ack(sender, e.result, up.mission_type))
             return
         except (ValueError, OverflowError) as e:
             self._upload = None
-            self.statustext(M.MAV_SEVERITY_WARNING, f"mission item {msg.seq}: {e}"[:50])
+            self.statustext(M.MAV_SEVERITY_WARNING, f"mission item {msg.seq}: {e}")
             reply(self._ack(sender, M.MAV_MISSION_ERROR, up.mission_type))
             return
         up.items.append(item)
@@ -202,7 +212,7 @@ class MissionService:
                 if self.on_fence is not None:
                     self.on_fence(shapes)
         except ItemError as e:
-            self.statustext(M.MAV_SEVERITY_WARNING, str(e)[:50])
+            self.statustext(M.MAV_SEVERITY_WARNING, str(e))
             reply(self._ack(sender, e.result, mtype))
             return
         self.lists[mtype] = list(items)
@@ -274,7 +284,7 @@ class MissionService:
         if MISSION in types:
             res = self.ap.set_mission([])
             if not res.ok:
-                self.statustext(M.MAV_SEVERITY_WARNING, f"clear refused: {res.reason}"[:50])
+                self.statustext(M.MAV_SEVERITY_WARNING, f"clear refused: {res.reason}")
                 reply(self._ack(sender, M.MAV_MISSION_DENIED, mtype))
                 return
         for t in types:

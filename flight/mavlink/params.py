@@ -192,7 +192,7 @@ class ParamService:
             return
         res = self.ap.set_param(name, value)
         if not res.ok:
-            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"param {name}: {res.reason}"[:50])
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, f"param {name}: {res.reason}")
             reply(self.value_msg(name))
             return
         self.saved[name] = float(self.ap.get_param(name))

@@ -1,50 +1,127 @@
 """MAVLink telemetry logs (.tlog), readable by pymavlink and MAVExplorer.
 
-Each record is an 8-byte big-endian timestamp in microseconds since the Unix epoch, then the
-raw frame. With a `SimClock` the stamp is (wall time at open) + simulation time, so a replay
-keeps the simulation's timing at any speed-up; without one it is the wall clock (a client
-recording an outside vehicle). Records are appended; `flush_interval_s` 0 flushes each one
-(a kill loses nothing already written), a larger value batches flushes for busy endpoints.
+Each record is an 8-byte big-endian timestamp in microseconds since the Unix epoch, then one
+MAVLink frame (callers log parsed frames, never raw datagrams, so trailing bytes cannot corrupt
+the log and a datagram holding two frames gives two records). With a `SimClock` the stamp is
+(wall time at open) + simulation time, so a replay keeps the simulation's timing at any
+speed-up; without one it is the wall clock (a client recording an outside vehicle). Records
+are appended; `flush_interval_s` 0 flushes each one (a kill loses nothing already written), a
+larger value batches flushes for busy endpoints.
+
+Logging never takes the vehicle or the companion down: a failure to open, write or flush (a
+full disk, a read-only directory) is reported once (`error`, a log warning, `on_error`), and
+logging stops while everything else goes on. SETUP_SIGNING frames (they carry the secret key)
+are never written.
 """
 
 from __future__ import annotations
 
+import logging
 import struct
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from flight.clock import SimClock
 
+log = logging.getLogger(__name__)
+SETUP_SIGNING_ID = 256
+
+
+def frame_msg_id(frame: bytes) -> int | None:
+    """Message id of a MAVLink 1 or 2 frame (None if the bytes are no frame header)."""
+    if len(frame) >= 10 and frame[0] == 0xFD:
+        return frame[7] | frame[8] << 8 | frame[9] << 16
+    if len(frame) >= 6 and frame[0] == 0xFE:
+        return frame[5]
+    return None
+
 
 class TlogWriter:
-    def __init__(self, path: Path, clock: SimClock | None = None, flush_interval_s: float = 0.0):
-        self._f = open(path, "ab")
+    def __init__(
+        self,
+        path: Path,
+        clock: SimClock | None = None,
+        flush_interval_s: float = 0.0,
+        on_error: Callable[[str], None] | None = None,
+    ):
+        self.path = Path(path)
+        self.error: str | None = None  # why logging stopped (None while it works)
+        self.records = 0
+        self._on_error = on_error
         self._clock = clock
         self._epoch_us = int(time.time() * 1e6)
         self._flush_interval_s = flush_interval_s
         self._last_flush = time.monotonic()
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # re-entrant: on_error may send (and log) a STATUSTEXT
+        self._f = None
+        try:
+            self._f = open(self.path, "ab")
+        except OSError as e:
+            self._fail("open", e)
+
+    @property
+    def active(self) -> bool:
+        return self._f is not None
 
     def _stamp_us(self) -> int:
         if self._clock is None:
             return int(time.time() * 1e6)
         return self._epoch_us + self._clock.time_us
 
+    def _fail(self, what: str, e: OSError) -> None:
+        """Stop logging and say so once."""
+        f, self._f = self._f, None
+        if f is not None:
+            try:
+                f.close()  # flushes what is buffered: fails again on a full disk
+            except OSError:
+                pass
+        if self.error is not None:
+            return
+        self.error = (
+            f"tlog {self.path.name}: cannot {what} ({e.strerror or e}); telemetry logging stopped"
+        )
+        log.warning("%s (%s)", self.error, self.path)
+        if self._on_error is not None:
+            self._on_error(self.error)
+
     def write(self, frame: bytes) -> None:
+        if self._f is None or frame_msg_id(frame) == SETUP_SIGNING_ID:
+            return
         with self._lock:
-            self._f.write(struct.pack(">Q", self._stamp_us()) + frame)
-            if self._flush_interval_s <= 0:
-                self._f.flush()
+            if self._f is None:
+                return
+            try:
+                self._f.write(struct.pack(">Q", self._stamp_us()) + frame)
+                if self._flush_interval_s <= 0:
+                    self._f.flush()
+                self.records += 1
+            except OSError as e:
+                self._fail("write", e)
 
     def maybe_flush(self) -> None:
         """Flush when `flush_interval_s` of wall time has passed since the last flush."""
         now = time.monotonic()
-        if now - self._last_flush > self._flush_interval_s:
-            with self._lock:
-                self._f.flush()
-            self._last_flush = now
+        if self._f is None or now - self._last_flush <= self._flush_interval_s:
+            return
+        with self._lock:
+            if self._f is not None:
+                try:
+                    self._f.flush()
+                except OSError as e:
+                    self._fail("write", e)
+        self._last_flush = now
 
     def close(self) -> None:
+        """Flush and close (a failure is reported like any other); later writes are ignored."""
         with self._lock:
-            self._f.close()
+            f, self._f = self._f, None
+            if f is None:
+                return
+            try:
+                f.close()
+            except OSError as e:
+                self._f = f
+                self._fail("write", e)

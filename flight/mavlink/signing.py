@@ -1,0 +1,173 @@
+"""MAVLink 2 message signing (https://mavlink.io/en/guide/message_signing.html).
+
+A signed frame has incompat flag 0x01 and 13 more bytes: link id (1), timestamp (6, little
+endian, units of 10 us since 2015-01-01 00:00 UTC), signature (6) = the first 48 bits of
+SHA-256(secret key + frame header..CRC + link id + timestamp). Our own implementation
+(pymavlink's is used by the tests to cross-check it both ways).
+
+Acceptance once a key is set (`Signing.verify`):
+- an unsigned frame (MAVLink 1, or no flag) only if its message is in ACCEPT_UNSIGNED, the
+  list ArduPilot accepts unsigned on its radio links: RADIO_STATUS (a SiK radio cannot sign);
+- the signature must match the key;
+- per stream (link id, system, component) the timestamp must grow; a stream not seen before
+  may be at most one minute (6,000,000 units) behind our local time, the larger of the wall
+  clock and the newest timestamp seen or sent. The signature is checked before any timestamp
+  is updated, so a forged frame cannot move a stream's timestamp.
+Outgoing timestamps are max(wall clock, last + 1): strictly increasing across all links.
+Signing times are wall time by the spec (peers compare them with their own clocks), unlike
+every other time of the endpoint.
+
+A key file holds exactly 32 raw bytes, mode 0600, written atomically. A key of 32 zero bytes
+means "signing off" (SETUP_SIGNING with it disables signing, as ArduPilot does).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import os
+import struct
+import time
+from collections import Counter, OrderedDict
+from pathlib import Path
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+KEY_LEN = 32
+SIGNATURE_LEN = 13
+IFLAG_SIGNED = 0x01
+EPOCH_2015_S = 1420070400  # Unix time of 2015-01-01 00:00:00 UTC
+UNITS_PER_S = 100_000  # timestamp unit: 10 us
+REPLAY_WINDOW = 60 * UNITS_PER_S  # a new stream may be one minute behind our time
+ACCEPT_UNSIGNED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS})
+MAX_STREAMS = 256  # streams remembered; only correctly signed frames create one
+
+
+class SigningError(ValueError):
+    """A key or key file that cannot be used; the message says why."""
+
+
+def now_units() -> int:
+    """The signing clock: wall time in 10 us units since 2015-01-01 UTC."""
+    return int((time.time() - EPOCH_2015_S) * UNITS_PER_S)
+
+
+def key_from_passphrase(text: str) -> bytes:
+    """The 32-byte key MAVProxy and QGroundControl derive from a passphrase: SHA-256 of it."""
+    return hashlib.sha256(text.encode("utf-8")).digest()
+
+
+def load_key(path: Path) -> bytes:
+    """The key in `path` (exactly 32 raw bytes). Raises SigningError with what to do."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise SigningError(f"cannot read signing key {path}: {e.strerror or e}") from e
+    if len(data) != KEY_LEN:
+        raise SigningError(
+            f"signing key {path} holds {len(data)} bytes, a key file holds exactly {KEY_LEN} "
+            "(e.g. head -c 32 /dev/urandom > FILE)"
+        )
+    return data
+
+
+def save_key(path: Path, key: bytes) -> None:
+    """Write the key atomically, readable by its owner only."""
+    if len(key) != KEY_LEN:
+        raise SigningError(f"a signing key has {KEY_LEN} bytes, got {len(key)}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        os.write(fd, key)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(tmp, path)
+
+
+def is_signed(frame: bytes) -> bool:
+    return len(frame) > 2 and frame[0] == 0xFD and bool(frame[2] & IFLAG_SIGNED)
+
+
+class Signing:
+    """The signing state of one system, shared by all its links (each has its own link id)."""
+
+    def __init__(self, key: bytes | None = None, initial_timestamp: int = 0):
+        self.key: bytes | None = None
+        self.timestamp = 0  # newest timestamp sent or accepted [10 us since 2015]
+        self._streams: OrderedDict[tuple[int, int, int], int] = OrderedDict()
+        self.stats: Counter[str] = Counter()
+        self.set_key(key, initial_timestamp)
+
+    @property
+    def enabled(self) -> bool:
+        return self.key is not None
+
+    def set_key(self, key: bytes | None, initial_timestamp: int = 0) -> None:
+        """Use `key` from now on (None or 32 zero bytes: signing off). Streams start afresh."""
+        if key is not None:
+            key = bytes(key)
+            if len(key) != KEY_LEN:
+                raise SigningError(f"a signing key has {KEY_LEN} bytes, got {len(key)}")
+            if not any(key):
+                key = None
+        self.key = key
+        self._streams.clear()
+        self.timestamp = max(self.timestamp, int(initial_timestamp))
+
+    def _next_timestamp(self) -> int:
+        self.timestamp = max(now_units(), self.timestamp + 1)
+        return self.timestamp
+
+    def sign(self, frame: bytes, link_id: int) -> bytes:
+        """The signed version of one unsigned MAVLink 2 frame (MAVLink 1 cannot be signed)."""
+        if self.key is None or frame[0] != 0xFD or frame[2] & IFLAG_SIGNED:
+            return frame
+        msg_type = mavlink.mavlink_map.get(frame[7] | frame[8] << 8 | frame[9] << 16)
+        if msg_type is None:
+            return frame
+        buf = bytearray(frame)
+        buf[2] |= IFLAG_SIGNED  # the flag is inside the CRC: recompute it
+        crc = mavlink.x25crc(buf[1:-2])
+        crc.accumulate(struct.pack("B", msg_type.crc_extra))
+        buf[-2:] = struct.pack("<H", crc.crc)
+        buf += struct.pack("<BQ", link_id & 0xFF, self._next_timestamp())[:7]
+        buf += hashlib.sha256(self.key + buf).digest()[:6]
+        return bytes(buf)
+
+    def verify(self, frame: bytes, msg_id: int, src_system: int, src_component: int) -> str | None:
+        """None if the frame is acceptable, else why it is rejected (counted in `stats`)."""
+        if self.key is None:
+            return None
+        if not is_signed(frame):
+            if msg_id in ACCEPT_UNSIGNED:
+                self.stats["unsigned_accepted"] += 1
+                return None
+            return self._reject("unsigned")
+        if len(frame) < 10 + SIGNATURE_LEN + 2:
+            return self._reject("bad signature")
+        expected = hashlib.sha256(self.key + frame[:-6]).digest()[:6]
+        if not hmac.compare_digest(expected, bytes(frame[-6:])):
+            return self._reject("bad signature")
+        link_id = frame[-13]
+        ts = int.from_bytes(frame[-12:-6], "little")
+        stream = (link_id, src_system, src_component)
+        last = self._streams.get(stream)
+        if last is not None and ts <= last:
+            return self._reject("replayed")
+        if last is None and ts + REPLAY_WINDOW < max(self.timestamp, now_units()):
+            return self._reject("timestamp more than a minute old")
+        self._streams[stream] = ts
+        self._streams.move_to_end(stream)
+        if len(self._streams) > MAX_STREAMS:
+            self._streams.popitem(last=False)
+        self.timestamp = max(self.timestamp, ts)
+        self.stats["signed_accepted"] += 1
+        return None
+
+    def _reject(self, why: str) -> str:
+        self.stats[f"rejected_{why.split()[0]}"] += 1
+        return why
