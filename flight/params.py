@@ -123,9 +123,12 @@ class ParamStore:
             data = tomllib.loads(Path(path).read_text())
         except (OSError, tomllib.TOMLDecodeError) as e:
             raise ValueError(f"cannot read parameter file {path}: {e}") from e
-        table = data.get("params", {})
-        if not isinstance(table, dict):
-            raise ValueError(f"{path}: [params] must be a table")
+        from runio.schema import validate_mapping  # pydantic: names known, values numbers
+
+        try:
+            table = validate_mapping(data.get("params", {}), float, self.names(), "params")
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from e
         self.update(table)
 
     def dumps_toml(self) -> str:

@@ -1,27 +1,55 @@
-"""Run-folder I/O: atomic whole-file writes, append-and-flush streams (CSV, JSON lines),
-markdown tables, and the run folder itself. The lowest layer: every other layer may import
-it, it imports none of them."""
+"""Run-folder I/O: atomic whole-file writes, append-and-flush streams (CSV, JSON lines, the
+per-decision record), markdown tables, the run folder and its lifecycle, provenance for
+config.json, the one address syntax and schema-checked configuration tables. The lowest layer:
+every other layer may import it, it imports none of them."""
 
+from runio.address import Address, AddressError, mavlink_address, parse_address, zenoh_endpoint
+from runio.decisions import DecisionLog, read_decisions
+from runio.provenance import code_version, command_line, envelope_facts, file_facts
+from runio.run import Run, RunAborted, UsageError, open_run
 from runio.runfolder import (
+    MISSING,
     CsvWriter,
     JsonlWriter,
     RunFolder,
     args_dict,
     atomic_write_bytes,
     atomic_write_text,
+    is_missing,
     markdown_table,
     to_jsonable,
     versions,
 )
+from runio.schema import ConfigError, fill_dataclass, validate_mapping
 
 __all__ = [
+    "MISSING",
+    "Address",
+    "AddressError",
+    "ConfigError",
     "CsvWriter",
+    "DecisionLog",
     "JsonlWriter",
+    "Run",
+    "RunAborted",
     "RunFolder",
+    "UsageError",
     "args_dict",
     "atomic_write_bytes",
     "atomic_write_text",
+    "code_version",
+    "command_line",
+    "envelope_facts",
+    "file_facts",
+    "fill_dataclass",
+    "is_missing",
     "markdown_table",
+    "mavlink_address",
+    "open_run",
+    "parse_address",
+    "read_decisions",
     "to_jsonable",
+    "validate_mapping",
     "versions",
+    "zenoh_endpoint",
 ]

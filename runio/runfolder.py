@@ -150,17 +150,46 @@ class RunFolder:
     def file(self, name: str) -> Path:
         return self.path / name
 
+    @staticmethod
+    def open(command: str, args: Any = None, root: Path | str = "runs", **kw: Any):
+        """The lifecycle of a run (runio.run): `with RunFolder.open(cmd, args, root) as run:`.
+        The folder is made on first use; summary.md says how the run ended."""
+        from runio.run import open_run
 
-def markdown_table(headers: list[str], rows: list[list[Any]]) -> str:
-    """A GitHub-style table; also readable as plain text on a terminal."""
+        return open_run(command, args, root, **kw)
+
+
+MISSING = "—"
+
+
+def markdown_table(headers: list[str], rows: list[list[Any]], missing: str = "not measured") -> str:
+    """A GitHub-style table; also readable as plain text on a terminal.
+
+    A cell that is None or NaN is shown as "—", never as "nan", and a line under the table
+    says why (`missing`: e.g. "no decision was made: the run aborted before the hand-over")."""
     cells = [[str(h) for h in headers]] + [[_fmt(c) for c in r] for r in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
     line = lambda r: "| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |"  # noqa: E731
     sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
-    return "\n".join([line(cells[0]), sep] + [line(r) for r in cells[1:]]) + "\n"
+    out = "\n".join([line(cells[0]), sep] + [line(r) for r in cells[1:]]) + "\n"
+    if any(c == MISSING for r in cells[1:] for c in r):
+        out += f"\n{MISSING} = {missing}\n"
+    return out
+
+
+def is_missing(c: Any) -> bool:
+    """None or a NaN number (a value that was not measured)."""
+    if c is None:
+        return True
+    try:
+        return isinstance(c, float | np.floating) and bool(np.isnan(c))
+    except TypeError:
+        return False
 
 
 def _fmt(c: Any) -> str:
+    if is_missing(c):
+        return MISSING
     if isinstance(c, float):
         return f"{c:.3g}" if abs(c) < 1e-3 or abs(c) >= 1e4 else f"{c:.3f}".rstrip("0").rstrip(".")
     return str(c)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import time
 
 import cv2
@@ -31,28 +32,30 @@ from perception.transport import (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--vehicle", default="uav0", help="vehicle name in the key (uav0)")
+    parser.add_argument("--vehicle", default="uav0", help="vehicle name in the key")
     parser.add_argument(
         "--connect",
-        default="tcp/127.0.0.1:7447",
-        help="Zenoh endpoint of the frame source (tcp/127.0.0.1:7447)",
+        default="tcp:127.0.0.1:7447",
+        metavar="ADDRESS",
+        help="the frame source, in the address syntax of every command (tcp:HOST:PORT; "
+        "Zenoh's tcp/HOST:PORT is accepted too)",
     )
     parser.add_argument(
         "--zenoh-config", default=None, help="Zenoh JSON5 config file (replaces --connect)"
     )
-    parser.add_argument("--frames", type=int, default=100, help="frames to process (100)")
+    parser.add_argument("--frames", type=int, default=100, help="frames to process")
     parser.add_argument(
         "--runs-dir", "--out", dest="runs_dir", default="runs",
-        help="where run folders go (runs); --out is the older name",
+        help="where run folders go; --out is the older name",
     )  # fmt: skip
-    parser.add_argument("--ugvs", type=int, default=3, help="UGVs in the team (3)")
+    parser.add_argument("--ugvs", type=int, default=3, help="UGVs in the team")
     parser.add_argument(
         "--timeout", type=float, default=10.0, help="give up after this long without a frame [s]"
     )
     parser.add_argument(
-        "--save-every", type=int, default=1, help="save every k-th annotated frame as PNG (1)"
+        "--save-every", type=int, default=1, help="save every k-th annotated frame as PNG"
     )
-    parser.add_argument("--strip", type=int, default=8, help="frames in strip.png (8)")
+    parser.add_argument("--strip", type=int, default=8, help="frames in strip.png")
     parser.add_argument("--no-show", action="store_true", help="never open a window")
 
 
@@ -97,49 +100,104 @@ def _try_show(img: np.ndarray, enabled: bool) -> bool:
         return False
 
 
+def zenoh_reason(e: Exception) -> str:
+    """A Zenoh error as one readable line (its message without Rust source locations)."""
+    text = str(e)
+    m = re.search(r'msg: "([^"]*)"', text)
+    text = m.group(1) if m else text
+    return re.sub(r" at /\S+", "", text).split("\n")[0].strip()
+
+
+def _session(args: argparse.Namespace):
+    from runio.address import AddressError, zenoh_endpoint
+    from scripts.cli import UsageError
+
+    if args.zenoh_config:
+        zp = ZenohParams(config_file=args.zenoh_config)
+    else:
+        try:
+            zp = subscriber_params(zenoh_endpoint(args.connect))
+        except AddressError as e:
+            raise UsageError(f"--connect {e}") from e
+    try:
+        return zp, open_session(zp)
+    except ValueError as e:
+        where = (
+            f"--zenoh-config {args.zenoh_config}"
+            if args.zenoh_config
+            else f"--connect {args.connect}"
+        )
+        raise UsageError(f"cannot open a Zenoh session ({where}): {zenoh_reason(e)}") from e
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from runio.runfolder import RunFolder, atomic_write_bytes, markdown_table
-    from scripts.cli import UsageError
+    from runio import RunFolder, atomic_write_bytes, markdown_table
 
     _check(args)
-    zp = (
-        ZenohParams(config_file=args.zenoh_config)
-        if args.zenoh_config
-        else subscriber_params(args.connect)
-    )
-    try:
-        session = open_session(zp)
-    except ValueError as e:
-        raise UsageError(f"{e}; check --connect / --zenoh-config") from e
-    rf = RunFolder("watch", root=args.runs_dir)
-    rf.write_config({"args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
-                     "zenoh": zp, "feature_params": FeatureParams()})  # fmt: skip
-    (rf.path / "frames").mkdir()
-    metrics = rf.metrics(
-        ["seq", "t_sim", "count", "all_in_view", "com_u_px", "com_v_px", "radius_px",
-         "latency_ms", *FEATURE_NAMES]
-    )  # fmt: skip
+    zp, session = _session(args)
     sub = FrameSubscriber(session, args.vehicle)
-    detector: Detector | None = None
-    shown = not args.no_show
-    processed, counts, all_in, strip = 0, [], [], []
-    t_last = time.monotonic()
-    bar = tqdm(total=args.frames, desc="watch", unit="frame", disable=None)
-    try:
-        while processed < args.frames:
+    st = {"processed": 0, "counts": [], "all_in": [], "strip": [], "detector": None}
+
+    def finish() -> None:
+        """Summary, strip.png: from what was received, on every ending (Ctrl-C too)."""
+        stats = sub.stats
+        sub.close()
+        session.close()
+        if args.strip and st["strip"]:
+            strip = st["strip"]
+            idx = np.linspace(0, len(strip) - 1, min(args.strip, len(strip))).round().astype(int)
+            tiles = [cv2.resize(strip[i][1], None, fx=0.5, fy=0.5) for i in idx]
+            labels = [f"t = {strip[i][0]:.1f} s" for i in idx]
+            write_png(run.file("strip.png"), contact_sheet(_label(tiles, labels), cols=4))
+            run.describe("strip.png", f"{len(idx)} annotated frames, sim time on each (red dot "
+                         "image centre, blue dot UGVs' centre of mass, blue circle their spread)")  # fmt: skip
+        lat = np.array(stats.latencies_s) * 1e3
+        counts, all_in = st["counts"], st["all_in"]
+        rows = [[k, v] for k, v in stats.as_dict().items()]
+        rows += [
+            ["processed", st["processed"]],
+            ["mean UGVs detected", float(np.mean(counts)) if counts else None],
+            ["all in view (fraction)", float(np.mean(all_in)) if all_in else None],
+            ["latency p50 [ms]", float(np.percentile(lat, 50)) if lat.size else None],
+            ["latency p95 [ms]", float(np.percentile(lat, 95)) if lat.size else None],
+        ]
+        table = markdown_table(["quantity", "value"], rows, missing="no frame was processed")
+        det = st["detector"]
+        cam_line = f"Camera: {det.cam}\n\nDetector: {det.p}\n" if det is not None else ""
+        run.summary(f"Frames of `skyherd/{args.vehicle}/camera/frame`.\n\n{table}\n{cam_line}")
+        print(table)
+        print(f"run folder: {run.path}")
+
+    with RunFolder.open("watch", args, root=args.runs_dir) as run:
+        run.config(zenoh=zp, feature_params=FeatureParams())
+        (run.path / "frames").mkdir()
+        run.describe("frames", f"annotated frames, PNG (one in every {args.save_every})")
+        run.describe("metrics.csv", "one row per processed frame: seq, sim time, UGVs detected, "
+                     "centre of mass, spread, latency, φ(s)")  # fmt: skip
+        metrics = run.metrics(
+            ["seq", "t_sim", "count", "all_in_view", "com_u_px", "com_v_px", "radius_px",
+             "latency_ms", *FEATURE_NAMES]
+        )  # fmt: skip
+        run.at_end(finish, "summary")
+        shown = not args.no_show
+        t_last = time.monotonic()
+        bar = run.closing(tqdm(total=args.frames, desc="watch", unit="frame", disable=None))
+        while st["processed"] < args.frames:
             fr = sub.wait(0.2)
             if fr is None:
                 if time.monotonic() - t_last > args.timeout:
                     break
                 continue
             t_last = time.monotonic()
-            if detector is None or detector.cam.width_px != fr.image.shape[1]:
-                cam = _camera_from(sub.info, fr.image.shape[:2])
-                detector = Detector(cam, args.ugvs)
-            det = detector.detect(fr.image)
-            phi = detector.features(det, -float(fr.pos_ned[2]))
+            det_ = st["detector"]
+            if det_ is None or det_.cam.width_px != fr.image.shape[1]:
+                det_ = st["detector"] = Detector(
+                    _camera_from(sub.info, fr.image.shape[:2]), args.ugvs
+                )
+            det = det_.detect(fr.image)
+            phi = det_.features(det, -float(fr.pos_ned[2]))
             img = annotate(fr.image, det, scale=2)
             com = det.measure.com_px if det.measure.com_px is not None else (np.nan, np.nan)
             metrics.write({
@@ -148,50 +206,34 @@ def run(args: argparse.Namespace) -> int:
                 "com_v_px": float(com[1]), "radius_px": det.measure.radius_px,
                 "latency_ms": 1e3 * fr.latency_s, **dict(zip(FEATURE_NAMES, phi.tolist())),
             })  # fmt: skip
-            if processed % args.save_every == 0:
+            if st["processed"] % args.save_every == 0:
                 ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
                 if ok:
                     atomic_write_bytes(
-                        rf.path / "frames" / f"frame_{fr.seq:06d}.png", png.tobytes()
+                        run.path / "frames" / f"frame_{fr.seq:06d}.png", png.tobytes()
                     )
-            strip.append(img)
+            st["strip"].append((fr.t_sim, img))
             shown = _try_show(img, shown)
-            counts.append(det.count)
-            all_in.append(det.all_in_view)
-            processed += 1
+            st["counts"].append(det.count)
+            st["all_in"].append(det.all_in_view)
+            st["processed"] += 1
             bar.update(1)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        bar.close()
-        stats = sub.stats
-        sub.close()
-        session.close()
-        metrics.close()
-    if args.strip and strip:
-        idx = np.linspace(0, len(strip) - 1, min(args.strip, len(strip))).round().astype(int)
-        tiles = [cv2.resize(strip[i], None, fx=0.5, fy=0.5) for i in idx]
-        write_png(rf.path / "strip.png", contact_sheet(tiles, cols=4))
-    lat = np.array(stats.latencies_s) * 1e3
-    rows = [[k, v] for k, v in stats.as_dict().items()]
-    rows += [
-        ["processed", processed],
-        ["mean UGVs detected", float(np.mean(counts)) if counts else 0.0],
-        ["all in view (fraction)", float(np.mean(all_in)) if all_in else 0.0],
-        ["latency p50 [ms]", float(np.percentile(lat, 50)) if lat.size else float("nan")],
-        ["latency p95 [ms]", float(np.percentile(lat, 95)) if lat.size else float("nan")],
-    ]
-    table = markdown_table(["quantity", "value"], rows)
-    cam_line = ""
-    if detector is not None:
-        cam_line = f"Camera: {detector.cam}\n\nDetector: {detector.p}\n\n"
-    rf.write_summary(
-        f"# skyherd watch {args.vehicle}\n\n{table}\n{cam_line}Run folder: {rf.path}\n"
-    )
-    print(table)
-    print(f"run folder: {rf.path}")
-    if processed == 0:
-        print(f"skyherd watch: no frame on skyherd/{args.vehicle}/camera/frame within "
-              f"{args.timeout:g} s (is a flight publishing? --connect {args.connect})")  # fmt: skip
+        if st["processed"] == 0:
+            run.fail(f"no frame on skyherd/{args.vehicle}/camera/frame within {args.timeout:g} s "
+                     f"(is a flight publishing? --connect {args.connect})")  # fmt: skip
+    if run.outcome == "failed":
+        print(f"skyherd watch: {run.reason}")
         return 1
     return 0
+
+
+def _label(tiles: list[np.ndarray], labels: list[str]) -> list[np.ndarray]:
+    """Each tile with its label (sim time) in the top-left corner, white on a dark band."""
+    out = []
+    for img, text in zip(tiles, labels):
+        img = img.copy()
+        cv2.rectangle(img, (0, 0), (min(img.shape[1], 8 + 9 * len(text)), 20), (0, 0, 0), -1)
+        cv2.putText(img, text, (4, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+                    cv2.LINE_AA)  # fmt: skip
+        out.append(img)
+    return out

@@ -1,0 +1,93 @@
+"""decisions.jsonl: the per-decision record of LAYOUT.md, one JSON object per pilot decision,
+appended and flushed per record (a kill leaves every decision already made).
+
+    {"t": sim s, "vehicle": "uav0", "pilot": "policy|pid|orbit|formation|square",
+     "phi": [8 floats] or null, "proposed": {"pos_ned", "vel_ned", "yaw"},
+     "certified": {same keys}, "verdict": "accepted|projected|rejected|fallback|pid",
+     "reason": "text", "mode": "ai|fallback|pid", "autopilot_mode": "OFFBOARD|HOLD|...",
+     "explanation": {...} (optional)}
+
+Strict JSON: NaN and ±inf are written as null (a JSON reader would reject NaN).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from runio.runfolder import to_jsonable
+
+KEYS = ("t", "vehicle", "pilot", "phi", "proposed", "certified", "verdict", "reason", "mode",
+        "autopilot_mode")  # fmt: skip
+VERDICTS = ("accepted", "projected", "rejected", "fallback", "pid")
+COMMAND_KEYS = ("pos_ned", "vel_ned", "yaw")
+
+
+def _strict(v: Any) -> Any:
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _strict(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [_strict(x) for x in v]
+    return v
+
+
+def normalise(record: dict[str, Any]) -> dict[str, Any]:
+    """The record with every LAYOUT key present (missing → null; commands get all three keys).
+    A record without a finite t or with an unknown verdict raises ValueError."""
+    rec = _strict(to_jsonable(dict(record)))
+    t = rec.get("t")
+    if not isinstance(t, int | float) or isinstance(t, bool):
+        raise ValueError(f"decision record needs a finite sim time t [s], got {record.get('t')!r}")
+    if rec.get("verdict") not in VERDICTS:
+        raise ValueError(f"decision verdict must be one of {VERDICTS}, got {rec.get('verdict')!r}")
+    for k in KEYS:
+        rec.setdefault(k, None)
+    for k in ("proposed", "certified"):
+        if rec[k] is not None:
+            rec[k] = {c: rec[k].get(c) for c in COMMAND_KEYS} | {
+                c: v for c, v in rec[k].items() if c not in COMMAND_KEYS
+            }
+    return rec
+
+
+class DecisionLog:
+    """Append-only decisions.jsonl; counts decisions by verdict and keeps the reasons."""
+
+    def __init__(self, path: Path | str):
+        self.path = Path(path)
+        self._f = open(self.path, "a", encoding="utf-8")
+        self.counts: dict[str, int] = {}
+        self.reasons: dict[str, int] = {}  # reason of non-accepted decisions → count
+
+    def write(self, record: dict[str, Any]) -> dict[str, Any]:
+        rec = normalise(record)
+        self._f.write(json.dumps(rec, sort_keys=True, allow_nan=False) + "\n")
+        self._f.flush()
+        v = rec["verdict"]
+        self.counts[v] = self.counts.get(v, 0) + 1
+        if v != "accepted" and rec.get("reason"):
+            self.reasons[rec["reason"]] = self.reasons.get(rec["reason"], 0) + 1
+        return rec
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def close(self) -> None:
+        self._f.close()
+
+
+def read_decisions(path: Path | str) -> list[dict[str, Any]]:
+    """Every complete record of a decisions.jsonl (a line cut by a kill is skipped)."""
+    out = []
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+    return out

@@ -1,0 +1,90 @@
+"""Configuration files validated by a schema library (pydantic), with one-line errors that
+name the table and the key: `[limits] ceiling_m must be a finite number, got 'high'`.
+
+    fill_dataclass(Limits, doc["limits"], "limits")     a frozen dataclass from a TOML table
+    validate_mapping(table, float, known, "params")     NAME = number tables
+
+Strict types: an integer field takes no float or bool, a number field no string, a boolean no
+0/1; NaN and ±inf are refused; unknown keys are errors (a typo never passes silently).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import typing
+from collections.abc import Iterable
+from typing import Any
+
+from pydantic import ConfigDict, ValidationError, create_model
+
+STRICT = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+class ConfigError(ValueError):
+    """A configuration table that does not match its schema (one-line message)."""
+
+
+def _json(table: Any) -> str:
+    # JSON keeps strict checking simple (arrays → tuples); inf/nan survive as Infinity/NaN
+    return json.dumps(table, allow_nan=True, default=str)
+
+
+def _one_line(e: ValidationError, where: str, known: Iterable[str] = ()) -> str:
+    err = e.errors()[0]
+    loc = ".".join(str(p) for p in err["loc"])
+    if err["type"] == "extra_forbidden":
+        return f"[{where}] unknown key {loc!r}; known: {', '.join(sorted(known))}"
+    more = f" (and {e.error_count() - 1} more)" if e.error_count() > 1 else ""
+    what = _WHAT.get(err["type"], err["msg"].lower())
+    return f"[{where}] {loc} {what}, got {err.get('input')!r}{more}"
+
+
+_WHAT = {  # pydantic error type → the words of the message
+    "float_type": "must be a finite number",
+    "float_parsing": "must be a finite number",
+    "finite_number": "must be a finite number",
+    "int_type": "must be an integer",
+    "int_from_float": "must be an integer",
+    "bool_type": "must be true/false",
+    "string_type": "must be a string",
+    "tuple_type": "must be an array",
+    "list_type": "must be an array",
+    "missing": "is missing an element",
+    "too_long": "has too many elements",
+}
+
+
+def fill_dataclass(cls: type, table: Any, where: str):
+    """An instance of the dataclass `cls` from `table` (defaults for missing keys)."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"[{where}] must be a table, got {type(table).__name__}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: (hints[f.name], f.default if f.default is not dataclasses.MISSING
+                       else f.default_factory())  # type: ignore[misc]
+              for f in dataclasses.fields(cls) if f.init}  # fmt: skip
+    model = create_model(f"{cls.__name__}Table", __config__=STRICT, **fields)  # type: ignore[call-overload]
+    try:
+        values = model.model_validate_json(_json(table))
+    except ValidationError as e:
+        raise ConfigError(_one_line(e, where, fields)) from e
+    return cls(**{k: getattr(values, k) for k in table})
+
+
+def validate_mapping(table: Any, value_type: type, known: Iterable[str], where: str) -> dict:
+    """A NAME = value table whose names must be in `known` and values of `value_type`."""
+    known = list(known)
+    if not isinstance(table, dict):
+        raise ConfigError(f"[{where}] must be a table, got {type(table).__name__}")
+    model = create_model(
+        f"{where}Table", __config__=STRICT, **{k: (value_type | None, None) for k in known}
+    )  # type: ignore[call-overload]
+    try:
+        values = model.model_validate_json(_json(table))
+    except ValidationError as e:
+        raise ConfigError(_one_line(e, where, known)) from e
+    out = {k: getattr(values, k) for k in table}
+    if value_type is float and not all(math.isfinite(v) for v in out.values()):
+        raise ConfigError(f"[{where}] values must be finite numbers")
+    return out
