@@ -16,13 +16,19 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sitl": ("scripts.sitl", "run one simulated vehicle with its MAVLink endpoints"),
     "fly": ("scripts.fly", "fly a mission end to end (the main job)"),
     "sim": ("scripts.sim", "the world: vehicle, UGV team and camera on one clock"),
-    "companion": ("scripts.companion", "the onboard computer: camera → policy → safety net → MAVLink"),
+    "companion": (
+        "scripts.companion",
+        "the onboard computer: camera → policy → safety net → MAVLink",
+    ),
     "drill": ("scripts.drill", "geofence and envelope-violation drills"),
     "train": ("scripts.train", "train the learners (sql, irl, ab)"),
     "teleop": ("scripts.teleop", "fly or demonstrate from the keyboard"),
     "watch": ("scripts.watch", "watch a flight's camera frames with detections"),
     "educate": ("scripts.educate", "teach a curriculum of lessons; a modular policy that explains"),
-    "explain": ("scripts.explain", "a run's decisions as a readable timeline (module, reason, net)"),
+    "explain": (
+        "scripts.explain",
+        "a run's decisions as a readable timeline (module, reason, net)",
+    ),
     "reproduce": ("scripts.reproduce", "reproduce a published study in one command (sql)"),
 }
 
@@ -67,7 +73,9 @@ class Parser(argparse.ArgumentParser):
 class _Version(argparse.Action):
     """--version: the package version and the code's git commit (looked up only when asked)."""
 
-    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+    def __init__(
+        self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None
+    ):
         super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
 
     def __call__(self, parser, namespace, values, option_string=None):
@@ -75,7 +83,9 @@ class _Version(argparse.Action):
 
         v = code_version()
         commit = v.get("git_commit")
-        extra = f" (git {commit[:12]}{', modified' if v.get('git_dirty') else ''})" if commit else ""
+        extra = (
+            f" (git {commit[:12]}{', modified' if v.get('git_dirty') else ''})" if commit else ""
+        )
         print(f"skyherd {v.get('package_version') or 'unknown'}{extra}")
         parser.exit(0)
 
