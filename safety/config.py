@@ -66,7 +66,7 @@ def parse_envelope(doc: dict[str, Any], source: str = "") -> EnvelopeSpec:
         )
     dyn = fill_dataclass(Dynamics, doc.get("dynamics", {}), "dynamics")
     lim = fill_dataclass(Limits, doc.get("limits", {}), "limits")
-    _check_limits(dyn, lim)
+    _check_limits(dyn, lim)  # before the zones: their circles need valid circle_sides
     fence = doc.get("fence", {})
     if not isinstance(fence, dict):
         raise ValueError("[fence] must be a table")
@@ -78,7 +78,9 @@ def parse_envelope(doc: dict[str, Any], source: str = "") -> EnvelopeSpec:
     )
     if not inc and lim.home_radius_m <= 0:
         raise ValueError("no inclusion fence and no home radius: the envelope would be unbounded")
-    return EnvelopeSpec(head["name"], head["version"], head["airframe"], dyn, lim, inc, exc, source)
+    spec = EnvelopeSpec(head["name"], head["version"], head["airframe"], dyn, lim, inc, exc, source)
+    check_spec(spec)
+    return spec
 
 
 def _table(doc: dict, key: str) -> dict:
@@ -115,39 +117,77 @@ def fill_dataclass(cls, table: Any, where: str):
     return cls(**kw)
 
 
+# Plausible ranges of every number of a constraint set (SI). Outside = a typo or a unit
+# mix-up (degrees for radians, cm for m), refused with the key's name.
+RANGES: dict[str, tuple[float, float]] = {
+    "dynamics.dt_s": (1e-3, 1.0),
+    "dynamics.tau_s": (1e-3, 30.0),
+    "dynamics.decel_h_mps2": (0.0, 30.0),
+    "dynamics.decel_v_mps2": (0.05, 30.0),
+    "dynamics.react_s": (0.01, 10.0),  # a zero reaction time is never true
+    "dynamics.bank_max_rad": (0.0, 1.4),
+    "limits.ceiling_m": (1.0, 10_000.0),
+    "limits.floor_m": (0.0, 9_999.0),
+    "limits.speed_h_mps": (0.1, 150.0),
+    "limits.climb_mps": (0.05, 50.0),
+    "limits.descent_mps": (0.05, 50.0),
+    "limits.accel_h_mps2": (0.05, 50.0),
+    "limits.accel_v_mps2": (0.05, 50.0),
+    "limits.tilt_cmd_rad": (0.01, 1.5),
+    "limits.attitude_max_rad": (0.01, 1.5),
+    "limits.state_speed_factor": (1.0, 5.0),
+    "limits.home_radius_m": (0.0, 100_000.0),
+    "limits.margin_m": (0.0, 10_000.0),
+    "limits.near_m": (0.0, 10_000.0),
+    "limits.breach_tolerance_m": (0.0, 100.0),
+    "limits.circle_sides": (3, 256),
+    "limits.speed_sides": (4, 64),
+}
+MAX_FENCE_M = 100_000.0  # a fence vertex farther from home than this is a unit error [m]
+
+
+def check_spec(spec: EnvelopeSpec) -> None:
+    """Validate an envelope's own values (also one built in code or from MAVLink fence
+    items): ValueError with a one-line reason naming the key."""
+    _check_limits(spec.dynamics, spec.limits)
+    lim = spec.limits
+    for z in (*spec.inclusions, *spec.exclusions):
+        far = float(np.abs(z.points).max()) if len(z.points) else 0.0
+        if not far <= MAX_FENCE_M:
+            raise ValueError(
+                f"fence {z.name}: a vertex {far:.0f} m from home (> {MAX_FENCE_M:.0f} m)"
+            )
+    if spec.inclusions:
+        pts = np.concatenate([z.points for z in spec.inclusions])
+        half = 0.5 * float(np.min(pts.max(axis=0) - pts.min(axis=0)))
+        if lim.margin_m >= half:
+            raise ValueError(
+                f"limits.margin_m ({lim.margin_m:g} m) must be below half the fence's narrowest "
+                f"extent ({half:.1f} m): nothing would be allowed"
+            )
+    if lim.margin_m >= 0.5 * (lim.ceiling_m - lim.floor_m):
+        raise ValueError(
+            f"limits.margin_m ({lim.margin_m:g} m) must be below half the altitude band "
+            f"({0.5 * (lim.ceiling_m - lim.floor_m):g} m)"
+        )
+
+
 def _check_limits(dyn: Dynamics, lim: Limits) -> None:
-    positive = {
-        "dynamics.dt_s": dyn.dt_s,
-        "dynamics.tau_s": dyn.tau_s,
-        "dynamics.decel_v_mps2": dyn.decel_v_mps2,
-        "limits.speed_h_mps": lim.speed_h_mps,
-        "limits.climb_mps": lim.climb_mps,
-        "limits.descent_mps": lim.descent_mps,
-        "limits.accel_h_mps2": lim.accel_h_mps2,
-        "limits.accel_v_mps2": lim.accel_v_mps2,
-        "limits.tilt_cmd_rad": lim.tilt_cmd_rad,
-        "limits.attitude_max_rad": lim.attitude_max_rad,
-    }
-    for k, v in positive.items():
-        if not v > 0:
-            raise ValueError(f"{k} must be > 0, got {v}")
-    for k, v in {"dynamics.decel_h_mps2": dyn.decel_h_mps2, "dynamics.react_s": dyn.react_s,
-                 "dynamics.bank_max_rad": dyn.bank_max_rad, "limits.margin_m": lim.margin_m,
-                 "limits.floor_m": lim.floor_m}.items():  # fmt: skip
-        if v < 0:
-            raise ValueError(f"{k} must be >= 0, got {v}")
+    vals = {f"dynamics.{k}": getattr(dyn, k) for k in ("dt_s", "tau_s", "decel_h_mps2",
+            "decel_v_mps2", "react_s", "bank_max_rad")}  # fmt: skip
+    vals.update({f"limits.{f.name}": getattr(lim, f.name) for f in dataclasses.fields(lim)})
+    for k, (lo, hi) in RANGES.items():
+        v = vals[k]
+        if not (isinstance(v, int | float) and math.isfinite(v) and lo <= v <= hi):
+            raise ValueError(f"{k} must be within [{lo:g}, {hi:g}], got {v}")
+    if dyn.dt_s > dyn.tau_s:
+        raise ValueError(f"dynamics.dt_s ({dyn.dt_s:g} s) must not exceed tau_s ({dyn.tau_s:g} s)")
     if dyn.decel_h_mps2 == 0 and dyn.bank_max_rad == 0:
         raise ValueError("dynamics: set decel_h_mps2 (can stop) or bank_max_rad (loiters)")
-    if dyn.bank_max_rad >= math.pi / 2:
-        raise ValueError("dynamics.bank_max_rad must be below pi/2 rad")
     if not lim.ceiling_m > lim.floor_m:
         raise ValueError(
             f"limits.ceiling_m ({lim.ceiling_m}) must be above floor_m ({lim.floor_m})"
         )
-    if lim.tilt_cmd_rad >= math.pi / 2 or lim.attitude_max_rad >= math.pi / 2:
-        raise ValueError("limits: tilt angles must be below pi/2 rad")
-    if lim.circle_sides < 3 or lim.speed_sides < 4:
-        raise ValueError("limits: circle_sides >= 3 and speed_sides >= 4")
 
 
 def _zone(t: Any, where: str, sides: int, exclusion: bool) -> Zone:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from flight.geo import Home, geodetic_to_ned
+from safety.config import check_spec
 from safety.envelope import Envelope, EnvelopeSpec, Zone, circle_zone, polygon_zone
 
 FENCE_RETURN_POINT = 5000
@@ -127,10 +128,15 @@ def envelope_from_fence_items(
     digest = hashlib.sha256(
         repr([tuple(round(x, 9) for x in p) for p in parsed]).encode()
     ).hexdigest()[:8]
-    return dataclasses.replace(
+    spec = dataclasses.replace(
         base,
         version=f"{base.version}+fence-{digest}",
         inclusions=tuple(inc) if inc else base.inclusions,
         exclusions=tuple(exc),
         source=f"{len(parsed)} MAVLink fence items over {base.source or base.name}",
     )
+    try:
+        check_spec(spec)
+    except ValueError as e:
+        raise FenceItemsError(f"uploaded fence: {e}") from e
+    return spec

@@ -1,8 +1,14 @@
-"""The safety net beside an autopilot, in two calls (for `skyherd fly` and the drills).
+"""The safety net beside an autopilot (for `skyherd fly`, the companion and the drills).
 
-net = load_net("quadrotor", events=run.events())          # constraint set + supervisor
-d = net.update(t, ap.state, proposal, Health(camera_t, link_t))
-apply_decision(ap, d)                                     # HOLD or the offboard setpoint
+    sup = load_net("quadrotor", events=run.events())      # constraint set + supervisor
+    auth = Authority(events=run.events())                 # who commands (safety.authority)
+    auth.start(t, ap.mode)                                # after the OFFBOARD hand-over
+    d = sup.update(t, ap.state, proposal, health)         # health: safety.health.HealthTracker
+    apply_decision(ap, d, authority=auth)                 # HOLD or the setpoint, unless yielded
+
+`SafetyNet` bundles the four (supervisor, authority, health tracker, parameter guard) for a
+companion that receives MAVLink messages and camera frames: `net.step(...)` → Decision and the
+mode to request (None = request nothing).
 """
 
 from __future__ import annotations
@@ -15,7 +21,10 @@ import numpy as np
 from flight.autopilot_api import Autopilot, FlightMode, Result, Setpoint
 from flight.geo import GRAVITY
 from flight.state import VehicleState
+from safety.authority import NET_MODES, Authority
 from safety.config import default_envelope_path, fill_dataclass, load_envelope
+from safety.consistency import ParamGuard
+from safety.health import HealthTracker
 from safety.supervisor import Decision, EventSink, Health, Mode, Supervisor, SupervisorParams
 
 
@@ -35,15 +44,85 @@ def load_net(
     return Supervisor(spec.envelope(), params, events)
 
 
-def apply_decision(ap: Autopilot, d: Decision, use_autopilot_hold: bool = True) -> Result:
+def apply_decision(
+    ap: Autopilot, d: Decision, use_autopilot_hold: bool = True, authority: Authority | None = None
+) -> Result:
     """FALLBACK → the autopilot's own HOLD (hover / loiter); otherwise stream the command and
-    make sure the autopilot is in OFFBOARD."""
-    if d.mode is Mode.FALLBACK and use_autopilot_hold:
-        return ap.set_mode(FlightMode.HOLD) if ap.mode != FlightMode.HOLD else Result.accepted()
-    r = ap.set_offboard_setpoint(d.command)
-    if r.ok and ap.mode != FlightMode.OFFBOARD:
-        r = ap.set_mode(FlightMode.OFFBOARD)
+    make sure the autopilot is in OFFBOARD — as long as the net has authority.
+
+    With an `authority` (safety.authority) the autopilot's reported mode is observed first; a
+    mode the net did not ask for ends the AI's authority and nothing is sent, ever again
+    (until someone else gives OFFBOARD back). Without one, the net still never switches away
+    from a mode it could not have set (RTL, LAND, a manual mode, MISSION, ...)."""
+    t = float(ap.clock.t)
+    hold = d.mode is Mode.FALLBACK and use_autopilot_hold
+    want = FlightMode.HOLD if hold else FlightMode.OFFBOARD
+    if authority is not None:
+        authority.observe(t, ap.mode)
+        if not authority.has_authority:
+            return Result.denied(f"the net has no authority: {authority.reason}")
+    elif ap.mode not in NET_MODES:
+        return Result.denied(f"the autopilot is in {ap.mode.name}: the net does not override it")
+    r = Result.accepted() if hold else ap.set_offboard_setpoint(d.command)
+    if not r.ok:
+        return r
+    ask = authority.request(want) if authority is not None else (want if ap.mode != want else None)
+    if ask is None:
+        return r
+    r = ap.set_mode(ask)
+    if authority is not None:
+        authority.requested(t, ask, r.ok)
+        authority.observe(t, ap.mode)  # in-process the switch is immediate
     return r
+
+
+class SafetyNet:
+    """Supervisor + authority + health + parameter guard for one vehicle (pure; time in).
+
+    Feed it what arrives (`message`, `frame`, `param`) and call `step` once per decision;
+    `step` returns the Decision (its `record()` is the decisions.jsonl line) and the mode to
+    request now, or None. Before `handover` it commands nothing; `handover_ok()` says whether
+    it may (parameters consistent)."""
+
+    def __init__(self, supervisor: Supervisor, events: EventSink | None = None,
+                 vehicle: str = "uav0", camera: bool = True):  # fmt: skip
+        self.supervisor = supervisor
+        self.authority = Authority(events, vehicle)
+        self.health = HealthTracker(camera=camera)
+        self.params = ParamGuard(supervisor.envelope.spec, supervisor.p.pos_speed_max_mps,
+                                 events, vehicle)  # fmt: skip
+
+    def message(self, t: float, msg_type: str) -> None:
+        self.health.message(t, msg_type)
+
+    def frame(self, t: float, stamp_t: float | None = None) -> None:
+        self.health.frame(t, stamp_t)
+
+    def param(self, t: float, name: str, value: float) -> str:
+        return self.params.update(t, name, value)
+
+    def handover_ok(self) -> tuple[bool, str]:
+        return self.params.handover()
+
+    def handover(self, t: float, observed: FlightMode | None) -> None:
+        """The companion switched the autopilot to OFFBOARD/GUIDED (accepted) at t."""
+        self.authority.start(t, observed)
+
+    def step(self, t: float, state: VehicleState, proposed: Setpoint | None,
+             autopilot_mode: FlightMode | None, why: str = "") -> tuple[Decision, FlightMode | None]:  # fmt: skip
+        """One decision at t: (decision, mode to request or None). After a yield the decision
+        is still computed (and recorded) but nothing is to be sent."""
+        self.authority.observe(t, autopilot_mode, why)
+        h = self.health.health()
+        h = Health(h.camera_t, h.link_t, self.params.fault)
+        d = self.supervisor.update(t, state, proposed, h)
+        if not self.authority.has_authority:
+            return d, None
+        want = FlightMode.HOLD if d.mode is Mode.FALLBACK else FlightMode.OFFBOARD
+        return d, self.authority.request(want)
+
+    def requested(self, t: float, mode: FlightMode, accepted: bool) -> None:
+        self.authority.requested(t, mode, accepted)
 
 
 def warm_up(envelope, params) -> float:

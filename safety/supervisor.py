@@ -25,6 +25,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from flight.autopilot_api import FlightMode, Setpoint
+from flight.geo import GRAVITY
 from flight.state import VehicleState
 from safety.envelope import NZ, Envelope
 from safety.fallback import HoverFallback, LoiterFallback, PidGains, RecoveryPID, inside_with_margin
@@ -69,6 +70,14 @@ class SupervisorParams:
     ki: float = 0.02
     kd: float = 0.2
     fixedwing_min_speed_mps: float = 12.0  # loiter speed floor for the fixed-wing fallback
+    pos_gain_xy: float = 0.95  # the autopilot's MPC_XY_P: position setpoint → velocity [1/s]
+    pos_gain_z: float = 1.0  # the autopilot's MPC_Z_P [1/s]
+    pos_speed_max_mps: float = 12.0  # the autopilot's MPC_XY_VEL_MAX: position-mode speed [m/s]
+    loiter_radius_m: float = (
+        0.0  # fixed-wing loiter radius about a position setpoint (0: turn radius)
+    )
+    gps_jump_m: float = 0.0  # position vs dead reckoning beyond this = GPS glitch (0: off) [m]
+    gps_blend_s: float = 5.0  # dead reckoning pulled to the position with this time constant [s]
 
     def __post_init__(self) -> None:
         if self.intervention not in ("switch", "project"):
@@ -82,6 +91,7 @@ class SupervisorParams:
             "link_timeout_s",
             "recover_tol_m",
             "recover_speed_mps",
+            "gps_blend_s",
         ):
             if not getattr(self, k) > 0:
                 raise ValueError(f"supervisor.{k} must be > 0, got {getattr(self, k)}")
@@ -94,11 +104,16 @@ class Health:
 
     camera_t: float | None = None
     link_t: float | None = None
+    params_fault: str = ""  # the autopilot's parameters disagree with the envelope (ParamGuard)
 
 
 @dataclass(frozen=True)
 class Decision:
-    """What leaves the safety net this step."""
+    """What leaves the safety net this step.
+
+    `command` is what is flown (certified); `proposed` the AI action it was judged from (None:
+    no new action this step, the held one was re-judged). `verdict` is one word of the
+    per-decision record (LAYOUT.md): accepted | projected | rejected | fallback | pid."""
 
     command: Setpoint
     mode: Mode
@@ -106,6 +121,70 @@ class Decision:
     reason: str
     autopilot_mode: FlightMode  # HOLD while in FALLBACK (the autopilot's own hover / loiter)
     ai_rejected: bool  # a (new or held) AI action was not flown as proposed
+    t: float = math.nan  # simulation time of the decision [s]
+    proposed: Setpoint | None = None
+
+    @property
+    def verdict(self) -> str:
+        if self.mode is Mode.FALLBACK:
+            return "fallback"
+        if self.mode is Mode.PID:
+            return "pid"
+        if self.severity is Severity.PROJECTED:
+            return "projected"
+        return "rejected" if self.ai_rejected else "accepted"
+
+    def record(
+        self,
+        vehicle: str = "uav0",
+        pilot: str = "policy",
+        phi=None,
+        autopilot_mode: FlightMode | str | None = None,
+        explanation: dict | None = None,
+    ) -> dict[str, Any]:
+        """The per-decision record of LAYOUT.md (one line of decisions.jsonl), JSON-ready.
+
+        autopilot_mode: the mode the autopilot reports (heartbeat); default the mode the net
+        wants it in."""
+        ap = autopilot_mode if autopilot_mode is not None else self.autopilot_mode
+        rec: dict[str, Any] = {
+            "t": None if not math.isfinite(self.t) else round(float(self.t), 6),
+            "vehicle": vehicle,
+            "pilot": pilot,
+            "phi": None if phi is None else [float(x) for x in np.asarray(phi).ravel()],
+            "proposed": setpoint_record(self.proposed),
+            "certified": setpoint_record(self.command),
+            "verdict": self.verdict,
+            "reason": self.reason,
+            "mode": self.mode.value,
+            "autopilot_mode": ap.name if isinstance(ap, FlightMode) else str(ap),
+        }
+        if explanation is not None:
+            rec["explanation"] = explanation
+        return rec
+
+
+def setpoint_record(sp: Setpoint | None) -> dict[str, Any]:
+    """{"pos_ned", "vel_ned", "yaw"} of a setpoint as lists / floats / None (non-finite kept
+    as None so that the record stays valid JSON)."""
+
+    def vec(v):
+        if v is None:
+            return None
+        try:
+            a = np.asarray(v, dtype=float).ravel()
+        except (TypeError, ValueError):
+            return None
+        return [float(x) if math.isfinite(x) else None for x in a]
+
+    if sp is None:
+        return {"pos_ned": None, "vel_ned": None, "yaw": None}
+    yaw = sp.yaw
+    try:
+        yaw = None if yaw is None or not math.isfinite(float(yaw)) else float(yaw)
+    except (TypeError, ValueError):
+        yaw = None
+    return {"pos_ned": vec(sp.pos_ned), "vel_ned": vec(sp.vel_ned), "yaw": yaw}
 
 
 class EventSink(Protocol):
@@ -159,11 +238,16 @@ class Supervisor:
         self.max_cmd = params.out_of_range_factor * max(
             spec.limits.speed_h_mps, spec.limits.climb_mps, spec.limits.descent_mps
         )
+        self.loiter_radius_m = params.loiter_radius_m  # the orbit sets NAV_LOITER_RAD's value
         self.mode = Mode.AI
         self.mode_since = 0.0
         self.clean_since: float | None = None
         self.last_action_t: float | None = None
         self.last_u: np.ndarray | None = None
+        self.last_sp: Setpoint | None = None  # the last well-formed AI action (yaw, position)
+        self._p_dr: np.ndarray | None = None  # dead-reckoned position (GPS glitch guard)
+        self._dr_t: float | None = None
+        self.position_suspect = False
         self.last_t: float | None = None
         self.stats = SupervisorStats()
         self._z = np.zeros(NZ)
@@ -194,21 +278,16 @@ class Supervisor:
             return Severity.FALLBACK, f"MAVLink link lost ({t - health.link_t:.1f} s)", None
         if health.camera_t is not None and t - health.camera_t > p.camera_timeout_s:
             return Severity.FALLBACK, f"camera lost ({t - health.camera_t:.1f} s)", None
+        if health.params_fault:
+            return Severity.FALLBACK, f"autopilot parameters: {health.params_fault}", None
+        jump = self._position_check(state)
+        if jump:
+            return Severity.FALLBACK, jump, None
         if proposed is not None:
             self.last_action_t = t
-            u = proposed.vel_ned
-            if u is None:
-                self.last_u = None
-                return Severity.FALLBACK, "malformed action (no velocity command)", None
-            try:
-                u = np.asarray(u, dtype=float).reshape(-1)
-            except (TypeError, ValueError):
-                self.last_u = None
-                return Severity.FALLBACK, "malformed action (velocity not numeric)", None
-            if u.shape != (3,):
-                self.last_u = None
-                return Severity.FALLBACK, f"malformed action (velocity of shape {u.shape})", None
-            self.last_u = u
+            why = self._accept_action(proposed)
+            if why:
+                return Severity.FALLBACK, why, None
         if self.last_action_t is None or t - self.last_action_t > p.deadline_s:
             since = self.last_action_t if self.last_action_t is not None else self.mode_since
             return (
@@ -216,6 +295,8 @@ class Supervisor:
                 f"action deadline missed ({t - since:.2f} s > {p.deadline_s:g} s)",
                 None,
             )
+        if self.last_sp is not None and self.last_sp.pos_ned is not None:
+            self.last_u = self.implied_velocity(state, self.last_sp)  # what the autopilot flies
         u = self.last_u
         if u is None:
             return Severity.FALLBACK, "malformed action (no velocity command)", None
@@ -243,6 +324,106 @@ class Supervisor:
             if up is not None:
                 return Severity.PROJECTED, name, up
         return Severity.FALLBACK, name, None
+
+    def _position_check(self, state: VehicleState) -> str:
+        """GPS glitch guard: the position must agree with the dead-reckoned one.
+
+        p_dr(t) = p_dr(t−dt) + dt · v(t)   (velocity from the inertial estimate, which a GPS
+        step does not move), pulled toward the measured position with time constant
+        gps_blend_s while they agree. |p − p_dr| > gps_jump_m is a position fault (FALLBACK)
+        that lasts until the position returns within gps_jump_m of the dead reckoning; the
+        dead reckoning is not pulled while it lasts. Assumption: a step ≥ gps_jump_m is a
+        glitch; a drift slower than gps_jump_m / gps_blend_s is not seen here (the margin and
+        the autopilot's EKF innovation gate must cover it)."""
+        p = self.p
+        if p.gps_jump_m <= 0:
+            return ""
+        pos, t = state.pos_ned, float(state.t)
+        if self._p_dr is None or self._dr_t is None or not np.all(np.isfinite(self._p_dr)):
+            self._p_dr, self._dr_t = np.array(pos, float), t
+            return ""
+        dt = min(max(t - self._dr_t, 0.0), 1.0)
+        self._dr_t = t
+        self._p_dr = self._p_dr + dt * np.asarray(state.vel_ned, float)
+        innov = pos - self._p_dr
+        e = float(np.linalg.norm(innov))
+        if e > p.gps_jump_m:
+            self.position_suspect = True
+            return f"position jumped {e:.1f} m from the dead-reckoned one (GPS glitch?)"
+        self.position_suspect = False
+        self._p_dr = self._p_dr + min(dt / p.gps_blend_s, 1.0) * innov
+        return ""
+
+    def _accept_action(self, proposed: Setpoint) -> str:
+        """Validate a new AI action and keep it (last_sp, last_u); the fault reason or ""."""
+        self.last_sp = None
+        if not isinstance(proposed, Setpoint):
+            self.last_u = None
+            return "malformed action (not a Setpoint)"
+        u = proposed.vel_ned
+        if u is None and proposed.pos_ned is None:
+            self.last_u = None
+            return "malformed action (no velocity or position command)"
+        if u is not None:
+            try:
+                u = np.asarray(u, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                self.last_u = None
+                return "malformed action (velocity not numeric)"
+            if u.shape != (3,):
+                self.last_u = None
+                return f"malformed action (velocity of shape {u.shape})"
+        bad = _bad_extras(proposed)
+        if bad:
+            self.last_u = np.full(3, math.nan)  # held as a non-finite action
+            return f"non-finite action ({bad})"
+        self.last_u = u
+        self.last_sp = proposed
+        return ""
+
+    def implied_velocity(self, state: VehicleState, sp: Setpoint) -> np.ndarray:
+        """The velocity [m/s NED] the autopilot flies for a position setpoint, which is what
+        the net certifies (docs/safety.md, "Position setpoints"):
+
+        multirotor (PX4 position loop):  u = v_ff + K (p_sp − p),  K = diag(kxy, kxy, kz)
+            with kxy = MPC_XY_P, kz = MPC_Z_P (SupervisorParams.pos_gain_xy / pos_gain_z),
+            horizontal part clipped at pos_speed_max_mps (MPC_XY_VEL_MAX);
+        fixed-wing (loiter about p_sp, radius `loiter_radius_m`, clockwise like the
+            autopilot): the course the loiter vector field asks for, reached no faster than a
+            turn at the envelope's bank limit over the velocity loop's time constant,
+            Δψ ≤ τ g tan(φ_max) / V, at the present airspeed; vertical as the multirotor."""
+        p = self.p
+        pos = np.asarray(sp.pos_ned, float)
+        e = pos - state.pos_ned
+        ff = np.zeros(3) if sp.vel_ned is None else np.asarray(sp.vel_ned, float)
+        vd = ff[2] + p.pos_gain_z * e[2]
+        lim = self.envelope.spec.limits
+        vd = min(max(vd, -lim.climb_mps), lim.descent_mps)
+        dyn = self.envelope.spec.dynamics
+        if dyn.bank_max_rad <= 0:
+            u = ff[:2] + p.pos_gain_xy * e[:2]
+            h = float(np.hypot(u[0], u[1]))
+            if h > p.pos_speed_max_mps:
+                u *= p.pos_speed_max_mps / h
+            return np.array([u[0], u[1], vd])
+        v = state.vel_ned[:2]
+        speed = max(float(np.hypot(v[0], v[1])), p.fixedwing_min_speed_mps)
+        radius = self.loiter_radius_m or dyn.turn_radius(speed)
+        r = state.pos_ned[:2] - pos[:2]
+        d = float(np.hypot(r[0], r[1]))
+        if d < 1e-6:
+            want = v
+        else:
+            rad = r / d
+            tangent = np.array([-rad[1], rad[0]])  # clockwise seen from above
+            want = tangent - 1.5 * (d - radius) / radius * rad
+        psi_v = (
+            math.atan2(v[1], v[0]) if np.hypot(v[0], v[1]) > 0.5 else math.atan2(want[1], want[0])
+        )
+        step = dyn.tau_s * GRAVITY * math.tan(dyn.bank_max_rad) / speed
+        dpsi = (math.atan2(want[1], want[0]) - psi_v + math.pi) % (2 * math.pi) - math.pi
+        psi = psi_v + max(-step, min(step, dpsi))
+        return np.array([speed * math.cos(psi), speed * math.sin(psi), vd])
 
     # ------------------------------------------------------------------ update
     def update(
@@ -275,8 +456,9 @@ class Supervisor:
                 if rejected and proposed is not None:
                     self.stats.rejected += 1
                 return Decision(
-                    Setpoint(vel_ned=u.copy()), Mode.AI, sev, reason, FlightMode.OFFBOARD, rejected
-                )
+                    self._ai_command(u, sev), Mode.AI, sev, reason, FlightMode.OFFBOARD, rejected,
+                    t, proposed,
+                )  # fmt: skip
 
         if self.mode is not Mode.AI and proposed is not None:
             self.stats.rejected += 1  # while the safety net flies, AI actions are not flown
@@ -303,6 +485,8 @@ class Supervisor:
                     reason or "holding",
                     FlightMode.HOLD,
                     rejected,
+                    t,
+                    proposed,
                 )
 
         # Mode.PID
@@ -320,7 +504,7 @@ class Supervisor:
                 state,
             )
             return Decision(
-                Setpoint(vel_ned=u.copy()), Mode.AI, sev, "", FlightMode.OFFBOARD, False
+                self._ai_command(u, sev), Mode.AI, sev, "", FlightMode.OFFBOARD, False, t, proposed
             )
         return Decision(
             self.pid.command(t, state),
@@ -329,7 +513,21 @@ class Supervisor:
             reason or "recovering",
             FlightMode.OFFBOARD,
             rejected,
+            t,
+            proposed,
         )
+
+    def _ai_command(self, u: np.ndarray, sev: Severity) -> Setpoint:
+        """What flies in AI mode: the AI's own setpoint (its position, yaw and yaw rate kept)
+        when its velocity was accepted as proposed; the projected velocity with the AI's yaw
+        when the net replaced it (a position setpoint would undo the projection, so it goes)."""
+        sp = self.last_sp
+        yaw = None if sp is None else sp.yaw
+        rate = None if sp is None else sp.yaw_rate
+        if sev == Severity.PROJECTED or sp is None:
+            return Setpoint(vel_ned=u.copy(), yaw=yaw, yaw_rate=rate)
+        pos = None if sp.pos_ned is None else np.asarray(sp.pos_ned, float).copy()
+        return Setpoint(pos_ned=pos, vel_ned=u.copy(), yaw=yaw, yaw_rate=rate)
 
     def _switch(self, t: float, to: Mode, reason: str, sev: Severity, state: VehicleState) -> None:
         frm = self.mode
@@ -363,6 +561,27 @@ class Supervisor:
                     "pid_target": self.pid.target if to is Mode.PID else None,
                 }
             )
+
+
+def _bad_extras(sp: Setpoint) -> str:
+    """Why the yaw, yaw rate or position of an action is unusable ("" if fine)."""
+    for name, v in (("yaw", sp.yaw), ("yaw rate", sp.yaw_rate)):
+        if v is None:
+            continue
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            return f"{name} not numeric"
+        if not (math.isfinite(f) and abs(f) <= 100.0):
+            return f"{name} {f}"
+    if sp.pos_ned is not None:
+        try:
+            p = np.asarray(sp.pos_ned, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            return "position not numeric"
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            return "position setpoint not 3 finite numbers"
+    return ""
 
 
 def _finite(z: np.ndarray) -> bool:

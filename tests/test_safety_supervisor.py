@@ -122,7 +122,7 @@ def test_fence_breach_fallback_pid_and_hysteresis_timeline(tmp_path):
         (sp([math.nan, 0, 0]), Health(), "non-finite action"),
         (sp([math.inf, 0, 0]), Health(), "non-finite action"),
         (sp([1e9, 0, 0]), Health(), "action out of range"),
-        (Setpoint(pos_ned=np.zeros(3)), Health(), "malformed action"),
+        (Setpoint(), Health(), "malformed action"),
         (sp([0, 0, 0]), Health(camera_t=0.0), "camera lost"),
         (sp([0, 0, 0]), Health(link_t=0.0), "MAVLink link lost"),
     ],
