@@ -40,8 +40,9 @@ def envelope_facts(spec: Any) -> dict[str, Any]:
     """A constraint set (safety.envelope.EnvelopeSpec, read by duck typing): name, version, the
     file it came from with its SHA-256, and a hash of its parsed contents (the same for two files
     that differ only in comments)."""
-    described = spec.describe() if hasattr(spec, "describe") else to_jsonable(spec)
-    text = json.dumps(to_jsonable(described), sort_keys=True, default=str)
+    described = dict(to_jsonable(spec.describe() if hasattr(spec, "describe") else spec))
+    described.pop("source", None)  # where it was read from is not what it says
+    text = json.dumps(described, sort_keys=True, default=str)
     src = getattr(spec, "source", "")
     return {
         "name": getattr(spec, "name", None),
