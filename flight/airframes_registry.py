@@ -48,10 +48,15 @@ def make_autopilot(
     home: Home = DEFAULT_HOME,
     seed: int = 0,
     instance: int = 0,
+    faults=None,
 ) -> Autopilot:
-    """A ready autopilot for `airframe` on `clock`, at `home`, on the ground, disarmed."""
+    """A ready autopilot for `airframe` on `clock`, at `home`, on the ground, disarmed.
+
+    faults: a flight.faults.FaultPlan played on the simulation clock (None: calm, perfect);
+    its random draws come from a Generator seeded with `seed`.
+    """
     cls = autopilot_class(airframe)
     clock = clock if clock is not None else SimClock()
     if airframe == "quadrotor":
-        return cls(home=home, clock=clock, seed=seed)
-    return cls(clock=clock, home=home, instance=instance, seed=seed)
+        return cls(home=home, clock=clock, seed=seed, faults=faults)
+    return cls(clock=clock, home=home, instance=instance, seed=seed, faults=faults)

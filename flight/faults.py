@@ -60,11 +60,11 @@ def wind_from(speed: float, from_deg: float, down: float = 0.0) -> tuple[float, 
 
 @dataclass(frozen=True)
 class FaultEvent:
-    """One timed fault. t0 [s sim]; duration [s] (inf = to the end); vec (3,) or value."""
+    """One timed fault. t0 [s sim]; duration [s] (None = to the end); vec (3,) or value."""
 
     kind: str
     t0: float
-    duration: float = math.inf
+    duration: float | None = None
     vec: tuple[float, float, float] = (0.0, 0.0, 0.0)
     value: float = 0.0
 
@@ -74,7 +74,7 @@ class FaultEvent:
         nums = [self.t0, *self.vec, self.value]
         if not all(math.isfinite(v) for v in nums) or self.t0 < 0:
             raise FaultSpecError(f"{self.kind}: time and values must be finite, t0 >= 0")
-        if not (self.duration > 0):
+        if self.duration is not None and not (0 < self.duration < 1e9):
             raise FaultSpecError(f"{self.kind}: duration must be > 0 s (omit it for 'to the end')")
         if self.kind == "battery" and not 0.0 <= self.value <= 1.0:
             raise FaultSpecError(f"battery@T:F needs F in [0, 1], got {self.value}")
@@ -82,11 +82,11 @@ class FaultEvent:
             raise FaultSpecError(f"drain@T:W:D needs 0 <= W <= 1e5 watts, got {self.value}")
 
     def active(self, t: float) -> bool:
-        return self.t0 <= t < self.t0 + self.duration
+        return self.t0 <= t and (self.duration is None or t < self.t0 + self.duration)
 
     def to_text(self) -> str:
         """The command-line form (parse_fault_event(e.to_text()) == e)."""
-        dur = "" if math.isinf(self.duration) else f":{self.duration:g}"
+        dur = "" if self.duration is None else f":{self.duration:g}"
         v = ",".join(f"{c:g}" for c in self.vec)
         if self.kind == "gps_loss":
             return f"gps_loss@{self.t0:g}{dur}"
@@ -189,7 +189,7 @@ def parse_fault_event(text: str) -> FaultEvent:
     if len(args) < want or len(args) > want + 1:
         form = "gps_loss@T[:DURATION]" if kind == "gps_loss" else f"{kind}@T:ARGS[:DURATION]"
         raise FaultSpecError(f"--fault {text!r}: write {form}")
-    dur = math.inf
+    dur = None
     if len(args) > want:
         dur = _floats(args[-1], f"--fault {text!r} duration", 1, 1)[0]
     try:

@@ -55,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="where run folders go (runs); --runs is the older name",
     )  # fmt: skip
     parser.add_argument("--no-tlog", action="store_true", help="do not write telemetry.tlog")
+    from flight.faults import add_fault_arguments
+
+    add_fault_arguments(parser)  # --wind --gust --noise --fault (docs/quadrotor.md, faults)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,11 +78,18 @@ def run(args: argparse.Namespace) -> int:
         home = Home.parse(args.home)
     except ValueError as e:
         raise UsageError(f"--home: {e}; give LAT,LON,ALT like -35.36,149.16,584") from e
+    from flight.faults import FaultSpecError, plan_from_args
+
+    try:
+        plan = plan_from_args(args, seed=args.seed)
+    except FaultSpecError as e:
+        raise UsageError(str(e)) from e
     clock = SimClock()
     try:
         ap = make_autopilot(
-            args.airframe, clock=clock, home=home, seed=args.seed, instance=args.instance
-        )
+            args.airframe, clock=clock, home=home, seed=args.seed, instance=args.instance,
+            faults=plan,
+        )  # fmt: skip
     except AirframeUnavailable as e:
         raise UsageError(f"{e}; use --airframe quadrotor") from e
 
@@ -93,7 +103,8 @@ def run(args: argparse.Namespace) -> int:
         tlog=None if args.no_tlog else folder.file("telemetry.tlog"),
     )
     folder.write_config({"airframe": args.airframe, "speedup": args.speedup, "home": home,
-                         "seed": args.seed, "endpoint": config, "control_dt": ap.control_dt})  # fmt: skip
+                         "seed": args.seed, "endpoint": config, "control_dt": ap.control_dt,
+                         "faults": plan, "fault_args": plan.to_args()})  # fmt: skip
     try:
         sitl = Sitl(ap, config, speedup=args.speedup)
     except OSError as e:

@@ -63,7 +63,7 @@ def test_command_line_forms_parse_round_trip_and_bad_ones_say_why():
     assert [e.kind for e in plan.events] == ["drain", "wind", "gps_glitch", "gps_loss", "battery"]
     g = plan.events[2]
     assert (g.t0, g.duration, g.vec) == (30.0, 5.0, (20.0, 0.0, 0.0))
-    assert math.isinf(plan.events[3].duration)
+    assert plan.events[3].duration is None  # to the end
     for e in plan.events:
         again = parse_fault_event(e.to_text())
         assert again.kind == e.kind and again.t0 == e.t0 and again.duration == e.duration
@@ -229,3 +229,35 @@ def test_gusts_deterministic_for_the_seed():
     ea, _ = run(a, 10.0)
     eb, _ = run(b, 10.0)
     assert np.array_equal(ea, eb) and np.ptp(ea[:, 0]) > 0.05
+
+
+def test_sitl_command_line_takes_the_fault_flags(tmp_path):
+    """`skyherd sitl` (instance 66) records the plan and its flags in config.json; a bad flag
+    is bad usage with a one-line reason."""
+    import argparse
+    import json
+    import signal
+
+    from scripts import sitl as sitl_cmd
+    from scripts.cli import UsageError
+
+    parser = argparse.ArgumentParser()
+    sitl_cmd.add_arguments(parser)
+    common = ["--instance", "66", "--speedup", "0", "--runs-dir", str(tmp_path), "--no-tlog"]
+    common += ["--state-dir", str(tmp_path / "state")]
+    args = parser.parse_args(
+        [*common, "--duration", "1", "--wind", "5,90", "--fault", "gps_loss@0.5:1"]
+    )
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        assert sitl_cmd.run(args) == 0
+    finally:  # run() installs its own handlers: give pytest its own back
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+    (cfg,) = tmp_path.glob("*/config.json")
+    data = json.loads(cfg.read_text())
+    assert data["fault_args"] == ["--wind", "5,90,0", "--fault", "gps_loss@0.5:1"]
+    assert data["faults"]["events"][0]["kind"] == "gps_loss"
+    bad = parser.parse_args([*common, "--fault", "gps_glitch@3:1,2"])
+    with pytest.raises(UsageError, match="N,E,D"):
+        sitl_cmd.run(bad)
