@@ -12,18 +12,45 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from flight.autopilot_api import Setpoint
+from flight.autopilot_api import FlightMode, Setpoint
+from flight.geo import GRAVITY
 from flight.lockstep import NS_PER_US, is_mark
 from flight.mavlink.modes import Personality, mode_of_packed
-from hil.client import Telemetry
+from flight.state import VehicleState
 from hil.link import MavlinkLink
 
 M = mavlink2
 COMPANION_COMPONENT = M.MAV_COMP_ID_ONBOARD_COMPUTER  # 191 (CONVENTIONS.md)
+
+
+@dataclass
+class Telemetry:
+    """The newest of what the vehicle said about itself (SI, NED about home)."""
+
+    time_boot_ms: int = 0
+    armed: bool = False
+    mode: FlightMode | None = None
+    personality: Personality = Personality.PX4
+    pos_ned: np.ndarray | None = None
+    vel_ned: np.ndarray | None = None
+    quat: np.ndarray | None = None  # (w, x, y, z) body FRD → NED
+    omega_frd: np.ndarray | None = None  # [rad/s]
+    landed_state: int = 0
+    home_ok: bool = False
+    statustext: str = ""
+
+    def vehicle_state(self) -> VehicleState | None:
+        """As a VehicleState (None until position and attitude have arrived)."""
+        if self.pos_ned is None or self.quat is None:
+            return None
+        return VehicleState(t=self.time_boot_ms / 1000.0, pos_ned=self.pos_ned, vel_ned=self.vel_ned,
+                            quat=self.quat, omega_frd=self.omega_frd, accel_frd=np.array([0.0, 0.0, -GRAVITY]),
+                            on_ground=self.landed_state == M.MAV_LANDED_STATE_ON_GROUND)  # fmt: skip
 
 
 class LinkLost(Exception):

@@ -20,7 +20,7 @@ from runio import JsonlWriter, RunFolder, args_dict, atomic_write_text
 from scripts.cli import UsageError
 
 
-def add_arguments(parser: argparse.ArgumentParser, standalone: bool = True) -> None:
+def add_arguments(parser, standalone: bool = True, missions: tuple[str, ...] = ("groundair", "square")) -> None:
     if standalone:
         parser.add_argument(
             "--connect",
@@ -58,11 +58,10 @@ def add_arguments(parser: argparse.ArgumentParser, standalone: bool = True) -> N
             help="write into this existing run folder (used by `skyherd fly`)",
         )
     parser.add_argument(
-        "--mission",
-        choices=["groundair", "square"],
-        default="groundair",
-        help="groundair: keep the UGVs in view behind the safety net; square: fly a square",
-    )
+        "--mission", choices=list(missions), default="groundair",
+        help="groundair: keep the UGVs in view behind the safety net; square: fly a square"
+        + ("; formation: K vehicles fly the SQL-SIE plan to their targets" if "formation" in missions else ""),
+    )  # fmt: skip
     parser.add_argument(
         "--pilot",
         choices=["policy", "pid"],

@@ -1,0 +1,194 @@
+"""`skyherd fly`'s report, from the run folder the two programs wrote: a table, plots and
+summary.md that says how the flight ended (completed / aborted with the reason / interrupted)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from mission.metrics import cross_track, groundair_metrics
+from policy.groundair.params import TaskParams
+from runio import atomic_write_text, markdown_table
+
+
+def _rows(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _jsonl(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            pass  # a line cut by a kill: everything before it stands
+    return out
+
+
+def _track(rows: list[dict]) -> np.ndarray:
+    return np.array(
+        [[float(r["t"]), float(r["north"]), float(r["east"]), float(r["down"])] for r in rows]
+    ).reshape(-1, 4)
+
+
+def _fmt(x, digits: int = 3):
+    return (
+        "—"
+        if x is None or (isinstance(x, float) and not math.isfinite(x))
+        else (round(x, digits) if isinstance(x, float) else x)
+    )
+
+
+def report(run_dir: Path, args, rc: int, why: str) -> bool:
+    """Write summary.md (and plots) from the run folder; print the table; True if completed."""
+    comp = {}
+    if (run_dir / "companion.json").exists():
+        comp = json.loads((run_dir / "companion.json").read_text())
+    outcome = comp.get("outcome", "aborted")
+    reason = comp.get("reason") or why
+    if rc == 130:
+        outcome, reason = "interrupted", "interrupted (Ctrl-C)"
+    elif rc != 0 and outcome == "completed":
+        outcome = "aborted"
+    ok = outcome == "completed" and rc == 0
+    decisions = _jsonl(run_dir / "decisions.jsonl")
+    track = _track(_rows(run_dir / "metrics.csv"))
+    if args.mission == "square":
+        table, title = _square_table(decisions, track), f"square mission, {args.side:.0f} m side"
+        _plot_square(run_dir, track, decisions)
+    else:
+        world = _rows(run_dir / "world.csv")
+        m = groundair_metrics(decisions, world, TaskParams())
+        net = comp.get("net", {})
+        rows = [
+            ["decisions", m["decisions"]],
+            ["all UGVs in view [fraction of decisions]", _fmt(m["in_view"])],
+            ["footprint / smallest circle [mean]", _fmt(m["footprint_ratio"])],
+            ["UGV losses (all-in-view → not)", m["losses"]],
+            ["safety-net switches", net.get("switches", "—")],
+            ["AI actions projected / held by the net", m["verdicts"]["projected"]],
+            ["time in fallback [s]", _fmt(net.get("fallback_s"))],
+            ["time under PID [s]", _fmt(net.get("pid_s"))],
+            ["autopilot took over", comp.get("yielded") or "no"],
+        ]
+        table = markdown_table(["metric", "value"], rows)
+        title = f"ground–air mission, UGV team `{args.ugvs}`, pilot `{args.pilot}`, {args.duration:.0f} s behind the safety net"
+        _plot_groundair(run_dir, decisions, track, world)
+    status = {"completed": "completed", "yielded": "ended: the autopilot took over"}.get(
+        outcome, outcome.upper()
+    )
+    lines = [f"# skyherd fly: {status}", "", title + ".", ""]
+    if not ok:
+        lines += [f"**Why it ended:** {reason or 'see companion.json and sim.log'}", ""]
+    lines += [table]
+    atomic_write_text(run_dir / "summary.md", "\n".join(lines))
+    print(table)
+    files = sorted(p.name for p in run_dir.iterdir())
+    print(
+        f"skyherd fly: {status}{'' if ok else ': ' + (reason or '')}; {', '.join(files)} in {run_dir}"
+    )
+    return ok
+
+
+def _legs(decisions: list[dict]) -> list[tuple[float, float, np.ndarray]]:
+    """(t_start, t_end, target) of each square leg, from the proposed targets' changes."""
+    legs: list[list] = []
+    for d in decisions:
+        target = np.array(d["proposed"]["pos_ned"])
+        if not legs or np.linalg.norm(target - legs[-1][2]) > 1e-6:
+            if legs:
+                legs[-1][1] = float(d["t"])
+            legs.append([float(d["t"]), math.nan, target])
+    if legs:
+        legs[-1][1] = float(decisions[-1]["t"])
+    return [tuple(x) for x in legs]
+
+
+def _square_table(decisions: list[dict], track: np.ndarray) -> str:
+    rows = []
+    start = np.zeros(3)
+    for i, (t0, t1, target) in enumerate(_legs(decisions)):
+        sel = (
+            track[(track[:, 0] >= t0) & (track[:, 0] <= t1)][:, 1:]
+            if len(track)
+            else np.zeros((0, 3))
+        )
+        rows.append(
+            [
+                i + 1,
+                f"{target[0]:.0f} N {target[1]:.0f} E",
+                round(t1 - t0, 1),
+                _fmt(cross_track(sel, start, target)),
+            ]
+        )
+        start = target
+    return markdown_table(["leg", "to", "time [s]", "max cross-track [m]"], rows)
+
+
+def _figure(ncols: int, size):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt, *plt.subplots(1, ncols, figsize=size)
+
+
+def _plot_square(run_dir: Path, track: np.ndarray, decisions: list[dict]) -> None:
+    plt, fig, (ax1, ax2) = _figure(2, (11, 4.5))
+    c = np.array([leg[2] for leg in _legs(decisions)]).reshape(-1, 3)
+    ax1.plot(np.r_[0, c[:, 1]], np.r_[0, c[:, 0]], "k--", lw=1, label="planned")
+    if len(track):
+        ax1.plot(track[:, 2], track[:, 1], "b-", lw=1.5, label="flown")
+        ax2.plot(track[:, 0], -track[:, 3], "b-")
+    ax1.set(xlabel="east [m]", ylabel="north [m]", title="track (NED, about home)")
+    ax1.set_aspect("equal")
+    ax1.legend()
+    ax2.set(xlabel="time [s]", ylabel="altitude above home [m]", title="altitude")
+    fig.tight_layout()
+    fig.savefig(run_dir / "track.png", dpi=110)
+    plt.close(fig)
+
+
+def _plot_groundair(
+    run_dir: Path, decisions: list[dict], track: np.ndarray, world: list[dict]
+) -> None:
+    plt, fig, axs = _figure(3, (15, 4.5))
+    n_ugv = sum(1 for k in (world[0] if world else {}) if k.endswith("_n") and k.startswith("ugv"))
+    t_dec = np.array([float(d["t"]) for d in decisions])
+    t0 = t_dec[0] if len(t_dec) else 0.0
+    moving = [r for r in world if float(r["t"]) >= t0]
+    for i in range(n_ugv):
+        axs[0].plot([float(r[f"ugv{i}_e"]) for r in moving], [float(r[f"ugv{i}_n"]) for r in moving],
+                    lw=0.8, alpha=0.7, label=f"UGV {i}")  # fmt: skip
+    if len(track):
+        sel = track[:, 0] >= t0
+        axs[0].plot(track[sel, 2], track[sel, 1], "k-", lw=1.5, label="UAV")
+        axs[1].plot(track[:, 0], -track[:, 3], "k-")
+    if decisions:
+        phi = np.array([d["phi"] for d in decisions])
+        axs[2].plot(t_dec, phi[:, 5], "g-", label="all in view (φ6)")
+        axs[2].plot(t_dec, phi[:, 2], "b-", label="spread (φ3)")
+        code = {"accepted": 0.0, "projected": 0.25, "pid": 0.5, "fallback": 1.0}
+        axs[2].plot(t_dec, [code[d["verdict"]] for d in decisions], "r:",
+                    label="net: 0 accepted, .25 projected, .5 PID, 1 fallback")  # fmt: skip
+        axs[2].legend(fontsize=8, loc="lower left")
+    for ax in axs[1:]:
+        ax.set_xlim(0, max(track[-1, 0] if len(track) else 1.0, 1.0))
+    axs[0].set(xlabel="east [m]", ylabel="north [m]", title="UAV over the UGV team (NED)")
+    axs[0].set_aspect("equal", adjustable="datalim")
+    axs[0].legend(fontsize=8)
+    axs[1].set(xlabel="time [s]", ylabel="altitude above home [m]", title="altitude")
+    axs[2].set(xlabel="time [s]", ylabel="feature value [0..1]", title="features and safety net")
+    fig.tight_layout()
+    fig.savefig(run_dir / "groundair.png", dpi=100)
+    plt.close(fig)

@@ -1,0 +1,84 @@
+"""Child processes of `skyherd fly`: start `skyherd sim` and `skyherd companion`, watch them,
+stop them in the right order, and say clearly which one ended the flight and why.
+
+Rules: the companion ends the flight (its exit code is the flight's); a simulator that dies
+first ends it too (the companion is stopped, its log tail shown); the wall-clock limit stops
+both. The simulator is stopped after the companion (SIGINT, then SIGKILL after a grace period),
+so the vehicle it simulates lands or disarms before it disappears.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass
+class Child:
+    name: str
+    proc: subprocess.Popen
+    log: Path | None
+
+    def tail(self, n: int = 5) -> str:
+        if self.log is None or not self.log.exists():
+            return ""
+        lines = self.log.read_text(errors="replace").strip().splitlines()
+        return "\n".join("    " + ln for ln in lines[-n:])
+
+
+def skyherd_cmd(*args: str) -> list[str]:
+    """A sub-command of this installation's `skyherd`, as a child process's argv."""
+    return [sys.executable, "-m", "scripts.cli", *args]
+
+
+def start(name: str, argv: list[str], log: Path | None) -> Child:
+    """Start a child; its stdout and stderr go to `log` (None: inherited, e.g. a progress bar)."""
+    out = open(log, "ab") if log is not None else None  # noqa: SIM115 - closed with the child
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT if out else None,
+                            stdin=subprocess.DEVNULL, env=env)  # fmt: skip
+    if out is not None:
+        out.close()
+    return Child(name, proc, log)
+
+
+def stop(child: Child, grace_s: float = 10.0) -> int:
+    """SIGINT, then SIGKILL after `grace_s`; returns the exit code."""
+    if child.proc.poll() is None:
+        child.proc.send_signal(signal.SIGINT)
+        try:
+            child.proc.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            child.proc.kill()
+            child.proc.wait()
+    return child.proc.returncode
+
+
+def supervise(companion: Child, sim: Child | None, timeout_s: float) -> tuple[int, str]:
+    """Wait for the flight to end; return (exit code, why it ended)."""
+    deadline = time.monotonic() + timeout_s
+    try:
+        while True:
+            rc = companion.proc.poll()
+            if rc is not None:
+                return rc, "" if rc == 0 else f"the companion exited with code {rc}"
+            if sim is not None and sim.proc.poll() is not None:
+                why = f"the simulator exited with code {sim.proc.returncode} during the flight"
+                tail = sim.tail()
+                stop(companion)
+                return 1, why + (f":\n{tail}" if tail else "")
+            if time.monotonic() > deadline:
+                stop(companion)
+                return 1, f"the flight took longer than --timeout {timeout_s:.0f} s of wall time"
+            time.sleep(0.1)
+    except KeyboardInterrupt:
+        stop(companion)
+        raise
+    finally:
+        if sim is not None:
+            stop(sim)
