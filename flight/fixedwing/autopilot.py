@@ -14,8 +14,8 @@ atmosphere each control step; GPS faults shift the estimate the guidance flies o
 what telemetry reports); `true_state` is JSBSim's. GPS lost for longer than EKF2_NOAID_TOUT:
 the aircraft loiters where it believes it is (HOLD on dead reckoning).
 Geofence (flight/geofence.py): loiter circles (reposition, offboard positions, loiter items)
-must lie inside, as must waypoints; a breach takes GF_ACTION (2: loiter on a circle through
-the present position, centred toward home; 3: RTL; 4/5: land).
+must lie inside, as must waypoints; a breach takes GF_ACTION (2: loiter on a circle centred
+1.5 loiter radii toward home from the breach point; 3: RTL; 4/5: land).
 """
 
 from __future__ import annotations
@@ -265,7 +265,8 @@ class FixedWingAutopilot(AutopilotBase):
             r = self.default_loiter_radius()
             d = -pos / max(float(np.hypot(*pos)), 1e-6)  # toward home
             self._mode = FlightMode.HOLD
-            self._set_loiter(pos + r * d, r, 1, max(self._state.altitude, 15.0))
+            # centred 1.5 r toward home: the circle's far side is 0.5 r back inside
+            self._set_loiter(pos + 1.5 * r * d, r, 1, max(self._state.altitude, 15.0))
             self._event("mode -> hold (geofence)")
         elif act == ACTION_RTL:
             if self._mode != FlightMode.RTL:

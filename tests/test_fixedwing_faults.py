@@ -1,0 +1,105 @@
+"""The fixed-wing's own fence (targets refused, GF_ACTION on breach) and faults on JSBSim
+(wind triangle, GPS glitch in the estimate it flies on). Simulation time only."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from flight.autopilot_api import FlightMode, MissionCommand, MissionItem, Setpoint
+from flight.faults import FaultEvent, FaultPlan, parse_fault_args
+from flight.fixedwing.autopilot import FixedWingAutopilot
+
+
+def circle(r: float, n: float = 0.0, e: float = 0.0, inclusion: bool = True):
+    return SimpleNamespace(kind="circle", inclusion=inclusion, center_ne=np.array([n, e]), radius=r)
+
+
+def airborne(plan: FaultPlan | None = None, alt: float = 80.0) -> FixedWingAutopilot:
+    ap = FixedWingAutopilot(faults=plan)
+    ap.start_in_air(alt, 24.0, 0.0)
+    return ap
+
+
+def fly(ap, seconds: float, sp: Setpoint | None = None):
+    """(n, 3) true positions; streams sp at 10 Hz while in OFFBOARD."""
+    n = round(seconds / ap.control_dt)
+    out = np.empty((n, 3))
+    for k in range(n):
+        if sp is not None and k % 5 == 0 and ap.mode == FlightMode.OFFBOARD:
+            ap.set_offboard_setpoint(sp)
+        ap.step()
+        out[k] = ap.true_state.pos_ned
+    return out
+
+
+def test_loiter_targets_must_fit_inside_the_fence():
+    ap = airborne()
+    ap.set_fence([circle(800.0)])
+    r_loiter = ap.default_loiter_radius()
+    r = ap.reposition(np.array([2000.0, 0.0, -80.0]))
+    assert not r.ok and "geofence" in r.reason
+    # the centre is inside, the circle is not
+    r = ap.reposition(np.array([800.0 - 0.5 * r_loiter, 0.0, -80.0]))
+    assert not r.ok and "loiter circle" in r.reason
+    assert ap.reposition(np.array([300.0, 0.0, -80.0])).ok
+    assert not ap.set_offboard_setpoint(Setpoint(pos_ned=np.array([0.0, 900.0, -80.0]))).ok
+    far = [MissionItem(MissionCommand.WAYPOINT, np.array([1500.0, 0.0, -80.0]))]
+    r = ap.set_mission(far)
+    assert not r.ok and "item 0" in r.reason
+
+
+def test_breach_loiters_toward_home_and_is_reported():
+    """Flying north at 24 m/s into GF_MAX_HOR_DIST 400 m: the breach is seen within one
+    20 Hz sample (1.2 m); HOLD loiters on a circle centred 1.5 r toward home, so the farthest
+    point is the overshoot of the turn onto it (a half circle of radius ≥ r_min < r): < r.
+    One breach only: the circle lies 0.5 r inside."""
+    ap = airborne()
+    assert ap.set_param("GF_MAX_HOR_DIST", 400.0).ok
+    sp = Setpoint(vel_ned=np.array([24.0, 0.0, 0.0]))
+    ap.set_offboard_setpoint(sp)
+    assert ap.set_mode(FlightMode.OFFBOARD).ok
+    p = fly(ap, 60.0, sp)
+    texts = " ".join(ap.drain_status())
+    assert "geofence breach" in texts and "hold (geofence)" in texts
+    assert ap.mode == FlightMode.HOLD and ap.fence.breaches == 1
+    assert np.hypot(p[:, 0], p[:, 1]).max() < 400.0 + ap.default_loiter_radius()
+    assert np.hypot(*ap.loiter_center) < 400.0
+
+
+def test_steady_wind_triangle_and_gps_glitch():
+    """Wind 8 m/s from the east (blowing west) on JSBSim's atmosphere: ground velocity =
+    air velocity + wind, so |v_ground − w| is the true airspeed (the wind triangle) within
+    0.5 m/s. A +30 m east glitch shows in the estimate exactly, not in the truth."""
+    plan = parse_fault_args(wind="8,90", faults=["gps_glitch@20:0,30,0:5"])
+    ap = airborne(plan)
+    assert ap.set_mode(FlightMode.HOLD).ok
+    errs = []
+    for _ in range(round(19.0 / ap.control_dt)):
+        s = ap.step()
+        v_air = ap.true_state.vel_ned - np.array([0.0, -8.0, 0.0])
+        errs.append(abs(np.linalg.norm(v_air) - ap.airspeed))
+    assert max(errs[100:]) < 0.5
+    fly(ap, 1.1)
+    d = ap.state.pos_ned - ap.true_state.pos_ned
+    assert d == pytest.approx([0.0, 30.0, 0.0], abs=1e-9)
+    fly(ap, 5.0)
+    assert ap.state.pos_ned == pytest.approx(ap.true_state.pos_ned, abs=1e-9)
+    assert s is not None
+
+
+def test_gps_loss_beyond_timeout_loiters_and_arming_refused_without_fix():
+    plan = FaultPlan(events=(FaultEvent("gps_loss", 5.0),))
+    ap = airborne(plan)
+    sp = Setpoint(vel_ned=np.array([24.0, 0.0, 0.0]))
+    ap.set_offboard_setpoint(sp)
+    assert ap.set_mode(FlightMode.OFFBOARD).ok
+    fly(ap, 11.0, sp)
+    assert not ap.gps_fix and not ap.position_valid and ap.mode == FlightMode.HOLD
+    assert "failsafe -> hold" in " ".join(ap.drain_status())
+    ground = FixedWingAutopilot(faults=FaultPlan(events=(FaultEvent("gps_loss", 0.0),)))
+    ground.step()
+    r = ground.arm()
+    assert not r.ok and "position" in r.reason
