@@ -191,8 +191,8 @@ class CommandService:
                 if not ok:
                     raise Denied(f"cannot stream message {msg_id} at that interval")
                 return M.MAV_RESULT_ACCEPTED
-            if c == M.MAV_CMD_GET_MESSAGE_INTERVAL:
-                msg_id = _int_param(cmd.p[0], 0, 2**24, "message id")
+            if c == M.MAV_CMD_GET_MESSAGE_INTERVAL:  # MESSAGE_INTERVAL holds a uint16 id
+                msg_id = _int_param(cmd.p[0], 0, 2**16 - 1, "message id")
                 reply(self._ack(cmd, M.MAV_RESULT_ACCEPTED))
                 reply(self.mav.message_interval_encode(msg_id, self.get_interval(link, msg_id)))
                 self._remember((cmd.sender, c), cmd.p, M.MAV_RESULT_ACCEPTED)
