@@ -47,11 +47,24 @@ def randint(rng, n):
 
 
 @njit(cache=True)
-def choose_action(q_row, eps, rng):
-    """ε-greedy on one row of Q (shape (A,)); ties among the best actions broken at random."""
+def greedy_first(q_row):
+    """The lowest index among the largest values of q_row (MATLAB `[~, a] = max(q)`)."""
+    best_a = 0
+    for a in range(1, q_row.shape[0]):
+        if q_row[a] > q_row[best_a]:
+            best_a = a
+    return best_a
+
+
+@njit(cache=True)
+def choose_action(q_row, eps, rng, ties_first):
+    """ε-greedy on one row of Q (shape (A,)): with probability ε a uniform action, else the
+    best one; ties among the best broken by the lowest index (`ties_first`) or at random."""
     n = q_row.shape[0]
     if eps > 0.0 and uniform(rng) < eps:
         return randint(rng, n)
+    if ties_first:
+        return greedy_first(q_row)
     best = q_row[0]
     for a in range(1, n):
         if q_row[a] > best:
@@ -141,6 +154,8 @@ def run_sql(
     bonus_all,
     bonus_reached,
     bonus_missed,
+    ties_first,
+    bonus_blend,
     learn,
     rng,
     out_steps,
@@ -155,9 +170,13 @@ def run_sql(
     q: (K, S, 4) per-agent tables. Each step every active agent, in index order, picks an
     ε-greedy action on its own table, moves by `try_move`, and learns. Reaching any free
     target gives r_goal and stops the agent there (its cell stays held). At the episode's end
-    the team bonus is added to each agent's last (s, a): Q ← Q + α·bonus, which equals adding
-    the bonus to that transition's reward. out_*: (E,) per-episode metrics. paths: (K, T+1)
-    int32 cell history of the last episode if its shape is not (0, 0).
+    the team bonus b goes onto each agent's last (s, a):
+      bonus_blend False:  Q ← Q + α·b  (= b added to that transition's reward);
+      bonus_blend True:   Q ← (1 − α)·Q + α·b  (published `Qvalues_update_swarm_final`), and
+                          +bonus_all only if all agents stopped before the last allowed step
+                          (the published loop notices "all stopped" one step later).
+    out_*: (E,) per-episode metrics. paths: (K, T+1) int32 cell history of the last episode
+    if its shape is not (0, 0).
     """
     K = starts.shape[0]
     S = next_cell.shape[0]
@@ -172,7 +191,7 @@ def run_sql(
         occ[:] = 0
         for i in range(K):
             pos[i] = starts[i]
-            occ[starts[i]] = i + 1
+            occ[starts[i]] += 1
             done[i] = False
             nsteps[i] = 0
             last_s[i] = -1
@@ -181,6 +200,7 @@ def run_sql(
             paths[:, 0] = starts
         active = K
         collisions = 0
+        t_all = -1  # the step in which the last agent stopped
         for t in range(max_steps):
             if active == 0:
                 break
@@ -188,7 +208,7 @@ def run_sql(
                 if done[i]:
                     continue
                 s = pos[i]
-                a = choose_action(q[i, s], eps[e], rng)
+                a = choose_action(q[i, s], eps[e], rng, ties_first)
                 s2, code = try_move(s, a, next_cell, obstacle, occ, roi_id, False)
                 r = r_step
                 terminal = False
@@ -196,8 +216,8 @@ def run_sql(
                     r = r_collision
                     collisions += 1
                 elif code == MOVED:
-                    occ[s] = 0
-                    occ[s2] = i + 1
+                    occ[s] -= 1
+                    occ[s2] += 1
                     if target_id[s2] >= 0:
                         r = r_goal
                         terminal = True
@@ -212,23 +232,104 @@ def run_sql(
                 if terminal:
                     done[i] = True
                     active -= 1
+            if active == 0:
+                t_all = t
         reached = K - active
+        all_bonus = reached == K and (not bonus_blend or t_all < max_steps - 1)
         if learn:
             for i in range(K):
                 if last_s[i] < 0:
                     continue
-                if reached == K:
+                if all_bonus:
                     b = bonus_all
                 elif done[i]:
                     b = bonus_reached
                 else:
                     b = bonus_missed
-                q[i, last_s[i], last_a[i]] += alpha * b
+                if bonus_blend:
+                    q[i, last_s[i], last_a[i]] = (1.0 - alpha) * q[
+                        i, last_s[i], last_a[i]
+                    ] + alpha * b
+                else:
+                    q[i, last_s[i], last_a[i]] += alpha * b
         out_steps[e] = nsteps.max()
         out_success[e] = reached == K
         out_reached[e] = reached
         out_collisions[e] = collisions
         out_agent_steps[e] = nsteps.sum()
+
+
+@njit(cache=True)
+def roi_step(s, a, next_cell, roi_id):
+    """A move inside the ROI with no obstacles or agents: leaving the ROI (or grid) = stay."""
+    s2 = next_cell[s, a]
+    if s2 < 0 or roi_id[s2] < 0:
+        return s
+    return s2
+
+
+@njit(cache=True)
+def pretrain_roi(
+    next_cell, roi_id, targets, corner, q2, episodes, max_steps, eps_decay, eps_min, reward,
+    alpha, gamma, ties_first, rng,
+):  # fmt: skip
+    """Published `Q_Learning_ROI.m`: per-target tables q2 (T, R, 4) trained in place.
+
+    For each target k, `episodes` episodes from the ROI corner cell `corner`, ε-greedy with
+    ε = 1 decayed ×eps_decay after each episode while above eps_min, moves inside the ROI
+    only, `reward` on reaching target k (the episode ends), 0 otherwise; Watkins update.
+    """
+    T = targets.shape[0]
+    for k in range(T):
+        eps = 1.0
+        for _ in range(episodes):
+            s = corner
+            for _t in range(max_steps):
+                a = choose_action(q2[k, roi_id[s]], eps, rng, ties_first)
+                s2 = roi_step(s, a, next_cell, roi_id)
+                hit = s2 == targets[k]
+                q_update(q2[k], roi_id[s], a, reward if hit else 0.0, roi_id[s2], hit, alpha, gamma)
+                s = s2
+                if hit:
+                    break
+            if eps > eps_min:
+                eps *= eps_decay
+
+
+@njit(cache=True)
+def claim_target(s, q2_row_of, claimed, targets, M, qargmax):
+    """Index of the free target an agent on ROI cell s claims (see `Rules.assign`).
+
+    qargmax: argmax over (action, free target in id order) of q2[k, roi(s), a], flattened
+    action-fastest like MATLAB's reshape, first index on ties, then free target number
+    ceil(idx / T) (1-based) as in the published `flag_assignment`. Otherwise the nearest free
+    target (Manhattan, lowest id on ties). q2_row_of: (T, 4) rows of q2 at cell s.
+    """
+    T = targets.shape[0]
+    if qargmax:
+        best, best_idx, idx = -np.inf, -1, 0
+        for k in range(T):
+            if claimed[k]:
+                continue
+            for a in range(4):
+                if q2_row_of[k, a] > best:
+                    best, best_idx = q2_row_of[k, a], idx
+                idx += 1
+        j = best_idx // T  # ceil((best_idx + 1) / T) − 1
+        for k in range(T):
+            if not claimed[k]:
+                if j == 0:
+                    return k
+                j -= 1
+        return -1
+    x2, y2 = s % M, s // M
+    best, best_d = -1, 1 << 30
+    for k in range(T):
+        if not claimed[k]:
+            d = abs(targets[k] % M - x2) + abs(targets[k] // M - y2)
+            if d < best_d:
+                best, best_d = k, d
+    return best
 
 
 @njit(cache=True)
@@ -249,6 +350,10 @@ def run_sie(
     r_goal,
     share_every,
     episode0,
+    ties_first,
+    roi_pretrained,
+    assign_qargmax,
+    step_published,
     learn,
     rng,
     out_steps,
@@ -261,10 +366,16 @@ def run_sie(
     """SQL-SIE (seed Algorithm 2) — or SQL-D when share_every == 0 — for len(eps) episodes.
 
     Phase 1: agent i picks ε-greedy actions on its own table q1[i] (K, S, 4) over the whole
-    grid; entering the ROI gives r_goal and ends phase 1 (terminal). On entry it claims the
-    free target nearest (Manhattan, lowest index on ties) to its cell.
-    Phase 2: it moves ε-greedily on that target's table q2[k] (T, R, 4) over ROI cells only
-    (leaving the ROI = a wall) until it reaches the target (r_goal, terminal), where it stops.
+    grid; entering the ROI gives r_goal and ends phase 1 (terminal).
+    Phase 2, roi_pretrained False: on entry the agent claims a target (`claim_target`) and moves
+    ε-greedily, one move per step, on that target's table q2[k] (T, R, 4), learned online, over
+    ROI cells only (leaving the ROI = a wall, other agents block) until it reaches the target
+    (r_goal, terminal), where it stops.
+    Phase 2, roi_pretrained True (published): at its next turn the agent claims a target and
+    walks the fixed pre-trained q2[k] greedily to it within that one turn (≤ max_steps moves,
+    passing through other agents), then stops (on the target, or where the walk gave up).
+    Step count: phase-1 moves + own phase-2 moves, or (step_published) + the length of the
+    last ROI walk of any agent when this agent's turn came in the last step.
     Knowledge sharing (`share_max_nonzero`) on q1 after every episode whose global index
     episode0 + e + 1 is a multiple of share_every (> 0).
     """
@@ -274,9 +385,12 @@ def run_sie(
     M = np.int64(np.sqrt(S) + 0.5)
     occ = np.zeros(S, np.int32)
     pos = np.empty(K, np.int64)
-    phase = np.zeros(K, np.int64)  # 0 to the ROI, 1 to a target, 2 stopped on it
+    phase = np.zeros(K, np.int64)  # 0 to the ROI, 1 to a target, 2 stopped
     goal = np.zeros(K, np.int64)
     nsteps = np.zeros(K, np.int64)
+    walk = np.zeros(K, np.int64)
+    total = np.zeros(K, np.int64)
+    on_target = np.zeros(K, np.bool_)
     claimed = np.zeros(T, np.bool_)
     record = paths.shape[0] > 0
     for e in range(eps.shape[0]):
@@ -284,27 +398,53 @@ def run_sie(
         claimed[:] = False
         for i in range(K):
             pos[i] = starts[i]
-            occ[starts[i]] = i + 1
+            occ[starts[i]] += 1
             phase[i] = 0
             nsteps[i] = 0
+            walk[i] = 0
+            total[i] = 0
+            on_target[i] = False
         if record:
             paths[:, :] = -1
             paths[:, 0] = starts
         active = K
         collisions = 0
+        shared_walk = 0  # published ROI_step: the last walk's length, any agent
         for t in range(max_steps):
             if active == 0:
                 break
             for i in range(K):
                 if phase[i] == 2:
+                    total[i] = nsteps[i] + (shared_walk if step_published else walk[i])
                     continue
                 s = pos[i]
+                if phase[i] == 1 and roi_pretrained:
+                    k = claim_target(s, q2[:, roi_id[s]], claimed, targets, M, assign_qargmax)
+                    claimed[k] = True
+                    goal[i] = k
+                    s2, n = s, 0
+                    while s2 != targets[k] and n < max_steps:
+                        a = choose_action(q2[k, roi_id[s2]], 0.0, rng, ties_first)
+                        s2 = roi_step(s2, a, next_cell, roi_id)
+                        n += 1
+                    occ[s] -= 1
+                    occ[s2] += 1
+                    pos[i] = s2
+                    walk[i] = n
+                    shared_walk = n
+                    on_target[i] = s2 == targets[k]
+                    phase[i] = 2
+                    active -= 1
+                    if record:
+                        paths[i, t + 1] = s2
+                    total[i] = nsteps[i] + (shared_walk if step_published else walk[i])
+                    continue
                 if phase[i] == 0:
-                    a = choose_action(q1[i, s], eps[e], rng)
+                    a = choose_action(q1[i, s], eps[e], rng, ties_first)
                     s2, code = try_move(s, a, next_cell, obstacle, occ, roi_id, False)
                 else:
                     k = goal[i]
-                    a = choose_action(q2[k, roi_id[s]], eps[e], rng)
+                    a = choose_action(q2[k, roi_id[s]], eps[e], rng, ties_first)
                     s2, code = try_move(s, a, next_cell, obstacle, occ, roi_id, True)
                 r = r_step
                 terminal = False
@@ -312,29 +452,27 @@ def run_sie(
                     r = r_collision
                     collisions += 1
                 elif code == MOVED:
-                    occ[s] = 0
-                    occ[s2] = i + 1
+                    occ[s] -= 1
+                    occ[s2] += 1
                 if phase[i] == 0:
                     if code == MOVED and roi_id[s2] >= 0:
                         r = r_goal
                         terminal = True
                     if learn:
                         q_update(q1[i], s, a, r, s2, terminal, alpha, gamma)
+                    nsteps[i] += 1
                     if terminal:
-                        # claim the nearest free target (seed: flag assignment)
-                        x2, y2 = s2 % M, s2 // M
-                        best, best_d = -1, 1 << 30
-                        for k in range(T):
-                            if not claimed[k]:
-                                d = abs(targets[k] % M - x2) + abs(targets[k] // M - y2)
-                                if d < best_d:
-                                    best, best_d = k, d
-                        claimed[best] = True
-                        goal[i] = best
                         phase[i] = 1
-                        if targets[best] == s2:
-                            phase[i] = 2
-                            active -= 1
+                        if not roi_pretrained:  # claim on entry
+                            k = claim_target(
+                                s2, q2[:, roi_id[s2]], claimed, targets, M, assign_qargmax
+                            )
+                            claimed[k] = True
+                            goal[i] = k
+                            if targets[k] == s2:
+                                phase[i] = 2
+                                on_target[i] = True
+                                active -= 1
                 else:
                     k = goal[i]
                     if s2 == targets[k]:
@@ -342,17 +480,23 @@ def run_sie(
                         terminal = True
                     if learn:
                         q_update(q2[k], roi_id[s], a, r, roi_id[s2], terminal, alpha, gamma)
+                    walk[i] += 1
                     if terminal:
                         phase[i] = 2
+                        on_target[i] = True
                         active -= 1
                 pos[i] = s2
-                nsteps[i] = t + 1
+                total[i] = nsteps[i] + (shared_walk if step_published else walk[i])
                 if record:
                     paths[i, t + 1] = s2
         if learn and share_every > 0 and (episode0 + e + 1) % share_every == 0:
             share_max_nonzero(q1)
-        out_steps[e] = nsteps.max()
-        out_success[e] = active == 0
-        out_reached[e] = K - active
+        out_steps[e] = total.max()
+        n_on = 0
+        for i in range(K):
+            if on_target[i]:
+                n_on += 1
+        out_success[e] = n_on == K
+        out_reached[e] = n_on
         out_collisions[e] = collisions
-        out_agent_steps[e] = nsteps.sum()
+        out_agent_steps[e] = nsteps.sum() + walk.sum()

@@ -17,7 +17,8 @@ ACTIONS = ("up", "down", "left", "right")
 ACTION_DXY = ((0, 1), (0, -1), (-1, 0), (1, 0))
 
 # Built-in formations (1-based (x, y)). K = 9 and 16 follow the seed; K = 4 is ours:
-# starts at the seed's commented 4-agent cells, targets on the {48, 50}² lattice.
+# starts at the seed's commented 4-agent cells, targets on the {48, 50}² lattice. Other
+# square K (25, 36, ...) extend the seed's pattern: see `formation`.
 STARTS: dict[int, tuple[tuple[int, int], ...]] = {
     4: ((1, 5), (1, 2), (2, 1), (5, 1)),
     9: ((1, 9), (1, 7), (1, 5), (1, 3), (1, 1), (3, 1), (5, 1), (7, 1), (9, 1)),
@@ -25,6 +26,35 @@ STARTS: dict[int, tuple[tuple[int, int], ...]] = {
 }
 TARGET_LATTICE: dict[int, tuple[int, ...]] = {4: (48, 50), 9: (46, 48, 50), 16: (44, 46, 48, 50)}
 ROI_MIN: dict[int, int] = {4: 45, 9: 45, 16: 43}
+
+
+def formation(K: int, size: int = 50):
+    """Start cells, target cells (id order) and ROI corner of the K-agent formation.
+
+    K in STARTS: the tables above (targets listed row by row from the top, as the seed's
+    `flag_position`). Any other square K = n² ≥ 4: starts every second cell up the left column
+    and along the bottom row (odd K: the corner (1, 1) too, as the seed's K = 9; even K: as its
+    K = 16), targets on the lattice {M − 2(n − 1), …, M − 2, M}², ROI from one cell below it.
+    """
+    n = int(round(K**0.5))
+    if K < 1 or n * n != K:
+        raise ValueError(f"K must be a square number (4, 9, 16, 25, 36, ...), got {K}")
+    if K in STARTS and size == 50:
+        starts, lattice, roi = STARTS[K], TARGET_LATTICE[K], ROI_MIN[K]
+    else:
+        lattice = tuple(range(size - 2 * (n - 1), size + 1, 2))
+        roi = lattice[0] - 1
+        if K % 2:
+            h = (K - 1) // 2
+            starts = (*((1, 2 * j + 1) for j in range(h, 0, -1)), (1, 1))
+            starts += tuple((2 * j + 1, 1) for j in range(1, h + 1))
+        else:
+            starts = tuple((1, 2 * j) for j in range(K // 2, 0, -1))
+            starts += tuple((2 * j, 1) for j in range(K // 2, 0, -1))
+        if roi < 2 or max(max(c) for c in starts) >= roi:
+            raise ValueError(f"K={K} does not fit a {size}×{size} grid")
+    targets = tuple((x, y) for y in reversed(lattice) for x in lattice)
+    return tuple(starts), targets, roi
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,20 +160,18 @@ def _reachable(layout: Layout) -> np.ndarray:
 
 
 def build_layout(grid: GridParams) -> Layout:
-    """The seed's world for K ∈ {4, 9, 16}: obstacles drawn by `grid.map_seed`.
+    """The seed's world for K ∈ {4, 9, 16} (and other square K, `formation`): obstacles drawn
+    by `grid.map_seed`.
 
     Obstacles: round(fraction·M²) distinct cells, uniformly drawn outside the ROI and the start
     cells. A draw that walls off a start cell or the ROI is redrawn (next draw of the same
     generator), so every map is solvable.
     """
     K, M = grid.n_agents, grid.size
-    if K not in STARTS:
-        raise ValueError(f"built-in layouts exist for K in {sorted(STARTS)}, not K={K}")
     if M < 50:
         raise ValueError(f"the built-in layouts need a grid of at least 50 cells, got {M}")
-    lattice = TARGET_LATTICE[K]
-    targets_xy = [(x, y) for y in reversed(lattice) for x in lattice]
-    base = make_layout(M, STARTS[K], targets_xy, ROI_MIN[K])
+    starts_xy, targets_xy, roi_min = formation(K, 50)
+    base = make_layout(M, starts_xy, targets_xy, roi_min)
     n_obst = int(round(grid.obstacle_fraction * M * M))
     free = np.flatnonzero(base.roi_id < 0)
     free = np.setdiff1d(free, base.starts)

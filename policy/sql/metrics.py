@@ -63,3 +63,67 @@ def summarize(m: Metrics, window: int = 100, tail: int = 500) -> RunSummary:
         float(np.mean(m.success[-tail:])),
         int(np.argmax(m.success)) + 1 if m.success.any() else None,
     )
+
+
+# --- The seed study's own definitions (the published implementation's analysis scripts) ---
+
+
+def study_metric(steps: np.ndarray, cap: int = 1000) -> np.ndarray:
+    """Per-episode metric: min(max over agents of steps, cap) — `steps` is already the max."""
+    return np.minimum(np.asarray(steps, dtype=np.float64), cap)
+
+
+def study_convergence(metric: np.ndarray, window: int = 100) -> int:
+    """The first episode (1-based) after which the `window`-episode moving average of the
+    metric stays below 2× its final value (the average over the last `window` episodes).
+
+    The average "at episode e" covers episodes e − window + 1 .. e, so the answer is at least
+    `window`; E + 1 would mean "never", which cannot happen (the last average is below 2× itself
+    unless it is 0, and a metric of 0 steps does not occur).
+    """
+    ma = moving_average(metric, window)
+    final = ma[-1]
+    above = np.flatnonzero(ma >= 2.0 * final)
+    j = 0 if above.size == 0 else int(above[-1]) + 1
+    return j + window
+
+
+@dataclass(frozen=True)
+class StudySummary:
+    """One run in the study's terms ("tail" = the last 10 % of episodes)."""
+
+    tail_metric: float
+    """Mean of the metric over the tail."""
+    tail_success: float
+    """Share of tail episodes with metric < cap (what the published step logs show)."""
+    tail_on_target: float
+    """Share of tail episodes with every agent on its own target (kernel truth)."""
+    convergence: int
+    """`study_convergence` of the metric."""
+    first_all_reached: int | None
+    """First episode (1-based) with every agent on a target; None if never."""
+
+
+def study_summary(
+    steps: np.ndarray, on_target: np.ndarray, cap: int = 1000, window: int = 100
+) -> StudySummary:
+    m = study_metric(steps, cap)
+    E = m.shape[0]
+    tail = max(1, E // 10)
+    window = min(window, E)
+    on_target = np.asarray(on_target, dtype=bool)
+    return StudySummary(
+        float(m[-tail:].mean()),
+        float((m[-tail:] < cap).mean()),
+        float(on_target[-tail:].mean()),
+        study_convergence(m, window),
+        int(np.argmax(on_target)) + 1 if on_target.any() else None,
+    )
+
+
+def mean_sd(values, digits: int = 1) -> str:
+    """ "mean ± sd" over seeds (population sd, as MATLAB std(x, 1) in the study's plots)."""
+    a = np.asarray([v for v in values if v is not None], dtype=np.float64)
+    if a.size == 0:
+        return "–"
+    return f"{a.mean():.{digits}f} ± {a.std():.{digits}f}"

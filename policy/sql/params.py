@@ -91,3 +91,94 @@ class SQLHyper:
         """ε for episodes start .. start+count−1: max(ε_min, ε_0 · decay^e), shape (count,)."""
         e = np.arange(start, start + count, dtype=np.float64)
         return np.maximum(self.eps_min, self.eps_start * self.eps_decay**e)
+
+
+TIES = ("first", "random")
+TEAM_BONUS = ("blend", "add")
+ROI_PHASE = ("pretrained", "online")
+ASSIGN = ("q-argmax", "nearest")
+STEP_COUNT = ("published", "own")
+
+
+@dataclass(frozen=True)
+class Rules:
+    """Which variant of each rule the learners follow (saved with every run).
+
+    Two named sets: `Rules.published()` — what the public MATLAB implementation of the seed
+    study does — and `Rules.intended()` — what the paper describes. Each field is one switch
+    and can be changed on its own (`dataclasses.replace`).
+    """
+
+    name: str = "intended"
+    """Label of the set these switches came from (informational)."""
+    ties: str = "random"
+    """Greedy ties among equal Q values: "first" = lowest action index (MATLAB `max`, order
+    up, down, left, right: with zero tables a systematic drift upward); "random" = uniform."""
+    team_bonus: str = "add"
+    """SQL end-of-episode team bonus on each agent's last (s, a): "blend" =
+    Q ← (1 − α) Q + α r_team (the published `Qvalues_update_swarm_final`); "add" =
+    Q ← Q + α r_team (the bonus added to the last transition's reward)."""
+    roi_phase: str = "online"
+    """SQL-D / SQL-SIE phase 2: "pretrained" = per-target tables pre-trained before the run
+    (published `Q_Learning_ROI`: start in the ROI corner, reward 1, ε ← 0.995 ε), walked
+    greedily to the target within the agent's next turn (one global step), passing through
+    other agents; "online" = the per-target tables learned during the run with the same ε,
+    one move per global step, other agents block."""
+    assign: str = "nearest"
+    """Target claimed on entering the ROI: "q-argmax" = the published `flag_assignment`:
+    argmax over (action, free target) of the pre-trained table at the entry cell, first
+    index, mapped to a target by MATLAB's ceil(idx / K) (exact for K = 4; for larger K it
+    favours the lowest-id free targets, i.e. targets nearly in id order); "nearest" = the
+    free target nearest to the entry cell (Manhattan, lowest id on ties)."""
+    step_count: str = "own"
+    """Per-agent step count of SQL-D / SQL-SIE: "published" = phase-1 moves plus the length
+    of the most recent ROI walk of ANY agent when this agent's turn came in the last step
+    (the published `total_step = episode_step + ROI_step`, ROI_step shared by all agents);
+    "own" = the agent's own moves (phase 1 + its own phase 2)."""
+
+    def __post_init__(self) -> None:
+        for field, allowed in (
+            ("ties", TIES),
+            ("team_bonus", TEAM_BONUS),
+            ("roi_phase", ROI_PHASE),
+            ("assign", ASSIGN),
+            ("step_count", STEP_COUNT),
+        ):
+            if getattr(self, field) not in allowed:
+                raise ValueError(
+                    f"rule {field} must be one of {allowed}, got {getattr(self, field)!r}"
+                )
+        if self.assign == "q-argmax" and self.roi_phase != "pretrained":
+            raise ValueError(
+                'assign="q-argmax" reads the pre-trained tables: needs roi_phase="pretrained"'
+            )
+
+    @staticmethod
+    def published(ties: str = "first") -> Rules:
+        """The public MATLAB implementation's rules."""
+        return Rules("published", ties, "blend", "pretrained", "q-argmax", "published")
+
+    @staticmethod
+    def intended(ties: str = "random") -> Rules:
+        """The paper's description (skyherd's original kernels)."""
+        return Rules("intended", ties, "add", "online", "nearest", "own")
+
+    @staticmethod
+    def named(name: str, ties: str | None = None) -> Rules:
+        """`Rules.published()` or `Rules.intended()` by name; `ties` overrides its default."""
+        sets = {"published": Rules.published, "intended": Rules.intended}
+        if name not in sets:
+            raise ValueError(f"rule set must be one of {sorted(sets)}, got {name!r}")
+        return sets[name]() if ties is None else sets[name](ties)
+
+
+@dataclass(frozen=True)
+class RoiPretrain:
+    """Pre-training of the per-target ROI tables (published `Q_Learning_ROI.m`)."""
+
+    episodes: int = 10_000
+    max_steps: int = 1000
+    eps_decay: float = 0.995
+    eps_min: float = 0.05
+    reward: float = 1.0
+    """Reward on reaching the target (the published ROI trainer uses 1, not 10)."""

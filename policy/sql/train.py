@@ -14,7 +14,7 @@ import numpy as np
 
 from policy.sql import kernels
 from policy.sql.layout import Layout
-from policy.sql.params import Algorithm, SQLHyper
+from policy.sql.params import Algorithm, RoiPretrain, Rules, SQLHyper
 
 CHUNK = 100
 """Episodes per kernel call (one progress-bar tick)."""
@@ -49,6 +49,8 @@ class TrainResult:
     """SQL: (K, S, 4) per-agent tables; SQL-D / SQL-SIE: (K, S, 4) phase-1 tables."""
     q_target: np.ndarray | None
     """SQL-D / SQL-SIE: (T, R, 4) per-target tables over ROI cells; None for SQL."""
+    rules: Rules = Rules()
+    """The rule variants the run followed."""
 
 
 def rng_state(seed: int) -> np.ndarray:
@@ -56,7 +58,9 @@ def rng_state(seed: int) -> np.ndarray:
     return np.random.SeedSequence(int(seed)).generate_state(1, dtype=np.uint64)
 
 
-def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths):
+def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths, rules=None):
+    rules = rules or Rules()
+    first = rules.ties == "first"
     E = eps.shape[0]
     out = (
         np.zeros(E, np.int64),
@@ -84,6 +88,8 @@ def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths):
             h.bonus_all,
             h.bonus_reached,
             h.bonus_missed,
+            first,
+            rules.team_bonus == "blend",
             learn,
             rng,
             *out,
@@ -108,6 +114,10 @@ def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths):
             h.r_goal,
             share,
             episode0,
+            first,
+            rules.roi_phase == "pretrained",
+            rules.assign == "q-argmax",
+            rules.step_count == "published",
             learn,
             rng,
             *out,
@@ -116,14 +126,41 @@ def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths):
     return out
 
 
+def pretrained_roi_tables(
+    layout: Layout, hyper: SQLHyper, rules: Rules, rng: np.ndarray, pre: RoiPretrain
+) -> np.ndarray:
+    """(T, R, 4) per-target ROI tables trained as the published `Q_Learning_ROI.m` does.
+
+    Starts every episode on the ROI's lowest-x, lowest-y cell; α and γ from `hyper`, ties by
+    `rules.ties`. `rng` (the run's kernel state) is advanced.
+    """
+    roi = np.flatnonzero(layout.roi_id >= 0)
+    corner = int(roi.min())  # cell index grows with y then x: the (x_min, y_min) corner
+    q2 = np.zeros((layout.targets.shape[0], layout.n_roi, 4))
+    kernels.pretrain_roi(
+        layout.next_cell, layout.roi_id, layout.targets, corner, q2, pre.episodes,
+        pre.max_steps, pre.eps_decay, pre.eps_min, pre.reward, hyper.alpha, hyper.gamma,
+        rules.ties == "first", rng,
+    )  # fmt: skip
+    return q2
+
+
 def train(
     algorithm: Algorithm,
     layout: Layout,
     hyper: SQLHyper,
     seed: int = 0,
     progress: Callable[[int], None] | None = None,
+    rules: Rules | None = None,
+    pretrain: RoiPretrain | None = None,
 ) -> TrainResult:
-    """Train for hyper.episodes episodes; `progress(n)` is called after every n episodes."""
+    """Train for hyper.episodes episodes; `progress(n)` is called after every n episodes.
+
+    `rules` (default `Rules()`, the intended set) picks the rule variants; with
+    rules.roi_phase == "pretrained" the per-target ROI tables are first pre-trained
+    (`pretrained_roi_tables`, settings `pretrain`) and then kept fixed.
+    """
+    rules = rules or Rules()
     algorithm = Algorithm(algorithm)
     if algorithm is Algorithm.SQL_SIE and hyper.share_every < 1:
         raise ValueError("SQL-SIE needs share_every >= 1 (share_every = 0 is SQL-D)")
@@ -131,19 +168,25 @@ def train(
     if layout.targets.shape[0] != K:
         raise ValueError(f"{K} agents but {layout.targets.shape[0]} targets")
     q = np.zeros((K, S, 4))
-    q2 = None if algorithm is Algorithm.SQL else np.zeros((K, layout.n_roi, 4))
     rng = rng_state(seed)
+    q2 = None
+    if algorithm is not Algorithm.SQL:
+        if rules.roi_phase == "pretrained":
+            q2 = pretrained_roi_tables(layout, hyper, rules, rng, pretrain or RoiPretrain())
+        else:
+            q2 = np.zeros((K, layout.n_roi, 4))
     cols = [[], [], [], [], []]
     no_paths = np.zeros((0, 0), np.int32)
     for e0 in range(0, hyper.episodes, CHUNK):
         n = min(CHUNK, hyper.episodes - e0)
-        out = _call(algorithm, layout, hyper, q, q2, hyper.epsilons(e0, n), True, rng, e0, no_paths)
+        eps = hyper.epsilons(e0, n)
+        out = _call(algorithm, layout, hyper, q, q2, eps, True, rng, e0, no_paths, rules)
         for c, o in zip(cols, out):
             c.append(o)
         if progress is not None:
             progress(n)
     metrics = Metrics(*(np.concatenate(c) for c in cols))
-    return TrainResult(algorithm, layout, hyper, int(seed), metrics, q, q2)
+    return TrainResult(algorithm, layout, hyper, int(seed), metrics, q, q2, rules)
 
 
 def greedy_rollout(result: TrainResult, seed: int = 0) -> tuple[np.ndarray, Metrics]:
@@ -167,6 +210,7 @@ def greedy_rollout(result: TrainResult, seed: int = 0) -> tuple[np.ndarray, Metr
         rng_state(seed),
         0,
         paths,
+        result.rules,
     )
     n = int(out[0][0])
     paths = paths[:, : n + 1]

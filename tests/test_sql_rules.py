@@ -1,0 +1,167 @@
+"""The rule switches (`Rules`): on tiny hand-made maps where the published and the intended
+variant of a rule give different results, both computed by hand in the comments."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from policy.sql import Algorithm, SQLHyper, greedy_rollout, make_layout
+from policy.sql.kernels import claim_target
+from policy.sql.params import Rules
+from policy.sql.train import Metrics, TrainResult, _call, pretrained_roi_tables, rng_state
+
+UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
+GREEDY = dict(eps_start=0.0, eps_min=0.0)
+
+
+def _result(alg, lay, h, q1, q2, rules):
+    z = np.zeros(1)
+    return TrainResult(alg, lay, h, 0, Metrics(z, z, z, z, z), q1, q2, rules)
+
+
+def test_rule_sets_and_their_validation():
+    p, i = Rules.published(), Rules.intended()
+    assert (p.ties, p.team_bonus, p.roi_phase, p.assign, p.step_count) == (
+        "first", "blend", "pretrained", "q-argmax", "published"
+    )  # fmt: skip
+    assert (i.ties, i.team_bonus, i.roi_phase, i.assign, i.step_count) == (
+        "random", "add", "online", "nearest", "own"
+    )  # fmt: skip
+    assert Rules.named("intended", "first").ties == "first" and Rules() == Rules.intended()
+    with pytest.raises(ValueError, match="ties"):
+        Rules(ties="last")
+    with pytest.raises(ValueError, match="pretrained"):
+        Rules(assign="q-argmax", roi_phase="online")
+    with pytest.raises(ValueError, match="rule set"):
+        Rules.named("matlab")
+
+
+def test_ties_first_drifts_up_on_a_zero_table():
+    # 3×3, one agent at (1,1), target (3,3). Zero table, ε = 0: "first" always takes action 0
+    # (up): (1,1) → (1,2) → (1,3) → stays at the top wall; it never reaches the target.
+    lay = make_layout(3, [(1, 1)], [(3, 3)], roi_min=3)
+    h = SQLHyper(max_steps=6, **GREEDY)
+    q = np.zeros((1, 9, 4))
+    paths, m = greedy_rollout(_result(Algorithm.SQL, lay, h, q, None, Rules(ties="first")))
+    assert [lay.xy(s) for s in paths[0]] == [(1, 1), (1, 2), (1, 3), (1, 3), (1, 3), (1, 3), (1, 3)]
+    assert not m.success[0] and m.steps[0] == 6
+    # "random": the same zero table sends it in other directions too (seeded, so fixed)
+    paths, _ = greedy_rollout(_result(Algorithm.SQL, lay, h, q, None, Rules(ties="random")))
+    moves = {lay.xy(b)[0] - lay.xy(a)[0] for a, b in zip(paths[0], paths[0][1:])}
+    assert moves != {0}  # some move changed x: not always "up"
+
+
+def _one_step_sql(rules, max_steps):
+    # one row  . A T : the agent's table says "right"; reaching T is +10 (α = 0.1)
+    lay = make_layout(3, [(2, 1)], [(3, 1)], roi_min=3)
+    h = SQLHyper(max_steps=max_steps, **GREEDY)
+    q = np.zeros((1, 9, 4))
+    q[0, lay.cell(2, 1), RIGHT] = 1e-9
+    rng, no_paths = np.array([1], np.uint64), np.zeros((0, 0), np.int32)
+    _call(Algorithm.SQL, lay, h, q, None, np.zeros(1), True, rng, 0, no_paths, rules)
+    return q[0, lay.cell(2, 1), RIGHT]
+
+
+def test_team_bonus_blend_versus_add():
+    # after the move Q ≈ 0.1·10 = 1.0; the team bonus for "all reached" is +10
+    # add:   Q ← Q + α·10 = 2.0;   blend: Q ← 0.9·Q + 0.1·10 = 1.9
+    assert _one_step_sql(Rules(team_bonus="add"), 5) == pytest.approx(2.0, abs=1e-8)
+    assert _one_step_sql(Rules(team_bonus="blend"), 5) == pytest.approx(1.9, abs=1e-8)
+    # blend, the agent stops on the last allowed step: the published loop never sees "all
+    # stopped", so the bonus is the "reached" one, −1: Q ← 0.9·1.0 − 0.1 = 0.8 (add: 2.0)
+    assert _one_step_sql(Rules(team_bonus="blend"), 1) == pytest.approx(0.8, abs=1e-8)
+    assert _one_step_sql(Rules(team_bonus="add"), 1) == pytest.approx(2.0, abs=1e-8)
+
+
+def _two_agent_roi_world():
+    """4×4 grid, ROI x, y ≥ 3; targets T0 = (4,4), T1 = (4,3).
+
+    A0 starts at (1,4) and goes right twice (enters the ROI at (3,4) on step 2).
+    A1 starts at (2,3) and goes right (enters at (3,3) on step 1); nearest free target T1.
+    Target tables: T1 from (3,3): up (3,4), right (4,4), down (4,3) — 3 moves, through
+    A0's cell and T0; T0 from (3,4): right (4,4) — 1 move.
+    """
+    lay = make_layout(4, [(1, 4), (2, 3)], [(4, 4), (4, 3)], roi_min=3)
+    q1 = np.zeros((2, 16, 4))
+    q1[0, lay.cell(1, 4), RIGHT] = q1[0, lay.cell(2, 4), RIGHT] = 1.0
+    q1[1, lay.cell(2, 3), RIGHT] = 1.0
+    q2 = np.zeros((2, lay.n_roi, 4))
+    r = lambda x, y: lay.roi_id[lay.cell(x, y)]  # noqa: E731
+    q2[1, r(3, 3), UP] = q2[1, r(3, 4), RIGHT] = q2[1, r(4, 4), DOWN] = 1.0
+    q2[0, r(3, 4), RIGHT] = 1.0
+    return lay, q1, q2
+
+
+@pytest.mark.parametrize(
+    "rules,metric,success,reached",
+    [
+        # published walk, published count. Step 2: A0 enters (3,4) (2 moves); A1 walks T1 in
+        # its turn: 3 moves, ROI_step = 3. Step 3: A0 walks 1 move, ROI_step = 1 → A0 2 + 1
+        # = 3; A1 (stopped, its turn after A0) 1 + ROI_step 1 = 2. Max = 3; all on targets.
+        (replace(Rules.published(), assign="nearest"), 3, True, 2),
+        # the same walks, each agent's own count: A1 = 1 + 3 = 4
+        (replace(Rules.published(), assign="nearest", step_count="own"), 4, True, 2),
+        # intended (online, one move per step, agents block): step 2 A0 enters (3,4), A1's
+        # "up" is blocked; step 3 A0 → (4,4) done (3 steps), A1 → (3,4); from step 4 on A1's
+        # "right" hits A0 on T0 every step: it never arrives → cap 10, 1 agent on a target.
+        (Rules.intended(ties="first"), 10, False, 1),
+    ],
+)
+def test_roi_phase_and_step_count_rules(rules, metric, success, reached):
+    lay, q1, q2 = _two_agent_roi_world()
+    h = SQLHyper(max_steps=10, **GREEDY)
+    paths, m = greedy_rollout(_result(Algorithm.SQL_D, lay, h, q1, q2, rules))
+    assert int(m.steps[0]) == metric
+    assert bool(m.success[0]) is success and int(m.reached[0]) == reached
+    if rules.roi_phase == "pretrained":  # A1's whole walk lands within global step 2
+        assert lay.xy(paths[1][2]) == (4, 3) and lay.xy(paths[0][3]) == (4, 4)
+
+
+def test_claim_target_q_argmax_versus_nearest():
+    # K = 9 targets on a 5×5 corner of a 10×10 grid; the agent on (6,6); all targets free.
+    M = 10
+    xy = [(x, y) for y in (10, 8, 6) for x in (6, 8, 10)]  # id order, as the study's flags
+    targets = np.array([(y - 1) * M + (x - 1) for x, y in xy], np.int64)
+    s = 5 * M + 5  # (6,6)
+    claimed = np.zeros(9, np.bool_)
+    rows = np.zeros((9, 4))
+    rows[8, RIGHT] = 1.0  # the largest pre-trained value: target 8, action 3
+    # published: flattened index 8·4 + 3 = 35 (0-based), free target ceil(36 / 9) = 4th → id 3
+    assert claim_target(s, rows, claimed, targets, M, True) == 3
+    # nearest free target to (6,6): (6,6) itself, id 6
+    assert claim_target(s, rows, claimed, targets, M, False) == 6
+    # ids 0..2 taken: target 8 is now the 6th free one, index 5·4 + 3 = 23, ceil(24 / 9) = 3
+    # → the 3rd free target, id 5; nearest is still id 6
+    claimed[:3] = True
+    assert claim_target(s, rows, claimed, targets, M, True) == 5
+    assert claim_target(s, rows, claimed, targets, M, False) == 6
+    # id 6 taken too: (6,8) id 3 and (8,6) id 7 are both 2 cells away → the lower id, 3
+    claimed[6] = True
+    assert claim_target(s, rows, claimed, targets, M, False) == 3
+    # K = 4: ceil(idx / 4) is exactly the argmax's target
+    rows4 = np.zeros((4, 4))
+    rows4[2, DOWN] = 0.5
+    assert claim_target(s, rows4, np.zeros(4, np.bool_), targets[:4], M, True) == 2
+
+
+def test_pretrained_roi_tables_walk_greedily_to_each_target():
+    # 8×8 grid, ROI x, y ≥ 5 (16 cells), 4 targets: from the corner (5,5) each greedy walk
+    # takes the Manhattan distance
+    xy = [(6, 8), (8, 8), (6, 6), (8, 6)]
+    lay = make_layout(8, [(1, 1), (1, 3), (3, 1), (2, 2)], xy, roi_min=5)
+    q2 = pretrained_roi_tables(lay, SQLHyper(), Rules.published(), rng_state(0), _pre())
+    from policy.sql.kernels import greedy_first, roi_step
+
+    for k, (x, y) in enumerate(xy):
+        s, n = lay.cell(5, 5), 0
+        while s != lay.targets[k] and n < 50:
+            s = roi_step(s, greedy_first(q2[k, lay.roi_id[s]]), lay.next_cell, lay.roi_id)
+            n += 1
+        assert n == (x - 5) + (y - 5)
+
+
+def _pre():
+    from policy.sql.params import RoiPretrain
+
+    return RoiPretrain(episodes=2000)
