@@ -71,7 +71,7 @@ class Run:
                  argv: list[str] | None = None, title: str | None = None):  # fmt: skip
         self.command, self.root = command, Path(root)
         self.title = title or f"skyherd {command.replace('-', ' ')}"
-        self.argv = argv
+        self.argv = argv if argv is not None else getattr(args, "_argv", None)
         self.started = dt.datetime.now(dt.UTC)
         self._t0 = time.monotonic()
         self._folder: RunFolder | None = None

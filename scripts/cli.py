@@ -119,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "_module", None) is None:
         parser.print_help()
         return 2
+    args._argv = list(argv)  # the command line as given (config.json, --quick)
     try:
         return int(args._module.run(args) or 0)
     except UsageError as e:

@@ -16,19 +16,27 @@ import argparse
 import dataclasses
 import json
 import math
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from runio.runfolder import RunFolder, atomic_write_text, markdown_table
+from runio import RunFolder, atomic_write_text, file_facts, markdown_table
 from scripts.cli import UsageError
+
+# --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
+# learning_starts, so something is learnt); any option given on the command line wins.
+QUICK = {
+    "seeds": 1, "dqn_steps": 3000, "irl_iters": 2, "demo_episodes": 4, "mu_episodes": 4,
+    "eval_episodes": 5, "transfer_episodes": 0,
+}  # fmt: skip
 
 
 def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
-    parser.add_argument("--seeds", type=int, default=5, help="training seeds (default 5)")
-    parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    parser.add_argument("--seeds", type=int, default=5, help="training seeds")
+    parser.add_argument("--seed", type=int, default=0, help="first seed")
     parser.add_argument("--dqn-steps", type=int, default=15_000, help="env steps per DQN solve")
     parser.add_argument("--irl-iters", type=int, default=6, help="max projection-IRL iterations")
     parser.add_argument("--epsilon", type=float, default=0.01, help="IRL stop: t <= epsilon")
@@ -56,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
     parser.add_argument("--workers", type=int, default=1, help="parallel training processes")
     parser.add_argument(
         "--runs-dir", "--out", dest="runs_dir", type=Path, default=Path("runs"),
-        help="where run folders go (runs); --out is the older name",
+        help="where run folders go; --out is the older name",
     )  # fmt: skip
     parser.add_argument(
         "--save-policy",
@@ -64,12 +72,49 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
         default=None,
         help="also copy the best learned policy of this learner to this file",
     )
+    quick = ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in QUICK.items())
+    parser.add_argument(
+        "--quick", action="store_true",
+        help=f"a small budget (about 45 s of CPU for ab): {quick}; options given win",
+    )  # fmt: skip
     if learner == "ab":
         from policy.ab import RULES
 
         parser.add_argument("--rules", default=",".join(RULES), help="AB combination rules")
         parser.add_argument("--no-irl", action="store_true", help="skip the IRL comparison runs")
     parser.set_defaults(learner_name=learner)
+
+
+def apply_quick(args: argparse.Namespace, argv: list[str] | None = None) -> list[str]:
+    """With --quick, the QUICK budget for every option not given on the command line;
+    returns the options it set."""
+    if not getattr(args, "quick", False):
+        return []
+    import sys
+
+    given = set(sys.argv[1:] if argv is None else argv)
+    changed = []
+    for k, v in QUICK.items():
+        flag = f"--{k.replace('_', '-')}"
+        if not any(a == flag or a.startswith(flag + "=") for a in given):
+            setattr(args, k, v)
+            changed.append(f"{flag} {v}")
+    return changed
+
+
+def budget_warnings(args: argparse.Namespace) -> list[str]:
+    """Budgets too short to learn anything, said out loud (printed and in summary.md)."""
+    from policy.dqn import DQNParams
+
+    starts = DQNParams().learning_starts
+    out = []
+    if args.dqn_steps <= starts:
+        out.append(
+            f"--dqn-steps {args.dqn_steps} is not more than the DQN's learning_starts ({starts}): "
+            f"the network is never trained and every learned policy is the untrained one; "
+            f"give --dqn-steps > {starts} (e.g. --quick uses {QUICK['dqn_steps']})"
+        )
+    return out
 
 
 # --------------------------------------------------------------------------- one training job
@@ -83,7 +128,10 @@ def _job(spec: dict) -> dict:
 
     p = dataclasses.replace(spec["params"], seed=spec["seed"])
     cpu0 = time.process_time()
-    res = run_apprenticeship(np.asarray(spec["mu_expert"]), p)
+    res = run_apprenticeship(
+        np.asarray(spec["mu_expert"]), p, on_iteration=spec.get("on_iteration"),
+        progress=spec.get("progress", False),
+    )  # fmt: skip
     cpu_s = time.process_time() - cpu0
     _, m = rollout_stats(
         res.policy, "composite", spec["eval_episodes"], spec["eval_seed"], spec["gamma"]
@@ -122,22 +170,10 @@ def run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from tqdm import tqdm
+    from policy.ab import SUBTASKS
+    from policy.demos import DemoFileError, ExpertParams, load_demo
 
-    from policy.ab import SUBTASKS, combine
-    from policy.demos import (
-        DemoFileError,
-        ExpertParams,
-        demo_feature_expectations,
-        load_demo,
-        random_policy,
-        record,
-        rollout_stats,
-        scripted_expert,
-    )
-    from policy.dqn import MLPPolicy
-    from policy.groundair.env import PSI_NAMES
-
+    quick = apply_quick(args, getattr(args, "_argv", None))
     learner = args.learner_name
     if (
         args.seeds < 1
@@ -158,23 +194,48 @@ def run(args: argparse.Namespace) -> int:
     if bad:
         raise UsageError(f"unknown AB rule(s) {', '.join(bad)}; choose from {', '.join(RULES)}")
 
-    rf = RunFolder(f"train-{learner}", root=args.runs_dir)
-    print(f"run folder: {rf.path}")
+    warnings = budget_warnings(args)
+    for w in warnings:
+        print(f"skyherd train {learner}: warning: {w}", file=sys.stderr)
     expert_p = ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag)
-    (rf.path / "demos").mkdir()
     needed = (
         ["composite"]
         if learner == "irl"
         else list(SUBTASKS) + ([] if args.no_irl else ["composite"])
     )
-    demos = {}
-    for sc in needed:
+    demos, demo_files = {}, {}
+    for sc in needed:  # before the run folder: a missing demo file is bad usage
         if args.demos is not None:
             try:
                 demos[sc] = load_demo(args.demos / f"{sc}.npz")
             except DemoFileError as e:
                 raise UsageError(f"{e}; record it with `skyherd teleop --scenario {sc}`") from e
-        else:
+            demo_files[sc] = file_facts(args.demos / f"{sc}.npz")
+    with RunFolder.open(f"train-{learner}", args, root=args.runs_dir) as run:
+        print(f"run folder: {run.path}")
+        return _train(run, args, learner, rules, expert_p, needed, demos, demo_files, quick,
+                      warnings)  # fmt: skip
+
+
+def _train(run, args, learner, rules, expert_p, needed, demos, demo_files, quick, warnings):
+    from tqdm import tqdm
+
+    from policy.ab import combine
+    from policy.demos import (
+        ExpertParams,
+        demo_feature_expectations,
+        random_policy,
+        record,
+        rollout_stats,
+        scripted_expert,
+    )
+    from policy.dqn import MLPPolicy
+    from policy.groundair.env import PSI_NAMES
+
+    rf = run
+    (rf.path / "demos").mkdir()
+    for sc in tqdm(needed, desc="demonstrations", unit="scenario", disable=None):
+        if sc not in demos:
             ex = scripted_expert(sc, expert_p, seed=7)
             demos[sc] = record(
                 sc,
@@ -208,8 +269,11 @@ def run(args: argparse.Namespace) -> int:
         "mu_expert": {k: v.tolist() for k, v in mu_e.items()},
         "psi_names": PSI_NAMES,
         "demos": {sc: d.meta["demonstrator"] for sc, d in demos.items()},
+        "demo_files": demo_files,
+        "quick": quick,
+        "warnings": warnings,
     }
-    rf.write_config(config)
+    run.config(**config)
 
     eval_seed = 100_000
     specs = [
@@ -230,25 +294,47 @@ def run(args: argparse.Namespace) -> int:
         ["learner", "seed", "iter", "t", "dist", "seconds"] + [f"mu_{n}" for n in PSI_NAMES]
     )
     results = []
-    bar = tqdm(total=len(specs), desc=f"train {learner}", unit="run")
+    # the bar counts IRL iterations (each a DQN solve), so it moves during a run of a learner
+    bar = run.closing(tqdm(total=len(specs) * args.irl_iters, desc=f"train {learner}",
+                           unit="iter", disable=None))  # fmt: skip
+
+    def progress_note() -> None:
+        run.summary(f"{len(results)} of {len(specs)} training runs finished "
+                    f"(learner × seed); results so far in metrics.csv and events.jsonl.\n")  # fmt: skip
+
+    progress_note()
     if args.workers > 1:
         with ProcessPoolExecutor(max_workers=args.workers) as pool:
             for out in pool.map(_job, specs):
                 results.append(out)
-                _log(out, events, metrics, bar)
+                _log(out, events, metrics, bar, args.irl_iters)
+                progress_note()
     else:
         for spec in specs:
-            out = _job(spec)
+            done = {"n": 0}
+
+            def tick(it, spec=spec, done=done) -> None:
+                done["n"] += 1
+                bar.update(1)
+                bar.set_postfix(run=f"{spec['learner']}/{spec['seed']}", t=f"{it.t:.3g}")
+
+            out = _job({**spec, "on_iteration": tick, "progress": bar.disable is False})
             results.append(out)
-            _log(out, events, metrics, bar)
+            _log(out, events, metrics, bar, args.irl_iters - done["n"])
+            progress_note()
     bar.close()
 
     # baselines on the same test seeds: the demonstrator, the ideal expert, random
     base = {}
-    for name, mk in (
-        ("expert (demonstrator)", lambda s: scripted_expert("composite", expert_p, seed=s)),
-        ("expert (ideal)", lambda s: scripted_expert("composite", ExpertParams(), seed=s)),
-        ("random", lambda s: random_policy(seed=s)),
+    for name, mk in tqdm(
+        (
+            ("expert (demonstrator)", lambda s: scripted_expert("composite", expert_p, seed=s)),
+            ("expert (ideal)", lambda s: scripted_expert("composite", ExpertParams(), seed=s)),
+            ("random", lambda s: random_policy(seed=s)),
+        ),
+        desc="baselines",
+        unit="policy",
+        disable=None,
     ):
         base[name] = [
             rollout_stats(
@@ -275,6 +361,10 @@ def run(args: argparse.Namespace) -> int:
             best[key] = (out, pol)
 
     summary, table = _summary(results, base, learner, args)
+    if warnings:
+        summary += "\n## Warnings\n\n" + "\n".join(f"- {w}" for w in warnings) + "\n"
+    if quick:
+        summary += f"\n--quick budget: {', '.join(quick)}.\n"
     if args.transfer_episodes > 0:
         from policy.evaluate import baseline_factories, transfer_table
         from policy.groundair.scenarios import GROUNDSIM_SCENARIOS
@@ -290,7 +380,7 @@ def run(args: argparse.Namespace) -> int:
             "\n## Transfer: best seed of each learner on groundsim UGV behaviours\n\n"
             f"{args.transfer_episodes} episodes each (not trained on these).\n\n{ttable}"
         )
-    rf.write_summary(summary)
+    run.summary(summary)
     atomic_write_text(
         rf.file("results.json"),
         json.dumps(
@@ -316,7 +406,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _log(out: dict, events, metrics, bar) -> None:
+def _log(out: dict, events, metrics, bar, iters_left: int = 0) -> None:
     from policy.groundair.env import PSI_NAMES
 
     for h in out["history"]:
@@ -340,7 +430,7 @@ def _log(out: dict, events, metrics, bar) -> None:
             "chosen": out["chosen"],
         }
     )
-    bar.update(1)
+    bar.update(max(0, iters_left))  # IRL may stop before --irl-iters: count the rest as done
     bar.set_postfix(
         last=f"{out['learner']}/{out['seed']} view={out['metrics']['all_in_view_frac']:.3f}"
     )
