@@ -104,6 +104,7 @@ class UdpTransport:
             self.sock.close()
             raise LinkError(f"cannot bind UDP {addr.host}:{addr.port}: {e} (port in use?)") from e
         self.fixed_peer = addr.kind == "udpout"
+        self.last_sender: tuple[str, int] | None = None  # of the last datagram received
 
     def send(self, data: bytes) -> None:
         if self.peer is not None:
@@ -120,9 +121,14 @@ class UdpTransport:
             data, sender = self.sock.recvfrom(65535)
         except OSError:
             return b""
-        if not self.fixed_peer:
-            self.peer = sender
+        self.last_sender = sender
         return data
+
+    def accept_sender(self) -> None:
+        """The last datagram held a valid (and, with signing, authentic) frame: `udpin`
+        answers its sender from now on. Junk or forged datagrams never redirect replies."""
+        if not self.fixed_peer and self.last_sender is not None:
+            self.peer = self.last_sender
 
     def close(self) -> None:
         self.sock.close()
@@ -234,6 +240,8 @@ class MavlinkLink:
         without a key takes it; one already signing takes it only if we hold its current key."""
         if self.signing is None or self.signing.key is None:
             raise LinkError("setup_signing needs a link opened with signing_key")
+        if getattr(self.transport, "peer", ()) is None:  # udpin that heard only unsigned frames
+            self.transport.accept_sender()  # provisioning: the vehicle that spoke last
         self.send(self.mav.setup_signing_encode(
             target_system, target_component, list(self.signing.key), now_units()
         ))  # fmt: skip
@@ -260,6 +268,8 @@ class MavlinkLink:
             return []
         if self.datagrams:  # a UDP datagram carries whole frames: parse each on its own
             msgs = self.codec.parse(data)
+            if msgs:
+                self.transport.accept_sender()
         else:  # a byte stream: frames may span reads
             msgs = [m for m in (self._stream.parse_buffer(data) or [])
                     if not isinstance(m, mavlink.MAVLink_bad_data | mavlink.MAVLink_unknown)
