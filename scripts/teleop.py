@@ -14,6 +14,9 @@ y right → east/west, z thrust above/below its 500 centre → climb/descend; bu
 --step-s 0 every MANUAL_CONTROL message is one step; otherwise the newest message of each step
 counts and a stick silent for more than 1 s means hover.
 
+The run folder (`runs/<time>-teleop/`) gets config.json, summary.md and the demonstration
+(`<scenario>.npz`, unless --out says elsewhere).
+
 The view is drawn as text: the camera image scaled to 40×15 characters, 'o' a UGV, '+' the image
 centre. The demonstration is saved in the skyherd-demo format (policy.demos) and is ready for
 `skyherd train irl|ab --demos FOLDER` (name the files <scenario>.npz).
@@ -30,6 +33,7 @@ import time
 import tty
 from pathlib import Path
 
+from runio import RunFolder
 from scripts.cli import UsageError
 
 KEYS = {"w": 1, "s": 2, "d": 3, "a": 4, "r": 5, "f": 6, " ": 0}
@@ -53,13 +57,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=("lateral", "climb", "descend", "composite"),
         help="what to demonstrate",
     )
-    parser.add_argument("--episodes", type=int, default=1, help="episodes to record (default 1)")
+    parser.add_argument("--episodes", type=int, default=1, help="episodes to record")
     parser.add_argument("--seed", type=int, default=0, help="environment seed of the first episode")
     parser.add_argument(
         "--step-s",
         type=float,
         default=0.5,
-        help="wall seconds per step; 0 = wait for a key each step (default 0.5)",
+        help="wall seconds per step; 0 = wait for a key each step",
     )
     parser.add_argument(
         "--episode-s", type=float, default=60.0, help="episode length [s] (sim time)"
@@ -68,8 +72,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out",
         type=Path,
         default=None,
-        help="output .npz (default runs/teleop-<scenario>-<UTC>.npz)",
+        help="output .npz (default: <scenario>.npz in the run folder, ready for "
+        "`skyherd train irl|ab --demos FOLDER`)",
     )
+    parser.add_argument(
+        "--runs-dir", dest="runs_dir", type=Path, default=Path("runs"),
+        help="where run folders go",
+    )  # fmt: skip
     parser.add_argument(
         "--mavlink",
         default=None,
@@ -93,9 +102,6 @@ def _view(env) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from policy.demos import ALLOWED_ACTIONS, record
-    from policy.groundair.params import ACTION_NAMES, TaskParams
-
     if args.episodes < 1 or args.step_s < 0 or args.episode_s <= 0:
         raise UsageError("need --episodes >= 1, --step-s >= 0 and --episode-s > 0")
     if args.mavlink:
@@ -103,14 +109,17 @@ def run(args: argparse.Namespace) -> int:
     fd = sys.stdin.fileno()
     if not os.isatty(fd):
         raise UsageError("teleop needs a terminal on stdin (run it in a terminal, not a pipe)")
+    with RunFolder.open("teleop", args, root=args.runs_dir) as run:
+        return _run_keyboard(args, run, fd)
+
+
+def _run_keyboard(args: argparse.Namespace, run, fd: int) -> int:
+    from policy.demos import ALLOWED_ACTIONS, record
+    from policy.groundair.params import ACTION_NAMES, TaskParams
+
     allowed = ALLOWED_ACTIONS[args.scenario]
     task = TaskParams(episode_s=args.episode_s)
-    out = (
-        args.out
-        or Path("runs")
-        / f"teleop-{args.scenario}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.npz"
-    )
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = _out_path(args, run)
     old = termios.tcgetattr(fd)
     state = {"t_next": None, "last": 0}
 
@@ -167,11 +176,34 @@ def run(args: argparse.Namespace) -> int:
         )
     finally:
         termios.tcsetattr(fd, termios.TCSADRAIN, old)
+    return _save(args, run, demo, out, "keyboard")
+
+
+def _out_path(args: argparse.Namespace, run) -> Path:
+    out = args.out or run.file(f"{args.scenario}.npz")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _save(args: argparse.Namespace, run, demo, out: Path, source: str) -> int:
+    """Save the demonstration, say what it holds in summary.md; nothing recorded = failed."""
+    from runio import file_facts, markdown_table
+
     if demo.actions.shape[0] == 0:
         print("nothing recorded (quit before the first step)")
+        run.fail("nothing recorded (quit before the first step)")
         return 1
     demo.save(out)
     m = demo.meta["episode_metrics"]
+    print(f"run folder: {run.path}")
+    run.config(demo=file_facts(out), source=source)
+    run.describe(out.name, f"the demonstration ({args.scenario}, {source}), skyherd-demo format")
+    rows = [[i, x["all_in_view_frac"]] for i, x in enumerate(m)]
+    run.summary(
+        f"{demo.actions.shape[0]} steps of {args.scenario} from the {source} in {len(m)} "
+        f"episode(s), saved to `{out}`.\n\n"
+        + markdown_table(["episode", "all-in-view fraction"], rows)
+    )
     print(
         f"\nrecorded {demo.actions.shape[0]} steps in {len(m)} episode(s) of {args.scenario} → {out}"
     )
@@ -182,21 +214,28 @@ def run(args: argparse.Namespace) -> int:
 def _run_mavlink(args: argparse.Namespace) -> int:
     """Record a demonstration from MAVLink MANUAL_CONTROL messages."""
     from hil.link import MavlinkLink
+    from runio import AddressError, mavlink_address
+
+    try:
+        address = mavlink_address(args.mavlink)
+    except AddressError as e:
+        raise UsageError(f"--mavlink {e}") from e
+    try:
+        link = MavlinkLink.open(address)
+    except Exception as e:
+        raise UsageError(f"cannot open {args.mavlink}: {e}") from e
+    with RunFolder.open("teleop", args, root=args.runs_dir) as run:
+        run.closing(link)
+        return _run_link(args, run, link)
+
+
+def _run_link(args: argparse.Namespace, run, link) -> int:
     from policy.demos import ALLOWED_ACTIONS, record
     from policy.groundair.params import TaskParams
 
-    try:
-        link = MavlinkLink.open(args.mavlink)
-    except Exception as e:
-        raise UsageError(f"cannot open {args.mavlink}: {e}") from e
     allowed = ALLOWED_ACTIONS[args.scenario]
     task = TaskParams(episode_s=args.episode_s)
-    out = (
-        args.out
-        or Path("runs")
-        / f"teleop-{args.scenario}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.npz"
-    )
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = _out_path(args, run)
     state = {"last": None, "t_last": -1e9, "t_next": None}
     print(f"teleop ready: {args.scenario}, MANUAL_CONTROL on {args.mavlink}", flush=True)
 
@@ -234,9 +273,4 @@ def _run_mavlink(args: argparse.Namespace) -> int:
         )
     finally:
         link.close()
-    if demo.actions.shape[0] == 0:
-        print("nothing recorded")
-        return 1
-    demo.save(out)
-    print(f"recorded {demo.actions.shape[0]} steps of {args.scenario} → {out}")
-    return 0
+    return _save(args, run, demo, out, "MAVLink MANUAL_CONTROL")
