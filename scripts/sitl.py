@@ -55,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="where run folders go (runs); --runs is the older name",
     )  # fmt: skip
     parser.add_argument("--no-tlog", action="store_true", help="do not write telemetry.tlog")
+    parser.add_argument("--signing-key", type=Path, default=None, help="MAVLink 2 signing key file (32 bytes): signing on (default: none, or the key a SETUP_SIGNING saved in --state-dir)")  # fmt: skip
     from flight.faults import add_fault_arguments
 
     add_fault_arguments(parser)  # --wind --gust --noise --fault (docs/quadrotor.md, faults)
@@ -101,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         bind_host=args.bind,
         state_dir=state_dir,
         tlog=None if args.no_tlog else folder.file("telemetry.tlog"),
+        signing_key=args.signing_key,
     )
     folder.write_config({"airframe": args.airframe, "speedup": args.speedup, "home": home,
                          "seed": args.seed, "endpoint": config, "control_dt": ap.control_dt,
@@ -111,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(
             f"{e}; is another instance running? try --instance {args.instance + 1}"
         ) from e
+    except ValueError as e:  # flight.mavlink.signing.SigningError: a bad key file
+        raise UsageError(str(e)) from e
     rows = [
         ["api / offboard", f"udp {config.api_bind[0]}:{config.api_bind[1]}", f"{config.api_remote[0]}:{config.api_remote[1]}"],
         ["ground station", f"udp {config.gcs_bind[0]}:{config.gcs_bind[1]}", f"{config.gcs_remote[0]}:{config.gcs_remote[1]}"],
