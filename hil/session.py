@@ -1,6 +1,10 @@
-"""The phases every mission shares, flown through `VehicleClient`: connect, arm, take off,
-hand over to offboard, land. Telemetry is recorded to metrics.csv on every position sample,
-and a mission supplies the offboard setpoint for each sample.
+"""The phases every mission shares, flown through `VehicleClient` with the recipes of the
+autopilot it found (hil/autopilots.py): connect, take off, hand over to the AI's mode, land,
+and leave the vehicle disarmed in a normal mode. Telemetry is recorded to metrics.csv on every
+position sample, and a mission supplies the offboard setpoint for each sample.
+
+When the autopilot changes mode on its own (failsafe, ground station, pilot) the session
+yields: no further mode request or setpoint, and the landing is the autopilot's.
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from flight.autopilot_api import FlightMode
-from hil.client import Telemetry, VehicleClient
+from hil.client import ClientTimeout, CommandError, Telemetry, VehicleClient, Yielded
 from runio.runfolder import CsvWriter
 
 SetpointFn = Callable[[Telemetry], tuple | None]
@@ -33,6 +37,7 @@ class FlightSession:
         self.mission_fn: SetpointFn | None = None
         self.t_end = time.monotonic() + timeout
         self.bar = tqdm(total=len(steps), desc="fly", unit="step", leave=True)
+        self.landed = False
         client.stream_offboard(self._setpoint)
 
     # ---- per telemetry sample (receive thread) ---------------------------------------------
@@ -67,49 +72,83 @@ class FlightSession:
         self.bar.update()
 
     def connect_arm_takeoff(self, altitude: float) -> None:
-        c, tel = self.client, self.tel
-        self.step("connect", "connect: waiting for heartbeat, home and position")
-        c.wait_ready(timeout=min(30.0, self.left()))
+        c = self.client
+        self.step("connect", "connect: waiting for heartbeat, position and home")
+        c.wait_ready(timeout=self.left())
+        p = c.profile
+        self.bar.write(f"skyherd fly: {p.name} {p.version}".rstrip() + f" ({p.vehicle})")
         self.done()
-        self.step("arm", "arm")
-        c.wait_until(lambda: tel.landed_state == 1, min(30.0, self.left()), "vehicle on ground")
-        c.arm()
+        self.step("arm", f"arm and take off the {p.name} way")
+        steps = p.takeoff_steps(altitude, c.home_amsl())
         self.done()
         self.step("takeoff", f"takeoff to {altitude:.0f} m")
-        c.takeoff(altitude)
-        c.wait_until(
-            lambda: tel.pos_ned is not None and -tel.pos_ned[2] > altitude - 0.5,
-            self.left(),
-            f"altitude {altitude:.0f} m",
-        )
+        c.run_steps(steps, self.left(), authority=False)
         self.done()
 
     def offboard(self, altitude: float) -> None:
-        """Stream a hold-position setpoint, then switch to OFFBOARD (PX4 needs the stream first)."""
+        """Stream a hold-position setpoint, then switch to the AI's mode (OFFBOARD / GUIDED)."""
         c, tel = self.client, self.tel
-        self.step("offboard", "offboard")
+        self.step("offboard", f"hand-over to {c.profile.ai_mode.name}")
         self.hold_target = np.array([tel.pos_ned[0], tel.pos_ned[1], -altitude])
-        c.wait_message("LOCAL_POSITION_NED")
-        c.wait_message("LOCAL_POSITION_NED")
-        self.set_mode(FlightMode.OFFBOARD)
+        c.run_steps(c.profile.handover_steps(), self.left(), hold_ned=self.hold_target)
         self.done()
 
     def set_mode(self, mode: FlightMode) -> None:
+        """Request `mode` and wait until the heartbeat shows it; Yielded once the autopilot
+        has taken over (never switch back from its failsafe)."""
         self.client.set_mode(mode)
-        self.client.wait_until(lambda: self.tel.mode is mode, min(10.0, self.left()), mode.name)
+        self.client.wait_until(
+            lambda: self.tel.mode is mode, min(10.0, self.left()), mode.name,
+            vehicle_s=self.client.options.mode_wait_s,
+        )  # fmt: skip
 
     def land(self) -> None:
+        """The profile's landing, then its end: disarmed, streaming stopped, a normal mode."""
+        c = self.client
         self.step("land", "land")
-        self.client.land()
-        self.client.wait_until(lambda: not self.tel.armed, self.left(), "landing and disarm")
+        if self.tel.yielded:
+            raise Yielded(self.tel.yielded)
+        c.run_steps(c.profile.land_steps(), self.left())
+        self.landed = not self.tel.armed
+        self._end()
         self.done()
+
+    def _end(self) -> None:
+        try:
+            self.client.run_steps(self.client.profile.end_steps(), self.left())
+        except (ClientTimeout, CommandError) as e:
+            self.bar.write(f"skyherd fly: after the landing: {e}")
 
     def vehicle_time(self) -> float:
         return self.tel.time_boot_ms / 1000.0
 
     def close(self) -> np.ndarray:
-        """Stop streaming; return the track (K, 4): t, north, east, down."""
-        self.client.stream_offboard(None)
+        """Stop streaming and leave the vehicle safe; return the track (K, 4): t, north, east,
+        down. A mission that ended in the air lands the profile's way; when the autopilot has
+        taken over, its landing is waited for (not commanded)."""
+        c = self.client
+        c.stop_setpoints()
+        if c.profile is not None and self.tel.armed and not self.landed:
+            self._leave_safe()
+        c.stream_offboard(None)
         self.bar.close()
         self.metrics.close()
         return np.array(self.track) if self.track else np.zeros((0, 4))
+
+    def _leave_safe(self) -> None:
+        c, tel = self.client, self.tel
+        try:
+            if tel.yielded:
+                self.bar.write(f"skyherd fly: {tel.yielded}; waiting for it to land")
+                c.wait_until(lambda: not tel.armed, self.left(), "the autopilot's landing",
+                             vehicle_s=c.options.land_wait_s, interruptible=False)  # fmt: skip
+                return
+            if tel.landed_state == 1:  # still on the ground: nothing to land
+                c.disarm()
+                return
+            self.bar.write(f"skyherd fly: landing the {c.profile.name} way after the abort")
+            c.interrupt = ""
+            c.run_steps(c.profile.land_steps(), self.left())
+            self._end()
+        except (ClientTimeout, CommandError) as e:
+            self.bar.write(f"skyherd fly: could not land after the abort: {e}")

@@ -1,0 +1,384 @@
+"""The companion link against a scripted ArduCopter / ArduPlane (SCRIPTED PEER, not the real
+firmware: ArduPilot is not on a package registry). The peer speaks MAVLink 2 frames built by
+pymavlink over a real UDP socket, byte for byte as the published protocol and as real
+ArduCopter SITL answered when it was measured (../shared/PROTOCOLS.md):
+
+- it streams nothing but HEARTBEAT and STATUSTEXT until asked (SET_MESSAGE_INTERVAL), and
+  never sends ATTITUDE_QUATERNION or EXTENDED_SYS_STATE;
+- its EKF uses GPS 41 s after boot: only then LOCAL_POSITION_NED and HOME_POSITION;
+- the first arm is refused (COMMAND_ACK FAILED, then 100 ms later STATUSTEXT "PreArm: Gyros
+  inconsistent", in two chunks); arming needs GUIDED for a take-off, NAV_TAKEOFF reads param 7
+  above home and is refused unless GUIDED and armed; LOITER sinks without a pilot's throttle;
+- its fence refuses targets beyond 50 m (the copter stops at the edge) with a STATUSTEXT.
+
+The peer runs its own clock at `RATE`× wall time; every limit the client waits under counts
+that clock, so the result does not depend on the machine's load (the wall backstops are
+minutes). Instances: UDP ports of vehicle instances 70-74 (14610+).
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as M
+
+from flight.autopilot_api import FlightMode
+from hil.autopilots import ARDUCOPTER, ARDUPLANE
+from hil.client import ClientOptions, ClientTimeout, CommandError, VehicleClient, Yielded
+from hil.link import MavlinkLink
+
+RATE = 8.0  # peer seconds per wall second
+DT = 0.02  # peer step [s]
+HOME = (-35.363261, 149.165230, 584.0)
+GUIDED, LOITER, RTL, LAND, BRAKE, STABILIZE = 4, 5, 6, 9, 17, 0
+
+
+class ScriptedArduCopter:
+    """A scripted ArduCopter on 127.0.0.1:`port` (udpin: it answers whoever sent last)."""
+
+    def __init__(self, port: int, ekf_after_s: float = 41.0, fence_m: float = 50.0,
+                 mav_type: int = M.MAV_TYPE_QUADROTOR):  # fmt: skip
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port))
+        self.sock.setblocking(False)
+        self.peer = None
+        self.mav = M.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.rx = M.MAVLink(None)
+        self.mav_type = mav_type
+        self.t = 0.0
+        self.ekf_after_s, self.fence_m = ekf_after_s, fence_m
+        self.mode, self.armed = STABILIZE, False
+        self.pos, self.vel = np.zeros(3), np.zeros(3)
+        self.target: np.ndarray | None = None
+        self.takeoff_alt: float | None = None
+        self.arm_attempts = 0
+        self.rates: dict[int, float] = {}
+        self.next_due: dict[int, float] = {}
+        self.queue: list[tuple[float, object]] = []  # (peer time, message) sent later
+        self.senders: set[int] = set()
+        self.commands: list[tuple[float, int, tuple]] = []
+        self.modes: list[tuple[float, int]] = []
+        self.setpoints_after_land = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self):
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._thread.join(5)
+        self.sock.close()
+
+    @property
+    def ekf_ok(self) -> bool:
+        return self.t >= self.ekf_after_s
+
+    def send(self, msg) -> None:
+        if self.peer is not None:
+            self.sock.sendto(msg.pack(self.mav), self.peer)
+            self.mav.seq = (self.mav.seq + 1) % 256
+
+    def text(self, words: str, severity=M.MAV_SEVERITY_CRITICAL, delay=0.0, chunk_id=0) -> None:
+        if chunk_id == 0:
+            self.queue.append(
+                (self.t + delay, M.MAVLink_statustext_message(severity, words.encode()))
+            )
+            return
+        for seq, i in enumerate(range(0, len(words) + 1, 50)):
+            part = words[i : i + 50].encode()
+            self.queue.append(
+                (self.t + delay, M.MAVLink_statustext_message(severity, part, chunk_id, seq))
+            )
+
+    def ack(self, cmd: int, result: int) -> None:
+        self.send(M.MAVLink_command_ack_message(cmd, result, 0, 0, 255, 191))
+
+    # ---- the loop ------------------------------------------------------------------------------
+    def _run(self) -> None:
+        wall0 = time.monotonic()
+        t_hb = -1.0
+        while not self._stop.is_set():
+            self._receive()
+            self._step()
+            if self.t - t_hb >= 1.0:
+                t_hb = self.t
+                base = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (
+                    M.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0
+                )
+                state = M.MAV_STATE_ACTIVE if self.armed else M.MAV_STATE_STANDBY
+                self.send(
+                    M.MAVLink_heartbeat_message(
+                        self.mav_type, M.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self.mode, state, 3
+                    )
+                )
+            for msg_id, hz in self.rates.items():
+                if self.t >= self.next_due.get(msg_id, 0.0):
+                    self.next_due[msg_id] = self.t + 1.0 / hz
+                    m = self._build(msg_id)
+                    if m is not None:
+                        self.send(m)
+            due = [q for q in self.queue if q[0] <= self.t]
+            self.queue = [q for q in self.queue if q[0] > self.t]
+            for _, m in due:
+                self.send(m)
+            self.t += DT
+            lag = (wall0 + self.t / RATE) - time.monotonic()
+            if lag > 0:
+                time.sleep(lag)
+
+    def _receive(self) -> None:
+        while True:
+            try:
+                data, self.peer = self.sock.recvfrom(65535)
+            except BlockingIOError:
+                return
+            for m in self.rx.parse_buffer(data) or []:
+                self.senders.add(m.get_srcComponent())
+                self._on(m)
+
+    def _build(self, msg_id: int):
+        ms = int(self.t * 1000)
+        if msg_id == M.MAVLINK_MSG_ID_ATTITUDE:
+            return M.MAVLink_attitude_message(ms, 0.0, 0.0, 0.1, 0.0, 0.0, 0.0)
+        if msg_id == M.MAVLINK_MSG_ID_SYS_STATUS:
+            pre = M.MAV_SYS_STATUS_PREARM_CHECK
+            return M.MAVLink_sys_status_message(
+                pre, pre, pre if self.ekf_ok else 0, 0, 12600, -1, 100, 0, 0, 0, 0, 0, 0
+            )
+        if msg_id == M.MAVLINK_MSG_ID_GPS_RAW_INT:
+            return M.MAVLink_gps_raw_int_message(
+                ms * 1000, 3 if self.t > 5 else 1, 0, 0, 0, 0, 0, 0, 0, 10
+            )
+        if msg_id == M.MAVLINK_MSG_ID_EKF_STATUS_REPORT:
+            flags = 0x1 | 0x2 | (0x10 if self.ekf_ok else 0)
+            return M.MAVLink_ekf_status_report_message(flags, 0, 0, 0, 0, 0)
+        if not self.ekf_ok:
+            return None  # no position before the EKF uses GPS
+        if msg_id == M.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+            return M.MAVLink_local_position_ned_message(ms, *self.pos, *self.vel)
+        if msg_id == M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            return M.MAVLink_global_position_int_message(
+                ms,
+                int(HOME[0] * 1e7),
+                int(HOME[1] * 1e7),
+                int((HOME[2] - self.pos[2]) * 1000),
+                int(-self.pos[2] * 1000),
+                0,
+                0,
+                0,
+                0,
+            )
+        if msg_id == M.MAVLINK_MSG_ID_HOME_POSITION:
+            return self._home()
+        return None
+
+    def _home(self):
+        return M.MAVLink_home_position_message(
+            int(HOME[0] * 1e7),
+            int(HOME[1] * 1e7),
+            int(HOME[2] * 1000),
+            0.0,
+            0.0,
+            0.0,
+            [1, 0, 0, 0],
+            0.0,
+            0.0,
+            0.0,
+        )
+
+    def _on(self, m) -> None:
+        t = m.get_type()
+        if t == "COMMAND_LONG":
+            self.commands.append((self.t, m.command, (m.param1, m.param2, m.param7)))
+            self._command(m)
+        elif t == "SET_POSITION_TARGET_LOCAL_NED":
+            if self.mode == LAND and not self.armed:
+                self.setpoints_after_land += 1  # still streaming when the landing ended
+            if self.mode == GUIDED and self.armed and self.takeoff_alt is None:
+                p = np.array([m.x, m.y, m.z])
+                if np.hypot(p[0], p[1]) > self.fence_m:
+                    self.text("Fence: target outside fence", M.MAV_SEVERITY_WARNING)
+                    p[:2] *= (self.fence_m - 1.0) / np.hypot(p[0], p[1])
+                self.target = p
+
+    def _command(self, m) -> None:
+        c = m.command
+        if c == M.MAV_CMD_SET_MESSAGE_INTERVAL:
+            self.rates[int(m.param1)] = 1e6 / m.param2
+            self.ack(c, M.MAV_RESULT_ACCEPTED)
+        elif c == M.MAV_CMD_REQUEST_MESSAGE:
+            self.ack(c, M.MAV_RESULT_ACCEPTED)
+            if int(m.param1) == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+                self.send(
+                    M.MAVLink_autopilot_version_message(
+                        0, (4 << 24) | (7 << 16), 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 77
+                    )
+                )
+            elif int(m.param1) == M.MAVLINK_MSG_ID_HOME_POSITION and self.ekf_ok:
+                self.send(self._home())
+        elif c == M.MAV_CMD_DO_SET_MODE:
+            self.mode = int(m.param2)
+            self.modes.append((self.t, self.mode))
+            self.ack(c, M.MAV_RESULT_ACCEPTED)
+        elif c == M.MAV_CMD_COMPONENT_ARM_DISARM:
+            self.arm_attempts += 1
+            if m.param1 == 1 and (self.arm_attempts == 1 or not self.ekf_ok):
+                self.ack(c, M.MAV_RESULT_FAILED)  # the reason follows ~100 ms later, chunked
+                self.text(
+                    "PreArm: Gyros inconsistent (the first attempt after boot is refused "
+                    "while the gyros settle)",
+                    delay=0.1,
+                    chunk_id=7,
+                )
+            else:
+                self.armed = m.param1 == 1
+                self.ack(c, M.MAV_RESULT_ACCEPTED)
+        elif c == M.MAV_CMD_NAV_TAKEOFF:
+            if self.mode != GUIDED or not self.armed:
+                self.ack(c, M.MAV_RESULT_FAILED)
+            else:
+                self.takeoff_alt = m.param7  # above home
+                self.ack(c, M.MAV_RESULT_ACCEPTED)
+        else:
+            self.ack(c, M.MAV_RESULT_UNSUPPORTED)
+
+    def _step(self) -> None:
+        """A kinematic copter: 2.5 m/s climb, 5 m/s toward a target, LOITER sinks (no RC)."""
+        if not self.armed:
+            self.vel[:] = 0
+            return
+        v = np.zeros(3)
+        if self.takeoff_alt is not None:
+            v[2] = -2.5 if -self.pos[2] < self.takeoff_alt else 0.0
+            if -self.pos[2] >= self.takeoff_alt:
+                self.takeoff_alt, self.target = None, self.pos.copy()
+        elif self.mode == GUIDED and self.target is not None:
+            d = self.target - self.pos
+            n = np.linalg.norm(d)
+            v = d / n * min(5.0, n / DT) if n > 1e-6 else v
+        elif self.mode == LOITER:
+            v[2] = 2.5  # no pilot throttle: it sinks
+        elif self.mode == LAND:
+            v[2] = 1.0
+        self.vel = v
+        self.pos = self.pos + v * DT
+        if self.pos[2] > 0:
+            self.pos[2] = 0.0
+            if self.mode == LAND:
+                self.armed = False
+
+
+def _client(port: int) -> VehicleClient:
+    link = MavlinkLink.open(f"udpout:127.0.0.1:{port}")
+    return VehicleClient(link, options=ClientOptions(silence_s=30.0))
+
+
+@pytest.mark.timeout(240)
+def test_scripted_arducopter_flies_twice_with_guided_takeoff_and_brake_fallback():
+    with ScriptedArduCopter(14610) as peer, _client(14610) as c:
+        c.wait_ready(timeout=200)
+        tel = c.telemetry
+        assert c.profile.name == "ArduCopter" and c.profile.version == "4.7.0"
+        assert tel.t >= 41.0  # readiness waited for the EKF by condition, past 30 s
+        assert tel.quat is not None and tel.landed_state == M.MAV_LANDED_STATE_ON_GROUND
+        assert 191 in peer.senders and 190 not in peer.senders
+        for mission in range(2):
+            c.run_steps(c.profile.takeoff_steps(10.0, c.home_amsl()), 200, authority=False)
+            peer.setpoints_after_land = 0  # the stream before GUIDED found it landed: fine
+            if mission == 0:  # the first arm was refused and retried; its reason was read
+                assert peer.arm_attempts == 2
+                assert any("Gyros inconsistent (the first" in x for _, _, x in tel.statustexts)
+            kinds = [cmd for _, cmd, _ in peer.commands]
+            # GUIDED before the arm, the take-off altitude relative to home (not 594 m AMSL)
+            i_mode = max(i for i, k in enumerate(kinds) if k == M.MAV_CMD_DO_SET_MODE)
+            i_arm = max(i for i, k in enumerate(kinds) if k == M.MAV_CMD_COMPONENT_ARM_DISARM)
+            i_to = kinds.index(M.MAV_CMD_NAV_TAKEOFF, i_arm)
+            assert i_mode < i_arm < i_to and peer.commands[i_to][2][2] == 10.0
+            assert 9.4 < -tel.pos_ned[2] and tel.mode is FlightMode.OFFBOARD
+            c.run_steps(c.profile.handover_steps(), 60, hold_ned=np.array([5.0, 0.0, -10.0]))
+            c.wait_until(lambda: np.linalg.norm(tel.pos_ned - [5, 0, -10]) < 0.5, 60, "target",
+                         vehicle_s=30)  # fmt: skip
+            # the safety net's fallback: BRAKE (17), never LOITER (5) — it would sink
+            c.set_mode(ARDUCOPTER.fallback_mode)
+            c.wait_until(lambda: tel.mode_name == "BRAKE", 30, "BRAKE", vehicle_s=5)
+            assert peer.mode == BRAKE
+            c.set_mode(FlightMode.OFFBOARD)
+            c.run_steps(c.profile.land_steps() + c.profile.end_steps(), 120)
+            assert not tel.armed and not c.streaming and peer.setpoints_after_land == 0
+        assert tel.unrequested_mode_change == 0
+        assert [name for _, name, _ in tel.modes].count("GUIDED") >= 2
+
+
+@pytest.mark.timeout(240)
+def test_scripted_arducopter_failsafe_is_yielded_to_and_fence_stall_is_noticed():
+    with ScriptedArduCopter(14611, ekf_after_s=2.0) as peer, _client(14611) as c:
+        c.wait_ready(timeout=100)
+        tel = c.telemetry
+        c.run_steps(c.profile.takeoff_steps(10.0, c.home_amsl()), 200, authority=False)
+        c.run_steps(c.profile.handover_steps(), 60)
+        # a target outside ArduPilot's fence: the copter stops at the edge; the client notices
+        c.start_setpoints(np.array([80.0, 0.0, -10.0]))
+        with pytest.raises(ClientTimeout, match="not approached.*Fence"):
+            c.wait_until(lambda: np.linalg.norm(tel.pos_ned[:2] - [80, 0]) < 1, 120, "corner",
+                         vehicle_s=100)  # fmt: skip
+        assert 45 < tel.pos_ned[0] < 50
+        c.interrupt = ""
+        c.start_setpoints(np.array([10.0, 0.0, -10.0]))
+        # a battery failsafe: ArduCopter goes RTL by itself; the client yields and stops streaming
+        peer.mode = RTL
+        with pytest.raises(Yielded, match="RTL"):
+            c.wait_until(lambda: False, 60, "the mission", vehicle_s=20)
+        assert tel.unrequested_mode_change == 1
+        with pytest.raises(Yielded):
+            c.set_mode(FlightMode.LAND)  # it never takes the vehicle back from the failsafe
+        n = c.setpoints_sent
+        c.wait_vehicle_s(1.0)
+        assert c.setpoints_sent == n and peer.mode == RTL
+
+
+@pytest.mark.timeout(120)
+def test_refused_command_carries_the_autopilots_reason_sent_after_the_ack():
+    with ScriptedArduCopter(14612, ekf_after_s=1.0) as peer, _client(14612) as c:
+        c.wait_ready(timeout=100)
+        with pytest.raises(CommandError) as e:
+            c.arm()
+        assert "FAILED" in str(e.value) and "PreArm: Gyros inconsistent (the first attempt" in str(
+            e.value
+        )
+        assert e.value.reason.endswith("settle)")  # both chunks joined
+        with pytest.raises(CommandError, match="FAILED"):  # NAV_TAKEOFF before GUIDED + arm
+            c.takeoff(10.0)
+        assert peer.commands[-1][2][2] == 10.0
+
+
+@pytest.mark.timeout(120)
+def test_scripted_arduplane_modes_decode_with_the_plane_table():
+    with ScriptedArduCopter(14613, ekf_after_s=1.0, mav_type=M.MAV_TYPE_FIXED_WING) as peer, \
+            _client(14613) as c:  # fmt: skip
+        c.wait_ready(timeout=100)
+        tel = c.telemetry
+        assert c.profile.name == "ArduPlane"
+        for number, mode, name in (
+            (15, FlightMode.OFFBOARD, "GUIDED"),
+            (12, FlightMode.HOLD, "LOITER"),
+            (11, FlightMode.RTL, "RTL"),
+            (5, FlightMode.STABILIZED, "FBWA"),
+        ):
+            peer.mode = number
+            c.wait_until(lambda n=name: tel.mode_name == n, 30, name, vehicle_s=5)
+            assert tel.mode is mode
+        c.set_mode(FlightMode.HOLD)
+        assert peer.mode == 12  # LOITER, not the copter's 5
+        with pytest.raises(ValueError, match="no mode for LAND"):
+            c.set_mode(FlightMode.LAND)
+        steps = ARDUPLANE.takeoff_steps(40.0, 584.0)
+        assert M.MAV_CMD_NAV_TAKEOFF not in [s.command for s in steps]
+        assert [s.mode for s in steps if s.kind == "set_mode"] == [FlightMode.TAKEOFF]
+        assert math.isclose(ARDUPLANE.set_mode_params(FlightMode.TAKEOFF)[1], 13)
