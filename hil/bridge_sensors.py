@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flight.frames import quat_to_dcm
 from flight.geo import Home
 
 P0_PA = 101325.0  # sea-level pressure [Pa]
@@ -130,6 +129,17 @@ class NoiseBlock:
 
 
 def body_from_ned(quat, v: tuple[float, float, float]) -> tuple[float, float, float]:
-    """Rotate a NED vector into body FRD: Rᵀ v for the body → NED quaternion (w, x, y, z)."""
-    b = quat_to_dcm(np.asarray(quat, dtype=float)).T @ np.asarray(v, dtype=float)
-    return float(b[0]), float(b[1]), float(b[2])
+    """Rotate a NED vector into body FRD: v_b = q* ⊗ v ⊗ q for the body → NED quaternion q.
+
+    With u = −(x, y, z) (the conjugate's vector part): t = 2 u × v, v_b = v + w t + u × t.
+    """
+    w, ux, uy, uz = quat[0], -quat[1], -quat[2], -quat[3]
+    vx, vy, vz = v
+    tx = 2.0 * (uy * vz - uz * vy)
+    ty = 2.0 * (uz * vx - ux * vz)
+    tz = 2.0 * (ux * vy - uy * vx)
+    return (
+        vx + w * tx + (uy * tz - uz * ty),
+        vy + w * ty + (uz * tx - ux * tz),
+        vz + w * tz + (ux * ty - uy * tx),
+    )

@@ -1,0 +1,288 @@
+"""Speed of skyherd's simulator bridges against a plain numpy + json / pymavlink baseline.
+
+Prints, in one run:
+1. JSON backend, in process: frames/s of `ArduPilotJsonBridge.handle` (numba body, one
+   precompiled format string) vs a plain numpy + json.dumps quadrotor answering the same
+   packets (the 2-4× real-time kind of model), and both as real-time factors at 400 Hz.
+2. JSON backend over real UDP: a SIM_JSON-like scripted peer in another process doing
+   lockstep frames against each (frames/s, real-time factor at 400 Hz).
+3. PX4 interface, in process: frames/s of one lockstep frame (sensor frames packed,
+   the actuator frame parsed, physics stepped) vs the same with pymavlink doing the
+   MAVLink, and as real-time factors at 250 Hz.
+4. With SKYHERD_PX4_BIN / SKYHERD_ARDUCOPTER_BIN set (and run inside `unshare -n` with lo
+   up): the real autopilot's hover flight and its real-time factor, as fast as possible.
+
+    .venv/bin/python bench/bench_bridges.py [--frames N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import socket
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from flight.quadrotor import QuadrotorParams
+from hil import bridge_mavlink as wire
+from hil.ardupilot_json import ArduPilotJsonBridge
+from hil.px4_sim import Px4BridgeConfig, Px4SimBridge
+
+SERVO = struct.Struct("<HHI16H")
+
+
+class NumpyJsonQuad:
+    """The baseline: the same quadrotor equations written the plain numpy way, json.dumps out."""
+
+    def __init__(self, p: QuadrotorParams):
+        self.p = p
+        a = p.arm_length / math.sqrt(2.0)
+        self.r = np.array([[a, a, 0], [-a, -a, 0], [a, -a, 0], [-a, a, 0]], dtype=float)
+        self.spin = np.array(p.spin)
+        self.inertia = np.diag(p.inertia)
+        self.inv_i = np.linalg.inv(self.inertia)
+        self.pos, self.vel, self.w = np.zeros(3), np.zeros(3), np.zeros(3)
+        self.q = np.array([1.0, 0, 0, 0])
+        self.motor = np.zeros(4)
+        self.t = 0.0
+
+    def dcm(self) -> np.ndarray:
+        w, x, y, z = self.q
+        return np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+
+    def step(self, dt: float, u: np.ndarray) -> dict:
+        p = self.p
+        n = max(1, math.ceil(dt / p.physics_dt - 1e-9))
+        h = dt / n
+        for _ in range(n):
+            self.motor += (np.clip(u, 0, 1) * p.omega_max - self.motor) * (
+                1 - math.exp(-h / p.time_constant)
+            )
+            thrust = p.k_thrust * self.motor**2
+            torque = np.cross(self.r, np.array([[0, 0, -t] for t in thrust])).sum(axis=0)
+            torque[2] += (self.spin * p.k_torque * self.motor**2).sum()
+            r = self.dcm()
+            vb = r.T @ self.vel
+            f_b = -np.array(p.drag_linear) * vb - np.array(p.drag_quadratic) * np.abs(vb) * vb
+            f_b[2] -= thrust.sum()
+            acc = r @ f_b / p.mass + np.array([0, 0, p.gravity])
+            self.spec = f_b / p.mass
+            self.vel = self.vel + acc * h
+            self.pos = self.pos + self.vel * h
+            if self.pos[2] > 0:
+                self.pos[2], self.vel[:] = 0.0, 0.0
+                self.spec = np.array([0, 0, -p.gravity])
+            dw = self.inv_i @ (torque - np.cross(self.w, self.inertia @ self.w))
+            self.w = self.w + dw * h
+            wx, wy, wz = self.w * h * 0.5
+            dq = np.array([1.0, wx, wy, wz])
+            w0, x0, y0, z0 = self.q
+            self.q = np.array(
+                [
+                    w0 * dq[0] - x0 * dq[1] - y0 * dq[2] - z0 * dq[3],
+                    w0 * dq[1] + x0 * dq[0] + y0 * dq[3] - z0 * dq[2],
+                    w0 * dq[2] - x0 * dq[3] + y0 * dq[0] + z0 * dq[1],
+                    w0 * dq[3] + x0 * dq[2] - y0 * dq[1] + z0 * dq[0],
+                ]
+            )
+            self.q /= np.linalg.norm(self.q)
+        self.t += dt
+        return {
+            "timestamp": self.t,
+            "imu": {"gyro": self.w.tolist(), "accel_body": self.spec.tolist()},
+            "position": self.pos.tolist(),
+            "quaternion": self.q.tolist(),
+            "velocity": self.vel.tolist(),
+        }
+
+    def handle(self, data: bytes) -> bytes:
+        magic, rate, fc, *pwm = SERVO.unpack(data)
+        u = (np.array(pwm[:4], dtype=float) - 1000.0) / 1000.0
+        return ("\n" + json.dumps(self.step(1.0 / rate, u), separators=(",", ":")) + "\n").encode()
+
+
+def packets(n: int) -> list[bytes]:
+    return [SERVO.pack(18458, 400, k, *([1700] * 4 + [0] * 12)) for k in range(n)]
+
+
+def bench_json_inprocess(n: int) -> tuple[float, float]:
+    pk = packets(n)
+    b = ArduPilotJsonBridge(instance=75)
+    for k in range(50):  # warm-up (numba)
+        b._rx[:40] = np.frombuffer(pk[k], dtype=np.uint8)
+        b.handle(40, 0.0)
+    b.reset()
+    t0 = time.perf_counter()
+    for p in pk:
+        b._rx[:40] = np.frombuffer(p, dtype=np.uint8)
+        b.handle(40, 0.0)
+    ours = n / (time.perf_counter() - t0)
+    base = NumpyJsonQuad(QuadrotorParams())
+    m = max(200, n // 10)
+    t0 = time.perf_counter()
+    for p in pk[:m]:
+        base.handle(p)
+    return ours, m / (time.perf_counter() - t0)
+
+
+_PEER = r"""
+import socket, struct, sys, time
+port, n = int(sys.argv[1]), int(sys.argv[2])
+s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.settimeout(5.0)
+S = struct.Struct("<HHI16H")
+t0 = time.perf_counter()
+for k in range(n):
+    s.sendto(S.pack(18458, 400, k, 1700, 1700, 1700, 1700, *([0] * 12)), ("127.0.0.1", port))
+    s.recv(65000)
+print(n / (time.perf_counter() - t0))
+"""
+
+
+def _serve_baseline(port: int, n: int) -> None:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", port))
+    s.settimeout(10.0)
+    q = NumpyJsonQuad(QuadrotorParams())
+    for _ in range(n):
+        data, addr = s.recvfrom(256)
+        s.sendto(q.handle(data), addr)
+    s.close()
+
+
+def bench_json_udp(n: int) -> tuple[float, float]:
+    rates = []
+    for which, instance in (("ours", 76), ("baseline", 77)):
+        m = n if which == "ours" else max(200, n // 10)
+        port = 9002 + 10 * instance
+        if which == "ours":
+            b = ArduPilotJsonBridge(instance=instance).open()
+            peer = subprocess.Popen(
+                [sys.executable, "-c", _PEER, str(port), str(m)], stdout=subprocess.PIPE, text=True
+            )
+            b.serve(max_frames=m, idle_timeout_s=10.0)
+            b.close()
+        else:
+            peer = subprocess.Popen(
+                [sys.executable, "-c", _PEER, str(port), str(m)], stdout=subprocess.PIPE, text=True
+            )
+            _serve_baseline(port, m)
+        rates.append(float(peer.communicate(timeout=60)[0]))
+    return rates[0], rates[1]
+
+
+def bench_px4_inprocess(n: int) -> tuple[float, float]:
+    """One lockstep frame of work without the socket: pack sensors, parse the answer, step."""
+    b = Px4SimBridge(instance=75, config=Px4BridgeConfig())
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    answers = [
+        mav.hil_actuator_controls_encode(k * 4000, [0.7] * 16, 129, 1).pack(mav) for k in range(n)
+    ]
+    b._lockstep = True
+
+    def ours(k: int) -> None:
+        b.sensor_frames()
+        for f in b._parser.feed(answers[k]):
+            vals = wire.HIL_ACT.unpack(f.payload)
+        b.body.step(0.004, vals[2:6])
+        b.time_us += 4000
+        b._k += 1
+
+    out = mavlink.MAVLink(None, srcSystem=1, srcComponent=200)
+    parse = mavlink.MAVLink(None)
+    body = Px4SimBridge(instance=75).body
+
+    def baseline(k: int) -> None:  # the same frame with pymavlink doing the MAVLink
+        o = body.out
+        out.hil_sensor_encode(
+            k * 4000, *o[3:6], *o[0:3], 0.2, 0.05, -0.5, 950.0, 0.0, 584.0, 15.0, 0x1FFF, 0
+        ).pack(out)
+        if k % 25 == 0:
+            out.hil_gps_encode(k * 4000, 3, 0, 0, 584000, 30, 40, 0, 0, 0, 0, 65535, 10).pack(out)
+        if k % 5 == 0:
+            out.hil_state_quaternion_encode(
+                k * 4000, o[9:13], *o[0:3], 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, -1000
+            ).pack(out)
+        m = parse.parse_buffer(answers[k])
+        body.step(0.004, m[0].controls[:4])
+
+    res = []
+    for fn, m in ((ours, n), (baseline, n)):
+        for k in range(20):
+            fn(k)
+        t0 = time.perf_counter()
+        for k in range(20, m):
+            fn(k)
+        res.append((m - 20) / (time.perf_counter() - t0))
+    return res[0], res[1]
+
+
+def real_autopilots() -> list[dict]:
+    from hil.bridge_flight import fly
+
+    out = []
+    for name, env in (("px4", "SKYHERD_PX4_BIN"), ("arducopter", "SKYHERD_ARDUCOPTER_BIN")):
+        path = os.environ.get(env)
+        if not path:
+            print(f"  {name}: {env} not set, skipped")
+            continue
+        defaults = [
+            Path(p) for p in os.environ.get("SKYHERD_ARDUCOPTER_DEFAULTS", "").split(",") if p
+        ]
+        r = fly(name, Path(path), 75, 0.0, copter_defaults=defaults)
+        out.append(
+            {
+                "autopilot": name,
+                "ok": r.ok,
+                "reason": r.reason,
+                "sim_s": r.sim_s,
+                "wall_s": r.wall_s,
+                "rtf": r.real_time_factor,
+                "hover_max_dev_m": r.hover_max_dev_m,
+            }
+        )
+        print(f"  {name}: {out[-1]}")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n")[0], formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
+    ap.add_argument("--frames", type=int, default=20000, help="frames per measurement")
+    ap.add_argument("--no-autopilots", action="store_true", help="skip the real-autopilot part")
+    args = ap.parse_args(argv)
+    n = args.frames
+    print("JSON backend, in process (frames/s; real-time factor at 400 Hz):")
+    ours, base = bench_json_inprocess(n)
+    print(f"  skyherd bridge   {ours:10.0f}  ({ours / 400:6.1f}x)")
+    print(f"  numpy+json base  {base:10.0f}  ({base / 400:6.1f}x)   ratio {ours / base:5.1f}")
+    print("JSON backend over UDP with a scripted SIM_JSON peer in another process:")
+    ours, base = bench_json_udp(n)
+    print(f"  skyherd bridge   {ours:10.0f}  ({ours / 400:6.1f}x)")
+    print(f"  numpy+json base  {base:10.0f}  ({base / 400:6.1f}x)   ratio {ours / base:5.1f}")
+    print("PX4 interface, in process (frames/s; real-time factor at 250 Hz):")
+    ours, base = bench_px4_inprocess(n)
+    print(f"  skyherd bridge   {ours:10.0f}  ({ours / 250:6.1f}x)")
+    print(f"  pymavlink base   {base:10.0f}  ({base / 250:6.1f}x)   ratio {ours / base:5.1f}")
+    if not args.no_autopilots:
+        print("Real autopilots on skyherd's physics (as fast as possible):")
+        real_autopilots()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
