@@ -1,0 +1,116 @@
+"""The curriculum file: the default loads; bad files are refused with one line naming the key."""
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from policy.education.concepts import compile_concepts, decode_observation
+from policy.education.curriculum import DEFAULT_CURRICULUM, CurriculumError, load_curriculum
+from scripts.cli import main
+
+TEXT = DEFAULT_CURRICULUM.read_text()
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "c.toml"
+    p.write_text(text)
+    return p
+
+
+def _refused(tmp_path, text, *needles):
+    with pytest.raises(CurriculumError) as e:
+        load_curriculum(_write(tmp_path, text))
+    msg = str(e.value)
+    assert "\n" not in msg
+    for n in needles:
+        assert n in msg, msg
+    return msg
+
+
+def test_default_curriculum_loads_in_semantic_order():
+    cur = load_curriculum(DEFAULT_CURRICULUM)
+    assert cur.name == "groundair" and re.fullmatch(r"\d+\.\d+\.\d+", cur.version)
+    assert len(cur.sha256) == 64 and [le.name for le in cur.lessons] == [
+        "lateral",
+        "climb",
+        "descend",
+    ]
+    assert cur.composite.method == "ab" and set(cur.composite.modules) == {
+        "lateral",
+        "climb",
+        "descend",
+    }
+    preds = [c for c in cur.concepts.values() if c.kind == "predicate"]
+    assert {p.name for p in preds} >= set(cur.composite.arbiter_inputs)
+    team_east = cur.concepts["team_east"]
+    assert (team_east.quantity, team_east.op, team_east.threshold) == ("offset_east", ">", 0.08)
+
+
+def test_concepts_compute_from_the_observation():
+    cur = load_curriculum(DEFAULT_CURRICULUM)
+    f = compile_concepts(cur.concept_list())
+    obs = np.full(14, 0.5)
+    obs[0], obs[2], obs[3] = 0.81, 0.20, 0.5  # team right of centre, tight, 30 m
+    v = f(obs)
+    assert v["offset_east"] == pytest.approx(0.31) and v["altitude"] == pytest.approx(30.0)
+    assert v["spread_error"] == pytest.approx(0.20 - 0.35)
+    assert cur.concepts["team_east"].holds(v["offset_east"])
+    assert cur.concepts["too_tight"].holds(v["spread_error"])
+    assert decode_observation(obs)["vel_n"] == pytest.approx(0.0)
+
+
+def test_lesson_using_a_concept_taught_later_is_refused(tmp_path):
+    bad = TEXT.replace(
+        'inputs = ["offset_east", "offset_south", "drift_east"',
+        'inputs = ["spread_error", "offset_east", "offset_south", "drift_east"',
+    )
+    msg = _refused(tmp_path, bad, "lesson 'lateral'", "'spread_error'", "taught later", "'climb'")
+    assert msg.startswith(str(tmp_path))
+
+
+def test_arbiter_reading_an_untaught_concept_is_refused(tmp_path):
+    bad = TEXT.replace('teaches = ["too_tight", "near_floor"]', 'teaches = ["near_floor"]')
+    _refused(tmp_path, bad, "lesson 'composite'", "'too_tight'", "taught by no lesson")
+
+
+def test_other_bad_files_are_refused_naming_the_key(tmp_path):
+    _refused(tmp_path, TEXT.replace('formula = "com_u - 0.5"', 'formula = "com_uu - 0.5"'),
+             "concepts.offset_east.formula", "'com_uu'")  # fmt: skip
+    _refused(tmp_path, TEXT.replace('formula = "com_u - 0.5"', 'formula = "__import__(1)"'),
+             "concepts.offset_east.formula", "not allowed")  # fmt: skip
+    _refused(tmp_path, TEXT.replace('"skyherd-curriculum/1"', '"skyherd-curriculum/9"'), "format")
+    _refused(tmp_path, TEXT.replace('version = "1.0.0"', 'version = "one"'), "version")
+    _refused(tmp_path, TEXT.replace('pass = {all_in_view_frac = ">= 0.9"}\n\n[[lessons]]\nname = "climb"',
+                                    'pass = {all_in_view_frac = "> 0.9"}\n\n[[lessons]]\nname = "climb"'),
+             "lessons[0] (lateral).pass.all_in_view_frac")  # fmt: skip
+    _refused(
+        tmp_path,
+        TEXT.replace('method = "irl"', 'method = "magic"', 1),
+        "lessons[0] (lateral).method",
+    )
+    _refused(tmp_path, TEXT.replace('actions = ["hover", "climb"]', 'actions = ["hover", "jump"]'),
+             "lessons[1] (climb).actions")  # fmt: skip
+    _refused(tmp_path, TEXT.replace('requires = ["lateral"]', 'requires = ["descend"]'),
+             "lesson 'climb'.requires", "'descend' is not an earlier lesson")  # fmt: skip
+    _refused(tmp_path, TEXT.replace('formula = "offset_east > 0.08"', 'formula = "com_u > 0.58"'),
+             "concepts.team_east.formula", "quantity concept")  # fmt: skip
+    _refused(
+        tmp_path,
+        TEXT.replace('module = "climb"', 'module = "lateral"'),
+        "module 'lateral' is already taught",
+    )
+    _refused(tmp_path, "not = [toml", "not TOML")
+
+
+def test_educate_refuses_a_bad_curriculum_with_exit_2(tmp_path, capsys):
+    bad = _write(
+        tmp_path,
+        TEXT.replace('"in_view", "seen", "spread_error"', '"in_view", "seen", "spread_eror"'),
+    )
+    assert main(["educate", str(bad), "--runs-dir", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "spread_eror" in err[0] and "lesson 'climb'" in err[0]
+    assert not (tmp_path / "runs").exists()  # nothing was started
+    assert main(["educate", str(tmp_path / "none.toml")]) == 2
