@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 # name → (module, one-line help). Modules are imported only when their command runs,
@@ -39,8 +40,8 @@ __all__ = ["COMMANDS", "UsageError", "build_parser", "main"]
 
 
 class DefaultsFormatter(argparse.HelpFormatter):
-    """Every option's help ends with its default, unless the help already states it
-    (flags and options without a default show none)."""
+    """Every option's help ends with its default, unless the help already states it as
+    "(default X)" (flags and options whose default is None show none)."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
@@ -51,13 +52,13 @@ class DefaultsFormatter(argparse.HelpFormatter):
             or d is argparse.SUPPRESS
             or action.nargs == 0  # store_true / store_false / count-like flags
             or "%(default)" in text
-            or "default" in text.lower()
+            or re.search(r"\(default:? [^)]+\)", text)
         ):
             return text
-        shown = ",".join(map(str, d)) if isinstance(d, list | tuple) else str(d)
-        if f"({shown})" in text:
-            return text.replace(f"({shown})", "(default: %(default)s)")
-        return f"{text} (default: %(default)s)"
+        shown = " ".join(map(str, d)) if isinstance(d, list | tuple) else str(d)
+        if f"({shown})" in text:  # the older "(value)" convention
+            return text.replace(f"({shown})", f"(default: {shown})")
+        return f"{text} (default: {shown})".strip()
 
 
 class Parser(argparse.ArgumentParser):
@@ -68,6 +69,17 @@ class Parser(argparse.ArgumentParser):
         kw.setdefault("formatter_class", DefaultsFormatter)
         super().__init__(*a, **kw)
         self.set_defaults(_parser=self)  # the deepest parser that matched reports errors
+
+    def add_argument(self, *a, **kw):
+        action = super().add_argument(*a, **kw)
+        if (
+            not action.help
+            and action.option_strings
+            and action.nargs != 0
+            and action.default is not None
+        ):
+            action.help = "(default: %(default)s)"  # no help text: still its default
+        return action
 
 
 class _Version(argparse.Action):
