@@ -143,6 +143,10 @@ class ArduPilotJsonBridge:
             self._sock = bind_socket(socket.SOCK_DGRAM, self.host, self.port, self.instance)
         return self
 
+    def open_port(self) -> ArduPilotJsonBridge:
+        """The common bridge API's name for `open` (see hil/bridge_select.py)."""
+        return self.open()
+
     def close(self) -> None:
         if self._sock is not None:
             self._sock.close()

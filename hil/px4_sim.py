@@ -156,6 +156,10 @@ class Px4SimBridge:
             self._listener = bind_socket(socket.SOCK_STREAM, self.host, self.port, self.instance)
         return self
 
+    def open_port(self) -> Px4SimBridge:
+        """The common bridge API's name for `listen` (see hil/bridge_select.py)."""
+        return self.listen()
+
     def accept(self, timeout_s: float | None = None) -> bool:
         """Wait (wall time) for PX4 to connect; True once connected."""
         self.listen()

@@ -191,3 +191,19 @@ def test_lost_reply_is_resent_once_without_a_step_walltime():
     assert got is not None and got["timestamp"] == pytest.approx(1 / 300)
     assert b.stats.frames == 2 and b.stats.resends == 1
     assert nxt["timestamp"] == pytest.approx(2 / 300)
+
+
+def test_make_bridge_gives_both_bridges_one_api():
+    from hil.bridge_select import make_bridge
+    from hil.px4_sim import Px4SimBridge
+
+    for autopilot, port in (("px4", 4560 + 75), ("ardupilot", 9002 + 750)):
+        b = make_bridge(autopilot, instance=75, seed=3).open_port()
+        try:
+            assert b.port == port and b.t == 0.0 and b.state.on_ground
+        finally:
+            b.close()
+    assert isinstance(make_bridge("px4"), Px4SimBridge)
+    assert make_bridge("ardupilot", airframe="fixedwing").airframe == "fixedwing"
+    with pytest.raises(ValueError):
+        make_bridge("inav")
