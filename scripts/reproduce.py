@@ -62,6 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--quick", action="store_true", help="1000 episodes, 2 seeds, K = 9 (a smoke run)"
     )
     parser.add_argument("--runs-dir", default="runs", help="where run folders go (runs)")
+    parser.add_argument(
+        "--reuse", nargs="*", default=[], metavar="RUN_FOLDER",
+        help="earlier reproduce-sql run folders whose finished runs with the same settings are "
+        "taken over instead of run again (e.g. after an interrupted run)",
+    )  # fmt: skip
 
 
 def _specs(args, env):
@@ -119,6 +124,47 @@ def _check(args):
     return env
 
 
+def _reused(args, specs) -> dict:
+    """Finished runs of the --reuse folders: {spec: RunResult} for specs with equal settings."""
+    import csv
+    import json
+    from pathlib import Path
+
+    from policy.sql.envfile import EnvSpec
+    from policy.sql.sweep import RunResult
+    from scripts.cli import UsageError
+
+    by_key = {s.key: s for s in specs}
+    found = {}
+    for d in map(Path, args.reuse):
+        try:
+            cfg = json.loads((d / "config.json").read_text())
+            rows = list(csv.DictReader(open(d / "metrics.csv")))
+        except (OSError, ValueError) as e:
+            raise UsageError(f"--reuse {d}: not a reproduce-sql run folder ({e})") from None
+        if cfg.get("hyper") != asdict(specs[0].hyper) or cfg.get("env") != args.env:
+            raise UsageError(f"--reuse {d}: other episodes/step cap/map settings than this run")
+        for row in rows:
+            spec = by_key.get(row["run"])
+            if (
+                spec is None
+                or spec in found
+                or cfg["rules"].get(spec.rules.name) != asdict(spec.rules)
+            ):
+                continue
+            a = np.loadtxt(
+                d / "episodes" / f"{spec.key}.csv",
+                delimiter=",",
+                skiprows=1,
+                dtype=np.int64,
+                ndmin=2,
+            )
+            env = EnvSpec.load(d / "maps" / f"K{spec.n_agents}_seed{spec.seed}.json")
+            found[spec] = RunResult(a[:, 1], a[:, 2].astype(bool), a[:, 3], a[:, 4], a[:, 5], env,
+                                    float(row["wall_s"]), row["worker"])  # fmt: skip
+    return found
+
+
 def _episode_csv(res) -> str:
     cols = [res.steps, res.success.astype(int), res.reached, res.collisions, res.agent_steps]
     rows = np.column_stack([np.arange(1, res.steps.shape[0] + 1), *cols]).tolist()
@@ -140,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
         backend = "ray" if ray_available() else "process"
         if backend == "process":
             print("Ray is not installed: running on a local process pool (pip install -e '.[ray]')")
+    reused = _reused(args, specs)
     folder = RunFolder("reproduce-sql", root=args.runs_dir)
     for sub in ("episodes", "maps"):
         (folder.path / sub).mkdir()
@@ -159,17 +206,25 @@ def run(args: argparse.Namespace) -> int:
             "workers": args.workers,
             "window": args.window,
             "runs": [s.key for s in specs],
+            "reused_from": args.reuse,
         }
     )
-    print(f"run folder: {folder.path}\n{len(specs)} runs on {backend}")
+    todo = [s for s in specs if s not in reused]
+    print(f"run folder: {folder.path}\n{len(todo)} runs on {backend}, {len(reused)} reused")
     fields = ["run", "rules", "algorithm", "n_agents", "share_every", "seed", "worker",
               "wall_s", "tail_metric", "tail_success", "tail_on_target", "convergence",
               "first_all_reached"]  # fmt: skip
     table = folder.metrics(fields)
     results, summaries = {}, {}
     t0 = time.perf_counter()
+
+    def finished():
+        yield from reused.items()
+        if todo:
+            yield from run_all(todo, backend, args.workers, args.ray_address)
+
     with tqdm(total=len(specs), unit="run", desc="reproduce sql", smoothing=0.1) as bar:
-        for spec, res in run_all(specs, backend, args.workers, args.ray_address):
+        for spec, res in finished():
             s = study_summary(res.steps, res.success, args.max_steps, args.window)
             results[spec], summaries[spec] = res, s
             atomic_write_text(folder.path / "episodes" / f"{spec.key}.csv", _episode_csv(res))
@@ -182,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
                     "n_agents": spec.n_agents, "share_every": spec.share_every,
                     "seed": spec.seed, "worker": res.worker, "wall_s": round(res.wall_s, 3),
                     "tail_metric": round(s.tail_metric, 2), "tail_success": s.tail_success,
-                    "tail_on_target": s.tail_on_target, "convergence": s.convergence,
+                    "tail_on_target": s.tail_on_target, "convergence": s.convergence or "",
                     "first_all_reached": s.first_all_reached or "",
                 }
             )  # fmt: skip
@@ -190,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
             bar.update(1)
     table.close()
     wall = time.perf_counter() - t0
-    md = _results_md(args, specs, results, summaries, wall, backend)
+    md = _results_md(args, specs, results, summaries, wall, backend, len(reused))
     figs = _figures(folder, args, specs, results)
     md += "\nFigures: " + ", ".join(figs) + "\n"
     folder.write_summary(md)
@@ -212,7 +267,7 @@ def _groups(specs):
     return g
 
 
-def _results_md(args, specs, results, summaries, wall, backend) -> str:
+def _results_md(args, specs, results, summaries, wall, backend, n_reused=0) -> str:
     from policy.sql.metrics import mean_sd
 
     headers = ["rules", "learner", "K", "metric, last 10 %", "success, last 10 %",
@@ -229,7 +284,8 @@ def _results_md(args, specs, results, summaries, wall, backend) -> str:
                 mean_sd([x.tail_metric for x in sm]),
                 mean_sd([x.tail_success for x in sm], 2),
                 mean_sd([x.tail_on_target for x in sm], 2),
-                mean_sd([x.convergence for x in sm], 0),
+                mean_sd([x.convergence for x in sm], 0)
+                + f" ({sum(x.convergence is not None for x in sm)}/{len(sm)})",
                 mean_sd([x.first_all_reached for x in sm], 0) + (f" ({never} never)" if never else ""),
                 f"{np.mean(eps):,.0f}",
             ]
@@ -238,13 +294,15 @@ def _results_md(args, specs, results, summaries, wall, backend) -> str:
     return (
         f"# skyherd reproduce sql\n\n{args.seeds} seeds (0..{args.seeds - 1}) per row, "
         f"{args.episodes} episodes per run, {env}; {len(specs)} runs on {backend} with "
-        f"{args.workers} workers in {wall:.0f} s wall time.\n\n"
+        f"{args.workers} workers in {wall:.0f} s wall time"
+        + (f" ({n_reused} of them taken over from --reuse folders)" if n_reused else "")
+        + ".\n\n"
         f"Per-episode metric = min(max over agents of steps, {args.max_steps}). Per run: "
         f"mean over the last 10 % of episodes; success = metric < {args.max_steps} (what the "
         f"published step logs show); all on targets = every agent on its own target; "
         f"converged = first episode after which the {args.window}-episode moving average "
-        f"stays below 2× its final value. Mean ± sd over seeds (population sd).\n\n"
-        + markdown_table(headers, rows)
+        f"stays below 2× its final value, over the runs (k/n) whose success is >= 0.9. "
+        f"Mean ± sd over seeds (population sd).\n\n" + markdown_table(headers, rows)
     )
 
 

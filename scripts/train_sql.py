@@ -85,6 +85,18 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "sql") -> None
     parser.add_argument("--max-steps", type=int, default=1000, help="step limit per episode")
     parser.add_argument("--map-seed", type=int, default=0, help="obstacle map seed (default 0)")
     parser.add_argument(
+        "--rules", choices=("published", "intended"), default="intended",
+        help="rule set: published = the public MATLAB code, intended = the paper (default)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--ties", choices=("first", "random"), default=None,
+        help="greedy tie-breaking (default: first for published, random for intended)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--env", default=None,
+        help="map file (JSON, docs/sql.md) for every run; K comes from the file",
+    )  # fmt: skip
+    parser.add_argument(
         "--window",
         type=int,
         default=None,
@@ -107,8 +119,10 @@ def _plan(args: argparse.Namespace) -> tuple[dict[str, list[Config]], dict]:
     q = args.quick
     agents = args.agents or ([4] if q else [9, 16])
     scal = args.scalability_agents or ([4, 9] if q else [4, 9, 16])
+    if args.env is not None:
+        agents = scal = [len(_env(args).starts)]
     for k in (*agents, *scal):
-        if k not in STARTS:
+        if k not in STARTS and args.env is None:
             from scripts.cli import UsageError
 
             raise UsageError(f"K={k} has no built-in layout; use K in {sorted(STARTS)}")
@@ -124,6 +138,19 @@ def _plan(args: argparse.Namespace) -> tuple[dict[str, list[Config]], dict]:
     if "scalability" in exps:
         plan["scalability"] = [cfg(a, k) for a in algs for k in scal]
     return plan, {"agents": agents, "scalability_agents": scal}
+
+
+def _env(args: argparse.Namespace):
+    """The --env map (a UsageError if it cannot be read)."""
+    from policy.sql.envfile import EnvSpec
+    from scripts.cli import UsageError
+
+    try:
+        spec = EnvSpec.load(args.env)
+        spec.layout()
+    except (OSError, ValueError) as e:
+        raise UsageError(f"--env {args.env}: {e}") from None
+    return spec
 
 
 def _check(args: argparse.Namespace) -> None:
@@ -194,10 +221,17 @@ def run(args: argparse.Namespace) -> int:
     plan, sets = _plan(args)
     hyper0 = SQLHyper(episodes=episodes, max_steps=args.max_steps, share_every=args.share_every)
     configs = list(dict.fromkeys(c for cs in plan.values() for c in cs))
-    layouts = {
-        k: build_layout(GridParams(n_agents=k, map_seed=args.map_seed))
-        for k in sorted({c.n_agents for c in configs})
-    }
+    from policy.sql.params import Rules
+
+    rules = Rules.named(args.rules, args.ties)
+    if args.env is not None:
+        spec = _env(args)
+        layouts = {len(spec.starts): spec.layout()}
+    else:
+        layouts = {
+            k: build_layout(GridParams(n_agents=k, map_seed=args.map_seed))
+            for k in sorted({c.n_agents for c in configs})
+        }
 
     folder = RunFolder("train-sql", root=args.runs_dir)
     (folder.path / "episodes").mkdir()
@@ -206,12 +240,16 @@ def run(args: argparse.Namespace) -> int:
         "seeds": list(args.seeds),
         "hyper": asdict(hyper0),
         "grid": {k: asdict(GridParams(n_agents=k, map_seed=args.map_seed)) for k in layouts},
+        "rules": asdict(rules),
+        "env": args.env,
         "window": window,
         "tail": tail,
         "quick": bool(args.quick),
         **sets,
     }
     folder.write_config(config)
+    if args.env is not None:
+        atomic_write_text(folder.file("map.json"), spec.to_json())
     print(f"run folder: {folder.path}")
     print("hyper-parameters:", hyper0)
 
@@ -240,7 +278,9 @@ def run(args: argparse.Namespace) -> int:
             for seed in args.seeds:
                 bar.set_postfix_str(f"{c.label} seed {seed}")
                 t0 = time.perf_counter()
-                r = train(Algorithm(c.algorithm), layouts[c.n_agents], hyper, seed, bar.update)
+                r = train(
+                    Algorithm(c.algorithm), layouts[c.n_agents], hyper, seed, bar.update, rules
+                )
                 wall = time.perf_counter() - t0
                 timing[c] = timing.get(c, 0.0) + wall
                 s = summarize(r.metrics, window, tail)

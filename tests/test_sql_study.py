@@ -27,6 +27,12 @@ def test_study_metric_and_tail_on_a_hand_made_series():
     assert s.tail_metric == pytest.approx(109.0) and s.tail_success == pytest.approx(0.99)
     assert s.tail_on_target == pytest.approx(0.99) and s.first_all_reached == 301
     assert study_summary(steps, np.zeros(1000, bool)).first_all_reached is None
+    assert s.convergence == study_convergence(study_metric(steps), 100)
+    # a run flat at the cap (success 0 < 0.9) did not converge, though its average never
+    # rises above 2× its final value
+    flat = study_summary(np.full(1000, 1000.0), np.zeros(1000, bool))
+    assert flat.convergence is None and flat.tail_success == 0.0
+    assert study_convergence(np.full(1000, 1000.0), 100) == 100
 
 
 def test_convergence_episode_on_a_hand_made_series():

@@ -98,25 +98,31 @@ class StudySummary:
     """Share of tail episodes with metric < cap (what the published step logs show)."""
     tail_on_target: float
     """Share of tail episodes with every agent on its own target (kernel truth)."""
-    convergence: int
-    """`study_convergence` of the metric."""
+    convergence: int | None
+    """`study_convergence` of the metric; None (did not converge) when tail_success is below
+    `min_success` — a run flat at the cap would otherwise "converge" at episode `window`."""
     first_all_reached: int | None
     """First episode (1-based) with every agent on a target; None if never."""
 
 
 def study_summary(
-    steps: np.ndarray, on_target: np.ndarray, cap: int = 1000, window: int = 100
+    steps: np.ndarray,
+    on_target: np.ndarray,
+    cap: int = 1000,
+    window: int = 100,
+    min_success: float = 0.9,
 ) -> StudySummary:
     m = study_metric(steps, cap)
     E = m.shape[0]
     tail = max(1, E // 10)
     window = min(window, E)
     on_target = np.asarray(on_target, dtype=bool)
+    success = float((m[-tail:] < cap).mean())
     return StudySummary(
         float(m[-tail:].mean()),
-        float((m[-tail:] < cap).mean()),
+        success,
         float(on_target[-tail:].mean()),
-        study_convergence(m, window),
+        study_convergence(m, window) if success >= min_success else None,
         int(np.argmax(on_target)) + 1 if on_target.any() else None,
     )
 

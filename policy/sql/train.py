@@ -232,6 +232,11 @@ def plan_paths(result: TrainResult, K: int, seed: int = 0) -> list[list[tuple[in
     """
     if K != result.layout.n_agents:
         raise ValueError(f"result was trained for K={result.layout.n_agents}, not K={K}")
+    if result.algorithm is not Algorithm.SQL and result.rules.roi_phase == "pretrained":
+        raise ValueError(
+            "the published ROI walk moves an agent several cells in one step through other "
+            "agents: no flyable plan; train with roi_phase='online' (--rules intended)"
+        )
     paths, m = greedy_rollout(result, seed)
     if not bool(m.success[0]):
         raise ValueError(
