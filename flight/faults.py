@@ -260,15 +260,16 @@ def plan_from_args(args, seed: int = 0) -> FaultPlan:
 
 
 # ------------------------------------------------------------------------------- playing
-@dataclass
 class GpsError:
-    """The estimate's error now: pos (3,) [m], vel (3,) [m/s]; fix False while GPS is lost;
-    lost_s: seconds since the fix was lost (0 with a fix)."""
+    """The estimate's error now: pv (6,) = pos (3,) [m] and vel (3,) [m/s] (views into pv);
+    fix False while GPS is lost; lost_s: seconds since the fix was lost (0 with a fix)."""
 
-    pos: np.ndarray
-    vel: np.ndarray
-    fix: bool = True
-    lost_s: float = 0.0
+    def __init__(self) -> None:
+        self.pv = np.zeros(6)
+        self.pos = self.pv[0:3]
+        self.vel = self.pv[3:6]
+        self.fix = True
+        self.lost_s = 0.0
 
 
 class FaultInjector:
@@ -281,17 +282,23 @@ class FaultInjector:
         self.plan = plan
         self.rng = rng
         self.wind = WindField(plan.wind)
-        self.err = GpsError(np.zeros(3), np.zeros(3))
-        self._np = np.zeros(3)  # noise states
-        self._nv = np.zeros(3)
+        self.err = GpsError()
+        self._n6 = np.zeros(6)  # noise states: position (3), velocity (3)
+        self._noisy = plan.noise.pos_std > 0.0 or plan.noise.vel_std > 0.0
+        self._noise_dt = -1.0
+        self._a6 = np.zeros(6)
+        self._b6 = np.zeros(6)
         self._loss_t: float | None = None
         self._bias = np.zeros(3)
-        self._dr_p = np.zeros(3)  # dead-reckoning error frozen at the loss
+        self._dr_p = np.zeros(3)  # error when the fix was lost
         self._fired: set[int] = set()
         self._wind_events = tuple(e for e in plan.events if e.kind == "wind")
-        self._gps_events = tuple(e for e in plan.events if e.kind.startswith("gps_"))
+        self._gps_events = tuple(
+            (e, np.asarray(e.vec, dtype=float)) for e in plan.events if e.kind.startswith("gps_")
+        )
         self._battery_events = tuple(e for e in plan.events if e.kind in ("battery", "drain"))
         self.touches_estimate = plan.touches_estimate
+        self.calm = self.wind.calm and not self._wind_events
 
     def wind_ned(self, t: float, dt: float) -> np.ndarray:
         """(3,) wind [m/s] NED acting over the next dt."""
@@ -300,10 +307,6 @@ class FaultInjector:
             if e.active(t):
                 w = w + np.asarray(e.vec)
         return w
-
-    @property
-    def calm(self) -> bool:
-        return self.wind.calm and not self._wind_events
 
     def battery(self, t: float) -> tuple[float | None, float]:
         """(charge to drop to now or None, extra power now [W]) — each drop fires once."""
@@ -317,41 +320,43 @@ class FaultInjector:
         return drop, watts
 
     def update(self, t: float, dt: float) -> GpsError:
-        """The estimate's error at time t (after one more step of dt)."""
+        """The estimate's error at time t (dt: the step, for the noise processes)."""
         err = self.err
-        p, v = err.pos, err.vel
-        p[:] = 0.0
-        v[:] = 0.0
+        pv = err.pv
+        pv[:] = 0.0
         lost = False
-        for e in self._gps_events:
+        for e, vec in self._gps_events:
             if not e.active(t):
                 continue
             if e.kind == "gps_glitch":
-                p += e.vec
+                err.pos += vec
             elif e.kind == "gps_drift":
-                p += np.asarray(e.vec) * (t - e.t0)
-                v += e.vec
+                err.pos += vec * (t - e.t0)
+                err.vel += vec
             else:
                 lost = True
         if lost:
-            if self._loss_t is None:  # the bias of this outage
+            if self._loss_t is None:  # the accelerometer bias of this outage
                 self._loss_t = t
                 self._bias[:2] = self.rng.normal(0.0, self.plan.dead_reckoning.accel_bias_std, 2)
-                self._dr_p[:] = p
+                self._dr_p[:] = err.pos
             tau = t - self._loss_t
-            p[:] = self._dr_p + 0.5 * self._bias * tau * tau
-            v += self._bias * tau
+            err.pos[:] = self._dr_p + (0.5 * tau * tau) * self._bias
+            err.vel += tau * self._bias
             err.fix, err.lost_s = False, tau
         else:
             self._loss_t = None
             err.fix, err.lost_s = True, 0.0
-        n = self.plan.noise
-        if n.pos_std > 0.0:
-            a = math.exp(-dt / n.pos_tau)
-            self._np = a * self._np + n.pos_std * math.sqrt(1 - a * a) * self.rng.standard_normal(3)
-            p += self._np
-        if n.vel_std > 0.0:
-            a = math.exp(-dt / n.vel_tau)
-            self._nv = a * self._nv + n.vel_std * math.sqrt(1 - a * a) * self.rng.standard_normal(3)
-            v += self._nv
+        if self._noisy:
+            if dt != self._noise_dt:  # a = exp(−dt/τ), b = σ √(1 − a²) per component
+                n = self.plan.noise
+                self._noise_dt = dt
+                a_p, a_v = math.exp(-dt / n.pos_tau), math.exp(-dt / n.vel_tau)
+                self._a6[:3], self._a6[3:] = a_p, a_v
+                self._b6[:3] = n.pos_std * math.sqrt(1.0 - a_p * a_p)
+                self._b6[3:] = n.vel_std * math.sqrt(1.0 - a_v * a_v)
+            n6 = self._n6
+            n6 *= self._a6
+            n6 += self._b6 * self.rng.standard_normal(6)
+            pv += n6
         return err

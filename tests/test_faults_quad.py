@@ -166,7 +166,7 @@ def test_gps_drift_grows_at_its_rate():
 def test_gps_loss_dead_reckons_then_lands_after_the_timeout():
     plan = FaultPlan(events=(FaultEvent("gps_loss", 15.0),))
     ap = hovering(plan, seed=3)
-    run(ap, 15.0 - ap.clock.t)
+    run(ap, 15.0 - ap.clock.t - ap.control_dt)
     assert ap.gps_fix
     ap.drain_status()
     run(ap, 4.9)

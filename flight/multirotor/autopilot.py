@@ -211,6 +211,9 @@ class MultirotorAutopilot(AutopilotBase):
         self._pos_valid = True
         self._reset_vehicle(np.asarray(start_pos_ned, dtype=float), float(start_yaw))
         self._true_state = self._state = self._make_state()
+        if self._est_on:
+            self._gps_update(self._inj, self.clock.t)
+            self._state = self._make_state(self._ex)
 
     # ------------------------------------------------------------------ properties
 
@@ -283,18 +286,16 @@ class MultirotorAutopilot(AutopilotBase):
             sp[ctl.SP_ARMED] = 0.0
         if self._est_on:
             # fly on the estimate: p_sp − p̂ = (p_sp − e_p) − p, the same for velocity
-            e = inj.err
-            sp[0:3] -= e.pos
-            sp[3:6] -= e.vel
+            e = inj.err.pv
+            sp[0:6] -= e
             _control_step(self._w, self._k, self._dt_sub, self._n_sub)
-            sp[0:3] += e.pos
-            sp[3:6] += e.vel
+            sp[0:6] += e
         else:
             _control_step(self._w, self._k, self._dt_sub, self._n_sub)
         self.clock.advance(self._dt_us)
         self._true_state = self._make_state()
         if self._est_on:
-            self._update_estimate()
+            self._gps_update(inj, self.clock.t)
             self._state = self._make_state(self._ex)
         else:
             self._state = self._true_state
@@ -315,12 +316,10 @@ class MultirotorAutopilot(AutopilotBase):
         return self._pos_valid
 
     def _update_estimate(self) -> None:
-        """The estimate after the physics step: truth + the injector's current error."""
-        e = self._inj.err
+        """The estimate: truth + the injector's current error (position and velocity)."""
         ex = self._ex
         ex[:] = self._x
-        ex[0:3] += e.pos
-        ex[3:6] += e.vel
+        ex[0:6] += self._inj.err.pv
 
     def _apply_faults(self, inj: FaultInjector, t: float) -> None:
         """Wind, GPS error and battery faults for the step that starts at t."""
@@ -333,9 +332,10 @@ class MultirotorAutopilot(AutopilotBase):
                 self._battery_drop += self.battery_remaining - drop
                 self._event(f"battery fault: charge {drop:.0%}")
             self._extra_j += watts * dt
-        if not self._est_on:
-            return
-        e = inj.update(t, dt)
+
+    def _gps_update(self, inj: FaultInjector, t: float) -> None:
+        """The estimate at t (after the physics step) and the GPS-loss rule."""
+        e = inj.update(t, self.control_dt)
         self._update_estimate()
         if e.fix != self._gps_fix:
             self._gps_fix = e.fix
