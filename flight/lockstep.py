@@ -79,6 +79,28 @@ class LockstepGate:
         """Mark the camera instant t_us [µs] on the link (sent to the companion)."""
         self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US))
 
+    def wait_for_peer(
+        self, beacon: Callable[[], None], stop: threading.Event | None = None
+    ) -> bool:
+        """Block until the companion's first datagram (its hello) arrives, calling `beacon()`
+        (the vehicle's heartbeat) every `resend_s` so a companion listening with `udpin` learns
+        where the vehicle is. Nothing else is sent before the hello, so nothing is lost to a
+        companion that has not bound its socket yet; the hello is kept for the first batch.
+        False when `stop` is set first."""
+        next_beacon = 0.0
+        while not self._carry:
+            if time.monotonic() >= next_beacon:
+                beacon()
+                next_beacon = time.monotonic() + self.p.resend_s
+            got = self.link.receive()
+            if got:
+                self._carry.extend(got)
+                return True
+            if stop is not None and stop.is_set():
+                return False
+            select.select([self.link.sock], [], [], 0.1)
+        return True
+
     def collect(
         self,
         t_us: int,

@@ -90,6 +90,8 @@ def run(v: VehicleLink, mission: Mission, gen, frames: FrameSource | None,
     t_heartbeat = -1e9
     t_next = 0.0
     wall0 = time.monotonic()
+    if p.lockstep:  # hello: the simulator starts its clock when this arrives
+        v.hello(p.link_patience_s)
     while True:
         if p.lockstep:
             t = v.next_mark(p.link_patience_s)

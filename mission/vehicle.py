@@ -101,6 +101,18 @@ class VehicleLink:
                 raise LinkLost(f"no tick mark from the vehicle for {patience_s:.0f} s")
             self._pull(min(left, 0.2))
 
+    def hello(self, patience_s: float) -> None:
+        """Lockstep: wait for the vehicle's first datagram (a `udpin` link learns the vehicle's
+        address from it), then send our first heartbeat: the simulator's clock starts on it."""
+        deadline = time.monotonic() + patience_s
+        while not self._held:
+            if time.monotonic() > deadline:
+                raise LinkLost(
+                    f"nothing from the vehicle for {patience_s:.0f} s: is `skyherd sim` running?"
+                )
+            self._pull(0.2)
+        self.heartbeat()
+
     def drain(self, timeout_s: float) -> None:
         """Free-running: apply whatever arrives within `timeout_s` [s of wall time]; the tick
         time follows the autopilot's clock."""

@@ -20,7 +20,9 @@ from runio import JsonlWriter, RunFolder, args_dict, atomic_write_text
 from scripts.cli import UsageError
 
 
-def add_arguments(parser, standalone: bool = True, missions: tuple[str, ...] = ("groundair", "square")) -> None:
+def add_arguments(
+    parser, standalone: bool = True, missions: tuple[str, ...] = ("groundair", "square")
+) -> None:
     if standalone:
         parser.add_argument(
             "--connect",
@@ -237,14 +239,16 @@ def run(args: argparse.Namespace) -> int:
     stats = None
     from tqdm import tqdm
 
-    bar = tqdm(
-        total=None, desc="connect", unit=" ticks", file=sys.stderr, leave=True, mininterval=0.5
-    )
+    bar = tqdm(total=None, desc="connect", file=sys.stderr, leave=True, mininterval=0.5,
+               bar_format="{desc}: {n} ticks, {elapsed} wall {postfix}")  # fmt: skip
+    shown = {"phase": "connect"}
 
     def on_tick(veh):
         mission.write_track(veh)
-        if bar.desc != mission.phase:
-            bar.set_description(mission.phase)
+        if shown["phase"] != mission.phase:
+            shown["phase"] = mission.phase
+            bar.set_description_str(mission.phase, refresh=False)
+        bar.set_postfix_str(f"t = {veh.t:.1f} s", refresh=False)
         bar.update()
 
     try:

@@ -97,6 +97,8 @@ def test_the_simulation_holds_until_the_companion_closes_each_tick():
     thread.start()
     try:
         held = []
+        assert world.clock.t == 0.0
+        v.hello(30.0)  # the companion's hello starts the world's clock
         for k in range(12):
             t = v.next_mark(30.0)
             assert t == pytest.approx(0.1 * k)

@@ -40,6 +40,7 @@ from runio import CsvWriter, atomic_write_text
 from world.team import new_team, team_states
 
 CLOCK_KEY = "skyherd/sim/clock"
+HEARTBEAT = 0  # MAVLINK_MSG_ID_HEARTBEAT
 
 
 def ugv_key(i: int) -> str:
@@ -160,6 +161,9 @@ class World:
         next_frame_us = clock.time_us
         next_pace_us = clock.time_us
         open_tick: int | None = None  # camera instant whose close is awaited [µs]
+        beacon = lambda: ep.api.send(ep._build(HEARTBEAT))  # noqa: E731
+        if p.lockstep and not self.gate.wait_for_peer(beacon, self._stop):
+            return self._stats(0.0, 0.0)
         wall0, sim0 = time.monotonic(), clock.t
         ep.update()
         while not self._stop.is_set():
