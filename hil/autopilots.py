@@ -54,7 +54,8 @@ class Step:
 
     kind: "wait_on_ground" | "set_param" (`what` = name, params = (value,)) | "stream_setpoints"
       (start holding the current position; params = (seconds of stream before the next step,))
-      | "stop_setpoints" | "set_mode" | "arm" | "command" (COMMAND_LONG `command` with `params`)
+      | "stop_setpoints" | "set_mode" | "arm" | "command" (COMMAND_LONG `command` with `params`;
+      `mode`: the mode the command puts the vehicle in, if any)
       | "wait_altitude" (until `altitude_m` above home) | "wait_disarmed".
     retries / retry_s: attempts and the pause [s, vehicle time] between refused attempts.
     """
@@ -400,8 +401,8 @@ class Px4Profile(AutopilotProfile):
 
     def land_steps(self) -> tuple[Step, ...]:
         return (
-            Step("command", command=M.MAV_CMD_NAV_LAND, params=(0.0, 0.0, 0.0, NAN, NAN, NAN, NAN),
-                 what="NAV_LAND"),
+            Step("command", FlightMode.LAND, command=M.MAV_CMD_NAV_LAND,
+                 params=(0.0, 0.0, 0.0, NAN, NAN, NAN, NAN), what="NAV_LAND (into AUTO.LAND)"),
             Step("stop_setpoints", what="stop streaming before the landing ends"),
             Step("wait_disarmed", what="landing and disarm"),
         )  # fmt: skip

@@ -365,8 +365,16 @@ class VehicleClient:
             self._cond.notify_all()
 
     def _on_position(self, tel: Telemetry) -> None:
-        """One telemetry sample: ask the mission for its setpoint and send it while streaming."""
-        sp = self._setpoint_fn(tel) if self._setpoint_fn is not None else None
+        """One telemetry sample: ask the mission for its setpoint and send it while streaming.
+        A mission function that fails is reported in `error` and the client holds position
+        (the receive thread must live on)."""
+        try:
+            sp = self._setpoint_fn(tel) if self._setpoint_fn is not None else None
+        except Exception as e:  # noqa: BLE001 - never let the receive thread die
+            self.error = f"setpoint function failed at t={tel.t:.1f} s: {type(e).__name__}: {e}"
+            self._setpoint_fn, sp = None, None
+            if self._hold is None and tel.pos_ned is not None:
+                self._hold = tel.pos_ned.copy()
         if not self._streaming or tel.yielded:
             return
         if sp is None and self._hold is not None:
@@ -558,20 +566,13 @@ class VehicleClient:
             self._acks.pop(command, None)
             self.send_command_long(command, *params, confirmation=confirmation)
             try:
-                self.wait_until(
-                    lambda: (
-                        self._acks.get(command, M.MAV_RESULT_IN_PROGRESS)
-                        != M.MAV_RESULT_IN_PROGRESS
-                    ),
-                    timeout,
-                    "COMMAND_ACK",
-                    interruptible=False,
-                )
+                self.wait_until(lambda: command in self._acks, timeout, "COMMAND_ACK",
+                                interruptible=False)  # fmt: skip
             except ClientTimeout:
                 continue
             result = self._acks[command]
-            if result == M.MAV_RESULT_ACCEPTED:
-                return result
+            if result in (M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_IN_PROGRESS):
+                return result  # IN_PROGRESS: running (a landing); the recipe waits for its end
             if reason_wait:
                 self._wait_reason(n_text)
             reason = "; ".join(x for _, _, x in tel.statustexts[n_text:])
@@ -739,6 +740,8 @@ class VehicleClient:
         """Execute a profile's recipe; `budget_s` [s wall] caps each wait; `hold_ned` is
         the hold target of a "stream_setpoints" step (default: where the vehicle is). The
         take-off runs without `authority`: the autopilot's own mode changes are expected."""
+        if not authority:
+            self.telemetry.requested_mode = self.telemetry.previous_mode = None
         for step in steps:
             self._run_step(step, budget_s, hold_ned, authority)
 
@@ -763,6 +766,8 @@ class VehicleClient:
             self._attempts(s, self.arm, budget)
             self.wait_until(lambda: tel.armed, budget, "armed", vehicle_s=o.mode_wait_s)
         elif s.kind == "command":
+            if s.mode is not None and authority and not tel.yielded:
+                tel.previous_mode, tel.requested_mode = tel.mode, s.mode  # e.g. NAV_LAND
             self._attempts(s, lambda: self.command_long(s.command, *s.params), budget)
         elif s.kind == "wait_altitude":
 
