@@ -324,27 +324,32 @@ def _panel_plot(path, panels, title, ylabel, window, cap, results, what):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(panels), figsize=(6.0 * len(panels), 4.4), sharey=True)
-    axes = np.atleast_1d(axes)
+    n = len(panels)
+    fig, axes = plt.subplots(1, n, figsize=(max(7.0, 5.2 * n), 5.0), sharey=True, squeeze=False)
+    axes = axes[0]
     for ax, (ptitle, lines) in zip(axes, panels):
         for label, ss in lines:
             x, mean, sd = _curves(results, ss, window, cap, what)
             (ln,) = ax.plot(x, mean, lw=1.3, label=f"{label} ({len(ss)} seeds)")
             lo = np.maximum(mean - sd, 1.0) if what == "metric" else np.clip(mean - sd, 0, 1)
-            hi = mean + sd if what == "metric" else np.clip(mean + sd, 0, 1)
+            hi = np.minimum(mean + sd, cap) if what == "metric" else np.clip(mean + sd, 0, 1)
             ax.fill_between(x, lo, hi, color=ln.get_color(), alpha=0.18, lw=0)
         if what == "metric":
             ax.set_yscale("log")
-            ax.set_ylim(60, cap * 1.6)
+            ax.set_ylim(60, cap * 1.25)
         else:
             ax.set_ylim(-0.02, 1.02)
-        ax.set_title(ptitle)
+        ax.set_title(ptitle, fontsize=10)
         ax.set_xlabel("episode")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right" if what == "metric" else "lower right")
+        # below the axes: a legend never hides a curve
+        ax.legend(
+            fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=min(3, len(lines))
+        )
     axes[0].set_ylabel(ylabel)
     fig.suptitle(
-        title + f"  (line: mean over seeds of the {window}-episode moving average, band: ± 1 sd)",
+        f"{title}\nline: mean over seeds of the {window}-episode moving average; band: ± 1 sd "
+        "over seeds",
         fontsize=10,
     )
     fig.tight_layout()
@@ -356,7 +361,7 @@ def _figures(folder, args, specs, results) -> list[str]:
     g = _groups(specs)
     cap, w = args.max_steps, args.window
     n1 = args.sharing_periods[0]
-    metric_y = f"max steps over agents per episode [steps], capped at {cap}"
+    metric_y = f"min(max steps over agents, {cap}) per episode [steps]"
     names = []
     for rname in args.rules:
         tag = f"rules {rname}"
@@ -367,7 +372,11 @@ def _figures(folder, args, specs, results) -> list[str]:
         ]  # fmt: skip
         for what, ylabel, name in (
             ("metric", metric_y, f"learning_{rname}.png"),
-            ("success", f"success rate (metric < {cap})", f"success_{rname}.png"),
+            (
+                "success",
+                f"success rate (share of episodes with metric < {cap})",
+                f"success_{rname}.png",
+            ),
         ):
             _panel_plot(folder.file(name), compare, f"SQL vs SQL-D vs SQL-SIE, {tag}",
                         ylabel, w, cap, results, what)  # fmt: skip
