@@ -119,8 +119,9 @@ def run_all(
         raise RuntimeError(
             "Ray is not installed: pip install 'skyherd[ray]', or use the process pool"
         )
-    if use_ray:
-        yield from _run_ray(specs, workers, ray_address)
+    ray = _start_ray(workers, ray_address) if use_ray else None
+    if ray is not None:
+        yield from _run_ray(ray, specs)
     else:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             futs = {pool.submit(run_one, s): s for s in specs}
@@ -128,17 +129,29 @@ def run_all(
                 yield futs[f], f.result()
 
 
-def _run_ray(specs, workers, address):
-    if address is None:
-        ray = _import_ray_loopback()
+def _start_ray(workers, address):
+    """The ray module, initialised; None (and a message) if a local instance cannot start —
+    on an overloaded machine Ray's start-up can time out — so the caller uses processes.
+    A cluster address that cannot be joined is an error (the user asked for that cluster)."""
+    if address is not None:
+        import ray
+
+        ray.init(address=address, log_to_driver=False)
+        return ray
+    ray = _import_ray_loopback()
+    try:
         ray.init(
             _node_ip_address="127.0.0.1", include_dashboard=False, num_cpus=workers,
             log_to_driver=False, configure_logging=False,
         )  # fmt: skip
-    else:
-        import ray
+    except Exception as e:  # Ray raises a bare Exception on a start-up timeout
+        print(f"local Ray did not start ({e}); running on a local process pool instead")
+        ray.shutdown()
+        return None
+    return ray
 
-        ray.init(address=address, log_to_driver=False)
+
+def _run_ray(ray, specs):
     try:
         task = ray.remote(num_cpus=1)(run_one)
         pending = {task.remote(s): s for s in specs}
