@@ -180,36 +180,54 @@ def _must_deny(command: int, p: tuple) -> bool:
     return False
 
 
+HOSTILE_INT = [2**31 - 1, -(2**31), 2**31 - 2, 0, 900_000_001, -1_800_000_001, 1]  # x, y (deg·1e7)
+
+
+def _send_fuzz(rig: Rig, i: int, command: int, p: tuple, rng) -> tuple:
+    """COMMAND_LONG, or every third case COMMAND_INT with hostile x/y; → (ack, params as seen)."""
+    mav = rig.client.mav
+    if i % 3:
+        msg = mav.command_long_encode(rig.sys, 1, command, 0, *p)
+        seen = p
+    else:
+        x, y = (int(HOSTILE_INT[k]) for k in rng.integers(0, len(HOSTILE_INT), 2))
+        frame = (M.MAV_FRAME_GLOBAL_INT, REL)[i % 2]
+        msg = mav.command_int_encode(rig.sys, 1, frame, command, 0, 0, *p[:4], x, y, p[6])
+        deg = [math.nan if v == 2**31 - 1 else v / 1e7 for v in (x, y)]
+        seen = (*p[:4], *deg, p[6])
+    acks = [m for m in rig.exchange(msg) if m.get_type() == "COMMAND_ACK" and m.command == command]
+    return (acks[-1] if acks else None), seen
+
+
 def test_fuzz_every_handled_command_with_hostile_floats():
     rng = np.random.default_rng(7)
     with Rig(INSTANCE) as rig:
         rig.fly(10.0)
         handled = sorted(rig.ep.commands.handled)
         denied = changed = 0
-        for i in range(1200):
+        for i in range(1500):
             command = handled[i % len(handled)]
             p = tuple(float(HOSTILE[j]) if rng.random() < 0.5 else float(rng.normal(0, 30))
                       for j in rng.integers(0, len(HOSTILE), 7))  # fmt: skip
             if command == M.MAV_CMD_COMPONENT_ARM_DISARM and p[0] == 0.0:
                 p = (1.0,) + p[1:]  # a plain disarm in the air is the autopilot's call, not ours
             before = _snapshot(rig)
-            ack = rig.command(command, *p)
-            assert ack is not None, (command, p)
-            if _must_deny(command, p):
-                assert ack.result == M.MAV_RESULT_DENIED, (command, p, ack.result)
+            ack, seen = _send_fuzz(rig, i, command, p, rng)
+            assert ack is not None, (command, seen)
+            if _must_deny(command, seen):
+                assert ack.result == M.MAV_RESULT_DENIED, (command, seen, ack.result)
             if ack.result == M.MAV_RESULT_DENIED:
                 denied += 1
-                assert _snapshot(rig) == before, (command, p)
+                assert _snapshot(rig) == before, (command, seen)
             elif _snapshot(rig) != before:
                 changed += 1
-            if not rig.ap.armed or rig.ap.state.altitude < 3.0:
-                rig.ap.set_mode(rig.ap.mode)  # keep flying: re-arm and climb when needed
+            if not rig.ap.armed or rig.ap.state.altitude < 3.0:  # keep flying
                 if not rig.ap.armed:
                     rig.ap.arm()
                 rig.ap.takeoff(10.0)
                 rig.step(8.0)
         assert rig.ep.stats["rx_handler_error"] == 0
-        assert denied > 600 and changed > 0  # both paths were exercised
+        assert denied > 700 and changed > 0  # both paths were exercised
 
 
 def test_nav_land_with_absurd_position_is_denied_with_a_reason():
