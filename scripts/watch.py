@@ -150,7 +150,8 @@ def run(args: argparse.Namespace) -> int:
             idx = np.linspace(0, len(strip) - 1, min(args.strip, len(strip))).round().astype(int)
             tiles = [cv2.resize(strip[i][1], None, fx=0.5, fy=0.5) for i in idx]
             labels = [f"t = {strip[i][0]:.1f} s" for i in idx]
-            write_png(run.file("strip.png"), contact_sheet(_label(tiles, labels), cols=4))
+            sheet = contact_sheet(_label(tiles, labels), cols=4)
+            write_png(run.file("strip.png"), np.vstack([sheet, _legend(sheet.shape[1])]))
             run.describe("strip.png", f"{len(idx)} annotated frames, sim time on each (red dot "
                          "image centre, blue dot UGVs' centre of mass, blue circle their spread)")  # fmt: skip
         lat = np.array(stats.latencies_s) * 1e3
@@ -227,12 +228,37 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _legend(width: int) -> np.ndarray:
+    """A band under the strip saying what the marks are (colours of perception.detector)."""
+    from perception.detector import BLUE, GREEN, RED
+
+    band = np.full((26, width, 3), 255, np.uint8)
+    x = 8
+    for kind, colour, text in (("dot", RED, "image centre"), ("dot", BLUE, "UGVs' centre of mass"),
+                               ("ring", BLUE, "their spread (enclosing circle)"),
+                               ("ring", GREEN, "a detected UGV")):  # fmt: skip
+        cv2.circle(
+            band,
+            (x + 6, 13),
+            5 if kind == "dot" else 7,
+            colour,
+            -1 if kind == "dot" else 2,
+            cv2.LINE_AA,
+        )
+        cv2.putText(
+            band, text, (x + 18, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA
+        )
+        x += 40 + cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)[0][0]
+    return band
+
+
 def _label(tiles: list[np.ndarray], labels: list[str]) -> list[np.ndarray]:
     """Each tile with its label (sim time) in the top-left corner, white on a dark band."""
     out = []
     for img, text in zip(tiles, labels):
         img = img.copy()
-        cv2.rectangle(img, (0, 0), (min(img.shape[1], 8 + 9 * len(text)), 20), (0, 0, 0), -1)
+        w = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)[0][0]
+        cv2.rectangle(img, (0, 0), (min(img.shape[1], 8 + w), 20), (0, 0, 0), -1)
         cv2.putText(img, text, (4, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
                     cv2.LINE_AA)  # fmt: skip
         out.append(img)
