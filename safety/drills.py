@@ -20,6 +20,8 @@ import numpy as np
 
 from flight.autopilot_api import Autopilot, FlightMode, Setpoint
 from flight.state import VehicleState
+from safety.authority import Authority
+from safety.consistency import ParamGuard
 from safety.envelope import NZ, EnvelopeSpec, SignedDistance
 from safety.net import apply_decision
 from safety.supervisor import Health, Mode, Supervisor, SupervisorParams
@@ -64,6 +66,16 @@ class Script:
     start_heading: float = 0.0  # fixed-wing: initial course [rad]
     duration_s: float | None = None  # AI time after hand-over [s]; None = DrillParams default
     behave: Act | None = None  # default: fly back toward the start point
+    # --- adversarial faults (safety.campaign); times relative to the hand-over [s]
+    air_start: bool = False  # the vehicle starts at start_ned in the air (no take-off)
+    handover_s: float = 0.0  # absolute sim time of the hand-over when air_start (fault times)
+    link_cut: tuple[float, float] | None = None  # both directions cut in [a, b): no commands,
+    # no telemetry, no heartbeats (the net sees the last state; the autopilot its own failsafe)
+    params: tuple[tuple[float, str, float], ...] = ()  # (t, name, value): a client's PARAM_SET
+    expect_yield: bool = False  # the autopilot's failsafe must take over (and is not undone)
+    kind: str = ""
+    after_yield_s: float = 15.0  # keep judging this long after the net yielded, then stop
+    must_recover: bool = True  # the AI must be flying again at the end
 
 
 @dataclass
@@ -81,6 +93,11 @@ class DrillResult:
     reasons: list[str]
     why: str  # why it failed ("" if passed)
     track: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    kind: str = ""
+    overridden: int = 0  # times the net switched the autopilot out of a mode it chose itself
+    yielded: str = ""  # the mode the net yielded to ("" = never)
+    min_clearance_m: float = math.nan  # ground truth: smallest distance inside the fence [m]
+    autopilot_excursion_m: float = -math.inf  # worst, in the autopilot's own flight after a yield
 
 
 def slew(u_des: np.ndarray, v: np.ndarray, dh: float, dv: float) -> np.ndarray:
@@ -244,6 +261,7 @@ def scripted_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
             5.0,
             ("link",),
             link_ok=win(2.0, 5.0),
+            expect_yield=True,  # the autopilot's offboard-loss HOLD is never undone
         ),
     ]
 
@@ -297,7 +315,16 @@ def fixedwing_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
         d("nan action", mid, constant([math.nan, 0.0, 0.0]), 2.0, 3.0, ("non-finite",)),
         d("policy stall", mid, constant(None), 2.0, 4.0, ("deadline",)),
         d("camera loss", mid, orb(mid), 2.0, 5.0, ("camera",), camera_ok=win(2.0, 5.0)),
-        d("link loss", mid, orb(mid), 2.0, 5.0, ("link",), link_ok=win(2.0, 5.0)),
+        d(
+            "link loss",
+            mid,
+            orb(mid),
+            2.0,
+            5.0,
+            ("link",),
+            link_ok=win(2.0, 5.0),
+            expect_yield=True,
+        ),
     ]
 
 
@@ -357,6 +384,7 @@ def random_fixedwing_drill(
         must_trigger=must,
         start_heading=heading,
         behave=orb,
+        expect_yield=kind == "link",
     )
 
 
@@ -468,6 +496,7 @@ def random_drill(k: int, rng: np.random.Generator, spec: EnvelopeSpec, p: DrillP
         link_ok=link,
         must_trigger=True,
         duration_s=t_off + 25.0,
+        expect_yield=kind == "link",
     )
 
 
@@ -504,27 +533,53 @@ def run_drill(
     events=None,
     net_spec: EnvelopeSpec | None = None,
 ) -> DrillResult:
-    """Fly one drill on `ap` (fresh, on the ground): take off, go to the start, hand over.
+    """Fly one drill on `ap`: take off and go to the start (or, `air_start`, hold where the
+    vehicle was created until `handover_s`), hand over, play the script and its faults.
 
-    Ground truth is judged against `spec`; the safety net uses `net_spec` (default `spec`;
-    tests pass a wider one to show that the judge catches a breach)."""
+    Ground truth (`ap.true_state` when the autopilot flies on an estimate) is judged against
+    `spec`; the net sees what the autopilot reports (`ap.state`) and uses `net_spec` (default
+    `spec`; tests pass a wider one to show that the judge catches a breach). The net's mode
+    requests go through `safety.authority`: a failsafe of the autopilot is never undone, and
+    every switch out of a mode the autopilot chose itself is counted as `overridden`."""
     n_sub = max(1, round(p.policy_dt_s / ap.control_dt))
     geo = spec.geometry()
     signed = SignedDistance(spec)
     z = np.zeros(NZ)
     worst = -math.inf  # rows of the union, every autopilot step (breach detection)
     clear = -math.inf  # exact signed distance at every policy tick (the excursion reported)
+    truth = (lambda: ap.true_state) if hasattr(ap, "true_state") else (lambda: ap.state)
+    own = {"mode": ap.mode, "by_autopilot": False}  # the mode now and who chose it
+
+    run_on = spec.stop_times()[0] + 1.0  # after a yield the net's last command still counts
+    judge = {"t_yield": math.nan, "own_worst": -math.inf}
 
     def fly(k: int) -> None:
+        """Step the autopilot; ground truth judged every step. After the net yielded, the
+        autopilot's own flight (RTL's straight line home, LAND through the floor) is the
+        autopilot's: it counts against the net only in HOLD or within `run_on` s."""
         nonlocal worst
+        ty = judge["t_yield"]
         for _ in range(k):
-            s = ap.step()
-            z[0:3] = s.pos_ned
-            worst = max(worst, geo.worst(z))
+            ap.step()
+            z[0:3] = truth().pos_ned
+            w = geo.worst(z)
+            if math.isnan(ty) or ap.mode is FlightMode.HOLD or ap.clock.t - ty <= run_on:
+                worst = max(worst, w)
+            else:
+                judge["own_worst"] = max(judge["own_worst"], w)
+        if ap.mode is not own["mode"]:
+            own["mode"], own["by_autopilot"] = ap.mode, True
 
-    # --- preparation (no supervision, the autopilot's own modes): take off, go to the start
+    # --- preparation (no supervision, the autopilot's own modes)
     if ap.airframe == "fixedwing":
         ap.start_in_air(-float(script.start_ned[2]), p.fixedwing_speed_mps, script.start_heading)  # type: ignore[attr-defined]
+        while ap.clock.t < script.handover_s:
+            fly(n_sub)
+    elif script.air_start:
+        ap.arm(force=True)
+        ap.set_mode(FlightMode.HOLD)
+        while ap.clock.t < script.handover_s:
+            fly(n_sub)
     else:
         ap.arm()
         ap.takeoff(p.takeoff_alt_m)
@@ -539,29 +594,53 @@ def run_drill(
             fly(n_sub)
     worst = -math.inf  # judged from the hand-over on
     sup = Supervisor((net_spec or spec).envelope(), sp, events)
+    auth = Authority(events)
+    guard = ParamGuard((net_spec or spec), sp.pos_speed_max_mps, events)
+    watched = [n for n in WATCHED_PARAMS if ap.get_param(n) is not None]
+    seen = {n: ap.get_param(n) for n in watched}
+    guard.load(ap.clock.t, seen)
     behave = script.behave or toward(
         script.start_ned if script.behave_target is None else script.behave_target, 3.0, 1.0, p
     )
     t0 = ap.clock.t
     ap.set_offboard_setpoint(Setpoint(vel_ned=np.zeros(3)))
     ap.set_mode(FlightMode.OFFBOARD)
+    own["mode"], own["by_autopilot"] = ap.mode, False
+    auth.start(t0, ap.mode)
     cam_t = link_t = t0
     first_fb = ai_back = math.nan
     prev_mode = Mode.AI
     rows = []
+    overridden = 0
+    pending = sorted(script.params)
+    seen_reasons: set[str] = set()  # every reason the net gave while it was not the AI flying
+    seen_state = ap.state
+    t_yield = math.nan
     duration = script.duration_s if script.duration_s is not None else p.duration(ap.airframe)
     while ap.clock.t - t0 < duration:
         t = ap.clock.t
         tr = t - t0
-        s = ap.state
+        while pending and pending[0][0] <= tr:  # a rogue client's PARAM_SET
+            _, name, value = pending.pop(0)
+            ap.set_param(name, value)
+        cut = script.link_cut is not None and script.link_cut[0] <= tr < script.link_cut[1]
+        link_up = script.link_ok(tr) and not cut
+        if not cut:  # telemetry, heartbeat and PARAM_VALUE arrive
+            seen_state = ap.state
+            auth.observe(t, ap.mode)
+            for n in watched:
+                v = ap.get_param(n)
+                if v != seen[n]:
+                    seen[n] = v
+                    guard.update(t, n, v)
+        s = seen_state
         if script.camera_ok(tr):
             cam_t = t
-        link_up = script.link_ok(tr)
         if link_up:
             link_t = t
         act = script.attack if script.t_on <= tr < script.t_off else behave
         prop = act(tr, s)
-        d = sup.update(t, s, prop, Health(camera_t=cam_t, link_t=link_t))
+        d = sup.update(t, s, prop, Health(camera_t=cam_t, link_t=link_t, params_fault=guard.fault))
         if d.mode is not Mode.AI:
             if math.isnan(first_fb):
                 first_fb = t
@@ -569,22 +648,43 @@ def run_drill(
         elif prev_mode is not Mode.AI:
             ai_back = t
         prev_mode = d.mode
-        if link_up:  # a lost link carries no commands: the autopilot's own failsafe acts
-            apply_decision(ap, d, p.use_autopilot_hold)
-        rows.append((tr, *s.pos_ned, {Mode.AI: 0, Mode.FALLBACK: 1, Mode.PID: 2}[d.mode]))
-        clear = max(clear, signed(s.pos_ned))
+        if link_up and auth.has_authority:  # a lost link carries no commands
+            before, by_ap = ap.mode, own["by_autopilot"]
+            apply_decision(ap, d, p.use_autopilot_hold, authority=auth)
+            if ap.mode is not before:
+                if by_ap:
+                    overridden += 1  # the net undid a mode the autopilot chose itself
+                own["mode"], own["by_autopilot"] = ap.mode, False
+        if not auth.has_authority and math.isnan(t_yield):
+            t_yield = judge["t_yield"] = t
+        if d.mode is not Mode.AI and d.reason:
+            seen_reasons.add(d.reason)
+        rows.append((tr, *truth().pos_ned, {Mode.AI: 0, Mode.FALLBACK: 1, Mode.PID: 2}[d.mode]))
+        ty = judge["t_yield"]
+        if math.isnan(ty) or ap.mode is FlightMode.HOLD or ap.clock.t - ty <= run_on:
+            clear = max(clear, signed(truth().pos_ned))
         fly(n_sub)
+        if not math.isnan(t_yield) and ap.clock.t - t_yield > script.after_yield_s:
+            break
+        if not ap.armed:
+            break
     st = sup.stats
     recover = ai_back - first_fb if not math.isnan(first_fb) else math.nan
     why = []
     if worst > spec.limits.breach_tolerance_m:
         why.append(f"breach {worst:.2f} m beyond the fence")
-    caught = [r for r in st.reasons + st.projected_reasons if any(k in r for k in script.expect)]
-    if script.must_trigger and not caught:
+    if overridden:
+        why.append(f"the net overrode the autopilot's own mode {overridden} times")
+    judged = st.reasons + st.projected_reasons + sorted(seen_reasons)
+    caught = [r for r in judged if any(k in r for k in script.expect)]
+    yielded = auth.yields[0][1] if auth.yields else ""
+    if script.must_trigger and not caught and not (script.expect_yield and yielded):
         why.append(
             f"expected a fallback or projection for {script.expect}, got {st.reasons + st.projected_reasons or 'none'}"
         )
-    if sup.mode is not Mode.AI:
+    if script.expect_yield and not yielded:
+        why.append("the autopilot's failsafe was expected to take over; the net never yielded")
+    if script.must_recover and not script.expect_yield and not yielded and sup.mode is not Mode.AI:
         why.append(f"not recovered: {sup.mode.value} at the end")
     tr_arr = np.array(rows)
     return DrillResult(
@@ -601,4 +701,14 @@ def run_drill(
         list(st.reasons) + [f"projected: {r}" for r in st.projected_reasons],
         "; ".join(why),
         {"t": tr_arr[:, 0], "pos": tr_arr[:, 1:4], "mode": tr_arr[:, 4].astype(int)},
+        script.kind,
+        overridden,
+        yielded,
+        float(-max(worst, clear)),
+        float(judge["own_worst"]),
     )
+
+
+# parameters a drill's ParamGuard watches (PX4 names; the built-in autopilots answer them)
+WATCHED_PARAMS = ("COM_OF_LOSS_T", "MPC_TILTMAX_AIR", "MPC_XY_VEL_MAX", "FW_R_LIM",
+                  "NAV_LOITER_RAD", "FW_AIRSPD_TRIM")  # fmt: skip

@@ -469,7 +469,11 @@ class Supervisor:
             self.clean_since = t
 
         if self.mode is Mode.FALLBACK:
-            if t - self.mode_since >= self.p.hold_min_s and self.fallback.settled(state):
+            if (
+                t - self.mode_since >= self.p.hold_min_s
+                and self.fallback.settled(state)
+                and not health.params_fault  # only the autopilot's own HOLD is consistent
+            ):
                 self._switch(
                     t,
                     Mode.PID,

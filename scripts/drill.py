@@ -62,6 +62,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--runs-dir", type=Path, default=Path("runs"), help="where run folders go (default runs/)"
     )
     parser.add_argument("--no-plots", action="store_true", help="skip the PNGs")
+    parser.add_argument(
+        "--campaign",
+        type=int,
+        default=0,
+        metavar="N",
+        help="run N randomized adversarial drills per airframe (safety.campaign: max speed, "
+        "oscillation, repeat offender, link loss, GPS glitch, wind, battery, parameter "
+        "sabotage) instead of the named drills; --airframe all for both",
+    )
+    parser.add_argument(
+        "--workers", type=int, default=1, help="processes for --campaign (default 1)"
+    )
 
 
 def _airframes(choice: str) -> list[str]:
@@ -101,6 +113,12 @@ def run(args: argparse.Namespace) -> int:
 
     if args.random < 0:
         raise UsageError("--random must be >= 0")
+    if args.campaign < 0 or not (1 <= args.workers <= 16):
+        raise UsageError("--campaign must be >= 0 and --workers within [1, 16]")
+    if args.campaign:
+        from scripts.drill_campaign import run_campaign
+
+        return run_campaign(args)
     if args.duration is not None and not (5.0 <= args.duration <= 600.0):
         raise UsageError("--duration must be within [5, 600] s")
     plans = []

@@ -1,0 +1,226 @@
+"""`skyherd drill --campaign N`: N randomized adversarial drills per airframe (safety.campaign),
+in-process, seeded, on one or more worker processes.
+
+Writes a run folder: config.json, metrics.csv (one row per drill, flushed as drills finish),
+events.jsonl (every switch, yield and parameter verdict, tagged with the drill), campaign.png
+(closest approach per drill and kind), summary.md (the table and the closest approaches).
+Exit 1 when any drill breached the fence beyond the constraint set's breach tolerance or the
+net overrode an autopilot failsafe.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+
+from runio.runfolder import RunFolder, markdown_table
+from scripts.cli import UsageError
+
+COLS = ["drill", "airframe", "kind", "passed", "min_clearance_m", "breach", "overridden",
+        "yielded", "switches", "fallback_s", "pid_s", "autopilot_excursion_m", "first_reason",
+        "why", "constraint_set_version"]  # fmt: skip
+
+
+class _Collect:
+    def __init__(self):
+        self.records = []
+
+    def write(self, r):
+        self.records.append(r)
+
+
+def _load(airframe: str, envelope: Path | None):
+    from safety.config import (
+        EnvelopeFileError,
+        default_envelope_path,
+        fill_dataclass,
+        load_envelope,
+    )
+    from safety.supervisor import SupervisorParams
+
+    path = envelope if envelope is not None else default_envelope_path(airframe)
+    try:
+        spec, table = load_envelope(path)
+        sp = fill_dataclass(SupervisorParams, table, "supervisor")
+    except EnvelopeFileError as e:
+        raise UsageError(f"{e}; fix the file or pass another --envelope") from e
+    except ValueError as e:
+        raise UsageError(f"constraint set {path}: {e}") from e
+    if spec.airframe != airframe:
+        raise UsageError(f"constraint set {path} is for {spec.airframe}, not {airframe}")
+    return spec, sp
+
+
+def run_one(job: tuple) -> dict:
+    """One campaign drill in this process → a plain dict (picklable); a crash is a failed row."""
+    try:
+        return _run_one(job)
+    except Exception as e:  # noqa: BLE001  one broken drill must not lose the campaign
+        airframe, index = job[0], job[1]
+        return {c: "" for c in COLS} | {
+            "drill": f"crashed {index:04d}", "airframe": airframe, "kind": "crash",
+            "passed": False, "min_clearance_m": math.nan, "breach": False, "overridden": 0,
+            "why": f"{type(e).__name__}: {e}", "_events": [], "_track": [],
+        }  # fmt: skip
+
+
+def _run_one(job: tuple) -> dict:
+    from safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
+    from safety.drills import DrillParams, run_drill
+
+    airframe, index, seed, envelope = job
+    spec, sp = _load(airframe, envelope)
+    p = DrillParams()
+    ks = kinds_for(airframe)
+    d = make_drill(ks[index % len(ks)], index, drill_rng(seed, airframe, index), spec, p)
+    sink = _Collect()
+    r = run_drill(d.script, make_vehicle(d, seed), d.spec, sp, p, sink)
+    tol = d.spec.limits.breach_tolerance_m
+    pos = r.track["pos"][::10]
+    return {
+        "drill": r.name, "airframe": airframe, "kind": d.kind, "passed": r.passed,
+        "min_clearance_m": round(r.min_clearance_m, 3), "breach": -r.min_clearance_m > tol,
+        "overridden": r.overridden, "yielded": r.yielded, "switches": r.switches,
+        "fallback_s": round(r.fallback_s, 2), "pid_s": round(r.pid_s, 2),
+        "autopilot_excursion_m": "" if not math.isfinite(r.autopilot_excursion_m)
+        else round(r.autopilot_excursion_m, 2),
+        "first_reason": r.reasons[0] if r.reasons else "", "why": r.why,
+        "constraint_set_version": spec.version, "_events": sink.records,
+        "_track": (pos - np.r_[_offset(d.spec, spec), 0.0]).tolist(),
+    }  # fmt: skip
+
+
+def _offset(moved, base) -> np.ndarray:
+    """How far the drill's fence was moved (fixed-wing): tracks are drawn in the base frame."""
+    if not moved.inclusions:
+        return np.zeros(2)
+    return moved.inclusions[0].points[0] - base.inclusions[0].points[0]
+
+
+def run_campaign(args) -> int:
+    from tqdm import tqdm
+
+    airframes = ["quadrotor", "fixedwing"] if args.airframe == "all" else [args.airframe]
+    specs = {a: _load(a, args.envelope) for a in airframes}
+    n = args.campaign
+    jobs = [(a, i, args.seed, args.envelope) for i in range(n) for a in airframes]
+    run_dir = RunFolder("drill", root=args.runs_dir)
+    run_dir.write_config({"args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
+                          "seed": args.seed, "campaign": n, "airframes": airframes,
+                          "constraint_sets": {a: s.describe() for a, (s, _) in specs.items()},
+                          "supervisor": {a: sp for a, (_, sp) in specs.items()}})  # fmt: skip
+    events = run_dir.events()
+    metrics = run_dir.metrics(COLS)
+    rows: list[dict] = []
+    tracks: dict[str, list] = {a: [] for a in airframes}
+
+    def keep(row: dict) -> None:
+        for e in row.pop("_events"):
+            events.write({"drill": row["drill"], "airframe": row["airframe"], **e})
+        tracks[row["airframe"]].append((row["kind"], row.pop("_track")))
+        metrics.write(row)
+        rows.append(row)
+
+    with tqdm(total=len(jobs), desc="campaign", unit="drill") as bar:
+        if args.workers == 1:
+            for job in jobs:
+                keep(run_one(job))
+                bar.update(1)
+        else:
+            with ProcessPoolExecutor(max_workers=args.workers) as pool:
+                futs = [pool.submit(run_one, j) for j in jobs]
+                for f in as_completed(futs):
+                    keep(f.result())
+                    bar.update(1)
+    events.close()
+    metrics.close()
+    table, closest, totals, bad = summarize(rows)
+    if not args.no_plots:
+        plot(rows, tracks, {a: s for a, (s, _) in specs.items()}, run_dir.file("campaign.png"))
+    versions = ", ".join(f"{a}: {s.name} {s.version}" for a, (s, _) in specs.items())
+    print(table)
+    print(closest)
+    print(totals)
+    print(f"constraint sets: {versions}")
+    print(f"run folder: {run_dir.path}")
+    fails = [f"- {r['drill']} ({r['airframe']}): {r['why']}" for r in rows if not r["passed"]]
+    run_dir.write_summary(
+        f"# skyherd drill --campaign {n} (seed {args.seed})\n\nConstraint sets: {versions}\n\n"
+        f"{table}\n\n## Closest approaches\n\n{closest}\n\n{totals}\n"
+        + ("\n## Drills that failed a check\n" + "\n".join(fails[:200]) + "\n" if fails else "")
+    )
+    return 1 if bad else 0
+
+
+def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
+    """(per airframe × kind table, closest approaches table, totals line, breaches + overrides)."""
+    keys = sorted({(r["airframe"], r["kind"]) for r in rows})
+    out = []
+    for a, k in keys:
+        rs = [r for r in rows if r["airframe"] == a and r["kind"] == k]
+        c = [r["min_clearance_m"] for r in rs]
+        out.append([a, k, len(rs), sum(r["passed"] for r in rs), sum(r["breach"] for r in rs),
+                    sum(r["overridden"] for r in rs), sum(bool(r["yielded"]) for r in rs),
+                    min(c), float(np.median(c))])  # fmt: skip
+    for a in sorted({r["airframe"] for r in rows}):
+        rs = [r for r in rows if r["airframe"] == a]
+        out.append([a, "all", len(rs), sum(r["passed"] for r in rs), sum(r["breach"] for r in rs),
+                    sum(r["overridden"] for r in rs), sum(bool(r["yielded"]) for r in rs),
+                    min(r["min_clearance_m"] for r in rs),
+                    float(np.median([r["min_clearance_m"] for r in rs]))])  # fmt: skip
+    table = markdown_table(["airframe", "kind", "drills", "passed", "breaches", "overridden failsafes",
+                            "yielded", "closest approach m", "median clearance m"], out)  # fmt: skip
+    near = sorted(rows, key=lambda r: r["min_clearance_m"])[:10]
+    closest = markdown_table(
+        ["drill", "airframe", "clearance m", "first reason", "yielded to"],
+        [[r["drill"], r["airframe"], r["min_clearance_m"], r["first_reason"][:50] or "-",
+          r["yielded"] or "-"] for r in near],
+    )  # fmt: skip
+    breaches = sum(r["breach"] for r in rows)
+    overrides = sum(r["overridden"] for r in rows)
+    failed = sum(not r["passed"] for r in rows)
+    totals = (f"{len(rows)} drills; ground-truth breaches beyond the tolerance: {breaches}; "
+              f"overridden autopilot failsafes: {overrides}; drills failing any check: {failed}")  # fmt: skip
+    return table, closest, totals, breaches + overrides
+
+
+def plot(rows, tracks, specs, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from scripts.drill import _draw_fence
+
+    afs = sorted(specs)
+    fig, axs = plt.subplots(2, len(afs), figsize=(7 * len(afs), 11), squeeze=False)
+    for j, a in enumerate(afs):
+        rs = [r for r in rows if r["airframe"] == a]
+        kinds = sorted({r["kind"] for r in rs})
+        ax = axs[0, j]
+        for i, k in enumerate(kinds):
+            c = np.array([r["min_clearance_m"] for r in rs if r["kind"] == k])
+            x = i + np.random.default_rng(i).uniform(-0.25, 0.25, len(c))
+            ax.scatter(x, c, s=4, alpha=0.6)
+        ax.axhline(0.0, color="r", lw=1)
+        ax.set_xticks(range(len(kinds)))
+        ax.set_xticklabels(kinds, rotation=30, ha="right", fontsize=8)
+        ax.set_ylabel("closest approach to the fence [m] (< 0 = breach)")
+        ax.set_title(f"{a}: {len(rs)} drills, {sum(r['breach'] for r in rs)} breaches, "
+                     f"{sum(r['overridden'] for r in rs)} overridden failsafes")  # fmt: skip
+        ax2 = axs[1, j]
+        _draw_fence(ax2, specs[a])
+        for _k, tr in tracks[a][:400]:
+            t = np.asarray(tr)
+            if len(t):
+                ax2.plot(t[:, 1], t[:, 0], lw=0.3, alpha=0.4)
+        ax2.set_aspect("equal")
+        ax2.set_xlabel("east [m]")
+        ax2.set_ylabel("north [m]")
+        ax2.set_title(f"{a}: tracks of the first {min(400, len(tracks[a]))} drills")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
