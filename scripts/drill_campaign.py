@@ -161,7 +161,7 @@ def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
     out = []
     for a, k in keys:
         rs = [r for r in rows if r["airframe"] == a and r["kind"] == k]
-        c = [r["min_clearance_m"] for r in rs]
+        c = [r["min_clearance_m"] for r in rs if math.isfinite(r["min_clearance_m"])] or [math.nan]
         out.append([a, k, len(rs), sum(r["passed"] for r in rs), sum(r["breach"] for r in rs),
                     sum(r["overridden"] for r in rs), sum(bool(r["yielded"]) for r in rs),
                     min(c), float(np.median(c))])  # fmt: skip
@@ -169,11 +169,12 @@ def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
         rs = [r for r in rows if r["airframe"] == a]
         out.append([a, "all", len(rs), sum(r["passed"] for r in rs), sum(r["breach"] for r in rs),
                     sum(r["overridden"] for r in rs), sum(bool(r["yielded"]) for r in rs),
-                    min(r["min_clearance_m"] for r in rs),
-                    float(np.median([r["min_clearance_m"] for r in rs]))])  # fmt: skip
+                    float(np.nanmin([r["min_clearance_m"] for r in rs])),
+                    float(np.nanmedian([r["min_clearance_m"] for r in rs]))])  # fmt: skip
     table = markdown_table(["airframe", "kind", "drills", "passed", "breaches", "overridden failsafes",
                             "yielded", "closest approach m", "median clearance m"], out)  # fmt: skip
-    near = sorted(rows, key=lambda r: r["min_clearance_m"])[:10]
+    finite = [r for r in rows if math.isfinite(r["min_clearance_m"])]
+    near = sorted(finite, key=lambda r: r["min_clearance_m"])[:10]
     closest = markdown_table(
         ["drill", "airframe", "clearance m", "first reason", "yielded to"],
         [[r["drill"], r["airframe"], r["min_clearance_m"], r["first_reason"][:50] or "-",
