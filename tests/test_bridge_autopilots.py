@@ -1,0 +1,84 @@
+"""Opt-in: real PX4 (`none_iris`) and real ArduCopter (`--model JSON`) flying on skyherd's physics.
+
+Run with SKYHERD_PX4_BIN=…/build/px4_sitl_default/bin/px4 and / or
+SKYHERD_ARDUCOPTER_BIN=…/build/sitl/bin/arducopter (+ SKYHERD_ARDUCOPTER_DEFAULTS=a.parm,b.parm,
+ArduPilot's Tools/autotest/default_params/copter.parm) — `make test-autopilots`. Each flight
+runs `python -m hil.bridge_flight` inside `unshare -n` with only loopback up when run as
+root (the autopilots open UDP/TCP ports). A flight: arm, take off to 10 m, hover 30 s,
+land; passes if every true position in the hover window stays within 0.5 m of the window's
+mean; then the same flight again at 1× and compared with the as-fast-as-possible one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.autopilot
+
+PX4 = os.environ.get("SKYHERD_PX4_BIN")
+COPTER = os.environ.get("SKYHERD_ARDUCOPTER_BIN")
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def fly(autopilot: str, binary: str, instance: int, speedup: float, tmp: Path) -> dict:
+    out = tmp / f"{autopilot}-{instance}.json"
+    cmd = [sys.executable, "-m", "hil.bridge_flight", "--autopilot", autopilot, "--bin", binary]
+    cmd += ["--instance", str(instance), "--speedup", str(speedup), "--out", str(out)]
+    cmd += ["--workdir", str(tmp / f"work-{instance}")]
+    for d in filter(None, os.environ.get("SKYHERD_ARDUCOPTER_DEFAULTS", "").split(",")):
+        cmd += ["--defaults", d]
+    if os.geteuid() == 0 and shutil.which("unshare"):
+        cmd = ["unshare", "-n", "sh", "-c", 'ip link set lo up && exec "$@"', "sh", *cmd]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1800)
+    assert out.exists(), f"no result: {proc.stdout[-2000:]} {proc.stderr[-2000:]}"
+    res = json.loads(out.read_text())
+    print(autopilot, speedup, {k: v for k, v in res.items() if k not in ("trajectory", "events")})
+    return res
+
+
+def compare(a: dict, b: dict) -> float:
+    """Largest distance [m] between two flights' true positions at the same sim times."""
+    pa = {round(s[0], 1): s[1:] for s in a["trajectory"]}
+    worst = 0.0
+    n = 0
+    for s in b["trajectory"]:
+        p = pa.get(round(s[0], 1))
+        if p is not None:
+            worst = max(worst, sum((x - y) ** 2 for x, y in zip(p, s[1:])) ** 0.5)
+            n += 1
+    assert n > 100
+    return worst
+
+
+def check_flight(res: dict) -> None:
+    assert res["ok"], f"{res['reason']}; events: {res['events'][-15:]}"
+    assert res["hover_max_dev_m"] <= 0.5
+    assert abs(res["hover_mean_alt_m"] - 10.0) < 1.0
+    assert res["landed_at"] is not None and res["disarmed_at"] is not None
+
+
+@pytest.mark.skipif(not PX4, reason="SKYHERD_PX4_BIN not set (path of PX4 SITL's bin/px4)")
+def test_px4_none_iris_flies_on_skyherd_physics(tmp_path):
+    fast = fly("px4", PX4, 75, 0.0, tmp_path)
+    check_flight(fast)
+    slow = fly("px4", PX4, 76, 1.0, tmp_path)
+    check_flight(slow)
+    print("px4 real-time factor as fast as possible:", fast["real_time_factor"])
+    print("px4 1x vs fast, largest position difference [m]:", compare(fast, slow))
+
+
+@pytest.mark.skipif(not COPTER, reason="SKYHERD_ARDUCOPTER_BIN not set (path of arducopter SITL)")
+def test_arducopter_json_flies_on_skyherd_physics(tmp_path):
+    fast = fly("arducopter", COPTER, 75, 0.0, tmp_path)
+    check_flight(fast)
+    slow = fly("arducopter", COPTER, 76, 1.0, tmp_path)
+    check_flight(slow)
+    print("arducopter real-time factor as fast as possible:", fast["real_time_factor"])
+    print("arducopter 1x vs fast, largest position difference [m]:", compare(fast, slow))
