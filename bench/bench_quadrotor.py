@@ -1,15 +1,19 @@
 """Real-time factor of the quadrotor with its autopilot at 1 kHz physics.
 
-    .venv/bin/python bench/bench_quadrotor.py [--quick] [--control-dt 0.004]
+    .venv/bin/python bench/bench_quadrotor.py [--quick] [--control-dt 0.004] [--fence]
 
 Prints a table: the physics kernel alone, the `Quadrotor.step` wrapper, and the full
 `MultirotorAutopilot.step` (commander + navigator + compiled cascade + physics) flying a
 scripted flight (takeoff, a 40 m square in offboard, RTL and landing). Goal: >= 200x.
+Then the cost of a step with the vehicle's fence on and with a fault plan (gusts, noise, a
+GPS glitch) against the plain step, in the same run. `--fence` adds the table of how far the
+vehicle's own fence reaction (GF_ACTION 2) ends beyond a 160 m fence, by speed and tailwind.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -19,7 +23,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from types import SimpleNamespace  # noqa: E402
+
 from flight.autopilot_api import FlightMode, Setpoint  # noqa: E402
+from flight.faults import parse_fault_args  # noqa: E402
 from flight.multirotor import MultirotorAutopilot  # noqa: E402
 from flight.quadrotor import Quadrotor, QuadrotorParams, WindModel, physics_steps  # noqa: E402
 from runio.runfolder import markdown_table  # noqa: E402
@@ -165,10 +172,69 @@ def step_responses(control_dt: float) -> list[list[str]]:
     return rows
 
 
+def _hovering(**kw) -> MultirotorAutopilot:
+    ap = MultirotorAutopilot(**kw)
+    ap.arm()
+    ap.takeoff(20.0)
+    for _ in range(round(12.0 / ap.control_dt)):
+        ap.step()
+    return ap
+
+
+def _fence(r: float = 160.0):
+    return [SimpleNamespace(kind="circle", inclusion=True, center_ne=np.zeros(2), radius=r)]
+
+
+def feature_costs(n: int) -> list[list[str]]:
+    """CPU µs per hover step: plain, fence on, fault plan on (best of 5 × n), with ratios."""
+    plan = parse_fault_args("8,90", "1", "0.3,0.05", ["gps_glitch@15:3,0,0:600"])
+    cases = [("plain", {}, False), ("fence (a 160 m circle) on", {}, True)]
+    cases.append(("fault plan on (gusts, noise, glitch)", {"faults": plan}, False))
+    rows, base = [], None
+    for name, kw, fence in cases:
+        ap = _hovering(**kw)
+        if fence:
+            ap.set_fence(_fence())
+        best = math.inf
+        for _ in range(5):
+            c0 = time.process_time()
+            for _ in range(n):
+                ap.step()
+            best = min(best, (time.process_time() - c0) / n)
+        base = best if base is None else base
+        rows.append([name, f"{best * 1e6:.2f}", f"{best / base:.2f}"])
+    return rows
+
+
+def fence_overshoot() -> list[list[str]]:
+    """Offboard velocity straight out of a 160 m circle fence with the wind behind."""
+    rows = []
+    for wind in (0.0, 8.0, 14.0, 16.0):
+        for v in (5.0, 12.0):
+            ap = _hovering(wind=WindModel(mean_ned=(wind, 0.0, 0.0)))
+            ap.set_fence(_fence())
+            sp = Setpoint(vel_ned=np.array([v, 0.0, 0.0]))
+            ap.set_offboard_setpoint(sp)
+            ap.set_mode(FlightMode.OFFBOARD)
+            far, v_breach = -math.inf, math.nan
+            for k in range(round(60.0 / ap.control_dt)):
+                if ap.mode == FlightMode.OFFBOARD and k % 5 == 0:
+                    ap.set_offboard_setpoint(sp)
+                if math.isnan(v_breach) and ap.mode == FlightMode.HOLD:
+                    v_breach = float(ap.state.vel_ned[0])
+                far = max(far, float(ap.step().pos_ned[0]))
+            rows.append(
+                [f"{wind:g} m/s", f"{v:g} m/s", f"{v_breach:.1f} m/s", f"{far - 160.0:.1f} m",
+                 ap.mode.value]
+            )  # fmt: skip
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap_ = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap_.add_argument("--quick", action="store_true", help="short run (a few seconds)")
     ap_.add_argument("--control-dt", type=float, default=0.004, help="autopilot period [s]")
+    ap_.add_argument("--fence", action="store_true", help="also the fence-overshoot table")
     args = ap_.parse_args(argv)
     sim_s = 120.0 if args.quick else 600.0  # within one battery
     n_kernel = 1_000_000 if args.quick else 10_000_000
@@ -220,6 +286,13 @@ def main(argv: list[str] | None = None) -> int:
         f"real-time factor {rtf:,.0f}x wall, {sim_s / r['cpu']:,.0f}x per CPU second "
         f"(goal >= 200x: {'met' if rtf >= 200 else 'NOT met'})"
     )
+    print()
+    costs = feature_costs(2000 if args.quick else 5000)
+    print(markdown_table(["hover step", "CPU us per step", "x plain"], costs))
+    if args.fence:
+        print()
+        head = ["tailwind", "commanded", "speed at breach", "farthest beyond fence", "mode"]
+        print(markdown_table(head, fence_overshoot()))
     return 0
 
 

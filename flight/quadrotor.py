@@ -211,7 +211,13 @@ class WindModel:
 
 
 class WindField:
-    """The state of a `WindModel`: `sample(dt)` → wind (3,) [m/s] NED for the next dt."""
+    """The state of a `WindModel`: `sample(dt)` → wind (3,) [m/s] NED for the next dt.
+
+    The normal draws come from the Generator in blocks of `_BLOCK` rows of 3 (the same
+    sequence as one draw of 3 per call).
+    """
+
+    _BLOCK = 512
 
     def __init__(self, model: WindModel):
         self.model = model
@@ -220,10 +226,9 @@ class WindField:
         self._gust = np.zeros(3)
         self._dt = -1.0
         self._a = self._b = 0.0
-
-    @property
-    def calm(self) -> bool:
-        return self.model.gust_std == 0.0 and not np.any(self._mean)
+        self._z = np.zeros((0, 3))
+        self._k = 0
+        self.calm = model.gust_std == 0.0 and not np.any(self._mean)
 
     def sample(self, dt: float) -> np.ndarray:
         m = self.model
@@ -232,7 +237,13 @@ class WindField:
                 self._dt = dt
                 self._a = math.exp(-dt / m.gust_tau)
                 self._b = m.gust_std * math.sqrt(1.0 - self._a * self._a)
-            self._gust = self._a * self._gust + self._b * self._rng.standard_normal(3)
+            if self._k >= len(self._z):
+                self._z = self._rng.standard_normal((self._BLOCK, 3))
+                self._k = 0
+            g = self._gust
+            g *= self._a
+            g += self._b * self._z[self._k]
+            self._k += 1
         return self._mean + self._gust
 
 

@@ -293,17 +293,19 @@ class MultirotorAutopilot(AutopilotBase):
         else:
             _control_step(self._w, self._k, self._dt_sub, self._n_sub)
         self.clock.advance(self._dt_us)
-        self._true_state = self._make_state()
         if self._est_on:
+            self._true_state = None  # built when asked for (true_state)
             self._gps_update(inj, self.clock.t)
             self._state = self._make_state(self._ex)
         else:
-            self._state = self._true_state
+            self._true_state = self._state = self._make_state()
         return self._state
 
     @property
     def true_state(self) -> VehicleState:
-        """The physics (ground truth); `state` is what the autopilot believes and reports."""
+        """The physics (ground truth) now; `state` is what the autopilot believes and reports."""
+        if self._true_state is None:
+            self._true_state = self._make_state()
         return self._true_state
 
     @property
