@@ -4,7 +4,8 @@ rate it sustains.
 Scenario (both runs identical): the quadrotor arms, takes off to 10 m and hovers, autopilot
 at 250 Hz with 1 kHz physics. "alone" steps the autopilot only; "with MAVLink" runs the SITL
 runner at --speedup 0 with both links streaming at their default rates while a separate
-process receives the API link and counts what arrives.
+process receives the API link and counts what arrives. "signing on" is the same run with a
+MAVLink 2 signing key: every frame sent is signed (SHA-256 per frame).
 
     .venv/bin/python bench/bench_sitl.py [--quick]
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -67,14 +69,15 @@ def bench_alone(sim_s: float) -> tuple[float, float]:
     return sim_s / wall, sim_s / cpu, ap.state.altitude
 
 
-def bench_endpoint(sim_s: float) -> dict:
+def bench_endpoint(sim_s: float, signing_key: Path | None = None) -> dict:
     recv = subprocess.Popen(
         [sys.executable, "-c", RECEIVER, str(14540 + INSTANCE)], stdout=subprocess.PIPE, text=True
     )
     assert recv.stdout.readline().strip() == "ready"
     ap = make_autopilot("quadrotor", clock=SimClock())
     _fly(ap)
-    with Sitl(ap, EndpointConfig(instance=INSTANCE), speedup=0.0) as sitl:
+    cfg = EndpointConfig(instance=INSTANCE, signing_key=signing_key)
+    with Sitl(ap, cfg, speedup=0.0) as sitl:
         c0 = time.process_time()
         stats = sitl.run(duration_s=sim_s)
         cpu = time.process_time() - c0
@@ -103,10 +106,16 @@ def main(argv: list[str] | None = None) -> int:
     make_autopilot("quadrotor").step()  # compile (numba) outside the timings
     rtf_alone, cpu_alone, alt_a = bench_alone(sim_s)
     r = bench_endpoint(sim_s)
+    with tempfile.TemporaryDirectory() as tmp:
+        key = Path(tmp) / "bench.key"
+        key.write_bytes(bytes(range(32)))
+        rs = bench_endpoint(sim_s, signing_key=key)
     rows = [
         ["autopilot + physics alone", f"{rtf_alone:.0f}x", f"{cpu_alone:.0f}x", "-", "-", f"{alt_a:.2f}"],
         ["with MAVLink endpoint (speedup 0)", f"{r['rtf']:.0f}x", f"{r['rtf_cpu']:.0f}x",
          f"{r['tx_per_s']:.0f}", f"{r['kbytes_per_s']:.0f}", f"{r['altitude']:.2f}"],
+        ["with MAVLink endpoint, signing on", f"{rs['rtf']:.0f}x", f"{rs['rtf_cpu']:.0f}x",
+         f"{rs['tx_per_s']:.0f}", f"{rs['kbytes_per_s']:.0f}", f"{rs['altitude']:.2f}"],
     ]  # fmt: skip
     print(
         f"SITL benchmark: quadrotor, {sim_s:g} s simulated per run, autopilot 250 Hz, physics 1 kHz\n"
@@ -122,6 +131,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(
         f"telemetry per simulated second (both links, default rates): {r['tx_per_sim_s']:.1f} messages"
+    )
+    print(
+        f"signing cost: {r['rtf_cpu'] / rs['rtf_cpu']:.2f}x the CPU per simulated second of the unsigned endpoint"
     )
     print(f"API link: {r['tx_api']} sent, {r['rx_api']} received by a separate process "
           f"({100.0 * r['rx_api'] / max(r['tx_api'], 1):.1f} %)")  # fmt: skip
