@@ -207,3 +207,9 @@ def test_make_bridge_gives_both_bridges_one_api():
     assert make_bridge("ardupilot", airframe="fixedwing").airframe == "fixedwing"
     with pytest.raises(ValueError):
         make_bridge("inav")
+
+
+def test_no_packet_no_step():
+    with ArduPilotJsonBridge(instance=79) as b:
+        assert not b.step_once(0.05)
+        assert b.t == 0.0 and b.stats.frames == 0
