@@ -10,6 +10,7 @@ Signature timestamps are wall time by the spec; no assertion depends on timing."
 from __future__ import annotations
 
 import os
+import socket
 import stat
 
 import pytest
@@ -221,3 +222,34 @@ def test_bad_key_files_fail_with_one_line(tmp_path):
             MavlinkLink.open("udpin:127.0.0.1:14603", signing_key=path)
         with pytest.raises(sg.SigningError):
             Rig(INSTANCE, signing_key=path)
+
+
+def test_client_over_tcp_applies_the_same_rules(tmp_path):
+    """A byte stream (TCP): frames split across reads are verified like datagrams."""
+    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    server.bind(("127.0.0.1", 14540 + 64))
+    server.listen(1)
+    link = MavlinkLink.open(f"tcp:127.0.0.1:{14540 + 64}", signing_key=_key_file(tmp_path))
+    conn, _ = server.accept()
+    try:
+        peer = Peer()
+        mav = peer.mav
+        hb = [mav.heartbeat_encode(6, 8, 0, k, 0) for k in range(4)]
+        stream = bytes(hb[0].pack(mav))  # unsigned
+        _sign_with_pymavlink(peer, KEY)
+        signed = bytes(hb[1].pack(mav))
+        stream += signed + signed + bytes(hb[2].pack(mav))  # a replay in the middle
+        for i in range(0, len(stream), 7):  # 7-byte pieces: frames span reads
+            conn.sendall(stream[i : i + 7])
+        got = []
+        for _ in range(50):
+            got += link.recv(0.05)
+            if len(got) >= 2:
+                break
+        assert [m.custom_mode for m in got] == [1, 2] and link.rejected_packets == 2
+        peer.close()
+    finally:
+        conn.close()
+        server.close()
+        link.close()
