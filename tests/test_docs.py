@@ -14,7 +14,9 @@ What is checked, for whatever the docs say today (other helpers keep editing the
   `.venv/bin/` is this venv) and the block must have the structure of the real output: the
   same table headers and row labels, and every other line the same once numbers, paths and
   times are blanked.
-- `<!-- doc-test: skip REASON -->` before a block skips it (the reason is printed).
+- `<!-- doc-test: imports REASON -->` before a python block runs only its imports (a block
+  that needs a live vehicle or a running simulator); `<!-- doc-test: skip REASON -->` skips a
+  block.
 """
 
 from __future__ import annotations
@@ -233,10 +235,10 @@ def test_python_blocks_compile_and_run(tmp_path):
         except SyntaxError as e:
             raise AssertionError(f"{b.where}: python block does not compile: {e}") from e
         free = free_names(b.text)
-        whole = not free and "await" not in b.text
-        kinds[b.where] = (
-            "run" if whole else f"imports only (uses {', '.join(sorted(free)) or 'await'})"
-        )
+        imports_only = re.match(r"<!--\s*doc-test:\s*imports", b.marker)
+        whole = not free and "await" not in b.text and not imports_only
+        why = "marked" if imports_only else f"uses {', '.join(sorted(free)) or 'await'}"
+        kinds[b.where] = "run" if whole else f"imports only ({why})"
         jobs.append(
             {"where": b.where, "code": b.text if whole else _imports_only(b.text), "timeout_s": 120}
         )
