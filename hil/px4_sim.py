@@ -70,6 +70,7 @@ class Px4BridgeConfig:
     boot_wait_s      [s wall] wait per frame for PX4's first actuator answer
     answer_timeout_s [s wall] once in lockstep: PX4 is given up after this long silent
     gps_eph_m, gps_epv_m, satellites   what HIL_GPS claims
+    time_offset_us   PX4's clock = sim time + this [µs] (PX4 reads a time of 0 as "never")
     noise            white sensor noise
     mag_ned_gauss    Earth field at home, NED [gauss]; None: WMM2025 at home
     """
@@ -84,6 +85,7 @@ class Px4BridgeConfig:
     gps_eph_m: float = 0.3
     gps_epv_m: float = 0.4
     satellites: int = 10
+    time_offset_us: int = 1_000_000
     noise: SensorNoise = field(default_factory=SensorNoise)
     mag_ned_gauss: tuple[float, float, float] | None = None
 
@@ -202,7 +204,8 @@ class Px4SimBridge:
     def sensor_frames(self) -> bytes:
         """HIL_SENSOR (+ HIL_GPS, HIL_STATE_QUATERNION when due) for the present state."""
         o = self.body.out.tolist()
-        c, k, t_us = self.config, self._k, self.time_us
+        c, k = self.config, self._k
+        t_us = self.time_us + c.time_offset_us
         nz = self._noise.next_row()
         quat = o[O_QUAT : O_QUAT + 4]
         fields = wire.FIELDS_ACCEL | wire.FIELDS_GYRO
@@ -277,7 +280,7 @@ class Px4SimBridge:
         q = o[O_QUAT : O_QUAT + 4]
         ax, ay, az = (v / 9.80665 * 1000 for v in o[O_ACCEL : O_ACCEL + 3])  # [mG]
         payload = wire.HIL_STATE_Q.pack(
-            self.time_us,
+            self.time_us + self.config.time_offset_us,
             *q,
             o[O_GYRO],
             o[O_GYRO + 1],
@@ -338,7 +341,7 @@ class Px4SimBridge:
             raise ConnectionError("PX4 is not connected: call accept() first")
         if self._pending_us is None:
             self._conn.sendall(self.sensor_frames())
-            self._pending_us = self.time_us
+            self._pending_us = self.time_us + self.config.time_offset_us
         if self._lockstep:
             wait = self.config.answer_timeout_s if timeout_s is None else timeout_s
             t_end = time.monotonic() + wait

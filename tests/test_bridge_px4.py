@@ -63,7 +63,7 @@ def test_frames_decode_with_pymavlink_and_carry_the_truth():
         b.close()
         peer.close()
     m = peer.sensors[-1]
-    assert m.time_usec == 400 * 4000 and m.id == 0
+    assert m.time_usec == 400 * 4000 + QUIET.time_offset_us and m.id == 0
     np.testing.assert_allclose([m.xacc, m.yacc, m.zacc], s.accel_frd, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose([m.xgyro, m.ygyro, m.zgyro], s.omega_frd, rtol=1e-6, atol=1e-6)
     mag_b = quat_to_dcm(s.quat).T @ np.array(MagField.wmm(DEFAULT_HOME).ned_gauss)
@@ -101,14 +101,14 @@ def test_no_step_without_an_answer_and_stale_answers_ignored():
         th.join(10)
         assert b.t == pytest.approx(0.04) and b.stats.frames == 10
         # an answer for an older frame does not count
-        old = peer.mav.hil_actuator_controls_encode(36000, [1.0] * 16, 129, 1).pack(peer.mav)
+        old = peer.mav.hil_actuator_controls_encode(1_036_000, [1.0] * 16, 129, 1).pack(peer.mav)
         peer.sock.sendall(old)
         assert not b.step_once(timeout_s=0.2)
-        ok = peer.mav.hil_actuator_controls_encode(40000, [0.5] * 16, 129, 1).pack(peer.mav)
+        ok = peer.mav.hil_actuator_controls_encode(1_040_000, [0.5] * 16, 129, 1).pack(peer.mav)
         peer.sock.sendall(ok)
         assert b.step_once(timeout_s=5.0)
         assert b.stats.stale_answers == 1 and b._controls == [0.5] * 4 and b.px4_armed
-        assert peer.sensors[-1].time_usec == 40000  # the frame was sent once, not again
+        assert peer.sensors[-1].time_usec == 1_040_000  # the frame was sent once, not again
     finally:
         b.close()
         peer.close()
