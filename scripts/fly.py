@@ -150,11 +150,11 @@ def run_two_processes(args: argparse.Namespace) -> int:
     from scripts.fly_report import report
 
     sim_args, comp_args = _validate(args)
+    envelope = _envelope(args) if args.mission == "groundair" else None
     folder = RunFolder("fly", root=args.runs_dir)
     run_dir = folder.path
-    folder.write_config(
-        {"args": args_dict(args), "argv": sys.argv, "sim": sim_args, "companion": comp_args}
-    )
+    folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
+                         "companion": comp_args, "envelope": envelope})  # fmt: skip
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     sim = None
     if args.connect is None:
@@ -169,3 +169,15 @@ def run_two_processes(args: argparse.Namespace) -> int:
         rc = 130
     ok = report(run_dir, args, rc, why)
     return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
+
+
+def _envelope(args) -> dict:
+    """The safety net's constraint set (name, version, rows) for config.json; UsageError if bad."""
+    from safety.config import ENVELOPE_DIR, EnvelopeFileError, load_envelope
+
+    path = args.envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
+    try:
+        spec, _ = load_envelope(path)
+    except (EnvelopeFileError, ValueError) as e:
+        raise UsageError(f"{e}; fix the file or pass another --envelope") from None
+    return {"path": str(Path(path).resolve()), **spec.describe()}

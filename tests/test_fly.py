@@ -1,4 +1,6 @@
-"""`skyherd fly`: the main job end to end through our own MAVLink client and the built-in SITL."""
+"""`skyherd fly`: the main job end to end — `skyherd sim` and `skyherd companion` as two child
+processes in lockstep, MAVLink and Zenoh over loopback. Lockstep makes the flights independent
+of the machine's load, so they run as fast as possible (--speedup 0)."""
 
 import csv
 import json
@@ -11,8 +13,8 @@ from scripts.cli import main
 
 
 def test_fly_square_end_to_end(tmp_path, capsys):
-    args = ["fly", "--mission", "square", "--speedup", "10", "--timeout", "120",
-            "--runs-dir", str(tmp_path)]  # fmt: skip
+    args = ["fly", "--mission", "square", "--speedup", "0", "--timeout", "600",
+            "--instance", "14", "--zenoh-port", "7455", "--runs-dir", str(tmp_path)]  # fmt: skip
     assert main(args) == 0
     (run,) = tmp_path.iterdir()
     assert {"config.json", "telemetry.tlog", "metrics.csv", "track.png", "summary.md"} <= {
@@ -31,15 +33,15 @@ def test_fly_square_end_to_end(tmp_path, capsys):
     seen = set()
     while (m := log.recv_match()) is not None:
         seen.add((m.get_type(), m.get_srcSystem()))
-    assert {("HEARTBEAT", 1), ("LOCAL_POSITION_NED", 1), ("COMMAND_ACK", 1)} <= seen
-    assert ("SET_POSITION_TARGET_LOCAL_NED", 255) in seen
+    assert {("HEARTBEAT", 15), ("LOCAL_POSITION_NED", 15), ("COMMAND_ACK", 15)} <= seen
+    assert ("SET_POSITION_TARGET_LOCAL_NED", 15) in seen  # the companion: system 1+N, comp 191
 
 
 def test_fly_bad_usage_exits_2(tmp_path, capsys):
     assert (
         main(["fly", "--mission", "square", "--altitude", "500", "--runs-dir", str(tmp_path)]) == 2
     )
-    assert main(["fly", "--speedup", "0", "--runs-dir", str(tmp_path)]) == 2
+    assert main(["fly", "--speedup", "0.5", "--runs-dir", str(tmp_path)]) == 2
     assert main(["fly", "--connect", "bogus", "--runs-dir", str(tmp_path)]) == 2
     assert "expected" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
@@ -47,8 +49,8 @@ def test_fly_bad_usage_exits_2(tmp_path, capsys):
 
 def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     """The main job: the kept policy flies through MAVLink offboard behind the safety net."""
-    args = ["fly", "--duration", "30", "--speedup", "5", "--timeout", "180", "--zenoh-port",
-            "7491", "--runs-dir", str(tmp_path)]  # fmt: skip
+    args = ["fly", "--duration", "30", "--speedup", "0", "--timeout", "600", "--zenoh-port",
+            "7456", "--instance", "15", "--runs-dir", str(tmp_path)]  # fmt: skip
     assert main(args) == 0
     (run,) = tmp_path.iterdir()
     names = {p.name for p in run.iterdir()}
@@ -76,7 +78,8 @@ def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
 def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
     """Issue 4's flight: UGVs drive a groundsim route, a classic PID follower on φ flies."""
     args = ["fly", "--pilot", "pid", "--ugvs", "groundsim:route", "--duration", "25",
-            "--speedup", "5", "--timeout", "180", "--no-zenoh", "--runs-dir", str(tmp_path)]  # fmt: skip
+            "--speedup", "0", "--timeout", "600", "--instance", "16", "--zenoh-port", "7457",
+            "--runs-dir", str(tmp_path)]  # fmt: skip
     assert main(args) == 0
     (run,) = tmp_path.iterdir()
     summary = (run / "summary.md").read_text()
