@@ -94,7 +94,10 @@ def run(args: argparse.Namespace) -> int:
     except AirframeUnavailable as e:
         raise UsageError(f"{e}; use --airframe quadrotor") from e
 
-    folder = RunFolder("sitl", root=args.runs_dir)
+    try:
+        folder = RunFolder("sitl", root=args.runs_dir)
+    except OSError as e:  # a read-only or missing runs dir: say so, no traceback
+        raise UsageError(f"cannot create a run folder in {args.runs_dir}: {e.strerror or e}; choose another --runs-dir") from e  # fmt: skip
     state_dir = args.state_dir if args.state_dir is not None else default_state_dir()
     config = EndpointConfig(
         instance=args.instance,

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -86,6 +87,20 @@ def test_cli_usage_errors_exit_2(tmp_path, capsys):
         (["--duration", "-1"], "--duration"),
     ):
         assert main(["sitl", *args, "--runs-dir", str(tmp_path)]) == 2, args
+        err = capsys.readouterr().err
+        assert words in err and len(err.strip().splitlines()) == 1
+    # A bad signing key file and a runs dir that cannot be written: one line, exit 2.
+    short = tmp_path / "short.key"
+    short.write_bytes(b"k" * 31)
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    unwritable = ro if not os.access(ro, os.W_OK) else Path("/sys")  # root ignores chmod
+    for args, words in (
+        (["--signing-key", str(short), "--runs-dir", str(tmp_path)], "32"),
+        (["--runs-dir", str(unwritable / "runs")], "--runs-dir"),
+    ):
+        assert main(["sitl", "--instance", "64", "--duration", "1", *args]) == 2, args
         err = capsys.readouterr().err
         assert words in err and len(err.strip().splitlines()) == 1
 
