@@ -44,13 +44,18 @@ def fly(autopilot: str, binary: str, instance: int, speedup: float, tmp: Path) -
 
 
 def compare(a: dict, b: dict) -> float:
-    """Largest distance [m] between two flights' true positions at the same sim times."""
-    pa = {round(s[0], 1): s[1:] for s in a["trajectory"]}
-    worst = 0.0
-    n = 0
+    """Largest distance [m] between two flights' true positions, aligned on the takeoff.
+
+    The autopilot's boot takes a different number of frames at each speed (before its
+    first actuator answer the bridge steps with the motors off), so time is measured from
+    the takeoff command; samples are 0.1 s apart, so the alignment is to ±0.05 s.
+    """
+    ta, tb = a["takeoff_sent_at"], b["takeoff_sent_at"]
+    pa = {round(s[0] - ta, 1): s[1:] for s in a["trajectory"] if s[0] >= ta}
+    worst, n = 0.0, 0
     for s in b["trajectory"]:
-        p = pa.get(round(s[0], 1))
-        if p is not None:
+        p = pa.get(round(s[0] - tb, 1))
+        if p is not None and s[0] >= tb:
             worst = max(worst, sum((x - y) ** 2 for x, y in zip(p, s[1:])) ** 0.5)
             n += 1
     assert n > 100
