@@ -229,7 +229,9 @@ MSG = {
     "AUTOPILOT_VERSION": M.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
 }
 
-POSITION_RATE_HZ = 20.0  # LOCAL_POSITION_NED: one setpoint per sample, so >= 10 Hz with margin
+# LOCAL_POSITION_NED and attitude [Hz]: one setpoint per position sample, so >= 10 Hz. PX4 (and
+# the built-in vehicle) keep the interval exactly; ArduPilot is asked for a little more.
+POSITION_RATE_HZ = 10.0
 
 # EKF_STATUS_REPORT flags that mean "a position the autopilot navigates by" (ArduPilot).
 EKF_POSITION_OK = M.EKF_ATTITUDE | M.EKF_VELOCITY_HORIZ | M.EKF_POS_HORIZ_ABS
@@ -256,6 +258,7 @@ class AutopilotProfile:
     fallback_mode: FlightMode = FlightMode.HOLD  # position hold with no pilot
     version: str = ""  # from AUTOPILOT_VERSION, e.g. "4.7.0"
     ready_timeout_s: float = 120.0  # [s autopilot time] for heartbeat, position and home
+    position_rate_hz: float = 12.5  # LOCAL_POSITION_NED / attitude stream [Hz]
     setpoint_frame: str = "local_ned"  # "local_ned" | "reposition" (DO_REPOSITION, global)
     setpoint_min_interval_s: float = 0.0  # [s] between setpoints (0: one per position sample)
     reposition_frame: int = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
@@ -293,8 +296,8 @@ class AutopilotProfile:
     def stream_requests(self) -> tuple[tuple[int, float], ...]:
         """(message id, rate [Hz]) to ask for with SET_MESSAGE_INTERVAL."""
         return (
-            (MSG["LOCAL_POSITION_NED"], POSITION_RATE_HZ),
-            (MSG[self.attitude_message], POSITION_RATE_HZ),
+            (MSG["LOCAL_POSITION_NED"], self.position_rate_hz),
+            (MSG[self.attitude_message], self.position_rate_hz),
             (MSG["GLOBAL_POSITION_INT"], 5.0),
             (MSG["SYS_STATUS"], 2.0),
             (MSG["GPS_RAW_INT"], 2.0),
@@ -305,8 +308,8 @@ class AutopilotProfile:
         """(MAV_DATA_STREAM, rate [Hz]) for REQUEST_DATA_STREAM, when SET_MESSAGE_INTERVAL is
         not answered (older firmware)."""
         return (
-            (M.MAV_DATA_STREAM_POSITION, POSITION_RATE_HZ),  # LOCAL/GLOBAL_POSITION
-            (M.MAV_DATA_STREAM_EXTRA1, POSITION_RATE_HZ),  # ATTITUDE
+            (M.MAV_DATA_STREAM_POSITION, self.position_rate_hz),  # LOCAL/GLOBAL_POSITION
+            (M.MAV_DATA_STREAM_EXTRA1, self.position_rate_hz),  # ATTITUDE
             (M.MAV_DATA_STREAM_EXTENDED_STATUS, 2.0),  # SYS_STATUS, GPS_RAW_INT, EKF status
         )
 
@@ -354,6 +357,7 @@ class Px4Profile(AutopilotProfile):
     vehicle: str = "multirotor"
     params: ParamNames = PX4_PARAMS
     ready_timeout_s: float = 60.0
+    position_rate_hz: float = POSITION_RATE_HZ
     landed_from_extended_sys_state: bool = True
     attitude_message: str = "ATTITUDE_QUATERNION"
     reposition_frame: int = M.MAV_FRAME_GLOBAL_INT  # PX4: DO_REPOSITION in GLOBAL_INT frames only

@@ -139,6 +139,10 @@ class FlightSession:
         c, tel = self.client, self.tel
         try:
             if tel.yielded:
+                if tel.mode not in (FlightMode.LAND, FlightMode.RTL):
+                    self.bar.write(f"skyherd fly: {tel.yielded}; it keeps the vehicle in "
+                                   f"{tel.mode_name}")  # fmt: skip
+                    return  # a hold or a pilot's mode: nothing to wait for
                 self.bar.write(f"skyherd fly: {tel.yielded}; waiting for it to land")
                 c.wait_until(lambda: not tel.armed, self.left(), "the autopilot's landing",
                              vehicle_s=c.options.land_wait_s, interruptible=False)  # fmt: skip

@@ -1,0 +1,168 @@
+"""Opt-in: the companion link against REAL autopilot SITL binaries (`make test-autopilots`).
+
+Skipped unless the binaries are named by environment variables:
+  SKYHERD_ARDUCOPTER_BIN  ArduCopter SITL (build/sitl/bin/arducopter)
+  SKYHERD_ARDUPLANE_BIN   ArduPlane SITL (build/sitl/bin/arduplane)
+  SKYHERD_PX4_BIN         PX4 SITL (build/px4_sitl_default/bin/px4), flown with SIH
+  SKYHERD_ARDUPILOT_DEFAULTS  a folder with copter.parm / plane.parm (default: the binary's
+                          source tree, Tools/autotest/default_params)
+They must run in a private network namespace with only loopback up (their sockets are then
+unreachable from anywhere else): run the suite inside `unshare -n sh -c 'ip link set lo up;
+...'`; outside one these tests skip. ArduPilot instance 7 (TCP 5830), PX4 instance 74.
+Each flies two missions in a row on the same running autopilot and leaves it disarmed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flight.autopilot_api import FlightMode
+from hil.client import VehicleClient
+from hil.link import LinkError, MavlinkLink
+from hil.session import TRACK_COLUMNS, FlightSession
+from runio import RunFolder
+
+pytestmark = pytest.mark.autopilot
+
+ARDUPILOT_INSTANCE = 7  # -I 7: SERIAL0 on TCP 5760 + 10·7
+PX4_INSTANCE = 74
+HOME = "-35.363261,149.165230,584,0"  # CONVENTIONS.md default home
+
+
+def _private_netns() -> bool:
+    try:
+        return os.stat("/proc/self/ns/net").st_ino != os.stat("/proc/1/ns/net").st_ino
+    except OSError:
+        return False
+
+
+def _binary(var: str) -> Path:
+    path = os.environ.get(var)
+    if not path:
+        pytest.skip(f"{var} is not set: no real autopilot binary to fly (make test-autopilots)")
+    if not Path(path).is_file():
+        pytest.fail(f"{var}={path} is not a file")
+    if not _private_netns():
+        pytest.skip("real autopilots run only in a private network namespace: "
+                    "unshare -n sh -c 'ip link set lo up; make test-autopilots'")  # fmt: skip
+    return Path(path)
+
+
+def _defaults(binary: Path, name: str) -> Path | None:
+    root = os.environ.get("SKYHERD_ARDUPILOT_DEFAULTS")
+    folder = Path(root) if root else binary.resolve().parents[3] / "Tools/autotest/default_params"
+    f = folder / name
+    return f if f.is_file() else None
+
+
+@contextlib.contextmanager
+def ardupilot(binary: Path, model: str, parm: str, cwd: Path):
+    args = [str(binary), "--model", model, "--speedup", "1", "-I", str(ARDUPILOT_INSTANCE),
+            "--home", HOME, "-w"]  # fmt: skip
+    d = _defaults(binary, parm)
+    if d is not None:
+        args += ["--defaults", str(d)]
+    log = open(cwd / "autopilot.log", "wb")
+    proc = subprocess.Popen(args, cwd=cwd, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        yield _connect(f"tcp:127.0.0.1:{5760 + 10 * ARDUPILOT_INSTANCE}", proc, cwd)
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
+
+
+def _connect(address: str, proc: subprocess.Popen, cwd: Path) -> MavlinkLink:
+    deadline = time.monotonic() + 60
+    while True:
+        try:
+            return MavlinkLink.open(address, tlog=cwd / "telemetry.tlog")
+        except LinkError:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"no {address}; see {cwd}/autopilot.log") from None
+            time.sleep(0.5)
+
+
+def _mission(c: VehicleClient, root: Path, altitude: float, target_ned, land: bool = True):
+    """One mission through the session: take-off, hand-over, a target, the fallback and back,
+    landing (or the profile's return for a plane)."""
+    run = RunFolder("fly", root=root)
+    fs = FlightSession(c, run.metrics(TRACK_COLUMNS), ["x"] * 6, timeout=600)
+    tel = c.telemetry
+    try:
+        fs.connect_arm_takeoff(altitude)
+        fs.offboard(altitude)
+        fs.hold_target = np.asarray(target_ned, dtype=float)
+        radius = 3.0 if c.profile.vehicle == "multirotor" else 60.0
+        c.wait_until(lambda: np.linalg.norm(tel.pos_ned[:2] - fs.hold_target[:2]) < radius,
+                     300, "the target", vehicle_s=120)  # fmt: skip
+        fs.set_mode(c.profile.fallback_mode)
+        fs.set_mode(c.profile.ai_mode)
+        if land:
+            fs.land()
+    finally:
+        fs.close()
+
+
+def test_real_arducopter_flies_twice_and_is_left_disarmed(tmp_path):
+    binary = _binary("SKYHERD_ARDUCOPTER_BIN")
+    with ardupilot(binary, "+", "copter.parm", tmp_path) as link, VehicleClient(link) as c:
+        for _ in range(2):
+            _mission(c, tmp_path, 10.0, [15.0, 10.0, -10.0])
+            assert not c.telemetry.armed
+        names = [n for _, n, _ in c.telemetry.modes]
+        assert {"GUIDED", "BRAKE", "LAND"} <= set(names) and "LOITER" not in names
+        assert c.telemetry.unrequested_mode_change == 0
+
+
+def test_real_arduplane_takes_off_in_takeoff_mode_and_loiters(tmp_path):
+    binary = _binary("SKYHERD_ARDUPLANE_BIN")
+    with ardupilot(binary, "plane", "plane.parm", tmp_path) as link, VehicleClient(link) as c:
+        _mission(c, tmp_path, 40.0, [300.0, 0.0, -50.0], land=False)
+        tel = c.telemetry
+        names = [n for _, n, _ in tel.modes]
+        assert {"TAKEOFF", "GUIDED", "LOITER", "RTL"} <= set(names)
+        assert c.profile.name == "ArduPlane" and tel.mode is FlightMode.RTL
+
+
+@contextlib.contextmanager
+def px4(binary: Path, cwd: Path):
+    etc = binary.resolve().parents[1] / "etc"
+    env = dict(os.environ, PX4_SYS_AUTOSTART="10040", PX4_SIMULATOR="sihsim",
+               PX4_SIM_MODEL="sihsim_quadx", PX4_HOME_LAT="-35.363261",
+               PX4_HOME_LON="149.165230", PX4_HOME_ALT="584")  # fmt: skip
+    log = open(cwd / "autopilot.log", "wb")
+    proc = subprocess.Popen([str(binary), "-i", str(PX4_INSTANCE), "-d", str(etc)], cwd=cwd,
+                            env=env, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+    try:
+        time.sleep(2.0)
+        yield MavlinkLink.open(f"udpin:127.0.0.1:{14540 + PX4_INSTANCE}",
+                               tlog=cwd / "telemetry.tlog")  # fmt: skip
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
+
+
+def test_real_px4_sih_flies_twice_and_is_left_disarmed(tmp_path):
+    binary = _binary("SKYHERD_PX4_BIN")
+    with px4(binary, tmp_path) as link, VehicleClient(link) as c:
+        for _ in range(2):
+            _mission(c, tmp_path, 10.0, [15.0, 10.0, -10.0])
+            assert not c.telemetry.armed and c.telemetry.mode is FlightMode.HOLD
+        assert c.telemetry.unrequested_mode_change == 0
