@@ -3,7 +3,10 @@
 `update()` is called by the SITL runner once per autopilot step (lockstep): it reads every
 waiting datagram, answers it, finishes timed protocol work and sends the streams that are
 due. Nothing here runs on its own thread and nothing reads the wall clock except the tlog
-timestamps.
+timestamps and the MAVLink 2 signing timestamps (wall time by the spec; flight.mavlink.signing).
+Hostile input stays bounded: parameter lists and command retries are per-requester tables of
+fixed size, one mission upload runs at a time, HEARTBEAT cannot be stopped by a client, and a
+tlog that cannot be written stops logging, never the vehicle.
 """
 
 from __future__ import annotations
