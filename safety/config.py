@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from runio.schema import fill_dataclass as _fill_dataclass
 from safety.envelope import Dynamics, EnvelopeSpec, Limits, Zone, circle_zone, polygon_zone
 
 ENVELOPE_DIR = Path(__file__).parent / "envelopes"
@@ -91,30 +92,9 @@ def _table(doc: dict, key: str) -> dict:
 
 
 def fill_dataclass(cls, table: Any, where: str):
-    """Build a frozen dataclass from a TOML table: unknown keys and wrong types are errors."""
-    if not isinstance(table, dict):
-        raise ValueError(f"[{where}] must be a table")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(table) - set(fields))
-    if unknown:
-        raise ValueError(f"[{where}] unknown key(s) {unknown}; known: {sorted(fields)}")
-    kw = {}
-    for k, v in table.items():
-        default = getattr(cls(), k)
-        if isinstance(default, bool):
-            if not isinstance(v, bool):
-                raise ValueError(f"[{where}] {k} must be true/false, got {v!r}")
-        elif isinstance(default, int):
-            if not isinstance(v, int) or isinstance(v, bool):
-                raise ValueError(f"[{where}] {k} must be an integer, got {v!r}")
-        elif isinstance(default, float):
-            if not isinstance(v, int | float) or isinstance(v, bool) or not math.isfinite(v):
-                raise ValueError(f"[{where}] {k} must be a finite number, got {v!r}")
-            v = float(v)
-        elif isinstance(default, str) and not isinstance(v, str):
-            raise ValueError(f"[{where}] {k} must be a string, got {v!r}")
-        kw[k] = v
-    return cls(**kw)
+    """Build a frozen dataclass from a TOML table: unknown keys and wrong types are errors
+    (checked by pydantic in runio.schema; one line naming the table and the key)."""
+    return _fill_dataclass(cls, table, where)
 
 
 # Plausible ranges of every number of a constraint set (SI). Outside = a typo or a unit
