@@ -16,6 +16,7 @@ decisions.jsonl, lessons.png, compare.png, results.json, summary.md.
 from __future__ import annotations
 
 import argparse
+import csv
 import dataclasses
 import json
 import math
@@ -38,9 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--quick", action="store_true", help="a tiny budget (tests, smoke runs)")
     parser.add_argument(
-        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (10000)"
+        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (6000)"
     )
-    parser.add_argument("--irl-iters", type=int, default=None, help="IRL iterations per lesson (3)")
+    parser.add_argument("--irl-iters", type=int, default=None, help="IRL iterations per lesson (2)")
     parser.add_argument(
         "--test-episodes", type=int, default=None, help="episodes per lesson re-test (20)"
     )
@@ -51,6 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-monolith", action="store_true", help="skip the monolithic DQN")
     parser.add_argument("--workers", type=int, default=1, help="parallel seeds (default 1)")
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run folders go")
+    parser.add_argument("--from-run", type=Path, default=None,
+                        help="skip teaching: report on an earlier educate run's lessons.csv and "
+                        "policies (e.g. with --baselines that finished later)")  # fmt: skip
     parser.add_argument("--save-policy", type=Path, default=None,
                         help="also copy the best educated policy (composite test) to this file")  # fmt: skip
 
@@ -118,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
     for b in args.baselines:
         if not (b / "policies").is_dir():
             raise UsageError(f"--baselines {b}: no policies/ folder (a `skyherd train ab` run)")
+    if args.from_run is not None:
+        return _report_only(args, cur)
     p = _params(args)
     rf = RunFolder("educate", root=args.runs_dir)
     print(f"skyherd educate: run folder {rf.path}")
@@ -147,10 +153,58 @@ def run(args: argparse.Namespace) -> int:
             _log(out, events, lessons, bar)
     bar.close()
     lessons.close()
+    atomic_write_text(rf.file("lessons.json"), json.dumps(results, indent=1, default=float))
+    return _report(cur, p, args, results, pol_dir, rf)
 
+
+def _report_only(args, cur) -> int:
+    """--from-run: the evaluation part of `run` on an earlier run's policies and lessons.csv."""
+    from policy.dqn import DQNParams
+    from policy.education.teach import EduParams
+
+    src = args.from_run
+    try:
+        cfg = json.loads((src / "config.json").read_text())
+        hp = dict(cfg["hyper_parameters"])
+        d = hp.pop("dqn")
+        dqn = dict(d, hidden=tuple(d["hidden"]))
+        p = EduParams(dqn=DQNParams(**dqn), **hp)
+        rows = list(csv.DictReader(open(src / "lessons.csv")))
+    except (OSError, KeyError, TypeError, ValueError) as e:
+        raise UsageError(f"--from-run {src}: not a finished educate run ({e})") from None
+    if cfg["curriculum"]["sha256"] != cur.sha256:
+        raise UsageError(f"--from-run {src} was taught another curriculum (sha256 differs)")
+    results = _results_from_rows(rows)
+    if not results:
+        raise UsageError(f"--from-run {src}: lessons.csv has no finished seed")
+    rf = RunFolder("educate", root=args.runs_dir)
+    print(f"skyherd educate: run folder {rf.path} (report on {src})")
+    rf.write_config({"curriculum": cfg["curriculum"], "hyper_parameters": p,
+                     "args": args_dict(args), "from_run": str(src)})  # fmt: skip
+    return _report(cur, p, args, results, src / "policies", rf)
+
+
+def _results_from_rows(rows: list[dict]) -> list[dict]:
+    """lessons.csv rows → the per-seed lesson results `run` builds (seeds with all lessons)."""
+    by: dict[int, dict[str, list]] = {}
+    for r in rows:
+        seq = by.setdefault(int(r["seed"]), {}).setdefault(r["learner"], [])
+        if not seq or seq[-1]["lesson"] != r["after_lesson"]:
+            seq.append({"lesson": r["after_lesson"], "retention": {}, "passed": {},
+                        "seconds": float(r["cpu_s"]), "detail": {}})  # fmt: skip
+        m = {k: float(r[k]) for k in ("all_in_view_frac", "footprint_ratio", "ugv_losses")}
+        seq[-1]["retention"][r["tested_lesson"]] = m
+        seq[-1]["passed"][r["tested_lesson"]] = r["passed"] == "True"
+    n = max((len(v.get("educated", [])) for v in by.values()), default=0)
+    return [{"seed": s, **v} for s, v in sorted(by.items()) if len(v.get("educated", [])) == n]
+
+
+def _report(cur, p, args, results, pol_dir: Path, rf) -> int:
     from policy.dqn import load_policy
 
     educated = {r["seed"]: load_policy(pol_dir / f"educated_seed{r['seed']}.npz") for r in results}
+    for r in results:  # the arbiter each seed learnt (also when read back from lessons.csv)
+        r["educated"][-1]["detail"]["arbiter"] = educated[r["seed"]].arbiter.describe()
     print("evaluating on unseen episodes …")
     comparison = _compare(educated, args, p)
     fid = _fidelity(educated, args)
@@ -355,7 +409,8 @@ def _plots(rf, results, comparison) -> None:
     import matplotlib.pyplot as plt
 
     learners = [k for k in ("educated", "monolith") if k in results[0]]
-    fig, axes = plt.subplots(2, len(learners), figsize=(5.5 * len(learners), 7), squeeze=False)
+    fig, axes = plt.subplots(2, len(learners), figsize=(5.5 * len(learners), 7.5), squeeze=False,
+                             sharey="row")  # fmt: skip
     for j, learner in enumerate(learners):
         after = [r["lesson"] for r in results[0][learner]]
         tested_all = list(results[0][learner][-1]["retention"])
@@ -380,11 +435,12 @@ def _plots(rf, results, comparison) -> None:
             ax.grid(alpha=0.3)
             if i == 0:
                 ax.set_ylim(-0.02, 1.05)
-                ax.legend(fontsize=8, loc="lower left")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9)
     fig.suptitle(
         "lesson by lesson: every lesson re-tested after each lesson (mean ± std over seeds)"
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     fig.savefig(rf.file("lessons.png"), dpi=100)
     plt.close(fig)
 

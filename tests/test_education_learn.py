@@ -126,6 +126,25 @@ def test_two_lesson_curriculum_end_to_end(tmp_path, capsys):
     assert main(["explain", str(run)]) == 0
     out = capsys.readouterr().out
     assert out.startswith("t = 0.0 s ") and "decisions," in out
+    # the report alone, again, from the run's lessons.csv and policies
+    again = [
+        "educate",
+        str(cur),
+        "--from-run",
+        str(run),
+        "--eval-episodes",
+        "1",
+        "--runs-dir",
+        str(runs),
+    ]
+    assert main(again) == 0
+    (other,) = [d for d in runs.iterdir() if d != run]
+    assert json.loads((other / "config.json").read_text())["from_run"] == str(run)
+    assert (other / "summary.md").read_text().split("## Lesson by lesson")[1].split("## Unseen")[
+        0
+    ] == (summary.split("## Lesson by lesson")[1].split("## Unseen")[0])
+    cur.write_text(TWO.replace('version = "0.1"', 'version = "0.2"'))
+    assert main(again) == 2  # another curriculum: refused
 
 
 def ex_action(rec):

@@ -154,8 +154,8 @@ class ModularPolicy:
             p = self.concepts[rules[k][0]]
             reason = p.say(values[p.quantity]) + f" ({p.formula})"
         else:
-            names = ", ".join(dict.fromkeys(p for p, _ in rules)) or "-"
-            reason = f"default module: none of {names} holds"
+            names = ", ".join(dict.fromkeys(p for p, _ in rules))
+            reason = f"none of {names} holds" if names else "the arbiter's only module"
         own, earlier = self.cited(k) if k > -2 else ([], [])
         used = set(own + earlier) | (set(self.modules[m].inputs) if m else set())
         return {
