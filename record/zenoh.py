@@ -22,6 +22,7 @@ import struct
 from pathlib import Path
 from typing import Any
 
+from record.flightlog import FlightLog
 from record.mcap_file import FlightRecorder
 
 CLOCK_KEY = "skyherd/sim/clock"
@@ -54,11 +55,17 @@ def _t(rec: dict[str, Any]) -> float:
 class ZenohRecorder:
     """Subscribes on `session` (an open zenoh session) and records into `path` until closed."""
 
-    def __init__(self, session, vehicle: str, path: Path | str, *, also=(), **mcap_options):
+    def __init__(self, session, vehicle: str, path: Path | str | None, *, also=(),
+                 **mcap_options):  # fmt: skip
+        """path None: no file, only the `also` sinks (e.g. a LiveServer: live view only)."""
         self.vehicle = vehicle
-        self.log = FlightRecorder(path, also=also, metadata={"vehicle": vehicle},
-                                  **mcap_options)  # fmt: skip
-        self.path = self.log.path
+        if path is None:
+            self.log = FlightLog(*(getattr(a, "server_sink", a) for a in also))
+            self.path = None
+        else:
+            self.log = FlightRecorder(path, also=also, metadata={"vehicle": vehicle},
+                                      **mcap_options)  # fmt: skip
+            self.path = self.log.path
         self.received: dict[str, int] = {}
         self.corrupt: dict[str, int] = {}
         v = vehicle

@@ -57,6 +57,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--strip", type=int, default=8, help="frames in strip.png")
     parser.add_argument("--no-show", action="store_true", help="never open a window")
+    parser.add_argument(
+        "--mcap", action=argparse.BooleanOptionalAction, default=True,
+        help="record the flight seen on Zenoh (frames, poses, UGVs, decisions, safety events, "
+        "clock) as flight.mcap in the run folder, for Foxglove / PlotJuggler",
+    )  # fmt: skip
+    parser.add_argument(
+        "--foxglove", type=int, default=None, metavar="PORT",
+        help="also serve the flight live to Foxglove at ws://127.0.0.1:PORT",
+    )  # fmt: skip
 
 
 def _check(args: argparse.Namespace) -> None:
@@ -70,6 +79,8 @@ def _check(args: argparse.Namespace) -> None:
         raise UsageError("--save-every must be >= 1 and --strip >= 0")
     if not args.timeout > 0:
         raise UsageError("--timeout must be > 0 seconds")
+    if args.foxglove is not None and not 0 < args.foxglove < 65536:
+        raise UsageError("--foxglove PORT must be 1..65535")
     if args.zenoh_config and not os.path.exists(args.zenoh_config):
         raise UsageError(f"Zenoh config {args.zenoh_config} not found: give an existing file")
 
@@ -167,12 +178,34 @@ def run(args: argparse.Namespace) -> int:
         table = markdown_table(["quantity", "value"], rows, missing="no frame was processed")
         det = st["detector"]
         cam_line = f"Camera: {det.cam}\n\nDetector: {det.p}\n" if det is not None else ""
-        run.summary(f"Frames of `skyherd/{args.vehicle}/camera/frame`.\n\n{table}\n{cam_line}")
+        rec_line = ""
+        if st.get("recorder") is not None and args.mcap:
+            counts = st["recorder"].log.counts
+            rec_line = (f"flight.mcap: {sum(counts.values())} messages on {len(counts)} channels "
+                        f"({', '.join(f'{k} {n}' for k, n in sorted(counts.items()))}).\n\n")  # fmt: skip
+        run.summary(
+            f"Frames of `skyherd/{args.vehicle}/camera/frame`.\n\n{table}\n{rec_line}{cam_line}"
+        )
         print(table)
         print(f"run folder: {run.path}")
 
+    live = None
+    if args.foxglove is not None:
+        from record import LiveServer
+        from scripts.cli import UsageError
+
+        try:
+            live = LiveServer(args.foxglove)
+        except OSError as e:
+            session.close()
+            raise UsageError(f"--foxglove {args.foxglove}: {e}") from e
+        print(f"Foxglove: open ws://127.0.0.1:{live.port}")
     with RunFolder.open("watch", args, root=args.runs_dir) as run:
         run.config(zenoh=zp, feature_params=FeatureParams())
+        if args.mcap or live is not None:
+            path = run.file("flight.mcap") if args.mcap else None
+            rec = run.closing(_recorder(session, args.vehicle, path, live))
+            st["recorder"] = rec
         (run.path / "frames").mkdir()
         run.describe("frames", f"annotated frames, PNG (one in every {args.save_every})")
         run.describe("metrics.csv", "one row per processed frame: seq, sim time, UGVs detected, "
@@ -250,6 +283,13 @@ def _legend(width: int) -> np.ndarray:
         )
         x += 40 + cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)[0][0]
     return band
+
+
+def _recorder(session, vehicle: str, path, live):
+    """A ZenohRecorder into `path` and/or the live server."""
+    from record import ZenohRecorder
+
+    return ZenohRecorder(session, vehicle, path, also=[live] if live is not None else [])
 
 
 def _label(tiles: list[np.ndarray], labels: list[str]) -> list[np.ndarray]:
