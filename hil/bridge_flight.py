@@ -254,6 +254,19 @@ def _copter_process(
     )
 
 
+def _connect_tcp(port: int, timeout_s: float):
+    """pymavlink over TCP to 127.0.0.1:port, retried for timeout_s of wall time."""
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        try:
+            return mavutil.mavlink_connection(
+                f"tcp:127.0.0.1:{port}", source_system=255, source_component=190, retries=0
+            )
+        except OSError:
+            time.sleep(0.2)
+    return None
+
+
 def _stop(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGKILL)  # ArduCopter ignores SIGTERM once its physics is gone
@@ -291,7 +304,10 @@ def fly(
         else:
             bridge = ArduPilotJsonBridge(instance=instance).open()
             proc = _copter_process(bin_path, instance, speedup, work, copter_defaults or [], log)
-            link = None
+            link = _connect_tcp(5760 + 10 * instance, 60.0)  # SITL waits for this before flying
+            if link is None:
+                res.reason = "ArduCopter's MAVLink TCP port never accepted"
+                return res
             every = 8
         pilot = None
         k = 0
@@ -302,16 +318,6 @@ def fly(
             if k % every:
                 return False
             if pilot is None:
-                if link is None:  # ArduCopter's TCP console exists once its physics answered
-                    try:
-                        link = mavutil.mavlink_connection(
-                            f"tcp:127.0.0.1:{5760 + 10 * instance}",
-                            source_system=255,
-                            source_component=190,
-                            retries=0,
-                        )
-                    except OSError:
-                        return False
                 pilot = MissionPilot(autopilot, link, mission, res)
             return pilot.tick(b.t, b.state)
 
