@@ -68,4 +68,4 @@ class Authority:
             return
         self.t_request = v.t
         self.requests += 1
-        v.command_long(M.MAV_CMD_DO_SET_MODE, mode_params(v.tel.personality, mode), 0)
+        v.command_long(M.MAV_CMD_DO_SET_MODE, mode_params(v, mode), 0)

@@ -18,7 +18,7 @@ import numpy as np
 from flight.autopilot_api import FlightMode, Setpoint
 from mission.authority import Authority
 from mission.pilots import Observation, Pilot, Proposal
-from mission.steps import Phase, arm, land, set_mode, takeoff, wait_ready, wait_s, wait_until
+from mission.steps import Phase, recipe, wait_ready, wait_until
 from mission.vehicle import VehicleLink
 from runio import CsvWriter, JsonlWriter
 from safety.supervisor import Decision, Health, Mode, Supervisor
@@ -114,16 +114,12 @@ class SingleVehicleMission:
         plan = self.plan
         self.phase = "connect"
         yield from wait_ready(v)
-        self.phase = "arm"
-        yield from arm(v)
+        prof = v.profile
         self.phase = "takeoff"
-        yield from takeoff(v, plan.altitude_m)
+        yield from recipe(v, prof.takeoff_steps(plan.altitude_m, v.home_amsl_m))
         self.phase = "offboard"
-        p = v.tel.pos_ned
-        v.setpoint = Setpoint(pos_ned=np.array([p[0], p[1], -plan.altitude_m]), yaw=0.0)
-        yield from wait_s(v, 0.2)  # PX4 wants the setpoint stream before OFFBOARD
-        yield from set_mode(v, FlightMode.OFFBOARD)
-        self.authority.adopt(FlightMode.OFFBOARD)
+        yield from recipe(v, prof.handover_steps(), hold=lambda: self._hold(v))
+        self.authority.adopt(prof.ai_mode)
         self.phase = self.pilot.name
         t_end = v.t + plan.duration_s
         while v.t < t_end - 1e-9 and not getattr(self.pilot, "done", False):
@@ -136,10 +132,14 @@ class SingleVehicleMission:
             return
         self.phase = "land"
         if plan.land:
-            p = v.tel.pos_ned
-            v.setpoint = Setpoint(pos_ned=p.copy(), yaw=0.0)
-            yield from land(v, stop_stream=True)
+            v.setpoint = Setpoint(pos_ned=v.tel.pos_ned.copy(), yaw=0.0)
+            yield from recipe(v, prof.land_steps())
+            yield from recipe(v, prof.end_steps())
         self.outcome = "completed"
+
+    def _hold(self, v: VehicleLink) -> Setpoint:
+        p = v.tel.pos_ned
+        return Setpoint(pos_ned=np.array([p[0], p[1], -self.plan.altitude_m]), yaw=0.0)
 
     def _yield_to_autopilot(self, v: VehicleLink) -> Phase:
         """The autopilot has the vehicle: stop streaming, ask for nothing, wait for it to land."""
@@ -175,7 +175,8 @@ class SingleVehicleMission:
         camera_t = self.perception.camera_t if self.perception is not None else t
         d = self.net.update(t, state, None if proposal is None else proposal.setpoint,
                             Health(camera_t=camera_t, link_t=v.heartbeat_t))  # fmt: skip
-        ai_mode = FlightMode.HOLD if d.autopilot_mode is FlightMode.HOLD else FlightMode.OFFBOARD
+        prof = v.profile
+        ai_mode = prof.fallback_mode if d.autopilot_mode is FlightMode.HOLD else prof.ai_mode
         self.authority.want(v, ai_mode)
         v.setpoint = d.command
         if proposal is not None:

@@ -66,7 +66,7 @@ def command(
     asks); a refusal raises CommandRefused with the autopilot's STATUSTEXT reason."""
     for confirmation in range(retries):
         v.acks.pop(cmd, None)
-        n_text = len(v.statustexts)
+        n_text = len(v.tel.statustexts)
         v.command_long(cmd, params, confirmation)
         t0 = v.t
         while v.acks.get(cmd, M.MAV_RESULT_IN_PROGRESS) == M.MAV_RESULT_IN_PROGRESS:
@@ -78,13 +78,17 @@ def command(
             if result == M.MAV_RESULT_ACCEPTED:
                 return
             yield from wait_s(v, STATUSTEXT_WAIT_S)
-            reason = "; ".join(text for _, text in v.statustexts[n_text:])
+            reason = "; ".join(text for _, _, text in v.tel.statustexts[n_text:])
             raise CommandRefused(cmd, result, reason)
     raise CommandRefused(cmd, None)
 
 
-def mode_params(personality: Personality, mode: FlightMode) -> tuple[float, float, float]:
-    """DO_SET_MODE params 1-3 for `mode` (PX4: main and sub mode; ArduPilot: the mode number)."""
+def mode_params(v: VehicleLink, mode: FlightMode) -> tuple[float, ...]:
+    """DO_SET_MODE params for `mode`: the autopilot's profile's (hil.autopilots), or the PX4 /
+    ArduCopter numbers of flight.mavlink.modes before its heartbeat told which it is."""
+    if v.profile is not None:
+        return v.profile.set_mode_params(mode)
+    personality = v.tel.personality
     packed = custom_mode_of(personality, mode)
     if personality is Personality.PX4:
         main, sub = (packed >> 16) & 0xFF, (packed >> 24) & 0xFF
@@ -95,7 +99,7 @@ def mode_params(personality: Personality, mode: FlightMode) -> tuple[float, floa
 
 def set_mode(v: VehicleLink, mode: FlightMode, timeout_s: float = 5.0) -> Phase:
     """DO_SET_MODE, then wait until the heartbeat shows the mode."""
-    yield from command(v, M.MAV_CMD_DO_SET_MODE, *mode_params(v.tel.personality, mode))
+    yield from command(v, M.MAV_CMD_DO_SET_MODE, *mode_params(v, mode))
     yield from wait_until(v, lambda: v.tel.mode is mode, timeout_s, f"mode {mode.name}")
 
 
@@ -103,7 +107,8 @@ def wait_ready(v: VehicleLink, timeout_s: float = 60.0) -> Phase:
     """A heartbeat, home and a local position (asks for HOME_POSITION every 2 s)."""
     t_ask = -math.inf
     t0 = v.t
-    while not (v.tel.mode is not None and v.tel.home_ok and v.tel.pos_ned is not None):
+    while not (v.tel.mode is not None and v.tel.home_ok and v.tel.pos_ned is not None
+               and v.tel.quat is not None):  # fmt: skip
         if v.t - t0 > timeout_s:
             raise MissionError(
                 f"timed out after {timeout_s:.0f} s waiting for a heartbeat, home and local "
@@ -111,8 +116,13 @@ def wait_ready(v: VehicleLink, timeout_s: float = 60.0) -> Phase:
             )
         if v.target_system is not None and v.t - t_ask >= 2.0:
             v.command_long(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), 0)
+            if v.profile is not None:  # ArduPilot streams nothing it is not asked for
+                for msg_id, hz in v.profile.stream_requests():
+                    v.command_long(M.MAV_CMD_SET_MESSAGE_INTERVAL, (msg_id, 1e6 / hz), 0)
             t_ask = v.t
         yield
+    if v.unknown_autopilot:
+        raise MissionError(v.unknown_autopilot)
 
 
 def arm(v: VehicleLink, timeout_s: float = 30.0) -> Phase:
@@ -139,3 +149,59 @@ def land(v: VehicleLink, timeout_s: float = 120.0, stop_stream: bool = True) -> 
     if stop_stream:
         v.setpoint = None
     yield from wait_until(v, lambda: not v.tel.armed, timeout_s, "landing and disarm")
+
+
+def recipe(v: VehicleLink, steps, hold=None) -> Phase:
+    """Run an autopilot profile's recipe (hil.autopilots.Step): its take-off, hand-over or
+    landing, in the order and with the retries that autopilot needs. `hold()` gives the
+    position-hold setpoint a "stream_setpoints" step streams."""
+    from flight.autopilot_api import Setpoint
+
+    for st in steps:
+        k = st.kind
+        if k == "wait_on_ground":
+            yield from wait_until(v, lambda: v.tel.landed_state == M.MAV_LANDED_STATE_ON_GROUND,
+                                  30.0, st.what)  # fmt: skip
+        elif k == "stream_setpoints":
+            p = v.tel.pos_ned
+            v.setpoint = hold() if hold is not None else Setpoint(pos_ned=p.copy(), yaw=0.0)
+            yield from wait_s(v, st.params[0] if st.params else 0.0)
+        elif k == "stop_setpoints":
+            v.setpoint = None
+        elif k == "set_mode":
+            yield from _retrying(v, st, lambda st=st: set_mode(v, st.mode))
+        elif k == "arm":
+            yield from _retrying(v, st, lambda: _arm(v))
+        elif k == "command":
+            yield from _retrying(v, st, lambda st=st: command(v, st.command, *st.params))
+        elif k == "wait_altitude":
+            yield from wait_until(v, lambda st=st: v.tel.pos_ned is not None
+                                  and -v.tel.pos_ned[2] > st.altitude_m, 120.0, st.what)  # fmt: skip
+        elif k == "wait_disarmed":
+            yield from wait_until(v, lambda: not v.tel.armed, 240.0, st.what)
+        elif k == "set_param":
+            _set_param(v, st.what, st.params[0])
+            yield
+        else:
+            raise MissionError(f"unknown recipe step {k!r} ({st.what})")
+
+
+def _retrying(v: VehicleLink, st, make) -> Phase:
+    for attempt in range(max(1, st.retries)):
+        try:
+            yield from make()
+            return
+        except CommandRefused:
+            if attempt + 1 >= max(1, st.retries):
+                raise
+            yield from wait_s(v, st.retry_s)
+
+
+def _arm(v: VehicleLink) -> Phase:
+    yield from command(v, M.MAV_CMD_COMPONENT_ARM_DISARM, 1, 0)
+    yield from wait_until(v, lambda: v.tel.armed, 5.0, "armed")
+
+
+def _set_param(v: VehicleLink, name: str, value: float) -> None:
+    v.send(M.MAVLink_param_set_message(v.target_system or 1, 1, name.encode("ascii"), float(value),
+                                       M.MAV_PARAM_TYPE_REAL32))  # fmt: skip

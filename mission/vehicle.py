@@ -12,45 +12,18 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.geo import GRAVITY
+from flight.autopilot_api import Setpoint
 from flight.lockstep import NS_PER_US, is_mark
-from flight.mavlink.modes import Personality, mode_of_packed
-from flight.state import VehicleState
+from hil.autopilots import UnknownAutopilot
+from hil.client import Telemetry, update_telemetry
 from hil.link import MavlinkLink
 
 M = mavlink2
 COMPANION_COMPONENT = M.MAV_COMP_ID_ONBOARD_COMPUTER  # 191 (CONVENTIONS.md)
-
-
-@dataclass
-class Telemetry:
-    """The newest of what the vehicle said about itself (SI, NED about home)."""
-
-    time_boot_ms: int = 0
-    armed: bool = False
-    mode: FlightMode | None = None
-    personality: Personality = Personality.PX4
-    pos_ned: np.ndarray | None = None
-    vel_ned: np.ndarray | None = None
-    quat: np.ndarray | None = None  # (w, x, y, z) body FRD → NED
-    omega_frd: np.ndarray | None = None  # [rad/s]
-    landed_state: int = 0
-    home_ok: bool = False
-    statustext: str = ""
-
-    def vehicle_state(self) -> VehicleState | None:
-        """As a VehicleState (None until position and attitude have arrived)."""
-        if self.pos_ned is None or self.quat is None:
-            return None
-        return VehicleState(t=self.time_boot_ms / 1000.0, pos_ned=self.pos_ned, vel_ned=self.vel_ned,
-                            quat=self.quat, omega_frd=self.omega_frd, accel_frd=np.array([0.0, 0.0, -GRAVITY]),
-                            on_ground=self.landed_state == M.MAV_LANDED_STATE_ON_GROUND)  # fmt: skip
 
 
 class LinkLost(Exception):
@@ -65,7 +38,6 @@ class VehicleLink:
         self.target_system = target_system
         self.tel = Telemetry()
         self.acks: dict[int, int] = {}  # MAV_CMD → last MAV_RESULT
-        self.statustexts: list[tuple[float, str]] = []  # (tick time [s], text)
         self.t = 0.0  # the current tick's time [s]
         self.heartbeat_t: float | None = None  # tick time of the last autopilot heartbeat [s]
         self.telemetry_t: float | None = None  # tick time of the last position sample [s]
@@ -73,6 +45,7 @@ class VehicleLink:
         self.setpoint: Setpoint | None = None  # streamed every tick while set (offboard)
         self._held: deque = deque()
         self._last_mark_ns = -1
+        self.unknown_autopilot = ""  # the reason, if the vehicle's autopilot is not one we fly
 
     # ---- receiving ---------------------------------------------------------------------------
     def _pull(self, timeout_s: float) -> bool:
@@ -135,43 +108,36 @@ class VehicleLink:
         return self.target_system is None or msg.get_srcSystem() == self.target_system
 
     def apply(self, msg) -> None:
-        """One message from the vehicle → Telemetry (the message's own fields, SI)."""
+        """One message from the vehicle → Telemetry (decoded per autopilot: hil.client), plus
+        what the companion keeps: command acks, heartbeat and position-sample times."""
         src, comp = msg.get_srcSystem(), msg.get_srcComponent()
         t = msg.get_type()
         if self.target_system is None and t == "HEARTBEAT" and comp == 1:
             self.target_system = src
-        if src != self.target_system:
+        if src != self.target_system or (t == "HEARTBEAT" and comp != 1):
             return
-        tel = self.tel
-        if t == "HEARTBEAT" and comp == 1:
-            tel.armed = bool(msg.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED)
-            if msg.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA:
-                tel.personality = Personality.ARDUPILOT
-            tel.mode = mode_of_packed(tel.personality, msg.custom_mode)
+        try:
+            update_telemetry(self.tel, msg)
+        except UnknownAutopilot as e:
+            self.unknown_autopilot = str(e)
+            return
+        if t == "HEARTBEAT":
             self.heartbeat_t = self.t
         elif t == "LOCAL_POSITION_NED":
-            tel.time_boot_ms = msg.time_boot_ms
-            tel.pos_ned = np.array([msg.x, msg.y, msg.z])
-            tel.vel_ned = np.array([msg.vx, msg.vy, msg.vz])
+            tel = self.tel
             self.telemetry_t = self.t
             self.positions.append((msg.time_boot_ms / 1000.0, tel.pos_ned, tel.vel_ned,
                                    tel.mode.name if tel.mode else "", tel.armed))  # fmt: skip
-        elif t == "ATTITUDE_QUATERNION":
-            tel.quat = np.array([msg.q1, msg.q2, msg.q3, msg.q4])
-            tel.omega_frd = np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
-        elif t == "EXTENDED_SYS_STATE":
-            tel.landed_state = msg.landed_state
-        elif t == "HOME_POSITION":
-            tel.home_ok = True
-            self.home_amsl_m = msg.altitude / 1000.0
         elif t == "COMMAND_ACK":
             self.acks[msg.command] = msg.result
-        elif t == "STATUSTEXT":
-            text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
-            tel.statustext = text
-            self.statustexts.append((self.t, text))
 
-    home_amsl_m: float = 0.0
+    @property
+    def home_amsl_m(self) -> float:
+        return self.tel.home.alt_m if self.tel.home is not None else 0.0
+
+    @property
+    def profile(self):
+        return self.tel.profile
 
     # ---- sending -----------------------------------------------------------------------------
     def send(self, msg) -> None:
