@@ -107,15 +107,17 @@ class Signing:
         return self.key is not None
 
     def set_key(self, key: bytes | None, initial_timestamp: int = 0) -> None:
-        """Use `key` from now on (None or 32 zero bytes: signing off). Streams start afresh."""
+        """Use `key` from now on (None or 32 zero bytes: signing off). A new key starts the
+        streams afresh; the same key again keeps them (else its recent frames could replay)."""
         if key is not None:
             key = bytes(key)
             if len(key) != KEY_LEN:
                 raise SigningError(f"a signing key has {KEY_LEN} bytes, got {len(key)}")
             if not any(key):
                 key = None
+        if key != self.key:
+            self._streams.clear()
         self.key = key
-        self._streams.clear()
         self.timestamp = max(self.timestamp, int(initial_timestamp))
 
     def _next_timestamp(self) -> int:
