@@ -253,3 +253,22 @@ def test_client_over_tcp_applies_the_same_rules(tmp_path):
         conn.close()
         server.close()
         link.close()
+
+
+def test_our_verify_on_pymavlink_frames_and_rekeying():
+    mav = M.MAVLink(None, 255, 190)
+    mav.signing.secret_key, mav.signing.sign_outgoing = KEY, True
+    mav.signing.timestamp = sg.now_units()
+    frame = bytes(mav.heartbeat_encode(6, 8, 0, 0, 0).pack(mav))
+    s = sg.Signing(KEY)
+    assert s.verify(frame, 0, 255, 190) is None
+    s.set_key(KEY)  # the same key again (a repeated SETUP_SIGNING): still a replay
+    assert s.verify(frame, 0, 255, 190) == "replayed"
+    s.set_key(OTHER_KEY)
+    assert s.verify(frame, 0, 255, 190) == "bad signature"
+    # And pymavlink verifies what we sign.
+    vehicle = M.MAVLink(None, 1, 1)
+    unsigned = bytes(vehicle.heartbeat_encode(2, 12, 0, 0, 0).pack(vehicle))
+    ours = sg.Signing(KEY).sign(unsigned, link_id=5)
+    (m,) = _verifier(KEY).parse_buffer(ours)
+    assert m.get_signed() and m.get_type() == "HEARTBEAT" and ours[-13] == 5
