@@ -39,11 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--quick", action="store_true", help="a tiny budget (tests, smoke runs)")
     parser.add_argument(
-        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (6000)"
+        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (3000)"
     )
     parser.add_argument("--irl-iters", type=int, default=None, help="IRL iterations per lesson (2)")
     parser.add_argument(
-        "--test-episodes", type=int, default=None, help="episodes per lesson re-test (20)"
+        "--test-episodes", type=int, default=None, help="episodes per lesson re-test (10)"
     )
     parser.add_argument("--eval-episodes", type=int, default=10,
                         help="unseen episodes per scenario in the comparison (default 10)")  # fmt: skip
@@ -257,7 +257,8 @@ def _compare(educated: dict, args, p) -> dict:
     learners: dict[str, list] = {"educated": list(educated.items())}
     for b in args.baselines:
         for k, v in _policies_of(b).items():
-            learners.setdefault(k, []).extend(v)
+            label = f"{k} [{b.name}]" if len(args.baselines) > 1 else k
+            learners.setdefault(label, []).extend(v)
     out: dict = {}
     for name, pols in learners.items():
         out[name] = {sc: [(s, rollout_stats(pol, sc, args.eval_episodes, EVAL_SEED.get(sc, 200_000),

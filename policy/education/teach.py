@@ -52,7 +52,7 @@ from policy.irl import IRLParams, projection_irl, select_policy
 class EduParams:
     """Hyper-parameters of `skyherd educate` (saved in config.json)."""
 
-    dqn: DQNParams = DQNParams(total_steps=6_000, hidden=(32, 32))  # per DQN solve
+    dqn: DQNParams = DQNParams(total_steps=3_000, hidden=(32, 32))  # per DQN solve
     irl_iters: int = 2  # projection-IRL iterations per skill lesson
     irl_epsilon: float = 0.01  # IRL stop: t ≤ ε
     mu_episodes: int = 10  # Monte-Carlo episodes per μ(π) estimate
@@ -61,10 +61,10 @@ class EduParams:
     demo_seed: int = 1_000  # first env seed of the demonstrations
     demo_epsilon: float = 0.05  # demonstrator's random-action probability
     demo_lag: float = 0.05  # demonstrator's repeat-action probability
-    arbiter_episodes: int = 10  # episodes per arbiter-objective estimate
+    arbiter_episodes: int = 6  # episodes per arbiter-objective estimate
     arbiter_seed: int = 60_000  # first env seed of the arbiter search
     max_rules: int = 8  # longest rule list
-    test_episodes: int = 20  # test episodes per lesson (retention)
+    test_episodes: int = 10  # test episodes per lesson (retention)
     test_seed: int = 100_000  # first env seed of the lesson tests (never trained on)
     monolith: bool = True  # also teach a monolithic DQN the same lessons
     seed: int = 0  # run seed (offsets every DQN seed)
