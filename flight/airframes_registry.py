@@ -8,10 +8,13 @@ missing or broken airframe cannot break the others.
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 
 from flight.autopilot_api import Autopilot
 from flight.clock import SimClock
 from flight.geo import DEFAULT_HOME, Home
+
+PX4_STANDIN = Path(__file__).parent / "airframes" / "px4_standin.toml"  # docs/quadrotor.md
 
 # name → (module, class)
 AIRFRAMES: dict[str, tuple[str, str]] = {
@@ -49,14 +52,27 @@ def make_autopilot(
     seed: int = 0,
     instance: int = 0,
     faults=None,
+    params_file: Path | str | None = None,
 ) -> Autopilot:
     """A ready autopilot for `airframe` on `clock`, at `home`, on the ground, disarmed.
 
     faults: a flight.faults.FaultPlan played on the simulation clock (None: calm, perfect);
-    its random draws come from a Generator seeded with `seed`.
+    its random draws come from a Generator seeded with `seed`. params_file: a TOML file
+    with a `[params]` table of overrides (e.g. flight/airframes/px4_standin.toml);
+    ValueError names a bad file or value.
     """
     cls = autopilot_class(airframe)
     clock = clock if clock is not None else SimClock()
     if airframe == "quadrotor":
-        return cls(home=home, clock=clock, seed=seed, faults=faults)
-    return cls(clock=clock, home=home, instance=instance, seed=seed, faults=faults)
+        return cls(home=home, clock=clock, seed=seed, faults=faults, params_file=params_file)
+    overrides = None
+    if params_file is not None:
+        from flight.fixedwing.fw_params import FW_PARAM_SPECS
+        from flight.params import ParamStore
+
+        store = ParamStore(FW_PARAM_SPECS)
+        store.load_toml(params_file)
+        overrides = store.as_dict()
+    return cls(
+        clock=clock, home=home, instance=instance, seed=seed, faults=faults, params=overrides
+    )

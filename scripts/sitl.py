@@ -55,6 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="where run folders go (runs); --runs is the older name",
     )  # fmt: skip
     parser.add_argument("--no-tlog", action="store_true", help="do not write telemetry.tlog")
+    parser.add_argument("--params", type=Path, default=None, metavar="FILE",
+                        help="TOML [params] overrides at start, e.g. flight/airframes/px4_standin.toml "
+                        "(the PX4 stand-in set); default none")  # fmt: skip
     parser.add_argument("--signing-key", type=Path, default=None, help="MAVLink 2 signing key file (32 bytes): signing on (default: none, or the key a SETUP_SIGNING saved in --state-dir)")  # fmt: skip
     from flight.faults import add_fault_arguments
 
@@ -89,10 +92,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         ap = make_autopilot(
             args.airframe, clock=clock, home=home, seed=args.seed, instance=args.instance,
-            faults=plan,
+            faults=plan, params_file=args.params,
         )  # fmt: skip
     except AirframeUnavailable as e:
         raise UsageError(f"{e}; use --airframe quadrotor") from e
+    except ValueError as e:
+        raise UsageError(f"--params: {e}") from e
 
     try:
         folder = RunFolder("sitl", root=args.runs_dir)
@@ -109,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
     )
     folder.write_config({"airframe": args.airframe, "speedup": args.speedup, "home": home,
                          "seed": args.seed, "endpoint": config, "control_dt": ap.control_dt,
-                         "faults": plan, "fault_args": plan.to_args()})  # fmt: skip
+                         "faults": plan, "fault_args": plan.to_args(),
+                         "params_file": args.params})  # fmt: skip
     try:
         sitl = Sitl(ap, config, speedup=args.speedup)
     except OSError as e:

@@ -21,6 +21,16 @@ speed is below BRAKE_SPEED, or it has made no new minimum (by BRAKE_MIN_GAIN) fo
 BRAKE_STALL_S (a wind stronger than the velocity loop's integrator can hold never lets it get
 slower), or BRAKE_MAX_S have passed; then the position there is captured and held.
 
+Trajectory shaping (SH_POS_SMOOTH 1: auto modes; 2: and offboard position-only setpoints;
+0, the default: targets go straight to the position loop): a reference r moves toward the
+target with speed min(v_max, √(2 a d), K d) (d the distance from where the reference would
+stop, r + ṙ·a/j, to the target; a = MPC_ACC_HOR,
+K = MPC_XY_TRAJ_P; vertically MPC_ACC_UP_MAX / MPC_ACC_DOWN_MAX and K = MPC_Z_P), its
+velocity following it (below); the position loop tracks r with ṙ as
+feed-forward. Its acceleration follows k (v_des − ṙ), k = j/a, at most a, and changes by at
+most j·dt per step (j = MPC_JERK_AUTO): a jerk-limited reference, simpler than PX4's
+time-optimal one.
+
 GPS loss: the estimate dead-reckons (flight/faults.py); after EKF2_NOAID_TOUT s without a fix
 the position is invalid and the vehicle lands where it is (LAND, a PX4-like "descend"),
 unless it is in a mode that needs no position (MANUAL, STABILIZED, ALTCTL).
@@ -188,6 +198,10 @@ class MultirotorAutopilot(AutopilotBase):
         self._climb_first = False
         self._status: list[str] = []
         self._next_battery_check = 0.0
+        self._ref = np.zeros(3)  # shaped target reference [m] and its velocity [m/s]
+        self._ref_v = np.zeros(3)
+        self._ref_a = np.zeros(3)
+        self._ref_t = -math.inf
         self._brake_t0 = 0.0
         self._brake_vmin = math.inf
         self._brake_vmin_t = 0.0
@@ -431,6 +445,11 @@ class MultirotorAutopilot(AutopilotBase):
         self._land_trig = P["LNDMC_TRIG_TIME"]
         self._bat_crit = P["BAT_CRIT_THR"]
         self._bat_emergency = P["BAT_EMERGEN_THR"]
+        self._smooth = int(P["SH_POS_SMOOTH"])
+        self._acc_hor, self._traj_p = P["MPC_ACC_HOR"], P["MPC_XY_TRAJ_P"]
+        self._acc_up, self._acc_dn = P["MPC_ACC_UP_MAX"], P["MPC_ACC_DOWN_MAX"]
+        self._traj_pz = P["MPC_Z_P"]
+        self._jerk = P["MPC_JERK_AUTO"]
         self.fence.configure(None, P["GF_MAX_HOR_DIST"], P["GF_MAX_VER_DIST"])
         self._fence_on = self.fence.fence.active
         self._c_rev = self.params.revision
@@ -604,10 +623,61 @@ class MultirotorAutopilot(AutopilotBase):
         else:
             self._manual_nav(mode)
 
+    def _shape(self, target, vxy: float, vz_up: float, vz_dn: float) -> None:
+        """Move the reference one step toward target (module docstring) → sp position and
+        velocity feed-forward. Restarts from the estimate when it was not used last step."""
+        dt = self.control_dt
+        t = self.clock.t
+        r, rv, ra = self._ref, self._ref_v, self._ref_a
+        if abs(t - self._ref_t - dt) > 1e-9:
+            r[:] = self._ex[0:3]
+            rv[:] = self._ex[3:6]
+            ra[:] = 0.0
+        self._ref_t = t
+        a, j = self._acc_hor, self._jerk
+        lag = a / j  # [s] the time the jerk limit needs to unwind a full acceleration
+        dx, dy = target[0] - r[0] - rv[0] * lag, target[1] - r[1] - rv[1] * lag
+        d = math.hypot(dx, dy)
+        v = min(vxy, math.sqrt(2.0 * a * d), self._traj_p * d)
+        wx, wy = (v * dx / d, v * dy / d) if d > 1e-9 else (0.0, 0.0)
+        # acceleration toward the desired velocity (gain j/a: the jerk limit's own time
+        # constant), at most a; the acceleration itself changes by at most j·dt
+        k = j / a
+        ax, ay = k * (wx - rv[0]), k * (wy - rv[1])
+        n = math.hypot(ax, ay)
+        if n > a:
+            ax, ay = ax * a / n, ay * a / n
+        jx, jy = ax - ra[0], ay - ra[1]
+        n = math.hypot(jx, jy)
+        if n > j * dt:
+            jx, jy = jx * j * dt / n, jy * j * dt / n
+        ra[0] += jx
+        ra[1] += jy
+        dz = target[2] - r[2]
+        up = dz < 0.0
+        az = self._acc_up if up else self._acc_dn
+        dz -= rv[2] * az / j
+        up = dz < 0.0
+        vz = min(vz_up if up else vz_dn, math.sqrt(2.0 * az * abs(dz)), self._traj_pz * abs(dz))
+        a_z = max(-az, min(az, (j / az) * ((-vz if up else vz) - rv[2])))
+        ra[2] += max(-j * dt, min(j * dt, a_z - ra[2]))
+        rv += ra * dt
+        r += rv * dt
+        sp = self._sp
+        sp[0:3] = r
+        # velocity feed-forward ṙ + r̈/K_v: the velocity loop's P term then gives r̈ itself
+        c = self._c
+        sp[3] = rv[0] + ra[0] / c[ctl.C_KV_XY]
+        sp[4] = rv[1] + ra[1] / c[ctl.C_KV_XY]
+        sp[5] = rv[2] + ra[2] / c[ctl.C_KV_Z]
+
     def _goto(self, pos: np.ndarray, vxy: float, vz_up: float | None = None) -> None:
         sp = self._sp
-        sp[0:3] = pos
-        sp[3:6] = 0.0
+        if self._smooth:
+            self._shape(pos, vxy, self._vz_up if vz_up is None else vz_up, self._vz_dn)
+        else:
+            sp[0:3] = pos
+            sp[3:6] = 0.0
         sp[ctl.SP_XY_MODE] = ctl.XY_POS
         sp[ctl.SP_Z_MODE] = ctl.Z_POS
         sp[ctl.SP_YAW] = self._yaw_sp
@@ -706,8 +776,11 @@ class MultirotorAutopilot(AutopilotBase):
         sp[ctl.SP_VZ_UP] = self._vz_up
         sp[ctl.SP_VZ_DN] = self._vz_dn
         if s.pos_ned is not None:
-            sp[0:3] = s.pos_ned
-            sp[3:6] = s.vel_ned if s.vel_ned is not None else 0.0
+            if self._smooth == 2 and s.vel_ned is None:
+                self._shape(s.pos_ned, self._vxy_max, self._vz_up, self._vz_dn)
+            else:
+                sp[0:3] = s.pos_ned
+                sp[3:6] = s.vel_ned if s.vel_ned is not None else 0.0
             sp[ctl.SP_XY_MODE] = ctl.XY_POS
             sp[ctl.SP_Z_MODE] = ctl.Z_POS
         else:

@@ -35,6 +35,17 @@ MULTIROTOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_THR_MIN", 0.12, 0.05, 0.5, "least collective in flight", "fraction of max"),
     ParamSpec("MPC_THR_MAX", 0.95, 0.5, 1.0, "largest collective", "fraction of max"),
     ParamSpec("MOT_SPIN_ARM", 0.1, 0.0, 0.3, "motor command while armed on ground", "-"),
+    # --- trajectory shaping (off by default; on in the PX4 stand-in set, docs/quadrotor.md)
+    ParamSpec(
+        "SH_POS_SMOOTH", 0.0, 0.0, 2.0, "shape targets: 0 off, 1 auto modes, 2 + offboard", "-"
+    ),
+    ParamSpec("MPC_ACC_HOR", 3.0, 0.5, 15.0, "horizontal acceleration of shaped targets", "m/s^2"),
+    ParamSpec("MPC_XY_TRAJ_P", 0.5, 0.1, 1.0, "shaped approach: speed per metre to go", "1/s"),
+    ParamSpec("MPC_ACC_UP_MAX", 4.0, 1.0, 15.0, "upward acceleration of shaped targets", "m/s^2"),
+    ParamSpec(
+        "MPC_ACC_DOWN_MAX", 3.0, 1.0, 15.0, "downward acceleration of shaped targets", "m/s^2"
+    ),
+    ParamSpec("MPC_JERK_AUTO", 4.0, 1.0, 80.0, "jerk limit of shaped targets", "m/s^3"),
     # --- attitude / rate loops
     ParamSpec("MC_ROLL_P", 6.5, 0.0, 20.0, "roll attitude gain", "1/s"),
     ParamSpec("MC_PITCH_P", 6.5, 0.0, 20.0, "pitch attitude gain", "1/s"),
