@@ -39,16 +39,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--quick", action="store_true", help="a tiny budget (tests, smoke runs)")
     parser.add_argument(
-        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (3000)"
+        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (default 3000)"
     )
-    parser.add_argument("--irl-iters", type=int, default=None, help="IRL iterations per lesson (2)")
     parser.add_argument(
-        "--test-episodes", type=int, default=None, help="episodes per lesson re-test (10)"
+        "--irl-iters", type=int, default=None, help="IRL iterations per lesson (default 2)"
+    )
+    parser.add_argument(
+        "--test-episodes", type=int, default=None, help="episodes per lesson re-test (default 10)"
     )
     parser.add_argument("--eval-episodes", type=int, default=10,
                         help="unseen episodes per scenario in the comparison (default 10)")  # fmt: skip
     parser.add_argument("--baselines", type=Path, action="append", default=[],
-                        help="a `skyherd train ab|irl` run folder whose policies to compare (repeatable)")  # fmt: skip
+                        help="a `skyherd train ab|irl` run folder whose policies to compare, repeatable (default none)")  # fmt: skip
     parser.add_argument("--no-monolith", action="store_true", help="skip the monolithic DQN")
     parser.add_argument("--workers", type=int, default=1, help="parallel seeds (default 1)")
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run folders go")
