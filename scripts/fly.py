@@ -71,11 +71,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     companion_arguments(parser.add_argument_group("mission and companion"), standalone=False,
                         missions=("groundair", "square", "formation"))  # fmt: skip
-    from scripts.fly_formation import add_formation_arguments
+    from scripts.fly_options import add_formation_arguments, add_orbit_arguments
 
     add_formation_arguments(parser.add_argument_group("formation mission"))
-    from scripts.fly_orbit import add_orbit_arguments
-
     add_orbit_arguments(parser.add_argument_group("fixed-wing orbit (--airframe fixedwing)"))
 
 

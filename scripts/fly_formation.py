@@ -41,36 +41,9 @@ from hil.formation import (
 from hil.link import LinkError
 from runio.runfolder import RunFolder, args_dict, atomic_write_text, markdown_table
 from scripts.cli import UsageError
+from scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
 
-AGENT_CHOICES = (4, 9, 16)
 MAX_INSTANCE = 200  # EndpointConfig's limit
-
-
-def add_formation_arguments(group) -> None:
-    """Options of the formation mission (added to `skyherd fly` in an argument group)."""
-    group.add_argument(
-        "--agents",
-        type=int,
-        choices=AGENT_CHOICES,
-        default=9,
-        help="K: vehicles and formation targets (4, 9 or 16; default 9); the vehicles are "
-        "instances N..N+K-1 with N = --instance",
-    )
-    group.add_argument(
-        "--sql-seed",
-        type=int,
-        default=0,
-        help="seed of the in-process SQL-SIE training (default 0)",
-    )
-    group.add_argument(
-        "--cell-m", type=float, default=2.0, help="grid cell size on the field [m] (default 2)"
-    )
-    group.add_argument(
-        "--policy-file",
-        default=None,
-        help="a plan_K<K>.json from `skyherd train sql` (default: train SQL-SIE in-process, "
-        "10,000 episodes, a few seconds)",
-    )
 
 
 def _params(args) -> FormationParams:

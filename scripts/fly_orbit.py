@@ -26,6 +26,7 @@ from hil.orbit import (
     OrbitCompanion,
     OrbitParams,
     OrbitPlan,
+    climb_out,
     fence_reserve,
     plan_orbit,
 )
@@ -35,6 +36,7 @@ from perception.pipeline import CameraRig, CameraRigParams
 from policy.groundair.scenarios import Formation, draw_plan
 from runio.runfolder import RunFolder, atomic_write_bytes, markdown_table
 from safety.net import warm_up
+from scripts.fly_options import add_orbit_arguments  # noqa: F401 - the options live there
 
 TAKEOFF_ALT_M = 40.0
 STRIP_EVERY_S = 8.0  # one annotated frame in frames.png per this much simulation time [s]
@@ -57,17 +59,6 @@ class OrbitMission:
     renderer: str = "fast"  # "fast" (OpenCV) or "bullet" (PyBullet GroundWorld)
     land: bool = True
     vehicle: str = "uav0"
-
-
-def add_orbit_arguments(group) -> None:
-    """The orbit's options (all prefixed --orbit-, so they sit beside the other missions')."""
-    group.add_argument("--orbit-scenario", choices=["lateral", "composite"], default="lateral",
-                       help="UGV team behaviour (policy.groundair.scenarios), default lateral")  # fmt: skip
-    group.add_argument("--orbit-duration", type=float, default=None,
-                       help="established orbit time before landing [s] (default: --duration "
-                       "when the command has one, else 90)")  # fmt: skip
-    group.add_argument("--orbit-no-land", action="store_true",
-                       help="end in HOLD (loiter) instead of landing")  # fmt: skip
 
 
 def _mission(args) -> OrbitMission:
@@ -185,7 +176,8 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
     rig = CameraRig(ORBIT_CAMERA, 3, CameraRigParams(mission.renderer, mission.camera_hz),
                     world=world, publisher=publisher)  # fmt: skip
     timeout = float(getattr(args, "timeout", 600.0))
-    steps = ["connect", "arm", "takeoff", "plan", "offboard", "orbit", "orbit established"]
+    steps = ["connect", "arm", "takeoff", "plan", "climb-out", "offboard", "orbit",
+             "orbit established"]  # fmt: skip
     steps += ["land"] if mission.land else []
     fs = FlightSession(client, run_dir.metrics(TRACK_COLUMNS), steps, timeout)
     state = {"comp": None, "error": "", "t_est": None, "modes": []}
@@ -223,8 +215,11 @@ def run_orbit(args: argparse.Namespace, client: VehicleClient, run_dir: RunFolde
              "envelope": {"path": str(env_path), "name": spec.name, "version": spec.version},
              "team_plan": asdict(team.plan), "seed": seed}, indent=2, default=str).encode())  # fmt: skip
         fs.done()
-        fs.offboard(TAKEOFF_ALT_M)
         comp = OrbitCompanion(plan, team, supervisor, rig, fence_reserve(spec), world=world)
+        fs.step("climb-out", "climb-out: the autopilot's loiter to the orbit, until certified")
+        climb_out(client, comp, fs.vehicle_time)  # hil/orbit.py: the climb-out inside the envelope
+        fs.done()
+        fs.offboard(plan.altitude_m)
         fs.step("orbit", f"orbit: R {plan.radius_m:.0f} m at {plan.altitude_m:.0f} m")
         state["comp"] = comp
         _fly(fs, client, comp, mission, state)
