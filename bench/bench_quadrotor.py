@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from types import SimpleNamespace  # noqa: E402
 
+from flight.airframes_registry import PX4_STANDIN  # noqa: E402
 from flight.autopilot_api import FlightMode, Setpoint  # noqa: E402
 from flight.faults import parse_fault_args  # noqa: E402
 from flight.multirotor import MultirotorAutopilot  # noqa: E402
@@ -108,10 +109,10 @@ def _settle(t: np.ndarray, y: np.ndarray, target: float, band: float) -> float:
     return float(t[out[-1] + 1] - t[0]) if len(out) else 0.0
 
 
-def step_responses(control_dt: float) -> list[list[str]]:
-    """Measured responses (the same flights the tests check)."""
+def step_responses(control_dt: float, params_file=None) -> list[list[str]]:
+    """Measured responses (the same flights the tests check); params_file: overrides."""
     rows = []
-    ap = MultirotorAutopilot(control_dt=control_dt)
+    ap = MultirotorAutopilot(control_dt=control_dt, params_file=params_file)
     ap.arm()
     ap.takeoff(10.0)
     r = _fly(ap, 15.0)
@@ -278,6 +279,14 @@ def main(argv: list[str] | None = None) -> int:
         markdown_table(
             ["step response", "settling (5 %) / figure", "overshoot", "zero crossings (±5 cm)"],
             step_responses(args.control_dt),
+        )
+    )
+    print()
+    print(f"PX4 stand-in ({PX4_STANDIN.relative_to(PX4_STANDIN.parents[2])}):")
+    print(
+        markdown_table(
+            ["step response", "settling (5 %) / figure", "overshoot", "zero crossings (±5 cm)"],
+            step_responses(args.control_dt, PX4_STANDIN),
         )
     )
     per_phys = per_step / n_sub

@@ -56,7 +56,7 @@ def test_standin_takeoff_step_and_limits():
     shapes a reference whose acceleration never exceeds MPC_ACC_HOR (the vehicle, tracking it
     through the attitude loop's lag, peaks 30 % above), does not overshoot and settles within
     5 % in 7.4–8.4 s (measured 7.9 s; within 0.2 m at 11.6 s) — skyherd's defaults 3.3 s;
-    PX4 SIH 11.1 s per issue 12. Takeoff 10 m within 5 %: 7.8–8.8 s (8.3 s)."""
+    PX4 SIH 11.1 s per issue 12. Takeoff 10 m within 5 %: 7.8–8.8 s (8.6 s)."""
     ap = MultirotorAutopilot(params_file=PX4_STANDIN)
     assert ap.arm().ok and ap.takeoff(10.0).ok
     r = fly(ap, 20.0)
