@@ -622,7 +622,10 @@ class VehicleClient:
         self.command_long(step.command, *step.params)
 
     def land(self) -> None:
-        self.run_steps(self.profile.land_steps()[:1], budget_s=60.0)
+        """The profile's landing up to (not including) the wait for the disarm: the setpoint
+        stream stops once the landing is under way."""
+        steps = [s for s in self.profile.land_steps() if s.kind != "wait_disarmed"]
+        self.run_steps(tuple(steps), budget_s=60.0)
 
     def home_amsl(self) -> float:
         home = self.telemetry.home
@@ -666,11 +669,13 @@ class VehicleClient:
     # ---- offboard --------------------------------------------------------------------
     def stream_offboard(self, setpoint: SetpointFn | None) -> None:
         """Call `setpoint(tel)` on every LOCAL_POSITION_NED; it returns (pos_ned or None,
-        vel_ned or None, yaw or None) or None. While streaming is on (`start_setpoints`)
-        the answer is sent; None: `setpoint` is removed and streaming stops."""
+        vel_ned or None, yaw or None) or None, sent while streaming is on (from now on, until
+        `stop_setpoints`; a recipe turns it off and on). None removes `setpoint` and stops."""
         self._setpoint_fn = setpoint
         if setpoint is None:
             self.stop_setpoints()
+        else:
+            self._streaming = True
 
     def start_setpoints(self, hold_ned: np.ndarray | None = None) -> None:
         """Send setpoints from now on; when the mission gives none, hold `hold_ned`

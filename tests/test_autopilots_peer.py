@@ -42,7 +42,8 @@ class ScriptedArduCopter:
     """A scripted ArduCopter on 127.0.0.1:`port` (udpin: it answers whoever sent last)."""
 
     def __init__(self, port: int, ekf_after_s: float = 41.0, fence_m: float = 50.0,
-                 mav_type: int = M.MAV_TYPE_QUADROTOR):  # fmt: skip
+                 mav_type: int = M.MAV_TYPE_QUADROTOR, legacy: bool = False):  # fmt: skip
+        self.legacy = legacy  # older firmware: no SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM only
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", port))
         self.sock.setblocking(False)
@@ -198,6 +199,15 @@ class ScriptedArduCopter:
         if t == "COMMAND_LONG":
             self.commands.append((self.t, m.command, (m.param1, m.param2, m.param7)))
             self._command(m)
+        elif t == "REQUEST_DATA_STREAM" and self.legacy and m.start_stop:
+            groups = {M.MAV_DATA_STREAM_POSITION: (M.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+                                                   M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT),
+                      M.MAV_DATA_STREAM_EXTRA1: (M.MAVLINK_MSG_ID_ATTITUDE,),
+                      M.MAV_DATA_STREAM_EXTENDED_STATUS: (M.MAVLINK_MSG_ID_SYS_STATUS,
+                                                          M.MAVLINK_MSG_ID_GPS_RAW_INT,
+                                                          M.MAVLINK_MSG_ID_EKF_STATUS_REPORT)}  # fmt: skip
+            for msg_id in groups.get(m.req_stream_id, ()):
+                self.rates[msg_id] = float(m.req_message_rate)
         elif t == "SET_POSITION_TARGET_LOCAL_NED":
             if self.mode == LAND and not self.armed:
                 self.setpoints_after_land += 1  # still streaming when the landing ended
@@ -211,6 +221,9 @@ class ScriptedArduCopter:
     def _command(self, m) -> None:
         c = m.command
         if c == M.MAV_CMD_SET_MESSAGE_INTERVAL:
+            if self.legacy:
+                self.ack(c, M.MAV_RESULT_UNSUPPORTED)
+                return
             self.rates[int(m.param1)] = 1e6 / m.param2
             self.ack(c, M.MAV_RESULT_ACCEPTED)
         elif c == M.MAV_CMD_REQUEST_MESSAGE:
@@ -382,3 +395,11 @@ def test_scripted_arduplane_modes_decode_with_the_plane_table():
         assert M.MAV_CMD_NAV_TAKEOFF not in [s.command for s in steps]
         assert [s.mode for s in steps if s.kind == "set_mode"] == [FlightMode.TAKEOFF]
         assert math.isclose(ARDUPLANE.set_mode_params(FlightMode.TAKEOFF)[1], 13)
+
+
+@pytest.mark.timeout(120)
+def test_older_firmware_without_set_message_interval_gets_request_data_stream():
+    with ScriptedArduCopter(14614, ekf_after_s=1.0, legacy=True) as peer, _client(14614) as c:
+        c.wait_ready(timeout=100)  # home comes on request (REQUEST_MESSAGE), the rest streamed
+        assert peer.rates[M.MAVLINK_MSG_ID_LOCAL_POSITION_NED] >= 10
+        assert c.telemetry.pos_ned is not None and c.telemetry.quat is not None
