@@ -35,7 +35,7 @@ import numpy as np
 from foxglove import Schema
 from foxglove import messages as fm
 
-from runio import to_jsonable
+from runio import strict_json
 
 WORLD, NED = "world", "ned"
 
@@ -129,17 +129,7 @@ def channel(kind: str, vehicle: str = "uav0") -> ChannelSpec:
 
 def json_bytes(record: dict[str, Any]) -> bytes:
     """A record as strict JSON (NaN and ±inf become null: JSON has no NaN)."""
-    return json.dumps(_finite(to_jsonable(record)), sort_keys=True, allow_nan=False).encode()
-
-
-def _finite(v: Any) -> Any:
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {k: _finite(x) for k, x in v.items()}
-    if isinstance(v, list):
-        return [_finite(x) for x in v]
-    return v
+    return json.dumps(strict_json(record), sort_keys=True, allow_nan=False).encode()
 
 
 # -- geometry helpers ---------------------------------------------------------------------

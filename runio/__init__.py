@@ -17,6 +17,7 @@ from runio.runfolder import (
     atomic_write_text,
     is_missing,
     markdown_table,
+    strict_json,
     to_jsonable,
     versions,
 )
@@ -48,6 +49,7 @@ __all__ = [
     "open_run",
     "parse_address",
     "read_decisions",
+    "strict_json",
     "to_jsonable",
     "validate_mapping",
     "versions",

@@ -13,11 +13,10 @@ Strict JSON: NaN and ±inf are written as null (a JSON reader would reject NaN).
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
-from runio.runfolder import to_jsonable
+from runio.runfolder import strict_json
 
 KEYS = ("t", "vehicle", "pilot", "phi", "proposed", "certified", "verdict", "reason", "mode",
         "autopilot_mode")  # fmt: skip
@@ -25,20 +24,10 @@ VERDICTS = ("accepted", "projected", "rejected", "fallback", "pid")
 COMMAND_KEYS = ("pos_ned", "vel_ned", "yaw")
 
 
-def _strict(v: Any) -> Any:
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {k: _strict(x) for k, x in v.items()}
-    if isinstance(v, list):
-        return [_strict(x) for x in v]
-    return v
-
-
 def normalise(record: dict[str, Any]) -> dict[str, Any]:
     """The record with every LAYOUT key present (missing → null; commands get all three keys).
     A record without a finite t or with an unknown verdict raises ValueError."""
-    rec = _strict(to_jsonable(dict(record)))
+    rec = strict_json(dict(record))
     t = rec.get("t")
     if not isinstance(t, int | float) or isinstance(t, bool):
         raise ValueError(f"decision record needs a finite sim time t [s], got {record.get('t')!r}")

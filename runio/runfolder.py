@@ -55,6 +55,22 @@ def to_jsonable(obj: Any) -> Any:
     return obj
 
 
+def strict_json(obj: Any) -> Any:
+    """`to_jsonable`, then NaN and ±inf → None: values that strict JSON readers accept
+    (Python's json writes NaN, which Foxglove, jq and browsers reject)."""
+    return _finite(to_jsonable(obj))
+
+
+def _finite(v: Any) -> Any:
+    if isinstance(v, float):
+        return v if np.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [_finite(x) for x in v]
+    return v
+
+
 def versions() -> dict[str, str]:
     """Versions of Python and the packages a run depends on."""
     out = {"python": sys.version.split()[0], "platform": platform.platform()}

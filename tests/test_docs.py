@@ -327,7 +327,7 @@ def test_output_comparison_sees_a_changed_table():
 
 # -- the README's MAVSDK line -------------------------------------------------------------
 
-MAVSDK_INSTANCE = 80  # this helper's vehicle instances: 80-84
+MAVSDK_INSTANCES = range(80, 85)  # this area's vehicle instances (a parallel run may hold one)
 
 
 def readme_mavsdk_snippet() -> str:
@@ -344,7 +344,7 @@ def readme_mavsdk_snippet() -> str:
 
 
 def test_readme_mavsdk_line_works_with_mavsdk_4():
-    """Run the README's MAVSDK line as written (port moved to instance 80) against a real SITL
+    """Run the README's MAVSDK line as written (port moved to instance 80..84) against a real SITL
     (flight.sitl.Sitl); MAVSDK-Python 4.1 must find the autopilot."""
     import asyncio
 
@@ -355,15 +355,23 @@ def test_readme_mavsdk_line_works_with_mavsdk_4():
 
     code = readme_mavsdk_snippet()
     assert "udpin://127.0.0.1:14540" in code
-    code = code.replace("14540", str(14540 + MAVSDK_INSTANCE))
+    for instance in MAVSDK_INSTANCES:
+        ap = make_autopilot("quadrotor", clock=SimClock(), instance=instance)
+        try:
+            sitl = Sitl(ap, EndpointConfig(instance=instance), speedup=4.0)
+        except OSError:  # its ports are taken (another run of this suite): the next instance
+            continue
+        break
+    else:
+        pytest.fail(f"every vehicle instance in {MAVSDK_INSTANCES} is in use")
     last = code.rstrip().splitlines()[-1]
     inner = last[: len(last) - len(last.lstrip())]  # inside the snippet's `async with`
+    code = code.replace("14540", str(14540 + instance))
     code += f"\n{inner}return drone, await drone.get_system_id()\n"
     src = "async def _readme():\n" + textwrap.indent(code, "    ")
     ns: dict = {}
     exec(compile(src, "README.md (MAVSDK line)", "exec"), ns)
-    ap = make_autopilot("quadrotor", clock=SimClock(), instance=MAVSDK_INSTANCE)
-    with Sitl(ap, EndpointConfig(instance=MAVSDK_INSTANCE), speedup=4.0) as sitl:
+    with sitl:
         sitl.start()
         drone, sysid = asyncio.run(asyncio.wait_for(ns["_readme"](), timeout=120))
-    assert drone is not None and sysid == 1 + MAVSDK_INSTANCE
+    assert drone is not None and sysid == 1 + instance
