@@ -1,6 +1,6 @@
 """Recording from Zenoh (record.zenoh.ZenohRecorder) between two real Zenoh sessions on
-loopback (ports 7462-7463), and the live Foxglove WebSocket server (record.live.LiveServer,
-port 7461) with a real WebSocket client (the `websockets` package) speaking the Foxglove
+loopback (Zenoh port 7462), and the live Foxglove WebSocket server (record.live.LiveServer, on
+a free port) with a real WebSocket client (the `websockets` package) speaking the Foxglove
 WebSocket protocol: subscribe, receive frames and poses stamped in simulation time."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from record import LiveServer, ZenohRecorder, read_messages
 from safety.events import ZenohEventSink
 
 ZPORT = 7462
-WSPORT = 7461
+WSPORT = 0  # any free port (the server says which: live.port); no clash with a parallel run
 
 
 def _until(cond, what: str, timeout_s: float = 30.0) -> None:
