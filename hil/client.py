@@ -640,6 +640,12 @@ class VehicleClient:
         """PARAM_SET until PARAM_VALUE echoes `value` (ArduPilot and PX4 both echo)."""
         return self._param(name, float(value), timeout)
 
+    def param_si(self, key: str, timeout: float = 3.0) -> float:
+        """A setting by its ParamNames key (`airspeed_trim`, `loiter_radius`, ...), read under
+        this autopilot's own name and converted to SI (ValueError: it has no such parameter)."""
+        p = self.profile
+        return p.param_to_si(key, self.read_param(p.param_name(key), timeout))
+
     def _param(self, name: str, value: float | None, timeout: float) -> float:
         got: dict[str, float] = {}
         before = self.latest("PARAM_VALUE")

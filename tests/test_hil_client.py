@@ -28,6 +28,8 @@ def _fly_twice(tmp_path, instance: int, personality: Personality):
             c.wait_connected()
             # offboard loss after 10 s of sim time (2 s wall): no failsafe from a busy machine
             assert c.set_param("COM_OF_LOSS_T", 10.0) == 10.0
+            if personality is Personality.PX4:  # the parameter by its profile key, in SI
+                assert c.param_si("offboard_loss_timeout") == 10.0
             for _mission in range(2):
                 run = RunFolder("fly", root=tmp_path)
                 fs = FlightSession(c, run.metrics(TRACK_COLUMNS), ["x"] * 6, timeout=120)
