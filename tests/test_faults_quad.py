@@ -261,3 +261,39 @@ def test_sitl_command_line_takes_the_fault_flags(tmp_path):
     bad = parser.parse_args([*common, "--fault", "gps_glitch@3:1,2"])
     with pytest.raises(UsageError, match="N,E,D"):
         sitl_cmd.run(bad)
+
+
+def test_faults_over_mavlink_glitch_in_local_position_and_battery_failsafe():
+    """Instance 67, real UDP, the SITL stepped in the test's thread: a 20 m north glitch at
+    t = 16 s appears in LOCAL_POSITION_NED (what the autopilot believes); battery@20:0.065
+    then shows as the autopilot's own switch to RTL (HEARTBEAT custom mode AUTO.RTL) with the
+    "critical -> return" STATUSTEXT."""
+    from test_quad_fence import _Gcs
+
+    from flight.clock import SimClock
+    from flight.mavlink import EndpointConfig
+    from flight.sitl import Sitl
+
+    plan = parse_fault_args(faults=["gps_glitch@16:20,0,0:3", "battery@20:0.065"])
+    ap = MultirotorAutopilot(clock=SimClock(), faults=plan)
+    with Sitl(ap, EndpointConfig(instance=67), speedup=0) as sitl:
+        gcs = _Gcs(sitl, instance=67)
+        try:
+            assert gcs.pump("HEARTBEAT") is not None
+            assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
+            assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, *[0] * 6, 584.0 + 15).result == 0
+            gcs.pump("NONE", sim_s=15.5)
+            gcs.seen.clear()
+            gcs.pump("NONE", sim_s=1.5)  # 15.5 .. 17 s
+            lp = [(m.time_boot_ms, m.x) for m in gcs.seen["LOCAL_POSITION_NED"]]
+            before = [x for t, x in lp if t < 16000]
+            after = [x for t, x in lp if 16000 <= t < 16300]
+            assert before and after
+            assert after[0] - before[-1] == pytest.approx(20.0, abs=0.3)
+            hb = gcs.pump("HEARTBEAT", lambda m: m.custom_mode == (4 << 16) | (5 << 24), 8.0)
+            assert hb is not None and ap.mode == FlightMode.RTL
+            gcs.pump("NONE", sim_s=0.5)
+            assert any("critical -> return" in t for t in gcs.texts), gcs.texts
+            assert any("battery fault" in t for t in gcs.texts)
+        finally:
+            gcs.conn.close()

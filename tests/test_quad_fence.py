@@ -164,13 +164,14 @@ def _ll(n: float, e: float) -> tuple[int, int]:
 class _Gcs:
     """A pymavlink client on the API link; the SITL is stepped here, in the test's thread."""
 
-    def __init__(self, sitl: Sitl):
+    def __init__(self, sitl: Sitl, instance: int = INSTANCE):
         from mavlink_support import V2Socket
 
         self.sitl = sitl
-        self.conn = V2Socket("udpin", 14540 + INSTANCE)
+        self.conn = V2Socket("udpin", 14540 + instance)
         self.mav = self.conn.mav
-        self.target = 1 + INSTANCE
+        self.target = 1 + instance
+        self.seen: dict[str, list] = {}  # every message by type (LOCAL_POSITION_NED, ...)
         self.texts: list[str] = []
         self.heartbeats: list = []
 
@@ -186,6 +187,7 @@ class _Gcs:
                     self.texts.append(m.text)
                 if m.get_type() == "HEARTBEAT":
                     self.heartbeats.append(m)
+                self.seen.setdefault(m.get_type(), []).append(m)
                 if m.get_type() in types and (cond is None or cond(m)):
                     return m
         return None
