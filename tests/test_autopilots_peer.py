@@ -1,4 +1,4 @@
-"""The companion link against a scripted ArduCopter / ArduPlane (SCRIPTED PEER, not the real
+"""The companion link against a scripted ArduCopter / ArduPlane / PX4 (SCRIPTED PEERS, not the real
 firmware: ArduPilot is not on a package registry). The peer speaks MAVLink 2 frames built by
 pymavlink over a real UDP socket, byte for byte as the published protocol and as real
 ArduCopter SITL answered when it was measured (../shared/PROTOCOLS.md):
@@ -403,3 +403,126 @@ def test_older_firmware_without_set_message_interval_gets_request_data_stream():
         c.wait_ready(timeout=100)  # home comes on request (REQUEST_MESSAGE), the rest streamed
         assert peer.rates[M.MAVLINK_MSG_ID_LOCAL_POSITION_NED] >= 10
         assert c.telemetry.pos_ned is not None and c.telemetry.quat is not None
+
+
+PX4_AUTO, PX4_OFFBOARD = 4, 6
+PX4_LOITER, PX4_TAKEOFF, PX4_LAND = 3, 2, 6
+UNSUPPORTED_MAV_FRAME = (
+    9  # MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME (common.xml, newer than this dialect)
+)
+
+
+class ScriptedPx4(ScriptedArduCopter):
+    """A scripted PX4 (SIH) on the same kinematic copter, answering as PX4 did when measured:
+    custom_mode main << 16 | sub << 24; OFFBOARD accepted only while setpoints stream; DO_SET_MODE
+    answered by two ACKs; NAV_TAKEOFF param 7 AMSL; DO_REPOSITION in GLOBAL_INT frames only; a
+    setpoint stream still running when it disarms after a landing puts it back in OFFBOARD, and
+    the next arm is TEMPORARILY_REJECTED with "Resolve system health failures first" 124 ms
+    after the ACK. It streams its telemetry without being asked."""
+
+    def __init__(self, port: int):
+        super().__init__(port, ekf_after_s=2.0, mav_type=M.MAV_TYPE_QUADROTOR)
+        self.main, self.sub = PX4_AUTO, PX4_LOITER
+        self.last_sp_t = -1e9
+        self.rates = {M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 30.0, M.MAVLINK_MSG_ID_ATTITUDE: 10.0,
+                      M.MAVLINK_MSG_ID_HOME_POSITION: 0.5, M.MAVLINK_MSG_ID_GPS_RAW_INT: 2.0}  # fmt: skip
+        self.disarmed_in_offboard = 0
+        self.reposition_results: list[int] = []
+
+    @property
+    def mode(self):  # the copter model's notion: GUIDED while OFFBOARD, LAND while landing
+        if self.main == PX4_OFFBOARD:
+            return GUIDED
+        return LAND if (self.main, self.sub) == (PX4_AUTO, PX4_LAND) else BRAKE
+
+    @mode.setter
+    def mode(self, value):
+        pass  # set through main/sub
+
+    def send(self, msg) -> None:
+        if msg.get_type() == "HEARTBEAT":
+            msg.autopilot = M.MAV_AUTOPILOT_PX4
+            msg.custom_mode = (self.main << 16) | (self.sub << 24)
+        super().send(msg)
+
+    def _on(self, m) -> None:
+        if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED":
+            self.last_sp_t = self.t
+            if not self.armed and (self.main, self.sub) == (PX4_AUTO, PX4_LAND):
+                self.main, self.sub = PX4_OFFBOARD, 0  # the measured PX4 behaviour
+                self.disarmed_in_offboard += 1
+            if self.main == PX4_OFFBOARD and self.armed and self.takeoff_alt is None:
+                self.target = np.array([m.x, m.y, m.z])
+            return
+        if m.get_type() == "COMMAND_INT" and m.command == M.MAV_CMD_DO_REPOSITION:
+            ok = m.frame in (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT)
+            result = M.MAV_RESULT_ACCEPTED if ok else UNSUPPORTED_MAV_FRAME
+            self.reposition_results.append(result)
+            self.ack(m.command, result)
+            return
+        super()._on(m)
+
+    def _command(self, m) -> None:
+        c = m.command
+        if c == M.MAV_CMD_DO_SET_MODE:
+            main, sub = int(m.param2), int(m.param3)
+            if main == PX4_OFFBOARD and self.t - self.last_sp_t > 0.5:
+                self.ack(c, M.MAV_RESULT_DENIED)
+                return
+            self.main, self.sub = main, sub
+            self.ack(c, M.MAV_RESULT_ACCEPTED)
+            self.ack(c, M.MAV_RESULT_ACCEPTED)  # PX4 may answer DO_SET_MODE twice
+        elif c == M.MAV_CMD_COMPONENT_ARM_DISARM and m.param1 == 1:
+            if self.main == PX4_OFFBOARD and not self.armed:
+                self.ack(c, M.MAV_RESULT_TEMPORARILY_REJECTED)
+                self.text("Resolve system health failures first", delay=0.124)
+            else:
+                self.armed = True
+                self.ack(c, M.MAV_RESULT_ACCEPTED)
+        elif c == M.MAV_CMD_NAV_TAKEOFF:
+            if not self.armed:
+                self.ack(c, M.MAV_RESULT_DENIED)
+                return
+            self.takeoff_alt = m.param7 - HOME[2]  # AMSL
+            self.main, self.sub = PX4_AUTO, PX4_TAKEOFF
+            self.ack(c, M.MAV_RESULT_ACCEPTED)
+        elif c == M.MAV_CMD_NAV_LAND:
+            self.main, self.sub = PX4_AUTO, PX4_LAND
+            self.ack(c, M.MAV_RESULT_ACCEPTED)
+        else:
+            super()._command(m)
+
+    def _step(self) -> None:
+        was_taking_off = self.takeoff_alt is not None
+        super()._step()
+        if was_taking_off and self.takeoff_alt is None:
+            self.main, self.sub = PX4_AUTO, PX4_LOITER  # AUTO.TAKEOFF ends in Hold
+        if self.main == PX4_OFFBOARD and self.armed and self.t - self.last_sp_t > 0.5:
+            self.main, self.sub = PX4_AUTO, PX4_LOITER  # offboard lost
+
+
+@pytest.mark.timeout(240)
+def test_scripted_px4_second_mission_arms_because_the_stream_stops_before_the_landing_ends():
+    with ScriptedPx4(14615) as peer, _client(14615) as c:
+        c.wait_ready(timeout=100)
+        tel = c.telemetry
+        assert c.profile.name == "PX4"
+        for _ in range(2):
+            c.run_steps(c.profile.takeoff_steps(10.0, c.home_amsl()), 200, authority=False)
+            assert 9.4 < -tel.pos_ned[2]  # param 7 was read as AMSL: 594 m
+            c.run_steps(c.profile.handover_steps(), 60)
+            assert tel.mode_name == "OFFBOARD"
+            c.link.send(c.reposition_message(np.array([5.0, 0.0, -10.0])))
+            c.run_steps(c.profile.land_steps() + c.profile.end_steps(), 120)
+            assert not tel.armed and tel.mode_name == "AUTO.LOITER"
+        assert peer.disarmed_in_offboard == 0 and tel.unrequested_mode_change == 0
+        assert peer.reposition_results and set(peer.reposition_results) == {M.MAV_RESULT_ACCEPTED}
+        # the failure the issue measured, on purpose: setpoints reaching it landed and disarmed
+        c.set_mode(FlightMode.LAND)  # as it is when a landing has just ended
+        for _ in range(3):
+            c.link.send(c.position_target(tel.pos_ned, None, None))
+        c.wait_until(lambda: tel.mode_name == "OFFBOARD", 60, "OFFBOARD", vehicle_s=5,
+                     interruptible=False)  # fmt: skip
+        assert tel.unrequested_mode_change == 1  # and the client saw it was not its request
+        with pytest.raises(CommandError, match="TEMPORARILY_REJECTED.*Resolve system health"):
+            c.arm()
