@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("scripts.train", "train the learners (sql, irl, ab)"),
     "teleop": ("scripts.teleop", "fly or demonstrate from the keyboard"),
     "watch": ("scripts.watch", "watch a flight's camera frames with detections"),
+    "record": ("scripts.record", "flight.mcap (Foxglove, PlotJuggler) from a run folder"),
     "educate": ("scripts.educate", "teach a curriculum of lessons; a modular policy that explains"),
     "explain": (
         "scripts.explain",
@@ -50,6 +51,7 @@ class DefaultsFormatter(argparse.HelpFormatter):
             not action.option_strings
             or d is None
             or d is argparse.SUPPRESS
+            or (isinstance(d, list | tuple | str) and len(d) == 0)  # nothing to show
             or action.nargs == 0  # store_true / store_false / count-like flags
             or "%(default)" in text
             or re.search(r"\(default:? [^)]+\)", text)

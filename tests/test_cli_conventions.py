@@ -36,7 +36,13 @@ def test_every_option_of_every_sub_command_shows_its_default():
         text = p.format_help()  # formats every action: a bad %(default) would raise here
         f = p._get_formatter()
         for a in p._actions:
-            if not a.option_strings or a.default in (None, argparse.SUPPRESS) or a.nargs == 0:
+            empty = isinstance(a.default, list | tuple | str) and not a.default
+            if (
+                not a.option_strings
+                or a.default in (None, argparse.SUPPRESS)
+                or a.nargs == 0
+                or empty
+            ):
                 continue
             if not re.search(r"default:? \S", f._expand_help(a)):
                 missing.append(f"{name} {a.option_strings[0]}")
