@@ -213,14 +213,21 @@ class _Gcs:
 
 
 def test_mavlink_fence_reposition_outside_denied_breach_seen_as_mode_and_text():
-    """The failing case of issue 11: a 160 m fence ACCEPTED, DO_REPOSITION 500 m north was
-    ACCEPTED and flown. Now: DENIED with the reason in STATUSTEXT; a velocity push out of the
+    """Arming inside an exclusion zone is DENIED with its reason. The failing case of issue 11:
+    a 160 m fence ACCEPTED, DO_REPOSITION 500 m north was ACCEPTED and flown. Now: DENIED with the reason in STATUSTEXT; a velocity push out of the
     fence ends in HOLD (GF_ACTION 2), seen as the HEARTBEAT's mode and a STATUSTEXT."""
     ap = MultirotorAutopilot(clock=SimClock())
     with Sitl(ap, EndpointConfig(instance=INSTANCE), speedup=0) as sitl:
         gcs = _Gcs(sitl)
         try:
             assert gcs.pump("HEARTBEAT") is not None
+            # home inside an exclusion circle: arming DENIED, the reason in STATUSTEXT
+            no_fly = [(M.MAV_FRAME_GLOBAL, 5004, 5.0, *_ll(0.0, 0.0))]
+            assert gcs.upload_fence(no_fly).type == M.MAV_MISSION_ACCEPTED
+            ack = gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+            assert ack.result == M.MAV_RESULT_DENIED and not ap.armed
+            gcs.pump("NONE", sim_s=0.2)
+            assert any("outside geofence" in t for t in gcs.texts), gcs.texts
             fence = [(M.MAV_FRAME_GLOBAL, 5003, 160.0, *_ll(0.0, 0.0))]
             ack = gcs.upload_fence(fence)
             assert ack is not None and ack.type == M.MAV_MISSION_ACCEPTED
