@@ -18,7 +18,7 @@ import numpy as np
 from flight.autopilot_api import FlightMode, Setpoint
 from mission.authority import Authority
 from mission.pilots import Observation, Pilot, Proposal
-from mission.steps import Phase, recipe, wait_ready, wait_until
+from mission.steps import MissionError, Phase, recipe, wait_ready, wait_until
 from mission.vehicle import VehicleLink
 from runio import CsvWriter, JsonlWriter
 from safety.supervisor import Decision, Health, Mode, Supervisor
@@ -34,6 +34,7 @@ class FlightPlan:
     duration_s: float = 60.0  # flight behind the safety net after the hand-over [s]
     decision_s: float = 0.5  # the pilot decides this often [s] (the policy's training step)
     land: bool = True  # land at the end (else hold position and stop)
+    yield_wait_s: float = 60.0  # after the autopilot took over, wait this long for its landing [s]
 
     def __post_init__(self) -> None:
         if not 0 < self.altitude_m <= 500:
@@ -146,12 +147,12 @@ class SingleVehicleMission:
         self.phase = "autopilot"
         v.setpoint = None
         self.outcome, self.reason = "yielded", self.authority.yielded
-        try:
-            yield from wait_until(
-                v, lambda: not v.tel.armed, 600.0, "the autopilot to land and disarm"
-            )
-        except Exception as e:  # noqa: BLE001 - report, do not fight the autopilot
-            self.reason += f"; {e}"
+        try:  # the stated rule: wait for its landing up to yield_wait_s, then end, left to it
+            yield from wait_until(v, lambda: not v.tel.armed, self.plan.yield_wait_s,
+                                  "the autopilot to land and disarm")  # fmt: skip
+            self.reason += "; it landed and disarmed"
+        except MissionError:
+            self.reason += f"; still armed in {v.tel.mode_name or v.tel.mode} after {self.plan.yield_wait_s:.0f} s: left to the autopilot"
 
     def _tick(self, v: VehicleLink) -> None:
         state = v.tel.vehicle_state()

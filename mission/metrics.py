@@ -17,11 +17,11 @@ def groundair_metrics(decisions: list[dict], world: list[dict], task: TaskParams
     the team's smallest enclosing circle (true altitude and UGV positions at each decision, only
     where all UGVs are in view), and the number of times the team went out of view."""
     cam = task.camera
-    by_t = {round(float(r["t"]), 4): r for r in world}
+    world_t = np.array([float(r["t"]) for r in world])
     in_view = np.array([bool(d["phi"]) and d["phi"][5] > 0.5 for d in decisions], dtype=bool)
     ratios = []
     for d, seen in zip(decisions, in_view):
-        w = by_t.get(round(float(d["t"]), 4))
+        w = _nearest(world, world_t, float(d["t"]))
         if not seen or w is None:
             continue
         ugvs = [(float(w[f"ugv{i}_n"]), float(w[f"ugv{i}_e"])) for i in range(task.n_ugvs)]
@@ -40,6 +40,16 @@ def groundair_metrics(decisions: list[dict], world: list[dict], task: TaskParams
             for v in ("accepted", "projected", "fallback", "pid")
         },  # fmt: skip
     }
+
+
+def _nearest(rows: list[dict], ts: np.ndarray, t: float, tol_s: float = 0.06) -> dict | None:
+    """The world row at time t (the same camera instant in lockstep; the nearest within `tol_s`
+    when the world follows an outside vehicle's clock)."""
+    if len(ts) == 0:
+        return None
+    i = int(np.clip(np.searchsorted(ts, t), 1, len(ts) - 1)) if len(ts) > 1 else 0
+    j = i - 1 if i > 0 and abs(ts[i - 1] - t) <= abs(ts[i] - t) else i
+    return rows[j] if abs(ts[j] - t) <= tol_s else None
 
 
 def cross_track(pos: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:

@@ -31,6 +31,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--connect", metavar="ADDRESS",
                         help="fly an outside autopilot at this pymavlink address (e.g. udpin:127.0.0.1:14540, "
                         "tcp:127.0.0.1:5760) instead of the built-in vehicle")  # fmt: skip
+    parser.add_argument("--world-link", metavar="ADDRESS", default=None,
+                        help="with --connect: a second MAVLink link of the autopilot for the world (UGVs, "
+                        "camera) built around it (default: udpin:127.0.0.1:14550 for a udp address, "
+                        "PORT+2 for tcp:HOST:PORT, i.e. ArduPilot's SERIAL1)")  # fmt: skip
+    parser.add_argument(
+        "--world-system",
+        type=int,
+        default=1,
+        metavar="ID",
+        help="with --connect: the outside autopilot's MAVLink system id on the world link",
+    )
     parser.add_argument("--instance", type=int, default=0, help="built-in vehicle instance N")
     parser.add_argument(
         "--speedup",
@@ -137,10 +148,29 @@ def _validate(args) -> tuple[list[str], list[str]]:
         sim += ["--free-run"]
         comp += ["--free-run"]
     if args.connect is not None:
-        comp += ["--connect", args.connect, "--no-camera"]
-    else:
-        comp += ["--zenoh-connect", f"tcp:127.0.0.1:{args.zenoh_port}"]
+        comp += ["--connect", args.connect]
+        if args.mission == "groundair":
+            sim += ["--follow", world_link(args), "--follow-system", str(args.world_system)]
+    comp += ["--zenoh-connect", f"tcp:127.0.0.1:{args.zenoh_port}"]
     return sim, comp
+
+
+def world_link(args) -> str:
+    """The MAVLink link the world follows an outside vehicle on (--world-link, or a default)."""
+    from hil.link import parse_address
+
+    if args.world_link:
+        try:
+            parse_address(args.world_link)
+        except ValueError as e:
+            raise UsageError(f"--world-link: {e}") from None
+        return args.world_link
+    a = parse_address(args.connect)
+    if a.kind == "tcp":
+        return f"tcp:{a.host}:{a.port + 2}"
+    if a.kind in ("udpin", "udpout"):
+        return "udpin:127.0.0.1:14550"
+    raise UsageError("the ground-air mission around a serial autopilot needs --world-link ADDRESS")
 
 
 def run_two_processes(args: argparse.Namespace) -> int:
@@ -155,7 +185,7 @@ def run_two_processes(args: argparse.Namespace) -> int:
                          "companion": comp_args, "envelope": envelope})  # fmt: skip
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     sim = None
-    if args.connect is None:
+    if args.connect is None or args.mission == "groundair":
         sim = launch.start("sim", launch.skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
                            run_dir / "sim.log")  # fmt: skip
     companion = launch.start("companion",

@@ -100,6 +100,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="HOST",
         help="host the companion and the ground station listen on",
     )
+    parser.add_argument(
+        "--follow",
+        default=None,
+        metavar="ADDRESS",
+        help="no built-in vehicle: build the world (UGVs, camera) around the outside vehicle at "
+        "this MAVLink address (a second link of PX4 / ArduPilot), free-running on its clock",
+    )
+    parser.add_argument(
+        "--follow-system",
+        type=int,
+        default=1,
+        metavar="ID",
+        help="with --follow: the followed autopilot's MAVLink system id",
+    )
     parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
     parser.add_argument(
         "--run-dir",
@@ -168,7 +182,8 @@ def run(args: argparse.Namespace) -> int:
         run_dir = folder.path
     session = open_zenoh(args.zenoh_port, args.zenoh_config)
     try:
-        world = World(params, session=session, run_dir=run_dir, endpoint_config=endpoint)
+        world = _follow(args, params, session, run_dir) if args.follow else World(
+            params, session=session, run_dir=run_dir, endpoint_config=endpoint)  # fmt: skip
     except OSError as e:
         session.close()
         raise UsageError(f"{e}; is another vehicle using instance {args.instance}?") from None
@@ -187,3 +202,17 @@ def run(args: argparse.Namespace) -> int:
         session.close()
     print(json.dumps(stats), file=sys.stderr)
     return 0
+
+
+def _follow(args, params, session, run_dir):
+    """The world around an outside vehicle (world/follow.py)."""
+    from hil.link import LinkError, MavlinkLink, parse_address
+    from world.follow import FollowWorld
+
+    try:
+        parse_address(args.follow)
+        link = MavlinkLink.open(args.follow, source_system=255, source_component=190)
+    except (ValueError, LinkError) as e:
+        session.close()
+        raise UsageError(f"--follow: {e}") from None
+    return FollowWorld(link, params, session=session, run_dir=run_dir, system_id=args.follow_system)
