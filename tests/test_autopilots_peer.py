@@ -526,3 +526,88 @@ def test_scripted_px4_second_mission_arms_because_the_stream_stops_before_the_la
         assert tel.unrequested_mode_change == 1  # and the client saw it was not its request
         with pytest.raises(CommandError, match="TEMPORARILY_REJECTED.*Resolve system health"):
             c.arm()
+
+
+class ScriptedArduPlane(ScriptedArduCopter):
+    """A scripted ArduPlane (kinematic, not aerodynamic): mode numbers of the plane table;
+    TAKEOFF (13) climbs to TKOFF_ALT once armed and circles there; NAV_TAKEOFF as COMMAND_LONG
+    is refused (quadplanes only); GUIDED (15) flies to DO_REPOSITION targets (COMMAND_INT,
+    global frames) and ignores SET_POSITION_TARGET_LOCAL_NED positions; LOITER (12) circles."""
+
+    def __init__(self, port: int):
+        super().__init__(port, ekf_after_s=2.0, mav_type=M.MAV_TYPE_FIXED_WING)
+        self.params = {"TKOFF_ALT": 50.0}
+        self.repositions: list[tuple[int, float]] = []  # (frame, peer time)
+        self.local_setpoints = 0
+
+    def _on(self, m) -> None:
+        t = m.get_type()
+        if t == "PARAM_SET":
+            name = m.param_id if isinstance(m.param_id, str) else m.param_id.decode()
+            name = name.rstrip("\x00")
+            if name in self.params:
+                self.params[name] = m.param_value
+                self.send(M.MAVLink_param_value_message(name.encode(), m.param_value,
+                                                        M.MAV_PARAM_TYPE_REAL32, len(self.params), 0))  # fmt: skip
+            return
+        if t == "SET_POSITION_TARGET_LOCAL_NED":
+            self.local_setpoints += 1
+            return  # ArduPlane: only an altitude change in LOCAL_OFFSET_NED; positions ignored
+        if t == "COMMAND_INT" and m.command == M.MAV_CMD_DO_REPOSITION:
+            if self.mode != 15 or m.frame not in (
+                M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                M.MAV_FRAME_GLOBAL_INT,
+            ):
+                self.ack(m.command, M.MAV_RESULT_DENIED)
+                return
+            self.repositions.append((m.frame, self.t))
+            north = math.radians(m.x / 1e7 - HOME[0]) * 6378137.0
+            east = math.radians(m.y / 1e7 - HOME[1]) * 6378137.0 * math.cos(math.radians(HOME[0]))
+            self.target = np.array([north, east, -m.z])
+            self.ack(m.command, M.MAV_RESULT_ACCEPTED)
+            return
+        super()._on(m)
+
+    def _command(self, m) -> None:
+        c = m.command
+        if c == M.MAV_CMD_NAV_TAKEOFF:
+            self.ack(c, M.MAV_RESULT_UNSUPPORTED)  # not a quadplane
+        elif c == M.MAV_CMD_COMPONENT_ARM_DISARM and m.param1 == 1 and self.mode == 13:
+            super()._command(m)
+            if self.armed:
+                self.takeoff_alt = self.params["TKOFF_ALT"]
+        else:
+            super()._command(m)
+
+    def _step(self) -> None:
+        if self.armed and self.takeoff_alt is None and self.mode in (12, 13, 11):
+            self.vel = np.zeros(3)  # circling about a point: the model holds it
+            return
+        mode = self.mode
+        if mode == 15:
+            self.mode = GUIDED  # the copter model's GUIDED flies to the target
+        super()._step()
+        self.mode = mode
+
+
+@pytest.mark.timeout(240)
+def test_scripted_arduplane_takes_off_in_takeoff_mode_and_flies_reposition_targets():
+    with ScriptedArduPlane(14616) as peer, _client(14616) as c:
+        c.wait_ready(timeout=100)
+        tel = c.telemetry
+        c.run_steps(c.profile.takeoff_steps(40.0, c.home_amsl()), 200, authority=False)
+        assert peer.params["TKOFF_ALT"] == 40.0 and peer.arm_attempts == 2  # retried
+        assert -tel.pos_ned[2] >= 34.0 and tel.mode_name == "TAKEOFF"
+        assert M.MAV_CMD_NAV_TAKEOFF not in [cmd for _, cmd, _ in peer.commands]
+        c.run_steps(c.profile.handover_steps(), 60, hold_ned=np.array([200.0, 0.0, -40.0]))
+        assert tel.mode_name == "GUIDED"
+        c.wait_until(lambda: np.linalg.norm(tel.pos_ned[:2] - [200, 0]) < 5, 120, "the target",
+                     vehicle_s=80)  # fmt: skip
+        frames = {f for f, _ in peer.repositions}
+        assert frames == {M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT} and peer.local_setpoints == 0
+        t = [t for _, t in peer.repositions]
+        assert len(t) - 1 <= (t[-1] - t[0]) / 0.95  # ~1 Hz: each one is a new guided waypoint
+        c.set_mode(c.profile.fallback_mode)
+        c.wait_until(lambda: tel.mode_name == "LOITER", 30, "LOITER", vehicle_s=5)
+        c.run_steps(c.profile.land_steps(), 60)
+        assert tel.mode_name == "RTL" and not c.streaming
