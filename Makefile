@@ -7,7 +7,7 @@ STAMP := $(VENV)/.skyherd-installed
 MAVPROXY_VENV := .venv-mavproxy
 MAVPROXY_STAMP := $(MAVPROXY_VENV)/.installed
 
-.PHONY: run test bench lint venv mavproxy clean
+.PHONY: run test test-autopilots bench lint venv mavproxy clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -32,6 +32,12 @@ run: $(STAMP)
 test: $(STAMP) $(MAVPROXY_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
+
+# Opt-in: flights against real autopilot builds named by SKYHERD_PX4_BIN, SKYHERD_ARDUCOPTER_BIN,
+# SKYHERD_ARDUPLANE_BIN (built outside this repository; docs/autopilots.md). Tests whose binary
+# is not named are skipped with the reason.
+test-autopilots: $(STAMP)
+	$(BIN)/python -m pytest -q -m autopilot -rs
 
 bench: $(STAMP)
 	for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
