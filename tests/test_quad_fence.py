@@ -76,6 +76,10 @@ def test_targets_outside_the_fence_are_refused_inside_accepted():
     ap.step()
     assert not ap.reposition(np.array([0.0, 0.0, -60.0])).ok
     assert ap.reposition(np.array([0.0, 0.0, -40.0])).ok
+    # ... and RTL returns below it (RTL_RETURN_ALT 30 m would be above a 25 m ceiling)
+    assert ap.set_param("GF_MAX_VER_DIST", 25.0).ok
+    ap.step()
+    assert ap.return_to_launch().ok and ap._rtl_alt == pytest.approx(23.0)
 
 
 @pytest.mark.parametrize(

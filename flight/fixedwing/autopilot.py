@@ -438,6 +438,9 @@ class FixedWingAutopilot(AutopilotBase):
         alt = self.p("MIS_TAKEOFF_ALT") if altitude is None else float(altitude)
         if not (math.isfinite(alt) and 5.0 <= alt <= 1000.0):
             return Result.denied(f"take-off altitude must be 5..1000 m, got {altitude}")
+        why = self.fence_violation(np.array([*self._state.pos_ned[:2], -alt]))
+        if why is not None and "height" in why:
+            return Result.denied(f"take-off: target outside geofence: {why}")
         if self._phase in (Phase.TAKEOFF_ROLL, Phase.TAKEOFF_CLIMB):
             self._h_dem = alt
             return Result.accepted()  # already taking off
@@ -625,6 +628,9 @@ class FixedWingAutopilot(AutopilotBase):
 
     def _begin_rtl(self) -> None:
         alt = max(self.p("RTL_RETURN_ALT"), self._state.altitude)
+        ceiling = self.p("GF_MAX_VER_DIST")
+        if ceiling > 0.0:  # as PX4: the return never climbs through GF_MAX_VER_DIST
+            alt = max(min(alt, ceiling - 5.0), min(15.0, ceiling))
         self._rtl_loiter_t = None
         pos = self._state.pos_ned[:2]
         if float(np.hypot(*pos)) < 1.5 * self.default_loiter_radius():

@@ -479,6 +479,9 @@ class MultirotorAutopilot(AutopilotBase):
             self._rtl_phase = "climb"
             self._rtl_xy = pos[0:2].copy()
             self._rtl_alt = max(-float(pos[2]), self.params["RTL_RETURN_ALT"])
+            ceiling = self.fence.fence.max_ver
+            if ceiling > 0.0:  # as PX4: the return never climbs through GF_MAX_VER_DIST
+                self._rtl_alt = max(min(self._rtl_alt, ceiling - 2.0), min(2.0, ceiling))
         if mode == FlightMode.MISSION:
             self._item_started = False
         self._yaw_sp = self._yaw()
