@@ -45,3 +45,27 @@ def test_foxglove_reader_decodes_every_channel(tmp_path):
     assert got["/uav0/pose"]["log_time_ns"] == [0, 100_000_000, 200_000_000]
     assert got["/uav0/log"]["first"]["message"] == "switch ai → fallback: fence"
     assert got["/uav0/decision"]["first"]["verdict"] == "accepted"
+
+
+def test_foxglove_stream_reader_reads_a_cut_file_up_to_its_last_chunk(tmp_path):
+    """Foxglove reads a file without a summary (a killed flight) as a stream: @mcap/core's
+    stream reader gets every message of the complete chunks, as record.read_messages does."""
+    from record import read_messages
+
+    node = shutil.which("node")
+    modules = Path(os.environ.get("SKYHERD_MCAP_NODE_MODULES", JS / "node_modules"))
+    path = tmp_path / "flight.mcap"
+    rec = FlightRecorder(path, chunk_s=0.5)
+    for k in range(40):
+        rec.pose(0.1 * k, [k, 0, -10])
+        rec.event(0.1 * k, {"t": 0.1 * k, "event": "tick", "reason": str(k)})
+    data = path.read_bytes()
+    rec.close()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) - 7])  # inside the last chunk's message index
+    want = len(read_messages(cut).messages)
+    r = subprocess.run([node, str(JS / "read_mcap.cjs"), "--stream", str(cut)], capture_output=True,
+                       text=True, timeout=120, env={**os.environ, "NODE_PATH": str(modules)})  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    got = json.loads(r.stdout)
+    assert got == {"messages": want, "complete": False} and want >= 100

@@ -3,9 +3,11 @@
 // (protobuf through protobufjs from the FileDescriptorSet, JSON by JSON.parse).
 // Prints {"topic": {"schema": name, "count": n, "first": {...decoded fields}}} as JSON.
 // Usage: node read_mcap.cjs FILE.mcap   (NODE_PATH must hold @mcap/core, protobufjs, fzstd)
+//        node read_mcap.cjs --stream FILE.mcap   streamed, as Foxglove reads a file without an
+//        index (cut short by a kill): prints {"messages": n, "complete": bool}
 "use strict";
 const fs = require("fs");
-const { McapIndexedReader } = require("@mcap/core");
+const { McapIndexedReader, McapStreamReader } = require("@mcap/core");
 const protobuf = require("protobufjs");
 const descriptor = require("protobufjs/ext/descriptor");
 const fzstd = require("fzstd");
@@ -16,7 +18,22 @@ class FileReadable {
   async read(offset, size) { return this.buf.subarray(Number(offset), Number(offset + size)); }
 }
 
+function stream(buf) {
+  const reader = new McapStreamReader({
+    decompressHandlers: { zstd: (data, size) => fzstd.decompress(data, new Uint8Array(Number(size))) },
+    validateCrcs: true,
+  });
+  reader.append(buf);
+  let messages = 0, complete = false, rec;
+  while ((rec = reader.nextRecord()) !== undefined) {
+    if (rec.type === "Message") messages += 1;
+    if (rec.type === "Footer") complete = true;
+  }
+  process.stdout.write(JSON.stringify({ messages, complete }));
+}
+
 async function main() {
+  if (process.argv[2] === "--stream") return stream(fs.readFileSync(process.argv[3]));
   const buf = fs.readFileSync(process.argv[2]);
   const reader = await McapIndexedReader.Initialize({
     readable: new FileReadable(buf),
