@@ -51,6 +51,7 @@ M = mavlink2
 ON_GROUND, IN_AIR = M.MAV_LANDED_STATE_ON_GROUND, M.MAV_LANDED_STATE_IN_AIR
 BUILTIN_UID_TAG = 0x5348  # "SH": the top 16 bits of skyherd's built-in vehicle's uid
 STATUSTEXT_CHUNK = 50  # characters in one STATUSTEXT; a shorter chunk ends the text
+MAX_TEXTS = 200  # STATUSTEXTs kept in Telemetry (the newest)
 
 
 class CommandError(Exception):
@@ -118,6 +119,7 @@ class Telemetry:
     extended_sys_state_seen: bool = False
     quaternion_seen: bool = False
     statustexts: list[tuple[float, int, str]] = field(default_factory=list)  # (t, severity, text)
+    statustext_total: int = 0  # STATUSTEXTs received in all (statustexts keeps the newest)
     modes: list[tuple[float, str, bool]] = field(default_factory=list)  # (t, name, requested)
     requested_mode: FlightMode | None = None  # the client's last request (None: no authority)
     previous_mode: FlightMode | None = None  # the mode before that request, while it is answered
@@ -193,6 +195,15 @@ def update_telemetry(tel: Telemetry, msg, profile: AutopilotProfile | None = Non
         if text is not None:
             tel.statustext = text
             tel.statustexts.append((tel.t, int(msg.severity), text))
+            tel.statustext_total += 1
+            if len(tel.statustexts) > 2 * MAX_TEXTS:
+                del tel.statustexts[:-MAX_TEXTS]
+
+
+def texts_since(tel: Telemetry, total: int) -> list[str]:
+    """The STATUSTEXTs that arrived since `tel.statustext_total` was `total`."""
+    k = min(tel.statustext_total - total, len(tel.statustexts))
+    return [x for _, _, x in tel.statustexts[-k:]] if k > 0 else []
 
 
 def _advance_clock(tel: Telemetry, ms: int) -> None:
@@ -225,10 +236,15 @@ def _on_heartbeat(tel: Telemetry, msg) -> None:
             tel.yielded = (
                 f"the autopilot switched to {name} at t = {tel.t:.1f} s (skyherd had asked for "
                 f"{tel.requested_mode.name}): its failsafe, a ground station or a pilot has the "
-                "vehicle" + (f"; it says: {tel.statustext}" if tel.statustext else "")
+                "vehicle" + _recent_texts(tel)
             )
         tel.custom_mode, tel.mode, tel.mode_name = msg.custom_mode, mode, name
     _derive_landed(tel)
+
+
+def _recent_texts(tel: Telemetry, within_s: float = 2.0) -> str:
+    said = dict.fromkeys(x for t, _, x in tel.statustexts[-8:] if t >= tel.t - within_s)
+    return f"; it says: {' / '.join(said)}" if said else ""
 
 
 def _derive_landed(tel: Telemetry) -> None:
@@ -285,7 +301,6 @@ class VehicleClient:
         self.target_component = target_component
         self.options = options
         self.telemetry = Telemetry()
-        self.statustexts: list[str] = []
         self.error: str = ""  # why the receive thread could not read the vehicle
         self._latest: dict[str, mavlink2.MAVLink_message] = {}
         self._cond = threading.Condition()
@@ -355,9 +370,6 @@ class VehicleClient:
             self.error = str(e)
         if t == "COMMAND_ACK":
             self._acks[msg.command] = msg.result
-        elif t == "STATUSTEXT" and tel.statustexts and tel.statustexts[-1][2] == tel.statustext:
-            if not self.statustexts or self.statustexts[-1] is not tel.statustext:
-                self.statustexts.append(tel.statustext)
         elif t == "LOCAL_POSITION_NED":
             self._on_position(tel)
         with self._cond:
@@ -402,7 +414,7 @@ class VehicleClient:
             return
         if d > self.options.stall_dist_m and now - st[2] > self.options.stall_s:
             said = [x for _, _, x in tel.statustexts[-8:] if "ence" in x or "void" in x]
-            said = said or [x for _, _, x in tel.statustexts[-2:]]
+            said = list(dict.fromkeys(said or [x for _, _, x in tel.statustexts[-2:]]))
             self.interrupt = (
                 f"position target {d:.0f} m away not approached for {now - st[2]:.0f} s "
                 f"({self.profile.name if self.profile else 'autopilot'} in {tel.mode_name})"
@@ -411,6 +423,11 @@ class VehicleClient:
 
     def _ai_mode(self) -> FlightMode:
         return self.profile.ai_mode if self.profile else FlightMode.OFFBOARD
+
+    @property
+    def statustexts(self) -> list[str]:
+        """The autopilot's STATUSTEXTs (the newest MAX_TEXTS), whole (chunks joined)."""
+        return [x for _, _, x in self.telemetry.statustexts]
 
     def latest(self, msg_type: str) -> mavlink2.MAVLink_message | None:
         return self._latest.get(msg_type)
@@ -561,7 +578,7 @@ class VehicleClient:
         MAV_RESULT_ACCEPTED, or raise CommandError with the autopilot's STATUSTEXT reasons
         (which arrive up to ~100 ms after the ACK: waited for `statustext_wait_s`)."""
         tel = self.telemetry
-        n_text = len(tel.statustexts)
+        n_text = tel.statustext_total
         for confirmation in range(retries):
             self._acks.pop(command, None)
             self.send_command_long(command, *params, confirmation=confirmation)
@@ -575,9 +592,9 @@ class VehicleClient:
                 return result  # IN_PROGRESS: running (a landing); the recipe waits for its end
             if reason_wait:
                 self._wait_reason(n_text)
-            reason = "; ".join(x for _, _, x in tel.statustexts[n_text:])
+            reason = "; ".join(texts_since(tel, n_text))
             raise CommandError(command, result, reason)
-        raise CommandError(command, None, "; ".join(x for _, _, x in tel.statustexts[n_text:]))
+        raise CommandError(command, None, "; ".join(texts_since(tel, n_text)))
 
     def _wait_reason(self, n_text: int) -> None:
         """Let `statustext_wait_s` of autopilot time pass (wall backstop 1 s + that)."""
