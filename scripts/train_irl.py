@@ -502,45 +502,57 @@ def _summary(results, base, learner, args) -> tuple[str, str]:
 
 
 def _plots(rf, results, base) -> None:
+    """irl_t.png (the IRL margin per iteration, one line per learner and seed) and compare.png
+    (each metric per policy, mean ± std over seeds; learned and reference policies coloured
+    apart)."""
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(7, 4))
     learners = sorted({r["learner"] for r in results}, key=lambda s: (s != "irl", s))
     colors = dict(zip(learners, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    first_seed = min(x["seed"] for x in results)
     for r in results:
         its = [0] + [h["i"] for h in r["history"]]
         ts = [r["t0"]] + [h["t"] for h in r["history"]]
-        ax.plot(
-            its,
-            ts,
-            "-o",
-            ms=3,
-            color=colors[r["learner"]],
-            alpha=0.7,
-            label=r["learner"] if r["seed"] == min(x["seed"] for x in results) else None,
-        )
-    ax.set_xlabel("IRL iteration i")
-    ax.set_ylabel("t = ‖μ_E − μ̄‖₂")
+        ax.plot(its, ts, "-o", ms=3, color=colors[r["learner"]], alpha=0.7,
+                label=r["learner"] if r["seed"] == first_seed else None)  # fmt: skip
+    ax.set_xlabel("IRL iteration i (0 = the random start policy)")
+    ax.set_ylabel("margin t = ‖μ_E − μ̄‖₂ (no unit)")
     ax.set_yscale("log")
-    ax.legend()
-    ax.set_title("projection IRL margin")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.grid(True, which="both", alpha=0.3)
+    n_seeds = len({r["seed"] for r in results})
+    ax.set_title(f"projection IRL margin per iteration ({n_seeds} seed(s), one line each)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, title="learner")
     fig.tight_layout()
     fig.savefig(rf.file("irl_t.png"), dpi=100)
     plt.close(fig)
 
     names = learners + list(base)
     vals = {k: [r["metrics"] for r in results if r["learner"] == k] for k in learners} | base
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
-    for ax, key, lab in zip(
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.4))
+    for ax, key, lab, unit in zip(
         axes,
         ("all_in_view_frac", "footprint_ratio", "ugv_losses"),
         ("all-in-view fraction", "footprint / smallest circle", "UGV losses per episode"),
+        ("fraction of steps", "ratio (1 = tightest)", "losses / episode"),
     ):
         m = [np.nanmean([x[key] for x in vals[k]]) for k in names]
         s = [np.nanstd([x[key] for x in vals[k]]) for k in names]
-        ax.bar(range(len(names)), m, yerr=s, capsize=3, color="tab:blue")
+        col = ["tab:blue" if k in learners else "tab:gray" for k in names]
+        ax.bar(range(len(names)), m, yerr=s, capsize=3, color=col)
         ax.set_xticks(range(len(names)), names, rotation=35, ha="right", fontsize=8)
         ax.set_title(lab)
-    fig.tight_layout()
+        ax.set_ylabel(unit)
+    from matplotlib.patches import Patch
+
+    fig.legend(handles=[Patch(color="tab:blue", label="learned"),
+                        Patch(color="tab:gray", label="reference (expert, random)")],
+               loc="upper right", ncol=2, fontsize=8)  # fmt: skip
+    fig.suptitle(
+        f"composite task, mean ± std over {n_seeds} seed(s)", x=0.01, ha="left", fontsize=10
+    )
+    fig.tight_layout(rect=(0, 0, 1, 0.94))
     fig.savefig(rf.file("compare.png"), dpi=100)
     plt.close(fig)
