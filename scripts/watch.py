@@ -293,13 +293,14 @@ def _recorder(session, vehicle: str, path, live):
 
 
 def _label(tiles: list[np.ndarray], labels: list[str]) -> list[np.ndarray]:
-    """Each tile with its label (sim time) in the top-left corner, white on a dark band."""
+    """Each tile with its label (sim time) in the bottom-left corner, white on a dark band."""
     out = []
     for img, text in zip(tiles, labels):
         img = img.copy()
         w = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)[0][0]
-        cv2.rectangle(img, (0, 0), (min(img.shape[1], 8 + w), 20), (0, 0, 0), -1)
-        cv2.putText(img, text, (4, 15), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
+        h = img.shape[0]  # bottom-left: the detector's count sits top-left
+        cv2.rectangle(img, (0, h - 20), (min(img.shape[1], 8 + w), h), (0, 0, 0), -1)
+        cv2.putText(img, text, (4, h - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
                     cv2.LINE_AA)  # fmt: skip
         out.append(img)
     return out
