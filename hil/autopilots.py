@@ -532,6 +532,18 @@ def with_version(profile: AutopilotProfile, flight_sw_version: int) -> Autopilot
     return replace(profile, version=text)
 
 
+BUILTIN_UID_TAG = 0x5348  # "SH": the top 16 bits of skyherd's built-in vehicle's uid
+
+
+def refine(profile: AutopilotProfile, autopilot_version) -> AutopilotProfile:
+    """The profile after AUTOPILOT_VERSION: its version, and skyherd's built-in vehicle (told by
+    the "SH" tag of its uid) with its own reading of LOITER (`builtin_arducopter`)."""
+    p = with_version(profile, autopilot_version.flight_sw_version)
+    if (int(autopilot_version.uid) >> 48) == BUILTIN_UID_TAG and p.name == "ArduCopter":
+        p = builtin_arducopter(p)
+    return p
+
+
 def builtin_arducopter(profile: AutopilotProfile) -> AutopilotProfile:
     """skyherd's built-in vehicle with `--personality ardupilot`: ArduCopter's numbers, but
     it reports its hover (HOLD, entered by BRAKE or GUIDED) as LOITER (flight/mavlink/modes.py),

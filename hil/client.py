@@ -43,13 +43,12 @@ from hil.autopilots import (
     UnknownAutopilot,
     UnsupportedMode,
     detect,
-    with_version,
+    refine,
 )
 from hil.link import MavlinkLink
 
 M = mavlink2
 ON_GROUND, IN_AIR = M.MAV_LANDED_STATE_ON_GROUND, M.MAV_LANDED_STATE_IN_AIR
-BUILTIN_UID_TAG = 0x5348  # "SH": the top 16 bits of skyherd's built-in vehicle's uid
 STATUSTEXT_CHUNK = 50  # characters in one STATUSTEXT; a shorter chunk ends the text
 MAX_TEXTS = 200  # STATUSTEXTs kept in Telemetry (the newest)
 
@@ -540,13 +539,7 @@ class VehicleClient:
                             vehicle_s=self.options.version_wait_s)  # fmt: skip
         except ClientTimeout:
             return  # old firmware: the heartbeat's profile stands
-        v = self.latest("AUTOPILOT_VERSION")
-        p = with_version(self.profile, v.flight_sw_version)
-        if (int(v.uid) >> 48) == BUILTIN_UID_TAG and p.name == "ArduCopter":
-            from hil.autopilots import builtin_arducopter
-
-            p = builtin_arducopter(p)
-        self.telemetry.profile = p
+        self.telemetry.profile = refine(self.profile, self.latest("AUTOPILOT_VERSION"))
 
     def request_streams(self) -> None:
         """SET_MESSAGE_INTERVAL for each message the profile reads; REQUEST_DATA_STREAM when
