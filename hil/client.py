@@ -280,6 +280,38 @@ def _join_statustext(tel: Telemetry, msg) -> str | None:
     return None
 
 
+def local_setpoint(tel: Telemetry, target_system: int, pos_ned=None, vel_ned=None, yaw=None,
+                   target_component: int = 1) -> mavlink2.MAVLink_message:  # fmt: skip
+    """SET_POSITION_TARGET_LOCAL_NED for a position about home [m, NED] (home's x, y, z in
+    the autopilot's local frame added back), velocity [m/s] and yaw [rad]; None: ignored."""
+    mask = IGNORE_ACC | IGNORE_YAW_RATE
+    home = tel.home_local
+    p = [0.0, 0.0, 0.0] if pos_ned is None else [float(x + h) for x, h in zip(pos_ned, home)]
+    v = [0.0, 0.0, 0.0] if vel_ned is None else [float(x) for x in vel_ned]
+    mask |= IGNORE_POS if pos_ned is None else 0
+    mask |= IGNORE_VEL if vel_ned is None else 0
+    mask |= IGNORE_YAW if yaw is None else 0
+    return M.MAVLink_set_position_target_local_ned_message(
+        tel.time_boot_ms, target_system, target_component, M.MAV_FRAME_LOCAL_NED, mask, *p, *v,
+        0.0, 0.0, 0.0, 0.0 if yaw is None else float(yaw), 0.0,
+    )  # fmt: skip
+
+
+def reposition_command(tel: Telemetry, profile: AutopilotProfile, target_system: int, pos_ned,
+                       yaw=None, target_component: int = 1) -> mavlink2.MAVLink_message:  # fmt: skip
+    """DO_REPOSITION as COMMAND_INT to a position about home, in the global frame the profile
+    names: PX4 accepts GLOBAL_INT frames only; ArduPlane's GUIDED takes its targets this way
+    (GLOBAL_RELATIVE_ALT_INT). Needs `tel.home`."""
+    lat, lon, amsl = ned_to_geodetic(tel.home, np.asarray(pos_ned, dtype=float))
+    relative = profile.reposition_frame == M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    z = amsl - tel.home.alt_m if relative else amsl
+    return M.MAVLink_command_int_message(
+        target_system, target_component, profile.reposition_frame, M.MAV_CMD_DO_REPOSITION, 0, 0,
+        -1.0, 0.0, 0.0, math.nan if yaw is None else math.degrees(yaw),
+        int(round(lat * 1e7)), int(round(lon * 1e7)), float(z),
+    )  # fmt: skip
+
+
 SetpointFn = Callable[[Telemetry], tuple | None]
 
 
@@ -727,32 +759,13 @@ class VehicleClient:
 
     def position_target(self, pos_ned=None, vel_ned=None, yaw=None) -> mavlink2.MAVLink_message:
         """SET_POSITION_TARGET_LOCAL_NED (position about home → the autopilot's local frame)."""
-        mask = IGNORE_ACC | IGNORE_YAW_RATE
-        home = self.telemetry.home_local
-        p = [0.0, 0.0, 0.0] if pos_ned is None else [float(x + h) for x, h in zip(pos_ned, home)]
-        v = [0.0, 0.0, 0.0] if vel_ned is None else [float(x) for x in vel_ned]
-        mask |= IGNORE_POS if pos_ned is None else 0
-        mask |= IGNORE_VEL if vel_ned is None else 0
-        mask |= IGNORE_YAW if yaw is None else 0
-        return M.MAVLink_set_position_target_local_ned_message(
-            self.telemetry.time_boot_ms, self.target_system or 1, self.target_component,
-            M.MAV_FRAME_LOCAL_NED, mask, *p, *v, 0.0, 0.0, 0.0,
-            0.0 if yaw is None else float(yaw), 0.0,
-        )  # fmt: skip
+        return local_setpoint(self.telemetry, self.target_system or 1, pos_ned, vel_ned, yaw,
+                              self.target_component)  # fmt: skip
 
     def reposition_message(self, pos_ned, yaw=None) -> mavlink2.MAVLink_message:
-        """DO_REPOSITION as COMMAND_INT in the global frame the profile names (PX4 accepts
-        GLOBAL_INT frames only; ArduPlane's GUIDED takes its targets this way)."""
-        tel, p = self.telemetry, self.profile
-        lat, lon, amsl = ned_to_geodetic(tel.home, np.asarray(pos_ned, dtype=float))
-        relative = p.reposition_frame == M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
-        z = amsl - tel.home.alt_m if relative else amsl
-        return M.MAVLink_command_int_message(
-            self.target_system or 1, self.target_component, p.reposition_frame,
-            M.MAV_CMD_DO_REPOSITION, 0, 0, -1.0, 0.0, 0.0,
-            math.nan if yaw is None else math.degrees(yaw),
-            int(round(lat * 1e7)), int(round(lon * 1e7)), float(z),
-        )  # fmt: skip
+        """DO_REPOSITION as COMMAND_INT in the global frame the profile names."""
+        return reposition_command(self.telemetry, self.profile, self.target_system or 1, pos_ned,
+                                  yaw, self.target_component)  # fmt: skip
 
     # ---- recipes ---------------------------------------------------------------------
     def run_steps(
@@ -817,4 +830,5 @@ class VehicleClient:
 
 
 __all__ = ["ClientOptions", "ClientTimeout", "CommandError", "Telemetry", "UnsupportedMode",
-           "VehicleClient", "Yielded", "update_telemetry"]  # fmt: skip
+           "VehicleClient", "Yielded", "local_setpoint", "reposition_command", "texts_since",
+           "update_telemetry"]  # fmt: skip
