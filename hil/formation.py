@@ -23,6 +23,7 @@ velocity feed-forward), hold over the target cell, LAND, disarm.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import threading
@@ -35,7 +36,7 @@ import numpy as np
 from tqdm import tqdm
 
 from flight.airframes_registry import make_autopilot
-from flight.autopilot_api import FlightMode
+from flight.autopilot_api import FlightMode, Setpoint
 from flight.clock import Pacer, SimClock
 from flight.geo import Home, geodetic_to_ned, ned_to_geodetic
 from flight.mavlink import EndpointConfig
@@ -44,6 +45,10 @@ from flight.sitl import Sitl
 from hil.client import ClientTimeout, Telemetry, VehicleClient
 from hil.link import MavlinkLink
 from runio.runfolder import CsvWriter
+from safety.config import default_envelope_path, load_envelope
+from safety.envelope import EnvelopeSpec, Zone
+from safety.separation import SeparationParams, separation_rows
+from safety.supervisor import Health, Supervisor, SupervisorParams
 
 Cell = tuple[int, int]
 
@@ -199,6 +204,45 @@ def vehicle_homes(origin: Home, starts: list[Cell], cell_m: float) -> list[Home]
     return homes
 
 
+# ---- the safety net of the formation -------------------------------------------------------
+
+FORMATION_NET = SupervisorParams(hysteresis_s=1.0, hold_min_s=0.5, deadline_s=0.5)
+"""Supervisor settings of each formation vehicle (setpoints come with every telemetry sample)."""
+
+SEPARATION = SeparationParams(radius_m=1.0)
+"""Stopping points of two formation vehicles keep 1 m (cells 2 m apart, altitudes 1.5 m)."""
+
+FORMATION_ACCEL_MPS2 = 8.0
+"""Horizontal acceleration a formation setpoint may demand [m/s²] (g tan 40° = 8.2 m/s²)."""
+FORMATION_TILT_RAD = 0.70
+"""Tilt a formation setpoint may demand [rad] (40°, inside the autopilot's MPC_TILTMAX_AIR 45°)."""
+
+FENCE_PAD_M = 10.0
+"""The formation's fence: the plan's bounding box, this much wider on every side [m]."""
+
+
+def formation_envelope(paths_ne: list[np.ndarray], params: FormationParams,
+                       base: Path | str | None = None) -> EnvelopeSpec:  # fmt: skip
+    """The constraint set every formation vehicle flies in (field frame): the quadrotor field
+    set's dynamics and limits, its fence replaced by the plan's bounding box + FENCE_PAD_M,
+    no home radius (each vehicle has its own home) and no zones."""
+    spec, _ = load_envelope(base if base is not None else default_envelope_path("quadrotor"))
+    pts = np.concatenate([np.asarray(p, float).reshape(-1, 2) for p in paths_ne])
+    lo, hi = pts.min(axis=0) - FENCE_PAD_M, pts.max(axis=0) + FENCE_PAD_M
+    box = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    top = params.altitude(len(paths_ne) - 1) + 10.0
+    # the plan's corners turn a 2 m/s feed-forward by 90° within a step: |Δu| = 2.8 m/s, a
+    # demand of 5.7 m/s² through τ = 0.5 s, which the autopilot's 45° tilt limit flies
+    lim = dataclasses.replace(spec.limits, home_radius_m=0.0, accel_h_mps2=FORMATION_ACCEL_MPS2,
+                              tilt_cmd_rad=FORMATION_TILT_RAD,
+                              ceiling_m=max(spec.limits.ceiling_m, top))  # fmt: skip
+    return dataclasses.replace(
+        spec, name=f"{spec.name}-formation", version=f"{spec.version}+formation",
+        limits=lim, inclusions=(Zone("formation field", box),), exclusions=(),
+        source=f"{spec.source}: plan bounding box + {FENCE_PAD_M:g} m",
+    )  # fmt: skip
+
+
 # ---- K simulated vehicles on one thread ----------------------------------------------------
 
 
@@ -320,6 +364,11 @@ class FormationVehicle:
         self.hold_ne: np.ndarray | None = None  # field-frame hold point while in OFFBOARD
         self.t0: float | None = None  # plan start [s, vehicle time]
         self.error = ""
+        self.net: Supervisor | None = None
+        self.others: list[FormationVehicle] = []
+        self.separation = SeparationParams()
+        self.events = self.decisions = None
+        self.last_decision = None
         client.stream_offboard(self._setpoint)
 
     @property
@@ -366,10 +415,53 @@ class FormationVehicle:
         })  # fmt: skip
         if ref_ne is None:
             return None
-        local = np.array([ref_ne[0] - self.offset_ne[0], ref_ne[1] - self.offset_ne[1],
-                          -self.altitude])  # fmt: skip
         vel = None if vel_ne is None else np.array([vel_ne[0], vel_ne[1], 0.0])
-        return local, vel, 0.0
+        if self.net is None:  # no safety net attached (unit use only): the plan as it is
+            local = np.array([ref_ne[0] - self.offset_ne[0], ref_ne[1] - self.offset_ne[1],
+                              -self.altitude])  # fmt: skip
+            return local, vel, 0.0
+        return self.certify(t, tel, np.array([ref_ne[0], ref_ne[1], -self.altitude]), vel)
+
+    # ---- the safety net ----------------------------------------------------------------
+    def attach_net(self, supervisor: Supervisor, others: list[FormationVehicle],
+                   separation: SeparationParams = SEPARATION, events=None,
+                   decisions=None) -> None:  # fmt: skip
+        """Every setpoint of this vehicle goes through `supervisor` (field frame), with the
+        separation from `others` as constraint rows (safety.separation)."""
+        self.net, self.others, self.separation = supervisor, others, separation
+        self.events, self.decisions = events, decisions
+
+    def certify(self, t: float, tel: Telemetry, target_field: np.ndarray,
+                vel_ff: np.ndarray | None):  # fmt: skip
+        """The plan's setpoint (field frame) through the net → (pos, vel, yaw) in the vehicle's
+        own frame for the offboard stream. The fallback is flown in OFFBOARD (a brake, then a
+        position hold), not in the autopilot's HOLD: the formation needs every vehicle in
+        OFFBOARD, and the other vehicles' nets keep their distance from a holding vehicle."""
+        vs = tel.vehicle_state()
+        if vs is None:
+            return None
+        off = np.array([self.offset_ne[0], self.offset_ne[1], 0.0])
+        state = dataclasses.replace(vs, pos_ned=vs.pos_ned + off)
+        others = []
+        for w in self.others:
+            pw, vw = w.pos_field(), w.tel.vel_ned
+            if pw is not None and vw is not None:
+                others.append((f"uav{w.index}", pw, np.asarray(vw, float)))
+        self.net.set_dynamic_rows(*separation_rows(self.net.envelope.spec, state.pos_ned, others,
+                                                   self.separation))  # fmt: skip
+        sw = self.net.stats.switches
+        proposed = Setpoint(pos_ned=target_field, vel_ned=vel_ff, yaw=0.0)
+        d = self.net.update(t, state, proposed, Health())
+        self.last_decision = d
+        if self.decisions is not None:
+            self.decisions.write(d.record(vehicle=f"uav{self.index}", pilot="formation",
+                                          autopilot_mode=tel.mode or "unknown"))  # fmt: skip
+        if self.events is not None and self.net.stats.switches != sw:
+            self.events.write({"t": t, "event": "switch", "vehicle": f"uav{self.index}",
+                               "to": d.mode.value, "reason": d.reason})  # fmt: skip
+        c = d.command
+        pos = None if c.pos_ned is None else np.asarray(c.pos_ned, float) - off
+        return pos, c.vel_ned, c.yaw
 
 
 @dataclass(frozen=True)
@@ -388,8 +480,13 @@ class FormationFlight:
     """The shared phases for K vehicles, orchestrated from the calling thread."""
 
     def __init__(self, vehicles: list[FormationVehicle], params: FormationParams, timeout: float,
-                 swarm: LockstepSwarm | None = None):  # fmt: skip
+                 swarm: LockstepSwarm | None = None, events=None, decisions=None,
+                 separation: SeparationParams = SEPARATION):  # fmt: skip
         self.v = vehicles
+        self.envelope = formation_envelope([v.path_ne for v in vehicles], params)
+        for v in vehicles:  # one safety net per vehicle, the others' positions as rows
+            sup = Supervisor(self.envelope.envelope(), FORMATION_NET, None)
+            v.attach_net(sup, [w for w in vehicles if w is not v], separation, events, decisions)
         self.p = params
         self.swarm = swarm
         self.wall0 = time.monotonic()

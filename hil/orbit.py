@@ -51,7 +51,8 @@ from perception.camera import CameraParams, camera_pose, in_image, project
 from perception.pipeline import CameraRig, CameraTick
 from safety.envelope import NZ, P
 from safety.kernels import worst_residual
-from safety.supervisor import Decision, Health, Mode, Supervisor
+from safety.monitor import make_z
+from safety.supervisor import Decision, Health, Supervisor
 
 # The zoomed gimbal camera: 320×240 like the quadrotor's, 20° horizontal field of view
 # (f = 907 px): a 1 m marker spans ~3 px at ~190 m slant range, a 20 m team fits in 1/3 of H.
@@ -193,6 +194,7 @@ class OrbitCompanion:
         self.world = world  # a groundsim GroundWorld mirrored for PyBullet pixels, or None
         self.reserve_m, self.decision_dt_s = reserve_m, decision_dt_s
         self.margin_v_m = supervisor.envelope.spec.limits.margin_m  # ceiling and floor
+        supervisor.loiter_radius_m = plan.radius_m  # the autopilot's NAV_LOITER_RAD
         self.gimbal = gimbal if gimbal is not None else GimbalParams()
         self.climb_tau_s = climb_tau_s
         lim = supervisor.envelope.spec.limits
@@ -248,11 +250,20 @@ class OrbitCompanion:
         )  # fmt: skip
 
     def proposal(self, state: VehicleState) -> Setpoint:
-        """The velocity the orbit flies now: present horizontal velocity, climb toward h."""
-        climb = (self.plan.altitude_m + state.pos_ned[2]) / self.climb_tau_s
-        vd = -min(max(climb, -self.descent_max), self.climb_max)
-        v = state.vel_ned
-        return Setpoint(vel_ned=np.array([v[0], v[1], vd]))
+        """What the orbit flies: the position setpoint (orbit centre, −h) that the autopilot
+        loiters about with radius R. The safety net certifies the motion it implies (a
+        bank-limited turn onto the loiter circle, the climb toward h: Supervisor.implied_velocity)."""
+        return Setpoint(pos_ned=np.array([self.centre[0], self.centre[1], -self.plan.altitude_m]))
+
+    def certified_now(self, state: VehicleState) -> bool:
+        """Would the net accept the orbit's setpoint at this state? (No supervisor state is
+        changed: the hand-over test of `climb_out`.)"""
+        sup = self.supervisor
+        if not self._ok(self.centre):
+            return False
+        u = sup.implied_velocity(state, self.proposal(state))
+        z = make_z(state, u)
+        return bool(sup.envelope.worst(z) <= 0.0)
 
     def update(self, t: float, state: VehicleState) -> Decision:
         """Vehicle time t [s] and state → the certified decision to fly now."""
@@ -296,10 +307,39 @@ class OrbitCompanion:
     def setpoint(self) -> tuple:
         """(pos_ned, vel_ned, yaw) for the offboard stream from the last decision."""
         d = self.decision
-        if d is None or d.mode is Mode.AI:
+        if d is None:
             return np.array([self.centre[0], self.centre[1], -self.plan.altitude_m]), None, None
-        return d.command.pos_ned, d.command.vel_ned, d.command.yaw
+        return d.command.pos_ned, d.command.vel_ned, d.command.yaw  # AI: the certified setpoint
 
     @property
     def wants_hold(self) -> bool:
         return self.decision is not None and self.decision.autopilot_mode is FlightMode.HOLD
+
+
+def climb_out(client, comp: OrbitCompanion, vehicle_time, hold_s: float = 3.0,
+              timeout_s: float = 300.0, resend_s: float = 5.0) -> float:  # fmt: skip
+    """The climb-out, flown by the autopilot, planned into the envelope: after the take-off
+    (which ends far out on the runway heading, beyond the fixed-wing's certified region — the
+    fence minus the loiter reserve), DO_REPOSITION sends the aircraft's own loiter to the
+    orbit's centre at the orbit's altitude; the AI gets the vehicle only once the net
+    certifies the orbit's setpoint at the present state, continuously for `hold_s` s of
+    vehicle time. Returns the vehicle time of that moment; ClientTimeout after `timeout_s`."""
+    from hil.client import ClientTimeout
+
+    tel = client.telemetry
+    target = np.array([comp.centre[0], comp.centre[1], -comp.plan.altitude_m])
+    t0 = vehicle_time()
+    sent, since = -math.inf, None
+    while True:
+        t = vehicle_time()
+        if t - sent >= resend_s:
+            client.link.send(client.reposition_message(target))
+            sent = t
+        client.wait_message("LOCAL_POSITION_NED", timeout=5.0)
+        vs = tel.vehicle_state()
+        ok = vs is not None and comp.certified_now(vs)
+        since = (since if since is not None else t) if ok else None
+        if since is not None and t - since >= hold_s:
+            return t
+        if t - t0 > timeout_s:
+            raise ClientTimeout(f"climb-out: the orbit was not certified within {timeout_s:.0f} s")

@@ -245,6 +245,9 @@ class Supervisor:
         self.last_action_t: float | None = None
         self.last_u: np.ndarray | None = None
         self.last_sp: Setpoint | None = None  # the last well-formed AI action (yaw, position)
+        self._dyn_A: np.ndarray | None = None  # rows that change every step (separation)
+        self._dyn_b = np.zeros(0)
+        self._dyn_names: tuple[str, ...] = ()
         self._p_dr: np.ndarray | None = None  # dead-reckoned position (GPS glitch guard)
         self._dr_t: float | None = None
         self.position_suspect = False
@@ -311,6 +314,11 @@ class Supervisor:
                 None,
             )
         z[8], z[9], z[10] = u0, u1, u2
+        if self._dyn_A is not None and len(self._dyn_b):
+            r = self._dyn_A @ z - self._dyn_b
+            i = int(np.argmax(r))
+            if not r[i] <= 0.0:  # NaN too
+                return Severity.FALLBACK, self._dyn_names[i], None
         w = worst_residual(*self._args)
         if w <= 0.0:
             i = nearest_active(*self._near_args)
@@ -324,6 +332,17 @@ class Supervisor:
             if up is not None:
                 return Severity.PROJECTED, name, up
         return Severity.FALLBACK, name, None
+
+    def set_dynamic_rows(self, A: np.ndarray, b: np.ndarray, names: tuple[str, ...]) -> None:
+        """Extra rows A z <= b (A (m, NZ)) that hold until replaced, checked like base rows
+        (all must hold) before the envelope; e.g. the separation from other vehicles
+        (safety.separation). A violated row is a FALLBACK with its name."""
+        A = np.asarray(A, float).reshape(-1, NZ)
+        self._dyn_A, self._dyn_b, self._dyn_names = (
+            A,
+            np.asarray(b, float).reshape(-1),
+            tuple(names),
+        )
 
     def _position_check(self, state: VehicleState) -> str:
         """GPS glitch guard: the position must agree with the dead-reckoned one.
@@ -530,8 +549,12 @@ class Supervisor:
         rate = None if sp is None else sp.yaw_rate
         if sev == Severity.PROJECTED or sp is None:
             return Setpoint(vel_ned=u.copy(), yaw=yaw, yaw_rate=rate)
-        pos = None if sp.pos_ned is None else np.asarray(sp.pos_ned, float).copy()
-        return Setpoint(pos_ned=pos, vel_ned=u.copy(), yaw=yaw, yaw_rate=rate)
+        if sp.pos_ned is None:
+            return Setpoint(vel_ned=u.copy(), yaw=yaw, yaw_rate=rate)
+        # a position setpoint flies as proposed: its feed-forward, not the implied velocity
+        ff = None if sp.vel_ned is None else np.asarray(sp.vel_ned, float).copy()
+        return Setpoint(pos_ned=np.asarray(sp.pos_ned, float).copy(), vel_ned=ff, yaw=yaw,
+                        yaw_rate=rate)  # fmt: skip
 
     def _switch(self, t: float, to: Mode, reason: str, sev: Severity, state: VehicleState) -> None:
         frm = self.mode

@@ -41,7 +41,7 @@ def test_drill_command_short_run(tmp_path, capsys):
     ) == 6
     assert all(r["passed"] == "True" and float(r["excursion_m"]) <= 0 for r in rows)
     ev = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
-    first = [e for e in ev if e["drill"] == "lateral fence"][0]
+    first = [e for e in ev if e["drill"] == "lateral fence" and e["event"] == "switch"][0]
     assert (
         first["to"] == "fallback"
         and first["reason"].startswith("field edge")
@@ -55,7 +55,7 @@ def test_drill_command_short_run(tmp_path, capsys):
     )
     for name in ("quadrotor-lateral-fence.png", "quadrotor-nan-action.png", "quadrotor-random.png"):
         assert (run / name).stat().st_size > 10_000
-    assert "quadrotor-field 2026.11-r1" in (run / "summary.md").read_text()
+    assert f"quadrotor-field {SPEC.version}" in (run / "summary.md").read_text()
     assert "| lateral fence" in out and "ground-truth breaches beyond the tolerance: 0" in out
 
 
@@ -116,8 +116,9 @@ def test_fixedwing_drill_loiters_and_recovers(tmp_path, capsys):
     assert row["airframe"] == "fixedwing" and row["passed"] == "True"
     assert row["first_reason"] == "field edge 2" and float(row["excursion_m"]) < -20.0
     ev = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
-    assert [e["to"] for e in ev][:3] == ["fallback", "pid", "ai"]
-    assert ev[1]["t"] - ev[0]["t"] == pytest.approx(6.0, abs=0.03)  # loiter hold_min_s of the set
+    sw = [e for e in ev if e["event"] == "switch"]
+    assert [e["to"] for e in sw][:3] == ["fallback", "pid", "ai"]
+    assert sw[1]["t"] - sw[0]["t"] == pytest.approx(6.0, abs=0.03)  # loiter hold_min_s of the set
 
 
 def test_notched_fence_drills(tmp_path, capsys):
@@ -140,6 +141,31 @@ def test_notched_fence_drills(tmp_path, capsys):
     )
     out = capsys.readouterr().out
     assert rc == 0, out
-    assert "quadrotor-notched-field 2026.11-r1" in out and "breaches beyond the tolerance: 0" in out
+    assert "quadrotor-notched-field 2026.12-r2" in out and "breaches beyond the tolerance: 0" in out
     rows = list(csv.DictReader(open(next(tmp_path.iterdir()) / "metrics.csv")))
     assert float(rows[0]["excursion_m"]) < -5.0  # exact clearance, not the 0 of a split
+
+
+def test_campaign_drills_hold_under_faults(tmp_path, capsys):
+    """`skyherd drill --campaign`: one of each adversarial kind per airframe on the fault
+    plans, judged on ground truth: no breach, no overridden failsafe, table and PNG."""
+    from safety.campaign import kinds_for
+
+    n = len(kinds_for("quadrotor"))
+    rc = main(["drill", "--campaign", str(n), "--airframe", "quadrotor", "--seed", "5",
+               "--runs-dir", str(tmp_path)])  # fmt: skip
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    run = next(tmp_path.iterdir())
+    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    assert sorted(r["kind"] for r in rows) == sorted(kinds_for("quadrotor"))
+    assert all(r["breach"] == "False" and r["overridden"] == "0" for r in rows), out
+    by = {r["kind"]: r for r in rows}
+    assert by["battery"]["yielded"] in ("RTL", "LAND")
+    assert (
+        "overridden autopilot failsafes: 0" in out
+        and "Closest approaches" in (run / "summary.md").read_text()
+    )
+    assert (run / "campaign.png").stat().st_size > 10_000
+    ev = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    assert any(e["event"] == "yield" and e["drill"].startswith("battery") for e in ev)

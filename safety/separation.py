@@ -1,0 +1,54 @@
+"""Separation from other vehicles as constraint rows of the supervisor (one half-plane each).
+
+For vehicle k and another vehicle j (positions p, velocities v, NED [m, m/s], one frame),
+with n the unit vector from j to k, the relative stopping point must keep `radius_m`:
+
+    n·(p_k' − p_j) + T n·(v_k' − v_j) >= radius_m                                   (S1)
+
+p_k', v_k' the envelope's one-step prediction (safety.envelope eq. 1-2) and T its horizontal
+stopping time (eq. 3): both vehicles brake alike when their nets fall back, so the relative
+motion decides. (S1) is linear in z = (p, v, attitude, u) of vehicle k, the half-plane
+tangent to the ball of radius `radius_m` about j seen from k: conservative, since the ball
+lies on j's side of it. Rows are rebuilt every step from the other vehicles' latest positions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from safety.envelope import NZ, EnvelopeSpec, P, U, V
+
+
+@dataclass(frozen=True)
+class SeparationParams:
+    radius_m: float = 1.0  # 3-D distance two vehicles' stopping points keep [m]
+
+    def __post_init__(self) -> None:
+        if not self.radius_m > 0:
+            raise ValueError(f"separation.radius_m must be > 0, got {self.radius_m}")
+
+
+def separation_rows(spec: EnvelopeSpec, p_k: np.ndarray, others: list[tuple[str, np.ndarray, np.ndarray]],
+                    params: SeparationParams = SeparationParams()):  # fmt: skip
+    """Rows (A (m, NZ), b (m,), names) of (S1) for vehicle k at p_k against `others`
+    [(name, p_j (3,), v_j (3,))]."""
+    dyn = spec.dynamics
+    alpha = min(dyn.dt_s / dyn.tau_s, 1.0)
+    T = spec.stop_times()[0]
+    k = dyn.dt_s + T
+    A = np.zeros((len(others), NZ))
+    b = np.zeros(len(others))
+    names = []
+    for i, (name, pj, vj) in enumerate(others):
+        d = np.asarray(p_k, float) - np.asarray(pj, float)
+        dist = float(np.linalg.norm(d))
+        n = d / dist if dist > 1e-6 else np.array([0.0, 0.0, -1.0])
+        # −n·p' − T n·v' <= −(r + n·p_j + T n·v_j) with p' = p + dt v', v' = (1−α) v + α u
+        A[i, P] = -n
+        A[i, V] = -k * (1 - alpha) * n
+        A[i, U] = -k * alpha * n
+        b[i] = -(params.radius_m + float(n @ pj) + T * float(n @ vj))
+        names.append(f"separation {params.radius_m:g} m from {name}")
+    return A, b, tuple(names)
