@@ -108,6 +108,8 @@ def commands_of(b: Block) -> list[str]:
         ln = ln.strip()
         if not ln or ln.startswith("#"):
             continue
+        if not prompted and b.lang == "" and re.search(r"[─►⇄│→(]", ln.split("  #")[0]):
+            continue  # a diagram or prose in a plain block, not a command line
         try:
             words = shlex.split(ln, comments=True)
         except ValueError:
