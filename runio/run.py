@@ -84,6 +84,7 @@ class Run:
         self._closers: list[Any] = []
         self._finalisers: list[tuple[str, Callable[[], Any]]] = []
         self._failed: str | None = None
+        self._code_version: dict[str, Any] | None = None
         self.outcome: str | None = None  # "completed" | "failed" | "aborted" | "interrupted"
         self.reason = ""
 
@@ -113,10 +114,16 @@ class Run:
         if self._folder is not None:
             self._write_config()
 
+    def _code(self) -> dict[str, Any]:
+        """The code's version, looked up once per run (a git call)."""
+        if self._code_version is None:
+            self._code_version = code_version()
+        return self._code_version
+
     def _write_config(self) -> None:
         full = {"command": self.command, "command_line": command_line(self.argv),
                 "started_utc": self.started.isoformat(timespec="seconds"),
-                "code": code_version(), "versions": versions(), **self._config}  # fmt: skip
+                "code": self._code(), "versions": versions(), **self._config}  # fmt: skip
         atomic_write_text(
             self.path / "config.json",
             json.dumps(full, indent=2, sort_keys=True, default=str) + "\n",
