@@ -87,6 +87,9 @@ def versions() -> dict[str, str]:
         "cvxpy",
         "osqp",
         "gymnasium",
+        "mcap",
+        "foxglove-sdk",
+        "pydantic",
     ):
         try:
             out[pkg] = metadata.version(pkg)
