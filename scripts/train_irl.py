@@ -436,9 +436,9 @@ def _log(out: dict, events, metrics, bar, iters_left: int = 0) -> None:
     )
 
 
-def _ms(vals) -> str:
+def _ms(vals) -> str | None:
     v = [x for x in vals if not (isinstance(x, float) and math.isnan(x))]
-    return f"{np.mean(v):.3f} ± {np.std(v):.3f}" if v else "n/a"
+    return f"{np.mean(v):.3f} ± {np.std(v):.3f}" if v else None  # shown as — by the table
 
 
 def _summary(results, base, learner, args) -> tuple[str, str]:
