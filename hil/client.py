@@ -558,6 +558,8 @@ class VehicleClient:
             out.append(f"a 3D GPS fix (fix type {tel.gps_fix})")
         if tel.ekf_flags is not None and tel.ekf_flags & EKF_POSITION_OK != EKF_POSITION_OK:
             out.append(f"an EKF position (EKF_STATUS_REPORT flags 0x{tel.ekf_flags:x})")
+        if tel.prearm_ok is False and not tel.armed:
+            out.append("pre-arm checks passing (SYS_STATUS)")
         return out
 
     def _identify(self) -> None:
