@@ -18,7 +18,7 @@ import numpy as np
 from flight.autopilot_api import FlightMode, Setpoint
 from mission.authority import Authority
 from mission.pilots import Observation, Pilot, Proposal
-from mission.steps import MissionError, Phase, recipe, wait_ready, wait_until
+from mission.steps import MissionError, Phase, read_params, recipe, wait_ready, wait_until
 from mission.vehicle import VehicleLink
 from runio import CsvWriter, JsonlWriter
 from safety.supervisor import Decision, Health, Mode, Supervisor
@@ -83,10 +83,13 @@ class SingleVehicleMission:
     """connect → arm → take off → hand over → pilot behind the net → land."""
 
     def __init__(self, pilot: Pilot, supervisor: Supervisor | None, plan: FlightPlan,
-                 record: Record, perception=None):  # fmt: skip
+                 record: Record, perception=None, guard=None):  # fmt: skip
         self.pilot, self.net, self.plan, self.rec = pilot, supervisor, plan, record
         self.perception = perception  # mission.perception.Perception or None (no camera)
         self.authority = Authority()
+        self.guard = (
+            guard  # safety.consistency.ParamGuard: the autopilot's parameters vs the envelope
+        )
         self.phase = "connect"
         self.outcome = "running"
         self.reason = ""
@@ -116,6 +119,16 @@ class SingleVehicleMission:
         self.phase = "connect"
         yield from wait_ready(v)
         prof = v.profile
+        if self.guard is not None:  # envelope ↔ autopilot: refuse to fly on a mismatch
+            self.phase = "parameters"
+            yield from read_params(v)
+            self.guard.load(v.t, v.params)
+            v.param_updates.clear()
+            ok, why = self.guard.handover()
+            if not ok:
+                raise MissionError(
+                    f"refusing to take off: the autopilot's parameters disagree with the envelope: {why}"
+                )
         self.phase = "takeoff"
         yield from recipe(v, prof.takeoff_steps(plan.altitude_m, v.home_amsl_m))
         self.phase = "offboard"
@@ -174,8 +187,14 @@ class SingleVehicleMission:
                             v.tel.mode)  # fmt: skip
             return
         camera_t = self.perception.camera_t if self.perception is not None else t
+        params_fault = ""
+        if self.guard is not None:  # anyone's PARAM_SET mid-flight is re-checked here
+            for t_p, name, value in v.param_updates:
+                self.guard.update(t_p, name, value)
+            v.param_updates.clear()
+            params_fault = self.guard.fault
         d = self.net.update(t, state, None if proposal is None else proposal.setpoint,
-                            Health(camera_t=camera_t, link_t=v.heartbeat_t))  # fmt: skip
+                            Health(camera_t=camera_t, link_t=v.heartbeat_t, params_fault=params_fault))  # fmt: skip
         prof = v.profile
         ai_mode = prof.fallback_mode if d.autopilot_mode is FlightMode.HOLD else prof.ai_mode
         self.authority.want(v, ai_mode)

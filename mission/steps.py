@@ -205,3 +205,15 @@ def _arm(v: VehicleLink) -> Phase:
 def _set_param(v: VehicleLink, name: str, value: float) -> None:
     v.send(M.MAVLink_param_set_message(v.target_system or 1, 1, name.encode("ascii"), float(value),
                                        M.MAV_PARAM_TYPE_REAL32))  # fmt: skip
+
+
+def read_params(v: VehicleLink, timeout_s: float = 20.0) -> Phase:
+    """PARAM_REQUEST_LIST, then wait until every parameter has come (or `timeout_s`: what came
+    is what the companion knows; an absent parameter is not checked)."""
+    v.param_updates.clear()
+    v.send(M.MAVLink_param_request_list_message(v.target_system or 1, 1))
+    t0 = v.t
+    while v.param_count is None or len(v.params) < v.param_count:
+        if v.t - t0 > timeout_s:
+            return
+        yield

@@ -44,6 +44,9 @@ class VehicleLink:
         self.positions: list[tuple[float, np.ndarray, np.ndarray, str, bool]] = []
         self.setpoint: Setpoint | None = None  # streamed every tick while set (offboard)
         self._held: deque = deque()
+        self.params: dict[str, float] = {}  # the autopilot's parameters as read (PARAM_VALUE)
+        self.param_count: int | None = None
+        self.param_updates: list[tuple[float, str, float]] = []  # (tick time, name, value), unread
         self._last_mark_ns = -1
         self.unknown_autopilot = ""  # the reason, if the vehicle's autopilot is not one we fly
 
@@ -130,6 +133,16 @@ class VehicleLink:
                                    tel.mode.name if tel.mode else "", tel.armed))  # fmt: skip
         elif t == "COMMAND_ACK":
             self.acks[msg.command] = msg.result
+        elif t == "PARAM_VALUE":
+            pid = (
+                msg.param_id
+                if isinstance(msg.param_id, str)
+                else msg.param_id.decode("ascii", "replace")
+            )
+            name = pid.split("\x00", 1)[0]
+            self.params[name] = float(msg.param_value)
+            self.param_count = int(msg.param_count)
+            self.param_updates.append((self.t, name, float(msg.param_value)))
 
     @property
     def home_amsl_m(self) -> float:

@@ -122,7 +122,7 @@ def build_mission(args, run_dir: Path | None):
                 if args.pilot == "policy"
                 else PerceptionFollower(task)
             )
-            net = _load_net(args.envelope, run_dir)
+            net, events = _load_net(args.envelope, run_dir)
             perception = Perception(task)
     except ValueError as e:
         raise UsageError(str(e)) from None
@@ -130,7 +130,12 @@ def build_mission(args, run_dir: Path | None):
         decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
         track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
     )
-    return SingleVehicleMission(pilot, net, plan, record, perception), plan
+    guard = None
+    if net is not None:
+        from safety.consistency import ParamGuard
+
+        guard = ParamGuard(net.envelope.spec, net.p.pos_speed_max_mps, events=events)
+    return SingleVehicleMission(pilot, net, plan, record, perception, guard), plan
 
 
 def _track_columns():
@@ -154,14 +159,13 @@ def _load_net(envelope, run_dir):
     from safety.net import load_net, warm_up
 
     path = envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
+    events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
     try:
-        net = load_net(
-            "quadrotor", path, events=JsonlWriter(run_dir / "events.jsonl") if run_dir else None
-        )
+        net = load_net("quadrotor", path, events=events)
     except (EnvelopeFileError, ValueError) as e:
         raise UsageError(f"{e}; fix the file or pass another --envelope") from None
     warm_up(net.envelope, net.p)  # compile now, not at the first switch in flight
-    return net
+    return net, events
 
 
 def zenoh_endpoint(address: str) -> str:

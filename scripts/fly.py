@@ -42,6 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="ID",
         help="with --connect: the outside autopilot's MAVLink system id on the world link",
     )
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a parameter of the built-in autopilot at start (repeatable), e.g. COM_OF_LOSS_T=3",
+    )
     parser.add_argument("--instance", type=int, default=0, help="built-in vehicle instance N")
     parser.add_argument(
         "--speedup",
@@ -144,6 +151,8 @@ def _validate(args) -> tuple[list[str], list[str]]:
     sim = ["--instance", str(args.instance), "--seed", str(args.seed), "--ugvs", args.ugvs,
            "--speedup", repr(args.speedup), "--latency", repr(args.latency),
            "--zenoh-port", str(args.zenoh_port)]  # fmt: skip
+    for item in args.param:
+        sim += ["--param", item]
     if args.free_run or args.connect is not None:
         sim += ["--free-run"]
         comp += ["--free-run"]

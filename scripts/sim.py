@@ -114,6 +114,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="ID",
         help="with --follow: the followed autopilot's MAVLink system id",
     )
+    parser.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="set a parameter of the built-in autopilot at start (repeatable), e.g. COM_OF_LOSS_T=3",
+    )
     parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
     parser.add_argument(
         "--run-dir",
@@ -187,6 +194,8 @@ def run(args: argparse.Namespace) -> int:
     except OSError as e:
         session.close()
         raise UsageError(f"{e}; is another vehicle using instance {args.instance}?") from None
+    if not args.follow:
+        _set_params(world, args.param, session)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: world.stop())
     mode = "free-running" if args.free_run else f"lockstep (latency {args.latency:g} s)"
@@ -216,3 +225,17 @@ def _follow(args, params, session, run_dir):
         session.close()
         raise UsageError(f"--follow: {e}") from None
     return FollowWorld(link, params, session=session, run_dir=run_dir, system_id=args.follow_system)
+
+
+def _set_params(world, items: list[str], session) -> None:
+    for item in items:
+        name, _, value = item.partition("=")
+        try:
+            res = world.autopilot.set_param(name.strip(), float(value))
+        except ValueError:
+            res = None
+        if res is None or not res.ok:
+            world.close()
+            session.close()
+            why = res.reason if res is not None else f"{value!r} is not a number"
+            raise UsageError(f"--param {item}: {why}")

@@ -87,3 +87,18 @@ def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
     frac = float(re.search(r"all UGVs in view \[fraction of decisions\] \| ([0-9.]+)", summary)[1])
     assert frac >= 0.9, summary
     assert main(["fly", "--ugvs", "nowhere", "--runs-dir", str(tmp_path)]) == 2
+
+
+def test_fly_refuses_to_take_off_when_the_autopilot_disagrees_with_the_envelope(tmp_path, capsys):
+    """Envelope ↔ autopilot: an offboard-loss timeout of 3 s (in range, settable by any client)
+    lets a cut link run the vehicle far past the envelope's 0.3 s reaction: no take-off."""
+    args = ["fly", "--param", "COM_OF_LOSS_T=3", "--duration", "5", "--speedup", "0",
+            "--instance", "15", "--zenoh-port", "7456", "--runs-dir", str(tmp_path)]  # fmt: skip
+    assert main(args) == 1
+    (run,) = tmp_path.iterdir()
+    summary = (run / "summary.md").read_text()
+    assert "COM_OF_LOSS_T = 3 s" in summary and "refusing to take off" in summary
+    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    assert rows and not any(int(r["armed"]) for r in rows)  # never armed
+    events = [json.loads(x) for x in (run / "events.jsonl").read_text().splitlines()]
+    assert any(e.get("event") == "params" and not e["consistent"] for e in events)
