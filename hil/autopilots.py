@@ -108,8 +108,7 @@ COPTER_PARAMS = ParamNames(
     takeoff_altitude=("PILOT_TKOFF_ALT", 0.01),
     fence_enable=("FENCE_ENABLE", 1.0),
 )
-PLANE_PARAMS = ParamNames(
-    offboard_loss_timeout=("GUID_TIMEOUT", 1.0),
+PLANE_PARAMS = ParamNames(  # ArduPlane 4.5+ names (read from its Parameters.cpp)
     loiter_radius=("WP_LOITER_RAD", 1.0),
     airspeed_trim=("AIRSPEED_CRUISE", 1.0),  # TRIM_ARSPD_CM [cm/s] before ArduPlane 4.5
     bank_limit=("ROLL_LIMIT_DEG", _DEG),  # LIM_ROLL_CD [cdeg] before 4.5
