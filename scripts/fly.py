@@ -85,6 +85,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--renderer", choices=["fast", "bullet"], default="fast", help=argparse.SUPPRESS
     )
+    from flight.faults import add_fault_arguments
+
+    add_fault_arguments(parser.add_argument_group("faults in the simulation (flight/faults.py)"))
     from scripts.companion import add_arguments as companion_arguments
 
     companion_arguments(parser.add_argument_group("mission and companion"), standalone=False,
@@ -153,6 +156,11 @@ def _validate(args) -> tuple[list[str], list[str]]:
            "--zenoh-port", str(args.zenoh_port)]  # fmt: skip
     for item in args.param:
         sim += ["--param", item]
+    for flag in ("wind", "gust", "noise"):
+        if getattr(args, flag):
+            sim += [f"--{flag}", getattr(args, flag)]
+    for item in args.fault:
+        sim += ["--fault", item]
     if args.free_run or args.connect is not None:
         sim += ["--free-run"]
         comp += ["--free-run"]

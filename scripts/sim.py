@@ -121,6 +121,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="set a parameter of the built-in autopilot at start (repeatable), e.g. COM_OF_LOSS_T=3",
     )
+    from flight.faults import add_fault_arguments
+
+    add_fault_arguments(parser)
     parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
     parser.add_argument(
         "--run-dir",
@@ -190,7 +193,8 @@ def run(args: argparse.Namespace) -> int:
     session = open_zenoh(args.zenoh_port, args.zenoh_config)
     try:
         world = _follow(args, params, session, run_dir) if args.follow else World(
-            params, session=session, run_dir=run_dir, endpoint_config=endpoint)  # fmt: skip
+            params, session=session, run_dir=run_dir, endpoint_config=endpoint, faults=_faults(args))  # fmt: skip
+
     except OSError as e:
         session.close()
         raise UsageError(f"{e}; is another vehicle using instance {args.instance}?") from None
@@ -239,3 +243,15 @@ def _set_params(world, items: list[str], session) -> None:
             session.close()
             why = res.reason if res is not None else f"{value!r} is not a number"
             raise UsageError(f"--param {item}: {why}")
+
+
+def _faults(args):
+    """The fault plan of --wind/--gust/--noise/--fault (None: calm air, perfect state)."""
+    from flight.faults import plan_from_args
+
+    if not (args.wind or args.gust or args.noise or args.fault):
+        return None
+    try:
+        return plan_from_args(args, seed=args.seed)
+    except ValueError as e:
+        raise UsageError(str(e)) from None

@@ -107,13 +107,14 @@ class World:
     """One vehicle with its endpoints, the UGV team and the camera. `run()` until `stop()`."""
 
     def __init__(self, params: WorldParams, session=None, run_dir: Path | None = None,
-                 task: TaskParams | None = None, endpoint_config=None):  # fmt: skip
+                 task: TaskParams | None = None, endpoint_config=None, faults=None):  # fmt: skip
         from flight.airframes_registry import make_autopilot
         from flight.mavlink import EndpointConfig, MavlinkEndpoint
 
         self.p = params
         self.task = task if task is not None else TaskParams()
-        self.autopilot = make_autopilot(params.airframe, seed=params.seed, instance=params.instance)
+        self.autopilot = make_autopilot(params.airframe, seed=params.seed, instance=params.instance,
+                                        faults=faults)  # fmt: skip
         self.clock = self.autopilot.clock
         cfg = endpoint_config or EndpointConfig(instance=params.instance)
         self.endpoint = MavlinkEndpoint(self.autopilot, cfg)
@@ -195,7 +196,9 @@ class World:
         self._move_team(t)
         if self.p.lockstep:
             self.gate.mark(t_us)
-        state = self.autopilot.state
+        state = getattr(
+            self.autopilot, "true_state", self.autopilot.state
+        )  # the physics, not the estimate
         uav = level_camera_mount(state) if self.p.gimbal else state
         ugvs = team_states(self.team)
         if self.publisher is not None:
