@@ -9,6 +9,7 @@ yields: no further mode request or setpoint, and the landing is the autopilot's.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 
@@ -17,6 +18,7 @@ from tqdm import tqdm
 
 from flight.autopilot_api import FlightMode
 from hil.client import ClientTimeout, CommandError, Telemetry, VehicleClient, Yielded
+from runio import atomic_write_text
 from runio.runfolder import CsvWriter
 
 SetpointFn = Callable[[Telemetry], tuple | None]
@@ -131,9 +133,31 @@ class FlightSession:
         if c.profile is not None and self.tel.armed and not self.landed:
             self._leave_safe()
         c.stream_offboard(None)
+        self._write_autopilot_log()
         self.bar.close()
         self.metrics.close()
         return np.array(self.track) if self.track else np.zeros((0, 4))
+
+    def _write_autopilot_log(self) -> None:
+        """autopilot.json beside metrics.csv: which autopilot, its mode changes (requested by
+        skyherd or its own), what it said, and whether skyherd yielded to it."""
+        tel, p = self.tel, self.client.profile
+        log = {
+            "autopilot": None if p is None else {"name": p.name, "version": p.version,
+                                                 "vehicle": p.vehicle},
+            "modes": [{"t": round(t, 3), "mode": name, "requested": req} for t, name, req in tel.modes],
+            "statustexts": [{"t": round(t, 3), "severity": sev, "text": x}
+                            for t, sev, x in tel.statustexts],
+            "unrequested_mode_changes": tel.unrequested_mode_change,
+            "yielded": tel.yielded,
+            "setpoints_sent": self.client.setpoints_sent,
+        }  # fmt: skip
+        try:
+            atomic_write_text(
+                self.metrics.path.with_name("autopilot.json"), json.dumps(log, indent=1)
+            )
+        except OSError as e:
+            self.bar.write(f"skyherd fly: could not write autopilot.json: {e}")
 
     def _leave_safe(self) -> None:
         c, tel = self.client, self.tel

@@ -7,6 +7,8 @@ counts the vehicle's simulation clock. Instances 70-74.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
@@ -44,6 +46,9 @@ def _fly_twice(tmp_path, instance: int, personality: Personality):
                 fs.land()
                 fs.close()
                 assert not c.error, c.error
+                log = json.loads((run.path / "autopilot.json").read_text())
+                assert log["autopilot"]["name"] == c.profile.name and log["modes"]
+                assert all(m["requested"] for m in log["modes"])
                 assert not tel.armed and not sitl.autopilot.armed and not c.streaming
                 assert sitl.autopilot.mode is not FlightMode.OFFBOARD  # left in a normal mode
                 yield c, shown, sitl
