@@ -53,6 +53,12 @@ def add_arguments(
             metavar="FILE",
             help="a Zenoh JSON5 configuration instead",
         )
+        parser.add_argument(
+            "--signing-key",
+            default=None,
+            metavar="FILE",
+            help="MAVLink 2 signing key file (32 bytes) shared with the autopilot",
+        )
         parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
         parser.add_argument(
             "--run-dir",
@@ -230,11 +236,13 @@ def run(args: argparse.Namespace) -> int:
         session, frames = open_frames(args)
     try:
         link = MavlinkLink.open(address, source_system=1 + args.instance, source_component=COMPANION_COMPONENT,
-                                tlog=run_dir / "telemetry.tlog")  # fmt: skip
-    except LinkError as e:
+                                tlog=run_dir / "telemetry.tlog", signing_key=args.signing_key)  # fmt: skip
+    except (LinkError, ValueError) as e:  # ValueError: flight.mavlink.signing.SigningError
         if session is not None:
             session.close()
-        raise UsageError(f"{e}; is another companion using that port?") from None
+        raise UsageError(
+            f"{e}; is another companion using that port, is the key file right?"
+        ) from None
     v = VehicleLink(link)
     params = CompanionParams(lockstep=not args.free_run)
     print(f"skyherd companion: {args.mission} via {address}, "

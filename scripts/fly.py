@@ -49,6 +49,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="a parameter of the built-in autopilot at start (repeatable), e.g. COM_OF_LOSS_T=3",
     )
+    parser.add_argument(
+        "--signing-key",
+        default=None,
+        metavar="FILE",
+        help="MAVLink 2 signing key file (32 bytes) for the vehicle and the companion",
+    )
     parser.add_argument("--instance", type=int, default=0, help="built-in vehicle instance N")
     parser.add_argument(
         "--speedup",
@@ -154,6 +160,10 @@ def _validate(args) -> tuple[list[str], list[str]]:
     sim = ["--instance", str(args.instance), "--seed", str(args.seed), "--ugvs", args.ugvs,
            "--speedup", repr(args.speedup), "--latency", repr(args.latency),
            "--zenoh-port", str(args.zenoh_port)]  # fmt: skip
+    if args.signing_key:
+        key = str(Path(args.signing_key).resolve())
+        sim += ["--signing-key", key]
+        comp += ["--signing-key", key]
     for item in args.param:
         sim += ["--param", item]
     for flag in ("wind", "gust", "noise"):

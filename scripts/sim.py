@@ -124,6 +124,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from flight.faults import add_fault_arguments
 
     add_fault_arguments(parser)
+    parser.add_argument(
+        "--signing-key",
+        default=None,
+        metavar="FILE",
+        help="MAVLink 2 signing key file (32 bytes): sign every frame, reject unsigned ones",
+    )
     parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
     parser.add_argument(
         "--run-dir",
@@ -156,9 +162,8 @@ def build_world(args):
             camera_hz=args.camera_hz, ugv_start=args.ugv_start, lockstep=not args.free_run,
             lockstep_params=LockstepParams(latency_s=args.latency), speedup=args.speedup,
         )  # fmt: skip
-        endpoint = EndpointConfig(
-            instance=args.instance, bind_host=args.bind, remote_host=args.remote
-        )
+        endpoint = EndpointConfig(instance=args.instance, bind_host=args.bind, remote_host=args.remote,
+                                  signing_key=args.signing_key)  # fmt: skip
     except ValueError as e:
         raise UsageError(str(e)) from None
     return params, endpoint
@@ -195,6 +200,9 @@ def run(args: argparse.Namespace) -> int:
         world = _follow(args, params, session, run_dir) if args.follow else World(
             params, session=session, run_dir=run_dir, endpoint_config=endpoint, faults=_faults(args))  # fmt: skip
 
+    except ValueError as e:  # flight.mavlink.signing.SigningError: a bad key file
+        session.close()
+        raise UsageError(f"--signing-key: {e}") from None
     except OSError as e:
         session.close()
         raise UsageError(f"{e}; is another vehicle using instance {args.instance}?") from None
