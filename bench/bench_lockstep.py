@@ -31,14 +31,14 @@ COMPARED = ("decisions.jsonl", "world.csv", "metrics.csv", "events.jsonl")
 SKYHERD = [sys.executable, "-m", "scripts.cli"]
 
 
-def fly(args: list[str], busy: bool = False) -> tuple[Path, float, float]:
+def fly(args: list[str], busy: bool = False, check: bool = True) -> tuple[Path, float, float]:
     """One `skyherd fly`; returns (run folder, wall s, CPU s of the children)."""
     root = Path(tempfile.mkdtemp(prefix="skyherd-bench-"))
     hogs = [subprocess.Popen(["yes"], stdout=subprocess.DEVNULL) for _ in range(2 if busy else 0)]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.monotonic()
     try:
-        subprocess.run([*SKYHERD, "fly", *args, "--runs-dir", str(root)], check=True,
+        subprocess.run([*SKYHERD, "fly", *args, "--runs-dir", str(root)], check=check,
                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
     finally:
         for h in hogs:
@@ -65,6 +65,7 @@ def digest(run: Path) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="shorter flights, no 1× runs")
+    ap.add_argument("--perf-only", action="store_true", help="skip the determinism matrix")
     a = ap.parse_args()
     dur = "6" if a.quick else "10"
     print(f"load average at start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
@@ -74,6 +75,8 @@ def main() -> None:
                    "--zenoh-port", "7458"],
     }  # fmt: skip
     speedups = ["10", "0"] if a.quick else ["1", "10", "0"]
+    if a.perf_only:
+        missions, speedups = {"groundair": missions["groundair"]}, ["0"]
     rows, rtf = [], {}
     for name, args in missions.items():
         for s in speedups:
@@ -112,13 +115,21 @@ def main() -> None:
         ]
     ]
     for s in ("10", "20"):
-        run, _, _ = fly([*missions["groundair"], "--speedup", s, "--free-run"])
+        run, _, _ = fly([*missions["groundair"], "--speedup", s, "--free-run"], check=False)
         st = json.loads((run / "sim_stats.json").read_text())
+        out = json.loads((run / "companion.json").read_text())
         lag = st["free_run_lag"]
+        ended = out["outcome"] + (
+            f" ({out['reason'][:60]}…)" if out["outcome"] != "completed" else ""
+        )
         perf.append([f"free-running, paced {s}×", round(st["real_time_factor"], 1),
-                     f"{lag.get('p50_s', float('nan')):.3f} / {lag.get('p95_s', float('nan')):.3f} s"])  # fmt: skip
+                     f"{lag.get('p50_s', float('nan')):.3f} / {lag.get('p95_s', float('nan')):.3f} s", ended])  # fmt: skip
     print("\n## Closed-loop real-time factor, ground-air\n")
-    print(markdown_table(["mode", "sim real-time factor", "setpoint lag p50 / p95 [sim s]"], perf))
+    print(
+        markdown_table(
+            ["mode", "sim real-time factor", "setpoint lag p50 / p95 [sim s]", "flight"], perf
+        )
+    )
     c = rtf["companion"]
     print(f"\ncompanion decision latency (wall): p50 {1e3 * c['decide_wall_p50_s']:.1f} ms, "
           f"p95 {1e3 * c['decide_wall_p95_s']:.1f} ms over {c['ticks']} ticks")  # fmt: skip
