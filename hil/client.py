@@ -88,6 +88,10 @@ class ClientOptions:
     stall_s: float = 20.0  # a position target not approached by 1 m in this long is a stall
     stall_dist_m: float = 3.0  # ... when farther than this
     version_wait_s: float = 3.0
+    # Yield to the autopilot's own mode changes (the issue's rule; default). False keeps them
+    # visible (Telemetry.unrequested_mode_change, .yielded) but lets the mission go on and
+    # switch back — for missions on the built-in vehicle that re-engage by design.
+    yield_to_autopilot: bool = True
 
 
 @dataclass
@@ -418,7 +422,7 @@ class VehicleClient:
             self._setpoint_fn, sp = None, None
             if self._hold is None and tel.pos_ned is not None:
                 self._hold = tel.pos_ned.copy()
-        if not self._streaming or tel.yielded:
+        if not self._streaming or self.yielded:
             return
         if sp is None and self._hold is not None:
             sp = (self._hold, None, None)
@@ -456,6 +460,11 @@ class VehicleClient:
         return self.profile.ai_mode if self.profile else FlightMode.OFFBOARD
 
     @property
+    def yielded(self) -> str:
+        """Why the autopilot has the vehicle, when the client yields to it (else empty)."""
+        return self.telemetry.yielded if self.options.yield_to_autopilot else ""
+
+    @property
     def statustexts(self) -> list[str]:
         """The autopilot's STATUSTEXTs (the newest MAX_TEXTS), whole (chunks joined)."""
         return [x for _, _, x in self.telemetry.statustexts]
@@ -480,8 +489,8 @@ class VehicleClient:
         t0 = self.telemetry.t
         with self._cond:
             while not predicate():
-                if interruptible and self.telemetry.yielded:
-                    raise Yielded(self.telemetry.yielded)
+                if interruptible and self.yielded:
+                    raise Yielded(self.yielded)
                 if interruptible and self.interrupt:
                     raise ClientTimeout(f"{self.interrupt} (while waiting for {what})")
                 now = time.monotonic()
@@ -650,8 +659,8 @@ class VehicleClient:
         refused once the autopilot took over (Yielded). With `authority` the client holds
         the vehicle from now on: any mode it did not request then counts as the autopilot's."""
         tel = self.telemetry
-        if tel.yielded:
-            raise Yielded(tel.yielded)
+        if self.yielded:
+            raise Yielded(self.yielded)
         params = self.profile.set_mode_params(mode)
         if not authority:  # a take-off: the autopilot's own mode changes are expected
             tel.previous_mode = tel.requested_mode = None
@@ -802,7 +811,7 @@ class VehicleClient:
             self._attempts(s, self.arm, budget)
             self.wait_until(lambda: tel.armed, budget, "armed", vehicle_s=o.mode_wait_s)
         elif s.kind == "command":
-            if s.mode is not None and authority and not tel.yielded:
+            if s.mode is not None and authority and not self.yielded:
                 tel.previous_mode, tel.requested_mode = tel.mode, s.mode  # e.g. NAV_LAND
             self._attempts(s, lambda: self.command_long(s.command, *s.params), budget)
         elif s.kind == "wait_altitude":

@@ -108,8 +108,8 @@ class FlightSession:
         """The profile's landing, then its end: disarmed, streaming stopped, a normal mode."""
         c = self.client
         self.step("land", "land")
-        if self.tel.yielded:
-            raise Yielded(self.tel.yielded)
+        if self.client.yielded:
+            raise Yielded(self.client.yielded)
         c.run_steps(c.profile.land_steps(), self.left())
         self.landed = not self.tel.armed
         self._end()
@@ -162,7 +162,7 @@ class FlightSession:
     def _leave_safe(self) -> None:
         c, tel = self.client, self.tel
         try:
-            if tel.yielded:
+            if c.yielded:
                 if tel.mode not in (FlightMode.LAND, FlightMode.RTL):
                     self.bar.write(f"skyherd fly: {tel.yielded}; it keeps the vehicle in "
                                    f"{tel.mode_name}")  # fmt: skip

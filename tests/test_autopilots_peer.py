@@ -13,7 +13,7 @@ ArduCopter SITL answered when it was measured (../shared/PROTOCOLS.md):
 
 The peer runs its own clock at `RATE`× wall time; every limit the client waits under counts
 that clock, so the result does not depend on the machine's load (the wall backstops are
-minutes). Instances: UDP ports of vehicle instances 70-74 (14610+).
+minutes). Ports: those of vehicle instances 70-74 (14610-14614), reused test after test.
 """
 
 from __future__ import annotations
@@ -503,7 +503,7 @@ class ScriptedPx4(ScriptedArduCopter):
 
 @pytest.mark.timeout(240)
 def test_scripted_px4_second_mission_arms_because_the_stream_stops_before_the_landing_ends():
-    with ScriptedPx4(14615) as peer, _client(14615) as c:
+    with ScriptedPx4(14610) as peer, _client(14610) as c:
         c.wait_ready(timeout=100)
         tel = c.telemetry
         assert c.profile.name == "PX4"
@@ -592,7 +592,7 @@ class ScriptedArduPlane(ScriptedArduCopter):
 
 @pytest.mark.timeout(240)
 def test_scripted_arduplane_takes_off_in_takeoff_mode_and_flies_reposition_targets():
-    with ScriptedArduPlane(14616) as peer, _client(14616) as c:
+    with ScriptedArduPlane(14611) as peer, _client(14611) as c:
         c.wait_ready(timeout=100)
         tel = c.telemetry
         c.run_steps(c.profile.takeoff_steps(40.0, c.home_amsl()), 200, authority=False)

@@ -121,3 +121,23 @@ def test_readiness_names_what_is_missing_when_nothing_answers():
         c.options = type(c.options)(silence_s=0.5)
         with pytest.raises(ClientTimeout, match="heartbeat|no message"):
             c.wait_ready(timeout=1.0)
+
+
+def test_yielding_can_be_turned_off_but_the_change_stays_visible():
+    """ClientOptions(yield_to_autopilot=False): a mission that re-engages by design (on the
+    built-in vehicle) still sees the autopilot's own change counted, and may switch back."""
+    from hil.client import ClientOptions
+
+    with running_sitl(73, speedup=5.0) as sitl:
+        link = MavlinkLink.open("udpin:127.0.0.1:14613")
+        with VehicleClient(link, options=ClientOptions(yield_to_autopilot=False)) as c:
+            tel = c.telemetry
+            c.wait_ready(timeout=60)
+            c.run_steps(c.profile.takeoff_steps(4.0, c.home_amsl()), 60, authority=False)
+            c.run_steps(c.profile.handover_steps(), 60)
+            c.stop_setpoints()
+            c.wait_until(lambda: tel.mode is FlightMode.HOLD, 60, "the failsafe", vehicle_s=10)
+            assert tel.unrequested_mode_change == 1 and "AUTO.LOITER" in tel.yielded
+            c.run_steps(c.profile.handover_steps(), 60)  # back to OFFBOARD: allowed here
+            assert sitl.autopilot.mode is FlightMode.OFFBOARD
+            c.run_steps(c.profile.land_steps(), 60)
