@@ -75,9 +75,15 @@ class LockstepGate:
         self.stats = GateStats()
         self._carry: deque[tuple[object, Address]] = deque()
 
-    def mark(self, t_us: int) -> None:
-        """Mark the camera instant t_us [µs] on the link (sent to the companion)."""
-        self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US))
+    def mark(self, t_us: int, frame_seq: int | None = None) -> None:
+        """Mark the camera instant t_us [µs] on the link (sent to the companion), announcing
+        frame `frame_seq` first with CAMERA_IMAGE_CAPTURED when one was published for it (so a
+        companion never waits for a frame a lost camera did not send). Both are the
+        simulation's time sync, sent even while the link is cut."""
+        if frame_seq is not None:
+            self.link.send(self.mav.camera_image_captured_encode(
+                t_us // 1000, 0, 0, 0, 0, 0, 0, [1.0, 0.0, 0.0, 0.0], frame_seq, 1, b""), force=True)  # fmt: skip
+        self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US), force=True)
 
     def wait_for_peer(
         self, beacon: Callable[[], None], stop: threading.Event | None = None
@@ -139,7 +145,7 @@ class LockstepGate:
                     f"{self.p.timeout_s:.0f} s of wall time (stuck, or not running)"
                 )
             if now >= next_resend:
-                self.mark(t_us)
+                self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US), force=True)
                 self.stats.resends += 1
                 if on_wait is not None:
                     on_wait()

@@ -96,8 +96,11 @@ def run(v: VehicleLink, mission: Mission, gen, frames: FrameSource | None,
         if p.lockstep:
             t = v.next_mark(p.link_patience_s)
             start = time.monotonic()
-            if frames is not None:
-                mission.on_frame(t, *frames.frame_at(t, p.frame_patience_s))
+            if frames is not None:  # wait only for a frame the vehicle announced for this tick
+                if v.frame_announced_ms == round(t * 1000):
+                    mission.on_frame(t, *frames.frame_at(t, p.frame_patience_s))
+                else:
+                    mission.on_frame(t, None, "lost")
         else:
             v.drain(0.02)
             if v.tel.time_boot_ms == 0:  # nothing yet from the autopilot: wall time counts

@@ -46,6 +46,7 @@ class VehicleLink:
         self._held: deque = deque()
         self.params: dict[str, float] = {}  # the autopilot's parameters as read (PARAM_VALUE)
         self.param_count: int | None = None
+        self.frame_announced_ms = -1  # lockstep: the tick whose frame the vehicle announced [ms]
         self.param_updates: list[tuple[float, str, float]] = []  # (tick time, name, value), unread
         self._last_mark_ns = -1
         self.unknown_autopilot = ""  # the reason, if the vehicle's autopilot is not one we fly
@@ -133,6 +134,8 @@ class VehicleLink:
                                    tel.mode.name if tel.mode else "", tel.armed))  # fmt: skip
         elif t == "COMMAND_ACK":
             self.acks[msg.command] = msg.result
+        elif t == "CAMERA_IMAGE_CAPTURED":  # lockstep: a frame was published for this tick
+            self.frame_announced_ms = int(msg.time_boot_ms)
         elif t == "PARAM_VALUE":
             pid = (
                 msg.param_id

@@ -75,6 +75,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="lockstep: the companion's declared compute latency [s of simulation time]",
     )
     parser.add_argument("--seed", type=int, default=0, help="simulation seed")
+    parser.add_argument(
+        "--cut-link",
+        action="append",
+        default=[],
+        metavar="T:D",
+        help="cut the companion's MAVLink link both ways at simulation time T [s] for D [s]",
+    )
+    parser.add_argument(
+        "--cut-camera",
+        action="append",
+        default=[],
+        metavar="T:D",
+        help="stop the camera's frames at T [s] for D [s]",
+    )
     parser.add_argument("--runs-dir", default="runs", help="where run folders go")
     parser.add_argument(
         "--timeout", type=float, default=600.0, help="wall-clock limit for the whole flight [s]"
@@ -166,6 +180,10 @@ def _validate(args) -> tuple[list[str], list[str]]:
         comp += ["--signing-key", key]
     for item in args.param:
         sim += ["--param", item]
+    for item in args.cut_link:
+        sim += ["--cut-link", item]
+    for item in args.cut_camera:
+        sim += ["--cut-camera", item]
     for flag in ("wind", "gust", "noise"):
         if getattr(args, flag):
             sim += [f"--{flag}", getattr(args, flag)]

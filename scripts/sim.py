@@ -130,6 +130,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="MAVLink 2 signing key file (32 bytes): sign every frame, reject unsigned ones",
     )
+    parser.add_argument(
+        "--cut-link",
+        action="append",
+        default=[],
+        metavar="T:D",
+        help="cut the companion's MAVLink link both ways at simulation time T [s] for D [s] (repeatable)",
+    )
+    parser.add_argument(
+        "--cut-camera",
+        action="append",
+        default=[],
+        metavar="T:D",
+        help="stop the camera's frames at T [s] for D [s] (repeatable)",
+    )
     parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
     parser.add_argument(
         "--run-dir",
@@ -161,6 +175,7 @@ def build_world(args):
             airframe=args.airframe, instance=args.instance, seed=args.seed, scenario=args.ugvs,
             camera_hz=args.camera_hz, ugv_start=args.ugv_start, lockstep=not args.free_run,
             lockstep_params=LockstepParams(latency_s=args.latency), speedup=args.speedup,
+            link_cuts=_windows(args.cut_link, "--cut-link"), camera_losses=_windows(args.cut_camera, "--cut-camera"),
         )  # fmt: skip
         endpoint = EndpointConfig(instance=args.instance, bind_host=args.bind, remote_host=args.remote,
                                   signing_key=args.signing_key)  # fmt: skip
@@ -263,3 +278,18 @@ def _faults(args):
         return plan_from_args(args, seed=args.seed)
     except ValueError as e:
         raise UsageError(str(e)) from None
+
+
+def _windows(items: list[str], flag: str) -> tuple[tuple[float, float], ...]:
+    """`T:D` strings → ((start, duration), ...) [s]; UsageError naming the flag."""
+    out = []
+    for item in items:
+        t, _, d = item.partition(":")
+        try:
+            w = (float(t), float(d))
+        except ValueError:
+            raise UsageError(f"{flag} {item!r}: expected T:D in seconds, e.g. 30:3") from None
+        if not (w[0] >= 0 and w[1] > 0):
+            raise UsageError(f"{flag} {item!r}: T must be >= 0 and D > 0")
+        out.append(w)
+    return tuple(out)

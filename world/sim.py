@@ -63,6 +63,12 @@ class WorldParams:
     speedup: float = 10.0  # simulation seconds per wall second; 0 = as fast as possible
     pace_s: float = 0.02  # the pacer sleeps once per this much simulation time [s]
     gimbal: bool = True  # roll/pitch-stabilised camera (the policy was trained with one)
+    link_cuts: tuple[
+        tuple[float, float], ...
+    ] = ()  # (start, duration) [s]: the API link cut both ways
+    camera_losses: tuple[
+        tuple[float, float], ...
+    ] = ()  # (start, duration) [s]: no frames published
 
     def __post_init__(self) -> None:
         if not self.camera_hz > 0:
@@ -81,6 +87,10 @@ class WorldParams:
                 raise ValueError(
                     f"ugv_start must be 'offboard' or seconds >= 0, not {self.ugv_start!r}"
                 )
+
+
+def _during(windows: tuple[tuple[float, float], ...], t: float) -> bool:
+    return any(t0 <= t < t0 + d for t0, d in windows)
 
 
 def level_camera_mount(state: VehicleState) -> VehicleState:
@@ -145,6 +155,8 @@ class World:
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
         self.frames = 0
         self.render_failures = 0
+        self.cut_dropped = 0  # companion messages lost in link cuts
+        self.camera_dropped = 0  # frames not sent while the camera was lost
 
     # ---- the loop ------------------------------------------------------------------------------
     def stop(self) -> None:
@@ -175,11 +187,16 @@ class World:
                 self._camera_instant(t_us)
                 next_frame_us += period_us
                 open_tick = t_us if p.lockstep else None
+            cut = _during(p.link_cuts, clock.t)
+            ep.api.muted = cut  # a real cut: nothing from the vehicle reaches the companion
             if open_tick is not None and t_us >= open_tick + latency_us:
                 batch = self.gate.collect(open_tick, self._stop, self._republish)
                 if batch is None:
                     break
-                ep.dispatch(ep.api, batch)
+                if not cut:  # ... and nothing from the companion reaches the vehicle
+                    ep.dispatch(ep.api, batch)
+                else:
+                    self.cut_dropped += len(batch)
                 open_tick = None
             if not p.lockstep:
                 self._free_run_receive()
@@ -194,22 +211,24 @@ class World:
     def _camera_instant(self, t_us: int) -> None:
         t = t_us / 1e6
         self._move_team(t)
-        if self.p.lockstep:
-            self.gate.mark(t_us)
-        state = getattr(
-            self.autopilot, "true_state", self.autopilot.state
-        )  # the physics, not the estimate
+        state = getattr(self.autopilot, "true_state", self.autopilot.state)  # physics, not estimate
         uav = level_camera_mount(state) if self.p.gimbal else state
         ugvs = team_states(self.team)
+        seq = None
         if self.publisher is not None:
-            try:
-                image = self.renderer.render(uav, ugvs)
-            except ValueError:  # a non-finite pose: no frame, as a real camera link would give
-                self.render_failures += 1
+            if _during(self.p.camera_losses, t):
+                self.camera_dropped += 1  # the camera is lost: no frame leaves
             else:
-                self.publisher.publish(t, uav.pos_ned, uav.quat, image)
-                self.frames += 1
+                try:
+                    image = self.renderer.render(uav, ugvs)
+                except ValueError:  # a non-finite pose: no frame, as a real camera link would give
+                    self.render_failures += 1
+                else:
+                    seq = self.publisher.publish(t, uav.pos_ned, uav.quat, image)
+                    self.frames += 1
             self._publish_truth(t, ugvs)
+        if self.p.lockstep:
+            self.gate.mark(t_us, seq)
         if self.truth is not None:
             self._write_truth(t, state, ugvs)
 
@@ -277,6 +296,9 @@ class World:
             "mark_resends": g.resends,
             "wait_for_companion_wall_s": g.wait_wall_s,
             "free_run_lag": self.lag.summary(),
+            "link_cut_dropped": self.cut_dropped,
+            "link_cut_muted": self.endpoint.api.stats_muted,
+            "camera_loss_frames": self.camera_dropped,
         }
         if self.run_dir is not None:
             atomic_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")

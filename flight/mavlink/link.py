@@ -37,6 +37,8 @@ class UdpLink:
         self.peer: Address | None = None
         self.codec = Codec(system_id, component_id, signing, link_id)
         self._on_frame = on_frame  # tlog hook: (direction "in"/"out", one frame's bytes)
+        self.muted = False  # a simulated link cut (world.sim): send nothing
+        self.stats_muted = 0
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.bind(bind)
@@ -71,8 +73,12 @@ class UdpLink:
             out.extend((m, self.peer) for m in msgs)
         return out
 
-    def send(self, msg: MAVLinkMessage, to: Address | None = None) -> None:
-        """Send one message to `to`, or to the default remote and the last sender."""
+    def send(self, msg: MAVLinkMessage, to: Address | None = None, force: bool = False) -> None:
+        """Send one message to `to`, or to the default remote and the last sender. While `muted`
+        (a simulated link cut) nothing leaves unless `force` (the lockstep's own time sync)."""
+        if self.muted and not force:
+            self.stats_muted += 1
+            return
         buf = self.codec.pack(msg)
         if self._on_frame is not None:
             self._on_frame("out", buf)

@@ -1,0 +1,32 @@
+"""Real faults of the two-program topology, seen by the companion within the stated times:
+a cut of the MAVLink link both ways (the simulator sends nothing to the companion and drops
+what it sends), and a stop of the camera's Zenoh stream. Lockstep: the same at any load.
+
+Stated detection times: a cut link within link_timeout_s (1.5 s) after the last heartbeat that
+came, i.e. ≤ 1.5 s + the 1 s heartbeat period after the cut; a lost camera within
+camera_timeout_s (1.0 s) + one tick (0.1 s)."""
+
+import json
+
+from scripts.cli import main
+
+
+def test_a_cut_link_and_a_lost_camera_are_seen_within_the_stated_times(tmp_path):
+    args = ["fly", "--duration", "25", "--cut-link", "22:3", "--cut-camera", "30:2", "--speedup", "0",
+            "--instance", "18", "--zenoh-port", "7457", "--runs-dir", str(tmp_path)]  # fmt: skip
+    assert main(args) == 0
+    (run,) = tmp_path.iterdir()
+    events = [json.loads(x) for x in (run / "events.jsonl").read_text().splitlines()]
+    to_fallback = [e for e in events if e.get("event") == "switch" and e.get("to") == "fallback"]
+    link = [e["t"] for e in to_fallback if "link lost" in e["reason"]]
+    camera = [e["t"] for e in to_fallback if "camera lost" in e["reason"]]
+    assert link and 22.0 < link[0] <= 22.0 + 1.5 + 1.0 + 1e-6, to_fallback
+    assert camera and 30.0 < camera[0] <= 30.0 + 1.0 + 0.1 + 1e-6, to_fallback
+    stats = json.loads((run / "sim_stats.json").read_text())
+    assert stats["link_cut_dropped"] > 0 and stats["link_cut_muted"] > 0  # a real cut, both ways
+    assert stats["camera_loss_frames"] == 20  # 2 s of a 10 Hz camera never left
+    comp = json.loads((run / "companion.json").read_text())
+    assert comp["frames"]["lost"] == 20 and comp["outcome"] == "completed"
+    # the decisions say why the net flew what it flew during the faults
+    rows = [json.loads(x) for x in (run / "decisions.jsonl").read_text().splitlines()]
+    assert any(r["verdict"] == "fallback" and "link" in r["reason"] for r in rows)
