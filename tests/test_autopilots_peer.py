@@ -611,3 +611,25 @@ def test_scripted_arduplane_takes_off_in_takeoff_mode_and_flies_reposition_targe
         c.wait_until(lambda: tel.mode_name == "LOITER", 30, "LOITER", vehicle_s=5)
         c.run_steps(c.profile.land_steps(), 60)
         assert tel.mode_name == "RTL" and not c.streaming
+
+
+@pytest.mark.timeout(240)
+def test_a_mission_that_ends_in_the_air_is_landed_the_autopilots_way(tmp_path):
+    """FlightSession.close() after an abort in flight: ArduCopter's landing (LAND, not NAV_LAND),
+    left disarmed; autopilot.json records the modes."""
+    import json
+
+    from hil.session import TRACK_COLUMNS, FlightSession
+    from runio import RunFolder
+
+    with ScriptedArduCopter(14612, ekf_after_s=1.0) as peer, _client(14612) as c:
+        run = RunFolder("fly", root=tmp_path)
+        fs = FlightSession(c, run.metrics(TRACK_COLUMNS), ["x"] * 5, timeout=200)
+        fs.connect_arm_takeoff(8.0)
+        fs.offboard(8.0)
+        fs.close()  # as after an exception in the mission
+        assert not c.telemetry.armed and peer.mode == LAND
+        assert M.MAV_CMD_NAV_LAND not in [cmd for _, cmd, _ in peer.commands]
+        log = json.loads((run.path / "autopilot.json").read_text())
+        assert [m["mode"] for m in log["modes"]][-2:] == ["GUIDED", "LAND"]
+        assert log["autopilot"]["name"] == "ArduCopter" and log["unrequested_mode_changes"] == 0
