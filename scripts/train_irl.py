@@ -128,8 +128,12 @@ def _job(spec: dict) -> dict:
 
     p = dataclasses.replace(spec["params"], seed=spec["seed"])
     cpu0 = time.process_time()
+    on_iteration = spec.get("on_iteration")
+    if spec.get("ticks") is not None:  # a worker process: tell the parent's progress bar
+        q, key = spec["ticks"], (spec["learner"], spec["seed"])
+        on_iteration = lambda it: q.put((*key, float(it.t)))  # noqa: E731
     res = run_apprenticeship(
-        np.asarray(spec["mu_expert"]), p, on_iteration=spec.get("on_iteration"),
+        np.asarray(spec["mu_expert"]), p, on_iteration=on_iteration,
         progress=spec.get("progress", False),
     )  # fmt: skip
     cpu_s = time.process_time() - cpu0
@@ -304,11 +308,7 @@ def _train(run, args, learner, rules, expert_p, needed, demos, demo_files, quick
 
     progress_note()
     if args.workers > 1:
-        with ProcessPoolExecutor(max_workers=args.workers) as pool:
-            for out in pool.map(_job, specs):
-                results.append(out)
-                _log(out, events, metrics, bar, args.irl_iters)
-                progress_note()
+        _run_pool(specs, args.workers, results, events, metrics, bar, args.irl_iters, progress_note)
     else:
         for spec in specs:
             done = {"n": 0}
@@ -404,6 +404,42 @@ def _train(run, args, learner, rules, expert_p, needed, demos, demo_files, quick
         print(f"saved {key} seed {out['seed']} policy → {args.save_policy}")
     print(f"summary: {rf.path / 'summary.md'}")
     return 0
+
+
+def _run_pool(specs, workers, results, events, metrics, bar, irl_iters, note) -> None:
+    """The jobs on `workers` processes; each IRL iteration in a worker moves the bar (through
+    a queue), so it never sits still for a whole job. Results keep the order of `specs`."""
+    import multiprocessing as mp
+    import queue
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    with mp.Manager() as mgr, ProcessPoolExecutor(max_workers=workers) as pool:
+        q = mgr.Queue()
+        futs = {pool.submit(_job, {**spec, "ticks": q}): i for i, spec in enumerate(specs)}
+        ticks: dict[tuple, int] = {}
+        done_by_index: dict[int, dict] = {}
+        pending = set(futs)
+
+        def drain() -> None:
+            while True:
+                try:
+                    learner, seed, t = q.get_nowait()
+                except queue.Empty:
+                    return
+                ticks[(learner, seed)] = ticks.get((learner, seed), 0) + 1
+                bar.update(1)
+                bar.set_postfix(run=f"{learner}/{seed}", t=f"{t:.3g}")
+
+        while pending:
+            finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+            drain()
+            for f in finished:
+                out = f.result()
+                done_by_index[futs[f]] = out
+                seen = ticks.get((out["learner"], out["seed"]), 0)
+                _log(out, events, metrics, bar, irl_iters - seen)
+                results[:] = [done_by_index[i] for i in sorted(done_by_index)]
+                note()
 
 
 def _log(out: dict, events, metrics, bar, iters_left: int = 0) -> None:
