@@ -6,6 +6,7 @@ Stated detection times: a cut link within link_timeout_s (1.5 s) after the last 
 came, i.e. ≤ 1.5 s + the 1 s heartbeat period after the cut; a lost camera within
 camera_timeout_s (1.0 s) + one tick (0.1 s)."""
 
+import csv
 import json
 
 from scripts.cli import main
@@ -30,3 +31,22 @@ def test_a_cut_link_and_a_lost_camera_are_seen_within_the_stated_times(tmp_path)
     # the decisions say why the net flew what it flew during the faults
     rows = [json.loads(x) for x in (run / "decisions.jsonl").read_text().splitlines()]
     assert any(r["verdict"] == "fallback" and "link" in r["reason"] for r in rows)
+
+
+def test_the_companion_never_undoes_the_autopilots_battery_failsafe(tmp_path):
+    """Battery critical in the middle of the AI's flight: the autopilot switches to RTL by itself;
+    the companion yields (no mode request, no setpoint), the autopilot lands, the flight ends
+    saying so — it is not counted as completed."""
+    args = ["fly", "--duration", "30", "--fault", "battery@20:0.06", "--speedup", "0",
+            "--instance", "18", "--zenoh-port", "7457", "--runs-dir", str(tmp_path)]  # fmt: skip
+    assert main(args) == 1
+    (run,) = tmp_path.iterdir()
+    comp = json.loads((run / "companion.json").read_text())
+    assert comp["outcome"] == "yielded" and "RTL" in comp["yielded"]
+    assert comp["mode_requests"] == 0  # nothing asked of the autopilot after the hand-over
+    rows = list(csv.DictReader(open(run / "metrics.csv")))
+    first_rtl = next(i for i, r in enumerate(rows) if r["mode"] == "RTL")
+    after = rows[first_rtl:]
+    assert all(r["mode"] != "OFFBOARD" for r in after)  # never put back
+    assert after[-1]["armed"] == "0" and float(after[-1]["down"]) > -0.5  # it landed itself
+    assert "the autopilot took over" in (run / "summary.md").read_text()
