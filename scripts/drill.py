@@ -74,6 +74,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--workers", type=int, default=1, help="processes for --campaign (default 1)"
     )
+    parser.add_argument(
+        "--mavlink",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also fly N quadrotor campaign drills (max speed, battery, parameter sabotage) "
+        "through MAVLink: the built-in vehicle's endpoint and hil.client (instance --instance)",
+    )
+    parser.add_argument(
+        "--instance", type=int, default=85, help="vehicle instance for --mavlink (default 85)"
+    )
 
 
 def _airframes(choice: str) -> list[str]:
@@ -115,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--random must be >= 0")
     if args.campaign < 0 or not (1 <= args.workers <= 16):
         raise UsageError("--campaign must be >= 0 and --workers within [1, 16]")
-    if args.campaign:
+    if args.campaign or args.mavlink:
         from scripts.drill_campaign import run_campaign
 
         return run_campaign(args)

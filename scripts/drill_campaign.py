@@ -107,6 +107,7 @@ def run_campaign(args) -> int:
     specs = {a: _load(a, args.envelope) for a in airframes}
     n = args.campaign
     jobs = [(a, i, args.seed, args.envelope) for i in range(n) for a in airframes]
+    n_link = getattr(args, "mavlink", 0)
     run_dir = RunFolder("drill", root=args.runs_dir)
     run_dir.write_config({"args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
                           "seed": args.seed, "campaign": n, "airframes": airframes,
@@ -135,10 +136,29 @@ def run_campaign(args) -> int:
                 for f in as_completed(futs):
                     keep(f.result())
                     bar.update(1)
+    link_rows = []
+    if n_link:
+        from hil.drill_link import MAVLINK_KINDS, run_mavlink_drill
+
+        for i in tqdm(range(n_link), desc="through MAVLink", unit="drill"):
+            kind = MAVLINK_KINDS[i % len(MAVLINK_KINDS)]
+            sink = _Collect()
+            r = run_mavlink_drill(kind, args.instance, args.seed, index=1_000_000 + i, events=sink)
+            for e in sink.records:
+                events.write({"drill": f"mavlink {r.name}", "airframe": "quadrotor", **e})
+            link_rows.append(r)
     events.close()
     metrics.close()
-    table, closest, totals, bad = summarize(rows)
-    if not args.no_plots:
+    table, closest, totals, bad = summarize(rows) if rows else ("", "", "no in-process drills", 0)
+    if link_rows:
+        lt = markdown_table(
+            ["drill (MAVLink)", "passed", "closest approach m", "overridden", "yielded to", "why"],
+            [[r.name, r.passed, round(r.min_clearance_m, 2), r.overridden, r.yielded or "-",
+              r.why or "-"] for r in link_rows],
+        )  # fmt: skip
+        table = f"{table}\n\n{lt}"
+        bad += sum(r.min_clearance_m < 0 or r.overridden > 0 for r in link_rows)
+    if not args.no_plots and rows:
         plot(rows, tracks, {a: s for a, (s, _) in specs.items()}, run_dir.file("campaign.png"))
     versions = ", ".join(f"{a}: {s.name} {s.version}" for a, (s, _) in specs.items())
     print(table)

@@ -1,0 +1,177 @@
+"""Campaign drills through MAVLink: the built-in vehicle behind its endpoint (flight.sitl.Sitl,
+real loopback UDP), the companion side on hil.client.VehicleClient with the whole safety net
+(safety.net.SafetyNet: supervisor, authority, health from arrivals, parameter guard).
+
+Kinds flown this way: max_speed, battery, param_sabotage (safety.campaign). The vehicle
+starts in the air at the drill's start point (armed, HOLD, before the endpoint opens); the
+companion connects, reads the parameters the guard watches, hands over to OFFBOARD and flies
+the scripted AI through the net from the client's receive thread; mode requests go out from
+the calling thread. A parameter sabotage is a PARAM_SET sent on the same link (any sender is
+obeyed: the endpoint answers with a PARAM_VALUE broadcast that the guard reads). Ground truth
+is judged on every simulation step (Sitl.run's on_step) as in safety.drills.run_drill.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from flight.autopilot_api import FlightMode
+from flight.mavlink import EndpointConfig
+from flight.sitl import Sitl
+from hil.client import VehicleClient
+from hil.link import MavlinkLink
+from safety.campaign import drill_rng, make_drill, make_vehicle
+from safety.config import default_envelope_path, fill_dataclass, load_envelope
+from safety.drills import WATCHED_PARAMS, DrillParams
+from safety.net import SafetyNet
+from safety.supervisor import Mode, Supervisor, SupervisorParams
+
+MAVLINK_KINDS = ("max_speed", "battery", "param_sabotage")
+
+
+@dataclass
+class LinkDrillResult:
+    name: str
+    kind: str
+    passed: bool
+    min_clearance_m: float  # ground truth, while the net is answerable (see run_drill)
+    overridden: int
+    yielded: str
+    reasons: list[str]
+    why: str
+    setpoints: int  # setpoints the client sent
+
+
+def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
+                      speedup: float = 1.0, events=None, timeout_s: float = 300.0) -> LinkDrillResult:  # fmt: skip
+    """One quadrotor campaign drill of `kind` through MAVLink on vehicle `instance`."""
+    if kind not in MAVLINK_KINDS:
+        raise ValueError(f"kind {kind!r} is not flown over MAVLink; choose one of {MAVLINK_KINDS}")
+    spec, table = load_envelope(default_envelope_path("quadrotor"))
+    sp = fill_dataclass(SupervisorParams, table, "supervisor")
+    d = make_drill(kind, index, drill_rng(seed, "quadrotor", index), spec, DrillParams())
+    s = d.script
+    ap = make_vehicle(d, seed)
+    ap.arm(force=True)
+    ap.set_mode(FlightMode.HOLD)
+    geo = d.spec.geometry()
+    run_on = d.spec.stop_times()[0] + 1.0
+    judge = {"worst": -math.inf, "t_yield": math.nan, "overridden": 0, "mode": ap.mode}
+
+    def on_step(sitl: Sitl) -> None:  # simulation thread, every step
+        z = np.zeros(11)
+        z[0:3] = ap.true_state.pos_ned
+        ty = judge["t_yield"]
+        if math.isnan(ty) or ap.mode is FlightMode.HOLD or ap.clock.t - ty <= run_on:
+            judge["worst"] = max(judge["worst"], geo.worst(z))
+        m = ap.mode
+        if m is not judge["mode"]:
+            prev, judge["mode"] = judge["mode"], m
+            if prev in (FlightMode.RTL, FlightMode.LAND) or (
+                not math.isnan(ty) and m is FlightMode.OFFBOARD
+            ):
+                judge["overridden"] += 1
+
+    sitl = Sitl(ap, EndpointConfig(instance=instance), speedup=speedup)
+    client = None
+    try:
+        sim = threading.Thread(target=sitl.run, kwargs={"duration_s": s.duration_s + 30.0,
+                               "on_step": on_step}, name="drill-sitl", daemon=True)  # fmt: skip
+        link = MavlinkLink.open(f"udpin:127.0.0.1:{14540 + instance}")
+        client = VehicleClient(link, target_system=1 + instance).start()
+        sim.start()
+        client.wait_ready(timeout=60.0)
+        net = SafetyNet(Supervisor(d.spec.envelope(), sp, events), events, camera=False)
+        tel = client.telemetry
+        net.params.load(tel.t, {n: client.read_param(n) for n in WATCHED_PARAMS
+                                if n in ap.param_names()})  # fmt: skip
+        shared: dict = {"ask": None, "t0": None, "sent": 0, "reasons": set()}
+
+        def setpoint(tel):  # receive thread, every LOCAL_POSITION_NED
+            vs = tel.vehicle_state()
+            if vs is None:
+                return None
+            t = tel.t
+            net.message(t, "HEARTBEAT")
+            net.message(t, "LOCAL_POSITION_NED")
+            pv = client.latest("PARAM_VALUE")
+            if pv is not None:
+                name = pv.param_id.rstrip("\x00")
+                if name in net.params.params and net.params.params[name] != pv.param_value:
+                    net.param(t, name, float(pv.param_value))
+            if shared["t0"] is None:
+                return vs.pos_ned, None, None  # the stream PX4 wants before OFFBOARD
+            tr = t - shared["t0"]
+            act = s.attack if s.t_on <= tr < s.t_off else s.behave
+            dec, ask = net.step(t, vs, act(tr, vs), tel.mode)
+            shared["ask"] = ask
+            if dec.mode is not Mode.AI and dec.reason:
+                shared["reasons"].add(dec.reason)
+            if not net.authority.has_authority:
+                return None
+            shared["sent"] += 1
+            c = dec.command
+            return c.pos_ned, c.vel_ned, c.yaw
+
+        client.stream_offboard(setpoint)
+        client.wait_message("LOCAL_POSITION_NED")
+        client.wait_message("LOCAL_POSITION_NED")
+        client.set_mode(FlightMode.OFFBOARD)
+        net.handover(tel.t, tel.mode)  # what the heartbeat shows now (may lag the switch)
+        shared["t0"] = tel.t
+        pending = sorted(s.params)
+        wall_end = time.monotonic() + timeout_s
+        while sim.is_alive() and time.monotonic() < wall_end:
+            tr = tel.t - shared["t0"]
+            if tr >= s.duration_s:
+                break
+            while pending and pending[0][0] <= tr:  # a client's PARAM_SET on the link
+                _, name, value = pending.pop(0)
+                client.link.send(mavlink2.MAVLink_param_set_message(
+                    1 + instance, 1, name.encode(), float(value), mavlink2.MAV_PARAM_TYPE_REAL32))  # fmt: skip
+            ask = shared["ask"]
+            if ask is not None and net.authority.has_authority:
+                shared["ask"] = None
+                try:
+                    client.set_mode(ask)
+                    net.requested(tel.t, ask, True)
+                except Exception:  # noqa: BLE001  denied, timed out or yielded: not asked
+                    net.requested(tel.t, ask, False)
+            if not math.isnan(judge["t_yield"]) and ap.clock.t - judge["t_yield"] > s.after_yield_s:
+                break
+            if not net.authority.has_authority and math.isnan(judge["t_yield"]):
+                judge["t_yield"] = ap.clock.t
+            time.sleep(0.01)
+        sup = net.supervisor
+        reasons = sup.stats.reasons + sorted(shared["reasons"])
+        yielded = net.authority.yields[0][1] if net.authority.yields else ""
+        why = []
+        if judge["worst"] > d.spec.limits.breach_tolerance_m:
+            why.append(f"breach {judge['worst']:.2f} m beyond the fence")
+        if judge["overridden"]:
+            why.append(f"the net overrode the autopilot's own mode {judge['overridden']} times")
+        if (
+            s.must_trigger
+            and not any(k in r for r in reasons for k in s.expect)
+            and not (s.expect_yield and yielded)
+        ):
+            why.append(f"expected {s.expect}, got {reasons or 'none'}")
+        if s.expect_yield and not yielded:
+            why.append("the autopilot's failsafe was expected to take over; the net never yielded")
+        if net.authority.yields:
+            reasons.append(net.authority.reason)
+        if tel.yielded:
+            reasons.append(f"client: {tel.yielded}")
+        return LinkDrillResult(s.name, kind, not why, -judge["worst"], judge["overridden"],
+                               yielded, reasons, "; ".join(why), shared["sent"])  # fmt: skip
+    finally:
+        if client is not None:
+            client.stream_offboard(None)
+            client.close()
+        sitl.close()
