@@ -39,10 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     parser.add_argument("--quick", action="store_true", help="a tiny budget (tests, smoke runs)")
     parser.add_argument(
-        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (default 3000)"
+        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (default 6000)"
     )
     parser.add_argument(
-        "--irl-iters", type=int, default=None, help="IRL iterations per lesson (default 2)"
+        "--irl-iters", type=int, default=None, help="IRL iterations per lesson (default 1)"
     )
     parser.add_argument(
         "--test-episodes", type=int, default=None, help="episodes per lesson re-test (default 10)"
@@ -52,6 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baselines", type=Path, action="append", default=[],
                         help="a `skyherd train ab|irl` run folder whose policies to compare, repeatable (default none)")  # fmt: skip
     parser.add_argument("--no-monolith", action="store_true", help="skip the monolithic DQN")
+    parser.add_argument("--monolith-seeds", type=int, default=None,
+                        help="teach the monolithic DQN on the first N seeds only (default all)")  # fmt: skip
     parser.add_argument("--workers", type=int, default=1, help="parallel seeds (default 1)")
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run folders go")
     parser.add_argument("--from-run", type=Path, default=None,
@@ -95,7 +97,7 @@ def _job(spec: dict) -> dict:
     pol, res = teach(cur, p)
     out = {"seed": spec["seed"], "educated": [dataclasses.asdict(r) for r in res]}
     pol.save(Path(spec["policy_dir"]) / f"educated_seed{spec['seed']}.npz")
-    if p.monolith:
+    if p.monolith and spec.get("monolith", True):
         tgt = pol.meta.get("composite_target")
         target = (tgt["kind"], np.asarray(tgt["vector"])) if tgt else ("w", np.zeros(9))
         net, mres = teach_monolith(cur, p, res, target)
@@ -136,8 +138,9 @@ def run(args: argparse.Namespace) -> int:
     )
     pol_dir = rf.path / "policies"
     pol_dir.mkdir()
-    specs = [{"curriculum": str(path), "params": p, "seed": args.seed + s, "policy_dir": str(pol_dir)}
-             for s in range(args.seeds)]  # fmt: skip
+    n_mono = args.seeds if args.monolith_seeds is None else args.monolith_seeds
+    specs = [{"curriculum": str(path), "params": p, "seed": args.seed + s, "policy_dir": str(pol_dir),
+              "monolith": s < n_mono} for s in range(args.seeds)]  # fmt: skip
     events = rf.events()
     lessons = CsvWriter(rf.file("lessons.csv"), ["learner", "seed", "after_lesson", "tested_lesson", "all_in_view_frac",
                           "footprint_ratio", "ugv_losses", "passed", "cpu_s"])  # fmt: skip
@@ -325,7 +328,8 @@ def _ms(vals) -> str:
 def _retention_rows(results: list[dict], learner: str) -> list[list]:
     """Per skill lesson: score after its own lesson, just before the composite, after it."""
     rows = []
-    if not results or learner not in results[0]:
+    results = [r for r in results if learner in r]  # the monolith may be on fewer seeds
+    if not results:
         return rows
     names = [r["lesson"] for r in results[0][learner]]
     skills, comp = names[:-1], names[-1]
@@ -349,21 +353,23 @@ def _summary(cur, p, args, results, comparison, fid, rf) -> str:
     from policy.education.timeline import read_decisions, timeline
 
     md = [f"# skyherd educate {cur.name} {cur.version}\n",
-          f"Curriculum `{cur.path}` (sha256 {cur.sha256[:16]}…), {args.seeds} seeds, "
+          f"Curriculum `{cur.path}` (sha256 {cur.sha256[:16]}…), {len(results)} seeds "
+          f"(monolithic DQN on {sum('monolith' in r for r in results)}), "
           f"DQN {p.dqn.total_steps} steps per solve, {p.irl_iters} IRL iterations per lesson, "
           f"lesson re-tests on {p.test_episodes} episodes (seeds {p.test_seed}+).\n"]  # fmt: skip
     # lesson by lesson (seed means)
     rows = []
     for learner in ("educated", "monolith"):
-        if learner not in results[0]:
+        rs = [r for r in results if learner in r]
+        if not rs:
             continue
-        for k, r0 in enumerate(results[0][learner]):
+        for k, r0 in enumerate(rs[0][learner]):
             for tested in r0["retention"]:
-                ms = [res[learner][k]["retention"][tested] for res in results]
-                ok = sum(res[learner][k]["passed"][tested] for res in results)
+                ms = [res[learner][k]["retention"][tested] for res in rs]
+                ok = sum(res[learner][k]["passed"][tested] for res in rs)
                 rows.append([learner, r0["lesson"], tested, _ms([m["all_in_view_frac"] for m in ms]),
-                             _ms([m["footprint_ratio"] for m in ms]), f"{ok}/{len(results)}",
-                             _ms([res[learner][k]["seconds"] for res in results])])  # fmt: skip
+                             _ms([m["footprint_ratio"] for m in ms]), f"{ok}/{len(rs)}",
+                             _ms([res[learner][k]["seconds"] for res in rs])])  # fmt: skip
     md.append("## Lesson by lesson\n\nAfter each lesson every lesson taught so far is re-tested on "
               "its own scenario (mean ± std over seeds; lessons.png).\n")  # fmt: skip
     md.append(markdown_table(["learner", "after lesson", "tested lesson", "all-in-view frac",
@@ -411,10 +417,12 @@ def _summary(cur, p, args, results, comparison, fid, rf) -> str:
 def _plots(rf, results, comparison) -> None:
     import matplotlib.pyplot as plt
 
-    learners = [k for k in ("educated", "monolith") if k in results[0]]
+    learners = [k for k in ("educated", "monolith") if any(k in r for r in results)]
+    every = results
     fig, axes = plt.subplots(2, len(learners), figsize=(5.5 * len(learners), 7.5), squeeze=False,
                              sharey="row")  # fmt: skip
     for j, learner in enumerate(learners):
+        results = [r for r in every if learner in r]  # the monolith may be on fewer seeds
         after = [r["lesson"] for r in results[0][learner]]
         tested_all = list(results[0][learner][-1]["retention"])
         for i, (key, lab) in enumerate((("all_in_view_frac", "all-in-view fraction"),

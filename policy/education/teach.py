@@ -52,8 +52,8 @@ from policy.irl import IRLParams, projection_irl, select_policy
 class EduParams:
     """Hyper-parameters of `skyherd educate` (saved in config.json)."""
 
-    dqn: DQNParams = DQNParams(total_steps=3_000, hidden=(32, 32))  # per DQN solve
-    irl_iters: int = 2  # projection-IRL iterations per skill lesson
+    dqn: DQNParams = DQNParams(total_steps=6_000, hidden=(32, 32))  # per DQN solve
+    irl_iters: int = 1  # projection-IRL iterations per skill lesson
     irl_epsilon: float = 0.01  # IRL stop: t ≤ ε
     mu_episodes: int = 10  # Monte-Carlo episodes per μ(π) estimate
     mu_seed: int = 50_000  # first env seed of the μ estimates
