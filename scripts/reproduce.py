@@ -363,7 +363,7 @@ def _figures(folder, args, specs, results) -> list[str]:
     n1 = args.sharing_periods[0]
     metric_y = f"min(max steps over agents, {cap}) per episode [steps]"
     names = []
-    for rname in args.rules:
+    for rname in dict.fromkeys(s.rules.name for s in specs):
         tag = f"rules {rname}"
         compare = [
             (f"K = {K}", [(_label(a, n), g[(rname, a, K, n)]) for a, n in

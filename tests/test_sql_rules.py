@@ -29,6 +29,8 @@ def test_rule_sets_and_their_validation():
         "random", "add", "online", "nearest", "own"
     )  # fmt: skip
     assert Rules.named("intended", "first").ties == "first" and Rules() == Rules.intended()
+    assert Rules.named("intended", "first").name == "intended-first-ties"
+    assert Rules.named("published", "first") == Rules.published()
     with pytest.raises(ValueError, match="ties"):
         Rules(ties="last")
     with pytest.raises(ValueError, match="pretrained"):

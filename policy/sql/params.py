@@ -7,7 +7,7 @@ probability 1 − ε), knowledge-sharing period N (episodes).
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -165,11 +165,15 @@ class Rules:
 
     @staticmethod
     def named(name: str, ties: str | None = None) -> Rules:
-        """`Rules.published()` or `Rules.intended()` by name; `ties` overrides its default."""
+        """`Rules.published()` or `Rules.intended()` by name; `ties` overrides its default
+        (the set is then labelled e.g. "intended-first-ties")."""
         sets = {"published": Rules.published, "intended": Rules.intended}
         if name not in sets:
             raise ValueError(f"rule set must be one of {sorted(sets)}, got {name!r}")
-        return sets[name]() if ties is None else sets[name](ties)
+        rules = sets[name]()
+        if ties is None or ties == rules.ties:
+            return rules
+        return replace(sets[name](ties), name=f"{name}-{ties}-ties")  # its own label in tables
 
 
 @dataclass(frozen=True)
