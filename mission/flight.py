@@ -11,6 +11,7 @@ reason, mode (LAYOUT of the per-decision record in docs/mission.md).
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -73,10 +74,17 @@ class Record:
     vehicle: str = "uav0"
     rows: list[dict] = field(default_factory=list)  # the decisions, for the report
 
+    live: object | None = None  # a Zenoh publisher of skyherd/<vehicle>/decision (or None)
+
     def decision(self, row: dict) -> None:
         self.rows.append(row)
         if self.decisions is not None:
             self.decisions.write(row)
+        if self.live is not None:
+            try:
+                self.live.put(json.dumps(row).encode())
+            except Exception:  # noqa: BLE001 - a dead session never stops the flight
+                self.live = None
 
 
 class SingleVehicleMission:

@@ -9,6 +9,7 @@ marks; `--free-run` ticks on the autopilot's own clock (a real autopilot).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 import sys
@@ -187,11 +188,9 @@ def open_frames(args, vehicle: str = "uav0"):
     from mission.companion import FrameInbox
     from perception.transport import FrameSubscriber, ZenohParams, open_session, subscriber_params
 
-    p = (
-        ZenohParams(config_file=args.zenoh_config)
-        if args.zenoh_config
-        else subscriber_params(zenoh_endpoint(args.zenoh_connect))
-    )
+    # a client of the simulator's peer: Zenoh routes between its clients (a recorder, a viewer)
+    p = ZenohParams(config_file=args.zenoh_config) if args.zenoh_config else dataclasses.replace(
+        subscriber_params(zenoh_endpoint(args.zenoh_connect)), mode="client")  # fmt: skip
     try:
         session = open_session(p)
     except ValueError as e:
@@ -234,6 +233,7 @@ def run(args: argparse.Namespace) -> int:
     session = frames = None
     if use_camera:
         session, frames = open_frames(args)
+        _publish_live(session, mission)
     try:
         link = MavlinkLink.open(address, source_system=1 + args.instance, source_component=COMPANION_COMPONENT,
                                 tlog=run_dir / "telemetry.tlog", signing_key=args.signing_key)  # fmt: skip
@@ -306,3 +306,15 @@ def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
         write_png(
             run_dir / "frames.png", contact_sheet([f for _, f in mission.perception.strip], cols=4)
         )
+
+
+def _publish_live(session, mission, vehicle: str = "uav0") -> None:
+    """Decisions on skyherd/<vehicle>/decision and the net's events on .../safety/event, so a
+    recorder or a live view in another process sees them (record.ZenohRecorder)."""
+    from safety.events import Tee, ZenohEventSink
+
+    mission.rec.live = session.declare_publisher(f"skyherd/{vehicle}/decision")
+    if mission.net is not None:
+        mission.net.events = Tee(mission.net.events, ZenohEventSink(session, vehicle))
+        if mission.guard is not None:
+            mission.guard.events = mission.net.events

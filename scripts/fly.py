@@ -89,6 +89,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="T:D",
         help="stop the camera's frames at T [s] for D [s]",
     )
+    parser.add_argument(
+        "--foxglove",
+        type=int,
+        default=None,
+        metavar="PORT",
+        help="serve the flight live to Foxglove on ws://127.0.0.1:PORT (default: off)",
+    )
+    parser.add_argument("--no-record", action="store_true", help="do not write flight.mcap")
     parser.add_argument("--runs-dir", default="runs", help="where run folders go")
     parser.add_argument(
         "--timeout", type=float, default=600.0, help="wall-clock limit for the whole flight [s]"
@@ -235,11 +243,15 @@ def run_two_processes(args: argparse.Namespace) -> int:
                            run_dir / "sim.log")  # fmt: skip
     companion = launch.start("companion",
                              launch.skyherd_cmd("companion", *comp_args, "--run-dir", str(run_dir)), None)  # fmt: skip
+    recorder = _recorder(args, run_dir) if sim is not None else None
     why = "interrupted (Ctrl-C)"
     try:
         rc, why = launch.supervise(companion, sim, args.timeout)
     except KeyboardInterrupt:
         rc = 130
+    finally:
+        if recorder is not None:
+            recorder.close()
     ok = report(run_dir, args, rc, why)
     return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
 
@@ -254,3 +266,43 @@ def _envelope(args) -> dict:
     except (EnvelopeFileError, ValueError) as e:
         raise UsageError(f"{e}; fix the file or pass another --envelope") from None
     return {"path": str(Path(path).resolve()), **spec.describe()}
+
+
+class _Recording:
+    """flight.mcap (and the live Foxglove view) from the flight's Zenoh keys, in this process."""
+
+    def __init__(self, session, recorder):
+        self.session, self.recorder = session, recorder
+
+    def close(self) -> None:
+        self.recorder.close()
+        self.session.close()
+
+
+def _recorder(args, run_dir: Path):
+    """A ZenohRecorder beside the two programs (None with --no-record and no --foxglove, or
+    when it cannot start: the flight never depends on its recording)."""
+    if args.no_record and args.foxglove is None:
+        return None
+    try:
+        from perception.transport import open_session, subscriber_params
+        from record import LiveServer, ZenohRecorder
+
+        session = open_session(subscriber_params(f"tcp/127.0.0.1:{args.zenoh_port}"))
+        also = [LiveServer(args.foxglove)] if args.foxglove is not None else []
+        path = None if args.no_record else run_dir / "flight.mcap"
+        if also:
+            print(
+                f"skyherd fly: live view on {also[0].url} (Foxglove: open connection)", flush=True
+            )
+        rec = ZenohRecorder(session, "uav0", path, also=also)
+        if args.mission == "groundair":  # the fence and the envelope's rows as geometry
+            from safety.config import ENVELOPE_DIR, load_envelope
+
+            rec.log.geometry(
+                0.0, load_envelope(args.envelope or ENVELOPE_DIR / "quadrotor_groundair.toml")[0]
+            )
+        return _Recording(session, rec)
+    except Exception as e:  # noqa: BLE001 - say so and fly without a recording
+        print(f"skyherd fly: no flight.mcap ({type(e).__name__}: {e})", file=sys.stderr)
+        return None

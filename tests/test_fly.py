@@ -9,6 +9,7 @@ import re
 import numpy as np
 from pymavlink import mavutil
 
+from record import read_messages
 from scripts.cli import main
 
 
@@ -66,6 +67,12 @@ def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     rows = list(csv.DictReader(open(run / "metrics.csv")))
     modes = {r["mode"] for r in rows}
     assert "OFFBOARD" in modes and float(rows[-1]["down"]) > -0.3  # flew offboard, landed
+    # flight.mcap, recorded from the Zenoh keys by a third process-side session (record/)
+    rec = read_messages(run / "flight.mcap")
+    counts = rec.counts()
+    assert rec.complete and counts["/uav0/decision"] == decisions
+    frames = sum(1 for _ in open(run / "world.csv")) - 1
+    assert counts["/uav0/camera/image"] >= 0.9 * frames and counts["/ugvs"] >= 0.9 * 3 * frames
 
 
 def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):

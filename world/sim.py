@@ -33,6 +33,7 @@ from flight.clock import Pacer
 from flight.frames import euler_to_quat
 from flight.lockstep import LockstepGate, LockstepParams
 from flight.state import VehicleState
+from groundsim.transport import UGVStatePublisher
 from groundsim.ugv import UGVModel
 from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
@@ -41,10 +42,6 @@ from world.team import new_team, team_states
 
 CLOCK_KEY = "skyherd/sim/clock"
 HEARTBEAT = 0  # MAVLINK_MSG_ID_HEARTBEAT
-
-
-def ugv_key(i: int) -> str:
-    return f"skyherd/ugv/{i}/state"
 
 
 @dataclass(frozen=True)
@@ -138,16 +135,14 @@ class World:
         self._stop = threading.Event()
         self._session = session
         self.publisher = None
-        self._ugv_pubs: list = []
+        self._ugv_pub = None
         self._clock_pub = None
         if session is not None:
             from perception.transport import FramePublisher
 
             self.publisher = FramePublisher(session, params.vehicle, self.task.camera,
                                             rng=np.random.default_rng(params.seed))  # fmt: skip
-            self._ugv_pubs = [
-                session.declare_publisher(ugv_key(i)) for i in range(self.task.n_ugvs)
-            ]
+            self._ugv_pub = UGVStatePublisher(session, self.task.n_ugvs)
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
@@ -267,12 +262,8 @@ class World:
         self.endpoint.dispatch(self.endpoint.api, got)
 
     def _publish_truth(self, t: float, ugvs) -> None:
-        for i, pub in enumerate(self._ugv_pubs):
-            rec = {"t": t, "id": i, "north": float(ugvs.pos_ne[i, 0]), "east": float(ugvs.pos_ne[i, 1]),
-                   "heading": float(ugvs.heading[i]), "speed": float(ugvs.speed[i]),
-                   "camouflaged": bool(ugvs.camouflaged[i])}  # fmt: skip
-            pub.put(json.dumps(rec).encode())
-        self._clock_pub.put(json.dumps({"t": t}).encode())
+        self._ugv_pub.publish(t, ugvs)
+        self._clock_pub.put(json.dumps({"t_sim": t}).encode())
 
     def _write_truth(self, t: float, state: VehicleState, ugvs) -> None:
         p, v = state.pos_ned, state.vel_ned
@@ -309,7 +300,9 @@ class World:
             self.truth.close()
         if self.publisher is not None:
             self.publisher.close()
-        for pub in [*self._ugv_pubs, self._clock_pub]:
+        if self._ugv_pub is not None:
+            self._ugv_pub.close()
+        for pub in [self._clock_pub]:
             if pub is not None:
                 try:
                     pub.undeclare()
