@@ -277,7 +277,12 @@ def run(args: argparse.Namespace) -> int:
     _write_outcome(run_dir, mission, stats, frames)
     if error:
         print(f"skyherd companion: aborted: {error}", file=sys.stderr)
-    return 0 if mission.outcome == "completed" else 1
+    rc = 0 if mission.outcome == "completed" else 1
+    if folder is not None:  # on its own (not under `skyherd fly`): its own summary and plots
+        from scripts.fly_report import report
+
+        report(run_dir, args, rc, error)
+    return rc
 
 
 def _write_outcome(run_dir: Path, mission, stats, frames) -> None:

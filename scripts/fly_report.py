@@ -81,7 +81,8 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
             ["autopilot took over", comp.get("yielded") or "no"],
         ]
         table = markdown_table(["metric", "value"], rows)
-        title = f"ground–air mission, UGV team `{args.ugvs}`, pilot `{args.pilot}`, {args.duration:.0f} s behind the safety net"
+        team = getattr(args, "ugvs", "as the simulator drives it")
+        title = f"ground–air mission, UGV team `{team}`, pilot `{args.pilot}`, {args.duration:.0f} s behind the safety net"
         _plot_groundair(run_dir, decisions, track, world)
     status = {"completed": "completed", "yielded": "ended: the autopilot took over"}.get(
         outcome, outcome.upper()
