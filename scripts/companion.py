@@ -249,6 +249,7 @@ def run(args: argparse.Namespace) -> int:
           f"{'free-running' if args.free_run else 'lockstep'}; run folder {run_dir}", file=sys.stderr, flush=True)  # fmt: skip
     error = ""
     stats = None
+    interrupted = False
     from tqdm import tqdm
 
     bar = tqdm(total=None, desc="connect", file=sys.stderr, leave=True, mininterval=0.5,
@@ -268,6 +269,9 @@ def run(args: argparse.Namespace) -> int:
     except Exception as e:  # noqa: BLE001 - the flight ends; say why, keep what was recorded
         error = f"{type(e).__name__}: {e}" if not str(e).startswith(type(e).__name__) else str(e)
         mission.outcome, mission.reason = "aborted", str(e)
+    except KeyboardInterrupt:
+        error, interrupted = "interrupted (Ctrl-C)", True
+        mission.outcome, mission.reason = "interrupted", error
     finally:
         bar.close()
         mission.write_track(v)
@@ -277,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
     _write_outcome(run_dir, mission, stats, frames)
     if error:
         print(f"skyherd companion: aborted: {error}", file=sys.stderr)
-    rc = 0 if mission.outcome == "completed" else 1
+    rc = 0 if mission.outcome == "completed" else (130 if interrupted else 1)
     if folder is not None:  # on its own (not under `skyherd fly`): its own summary and plots
         from scripts.fly_report import report
 
