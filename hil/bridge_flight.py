@@ -68,6 +68,8 @@ class FlightResult:
     wall_s: float = 0.0
     real_time_factor: float = 0.0
     frames: int = 0
+    flight_real_time_factor: float = 0.0  # from arming to the end
+    bridge_stats: dict = field(default_factory=dict)
     armed_at: float | None = None
     takeoff_sent_at: float | None = None
     reached_at: float | None = None
@@ -109,6 +111,7 @@ class MissionPilot:
                     self.event(t, "armed" if armed else "disarmed")
                     if armed and self.r.armed_at is None:
                         self.r.armed_at = t
+                        self.armed_wall = time.monotonic()
                     if not armed and self.phase in ("land", "done"):
                         self.r.disarmed_at = t
             elif kind == "COMMAND_ACK":
@@ -298,9 +301,9 @@ def fly(
                 res.reason = "PX4 did not connect to the simulator port"
                 return res
             link = mavutil.mavlink_connection(
-                f"udpout:127.0.0.1:{18570 + instance}", source_system=255, source_component=190
+                f"udpout:127.0.0.1:{14280 + instance}", source_system=255, source_component=190
             )
-            every = 5
+            every = 25
         else:
             bridge = ArduPilotJsonBridge(instance=instance).open()
             proc = _copter_process(bin_path, instance, speedup, work, copter_defaults or [], log)
@@ -332,6 +335,10 @@ def fly(
             res.reason = f"{type(e).__name__}: {e}"
         res.sim_s = round(bridge.t, 3)
         res.frames = bridge.stats.frames
+        res.bridge_stats = asdict(bridge.stats)
+        if pilot is not None and res.armed_at is not None:
+            wall = time.monotonic() - pilot.armed_wall
+            res.flight_real_time_factor = round((bridge.t - res.armed_at) / wall, 2)
     finally:
         res.wall_s = round(time.monotonic() - t0, 3)
         res.real_time_factor = round(res.sim_s / res.wall_s, 2) if res.wall_s > 0 else 0.0
