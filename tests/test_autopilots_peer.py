@@ -407,6 +407,7 @@ def test_older_firmware_without_set_message_interval_gets_request_data_stream():
 
 PX4_AUTO, PX4_OFFBOARD = 4, 6
 PX4_LOITER, PX4_TAKEOFF, PX4_LAND = 3, 2, 6
+OF_LOSS_S = 4.0  # [s peer time] PX4's offboard-loss limit, 0.5 s of wall time at RATE 8
 UNSUPPORTED_MAV_FRAME = (
     9  # MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME (common.xml, newer than this dialect)
 )
@@ -466,7 +467,7 @@ class ScriptedPx4(ScriptedArduCopter):
         c = m.command
         if c == M.MAV_CMD_DO_SET_MODE:
             main, sub = int(m.param2), int(m.param3)
-            if main == PX4_OFFBOARD and self.t - self.last_sp_t > 0.5:
+            if main == PX4_OFFBOARD and self.t - self.last_sp_t > OF_LOSS_S:
                 self.ack(c, M.MAV_RESULT_DENIED)
                 return
             self.main, self.sub = main, sub
@@ -497,7 +498,7 @@ class ScriptedPx4(ScriptedArduCopter):
         super()._step()
         if was_taking_off and self.takeoff_alt is None:
             self.main, self.sub = PX4_AUTO, PX4_LOITER  # AUTO.TAKEOFF ends in Hold
-        if self.main == PX4_OFFBOARD and self.armed and self.t - self.last_sp_t > 0.5:
+        if self.main == PX4_OFFBOARD and self.armed and self.t - self.last_sp_t > OF_LOSS_S:
             self.main, self.sub = PX4_AUTO, PX4_LOITER  # offboard lost
 
 

@@ -73,18 +73,19 @@ def test_builtin_ardupilot_personality_flies_two_missions(tmp_path):
 def test_builtin_vehicle_offboard_loss_is_an_unrequested_mode_change():
     """The built-in vehicle's own failsafe (offboard setpoints lost → HOLD) is the autopilot
     taking over: the client yields, refuses to switch back and stops streaming."""
-    with running_sitl(72, speedup=10.0) as sitl:
+    with running_sitl(72, speedup=5.0) as sitl:
         link = MavlinkLink.open("udpin:127.0.0.1:14612")
         with VehicleClient(link) as c:
             tel = c.telemetry
             c.wait_ready(timeout=60)
+            c.set_param("COM_OF_LOSS_T", 5.0)  # 1 s of wall time: only the deliberate loss counts
             assert 191 == link.codec.tx.srcComponent
             c.run_steps(c.profile.takeoff_steps(4.0, c.home_amsl()), 60, authority=False)
             c.run_steps(c.profile.handover_steps(), 60)
             assert tel.mode is FlightMode.OFFBOARD
             c.stop_setpoints()  # the stream stops without a mode request: PX4 holds
             with pytest.raises(Yielded, match="AUTO.LOITER"):
-                c.wait_until(lambda: False, 60, "the flight", vehicle_s=10)
+                c.wait_until(lambda: False, 60, "the flight", vehicle_s=20)
             with pytest.raises(Yielded):
                 c.set_mode(FlightMode.OFFBOARD)
             assert tel.unrequested_mode_change == 1 and sitl.autopilot.mode is FlightMode.HOLD
@@ -133,10 +134,11 @@ def test_yielding_can_be_turned_off_but_the_change_stays_visible():
         with VehicleClient(link, options=ClientOptions(yield_to_autopilot=False)) as c:
             tel = c.telemetry
             c.wait_ready(timeout=60)
+            c.set_param("COM_OF_LOSS_T", 5.0)
             c.run_steps(c.profile.takeoff_steps(4.0, c.home_amsl()), 60, authority=False)
             c.run_steps(c.profile.handover_steps(), 60)
             c.stop_setpoints()
-            c.wait_until(lambda: tel.mode is FlightMode.HOLD, 60, "the failsafe", vehicle_s=10)
+            c.wait_until(lambda: tel.mode is FlightMode.HOLD, 60, "the failsafe", vehicle_s=20)
             assert tel.unrequested_mode_change == 1 and "AUTO.LOITER" in tel.yielded
             c.run_steps(c.profile.handover_steps(), 60)  # back to OFFBOARD: allowed here
             assert sitl.autopilot.mode is FlightMode.OFFBOARD
