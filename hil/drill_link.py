@@ -28,7 +28,7 @@ from hil.client import VehicleClient
 from hil.link import MavlinkLink
 from safety.campaign import drill_rng, make_drill, make_vehicle
 from safety.config import default_envelope_path, fill_dataclass, load_envelope
-from safety.drills import WATCHED_PARAMS, DrillParams
+from safety.drills import RUN_ON_S, WATCHED_PARAMS, DrillParams
 from safety.net import SafetyNet
 from safety.supervisor import Mode, Supervisor, SupervisorParams
 
@@ -61,14 +61,14 @@ def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
     ap.arm(force=True)
     ap.set_mode(FlightMode.HOLD)
     geo = d.spec.geometry()
-    run_on = d.spec.stop_times()[0] + 1.0
+    run_on = d.spec.stop_times()[0] + RUN_ON_S
     judge = {"worst": -math.inf, "t_yield": math.nan, "overridden": 0, "mode": ap.mode}
 
     def on_step(sitl: Sitl) -> None:  # simulation thread, every step
         z = np.zeros(11)
         z[0:3] = ap.true_state.pos_ned
         ty = judge["t_yield"]
-        if math.isnan(ty) or ap.mode is FlightMode.HOLD or ap.clock.t - ty <= run_on:
+        if math.isnan(ty) or ap.clock.t - ty <= run_on:
             judge["worst"] = max(judge["worst"], geo.worst(z))
         m = ap.mode
         if m is not judge["mode"]:

@@ -265,8 +265,10 @@ class OrbitCompanion:
         z = make_z(state, u)
         return bool(sup.envelope.worst(z) <= 0.0)
 
-    def update(self, t: float, state: VehicleState) -> Decision:
-        """Vehicle time t [s] and state → the certified decision to fly now."""
+    def update(self, t: float, state: VehicleState, link_t: float | None = None) -> Decision:
+        """Vehicle time t [s] and state → the certified decision to fly now. link_t: the
+        link's freshness from safety.health.HealthTracker (what arrived); None = this
+        telemetry sample, which just arrived."""
         if self.t0 is None:
             self.t0 = t
         dt = (t - self.t0) - self.t_ground
@@ -279,7 +281,7 @@ class OrbitCompanion:
             self.t_decision = t
             self._move_centre(self.team_centre())
             proposed = self.proposal(state)
-        health = Health(camera_t=self.t_frame, link_t=t)
+        health = Health(camera_t=self.t_frame, link_t=t if link_t is None else link_t)
         self.decision = self.supervisor.update(t, state, proposed, health)
         return self.decision
 

@@ -138,9 +138,10 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
     wind = WindModel()
     link_cut = None
     params: tuple = ()
-    expect: tuple[str, ...] = ("edge", "face", "field", "home radius", "speed", "tilt", "accel")
+    expect: tuple[str, ...] = ("",)  # some fallback or projection (any row) must happen
     expect_yield = False
     must = True
+    recover = True
     if fw:
         # The fixed-wing starts over home (start_in_air): the fence is moved instead, so that
         # home lies 30-250 m inside the certified boundary, straight ahead of the push.
@@ -213,6 +214,7 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
         # the autopilot's own HOLD takes over if it was in OFFBOARD at the cut (then the net
         # must yield and not undo it); already in HOLD (the net's fallback) nothing changes
         expect, must = ("link",), False
+        recover = False  # judged on the fence and the failsafe, not on the recovery time
     elif kind == "gps_glitch":
         g = rng.uniform(5.0, 30.0) if not fw else rng.uniform(20.0, 80.0)
         t_g = t_h + t_on + t_arr * rng.uniform(0.3, 1.0)
@@ -249,7 +251,7 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
         must_trigger=must, start_heading=heading, duration_s=duration, air_start=True,
         handover_s=t_h, link_cut=link_cut, params=params, expect_yield=expect_yield, kind=kind,
         after_yield_s=8.0 if not fw else 25.0,
-        must_recover=kind != "param_sabotage" and not fw,  # fixed-wing: too slow to wait for
+        must_recover=recover and kind != "param_sabotage" and not fw,  # fixed-wing: too slow
     )  # fmt: skip
     plan = FaultPlan(wind=wind, events=tuple(events))
     return CampaignDrill(script, plan, spec.airframe, kind, index, spec)

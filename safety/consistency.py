@@ -36,6 +36,8 @@ from flight.geo import GRAVITY
 from safety.envelope import EnvelopeSpec
 
 PX4_OBL_OK = {0: "position", 3: "return", 4: "land", 5: "hold"}
+HOLD_PARAMS = frozenset({"MPC_TILTMAX_AIR", "ANGLE_MAX", "MPC_ACC_HOR", "LOIT_BRK_ACCEL",
+                         "FW_R_LIM", "ROLL_LIMIT_DEG", "NAV_LOITER_RAD", "WP_LOITER_RAD"})  # fmt: skip
 
 
 def _get(params: Mapping[str, float], *names: str) -> tuple[str, float] | None:
@@ -145,6 +147,12 @@ class ParamGuard:
         """One PARAM_VALUE (after anyone's PARAM_SET); returns the fault ("" = consistent)."""
         self.params[str(name).rstrip("\x00")] = value
         return self._recheck(t, f"{name} = {value}")
+
+    @property
+    def hold_ok(self) -> bool:
+        """False when the autopilot's own hold (its braking or loiter circle) disagrees with
+        the envelope: the net then flies its own fallback in OFFBOARD instead of HOLD."""
+        return not (set(self.problems) & HOLD_PARAMS)
 
     @property
     def fault(self) -> str:

@@ -550,20 +550,21 @@ def run_drill(
     truth = (lambda: ap.true_state) if hasattr(ap, "true_state") else (lambda: ap.state)
     own = {"mode": ap.mode, "by_autopilot": False}  # the mode now and who chose it
 
-    run_on = spec.stop_times()[0] + 1.0  # after a yield the net's last command still counts
+    run_on = spec.stop_times()[0] + RUN_ON_S  # after a yield the net's last command still counts
     judge = {"t_yield": math.nan, "own_worst": -math.inf}
 
     def fly(k: int) -> None:
         """Step the autopilot; ground truth judged every step. After the net yielded, the
-        autopilot's own flight (RTL's straight line home, LAND through the floor) is the
-        autopilot's: it counts against the net only in HOLD or within `run_on` s."""
+        autopilot's own flight (RTL's straight line home, LAND through the floor, its HOLD
+        loiter) is the autopilot's: it counts against the net only for `run_on` s (the
+        braking from the net's last command), and is reported as autopilot_excursion_m."""
         nonlocal worst
         ty = judge["t_yield"]
         for _ in range(k):
             ap.step()
             z[0:3] = truth().pos_ned
             w = geo.worst(z)
-            if math.isnan(ty) or ap.mode is FlightMode.HOLD or ap.clock.t - ty <= run_on:
+            if math.isnan(ty) or ap.clock.t - ty <= run_on:
                 worst = max(worst, w)
             else:
                 judge["own_worst"] = max(judge["own_worst"], w)
@@ -640,7 +641,7 @@ def run_drill(
             link_t = t
         act = script.attack if script.t_on <= tr < script.t_off else behave
         prop = act(tr, s)
-        d = sup.update(t, s, prop, Health(camera_t=cam_t, link_t=link_t, params_fault=guard.fault))
+        d = sup.update(t, s, prop, Health(cam_t, link_t, guard.fault, guard.hold_ok))
         if d.mode is not Mode.AI:
             if math.isnan(first_fb):
                 first_fb = t
@@ -661,7 +662,7 @@ def run_drill(
             seen_reasons.add(d.reason)
         rows.append((tr, *truth().pos_ned, {Mode.AI: 0, Mode.FALLBACK: 1, Mode.PID: 2}[d.mode]))
         ty = judge["t_yield"]
-        if math.isnan(ty) or ap.mode is FlightMode.HOLD or ap.clock.t - ty <= run_on:
+        if math.isnan(ty) or ap.clock.t - ty <= run_on:
             clear = max(clear, signed(truth().pos_ned))
         fly(n_sub)
         if not math.isnan(t_yield) and ap.clock.t - t_yield > script.after_yield_s:
@@ -708,6 +709,9 @@ def run_drill(
         float(judge["own_worst"]),
     )
 
+
+RUN_ON_S = 3.0
+"""After a yield the net still answers for its stopping time + this [s] of ground truth."""
 
 # parameters a drill's ParamGuard watches (PX4 names; the built-in autopilots answer them)
 WATCHED_PARAMS = ("COM_OF_LOSS_T", "MPC_TILTMAX_AIR", "MPC_XY_VEL_MAX", "FW_R_LIM",

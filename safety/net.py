@@ -55,7 +55,7 @@ def apply_decision(
     (until someone else gives OFFBOARD back). Without one, the net still never switches away
     from a mode it could not have set (RTL, LAND, a manual mode, MISSION, ...)."""
     t = float(ap.clock.t)
-    hold = d.mode is Mode.FALLBACK and use_autopilot_hold
+    hold = d.mode is Mode.FALLBACK and use_autopilot_hold and d.autopilot_mode is FlightMode.HOLD
     want = FlightMode.HOLD if hold else FlightMode.OFFBOARD
     if authority is not None:
         authority.observe(t, ap.mode)
@@ -114,12 +114,11 @@ class SafetyNet:
         is still computed (and recorded) but nothing is to be sent."""
         self.authority.observe(t, autopilot_mode, why)
         h = self.health.health()
-        h = Health(h.camera_t, h.link_t, self.params.fault)
+        h = Health(h.camera_t, h.link_t, self.params.fault, self.params.hold_ok)
         d = self.supervisor.update(t, state, proposed, h)
         if not self.authority.has_authority:
             return d, None
-        want = FlightMode.HOLD if d.mode is Mode.FALLBACK else FlightMode.OFFBOARD
-        return d, self.authority.request(want)
+        return d, self.authority.request(d.autopilot_mode)
 
     def requested(self, t: float, mode: FlightMode, accepted: bool) -> None:
         self.authority.requested(t, mode, accepted)

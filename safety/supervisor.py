@@ -105,6 +105,7 @@ class Health:
     camera_t: float | None = None
     link_t: float | None = None
     params_fault: str = ""  # the autopilot's parameters disagree with the envelope (ParamGuard)
+    hold_ok: bool = True  # the autopilot's own HOLD behaves as the envelope assumes (ParamGuard)
 
 
 @dataclass(frozen=True)
@@ -487,11 +488,16 @@ class Supervisor:
         elif self.clean_since is None and sev <= Severity.NEAR:
             self.clean_since = t
 
+        if self.mode is Mode.PID and (self.position_suspect or health.params_fault):
+            # the recovery flies positions in OFFBOARD: not on a suspect position estimate nor
+            # on parameters that disagree with the envelope
+            self._switch(t, Mode.FALLBACK, reason, Severity.FALLBACK, state)
         if self.mode is Mode.FALLBACK:
             if (
                 t - self.mode_since >= self.p.hold_min_s
                 and self.fallback.settled(state)
                 and not health.params_fault  # only the autopilot's own HOLD is consistent
+                and not self.position_suspect
             ):
                 self._switch(
                     t,
@@ -501,12 +507,13 @@ class Supervisor:
                     state,
                 )
             else:
+                cmd, ap_mode = self._fallback_command(state, health)
                 return Decision(
-                    self.fallback.command(state),
+                    cmd,
                     Mode.FALLBACK,
                     max(sev, Severity.FALLBACK),
                     reason or "holding",
-                    FlightMode.HOLD,
+                    ap_mode,
                     rejected,
                     t,
                     proposed,
@@ -539,6 +546,19 @@ class Supervisor:
             t,
             proposed,
         )
+
+    def _fallback_command(self, state: VehicleState, health: Health) -> tuple[Setpoint, FlightMode]:
+        """The fallback's command and the mode it is flown in. Normally the autopilot's own
+        HOLD. A multirotor with a suspect position (GPS glitch) holds zero *velocity* in
+        OFFBOARD instead: the autopilot's HOLD would fly its glitched position estimate. When
+        the autopilot's hold itself disagrees with the envelope (its loiter radius, its
+        braking: Health.hold_ok False), the net's own fallback is flown in OFFBOARD."""
+        if self.position_suspect and self.envelope.spec.dynamics.bank_max_rad <= 0:
+            return Setpoint(vel_ned=np.zeros(3)), FlightMode.OFFBOARD
+        if not health.hold_ok:
+            cmd = self.fallback.command(state)
+            return cmd, FlightMode.OFFBOARD
+        return self.fallback.command(state), FlightMode.HOLD
 
     def _ai_command(self, u: np.ndarray, sev: Severity) -> Setpoint:
         """What flies in AI mode: the AI's own setpoint (its position, yaw and yaw rate kept)
