@@ -138,9 +138,9 @@ def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
             ask = shared["ask"]
             if ask is not None and net.authority.has_authority:
                 shared["ask"] = None
+                net.requested(tel.t, ask, True)  # before: the heartbeat may show it first
                 try:
                     client.set_mode(ask)
-                    net.requested(tel.t, ask, True)
                 except Exception:  # noqa: BLE001  denied, timed out or yielded: not asked
                     net.requested(tel.t, ask, False)
             if not math.isnan(judge["t_yield"]) and ap.clock.t - judge["t_yield"] > s.after_yield_s:

@@ -49,6 +49,7 @@ class Authority:
         self.observed: FlightMode | None = None
         self.asked: FlightMode | None = None  # last request the autopilot accepted
         self.asked_t: float | None = None
+        self._before: FlightMode | None = None  # the request before the last one
         self.reason = ""
         self.yields: list[tuple[float, str, str]] = []  # (t, mode, reason)
 
@@ -64,9 +65,18 @@ class Authority:
         self._event(t, "handover", observed, f"net takes the vehicle in {asked.name}")
 
     def requested(self, t: float, mode: FlightMode, accepted: bool) -> None:
-        """The net asked the autopilot for `mode` at t; `accepted`: the autopilot's answer."""
-        if accepted and mode in NET_MODES:
+        """The net asked the autopilot for `mode` at t; `accepted`: the autopilot's answer.
+        A companion whose answer arrives on another thread than the heartbeats calls it with
+        True *before* sending (the switch may show before the ACK) and again with False if the
+        request is then refused: the earlier request is restored."""
+        if mode not in NET_MODES:
+            return
+        if accepted:
+            if mode is not self.asked:
+                self._before = self.asked
             self.asked, self.asked_t = mode, t
+        elif mode is self.asked and self._before is not None:
+            self.asked, self._before = self._before, None
 
     def observe(self, t: float, mode: FlightMode | None, why: str = "") -> str:
         """The autopilot reports `mode` at t (heartbeat). Returns the reason if this ended

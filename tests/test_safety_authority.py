@@ -133,3 +133,15 @@ def test_safety_net_step_requests_nothing_after_a_yield():
         assert d.mode is Mode.AI and ask is None
     d, ask = net.step(0.3, st, Setpoint(vel_ned=np.zeros(3)), FlightMode.POSCTL, "RC override")
     assert ask is None and net.authority.mission == "wait" and "RC override" in net.authority.reason
+
+
+def test_request_registered_before_sending_and_undone_when_denied():
+    auth = Authority()
+    auth.start(0.0, FlightMode.HOLD, asked=FlightMode.HOLD)
+    auth.requested(1.0, FlightMode.OFFBOARD, True)  # before sending: the switch may show first
+    auth.observe(1.05, FlightMode.OFFBOARD)
+    assert auth.has_authority
+    auth.requested(2.0, FlightMode.HOLD, True)
+    auth.requested(2.1, FlightMode.HOLD, False)  # refused: OFFBOARD is the request again
+    auth.observe(2.5, FlightMode.HOLD)  # so a HOLD now is not the net's
+    assert auth.phase is Phase.WAIT
