@@ -10,7 +10,10 @@ mission as declarative recipes (`Step`s) that a client executes: the blocking `V
 Facts each recipe follows (measured against real SITL builds, ../shared/PROTOCOLS.md):
 - PX4 reads NAV_TAKEOFF param 7 as AMSL; it switches to OFFBOARD only while setpoints are
   streaming, and a stream still running when the landing ends puts it back in OFFBOARD disarmed
-  (the next arm is TEMPORARILY_REJECTED): stop streaming once the landing is accepted.
+  (the next arm is TEMPORARILY_REJECTED): stop streaming once the landing is accepted. Land by
+  DO_SET_MODE AUTO.LAND; PX4 1.17 SIH still put itself back in OFFBOARD when it disarmed after
+  the landing (measured here, with the stream stopped 20 s before): the end switches it to Hold,
+  and the next mission arms.
 - ArduCopter takes off in GUIDED: the mode first, then arm (the first attempt may be refused
   while its gyros settle: retry), then NAV_TAKEOFF with param 7 above home. Its LOITER and
   ALT_HOLD read the pilot's throttle — with no RC the copter sinks — so its fallback is BRAKE.
@@ -404,8 +407,9 @@ class Px4Profile(AutopilotProfile):
 
     def land_steps(self) -> tuple[Step, ...]:
         return (
-            Step("command", FlightMode.LAND, command=M.MAV_CMD_NAV_LAND,
-                 params=(0.0, 0.0, 0.0, NAN, NAN, NAN, NAN), what="NAV_LAND (into AUTO.LAND)"),
+            # DO_SET_MODE AUTO.LAND (the mode a ground station would set); PX4 1.17 may still go
+            # back to OFFBOARD once disarmed: end_steps() puts it in Hold
+            Step("set_mode", FlightMode.LAND, retries=3, retry_s=1.0, what="AUTO.LAND"),
             Step("stop_setpoints", what="stop streaming before the landing ends"),
             Step("wait_disarmed", what="landing and disarm"),
         )  # fmt: skip

@@ -234,8 +234,9 @@ def _on_heartbeat(tel: Telemetry, msg) -> None:
         tel.modes.append((tel.t, name, requested))
         if tel.requested_mode is not None and mode is tel.requested_mode:
             tel.previous_mode = None
-        if not requested and not tel.yielded:
+        if not requested:
             tel.unrequested_mode_change += 1
+        if not requested and not tel.yielded and tel.armed:  # in flight: it has the vehicle
             tel.yielded = (
                 f"the autopilot switched to {name} at t = {tel.t:.1f} s (skyherd had asked for "
                 f"{tel.requested_mode.name}): its failsafe, a ground station or a pilot has the "

@@ -96,8 +96,9 @@ def test_takeoff_recipes():
         plane[0].kind == "set_param" and plane[0].what == "TKOFF_ALT" and plane[0].params == (40.0,)
     )
     # PX4: the stream stops once the landing is accepted, before it ends (the disarm)
-    land = [s.kind for s in PX4.land_steps()]
-    assert land == ["command", "stop_setpoints", "wait_disarmed"]
+    land = PX4.land_steps()
+    assert [s.kind for s in land] == ["set_mode", "stop_setpoints", "wait_disarmed"]
+    assert land[0].mode is FlightMode.LAND  # DO_SET_MODE: PX4 stays in LAND once disarmed
     assert [s.kind for s in PX4.handover_steps()] == ["stream_setpoints", "set_mode"]
     assert ARDUPLANE.land_steps()[-1].mode is FlightMode.RTL
 

@@ -126,7 +126,7 @@ def test_real_arducopter_flies_twice_and_is_left_disarmed(tmp_path):
             assert not c.telemetry.armed
         names = [n for _, n, _ in c.telemetry.modes]
         assert {"GUIDED", "BRAKE", "LAND"} <= set(names) and "LOITER" not in names
-        assert c.telemetry.unrequested_mode_change == 0
+        assert not c.telemetry.yielded
 
 
 def test_real_arduplane_takes_off_in_takeoff_mode_and_loiters(tmp_path):
@@ -141,17 +141,16 @@ def test_real_arduplane_takes_off_in_takeoff_mode_and_loiters(tmp_path):
 
 @contextlib.contextmanager
 def px4(binary: Path, cwd: Path):
+    """PX4 SITL with SIH (its own physics), instance PX4_INSTANCE, working files in `cwd`."""
     etc = binary.resolve().parents[1] / "etc"
-    env = dict(os.environ, PX4_SYS_AUTOSTART="10040", PX4_SIMULATOR="sihsim",
-               PX4_SIM_MODEL="sihsim_quadx", PX4_HOME_LAT="-35.363261",
-               PX4_HOME_LON="149.165230", PX4_HOME_ALT="584")  # fmt: skip
+    env = dict(os.environ, PX4_SYS_AUTOSTART="10040", PX4_SIM_MODEL="sihsim_quadx")
     log = open(cwd / "autopilot.log", "wb")
-    proc = subprocess.Popen([str(binary), "-i", str(PX4_INSTANCE), "-d", str(etc)], cwd=cwd,
-                            env=env, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+    proc = subprocess.Popen([str(binary), "-d", "-i", str(PX4_INSTANCE), "-w", str(cwd), str(etc)],
+                            cwd=cwd, env=env, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
+    # its onboard link sends to 14540+N, to 14549 for N > 9 (px4-rc.mavlink)
+    port = 14540 + PX4_INSTANCE if PX4_INSTANCE <= 9 else 14549
     try:
-        time.sleep(2.0)
-        yield MavlinkLink.open(f"udpin:127.0.0.1:{14540 + PX4_INSTANCE}",
-                               tlog=cwd / "telemetry.tlog")  # fmt: skip
+        yield MavlinkLink.open(f"udpin:127.0.0.1:{port}", tlog=cwd / "telemetry.tlog")
     finally:
         proc.terminate()
         try:
@@ -168,4 +167,8 @@ def test_real_px4_sih_flies_twice_and_is_left_disarmed(tmp_path):
         for _ in range(2):
             _mission(c, tmp_path, 10.0, [15.0, 10.0, -10.0])
             assert not c.telemetry.armed and c.telemetry.mode is FlightMode.HOLD
-        assert c.telemetry.unrequested_mode_change == 0
+        # PX4 1.17 puts itself back in OFFBOARD when it disarms after the landing (measured,
+        # with no setpoint streaming): on the ground, not a take-over; the end sets Hold
+        assert not c.telemetry.yielded
+        names = [n for _, n, _ in c.telemetry.modes]
+        assert names.count("AUTO.TAKEOFF") == 2 and names.count("AUTO.LAND") == 2
