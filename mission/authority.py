@@ -1,71 +1,73 @@
-"""The one place that maps the safety net's decision onto the autopilot's modes, and the rule
-by which the companion yields to the autopilot.
+"""The one place that maps the safety net's decision onto the autopilot's modes, over MAVLink.
 
 The net's decision names the mode the vehicle should fly in: the AI's (OFFBOARD; GUIDED on
 ArduPilot) or the fallback (the autopilot's own position hold: PX4 Hold, ArduCopter BRAKE,
-ArduPlane LOITER). `Authority.want(mode)` requests it (DO_SET_MODE, re-sent every `retry_s`
-until the heartbeat shows it) without blocking the tick.
+ArduPlane LOITER). `ModeAuthority.want(v, mode)` requests it with DO_SET_MODE (the profile's
+numbers), re-sent every `retry_s` until the heartbeat shows it, without blocking the tick.
 
-Yielding (never undo an autopilot's failsafe): the companion may only see the vehicle in the
-mode it requested last, or in the mode it was in before that request while the request is
-being answered. Any other mode — a battery or link-loss failsafe (RTL, LAND), a fence action,
-a ground station or an RC pilot — means the autopilot has taken over: `yielded` gets the reason,
-and from then on the companion requests no mode and streams no setpoint. The mission ends
-and waits for the vehicle to land under the autopilot's control.
+Whether the companion may ask at all is decided by `safety.authority.Authority` (a pure,
+time-passed-in machine; its rules in its docstring): a mode the net did not ask for (a battery
+or link-loss failsafe, a fence action, a ground station, an RC pilot) ends the AI's authority;
+the mission ends on RTL / LAND and waits on any other mode until someone gives OFFBOARD back.
+A request counts as asked for when it is sent, and is withdrawn if the autopilot refuses it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from flight.autopilot_api import FlightMode
 from mission.steps import mode_params
 from mission.vehicle import VehicleLink
+from safety.authority import Authority
 
 M = mavlink2
 
 
 @dataclass
-class Authority:
-    retry_s: float = 1.0  # re-send a mode request not yet shown after this long [s]
-    requested: FlightMode | None = None
-    previous: FlightMode | None = None  # the mode before the pending request
-    t_request: float = -1e9
-    yielded: str | None = None  # why the autopilot has the vehicle now (None: we have it)
+class ModeAuthority:
+    events: object | None = None  # where the rules write their hand-over / yield events
+    vehicle: str = "uav0"
+    retry_s: float = 1.0  # re-send a request not yet shown after this long [s]
+    rules: Authority = field(init=False)
+    pending: FlightMode | None = None  # the request sent and not yet answered
+    t_sent: float = -1e9
     requests: int = 0
 
-    def adopt(self, mode: FlightMode) -> None:
-        """The mode the companion reached by a phase (hand-over): it now holds authority."""
-        self.requested, self.previous = mode, None
+    def __post_init__(self) -> None:
+        self.rules = Authority(self.events, self.vehicle)
 
-    def check(self, v: VehicleLink) -> str | None:
-        """Call once per tick before deciding; returns the reason when the autopilot took over."""
-        mode = v.tel.mode
-        if self.yielded is not None or self.requested is None or mode is None:
-            return self.yielded
-        if mode is self.requested:
-            self.previous = None  # the request is done
-            return None
-        if mode is self.previous:
-            return None  # still being answered
-        self.yielded = (
-            f"the autopilot switched to {mode.name} at t = {v.t:.1f} s (the companion had asked "
-            f"for {self.requested.name}): its failsafe, a ground station or a pilot has the vehicle"
-        )
-        return self.yielded
+    def adopt(self, v: VehicleLink, mode: FlightMode) -> None:
+        """The hand-over: a phase put the vehicle in `mode`; the net now has it."""
+        self.rules.start(v.t, v.tel.mode, mode)
+
+    def update(self, v: VehicleLink) -> str:
+        """Once per tick: the autopilot's answer to a pending request, then its reported mode.
+        Returns "fly", "wait" or "end" (safety.authority's rule 2)."""
+        if self.pending is not None:
+            result = v.acks.get(M.MAV_CMD_DO_SET_MODE, M.MAV_RESULT_IN_PROGRESS)
+            if result != M.MAV_RESULT_IN_PROGRESS:
+                v.acks.pop(M.MAV_CMD_DO_SET_MODE, None)
+                if result != M.MAV_RESULT_ACCEPTED:
+                    self.rules.requested(v.t, self.pending, accepted=False)
+                self.pending = None
+        self.rules.observe(v.t, v.tel.mode, v.tel.statustext)
+        return self.rules.mission
+
+    @property
+    def yielded(self) -> str | None:
+        """Why the autopilot has the vehicle (None while the net has it)."""
+        return None if self.rules.has_authority or not self.rules.reason else self.rules.reason
 
     def want(self, v: VehicleLink, mode: FlightMode) -> None:
-        """Request `mode` unless it is shown, already requested recently, or we have yielded."""
-        if self.yielded is not None:
+        """Request `mode` unless the rules forbid it, it is shown, or it was sent recently."""
+        ask = self.rules.request(mode)
+        if ask is None or (ask is self.pending and v.t - self.t_sent < self.retry_s):
             return
-        if v.tel.mode is mode and self.requested is mode:
-            return
-        if self.requested is not mode:
-            self.previous, self.requested = v.tel.mode, mode
-        elif v.t - self.t_request < self.retry_s:
-            return
-        self.t_request = v.t
+        self.rules.requested(v.t, ask, accepted=True)  # the switch may show before the ACK
+        v.acks.pop(M.MAV_CMD_DO_SET_MODE, None)
+        v.command_long(M.MAV_CMD_DO_SET_MODE, mode_params(v, ask), 0)
+        self.pending, self.t_sent = ask, v.t
         self.requests += 1
-        v.command_long(M.MAV_CMD_DO_SET_MODE, mode_params(v, mode), 0)

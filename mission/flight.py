@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flight.autopilot_api import FlightMode, Setpoint
-from mission.authority import Authority
+from mission.authority import ModeAuthority
 from mission.pilots import Observation, Pilot, Proposal
 from mission.steps import MissionError, Phase, read_params, recipe, wait_ready, wait_until
 from mission.vehicle import VehicleLink
@@ -94,7 +94,7 @@ class SingleVehicleMission:
                  record: Record, perception=None, guard=None):  # fmt: skip
         self.pilot, self.net, self.plan, self.rec = pilot, supervisor, plan, record
         self.perception = perception  # mission.perception.Perception or None (no camera)
-        self.authority = Authority()
+        self.authority = ModeAuthority(getattr(supervisor, "events", None))
         self.guard = (
             guard  # safety.consistency.ParamGuard: the autopilot's parameters vs the envelope
         )
@@ -141,13 +141,18 @@ class SingleVehicleMission:
         yield from recipe(v, prof.takeoff_steps(plan.altitude_m, v.home_amsl_m))
         self.phase = "offboard"
         yield from recipe(v, prof.handover_steps(), hold=lambda: self._hold(v))
-        self.authority.adopt(prof.ai_mode)
+        self.authority.adopt(v, prof.ai_mode)
         self.phase = self.pilot.name
         t_end = v.t + plan.duration_s
         while v.t < t_end - 1e-9 and not getattr(self.pilot, "done", False):
-            if self.authority.check(v) is not None:
+            rule = self.authority.update(v)
+            if rule == "end":
                 break
-            self._tick(v)
+            if rule == "wait":  # yielded to a non-landing mode: perceive, command nothing
+                self.phase, v.setpoint = "autopilot", None
+            else:
+                self.phase = self.pilot.name
+                self._tick(v)
             yield
         if self.authority.yielded is not None:
             yield from self._yield_to_autopilot(v)

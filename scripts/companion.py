@@ -327,3 +327,4 @@ def _publish_live(session, mission, vehicle: str = "uav0") -> None:
         mission.net.events = Tee(mission.net.events, ZenohEventSink(session, vehicle))
         if mission.guard is not None:
             mission.guard.events = mission.net.events
+        mission.authority.rules.events = mission.net.events

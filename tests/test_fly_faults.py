@@ -14,7 +14,7 @@ from scripts.cli import main
 
 def test_a_cut_link_and_a_lost_camera_are_seen_within_the_stated_times(tmp_path):
     args = ["fly", "--duration", "25", "--cut-link", "22:3", "--cut-camera", "30:2", "--speedup", "0",
-            "--instance", "18", "--zenoh-port", "7457", "--runs-dir", str(tmp_path)]  # fmt: skip
+            "--instance", "19", "--zenoh-port", "7445", "--runs-dir", str(tmp_path)]  # fmt: skip
     assert main(args) == 0
     (run,) = tmp_path.iterdir()
     events = [json.loads(x) for x in (run / "events.jsonl").read_text().splitlines()]
@@ -38,7 +38,7 @@ def test_the_companion_never_undoes_the_autopilots_battery_failsafe(tmp_path):
     the companion yields (no mode request, no setpoint), the autopilot lands, the flight ends
     saying so — it is not counted as completed."""
     args = ["fly", "--duration", "30", "--fault", "battery@20:0.06", "--speedup", "0",
-            "--instance", "18", "--zenoh-port", "7457", "--runs-dir", str(tmp_path)]  # fmt: skip
+            "--instance", "19", "--zenoh-port", "7445", "--runs-dir", str(tmp_path)]  # fmt: skip
     assert main(args) == 1
     (run,) = tmp_path.iterdir()
     comp = json.loads((run / "companion.json").read_text())
