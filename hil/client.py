@@ -487,7 +487,8 @@ class VehicleClient:
         Yielded / ClientTimeout at once when the autopilot took over or the vehicle stalled
         (`interruptible`), or when the link has been silent for `options.silence_s`."""
         deadline = time.monotonic() + timeout
-        t0 = self.telemetry.t
+        tel = self.telemetry
+        t0 = tel.t if tel.time_boot_ms else None  # the autopilot's clock starts at its first stamp
         with self._cond:
             while not predicate():
                 if interruptible and self.yielded:
@@ -497,7 +498,9 @@ class VehicleClient:
                 now = time.monotonic()
                 if now >= deadline:
                     raise ClientTimeout(f"timed out after {timeout:.0f} s waiting for {what}")
-                if vehicle_s is not None and self.telemetry.t - t0 > vehicle_s:
+                if t0 is None and tel.time_boot_ms:
+                    t0 = tel.t
+                if vehicle_s is not None and t0 is not None and tel.t - t0 > vehicle_s:
                     raise ClientTimeout(
                         f"timed out after {vehicle_s:.0f} s of autopilot time waiting for {what}"
                         + self._said()
