@@ -469,6 +469,8 @@ def _plots(rf, results, comparison) -> None:
             np.arange(len(scen)) + 0.4 - width / 2, [s.replace("groundsim:", "gs:") for s in scen]
         )
         ax.set_title(lab)
+        if key == "footprint_ratio":
+            ax.set_yscale("log")  # ratios of 5 to 100 side by side
         ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(rf.file("compare.png"), dpi=100)
