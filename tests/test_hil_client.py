@@ -89,8 +89,9 @@ def test_builtin_vehicle_offboard_loss_is_an_unrequested_mode_change():
             with pytest.raises(Yielded):
                 c.set_mode(FlightMode.OFFBOARD)
             assert tel.unrequested_mode_change == 1 and sitl.autopilot.mode is FlightMode.HOLD
-            c.run_steps(c.profile.land_steps(), 60)  # the landing recipe itself still runs
-            assert not tel.armed
+            with pytest.raises(Yielded):  # not even to land: the autopilot has it
+                c.run_steps(c.profile.land_steps(), 60)
+            assert tel.armed and sitl.autopilot.mode is FlightMode.HOLD
 
 
 def test_update_telemetry_is_a_pure_step_without_the_receive_thread():
