@@ -217,6 +217,11 @@ FORMATION_ACCEL_MPS2 = 8.0
 FORMATION_TILT_RAD = 0.70
 """Tilt a formation setpoint may demand [rad] (40°, inside the autopilot's MPC_TILTMAX_AIR 45°)."""
 
+LEASH_M = 3.0
+"""A vehicle behind its reference chases a point at most this far ahead [m]: the position
+setpoint then implies at most 0.95·3 m/s + the feed-forward, inside the envelope's speed rows
+(a reference 50 m ahead would imply the autopilot's 12 m/s and never be certified)."""
+
 FENCE_PAD_M = 10.0
 """The formation's fence: the plan's bounding box, this much wider on every side [m]."""
 
@@ -450,6 +455,10 @@ class FormationVehicle:
         self.net.set_dynamic_rows(*separation_rows(self.net.envelope.spec, state.pos_ned, others,
                                                    self.separation))  # fmt: skip
         sw = self.net.stats.switches
+        e = target_field[:2] - state.pos_ned[:2]
+        dist = float(np.hypot(e[0], e[1]))
+        if dist > LEASH_M:  # fallen behind: chase a point on the way, not the far reference
+            target_field = np.array([*(state.pos_ned[:2] + e * (LEASH_M / dist)), target_field[2]])
         proposed = Setpoint(pos_ned=target_field, vel_ned=vel_ff, yaw=0.0)
         d = self.net.update(t, state, proposed, Health())
         self.last_decision = d
