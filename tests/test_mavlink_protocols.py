@@ -429,10 +429,14 @@ def test_in_progress_then_final_ack_when_the_autopilot_reports_a_running_command
         assert abs(sitl.autopilot.state.altitude - 5.0) < 0.6
 
 
-def test_offboard_stream_loss_and_manual_control():
+def test_offboard_stream_loss_and_manual_control_walltime():
     """Offboard velocity over MAVLink, then the stream stops: HOLD 0.5 s of simulation time
-    after the last setpoint (COM_OF_LOSS_T). MANUAL_CONTROL in POSCTL flies forward."""
-    with running_sitl(instance=2, speedup=5.0) as sitl, Client(2) as c:
+    after the last setpoint (COM_OF_LOSS_T). MANUAL_CONTROL in POSCTL flies forward.
+
+    Wall time: the client streams at 25 Hz of wall time; at speed-up 2 that is a setpoint every
+    0.08 s of simulation time, a 6× margin on the 0.5 s offboard-loss timeout for a busy
+    machine (at 5× a 0.1 s scheduling stall already lost the stream)."""
+    with running_sitl(instance=2, speedup=2.0) as sitl, Client(2) as c:
         ap, ep = sitl.autopilot, sitl.endpoint
         c.wait_heartbeat()
         assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
@@ -443,6 +447,7 @@ def test_offboard_stream_loss_and_manual_control():
             == 0
         )
         assert c.recv("HEARTBEAT", 10, lambda m: m.custom_mode == PX4_HOLD) is not None
+        assert c.recv("LOCAL_POSITION_NED", 20, lambda m: abs(m.z + 5) < 0.1) is not None  # settled
 
         vel_mask = 0b0000_1101_1100_0111  # velocity + yaw
 
