@@ -59,10 +59,17 @@ def _binary(var: str) -> Path:
 
 
 def _defaults(binary: Path, name: str) -> Path | None:
+    """copter.parm / plane.parm: SKYHERD_ARDUPILOT_DEFAULTS, else the binary's source tree
+    (Tools/autotest/default_params, then Tools/autotest/models)."""
     root = os.environ.get("SKYHERD_ARDUPILOT_DEFAULTS")
-    folder = Path(root) if root else binary.resolve().parents[3] / "Tools/autotest/default_params"
-    f = folder / name
-    return f if f.is_file() else None
+    autotest = binary.resolve().parents[3] / "Tools/autotest"
+    for folder in ([Path(root)] if root else []) + [
+        autotest / "default_params",
+        autotest / "models",
+    ]:
+        if (folder / name).is_file():
+            return folder / name
+    return None
 
 
 @contextlib.contextmanager
