@@ -490,10 +490,10 @@ class FormationFlight:
 
     def __init__(self, vehicles: list[FormationVehicle], params: FormationParams, timeout: float,
                  swarm: LockstepSwarm | None = None, events=None, decisions=None,
-                 separation: SeparationParams = SEPARATION):  # fmt: skip
+                 separation: SeparationParams = SEPARATION, net: bool = True):  # fmt: skip
         self.v = vehicles
         self.envelope = formation_envelope([v.path_ne for v in vehicles], params)
-        for v in vehicles:  # one safety net per vehicle, the others' positions as rows
+        for v in vehicles if net else ():  # one net per vehicle, the others' positions as rows
             sup = Supervisor(self.envelope.envelope(), FORMATION_NET, None)
             v.attach_net(sup, [w for w in vehicles if w is not v], separation, events, decisions)
         self.p = params
