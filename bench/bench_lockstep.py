@@ -112,6 +112,7 @@ def main() -> None:
             "lockstep, as fast as possible",
             round(rtf["lockstep"]["real_time_factor"], 1),
             "— (L = 0.02 s exactly)",
+            rtf["companion"]["outcome"],
         ]
     ]
     for s in ("10", "20"):
