@@ -222,6 +222,11 @@ LEASH_M = 3.0
 setpoint then implies at most 0.95·3 m/s + the feed-forward, inside the envelope's speed rows
 (a reference 50 m ahead would imply the autopilot's 12 m/s and never be certified)."""
 
+LEASH_V_M = 1.0
+"""... and at most this far up or down [m]: MPC_Z_P 1/s × 1 m is a 1 m/s step, inside the
+vertical accel row (3 m/s² × τ 0.5 s); after a recovery 3 m above its cruise altitude a 2 m/s
+step was refused for ever."""
+
 FENCE_PAD_M = 10.0
 """The formation's fence: the plan's bounding box, this much wider on every side [m]."""
 
@@ -459,6 +464,8 @@ class FormationVehicle:
         dist = float(np.hypot(e[0], e[1]))
         if dist > LEASH_M:  # fallen behind: chase a point on the way, not the far reference
             target_field = np.array([*(state.pos_ned[:2] + e * (LEASH_M / dist)), target_field[2]])
+        dz = float(np.clip(target_field[2] - state.pos_ned[2], -LEASH_V_M, LEASH_V_M))
+        target_field = np.array([target_field[0], target_field[1], state.pos_ned[2] + dz])
         proposed = Setpoint(pos_ned=target_field, vel_ned=vel_ff, yaw=0.0)
         d = self.net.update(t, state, proposed, Health())
         self.last_decision = d
