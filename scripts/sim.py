@@ -107,6 +107,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="no built-in vehicle: build the world (UGVs, camera) around the outside vehicle at "
         "this MAVLink address (a second link of PX4 / ArduPilot), free-running on its clock",
     )
+    parser.add_argument("--autopilot", choices=["builtin", "px4", "ardupilot"], default="builtin",
+                        help="builtin: skyherd's autopilot (default); px4 / ardupilot: a real one flies on skyherd's "
+                        "physics (PX4 none_iris on TCP 4560+N, ArduPilot --model JSON on UDP 9002+10N)")  # fmt: skip
     parser.add_argument(
         "--follow-system",
         type=int,
@@ -212,8 +215,24 @@ def run(args: argparse.Namespace) -> int:
         run_dir = folder.path
     session = open_zenoh(args.zenoh_port, args.zenoh_config)
     try:
-        world = _follow(args, params, session, run_dir) if args.follow else World(
-            params, session=session, run_dir=run_dir, endpoint_config=endpoint, faults=_faults(args))  # fmt: skip
+        if args.autopilot != "builtin":  # a real autopilot on our physics (hil/ bridges)
+            from hil.bridge_select import make_bridge
+            from world.bridged import BridgedWorld
+
+            bridge = make_bridge(
+                args.autopilot, args.airframe, args.instance, args.seed, speedup=args.speedup
+            )
+            world = BridgedWorld(bridge, params, session=session, run_dir=run_dir)
+        elif args.follow:
+            world = _follow(args, params, session, run_dir)
+        else:
+            world = World(
+                params,
+                session=session,
+                run_dir=run_dir,
+                endpoint_config=endpoint,
+                faults=_faults(args),
+            )
 
     except ValueError as e:  # flight.mavlink.signing.SigningError: a bad key file
         session.close()
@@ -221,11 +240,13 @@ def run(args: argparse.Namespace) -> int:
     except OSError as e:
         session.close()
         raise UsageError(f"{e}; is another vehicle using instance {args.instance}?") from None
-    if not args.follow:
+    if not args.follow and args.autopilot == "builtin":
         _set_params(world, args.param, session)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: world.stop())
     mode = "free-running" if args.free_run else f"lockstep (latency {args.latency:g} s)"
+    if args.autopilot != "builtin":
+        mode = f"{args.autopilot} on skyherd's physics (its own lockstep)"
     print(f"skyherd sim: instance {args.instance}, {mode}, speed-up {args.speedup:g}; run folder {run_dir}",
           file=sys.stderr, flush=True)  # fmt: skip
     try:
