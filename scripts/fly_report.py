@@ -91,6 +91,16 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
     if not ok:
         lines += [f"**Why it ended:** {reason or 'see companion.json and sim.log'}", ""]
     lines += [table]
+    if any("explanation" in d for d in decisions):  # a modular policy said why it acted
+        from policy.education.timeline import read_decisions, timeline
+
+        told = timeline(read_decisions(run_dir / "decisions.jsonl")[0])
+        lines += [
+            "",
+            "## Timeline (which skill acted, why, and the net's verdict)",
+            "",
+            *[f"- {x}" for x in told[:40]],
+        ]
     atomic_write_text(run_dir / "summary.md", "\n".join(lines))
     print(table)
     files = sorted(p.name for p in run_dir.iterdir())
