@@ -206,8 +206,11 @@ def vehicle_homes(origin: Home, starts: list[Cell], cell_m: float) -> list[Home]
 
 # ---- the safety net of the formation -------------------------------------------------------
 
-FORMATION_NET = SupervisorParams(hysteresis_s=1.0, hold_min_s=0.5, deadline_s=0.5)
-"""Supervisor settings of each formation vehicle (setpoints come with every telemetry sample)."""
+FORMATION_NET = SupervisorParams(hysteresis_s=1.0, hold_min_s=0.5, deadline_s=0.5,
+                                 recover_margin_m=1.0, recover_tol_m=0.5)  # fmt: skip
+"""Supervisor settings of each formation vehicle (setpoints come with every telemetry sample).
+The recovery keeps only 1 m from the rows: with the field set's 6 m, every vehicle's target
+was the floor + 6 m = 11 m, two vehicles met there and their separation rows held both."""
 
 SEPARATION = SeparationParams(radius_m=1.0)
 """Stopping points of two formation vehicles keep 1 m (cells 2 m apart, altitudes 1.5 m)."""
