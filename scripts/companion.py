@@ -186,16 +186,33 @@ def zenoh_endpoint(address: str) -> str:
 
 def open_frames(args, vehicle: str = "uav0"):
     from mission.companion import FrameInbox
-    from perception.transport import FrameSubscriber, ZenohParams, open_session, subscriber_params
+    from perception.transport import FrameSubscriber, ZenohParams, subscriber_params
 
     # a client of the simulator's peer: Zenoh routes between its clients (a recorder, a viewer)
     p = ZenohParams(config_file=args.zenoh_config) if args.zenoh_config else dataclasses.replace(
         subscriber_params(zenoh_endpoint(args.zenoh_connect)), mode="client")  # fmt: skip
     try:
-        session = open_session(p)
+        session = open_client(p)
     except ValueError as e:
         raise UsageError(f"{e}; check --zenoh-connect / --zenoh-config") from None
     return session, FrameInbox(FrameSubscriber(session, vehicle))
+
+
+def open_client(p, patience_s: float = 60.0):
+    """A Zenoh session that connects to a simulator which may not listen yet (a client's open
+    fails at once when nothing answers): retried every 0.2 s of wall time for `patience_s`."""
+    import time
+
+    from perception.transport import open_session
+
+    deadline = time.monotonic() + patience_s
+    while True:
+        try:
+            return open_session(p)
+        except ValueError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
 
 
 def run(args: argparse.Namespace) -> int:

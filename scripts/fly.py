@@ -14,6 +14,7 @@ fixed-wing orbit still fly in one process (scripts/fly_formation.py, scripts/fly
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -285,10 +286,12 @@ def _recorder(args, run_dir: Path):
     if args.no_record and args.foxglove is None:
         return None
     try:
-        from perception.transport import open_session, subscriber_params
+        from perception.transport import subscriber_params
         from record import LiveServer, ZenohRecorder
+        from scripts.companion import open_client
 
-        session = open_session(subscriber_params(f"tcp/127.0.0.1:{args.zenoh_port}"))
+        params = subscriber_params(f"tcp/127.0.0.1:{args.zenoh_port}")
+        session = open_client(dataclasses.replace(params, mode="client"))
         also = [LiveServer(args.foxglove)] if args.foxglove is not None else []
         path = None if args.no_record else run_dir / "flight.mcap"
         if also:
