@@ -292,7 +292,20 @@ def run(args: argparse.Namespace) -> int:
         f"# skyherd drill\n\nConstraint sets: {versions}\n\n{table}\n{totals}\n"
         + ("\n## Failures\n" + "\n".join(fails) + "\n" if fails else "")
     )
+    _mcap(run_dir.path)
     return 1 if n_fail else 0
+
+
+def _mcap(folder) -> None:
+    """flight.mcap of the drills (their metrics, events and envelope; record.from_run), so a
+    drill opens in Foxglove like a flight. A recording that fails never fails the drills."""
+    try:
+        from record.from_run import mcap_from_run
+
+        res = mcap_from_run(folder)
+        print(f"flight.mcap: {sum(res.counts.values())} messages")
+    except Exception as e:  # noqa: BLE001 - say so, keep the drills' result
+        print(f"no flight.mcap ({type(e).__name__}: {e})")
 
 
 class _Tagged:
