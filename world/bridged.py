@@ -21,7 +21,7 @@ from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
 from runio import CsvWriter, atomic_write_text
 from world.sim import level_camera_mount
-from world.team import new_team, team_states
+from world.team import new_team, team_states, truth_row, ugv_columns
 
 
 class BridgedWorld:
@@ -40,9 +40,7 @@ class BridgedWorld:
                                             rng=np.random.default_rng(params.seed))  # fmt: skip
             self.ugv_pub = UGVStatePublisher(session, self.task.n_ugvs)
         self.run_dir = Path(run_dir) if run_dir is not None else None
-        cols = ["t", "north", "east", "down"] + [
-            f"ugv{i}_{ax}" for i in range(self.task.n_ugvs) for ax in ("n", "e")
-        ]
+        cols = ["t", "north", "east", "down"] + ugv_columns(self.task.n_ugvs)
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
         self._stop = threading.Event()
         self.frames = 0
@@ -93,11 +91,7 @@ class BridgedWorld:
             self.ugv_pub.publish(t, ugvs)
             self.frames += 1
         if self.truth is not None:
-            p = state.pos_ned
-            row = {"t": round(t, 6), "north": p[0], "east": p[1], "down": p[2]}
-            for i in range(ugvs.n):
-                row[f"ugv{i}_n"], row[f"ugv{i}_e"] = ugvs.pos_ne[i, 0], ugvs.pos_ne[i, 1]
-            self.truth.write(row)
+            self.truth.write(truth_row(round(t, 6), state.pos_ned, ugvs))
 
     def close(self) -> None:
         if self.truth is not None:

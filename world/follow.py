@@ -26,7 +26,7 @@ from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
 from runio import CsvWriter, atomic_write_text
 from world.sim import level_camera_mount
-from world.team import new_team, team_states
+from world.team import new_team, team_states, truth_row, ugv_columns
 
 M = mavlink2
 
@@ -59,7 +59,7 @@ class FollowWorld:
                                             rng=np.random.default_rng(params.seed))  # fmt: skip
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down", "mode", "armed", "team_t"]
-        cols += [f"ugv{i}_{ax}" for i in range(self.task.n_ugvs) for ax in ("n", "e")]
+        cols += ugv_columns(self.task.n_ugvs)
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
         self._stop = threading.Event()
         self.frames = 0
@@ -125,12 +125,8 @@ class FollowWorld:
             self.publisher.publish(t, uav.pos_ned, uav.quat, image)
             self.frames += 1
         if self.truth is not None:
-            p = state.pos_ned
-            row = {"t": round(t, 6), "north": p[0], "east": p[1], "down": p[2],
-                   "mode": self.tel.mode_name, "armed": int(self.tel.armed),
-                   "team_t": "" if self.team_t is None else round(self.team_t, 6)}  # fmt: skip
-            for i in range(ugvs.n):
-                row[f"ugv{i}_n"], row[f"ugv{i}_e"] = ugvs.pos_ne[i, 0], ugvs.pos_ne[i, 1]
+            row = truth_row(round(t, 6), state.pos_ned, ugvs, mode=self.tel.mode_name, armed=int(self.tel.armed),
+                            team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
             self.truth.write(row)
 
     def _stats(self, wall0: float) -> dict:

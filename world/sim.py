@@ -38,7 +38,7 @@ from groundsim.ugv import UGVModel
 from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
 from runio import CsvWriter, atomic_write_text
-from world.team import new_team, team_states
+from world.team import new_team, team_states, truth_row, ugv_columns
 
 CLOCK_KEY = "skyherd/sim/clock"
 HEARTBEAT = 0  # MAVLINK_MSG_ID_HEARTBEAT
@@ -146,7 +146,7 @@ class World:
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
-        cols += [f"ugv{i}_{ax}" for i in range(self.task.n_ugvs) for ax in ("n", "e")]
+        cols += ugv_columns(self.task.n_ugvs)
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
         self.frames = 0
         self.render_failures = 0
@@ -266,12 +266,10 @@ class World:
         self._clock_pub.put(json.dumps({"t_sim": t}).encode())
 
     def _write_truth(self, t: float, state: VehicleState, ugvs) -> None:
-        p, v = state.pos_ned, state.vel_ned
-        row = {"t": t, "north": p[0], "east": p[1], "down": p[2], "vn": v[0], "ve": v[1],
-               "vd": v[2], "mode": self.autopilot.mode.name, "armed": int(self.autopilot.armed),
-               "team_t": "" if self.team_t is None else round(self.team_t, 6)}  # fmt: skip
-        for i in range(ugvs.n):
-            row[f"ugv{i}_n"], row[f"ugv{i}_e"] = ugvs.pos_ne[i, 0], ugvs.pos_ne[i, 1]
+        v = state.vel_ned
+        row = truth_row(t, state.pos_ned, ugvs, vn=v[0], ve=v[1], vd=v[2], mode=self.autopilot.mode.name,
+                        armed=int(self.autopilot.armed),
+                        team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
         self.truth.write(row)
 
     def _stats(self, sim_s: float, wall_s: float) -> dict:

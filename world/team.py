@@ -42,3 +42,16 @@ def start_altitude(task: TaskParams, team) -> float:
     alt = cam.fx * radius / (task.spread_target * half_diag)
     alt += cam.mount_offset_frd[2]
     return float(min(max(alt, task.uav.alt_min_m + 2.0), task.uav.alt_max_m - 2.0))
+
+
+def ugv_columns(n_ugvs: int) -> list[str]:
+    """world.csv's UGV columns: ugv<i>_n, ugv<i>_e [m]."""
+    return [f"ugv{i}_{ax}" for i in range(n_ugvs) for ax in ("n", "e")]
+
+
+def truth_row(t: float, pos_ned, ugvs: UGVStates, **extra) -> dict:
+    """One world.csv row: the vehicle's true position, the UGVs', and `extra` columns."""
+    row = {"t": t, "north": pos_ned[0], "east": pos_ned[1], "down": pos_ned[2], **extra}
+    for i in range(ugvs.n):
+        row[f"ugv{i}_n"], row[f"ugv{i}_e"] = ugvs.pos_ne[i, 0], ugvs.pos_ne[i, 1]
+    return row
