@@ -172,17 +172,28 @@ class AutopilotBase:
     """The read-outs and parameter calls that every skyherd autopilot answers the same way.
 
     A subclass keeps `_state` (VehicleState), `_armed`, `_mode` (FlightMode), `_progress`
-    (MissionProgress) and `params` (a flight.params store) up to date.
+    (MissionProgress), `_gps_fix`, `_pos_valid` and `params` (a flight.params store) up to date.
     """
 
     _state: VehicleState
     _armed: bool
     _mode: FlightMode
     _progress: MissionProgress
+    _gps_fix: bool
+    _pos_valid: bool
 
     @property
     def state(self) -> VehicleState:
         return self._state
+
+    @property
+    def gps_fix(self) -> bool:
+        return self._gps_fix
+
+    @property
+    def position_valid(self) -> bool:
+        """False once GPS has been lost for longer than the estimator's dead-reckoning limit."""
+        return self._pos_valid
 
     @property
     def armed(self) -> bool:

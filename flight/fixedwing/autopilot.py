@@ -188,14 +188,6 @@ class FixedWingAutopilot(AutopilotBase):
         """JSBSim's state (ground truth); `state` is the estimate the autopilot flies on."""
         return self._true_state
 
-    @property
-    def gps_fix(self) -> bool:
-        return self._gps_fix
-
-    @property
-    def position_valid(self) -> bool:
-        return self._pos_valid
-
     def drain_status(self) -> list[str]:
         """Human-readable events since the last call (breaches, failsafes, fence uploads)."""
         out, self._status = self._status, []

@@ -322,15 +322,6 @@ class MultirotorAutopilot(AutopilotBase):
             self._true_state = self._make_state()
         return self._true_state
 
-    @property
-    def gps_fix(self) -> bool:
-        return self._gps_fix
-
-    @property
-    def position_valid(self) -> bool:
-        """False once GPS has been lost for longer than EKF2_NOAID_TOUT."""
-        return self._pos_valid
-
     def _update_estimate(self) -> None:
         """The estimate: truth + the injector's current error (position and velocity)."""
         ex = self._ex
