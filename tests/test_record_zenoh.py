@@ -47,7 +47,19 @@ def test_zenoh_recorder_records_every_key_of_a_flight_in_another_session(tmp_pat
         dec = pub_s.declare_publisher("skyherd/uav0/decision")
         clock = pub_s.declare_publisher("skyherd/sim/clock")
         junk = pub_s.declare_publisher("skyherd/uav0/decision")
-        _until(lambda: frames["raw"].has_subscriber() and frames["jpeg"].has_subscriber(), "match")
+        # every key's subscriber known to the publishing session before the first put (the
+        # recorder declares them one after another; a put before its match is not delivered)
+        probes = [pub_s.declare_publisher(k) for k in (
+            "skyherd/ugv/0/state", "skyherd/ugv/2/state", "skyherd/uav0/decision",
+            "skyherd/uav0/safety/event", "skyherd/sim/clock")]  # fmt: skip
+        _until(
+            lambda: (
+                frames["raw"].has_subscriber()
+                and frames["jpeg"].has_subscriber()
+                and all(p.matching_status.matching for p in probes)
+            ),
+            "every subscriber matched",
+        )
         img = (np.random.default_rng(0).random((60, 80, 3)) * 255).astype(np.uint8)
         n = 10
         for k in range(n):  # lockstep on what arrived: a count, not a wall-time race
