@@ -8,7 +8,8 @@ bit for bit.
 
 Update rule (Watkins Q-learning, seed eq. for Q):
     Q(s, a) ← Q(s, a) + α [r + γ max_a' Q(s', a') − Q(s, a)],   the max term dropped at a
-    terminal transition (target or ROI reached).
+    terminal transition (target or ROI reached); with `blend` computed in the published
+    form (1 − α) Q(s, a) + α [r + γ max_a' Q(s', a')] (same value up to rounding).
 """
 
 from __future__ import annotations
@@ -83,8 +84,11 @@ def choose_action(q_row, eps, rng, ties_first):
 
 
 @njit(cache=True)
-def q_update(q, s, a, r, s2, terminal, alpha, gamma):
-    """One Q-learning update on table q (shape (S, A)); returns the TD error."""
+def q_update(q, s, a, r, s2, terminal, alpha, gamma, blend=False):
+    """One Q-learning update on table q (shape (S, A)); returns the TD error.
+
+    blend: store (1 − α)·Q + α·target (published `Qvalues_update.m`) instead of
+    Q + α·(target − Q): equal in exact arithmetic, rounded differently."""
     target = r
     if not terminal:
         m = q[s2, 0]
@@ -93,7 +97,10 @@ def q_update(q, s, a, r, s2, terminal, alpha, gamma):
                 m = q[s2, b]
         target += gamma * m
     td = target - q[s, a]
-    q[s, a] += alpha * td
+    if blend:
+        q[s, a] = (1.0 - alpha) * q[s, a] + alpha * target
+    else:
+        q[s, a] += alpha * td
     return td
 
 
@@ -156,6 +163,7 @@ def run_sql(
     bonus_missed,
     ties_first,
     bonus_blend,
+    q_blend,
     learn,
     rng,
     out_steps,
@@ -175,6 +183,7 @@ def run_sql(
       bonus_blend True:   Q ← (1 − α)·Q + α·b  (published `Qvalues_update_swarm_final`), and
                           +bonus_all only if all agents stopped before the last allowed step
                           (the published loop notices "all stopped" one step later).
+    q_blend: every Q update in the published form (`q_update`).
     out_*: (E,) per-episode metrics. paths: (K, T+1) int32 cell history of the last episode
     if its shape is not (0, 0).
     """
@@ -222,7 +231,7 @@ def run_sql(
                         r = r_goal
                         terminal = True
                 if learn:
-                    q_update(q[i], s, a, r, s2, terminal, alpha, gamma)
+                    q_update(q[i], s, a, r, s2, terminal, alpha, gamma, q_blend)
                 pos[i] = s2
                 last_s[i] = s
                 last_a[i] = a
@@ -271,13 +280,14 @@ def roi_step(s, a, next_cell, roi_id):
 @njit(cache=True)
 def pretrain_roi(
     next_cell, roi_id, targets, corner, q2, episodes, max_steps, eps_decay, eps_min, reward,
-    alpha, gamma, ties_first, rng,
+    alpha, gamma, ties_first, rng, q_blend=False,
 ):  # fmt: skip
     """Published `Q_Learning_ROI.m`: per-target tables q2 (T, R, 4) trained in place.
 
     For each target k, `episodes` episodes from the ROI corner cell `corner`, ε-greedy with
     ε = 1 decayed ×eps_decay after each episode while above eps_min, moves inside the ROI
-    only, `reward` on reaching target k (the episode ends), 0 otherwise; Watkins update.
+    only, `reward` on reaching target k (the episode ends), 0 otherwise; Watkins update
+    (`q_blend`: in the published form).
     """
     T = targets.shape[0]
     for k in range(T):
@@ -288,12 +298,25 @@ def pretrain_roi(
                 a = choose_action(q2[k, roi_id[s]], eps, rng, ties_first)
                 s2 = roi_step(s, a, next_cell, roi_id)
                 hit = s2 == targets[k]
-                q_update(q2[k], roi_id[s], a, reward if hit else 0.0, roi_id[s2], hit, alpha, gamma)
+                q_update(
+                    q2[k], roi_id[s], a, reward if hit else 0.0, roi_id[s2], hit, alpha, gamma,
+                    q_blend,
+                )  # fmt: skip
                 s = s2
                 if hit:
                     break
             if eps > eps_min:
                 eps *= eps_decay
+
+
+@njit(cache=True)
+def assign_cell(pos, M):
+    """The cell the published `flag_assignment` reads: `Q(currentState(1), currentState(2))`
+    of the K×2 (x, y) position matrix, MATLAB's column-major elements 1 and 2 — (x of agent
+    1, x of agent 2), or agent 1's own (x, y) when K = 1. pos: (K,) cell indices."""
+    x1 = pos[0] % M
+    other = pos[1] % M if pos.shape[0] > 1 else pos[0] // M
+    return other * M + x1
 
 
 @njit(cache=True)
@@ -354,6 +377,9 @@ def run_sie(
     roi_pretrained,
     assign_qargmax,
     step_published,
+    assign_x1x2,
+    walk_draws,
+    q_blend,
     learn,
     rng,
     out_steps,
@@ -376,6 +402,10 @@ def run_sie(
     passing through other agents), then stops (on the target, or where the walk gave up).
     Step count: phase-1 moves + own phase-2 moves, or (step_published) + the length of the
     last ROI walk of any agent when this agent's turn came in the last step.
+    assign_x1x2 (published): the pre-trained claim reads the values at `assign_cell(pos, M)`
+    (x of agent 1, x of agent 2), all 0 when that cell is outside the ROI. walk_draws: one
+    unused uniform draw per walk move (the published walk's `rand` at ε = 0).
+    q_blend: every Q update in the published form (`q_update`).
     Knowledge sharing (`share_max_nonzero`) on q1 after every episode whose global index
     episode0 + e + 1 is a multiple of share_every (> 0).
     """
@@ -392,6 +422,7 @@ def run_sie(
     total = np.zeros(K, np.int64)
     on_target = np.zeros(K, np.bool_)
     claimed = np.zeros(T, np.bool_)
+    zero_rows = np.zeros((T, 4))
     record = paths.shape[0] > 0
     for e in range(eps.shape[0]):
         occ[:] = 0
@@ -419,11 +450,15 @@ def run_sie(
                     continue
                 s = pos[i]
                 if phase[i] == 1 and roi_pretrained:
-                    k = claim_target(s, q2[:, roi_id[s]], claimed, targets, M, assign_qargmax)
+                    c = assign_cell(pos, M) if assign_x1x2 else s
+                    rows = q2[:, roi_id[c]] if roi_id[c] >= 0 else zero_rows
+                    k = claim_target(s, rows, claimed, targets, M, assign_qargmax)
                     claimed[k] = True
                     goal[i] = k
                     s2, n = s, 0
                     while s2 != targets[k] and n < max_steps:
+                        if walk_draws:
+                            uniform(rng)  # drawn and compared with ε = 0: always greedy
                         a = choose_action(q2[k, roi_id[s2]], 0.0, rng, ties_first)
                         s2 = roi_step(s2, a, next_cell, roi_id)
                         n += 1
@@ -459,7 +494,7 @@ def run_sie(
                         r = r_goal
                         terminal = True
                     if learn:
-                        q_update(q1[i], s, a, r, s2, terminal, alpha, gamma)
+                        q_update(q1[i], s, a, r, s2, terminal, alpha, gamma, q_blend)
                     nsteps[i] += 1
                     if terminal:
                         phase[i] = 1
@@ -479,7 +514,9 @@ def run_sie(
                         r = r_goal
                         terminal = True
                     if learn:
-                        q_update(q2[k], roi_id[s], a, r, roi_id[s2], terminal, alpha, gamma)
+                        q_update(
+                            q2[k], roi_id[s], a, r, roi_id[s2], terminal, alpha, gamma, q_blend
+                        )
                     walk[i] += 1
                     if terminal:
                         phase[i] = 2

@@ -87,10 +87,27 @@ class SQLHyper:
         if bad:
             raise ValueError(f"bad SQL hyper-parameters: {', '.join(bad)}")
 
-    def epsilons(self, start: int, count: int) -> np.ndarray:
-        """ε for episodes start .. start+count−1: max(ε_min, ε_0 · decay^e), shape (count,)."""
-        e = np.arange(start, start + count, dtype=np.float64)
-        return np.maximum(self.eps_min, self.eps_start * self.eps_decay**e)
+    def epsilons(self, start: int, count: int, stop_decay: bool = False) -> np.ndarray:
+        """ε for episodes start .. start+count−1, shape (count,).
+
+        stop_decay False: max(ε_min, ε_0 · decay^e). True (published loop): ε_0 multiplied by
+        decay after each episode while ε > ε_min, by repeated products as the loop does, so
+        it settles on the first value ≤ ε_min (0.999, 0.05: 0.04998 from episode 2995 on).
+        """
+        if not stop_decay:
+            e = np.arange(start, start + count, dtype=np.float64)
+            return np.maximum(self.eps_min, self.eps_start * self.eps_decay**e)
+        out = np.empty(count)
+        eps = self.eps_start
+        for e in range(start + count):
+            if e >= start:
+                out[e - start] = eps
+            if eps > self.eps_min:
+                eps *= self.eps_decay
+            elif e >= start:
+                out[e - start + 1 :] = eps
+                break
+        return out
 
 
 TIES = ("first", "random")
@@ -98,6 +115,10 @@ TEAM_BONUS = ("blend", "add")
 ROI_PHASE = ("pretrained", "online")
 ASSIGN = ("q-argmax", "nearest")
 STEP_COUNT = ("published", "own")
+ASSIGN_CELL = ("agents-1-2", "own")
+WALK_DRAWS = ("per-move", "none")
+EPS_SCHEDULE = ("stop-decay", "clip")
+Q_FORM = ("blend", "delta")
 
 
 @dataclass(frozen=True)
@@ -135,6 +156,27 @@ class Rules:
     of the most recent ROI walk of ANY agent when this agent's turn came in the last step
     (the published `total_step = episode_step + ROI_step`, ROI_step shared by all agents);
     "own" = the agent's own moves (phase 1 + its own phase 2)."""
+    assign_cell: str = "own"
+    """Cell whose pre-trained values `assign="q-argmax"` reads: "agents-1-2" = the published
+    `Q_matrix_ROI(currentState(1), currentState(2), :, ...)` with `currentState` the whole
+    K×2 position matrix, i.e. MATLAB's linear (column-major) elements 1 and 2: the cell
+    (x of agent 1, x of agent 2) — for K = 1 agent 1's own (x, y). Outside the ROI that cell's
+    values are all 0, so the first free target is taken. "own" = the claiming agent's cell.
+    Only read by assign="q-argmax"."""
+    walk_draws: str = "none"
+    """Random draws of the pre-trained ROI walk (its ε is 0): "per-move" = one uniform draw
+    per move, unused, as the published `action_selection_ROI` calls `rand` before comparing
+    with ε = 0; "none" = no draw. Changes no rule, only which random numbers the later
+    ε-greedy choices get (needed to replay the published code's random stream). Only read by
+    roi_phase="pretrained"."""
+    eps_schedule: str = "clip"
+    """ε per episode: "stop-decay" = the published loop `if ε > ε_min, ε ← ε·decay` after each
+    episode (repeated products; it stops at the first ε ≤ ε_min, 0.04998 for 0.999 and
+    0.05); "clip" = max(ε_min, ε_0·decay^e)."""
+    q_form: str = "delta"
+    """Floating-point form of every Q update: "blend" = (1 − α)·Q + α·target (the published
+    `Qvalues_update*.m`); "delta" = Q + α·(target − Q). Equal in exact arithmetic; the
+    roundings differ, which can flip a first-index tie between values equal up to rounding."""
 
     def __post_init__(self) -> None:
         for field, allowed in (
@@ -143,6 +185,10 @@ class Rules:
             ("roi_phase", ROI_PHASE),
             ("assign", ASSIGN),
             ("step_count", STEP_COUNT),
+            ("assign_cell", ASSIGN_CELL),
+            ("walk_draws", WALK_DRAWS),
+            ("eps_schedule", EPS_SCHEDULE),
+            ("q_form", Q_FORM),
         ):
             if getattr(self, field) not in allowed:
                 raise ValueError(
@@ -156,12 +202,17 @@ class Rules:
     @staticmethod
     def published(ties: str = "first") -> Rules:
         """The public MATLAB implementation's rules."""
-        return Rules("published", ties, "blend", "pretrained", "q-argmax", "published")
+        return Rules(
+            "published", ties, "blend", "pretrained", "q-argmax", "published",
+            "agents-1-2", "per-move", "stop-decay", "blend",
+        )  # fmt: skip
 
     @staticmethod
     def intended(ties: str = "random") -> Rules:
         """The paper's description (skyherd's original kernels)."""
-        return Rules("intended", ties, "add", "online", "nearest", "own")
+        return Rules(
+            "intended", ties, "add", "online", "nearest", "own", "own", "none", "clip", "delta"
+        )
 
     @staticmethod
     def named(name: str, ties: str | None = None) -> Rules:

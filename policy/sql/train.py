@@ -90,6 +90,7 @@ def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths, rul
             h.bonus_missed,
             first,
             rules.team_bonus == "blend",
+            rules.q_form == "blend",
             learn,
             rng,
             *out,
@@ -118,6 +119,9 @@ def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths, rul
             rules.roi_phase == "pretrained",
             rules.assign == "q-argmax",
             rules.step_count == "published",
+            rules.assign_cell == "agents-1-2",
+            rules.walk_draws == "per-move",
+            rules.q_form == "blend",
             learn,
             rng,
             *out,
@@ -140,7 +144,7 @@ def pretrained_roi_tables(
     kernels.pretrain_roi(
         layout.next_cell, layout.roi_id, layout.targets, corner, q2, pre.episodes,
         pre.max_steps, pre.eps_decay, pre.eps_min, pre.reward, hyper.alpha, hyper.gamma,
-        rules.ties == "first", rng,
+        rules.ties == "first", rng, rules.q_form == "blend",
     )  # fmt: skip
     return q2
 
@@ -179,7 +183,7 @@ def train(
     no_paths = np.zeros((0, 0), np.int32)
     for e0 in range(0, hyper.episodes, CHUNK):
         n = min(CHUNK, hyper.episodes - e0)
-        eps = hyper.epsilons(e0, n)
+        eps = hyper.epsilons(e0, n, rules.eps_schedule == "stop-decay")
         out = _call(algorithm, layout, hyper, q, q2, eps, True, rng, e0, no_paths, rules)
         for c, o in zip(cols, out):
             c.append(o)
