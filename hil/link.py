@@ -135,11 +135,23 @@ class UdpTransport:
 
 
 class TcpTransport:
-    def __init__(self, addr: Address, connect_timeout: float = 5.0):
-        try:
-            self.sock = socket.create_connection((addr.host, addr.port), timeout=connect_timeout)
-        except OSError as e:
-            raise LinkError(f"cannot connect TCP {addr.host}:{addr.port}: {e}") from e
+    """A TCP client. `connect_wait_s` [s, wall]: keep retrying a refused connection this long
+    (ArduPilot SITL listens on SERIAL1/2 only once a client has connected to SERIAL0)."""
+
+    def __init__(self, addr: Address, connect_timeout: float = 5.0, connect_wait_s: float = 0.0):
+        deadline = time.monotonic() + max(0.0, connect_wait_s)
+        while True:
+            try:
+                self.sock = socket.create_connection(
+                    (addr.host, addr.port), timeout=connect_timeout
+                )
+                break
+            except ConnectionRefusedError as e:
+                if time.monotonic() >= deadline:
+                    raise LinkError(f"cannot connect TCP {addr.host}:{addr.port}: {e}") from e
+                time.sleep(0.2)
+            except OSError as e:
+                raise LinkError(f"cannot connect TCP {addr.host}:{addr.port}: {e}") from e
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
     def send(self, data: bytes) -> None:
@@ -185,12 +197,13 @@ class SerialTransport:
         self.port.close()
 
 
-def open_transport(address: str) -> Transport:
+def open_transport(address: str, connect_wait_s: float = 0.0) -> Transport:
+    """The transport of a pymavlink-style address; `connect_wait_s`: see TcpTransport."""
     addr = parse_address(address)
     if addr.kind in ("udpin", "udpout"):
         return UdpTransport(addr)
     if addr.kind == "tcp":
-        return TcpTransport(addr)
+        return TcpTransport(addr, connect_wait_s=connect_wait_s)
     return SerialTransport(addr)
 
 
@@ -247,12 +260,13 @@ class MavlinkLink:
         ))  # fmt: skip
 
     @staticmethod
-    def open(address: str, **kwargs) -> MavlinkLink:
-        """`MavlinkLink.open("udpin:127.0.0.1:14540", signing_key=Path("uav.key"), tlog=...)`."""
+    def open(address: str, connect_wait_s: float = 0.0, **kwargs) -> MavlinkLink:
+        """`MavlinkLink.open("udpin:127.0.0.1:14540", signing_key=Path("uav.key"), tlog=...)`;
+        `connect_wait_s` [s]: how long a refused TCP connection is retried (default: not)."""
         signing_key = kwargs.get("signing_key")
         if signing_key is not None:
             load_key(signing_key)  # a bad key file fails before any socket is opened
-        return MavlinkLink(open_transport(address), **kwargs)
+        return MavlinkLink(open_transport(address, connect_wait_s), **kwargs)
 
     def send(self, msg: MAVLinkMessage) -> None:
         with self._send_lock:

@@ -78,3 +78,32 @@ def test_busy_port_and_refused_tcp_give_clear_errors():
         a.close()
     with pytest.raises(LinkError, match="cannot connect TCP"):
         MavlinkLink.open(f"tcp:127.0.0.1:{_free_udp_port()}")
+
+
+def test_tcp_connect_wait_retries_a_refused_port_until_it_listens_walltime():
+    """ArduPilot SITL binds SERIAL1 only after SERIAL0 has a client: the world's link waits."""
+    import threading
+    import time
+
+    port = _free_udp_port()
+    srv = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+
+    def listen_late() -> None:
+        time.sleep(0.5)
+        srv.bind(("127.0.0.1", port))
+        srv.listen(1)
+
+    th = threading.Thread(target=listen_late)
+    th.start()
+    try:
+        link = MavlinkLink.open(f"tcp:127.0.0.1:{port}", connect_wait_s=10.0)
+        th.join()
+        peer, _ = srv.accept()
+        link.send(link.mav.heartbeat_encode(6, 8, 0, 0, 4))
+        assert peer.recv(64)[0] == 0xFD  # a MAVLink 2 frame arrived over the late server
+        peer.close()
+        link.close()
+    finally:
+        th.join()
+        srv.close()
