@@ -43,7 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ugvs",
         default="composite",
         metavar="SCENARIO",
-        help="UGV team: lateral, climb, descend, composite or groundsim:route|convoy|random|stopgo|speedoff|camouflage",
+        help="UGV team: lateral, climb, descend, composite or groundsim:route|convoy|random|stopgo|speedoff|camouflage; "
+        "none: the vehicle alone (no team, no camera, no Zenoh session)",
+    )
+    parser.add_argument(
+        "--home",
+        default=None,
+        metavar="LAT,LON,ALT",
+        help="the vehicle's home [deg, deg, m AMSL] (default: the project's default home)",
     )
     parser.add_argument(
         "--ugv-start",
@@ -162,10 +169,15 @@ def build_world(args):
     from policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS
     from world.sim import WorldParams
 
-    if args.ugvs not in SCENARIOS + GROUNDSIM_SCENARIOS:
+    if args.ugvs not in SCENARIOS + GROUNDSIM_SCENARIOS + ("none",):
         raise UsageError(
             f"--ugvs {args.ugvs!r} is not a team: use one of "
             + ", ".join(SCENARIOS + GROUNDSIM_SCENARIOS)
+            + " or none"
+        )
+    if args.ugvs == "none" and (args.follow or args.autopilot != "builtin" or args.cut_camera):
+        raise UsageError(
+            "--ugvs none is the built-in vehicle alone: drop --follow, --autopilot, --cut-camera"
         )
     if not (args.speedup == 0 or args.speedup >= 1):
         raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
@@ -179,6 +191,7 @@ def build_world(args):
             camera_hz=args.camera_hz, ugv_start=args.ugv_start, lockstep=not args.free_run,
             lockstep_params=LockstepParams(latency_s=args.latency), speedup=args.speedup,
             link_cuts=_windows(args.cut_link, "--cut-link"), camera_losses=_windows(args.cut_camera, "--cut-camera"),
+            home=_home(args.home),
         )  # fmt: skip
         endpoint = EndpointConfig(instance=args.instance, bind_host=args.bind, remote_host=args.remote,
                                   signing_key=args.signing_key)  # fmt: skip
@@ -213,7 +226,9 @@ def run(args: argparse.Namespace) -> int:
         folder = RunFolder("sim", root=args.runs_dir)
         folder.write_config({"args": args_dict(args), "world": params})
         run_dir = folder.path
-    session = open_zenoh(args.zenoh_port, args.zenoh_config)
+    session = (
+        _NoSession() if args.ugvs == "none" else open_zenoh(args.zenoh_port, args.zenoh_config)
+    )
     try:
         if args.autopilot != "builtin":  # a real autopilot on our physics (hil/ bridges)
             from hil.bridge_select import make_bridge
@@ -228,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             world = World(
                 params,
-                session=session,
+                session=session if args.ugvs != "none" else None,
                 run_dir=run_dir,
                 endpoint_config=endpoint,
                 faults=_faults(args),
@@ -268,7 +283,9 @@ def _follow(args, params, session, run_dir):
 
     try:
         parse_address(args.follow)
-        link = MavlinkLink.open(args.follow, source_system=255, source_component=190)
+        # ArduPilot SITL opens SERIAL1 only once the companion is on SERIAL0: retry 60 s
+        link = MavlinkLink.open(args.follow, connect_wait_s=60.0, source_system=255,
+                                source_component=190)  # fmt: skip
     except (ValueError, LinkError) as e:
         session.close()
         raise UsageError(f"--follow: {e}") from None
@@ -287,6 +304,28 @@ def _set_params(world, items: list[str], session) -> None:
             session.close()
             why = res.reason if res is not None else f"{value!r} is not a number"
             raise UsageError(f"--param {item}: {why}")
+
+
+class _NoSession:
+    """The vehicle alone publishes nothing: no Zenoh session to open or close."""
+
+    def close(self) -> None:
+        pass
+
+
+def _home(text: str | None) -> tuple[float, float, float] | None:
+    """`LAT,LON,ALT` → (deg, deg, m); UsageError on anything else."""
+    if text is None:
+        return None
+    try:
+        lat, lon, alt = (float(x) for x in text.split(","))
+    except ValueError:
+        raise UsageError(
+            f"--home {text!r}: expected LAT,LON,ALT, e.g. 47.397742,8.545594,488"
+        ) from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180 and -500 <= alt <= 9000):
+        raise UsageError(f"--home {text!r}: latitude, longitude or altitude out of range")
+    return lat, lon, alt
 
 
 def _faults(args):
