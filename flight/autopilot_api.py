@@ -168,6 +168,11 @@ class Autopilot(Protocol):
     def param_names(self) -> list[str]: ...
 
 
+def offboard_lost_text(gap_s: float, loss_t_s: float) -> str:
+    """The offboard-loss failsafe's line (STATUSTEXT): how long no setpoint arrived [s]."""
+    return f"offboard setpoints lost: none for {gap_s:.2f} s (COM_OF_LOSS_T {loss_t_s:g} s) -> hold"
+
+
 class AutopilotBase:
     """The read-outs and parameter calls that every skyherd autopilot answers the same way.
 

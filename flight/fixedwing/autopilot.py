@@ -36,6 +36,7 @@ from flight.autopilot_api import (
     MissionProgress,
     Result,
     Setpoint,
+    offboard_lost_text,
 )
 from flight.clock import SimClock
 from flight.faults import FaultInjector, FaultPlan
@@ -139,7 +140,8 @@ class FixedWingAutopilot(AutopilotBase):
         self._progress = MissionProgress()
         self._mission: list[MissionItem] = []
         self._offboard: Setpoint | None = None
-        self._offboard_t = -math.inf
+        self._offboard_t = -math.inf  # arrival of the last accepted setpoint [s, sim clock]
+        self._refused_why: str | None = None  # the last refusal said (STATUSTEXT once)
         self._sticks = (0.0, 0.0, 0.0, 0.0)
         self._landed_t: float | None = None
         self._reset_loops()
@@ -490,7 +492,11 @@ class FixedWingAutopilot(AutopilotBase):
         if setpoint.pos_ned is not None:
             why = self._refusal(setpoint.pos_ned, self.default_loiter_radius())
             if why is not None:  # the last accepted setpoint stays; the stream ages
+                if why != self._refused_why:  # said once per reason: setpoints have no answer
+                    self._event(f"offboard setpoint refused: {why}")
+                    self._refused_why = why
                 return Result.denied(why)
+        self._refused_why = None
         self._offboard = setpoint
         self._offboard_t = self.clock.t
         if self._mode == FlightMode.OFFBOARD:
@@ -745,6 +751,7 @@ class FixedWingAutopilot(AutopilotBase):
         if not self._armed:
             return Surfaces(brake=1.0)
         if self._mode == FlightMode.OFFBOARD and t - self._offboard_t > self.p("COM_OF_LOSS_T"):
+            self._event(offboard_lost_text(t - self._offboard_t, self.p("COM_OF_LOSS_T")))
             self._mode = FlightMode.HOLD  # offboard lost (COM_OF_LOSS_T): hold = loiter
             self._enter_hold()
         if self._mode == FlightMode.MISSION:

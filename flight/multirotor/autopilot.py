@@ -52,6 +52,7 @@ from flight.autopilot_api import (
     MissionProgress,
     Result,
     Setpoint,
+    offboard_lost_text,
 )
 from flight.clock import SimClock
 from flight.faults import FaultInjector, FaultPlan
@@ -509,7 +510,7 @@ class MultirotorAutopilot(AutopilotBase):
             self._battery_failsafe(mode, on_ground)
             mode = self._mode
         if mode == FlightMode.OFFBOARD and t - self._offboard_t > self._of_loss_t:
-            self._event("offboard setpoints lost -> hold")
+            self._event(offboard_lost_text(t - self._offboard_t, self._of_loss_t))
             self._switch(FlightMode.HOLD)
         elif mode in _MANUAL_MODES and t - self._manual_t > self._rc_loss_t:
             self._event("manual control lost -> hold")
