@@ -28,6 +28,12 @@ def test_rule_sets_and_their_validation():
     assert (i.ties, i.team_bonus, i.roi_phase, i.assign, i.step_count) == (
         "random", "add", "online", "nearest", "own"
     )  # fmt: skip
+    assert (p.assign_cell, p.walk_draws, p.eps_schedule, p.q_form) == (
+        "agents-1-2", "per-move", "stop-decay", "blend"
+    )  # fmt: skip
+    assert (i.assign_cell, i.walk_draws, i.eps_schedule, i.q_form) == (
+        "own", "none", "clip", "delta"
+    )  # fmt: skip
     assert Rules.named("intended", "first").ties == "first" and Rules() == Rules.intended()
     assert Rules.named("intended", "first").name == "intended-first-ties"
     assert Rules.named("published", "first") == Rules.published()
@@ -37,6 +43,8 @@ def test_rule_sets_and_their_validation():
         Rules(assign="q-argmax", roi_phase="online")
     with pytest.raises(ValueError, match="rule set"):
         Rules.named("matlab")
+    with pytest.raises(ValueError, match="q_form"):
+        Rules(q_form="exact")
 
 
 def test_ties_first_drifts_up_on_a_zero_table():
@@ -167,3 +175,75 @@ def _pre():
     from policy.sql.params import RoiPretrain
 
     return RoiPretrain(episodes=2000)
+
+
+def test_eps_schedule_stop_decay_versus_clip():
+    # ε_0 = 1, ×0.5 per episode, floor 0.2. Published loop "if ε > 0.2: ε ← 0.5 ε":
+    # 1, 0.5, 0.25, then 0.125 (0.25 > 0.2 was still true) and no more decay; clip: 0.2
+    h = SQLHyper(eps_decay=0.5, eps_min=0.2)
+    assert h.epsilons(0, 6, stop_decay=True).tolist() == [1, 0.5, 0.25, 0.125, 0.125, 0.125]
+    assert h.epsilons(0, 6).tolist() == [1, 0.5, 0.25, 0.2, 0.2, 0.2]
+    # the study's 0.999 / 0.05: the loop stops at 0.999^2995 = 0.04996 (a chunk = the whole)
+    s = SQLHyper().epsilons(0, 3000, stop_decay=True)
+    assert s[2994] > 0.05 > s[2995] == s[2999] == pytest.approx(0.04996, abs=1e-5)
+    np.testing.assert_array_equal(SQLHyper().epsilons(2990, 10, stop_decay=True), s[2990:])
+
+
+def test_q_form_blend_versus_delta_rounding():
+    # Q = 1.303, a terminal move with r = 7.887: 0.9·1.303 + 0.1·7.887 = 1.1727 + 0.7887 =
+    # 1.9614. blend computes exactly that sum (rounds to the double 1.9614); delta computes
+    # 1.303 + 0.1·6.584 and rounds to the next double below: 1.9613999999999998.
+    from policy.sql.kernels import q_update
+
+    for blend, want in ((True, 1.9614), (False, 1.9613999999999998)):
+        q = np.array([[1.303, 0.0, 0.0, 0.0]])
+        q_update(q, 0, 0, 7.887, 0, True, 0.1, 0.9, blend)
+        assert q[0, 0] == want  # exact: the two forms differ in the last bit here
+
+
+def test_assign_cell_reads_agent_1_and_2_x():
+    # MATLAB's currentState(1), currentState(2) on the K×2 matrix [x y]: column-major
+    # elements 1 and 2 = x of agent 1 and x of agent 2; for K = 1: agent 1's x and y
+    from policy.sql.kernels import assign_cell
+
+    lay = make_layout(10, [(5, 7), (8, 2), (1, 1)], [(9, 9), (10, 9), (9, 10)], roi_min=9)
+    pos = lay.starts.astype(np.int64)
+    assert lay.xy(assign_cell(pos, 10)) == (5, 8)
+    assert lay.xy(assign_cell(pos[:1], 10)) == (5, 7)
+
+
+def _claim_world(rules):
+    """6×6 grid, ROI x, y ≥ 4, K = 4; flags T0 (5,6), T1 (6,6), T2 (6,4), T3 (6,5).
+
+    A0 (1,1), A1 (2,1), A2 (3,1) press "down" into the bottom wall for ever; A3 (3,4) moves
+    right into the ROI at (4,4) on step 1 and claims a flag in its turn of step 2.
+    Pre-trained values at (4,4): T2 right 1.0 (the largest), T0 up 0.5; T2's walk right,
+    right (2 moves), T0's up, up, right (3 moves).
+    """
+    lay = make_layout(6, [(1, 1), (2, 1), (3, 1), (3, 4)], [(5, 6), (6, 6), (6, 4), (6, 5)], 4)
+    q1 = np.zeros((4, 36, 4))
+    for i, (x, y) in enumerate([(1, 1), (2, 1), (3, 1)]):
+        q1[i, lay.cell(x, y), DOWN] = 1.0
+    q1[3, lay.cell(3, 4), RIGHT] = 1.0
+    q2 = np.zeros((4, lay.n_roi, 4))
+    r = lambda x, y: lay.roi_id[lay.cell(x, y)]  # noqa: E731
+    q2[2, r(4, 4), RIGHT] = q2[2, r(5, 4), RIGHT] = 1.0
+    q2[0, r(4, 4), UP] = q2[0, r(4, 5), UP] = q2[0, r(4, 6), RIGHT] = 0.5
+    h = SQLHyper(max_steps=3, **GREEDY)
+    rng, paths = np.array([7], np.uint64), np.full((4, 4), -1, np.int32)
+    _call(Algorithm.SQL_D, lay, h, q1, q2, np.zeros(1), False, rng, 0, paths, rules)
+    return lay.xy(paths[3][2]), int(rng[0] - np.uint64(7))
+
+
+def test_assign_cell_and_walk_draws_in_the_published_claim():
+    own = replace(Rules.published(), assign_cell="own", walk_draws="none")
+    # own cell (4,4): argmax T2·right, flattened index 2·4 + 3 = 11, free target
+    # ceil(12 / 4) = 3rd → T2 (6,4); ε = 0 everywhere: no random draw at all
+    assert _claim_world(own) == ((6, 4), 0)
+    # agents-1-2: A0 and A1 stand at x = 1 and 2 → cell (1, 2), outside the ROI, all 0 →
+    # the first free flag, T0 (5,6), 3 moves
+    cell12 = replace(own, assign_cell="agents-1-2")
+    assert _claim_world(cell12) == ((5, 6), 0)
+    # per-move draws: the 3 walk moves draw 3 numbers (splitmix64 adds its constant per draw)
+    golden = 0x9E3779B97F4A7C15
+    assert _claim_world(Rules.published()) == ((5, 6), (3 * golden) % 2**64)

@@ -339,12 +339,14 @@ def claim_target(s, q2_row_of, claimed, targets, M, qargmax):
                     best, best_idx = q2_row_of[k, a], idx
                 idx += 1
         j = best_idx // T  # ceil((best_idx + 1) / T) − 1
+        last = -1
         for k in range(T):
             if not claimed[k]:
                 if j == 0:
                     return k
                 j -= 1
-        return -1
+                last = k
+        return last  # j past the free targets (only K < 4; MATLAB stops with an index error)
     x2, y2 = s % M, s // M
     best, best_d = -1, 1 << 30
     for k in range(T):

@@ -92,7 +92,7 @@ class SQLHyper:
 
         stop_decay False: max(ε_min, ε_0 · decay^e). True (published loop): ε_0 multiplied by
         decay after each episode while ε > ε_min, by repeated products as the loop does, so
-        it settles on the first value ≤ ε_min (0.999, 0.05: 0.04998 from episode 2995 on).
+        it settles on the first value ≤ ε_min (0.999, 0.05: 0.04996 from episode 2995 on).
         """
         if not stop_decay:
             e = np.arange(start, start + count, dtype=np.float64)
@@ -171,7 +171,7 @@ class Rules:
     roi_phase="pretrained"."""
     eps_schedule: str = "clip"
     """ε per episode: "stop-decay" = the published loop `if ε > ε_min, ε ← ε·decay` after each
-    episode (repeated products; it stops at the first ε ≤ ε_min, 0.04998 for 0.999 and
+    episode (repeated products; it stops at the first ε ≤ ε_min, 0.04996 for 0.999 and
     0.05); "clip" = max(ε_min, ε_0·decay^e)."""
     q_form: str = "delta"
     """Floating-point form of every Q update: "blend" = (1 − α)·Q + α·target (the published
