@@ -32,6 +32,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ties", choices=("first", "random"), default=None,
         help="greedy tie-breaking (default: first for published, random for intended)",
     )  # fmt: skip
+    parser.add_argument(
+        "--switch", action="append", default=[], metavar="FIELD=VALUE",
+        help="set one rule switch of every --rules set (repeatable; fields and values: "
+        "docs/sql.md, policy/sql/params.py Rules), e.g. --switch assign_cell=own",
+    )  # fmt: skip
+    parser.add_argument(
+        "--learners", nargs="+", choices=("sql", "sql-d", "sql-sie"),
+        default=["sql", "sql-d", "sql-sie"], help="learners to run (all three)",
+    )  # fmt: skip
     parser.add_argument("--seeds", type=int, default=10, help="seeds 0..S-1 per config (10)")
     parser.add_argument("--agents", type=int, nargs="+", default=[9, 16], help="K (9 16)")
     parser.add_argument(
@@ -77,11 +86,11 @@ def _specs(args, env):
     Ns = args.sharing_periods
     specs = []
     for rname in args.rules:
-        rules = Rules.named(rname, args.ties)
+        rules = Rules.named(rname, args.ties, args.switches)
         for K in dict.fromkeys([*args.agents, *args.scaling_agents]):
             cfgs = [("sql", 0), ("sql-d", 0)]
             cfgs += [("sql-sie", n) for n in (Ns if K in args.agents else Ns[:1])]
-            for alg, n in cfgs:
+            for alg, n in (c for c in cfgs if c[0] in args.learners):
                 for seed in range(args.seeds):
                     specs.append(RunSpec(alg, K, n, seed, rules, hyper, env=env))
     return specs
@@ -94,6 +103,19 @@ def _check(args):
         args.episodes, args.seeds, args.agents = 1000, 2, [9]
     if args.episodes < 10 or args.max_steps < 1 or args.seeds < 1 or args.workers < 1:
         raise UsageError("need --episodes >= 10, --max-steps >= 1, --seeds >= 1, --workers >= 1")
+    from policy.sql.params import Rules
+
+    args.switches = {}
+    for sw in args.switch:
+        field, eq, value = sw.partition("=")
+        if not eq:
+            raise UsageError(f"--switch {sw}: expected FIELD=VALUE, e.g. assign_cell=own")
+        args.switches[field.strip()] = value.strip()
+    try:
+        for rname in args.rules:
+            Rules.named(rname, args.ties, args.switches)
+    except ValueError as e:
+        raise UsageError(f"--switch: {e}") from None
     if min(args.sharing_periods) < 1:
         raise UsageError("sharing periods must be >= 1 (SQL-D is the no-sharing learner)")
     if args.window < 1 or args.window > args.episodes:

@@ -129,13 +129,20 @@ def test_reproduce_sql_end_to_end(tmp_path):
     assert m1 == generate_env(4, 1)
     args2 = ["reproduce", "sql", "--episodes", "40", "--seeds", "1", "--sharing-periods", "1",
              "--window", "10", "--backend", "process", "--workers", "1",
-             "--env", str(run / "maps" / "K4_seed1.json"), "--runs-dir", str(tmp_path / "b")]  # fmt: skip
+             "--env", str(run / "maps" / "K4_seed1.json"), "--runs-dir", str(tmp_path / "b"),
+             "--learners", "sql-d", "--switch", "assign_cell=own"]  # fmt: skip
     assert main(args2) == 0
     (run2,) = list((tmp_path / "b").iterdir())
     assert EnvSpec.load(run2 / "maps" / "K4_seed0.json") == m1
+    (row,) = list(csv.DictReader(open(run2 / "metrics.csv")))  # only SQL-D, one seed
+    assert row["rules"] == "published-assign_cell-own" and row["algorithm"] == "sql-d"
+    cfg = json.loads((run2 / "config.json").read_text())
+    assert cfg["rules"]["published-assign_cell-own"]["assign_cell"] == "own"
     a = list(csv.DictReader(open(run / "episodes" / "published_sql-d_K4_seed1.csv")))
-    b = list(csv.DictReader(open(run2 / "episodes" / "published_sql-d_K4_seed0.csv")))
-    assert a != b  # same map, other learner seed
+    b = list(
+        csv.DictReader(open(run2 / "episodes" / "published-assign_cell-own_sql-d_K4_seed0.csv"))
+    )
+    assert a != b  # same map, other learner seed and assignment cell
 
 
 def test_reproduce_bad_usage(tmp_path, capsys):
@@ -144,6 +151,10 @@ def test_reproduce_bad_usage(tmp_path, capsys):
     assert main([*base, "--env", str(tmp_path / "missing.json")]) == 2
     (tmp_path / "bad.json").write_text('{"size": 5}')
     assert main([*base, "--env", str(tmp_path / "bad.json")]) == 2
+    assert main([*base, "--switch", "bogus=1"]) == 2
+    assert main([*base, "--switch", "q_form"]) == 2
+    assert main([*base, "--switch", "q_form=exact"]) == 2
     err = capsys.readouterr().err
     assert "square number" in err and "missing" in err
+    assert "no rule switch 'bogus'" in err and "FIELD=VALUE" in err and "'exact'" in err
     assert not any(tmp_path.iterdir()) or all(p.suffix == ".json" for p in tmp_path.iterdir())

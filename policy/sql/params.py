@@ -215,16 +215,23 @@ class Rules:
         )
 
     @staticmethod
-    def named(name: str, ties: str | None = None) -> Rules:
+    def named(name: str, ties: str | None = None, switches: dict[str, str] | None = None) -> Rules:
         """`Rules.published()` or `Rules.intended()` by name; `ties` overrides its default
-        (the set is then labelled e.g. "intended-first-ties")."""
+        (the set is then labelled e.g. "intended-first-ties"); `switches` {field: value}
+        override other fields (labelled e.g. "published-assign_cell-own")."""
         sets = {"published": Rules.published, "intended": Rules.intended}
         if name not in sets:
             raise ValueError(f"rule set must be one of {sorted(sets)}, got {name!r}")
         rules = sets[name]()
-        if ties is None or ties == rules.ties:
-            return rules
-        return replace(sets[name](ties), name=f"{name}-{ties}-ties")  # its own label in tables
+        label = name
+        if ties is not None and ties != rules.ties:
+            rules, label = sets[name](ties), f"{name}-{ties}-ties"
+        for field, value in (switches or {}).items():
+            if field in ("name", "ties") or field not in Rules.__dataclass_fields__:
+                raise ValueError(f"no rule switch {field!r} (ties has its own option)")
+            if getattr(rules, field) != value:
+                rules, label = replace(rules, **{field: value}), f"{label}-{field}-{value}"
+        return replace(rules, name=label)  # its own label in tables
 
 
 @dataclass(frozen=True)
