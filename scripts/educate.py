@@ -282,16 +282,15 @@ def _fidelity(educated: dict, args) -> dict:
     for pol in educated.values():
         obs = decision_observations(pol, "composite", args.eval_episodes, EVAL_SEED["composite"])
         for role, r in fidelity(pol, obs).items():
-            t = total.setdefault(
-                role, {"n": 0, "action_changed": 0, "module_changed": 0, "per_seed": []}
-            )
-            t["n"] += r["n"]
-            t["action_changed"] += r["action_changed"]
-            t["module_changed"] += r["module_changed"]
+            keys = ("n", "action_changed", "module_changed", "action_changed_far")
+            t = total.setdefault(role, dict.fromkeys(keys, 0) | {"per_seed": []})
+            for k in keys:
+                t[k] += r[k]
             t["per_seed"].append(r["action_rate"] if r["n"] else math.nan)
     for t in total.values():
         t["action_rate"] = t["action_changed"] / max(t["n"], 1)
         t["module_rate"] = t["module_changed"] / max(t["n"], 1)
+        t["action_rate_far"] = t["action_changed_far"] / max(t["n"], 1)
     return total
 
 
@@ -395,16 +394,14 @@ def _summary(cur, p, args, results, comparison, fid, rf) -> str:
               "seeds 300000+, groundsim 200000+), mean ± std over policies (seeds).\n")  # fmt: skip
     md.append(markdown_table(["policy", "scenario", "policies", "all-in-view frac", "footprint/circle",
                               "UGV losses / ep"], crow))  # fmt: skip
-    frow = [
-        [role, r["n"], f"{r['action_rate']:.3f}", f"{r['module_rate']:.3f}"]
-        for role, r in fid.items()
-    ]
+    frow = [[role, r["n"], f"{r['action_rate']:.3f}", f"{r['action_rate_far']:.3f}",
+             f"{r['module_rate']:.3f}"] for role, r in fid.items()]  # fmt: skip
     md.append("\n## Explanation fidelity\n\nEvery decision of the educated policies on the composite "
-              "test episodes; one concept moved just across a predicate's threshold, all others "
-              "held (policy/education/fidelity.py).\n")  # fmt: skip
-    md.append(
-        markdown_table(["concept role", "interventions", "action changed", "module changed"], frow)
-    )
+              "test episodes; one concept moved across a predicate's threshold (near: by "
+              "0.1·max(|θ|, 0.01); far: by a random 0.02–0.5 of that scale), all others held "
+              "(policy/education/fidelity.py).\n")  # fmt: skip
+    md.append(markdown_table(["concept role", "interventions", "action changed (near)",
+                              "action changed (far)", "module changed (near)"], frow))  # fmt: skip
     dec, _ = read_decisions(rf.file("decisions.jsonl"))
     md.append(
         "\n## Timeline of one test episode (decisions.jsonl)\n\n```\n"

@@ -45,7 +45,9 @@ def test_default_curriculum_loads_in_semantic_order():
     preds = [c for c in cur.concepts.values() if c.kind == "predicate"]
     assert {p.name for p in preds} >= set(cur.composite.arbiter_inputs)
     team_east = cur.concepts["team_east"]
-    assert (team_east.quantity, team_east.op, team_east.threshold) == ("offset_east", ">", 0.08)
+    assert (team_east.quantity, team_east.op, team_east.threshold) == ("aim_east", ">", 0.08)
+    # the modules read predicates only (so explanations can cite all a decision depends on)
+    assert all(cur.concepts[n].kind == "predicate" for le in cur.lessons for n in le.inputs)
 
 
 def test_concepts_compute_from_the_observation():
@@ -53,26 +55,28 @@ def test_concepts_compute_from_the_observation():
     f = compile_concepts(cur.concept_list())
     obs = np.full(14, 0.5)
     obs[0], obs[2], obs[3] = 0.81, 0.20, 0.5  # team right of centre, tight, 30 m
+    obs[11] = 0.5 - 5 * 0.02  # drifting 0.02 west per step
     v = f(obs)
     assert v["offset_east"] == pytest.approx(0.31) and v["altitude"] == pytest.approx(30.0)
+    assert v["aim_east"] == pytest.approx(0.31 - 2 * 0.02)  # two steps of look-ahead
     assert v["spread_error"] == pytest.approx(0.20 - 0.35)
-    assert cur.concepts["team_east"].holds(v["offset_east"])
-    assert cur.concepts["too_tight"].holds(v["spread_error"])
+    assert cur.concepts["team_east"].holds(v["aim_east"])
+    assert cur.concepts["too_tight"].holds(v["spread_aim"])
     assert decode_observation(obs)["vel_n"] == pytest.approx(0.0)
 
 
 def test_lesson_using_a_concept_taught_later_is_refused(tmp_path):
     bad = TEXT.replace(
-        'inputs = ["offset_east", "offset_south", "drift_east"',
-        'inputs = ["spread_error", "offset_east", "offset_south", "drift_east"',
+        'inputs = ["team_east", "team_west"',
+        'inputs = ["too_wide", "team_east", "team_west"',
     )
-    msg = _refused(tmp_path, bad, "lesson 'lateral'", "'spread_error'", "taught later", "'climb'")
+    msg = _refused(tmp_path, bad, "lesson 'lateral'", "'too_wide'", "taught later", "'climb'")
     assert msg.startswith(str(tmp_path))
 
 
 def test_arbiter_reading_an_untaught_concept_is_refused(tmp_path):
-    bad = TEXT.replace('teaches = ["too_tight", "near_floor"]', 'teaches = ["near_floor"]')
-    _refused(tmp_path, bad, "lesson 'composite'", "'too_tight'", "taught by no lesson")
+    bad = TEXT.replace('"mostly_east_west", "off_centre"]', '"mostly_east_west"]')
+    _refused(tmp_path, bad, "lesson 'composite'", "'off_centre'", "taught by no lesson")
 
 
 def test_other_bad_files_are_refused_naming_the_key(tmp_path):
@@ -81,7 +85,7 @@ def test_other_bad_files_are_refused_naming_the_key(tmp_path):
     _refused(tmp_path, TEXT.replace('formula = "com_u - 0.5"', 'formula = "__import__(1)"'),
              "concepts.offset_east.formula", "not allowed")  # fmt: skip
     _refused(tmp_path, TEXT.replace('"skyherd-curriculum/1"', '"skyherd-curriculum/9"'), "format")
-    _refused(tmp_path, TEXT.replace('version = "1.0.0"', 'version = "one"'), "version")
+    _refused(tmp_path, TEXT.replace('version = "2.0.0"', 'version = "one"'), "version")
     _refused(tmp_path, TEXT.replace('pass = {all_in_view_frac = ">= 0.9"}\n\n[[lessons]]\nname = "climb"',
                                     'pass = {all_in_view_frac = "> 0.9"}\n\n[[lessons]]\nname = "climb"'),
              "lessons[0] (lateral).pass.all_in_view_frac")  # fmt: skip
@@ -94,7 +98,7 @@ def test_other_bad_files_are_refused_naming_the_key(tmp_path):
              "lessons[1] (climb).actions")  # fmt: skip
     _refused(tmp_path, TEXT.replace('requires = ["lateral"]', 'requires = ["descend"]'),
              "lesson 'climb'.requires", "'descend' is not an earlier lesson")  # fmt: skip
-    _refused(tmp_path, TEXT.replace('formula = "offset_east > 0.08"', 'formula = "com_u > 0.58"'),
+    _refused(tmp_path, TEXT.replace('formula = "aim_east > 0.08"', 'formula = "com_u > 0.58"'),
              "concepts.team_east.formula", "quantity concept")  # fmt: skip
     _refused(
         tmp_path,
@@ -107,10 +111,10 @@ def test_other_bad_files_are_refused_naming_the_key(tmp_path):
 def test_educate_refuses_a_bad_curriculum_with_exit_2(tmp_path, capsys):
     bad = _write(
         tmp_path,
-        TEXT.replace('"in_view", "seen", "spread_error"', '"in_view", "seen", "spread_eror"'),
+        TEXT.replace('teaches = ["in_view", "seen"', 'teaches = ["in_view", "sen"'),
     )
     assert main(["educate", str(bad), "--runs-dir", str(tmp_path / "runs")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "spread_eror" in err[0] and "lesson 'climb'" in err[0]
+    assert len(err) == 1 and "'sen'" in err[0] and "lesson 'climb'" in err[0]
     assert not (tmp_path / "runs").exists()  # nothing was started
     assert main(["educate", str(tmp_path / "none.toml")]) == 2

@@ -77,7 +77,17 @@ def _check_explanations(pol, scenario="composite", seed=0):
         assert ex["action"] == ACTION_NAMES[a]
         mod = pol.modules[ex["module"]]
         assert a in mod.actions and ex["reason"]
-        assert set(mod.inputs) <= set(ex["concepts"])
+        # the values behind every concept the module reads are recorded
+        behind = {pol.concepts[n].quantity or n for n in mod.inputs}
+        assert behind <= set(ex["concepts"])
+        # a cited module predicate changes the module's action when crossed; an uncited one not
+        vals = pol.values(obs)
+        for n in mod.inputs:
+            c = pol.concepts[n]
+            if c.kind != "predicate" or n in [p for p, _ in pol.arbiter.rules]:
+                continue
+            v2 = dict(vals, **{c.quantity: c.across(vals[c.quantity], 1e-6)})
+            assert (pol.module_action(ex["module"], v2) != a) == (n in ex["cited"])
         holds = pol.holds(pol.values(obs))
         fired = [p for p, m in pol.arbiter.rules if holds[p]]
         assert ex["module"] == (dict(pol.arbiter.rules)[fired[0]] if fired else pol.arbiter.default)
@@ -156,10 +166,11 @@ def _tiny_policy(rng) -> ModularPolicy:
         __import__("policy.education.curriculum", fromlist=["x"]).DEFAULT_CURRICULUM
     )
     lat = cur.lesson("lateral")
+    n_lat, n_up = len(lat.inputs), len(cur.lesson("climb").inputs)
     net = MLPPolicy(
-        [rng.normal(size=(8, 6)), rng.normal(size=(5, 8))], [np.zeros(8), np.zeros(5)], {}
+        [rng.normal(size=(8, n_lat)), rng.normal(size=(5, 8))], [np.zeros(8), np.zeros(5)], {}
     )
-    up = MLPPolicy([rng.normal(size=(2, 5))], [np.array([0.0, 1.0])], {})
+    up = MLPPolicy([rng.normal(size=(2, n_up))], [np.array([0.0, 1.0])], {})
     mods = [SkillModule("lateral", "lateral", lat.inputs, lat.actions, net),
             SkillModule("climb", "climb", cur.lesson("climb").inputs, (0, 5), up)]  # fmt: skip
     arb = Arbiter((("someone_out", "climb"), ("team_east", "lateral")), "climb")
@@ -180,7 +191,8 @@ def test_modular_file_roundtrip_and_the_fly_loader(tmp_path):
     o = np.full(14, 0.5, np.float32)
     o[5] = 0.0
     ex = back.explain(o)
-    assert ex["module"] == "climb" and "out of view" in ex["reason"] and ex["cited"] == ["in_view"]
+    assert ex["module"] == "climb" and "out of view" in ex["reason"]
+    assert ex["cited"][0] == "someone_out" and ex["read"] == []
     # `skyherd fly --policy FILE` loads it with the companion's loader; its pilot explains
     from flight.state import VehicleState
     from mission.pilots import Observation, PolicyPilot

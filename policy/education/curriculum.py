@@ -19,7 +19,8 @@ Format `skyherd-curriculum/1` (the default is curricula/groundair.toml; docs/edu
     scenario = "lateral"                    # a GroundAir scenario
     teaches = ["offset_east", "team_east"]  # concepts this lesson introduces
     module = "lateral"                      # the skill module it trains (one per lesson)
-    inputs = ["offset_east"]                # quantities the module reads (must be taught by now)
+    inputs = ["team_east"]                  # concepts the module reads (taught by now): predicates
+                                            # (0/1; explanations cite them exactly) or quantities
     actions = ["hover", "east", "west"]     # the module's actions (params.ACTION_NAMES)
     method = "irl"                          # irl: projection IRL on its demos | dqn: on `reward`
     demos = "scripted"                      # scripted expert, or a demo file (.npz) path
@@ -357,13 +358,11 @@ def check_semantic_order(cur: Curriculum) -> None:
                 later = next((o.name for o in order if c in o.teaches), None)
                 why = f"taught later, by lesson {later!r}" if later else "taught by no lesson"
                 raise _err(f"lesson {le.name!r}", f"uses concept {c!r} before it is taught ({why})")
-        kind = "predicate" if is_comp else "quantity"
-        for c in uses[: len(le.arbiter_inputs if is_comp else le.inputs)]:
-            if cur.concepts[c].kind != kind:
-                key = "arbiter_inputs" if is_comp else "inputs"
+        for c in uses[: len(le.arbiter_inputs)] if is_comp else ():
+            if cur.concepts[c].kind != "predicate":  # module inputs: quantities or predicates
                 raise _err(
-                    f"lesson {le.name!r}.{key}",
-                    f"{c!r} is a {cur.concepts[c].kind}; {key} take {kind}s",
+                    f"lesson {le.name!r}.arbiter_inputs",
+                    f"{c!r} is a {cur.concepts[c].kind}; arbiter_inputs take predicates",
                 )
         for r in le.requires:
             if r not in earlier:

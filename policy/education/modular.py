@@ -4,14 +4,26 @@
                    │
                    ├─► arbiter: an ordered rule list "if predicate p_k then module m_k", else
                    │   the default module (learnt in the composite lesson, policy.education.teach)
-                   └─► the chosen module: a Q-network over its own input quantities, greedy over
-                       its own actions (learnt in its lesson, then frozen)
+                   └─► the chosen module: a Q-network over its own input concepts (predicates as
+                       1/0, quantities by value), greedy over its own actions (learnt in its
+                       lesson, then frozen)
 
 `policy(obs) → action index` flies like any skyherd policy; `policy.explain(obs)` says which
-module acted, why (the rule that fired, in the concept's own words, and the earlier rules that
-did not), the concept values and the action. Because the arbiter only sees predicates, the
-concepts named in the reason are exactly the ones that decided the module: the fidelity test
-(policy.education.fidelity) measures how often moving one across its threshold changes the action.
+module acted and why, citing every predicate the decision depends on:
+
+* the arbiter's part: the rule that fired (in the concept's own words) and the earlier rules,
+  which had to be false — read off the rule list;
+* the module's part: for each quantity behind the module's predicate inputs, the nearest
+  threshold above and below its value, cited when moving the quantity just past it (by
+  ε = 1e-6·max(|θ|, 1), everything else held) would change the module's action — a
+  counterfactual the policy computes on its own concept values. (A farther threshold on the
+  same quantity is only reached through the nearer one: "team 0.31 right of centre" is the
+  reason for "east", not "team not left of centre".)
+
+A module that reads only predicates depends on nothing else, so the explanation is complete; a
+module that also reads quantities by value lists them as `read` (their values are in `concepts`)
+without claiming a threshold. policy.education.fidelity measures, with larger moves, how often
+crossing a cited / an uncited concept's threshold changes the decision.
 
 File (`.npz`, no pickle; `policy.dqn.load_policy` recognises it): arrays m<i>_W<k>, m<i>_b<k>
 (module i's MLP, as policy.dqn.MLPPolicy) and `meta`, a JSON string: format
@@ -52,8 +64,22 @@ class SkillModule:
     def act_index(self, x: np.ndarray) -> int:
         return int(np.argmax(self.net.q_values(x)))
 
-    def act(self, values: dict[str, float]) -> int:
-        return self.actions[self.act_index(np.array([values[n] for n in self.inputs]))]
+    def act(self, feats: dict[str, float]) -> int:
+        """Action from concept features (quantities by value, predicates as 1/0: `features`)."""
+        return self.actions[self.act_index(np.array([feats[n] for n in self.inputs]))]
+
+
+def features(values: dict[str, float], preds: list[Concept]) -> dict[str, float]:
+    """Quantity values plus every predicate's truth as 1.0 / 0.0 (what a module reads)."""
+    f = dict(values)
+    for p in preds:
+        f[p.name] = 1.0 if p.holds(values[p.quantity]) else 0.0
+    return f
+
+
+def nudge(threshold: float) -> float:
+    """ε: how far past a threshold the explanation's counterfactual moves a quantity."""
+    return 1e-6 * max(abs(threshold), 1.0)
 
 
 @dataclass(frozen=True)
@@ -101,8 +127,8 @@ class ModularPolicy:
                 raise ValueError(f"arbiter rule on {p!r}, which is not a predicate concept")
         for m in modules:
             for n in m.inputs:
-                if self.concepts.get(n, Concept("", "", "", kind="?")).kind != "quantity":
-                    raise ValueError(f"module {m.name!r} reads {n!r}, not a quantity concept")
+                if n not in self.concepts:
+                    raise ValueError(f"module {m.name!r} reads {n!r}, not a concept")
             if m.net.obs_dim != len(m.inputs) or m.net.n_actions != len(m.actions):
                 raise ValueError(
                     f"module {m.name!r}: network shape does not match its inputs/actions"
@@ -126,48 +152,91 @@ class ModularPolicy:
     def holds(self, values: dict[str, float]) -> dict[str, bool]:
         return {p.name: p.holds(values[p.quantity]) for p in self.preds}
 
+    def module_action(self, m: str, values: dict[str, float]) -> int:
+        return self.modules[m].act(features(values, self.preds))
+
     def decide(self, values: dict[str, float]) -> tuple[str, int, int]:
         """From quantity values (possibly intervened on): (module, rule index, action)."""
         if not all(math.isfinite(v) for v in values.values()):
             return "", -2, 0  # undefined concepts: hover (the safety net judges the rest)
         m, k = self.arbiter.choose(self.holds(values))
-        return m, k, self.modules[m].act(values)
+        return m, k, self.module_action(m, values)
 
     def __call__(self, obs) -> int:
         return self.decide(self.values(obs))[2]
 
     # ---- explaining -------------------------------------------------------------------------
-    def cited(self, k: int) -> tuple[list[str], list[str]]:
-        """Quantities the reason names for a decision by rule k: (the rule's, the earlier rules')."""
+    def citations(self, values: dict[str, float]) -> dict[str, list[str]]:
+        """What a decision depends on (module docstring): predicate names per part, and the
+        quantities the acting module reads by value. {rule, earlier, module, read}."""
+        m, k, a = self.decide(values)
+        if k == -2:
+            return {"rule": [], "earlier": [], "module": [], "read": []}
         rules = self.arbiter.rules
-        upto = len(rules) if k < 0 else k
-        earlier = [self.concepts[p].quantity for p, _ in rules[:upto]]
-        own = [self.concepts[rules[k][0]].quantity] if k >= 0 else []
-        return own, [q for q in dict.fromkeys(earlier) if q not in own]
+        rule = [rules[k][0]] if k >= 0 else []
+        earlier = list(dict.fromkeys(p for p, _ in rules[: len(rules) if k < 0 else k]))
+        known = set(rule + earlier)
+        mod = [n for n in self._module_cites(m, values, a) if n not in known]
+        read = [n for n in self.modules[m].inputs if self.concepts[n].kind == "quantity"]
+        return {"rule": rule, "earlier": earlier, "module": mod, "read": read}
+
+    def _module_cites(self, m: str, values: dict[str, float], a: int) -> list[str]:
+        """The module's predicate inputs that bound its action: per quantity, the nearest
+        threshold above and below its value, cited when moving just past it changes the action
+        (a farther threshold on the same quantity can only be reached through the nearer one)."""
+        by_q: dict[str, list[Concept]] = {}
+        for n in self.modules[m].inputs:
+            if self.concepts[n].kind == "predicate":
+                by_q.setdefault(self.concepts[n].quantity, []).append(self.concepts[n])
+        out = []
+        for q, ps in by_q.items():
+            v = values[q]
+            above = [p for p in ps if p.threshold >= v]
+            below = [p for p in ps if p.threshold < v]
+            for side, near in ((1.0, above), (-1.0, below)):
+                if not near:
+                    continue
+                t = (min if side > 0 else max)(p.threshold for p in near)
+                v2 = dict(values, **{q: t + side * nudge(t)})
+                if self.module_action(m, v2) != a:
+                    out += [p.name for p in near if p.threshold == t]
+        return [n for n in self.modules[m].inputs if n in out]  # in the module's input order
+
+    def _say(self, name: str, values: dict[str, float]) -> str:
+        p = self.concepts[name]
+        v = values[p.quantity]
+        return p.say(v) + f" ({p.formula})" if p.holds(v) else f"not {name} ({p.formula})"
 
     def explain_values(self, values: dict[str, float]) -> dict[str, Any]:
         m, k, a = self.decide(values)
         rules = self.arbiter.rules
+        c = self.citations(values)
         if k == -2:
             reason = "concepts undefined (a formula divided by zero): hover"
         elif k >= 0:
-            p = self.concepts[rules[k][0]]
-            reason = p.say(values[p.quantity]) + f" ({p.formula})"
+            reason = self._say(rules[k][0], values)
         else:
             names = ", ".join(dict.fromkeys(p for p, _ in rules))
             reason = f"none of {names} holds" if names else "the arbiter's only module"
-        own, earlier = self.cited(k) if k > -2 else ([], [])
-        used = set(own + earlier) | (set(self.modules[m].inputs) if m else set())
+        if c["module"]:
+            reason += "; " + ", ".join(self._say(n, values) for n in c["module"])
+        cited = c["rule"] + c["earlier"] + c["module"]
+        used = {self.concepts[n].quantity for n in cited} | set(c["read"])
+        if m:  # the quantities behind every concept the module reads
+            ins = [self.concepts[n] for n in self.modules[m].inputs]
+            used |= {x.quantity if x.kind == "predicate" else x.name for x in ins}
         return {
             "module": m or "none",
             "reason": reason,
             "concepts": {n: round(v, 4) for n, v in values.items() if n in used},
             "action": ACTION_NAMES[a],
-            "cited": own + earlier,
+            "cited": cited,
+            "read": c["read"],
         }
 
     def explain(self, obs) -> dict[str, Any]:
-        """{module, reason, concepts {name: value}, action (name), cited [quantity names]}."""
+        """{module, reason, concepts {name: value}, action (name), cited [predicate names],
+        read [quantities the module reads by value]}."""
         return self.explain_values(self.values(obs))
 
     def describe_action(self, a: int) -> str:

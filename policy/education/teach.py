@@ -7,9 +7,9 @@ The module is then frozen: later lessons never change its weights.
 
 The composite lesson trains the arbiter only: an ordered rule list over the curriculum's
 predicates (policy.education.modular.Arbiter), built greedily (Rivest's decision lists, learnt
-by forward selection): start with the best single module as default; repeatedly append the rule
-"if p then m" that most lowers the lesson's objective, stop when none does; then drop every rule
-whose removal does not raise it. Objective on fixed episodes (common random numbers):
+by forward selection): start with the best single module as default; repeatedly insert the rule
+"if p then m", at the place in the list, that most lowers the lesson's objective, stop when none
+does; then drop every rule whose removal does not raise it. Objective on fixed episodes (common random numbers):
     ab      ‖μ_E^Primitive − μ(π)‖₂, μ_E^Primitive = policy.ab.combine of the skill lessons'
             demonstrations (Apprenticeship Bootstrapping: no composite demonstration)
     irl     ‖μ_E − μ(π)‖₂ with μ_E from composite demonstrations
@@ -43,7 +43,7 @@ from policy.demos import (
 from policy.dqn import DQNParams, train_dqn
 from policy.education.concepts import compile_concepts
 from policy.education.curriculum import CompositeLesson, Curriculum, Lesson
-from policy.education.modular import Arbiter, ModularPolicy, SkillModule
+from policy.education.modular import Arbiter, ModularPolicy, SkillModule, features
 from policy.groundair.env import GroundAirEnv
 from policy.irl import IRLParams, projection_irl, select_policy
 
@@ -95,12 +95,19 @@ class LessonResult:
     detail: dict[str, Any] = field(default_factory=dict)
 
 
+def concept_features(cur: Curriculum) -> Callable[[np.ndarray], dict[str, float]]:
+    """obs → every concept's feature (quantities by value, predicates 1/0; modular.features)."""
+    values = compile_concepts(cur.concept_list())
+    preds = [c for c in cur.concept_list() if c.kind == "predicate"]
+    return lambda obs: features(values(obs), preds)
+
+
 class ConceptEnv:
     """GroundAirEnv seen through a module: obs = its input concepts, actions = its actions."""
 
-    def __init__(self, scenario: str, values, inputs: tuple[str, ...], actions, reward_weights):
+    def __init__(self, scenario: str, feats, inputs: tuple[str, ...], actions, reward_weights):
         self.env = GroundAirEnv(scenario, reward_weights=reward_weights)
-        self.values, self.inputs, self.actions = values, inputs, tuple(actions)
+        self.values, self.inputs, self.actions = feats, inputs, tuple(actions)
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (len(inputs),), np.float32)
         self.action_space = gym.spaces.Discrete(len(actions))
 
@@ -126,8 +133,8 @@ def lesson_demos(lesson: Lesson | CompositeLesson, p: EduParams) -> Demonstratio
     return record(lesson.scenario, ex, p.demo_episodes, p.demo_seed, "scripted", meta)
 
 
-def as_obs_policy(module: SkillModule, values) -> Callable[[np.ndarray], int]:
-    return lambda obs: module.act(values(obs))
+def as_obs_policy(module: SkillModule, feats) -> Callable[[np.ndarray], int]:
+    return lambda obs: module.act(feats(obs))
 
 
 def test_policy(act, lesson, p: EduParams) -> dict[str, float]:
@@ -145,7 +152,7 @@ def teach_module(
     progress: bool = False,
 ) -> tuple[SkillModule, dict[str, Any]]:
     """Train lesson's module (irl: from `demo`; dqn: on lesson.reward). Returns it and a log."""
-    values = compile_concepts(cur.concept_list())
+    values = concept_features(cur)
     gamma = p.dqn.gamma
     steps = 0
 
@@ -228,16 +235,18 @@ def learn_arbiter(
     rules: list[tuple[str, str]] = []
     for _ in range(p.max_rules):
         used = {r[0] for r in rules}
-        cands = [(q, m) for q in comp.arbiter_inputs if q not in used for m in comp.modules]
+        cands = [(i, (q, m)) for i in range(len(rules) + 1)
+                 for q in comp.arbiter_inputs if q not in used for m in comp.modules]  # fmt: skip
         if not cands:
             break
-        trial = [(objective(Arbiter(tuple(rules + [c]), default)), c) for c in cands]
-        val, c = min(trial)
+        trial = [(objective(Arbiter(tuple(rules[:i] + [c] + rules[i:]), default)), i, c)
+                 for i, c in cands]  # fmt: skip
+        val, i, c = min(trial)
         if val >= best - 1e-6:
             break
-        rules.append(c)
+        rules.insert(i, c)
         best = val
-        log.append({"step": "add", "rule": list(c), "objective": val})
+        log.append({"step": "add", "rule": list(c), "at": i, "objective": val})
     k = 0
     while k < len(rules):  # prune: keep a rule only if it helps
         val = objective(Arbiter(tuple(rules[:k] + rules[k + 1 :]), default))
@@ -263,7 +272,7 @@ def teach(
     progress: bool = False,
 ) -> tuple[ModularPolicy, list[LessonResult]]:
     """Teach every lesson in order; returns the modular policy and one result per lesson."""
-    values = compile_concepts(cur.concept_list())
+    values = concept_features(cur)
     modules: dict[str, SkillModule] = {}
     demos: dict[str, Demonstration] = {}
     results: list[LessonResult] = []
