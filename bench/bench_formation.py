@@ -1,9 +1,13 @@
-"""Benchmark: how fast K lockstep quadrotor SITL vehicles run with their K MAVLink clients.
+"""Benchmark: the formation as K simulator processes and one companion in lockstep.
 
-For each K the `LockstepSwarm` runs unpaced (speed-up 0: as fast as the machine goes) with
-one connected `VehicleClient` per vehicle (real loopback UDP, all telemetry streams at their
-default rates, each client receiving and parsing), vehicles idle on the ground. The real-time
-factor it reaches is the most `skyherd fly --mission formation --speedup S` can sustain.
+For each K, `skyherd fly --mission formation --speedup 0` (as fast as the machine goes) flies a
+short hand-made plan (every vehicle 10 cells north in lock-step, from the study's start cells):
+take-off, hand-over, plan, settle, landing. Printed per K: the sustained real-time factor
+(simulated time / wall time of the slowest vehicle), the CPU seconds all K+1 programs spent per
+simulated second, the companion's decision time per tick (wall, p50 / p95), and whether every
+vehicle landed on its target. Baseline, in the same run: one vehicle alone (`world.sim.World`
+free-running unpaced, no companion, on the ground), the cost of the physics and the endpoint
+without lockstep or a mission — the ratio says what the topology costs per vehicle.
 
     .venv/bin/python bench/bench_formation.py [--quick] [--instance N]
 """
@@ -11,56 +15,81 @@ factor it reaches is the most `skyherd fly --mission formation --speedup S` can 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import resource
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from flight.geo import DEFAULT_HOME  # noqa: E402
-from hil.formation import LockstepSwarm, open_clients, vehicle_homes  # noqa: E402
 from policy.sql.layout import STARTS  # noqa: E402
 from runio.runfolder import markdown_table  # noqa: E402
+from scripts.cli import main as skyherd  # noqa: E402
 
 
-def measure(k: int, sim_s: float, instance: int) -> list:
-    starts = list(STARTS[k]) if k in STARTS else [(1, 1 + 2 * i) for i in range(k)]
-    swarm = LockstepSwarm(vehicle_homes(DEFAULT_HOME, starts, 2.0), instance, speedup=0)
-    clients, _ = open_clients(swarm.instances, None)
+def children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def alone(instance: int, sim_s: float = 20.0) -> float:
+    """Real-time factor per CPU second of one vehicle with nobody attached (the baseline)."""
+    from world.sim import World, WorldParams
+
+    w = World(WorldParams(scenario="none", lockstep=False, speedup=0, instance=instance))
     try:
-        swarm.start()
-        for c in clients:
-            c.wait_ready(timeout=30.0)
-        t0, w0, c0 = swarm.t, time.monotonic(), time.process_time()
-        while swarm.t - t0 < sim_s and not swarm.error:
-            time.sleep(0.05)
-        sim, wall, cpu = swarm.t - t0, time.monotonic() - w0, time.process_time() - c0
-        pos_ok = all(c.telemetry.pos_ned is not None for c in clients)
+        c0 = time.process_time()
+        w.run(sim_s)
+        return sim_s / (time.process_time() - c0)
     finally:
-        for c in clients:
-            c.close()
-        swarm.close()
-    return [k, f"{sim / wall:.1f}x", f"{sim / cpu:.1f}x", f"{1e6 * wall / (sim * 250 * k):.0f}",
-            "yes" if pos_ok and not swarm.error else f"NO {swarm.error}"]  # fmt: skip
+        w.close()
+
+
+def fly(k: int, instance: int, root: Path) -> list:
+    plan = [[[x, y + i] for i in range(11)] for x, y in STARTS.get(k, ((1, 1),))]
+    f = root / f"plan_K{k}.json"
+    f.write_text(json.dumps(plan))
+    runs = root / f"K{k}"
+    c0, w0 = children_cpu(), time.monotonic()
+    code = skyherd(["fly", "--mission", "formation", "--agents", str(k), "--policy-file", str(f),
+                    "--speedup", "0", "--instance", str(instance), "--timeout", "1800",
+                    "--runs-dir", str(runs)])  # fmt: skip
+    cpu, wall = children_cpu() - c0, time.monotonic() - w0
+    (run,) = runs.iterdir()
+    stats = [json.loads((run / f"uav{i}" / "sim_stats.json").read_text()) for i in range(k)]
+    comp = json.loads((run / "companion.json").read_text())
+    sim = min(s["sim_s"] for s in stats)
+    sim_wall = max(s["wall_s"] for s in stats)
+    return [k, f"{sim / sim_wall:.2f}x", f"{cpu / sim:.3f}", f"{cpu / sim / k:.4f}",
+            f"{1e3 * comp['decide_wall_p50_s']:.1f} / {1e3 * comp['decide_wall_p95_s']:.1f}",
+            f"{wall:.0f}", "yes" if code == 0 else f"NO ({comp.get('reason', '')[:60]})"]  # fmt: skip
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="K = 1, 4 and 5 s of simulation")
+    ap.add_argument("--quick", action="store_true", help="K = 1 and 4 only")
     ap.add_argument(
-        "--instance", type=int, default=170, help="first vehicle instance (default 170)"
+        "--instance", type=int, default=150, help="first vehicle instance (default 150)"
     )
     args = ap.parse_args()
-    ks, sim_s = ((1, 4), 5.0) if args.quick else ((1, 4, 9, 16), 10.0)
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    print(f"formation swarm benchmark: {sim_s:g} s simulated per K, unpaced, clients attached")
-    print(f"cores {os.cpu_count()}, load average {load:.2f} (a loaded machine slows every row)\n")
-    rows = [measure(k, sim_s, args.instance) for k in ks]
-    print(markdown_table(["K", "real-time factor (wall)", "real-time factor (CPU)",
-                          "wall us per vehicle step (4 ms)", "telemetry reached every client"],
-                         rows))  # fmt: skip
-    print("the wall factor is the largest --speedup the formation mission can sustain at each K")
+    ks = (1, 4) if args.quick else (1, 4, 9, 16)
+    load = os.getloadavg()[0]
+    print(f"formation benchmark: K simulators + 1 companion in lockstep, speed-up 0 (unpaced); "
+          f"cores {os.cpu_count()}, load average {load:.2f}\n")  # fmt: skip
+    base = alone(args.instance)
+    print(f"baseline: one vehicle alone, no companion, unpaced: {base:.0f}x real time per CPU "
+          f"second ({1 / base:.4f} CPU s per simulated s)\n")  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = [fly(k, args.instance, Path(tmp)) for k in ks]
+    for r in rows:
+        r.insert(4, f"{float(r[3]) * base:.1f}x")
+    print(markdown_table(["K", "real-time factor (sim / wall)", "CPU s per sim s (all programs)",
+                          "CPU s per sim s per vehicle", "per vehicle vs alone",
+                          "decision p50 / p95 [ms]", "wall [s]", "all landed"], rows))  # fmt: skip
+    print("\ngoal: K = 16 at >= 20x on 2 cores needs <= 0.1 CPU s per simulated s for all programs")
     return 0
 
 

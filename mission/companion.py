@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from flight.autopilot_api import Setpoint
-from mission.vehicle import VehicleLink
+from mission.vehicle import LinkLost, VehicleLink
 
 
 @dataclass(frozen=True)
@@ -86,48 +86,66 @@ class TickStats:
 def run(v: VehicleLink, mission: Mission, gen, frames: FrameSource | None,
         p: CompanionParams, on_tick=None) -> TickStats:  # fmt: skip
     """Step `gen` (the mission's generator) once per tick until it returns."""
+    return run_fleet([v], mission, gen, frames, p, on_tick and (lambda vs: on_tick(vs[0])))
+
+
+def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource | None,
+              p: CompanionParams, on_tick=None) -> TickStats:  # fmt: skip
+    """One tick for K vehicles at once: in lockstep it starts when every vehicle has marked
+    the same instant (their simulations run in parallel between ticks); the frames, if any,
+    are vehicle 0's. Free-running, the tick follows vehicle 0's clock."""
     stats = TickStats(decide_wall_s=[])
     t_heartbeat = -1e9
     t_next = 0.0
     wall0 = time.monotonic()
-    if p.lockstep:  # hello: the simulator starts its clock when this arrives
-        v.hello(p.link_patience_s)
+    lead = vs[0]
+    if p.lockstep:  # hello: each simulator starts its clock when this arrives
+        for v in vs:
+            v.hello(p.link_patience_s)
     while True:
         if p.lockstep:
-            t = v.next_mark(p.link_patience_s)
+            marks = [v.next_mark(p.link_patience_s) for v in vs]
+            if any(abs(m - marks[0]) > 1e-9 for m in marks):
+                raise LinkLost(f"the vehicles marked different instants {sorted(set(marks))}: "
+                               "are they simulators of one flight, started together?")  # fmt: skip
+            t = marks[0]
             start = time.monotonic()
             if frames is not None:  # wait only for a frame the vehicle announced for this tick
-                if v.frame_announced_ms == round(t * 1000):
+                if lead.frame_announced_ms == round(t * 1000):
                     mission.on_frame(t, *frames.frame_at(t, p.frame_patience_s))
                 else:
                     mission.on_frame(t, None, "lost")
         else:
-            v.drain(0.02)
-            if v.tel.time_boot_ms == 0:  # nothing yet from the autopilot: wall time counts
-                v.t = time.monotonic() - wall0
-            if v.t < t_next:
+            for v in vs:
+                v.drain(0.02 if v is lead else 0.0)
+            if lead.tel.time_boot_ms == 0:  # nothing yet from the autopilot: wall time counts
+                lead.t = time.monotonic() - wall0
+            if lead.t < t_next:
                 continue
-            t_next = v.t + p.tick_s
+            t_next = lead.t + p.tick_s
             start = time.monotonic()
             if frames is not None:
                 fr, status = frames.newest()
                 if fr is not None:
-                    mission.on_frame(v.t, fr, status)
-        if v.t - t_heartbeat >= p.heartbeat_s - 1e-9:
-            v.heartbeat()
-            t_heartbeat = v.t
+                    mission.on_frame(lead.t, fr, status)
+        if lead.t - t_heartbeat >= p.heartbeat_s - 1e-9:
+            for v in vs:
+                v.heartbeat()
+            t_heartbeat = lead.t
         try:
             next(gen)
             done = False
         except StopIteration:
             done = True
-        if not done and v.setpoint is not None:
-            sp: Setpoint = v.setpoint
-            v.position_target(sp.pos_ned, sp.vel_ned, sp.yaw)
+        for v in vs:
+            if not done and v.setpoint is not None:
+                sp: Setpoint = v.setpoint
+                v.position_target(sp.pos_ned, sp.vel_ned, sp.yaw)
         if on_tick is not None:
-            on_tick(v)
+            on_tick(vs)
         if p.lockstep:
-            v.close_tick()
+            for v in vs:
+                v.close_tick()
         stats.ticks += 1
         stats.decide_wall_s.append(time.monotonic() - start)
         if done:

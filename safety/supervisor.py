@@ -17,6 +17,7 @@ Every switch is written to `events` (anything with `.write(dict)`, e.g. JsonlWri
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from dataclasses import dataclass, field
@@ -509,7 +510,7 @@ class Supervisor:
             else:
                 cmd, ap_mode = self._fallback_command(state, health)
                 return Decision(
-                    cmd,
+                    self._keep_yaw(cmd),
                     Mode.FALLBACK,
                     max(sev, Severity.FALLBACK),
                     reason or "holding",
@@ -537,7 +538,7 @@ class Supervisor:
                 self._ai_command(u, sev), Mode.AI, sev, "", FlightMode.OFFBOARD, False, t, proposed
             )
         return Decision(
-            self.pid.command(t, state),
+            self._keep_yaw(self.pid.command(t, state)),
             Mode.PID,
             sev,
             reason or "recovering",
@@ -546,6 +547,14 @@ class Supervisor:
             t,
             proposed,
         )
+
+    def _keep_yaw(self, cmd: Setpoint) -> Setpoint:
+        """The fallback and the recovery fly no heading of their own: they keep the AI's last
+        yaw (the net bounds translation, not heading; a formation or a camera keeps its yaw)."""
+        last = self.last_sp
+        if cmd.yaw is not None or cmd.yaw_rate is not None or last is None or last.yaw is None:
+            return cmd
+        return dataclasses.replace(cmd, yaw=last.yaw)
 
     def _fallback_command(self, state: VehicleState, health: Health) -> tuple[Setpoint, FlightMode]:
         """The fallback's command and the mode it is flown in. Normally the autopilot's own

@@ -22,7 +22,9 @@ from scripts.cli import UsageError
 
 
 def add_arguments(
-    parser, standalone: bool = True, missions: tuple[str, ...] = ("groundair", "square")
+    parser,
+    standalone: bool = True,
+    missions: tuple[str, ...] = ("groundair", "square", "formation"),
 ) -> None:
     if standalone:
         parser.add_argument(
@@ -59,6 +61,16 @@ def add_arguments(
             default=None,
             metavar="FILE",
             help="MAVLink 2 signing key file (32 bytes) shared with the autopilot",
+        )
+        parser.add_argument(
+            "--plan",
+            default=None,
+            metavar="FILE",
+            help="--mission formation: the lock-step grid plan (plan.json / plan_K<K>.json); "
+            "vehicle k is instance N+k, its home on its start cell",
+        )
+        parser.add_argument(
+            "--cell-m", type=float, default=2.0, help="--mission formation: grid cell size [m]"
         )
         parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
         parser.add_argument(
@@ -229,6 +241,10 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < args.duration <= 36000:
         raise UsageError("--duration must be in (0, 36000] s")
     use_camera = args.mission == "groundair" and not args.no_camera
+    if args.mission == "formation" and args.plan is None:
+        raise UsageError(
+            "--mission formation needs --plan FILE (a plan_K<K>.json from `skyherd train sql`)"
+        )
     if args.run_dir is not None:
         run_dir = Path(args.run_dir)
         if not run_dir.is_dir():
@@ -239,6 +255,8 @@ def run(args: argparse.Namespace) -> int:
     if run_dir is None:
         folder = RunFolder("companion", root=args.runs_dir)
         run_dir = folder.path
+    if args.mission == "formation":
+        return _run_formation(args, run_dir, folder)
     try:
         mission, plan = build_mission(args, run_dir)
     except UsageError:
@@ -345,3 +363,101 @@ def _publish_live(session, mission, vehicle: str = "uav0") -> None:
         if mission.guard is not None:
             mission.guard.events = mission.net.events
         mission.authority.rules.events = mission.net.events
+
+
+def _run_formation(args, run_dir: Path, folder) -> int:
+    """K vehicles (instances N..N+K-1) in lockstep, one link each (mission.formation)."""
+    from flight.geo import DEFAULT_HOME
+    from hil.link import LinkError, MavlinkLink
+    from mission.companion import CompanionParams, run_fleet
+    from mission.formation import FleetRecord, FormationMission
+    from mission.formation_plan import (
+        TRACK_COLUMNS,
+        FormationParams,
+        PlanError,
+        field_offsets,
+        load_plan,
+        plan_ne,
+        vehicle_homes,
+    )
+    from mission.vehicle import COMPANION_COMPONENT, VehicleLink
+    from runio import CsvWriter
+
+    try:
+        K = len(json.loads(Path(args.plan).read_text(encoding="utf-8")))
+        plan = load_plan(args.plan, K)
+        params = FormationParams(cell_m=args.cell_m)
+    except (OSError, ValueError, TypeError) as e:  # PlanError is a ValueError
+        if folder is not None:
+            shutil.rmtree(run_dir, ignore_errors=True)
+        kind = "plan" if not isinstance(e, ValueError) or isinstance(e, PlanError) else "formation"
+        raise UsageError(f"{kind}: {e}; pass a plan_K<K>.json from `skyherd train sql`") from None
+    homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
+    if folder is not None:
+        folder.write_config({"args": args_dict(args), "formation": params, "homes": homes})
+    events = JsonlWriter(run_dir / "events.jsonl")
+    record = FleetRecord(JsonlWriter(run_dir / "decisions.jsonl"),
+                         CsvWriter(run_dir / "metrics.csv", TRACK_COLUMNS))  # fmt: skip
+    mission = FormationMission(plan_ne(plan, params.cell_m), field_offsets(DEFAULT_HOME, homes),
+                               params, record, events)  # fmt: skip
+    links = []
+    try:
+        for k in range(K):
+            inst = args.instance + k
+            (run_dir / f"uav{k}").mkdir(exist_ok=True)
+            links.append(MavlinkLink.open(f"udpin:127.0.0.1:{14540 + inst}", source_system=1 + inst,
+                                          source_component=COMPANION_COMPONENT,
+                                          tlog=run_dir / f"uav{k}" / "telemetry.tlog"))  # fmt: skip
+    except LinkError as e:
+        for link in links:
+            link.close()
+        raise UsageError(
+            f"{e}; is another companion using instances {args.instance}..{args.instance + K - 1}?"
+        ) from None
+    vs = [VehicleLink(link, target_system=1 + args.instance + k) for k, link in enumerate(links)]
+    print(f"skyherd companion: formation of {K} (instances {args.instance}..{args.instance + K - 1}), "
+          f"lockstep; run folder {run_dir}", file=sys.stderr, flush=True)  # fmt: skip
+    from tqdm import tqdm
+
+    bar = tqdm(total=None, desc="connect", file=sys.stderr, leave=True, mininterval=0.5,
+               bar_format="{desc}: {n} ticks, {elapsed} wall {postfix}")  # fmt: skip
+
+    def on_tick(vs_):
+        mission.write_track(vs_)
+        bar.set_description_str(mission.phase, refresh=False)
+        bar.set_postfix_str(f"t = {vs_[0].t:.1f} s", refresh=False)
+        bar.update()
+
+    error, stats, interrupted = "", None, False
+    try:
+        stats = run_fleet(vs, mission, mission.run(vs), None, CompanionParams(), on_tick)
+    except Exception as e:  # noqa: BLE001 - the flight ends; say why, keep what was recorded
+        error = str(e) or type(e).__name__
+        mission.outcome, mission.reason = "aborted", error
+    except KeyboardInterrupt:
+        error, interrupted = "interrupted (Ctrl-C)", True
+        mission.outcome, mission.reason = "interrupted", error
+    finally:
+        bar.close()
+        mission.write_track(vs)
+        for link in links:
+            link.close()
+        for w in (events, record.decisions, record.track):
+            w.close()
+    lat = np.array(stats.decide_wall_s if stats and stats.decide_wall_s else [np.nan])
+    out = {"outcome": mission.outcome, "reason": mission.reason, "phase": mission.phase,
+           "ticks": stats.ticks if stats else 0, "decisions": record.rows, "vehicles": K,
+           "times": {k: None if t != t else t for k, t in mission.times.items()}, "yielded": {f"uav{k}": w for k, w in mission.yielded.items()},
+           "mode_requests": sum(a.requests for a in mission.authority),
+           "net": mission.net_counts(),
+           "decide_wall_p50_s": float(np.nanpercentile(lat, 50)) if np.isfinite(lat).any() else None,
+           "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if np.isfinite(lat).any() else None}  # fmt: skip
+    atomic_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
+    if error:
+        print(f"skyherd companion: aborted: {error}", file=sys.stderr)
+    rc = 0 if mission.outcome == "completed" else (130 if interrupted else 1)
+    if folder is not None:
+        from scripts.fly_formation import formation_report
+
+        formation_report(run_dir, rc, error)
+    return rc

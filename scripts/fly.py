@@ -130,7 +130,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.airframe == "fixedwing" and args.mission != "groundair":
         raise UsageError(f"--mission {args.mission} is for the quadrotor; a fixed-wing flies the ground-air task as an orbit (drop --mission)")  # fmt: skip
-    if args.mission == "formation" or args.airframe == "fixedwing":
+    if args.mission == "formation":
+        from scripts.fly_formation import run_formation
+
+        return run_formation(args)
+    if args.airframe == "fixedwing":
         from scripts.fly_inprocess import run_inprocess
 
         return run_inprocess(args)

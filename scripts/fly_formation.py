@@ -3,34 +3,30 @@
 `skyherd fly --mission formation --agents K` takes the lock-step grid plan (trained in-process
 with a fixed seed, a few seconds, or read from `--policy-file`, a `plan_K<K>.json` written by
 `skyherd train sql`), maps the 50×50 grid onto the field (cell (x, y) → north (y−1)·cell,
-east (x−1)·cell about the field origin), starts K built-in quadrotor SITL vehicles (instances
-N..N+K−1, N = --instance, default 0) stepped in lockstep on one thread, and flies each through
-its own MAVLink client to its formation target, landing there. The run folder gets the
-tlog (every vehicle), metrics.csv (every position sample of every vehicle), formation.png,
-the plan, and summary.md with landing errors, separations and times.
+east (x−1)·cell about the field origin), and starts K+1 programs: one `skyherd sim --ugvs none`
+per vehicle (instance N+k, its home on its start cell) and one `skyherd companion --mission
+formation` flying all K in lockstep (mission/formation.py), every setpoint behind its vehicle's
+safety net. The run folder gets plan.json, decisions.jsonl and events.jsonl (every vehicle),
+metrics.csv (every position sample, field frame), uav<k>/ (each vehicle's tlog, world.csv,
+sim_stats.json, sim.log), formation.png and summary.md with landing errors, separations, times.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import json
 import math
 from dataclasses import asdict
+from pathlib import Path
 
 import numpy as np
 
 from flight.geo import DEFAULT_HOME
-from hil.client import ClientTimeout, CommandError
-from hil.formation import (
-    TRACK_COLUMNS,
-    FormationFlight,
+from mission.formation_plan import (
     FormationParams,
-    FormationVehicle,
-    LockstepSwarm,
     PlanError,
-    TrackRecorder,
-    field_offsets,
     load_plan,
-    open_clients,
     plan_moves,
     plan_ne,
     separation,
@@ -38,7 +34,6 @@ from hil.formation import (
     validate_plan,
     vehicle_homes,
 )
-from hil.link import LinkError
 from runio.runfolder import RunFolder, args_dict, atomic_write_text, markdown_table
 from scripts.cli import UsageError
 from scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
@@ -56,8 +51,8 @@ def _params(args) -> FormationParams:
 def _check(args) -> None:
     if getattr(args, "connect", None) is not None:
         raise UsageError("--mission formation flies the built-in vehicles only; drop --connect")
-    if args.speedup < 1:
-        raise UsageError("--speedup must be >= 1 for the built-in vehicles")
+    if not (args.speedup == 0 or args.speedup >= 1):
+        raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
     if args.sql_seed < 0:
         raise UsageError("--sql-seed must be >= 0")
     if not 0 <= args.instance <= MAX_INSTANCE - args.agents + 1:
@@ -79,6 +74,10 @@ def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
         except PlanError as e:
             raise UsageError(f"{e}; pass a plan_K{K}.json from `skyherd train sql`") from None
         return plan, {"source": "file", "path": str(args.policy_file)}
+    if K not in (4, 9, 16):
+        raise UsageError(
+            f"the study's SQL-SIE plans are for K = 4, 9, 16: for K = {K} pass --policy-file"
+        )
     from tqdm import tqdm
 
     grid = GridParams(n_agents=K)
@@ -95,62 +94,64 @@ def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
     return plan, info
 
 
-def run_formation(args: argparse.Namespace, run_dir: RunFolder) -> bool:
-    """Fly the formation; True if every vehicle landed on its target cell."""
+def run_formation(args: argparse.Namespace) -> int:
+    """Fly the formation as K simulators + one companion; 0 if every vehicle landed on its target."""
+    from scripts import launch
+
     _check(args)
     params = _params(args)
     K = args.agents
     plan, plan_info = obtain_plan(args)
-    starts = [p[0] for p in plan]
-    origin = DEFAULT_HOME  # the field origin: grid cell (1, 1)
-    homes = vehicle_homes(origin, starts, params.cell_m)
     instances = [args.instance + k for k in range(K)]
-    run_dir.write_config(
+    _ports_free(instances)
+    homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
+    folder = RunFolder("fly", root=args.runs_dir)
+    run_dir = folder.path
+    folder.write_config(
         {"args": args_dict(args), "mission": "formation", "formation": params,
-         "plan": plan_info, "field_origin": origin, "homes": homes, "instances": instances,
+         "plan": plan_info, "field_origin": DEFAULT_HOME, "homes": homes, "instances": instances,
          "frame": "field NED about field_origin; cell (x, y) centre at north (y-1)*cell_m, "
                   "east (x-1)*cell_m"}
     )  # fmt: skip
-    atomic_write_text(run_dir.file("plan.json"), _plan_json(plan))
+    atomic_write_text(run_dir / "plan.json", _plan_json(plan))
+    print(f"skyherd fly: run folder {run_dir}", flush=True)
+    print(f"skyherd fly: {K} vehicles (instances {instances[0]}..{instances[-1]}), plan of "
+          f"{len(plan[0]) - 1} steps, speed-up {args.speedup:g}, lockstep", flush=True)  # fmt: skip
+    sims = []
+    for k, (inst, h) in enumerate(zip(instances, homes)):
+        d = run_dir / f"uav{k}"
+        d.mkdir()
+        sims.append(launch.start(f"uav{k}", launch.skyherd_cmd(
+            "sim", "--instance", str(inst), "--ugvs", "none", f"--home={h.lat_deg!r},{h.lon_deg!r},{h.alt_m!r}",
+            "--seed", str(args.seed + k), "--speedup", repr(args.speedup), "--latency", repr(args.latency),
+            "--run-dir", str(d)), d / "sim.log"))  # fmt: skip
+    companion = launch.start("companion", launch.skyherd_cmd(
+        "companion", "--mission", "formation", "--plan", str(run_dir / "plan.json"), "--cell-m",
+        repr(params.cell_m), "--instance", str(args.instance), "--run-dir", str(run_dir)), None)  # fmt: skip
+    why = "interrupted (Ctrl-C)"
     try:
-        swarm = LockstepSwarm(homes, args.instance, args.speedup, seed=args.seed)
-    except OSError as e:
-        raise UsageError(f"{e}; is another skyherd using instances {instances[0]}..{instances[-1]}? "
-                         "pick another --instance") from None  # fmt: skip
-    try:
-        clients, tlog = open_clients(instances, run_dir.file("telemetry.tlog"))
-    except LinkError as e:
-        swarm.close()
-        raise UsageError(f"{e}; pick another --instance") from None
-    print(f"skyherd fly: {K} vehicles (instances {instances[0]}..{instances[-1]}), "
-          f"plan of {len(plan[0]) - 1} steps, speed-up {args.speedup:g}")  # fmt: skip
-    paths_ne = plan_ne(plan, params.cell_m)
-    offsets = field_offsets(origin, homes)
-    recorder = TrackRecorder(run_dir.metrics(TRACK_COLUMNS), K)
-    vehicles = [
-        FormationVehicle(k, c, offsets[k], params.altitude(k), paths_ne[k], params.step_s, recorder)
-        for k, c in enumerate(clients)
-    ]
-    swarm.start()
-    flight = FormationFlight(vehicles, params, args.timeout, swarm)
-    ok, error = True, ""
-    try:
-        flight.fly()
-    except (ClientTimeout, CommandError) as e:
-        ok, error = False, str(e)
-        if swarm.error and swarm.error not in error:
-            error += f" ({swarm.error})"
-        flight.bar.write(f"skyherd fly: {e}")
-    finally:
-        flight.close()
-        times = flight.result_times()
-        for c in clients:
-            c.close()
-        swarm.close()
-        if tlog is not None:
-            tlog.close()
-    tracks = recorder.close()
-    return _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, error)
+        rc, why = launch.supervise(companion, sims, args.timeout)
+    except KeyboardInterrupt:
+        rc = 130
+    ok = formation_report(run_dir, rc, why)
+    return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
+
+
+def _ports_free(instances: list[int]) -> None:
+    """UsageError before anything starts if a vehicle's or the companion's UDP port is taken."""
+    import socket
+
+    from flight.mavlink import EndpointConfig
+
+    for inst in instances:
+        cfg = EndpointConfig(instance=inst)
+        for host, port in (cfg.api_bind, cfg.gcs_bind, ("127.0.0.1", cfg.api_remote[1])):
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                try:
+                    s.bind((host, port))
+                except OSError as e:
+                    raise UsageError(f"UDP port {port} of instance {inst} is taken ({e.strerror}); "
+                                     "pick another --instance") from None  # fmt: skip
 
 
 def _plan_json(plan) -> str:
@@ -161,26 +162,66 @@ def _plan_json(plan) -> str:
     )
 
 
-def _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, error) -> bool:
+def read_tracks(run_dir: Path, K: int) -> list[np.ndarray]:
+    """metrics.csv → per vehicle (t, north, east, down) rows in the field frame."""
+    tracks: list[list[tuple[float, ...]]] = [[] for _ in range(K)]
+    path = run_dir / "metrics.csv"
+    if path.exists():
+        with open(path, newline="") as f:
+            for r in csv.DictReader(f):
+                try:
+                    k = int(r["vehicle"])
+                    row = (float(r["t"]), float(r["north"]), float(r["east"]), float(r["down"]))
+                except (KeyError, ValueError):
+                    continue  # a torn last line of a killed companion
+                if 0 <= k < K:
+                    tracks[k].append(row)
+    return [np.array(t) if t else np.zeros((0, 4)) for t in tracks]
+
+
+def _json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def formation_report(run_dir: Path, rc: int, why: str) -> bool:
+    """summary.md and formation.png from the run folder; True if every vehicle landed on its
+    target cell and the companion completed the mission."""
     from policy.sql import GridParams, build_layout
 
+    run_dir = Path(run_dir)
+    cfg = _json(run_dir / "config.json")
+    params = FormationParams(**{k: v for k, v in cfg.get("formation", {}).items()
+                                if k in FormationParams.__dataclass_fields__})  # fmt: skip
+    plan = [[tuple(c) for c in p] for p in json.loads((run_dir / "plan.json").read_text())]
     K = len(plan)
+    comp = _json(run_dir / "companion.json")
+    times = {k: (math.nan if v is None else v) for k, v in comp.get("times", {}).items()}
+    t_plan = times.get("plan_start", math.nan)
+    paths_ne = plan_ne(plan, params.cell_m)
+    tracks = read_tracks(run_dir, K)
+    base = int(cfg.get("args", {}).get("instance", 0))
     moves = plan_moves(plan)
     rows, land_err = [], []
     for k in range(K):
         tr = tracks[k]
-        target = paths_ne[k, -1]
-        err = float(np.hypot(*(tr[-1, 1:3] - target))) if len(tr) else math.nan
+        err = float(np.hypot(*(tr[-1, 1:3] - paths_ne[k, -1]))) if len(tr) else math.nan
         land_err.append(err)
         alt_end = round(-float(tr[-1, 3]), 3) + 0.0 if len(tr) else math.nan
-        rows.append([args.instance + k, str(plan[k][0]), str(plan[k][-1]), params.altitude(k),
-                     moves[k], *tracking_error(tr, paths_ne[k], times.plan_start, params.step_s),
-                     err, alt_end])  # fmt: skip
+        rows.append([base + k, str(plan[k][0]), str(plan[k][-1]), params.altitude(k), moves[k],
+                     *tracking_error(tr, paths_ne[k], t_plan, params.step_s), err, alt_end])  # fmt: skip
     table = markdown_table(
         ["instance", "start cell", "target cell", "cruise alt [m]", "moves",
          "tracking error max [m]", "RMS [m]", "landing error [m]", "final alt [m]"], rows)  # fmt: skip
     sep = separation(tracks, params.similar_alt_m)
+    ok = rc == 0 and comp.get("outcome") == "completed"
     landed = ok and all(e < params.cell_m / 2 for e in land_err)
+    stats = [_json(run_dir / f"uav{k}" / "sim_stats.json") for k in range(K)]
+    sim_s = min((s.get("sim_s", math.nan) for s in stats), default=math.nan)
+    wall_s = max((s.get("wall_s", math.nan) for s in stats), default=math.nan)
+    net = comp.get("net", {})
     summary_rows = [
         ["vehicles", K],
         [f"plan steps (one per {params.step_s:.3g} s)", len(plan[0]) - 1],
@@ -192,10 +233,16 @@ def _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, err
         [f"min horizontal separation, |Δalt| < {params.similar_alt_m:g} m [m]",
          sep.min_horizontal_similar_alt],
         ["min horizontal separation, any altitude [m]", sep.min_horizontal_any],
-        ["plan flight (sim) [s]", times.plan_end - times.plan_start],
-        ["takeoff → all disarmed (sim) [s]", times.all_disarmed - times.takeoff],
-        ["wall time [s]", times.wall_s],
-        ["real-time factor sustained (sim / wall)", swarm.real_time_factor],
+        ["decisions (every vehicle, every tick)", comp.get("decisions", 0)],
+        ["safety-net switches / projected", f"{net.get('switches', 0)} / {net.get('projected', 0)}"],
+        ["plan flight (sim) [s]", times.get("plan_end", math.nan) - t_plan],
+        ["takeoff → all disarmed (sim) [s]",
+         times.get("all_disarmed", math.nan) - times.get("takeoff", math.nan)],
+        ["simulated [s] / wall [s]", f"{sim_s:.1f} / {wall_s:.1f}"],
+        ["real-time factor sustained (sim / wall)", sim_s / wall_s if wall_s > 0 else math.nan],
+        ["companion decision time p50 / p95 [ms]",
+         f"{1e3 * (comp.get('decide_wall_p50_s') or math.nan):.2f} / "
+         f"{1e3 * (comp.get('decide_wall_p95_s') or math.nan):.2f}"],
     ]  # fmt: skip
     overview = markdown_table(["metric", "value"], summary_rows)
     try:  # the learned plans' map (map seed 0); not drawn under a plan that ends elsewhere
@@ -204,24 +251,26 @@ def _report(run_dir, args, params, plan, paths_ne, tracks, times, swarm, ok, err
         layout = layout if ends == sorted(int(s) for s in layout.targets) else None
     except ValueError:
         layout = None
-    _plot(run_dir, params, plan, paths_ne, tracks, layout, sep)
-    status = "completed" if ok else "ABORTED"
-    run_dir.write_summary(
+    if any(len(t) for t in tracks):
+        _plot(run_dir, params, plan, paths_ne, tracks, layout, sep)
+    status = "completed" if ok else ("YIELDED" if comp.get("outcome") == "yielded" else "ABORTED")
+    reason = comp.get("reason") or why
+    atomic_write_text(run_dir / "summary.md",
         f"# skyherd fly: formation mission {status}\n\n"
         f"K = {K} quadrotors fly the learned lock-step grid plan ({params.cell_m:g} m cells, "
         f"{params.speed_mps:g} m/s, cruise at {params.altitude(0):g} + {params.altitude_step_m:g}·k m)"
-        f" and land on their formation targets.\n"
-        + (f"\nAborted: {error}\n" if error else "")
+        f" and land on their formation targets; {K} simulators and one companion in lockstep.\n"
+        + (f"\n{'Ended' if ok else 'Aborted'}: {reason}\n" if reason and not ok else "")
         + f"\n{table}\n{overview}"
-    )
+    )  # fmt: skip
     print(table)
     print(overview)
-    print(f"skyherd fly: {status}; tlog, metrics.csv, formation.png, plan.json and summary.md "
-          f"in {run_dir.path}")  # fmt: skip
+    print(f"skyherd fly: formation {status}{': ' + reason if reason and not ok else ''}; "
+          f"summary.md, formation.png, metrics.csv, decisions.jsonl in {run_dir}")  # fmt: skip
     return landed
 
 
-def _plot(run_dir: RunFolder, params, plan, paths_ne, tracks, layout, sep) -> None:
+def _plot(run_dir: Path, params, plan, paths_ne, tracks, layout, sep) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -274,5 +323,5 @@ def _plot(run_dir: RunFolder, params, plan, paths_ne, tracks, layout, sep) -> No
     ax3.set_ylim(bottom=0)
     ax3.set_title("separation between vehicles")
     fig.tight_layout()
-    fig.savefig(run_dir.file("formation.png"), dpi=110)
+    fig.savefig(run_dir / "formation.png", dpi=110)
     plt.close(fig)

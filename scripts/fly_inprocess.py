@@ -1,7 +1,7 @@
-"""The missions that still fly in one process: the K-vehicle formation (scripts/fly_formation.py)
-and the fixed-wing orbit (scripts/fly_orbit.py), each with the built-in vehicle(s) on background
-threads and skyherd's threaded MAVLink client. (The ground-air and square missions fly as two
-programs in lockstep: scripts/fly.py.)"""
+"""The mission that still flies in one process: the fixed-wing orbit (scripts/fly_orbit.py), the
+built-in vehicle on a background thread and skyherd's threaded MAVLink client. (The ground-air,
+square and formation missions fly as separate programs in lockstep: scripts/fly.py,
+scripts/fly_formation.py.)"""
 
 from __future__ import annotations
 
@@ -19,8 +19,6 @@ def run_inprocess(args: argparse.Namespace) -> int:
             "--speedup must be >= 1 for this mission: its MAVLink client cannot keep up with an "
             "unpaced vehicle (offboard setpoints would time out)"
         )
-    if args.mission == "formation":
-        return _run_formation(args)
     address = args.connect or f"udpin:127.0.0.1:{14540 + args.instance}"
     try:
         parse_address(address)
@@ -49,18 +47,6 @@ def run_inprocess(args: argparse.Namespace) -> int:
         if sitl:
             sitl.close()
     return 0 if ok else 1
-
-
-def _run_formation(args) -> int:
-    """K built-in vehicles, each with its own endpoints and client (instances 0..K-1)."""
-    from scripts.fly_formation import run_formation
-
-    if args.connect is not None:
-        raise UsageError("--mission formation flies the built-in vehicles only; drop --connect")
-    run_dir = RunFolder("fly", root=args.runs_dir)
-    run_dir.write_config({"args": args_dict(args), "mission": "formation"})
-    print(f"skyherd fly: run folder {run_dir.path}")
-    return 0 if run_formation(args, run_dir) else 1
 
 
 def _open_zenoh(args, vehicle: str = "uav0"):

@@ -3,14 +3,14 @@ that `skyherd fly` (the ground-air default) imports neither mission's code to pa
 
 from __future__ import annotations
 
-AGENT_CHOICES = (4, 9, 16)
+AGENT_CHOICES = (1, 4, 9, 16)
 
 
 def add_formation_arguments(group) -> None:
     """Options of the formation mission (added to `skyherd fly` in an argument group)."""
     group.add_argument("--agents", type=int, choices=AGENT_CHOICES, default=9,
-                       help="K: vehicles and formation targets (4, 9 or 16; default 9); the vehicles "
-                       "are instances N..N+K-1 with N = --instance")  # fmt: skip
+                       help="K: vehicles and formation targets (1, 4, 9 or 16; default 9; 1 needs --policy-file); "
+                       "the vehicles are instances N..N+K-1 with N = --instance")  # fmt: skip
     group.add_argument(
         "--sql-seed",
         type=int,

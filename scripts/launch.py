@@ -59,19 +59,24 @@ def stop(child: Child, grace_s: float = 10.0) -> int:
     return child.proc.returncode
 
 
-def supervise(companion: Child, sim: Child | None, timeout_s: float) -> tuple[int, str]:
-    """Wait for the flight to end; return (exit code, why it ended)."""
+def supervise(
+    companion: Child, sim: Child | list[Child] | None, timeout_s: float
+) -> tuple[int, str]:
+    """Wait for the flight to end; return (exit code, why it ended). `sim`: the simulator, or
+    one per vehicle (a formation); any that dies ends the flight."""
+    sims = [] if sim is None else (list(sim) if isinstance(sim, list) else [sim])
     deadline = time.monotonic() + timeout_s
     try:
         while True:
             rc = companion.proc.poll()
             if rc is not None:
                 return rc, "" if rc == 0 else f"the companion exited with code {rc}"
-            if sim is not None and sim.proc.poll() is not None:
-                why = f"the simulator exited with code {sim.proc.returncode} during the flight"
-                tail = sim.tail()
-                stop(companion)
-                return 1, why + (f":\n{tail}" if tail else "")
+            for s in sims:
+                if s.proc.poll() is not None:
+                    why = f"the simulator {s.name} exited with code {s.proc.returncode} during the flight"
+                    tail = s.tail()
+                    stop(companion)
+                    return 1, why + (f":\n{tail}" if tail else "")
             if time.monotonic() > deadline:
                 stop(companion)
                 return 1, f"the flight took longer than --timeout {timeout_s:.0f} s of wall time"
@@ -80,5 +85,5 @@ def supervise(companion: Child, sim: Child | None, timeout_s: float) -> tuple[in
         stop(companion)
         raise
     finally:
-        if sim is not None:
-            stop(sim)
+        for s in sims:
+            stop(s)

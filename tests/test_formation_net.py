@@ -1,78 +1,73 @@
 """Every formation setpoint goes through a safety net: its own supervisor per vehicle, the
-fence around the plan and the other vehicles' positions as separation rows (issue 11.1)."""
+fence around the plan and the other vehicles' positions as separation rows (issue 11.1), and
+a vehicle behind its reference chases it inside the speed and acceleration rows."""
 
 import numpy as np
 
-from flight.autopilot_api import FlightMode
-from hil.client import Telemetry
-from hil.formation import FormationParams, FormationVehicle, TrackRecorder, formation_envelope
-from safety.supervisor import Mode, Supervisor, SupervisorParams
+from flight.state import VehicleState
+from mission.formation import FormationNet
+from mission.formation_plan import FormationParams, formation_envelope
+from safety.supervisor import Mode
 
 
-class Client:
-    """What FormationVehicle needs of a VehicleClient: its telemetry and the stream hook."""
-
-    def __init__(self):
-        self.telemetry = Telemetry()
-        self.fn = None
-
-    def stream_offboard(self, fn):
-        self.fn = fn
+def state(pos, vel=(0.0, 0.0, 0.0), t=0.0):
+    return VehicleState(t=t, pos_ned=np.array(pos, float), vel_ned=np.array(vel, float),
+                        quat=np.array([1.0, 0, 0, 0]), omega_frd=np.zeros(3),
+                        accel_frd=np.zeros(3), on_ground=False)  # fmt: skip
 
 
-def tel_at(t, pos, vel=(0.0, 0.0, 0.0)):
-    tel = Telemetry(time_boot_ms=int(round(t * 1000)), mode=FlightMode.OFFBOARD, armed=True)
-    tel.pos_ned, tel.vel_ned = np.array(pos, float), np.array(vel, float)
-    tel.quat, tel.omega_frd = np.array([1.0, 0, 0, 0]), np.zeros(3)
-    return tel
-
-
-def vehicles(paths, params=None):
-    params = params or FormationParams()
-    vs = []
-    for k, path in enumerate(paths):
-        c = Client()
-        v = FormationVehicle(k, c, path[0], params.altitude(k), np.array(path, float),
-                             params.step_s, TrackRecorder(None, len(paths)))  # fmt: skip
-        vs.append(v)
-    spec = formation_envelope([v.path_ne for v in vs], params)
-    for v in vs:
-        sup = Supervisor(spec.envelope(), SupervisorParams(hysteresis_s=1.0, hold_min_s=0.5))
-        v.attach_net(sup, [w for w in vs if w is not v])
-    return vs, spec
+def nets(paths):
+    spec = formation_envelope([np.array(p, float) for p in paths], FormationParams())
+    return [FormationNet(k, spec) for k in range(len(paths))], spec
 
 
 def test_plan_setpoint_is_certified_and_flown_as_planned():
-    vs, spec = vehicles([[(0.0, 0.0), (0.0, 2.0)], [(10.0, 0.0), (10.0, 2.0)]])
-    v0, v1 = vs
-    v1.tel.pos_ned, v1.tel.vel_ned = np.array([0.0, 0.0, -9.5]), np.zeros(3)  # own frame
-    tel = tel_at(0.0, (0.0, 0.0, -8.0))
-    pos, vel, yaw = v0.certify(0.0, tel, np.array([0.0, 1.0, -8.0]), np.array([0.0, 1.0, 0.0]))
-    d = v0.last_decision
+    (n0, _), spec = nets([[(0.0, 0.0), (0.0, 2.0)], [(10.0, 0.0), (10.0, 2.0)]])
+    others = [("uav1", np.array([10.0, 0.0, -9.5]), np.zeros(3))]
+    d = n0.certify(0.0, state((0.0, 0.0, -8.0), (0.0, 1.0, 0.0)), others,
+                   np.array([0.0, 1.0, -8.0]), np.array([0.0, 1.0, 0.0]))  # fmt: skip
     assert d.mode is Mode.AI and d.verdict == "accepted"
-    assert np.allclose(pos, [0, 1, -8]) and np.allclose(vel, [0, 1, 0]) and yaw == 0.0
+    c = d.command
+    assert np.allclose(c.pos_ned, [0, 1, -8]) and np.allclose(c.vel_ned, [0, 1, 0]) and c.yaw == 0.0
     rec = d.record(vehicle="uav0", pilot="formation")
     assert rec["proposed"]["pos_ned"] == [0.0, 1.0, -8.0] and rec["certified"]["yaw"] == 0.0
     assert spec.inclusions[0].points.min() == -10.0  # bounding box + 10 m
 
 
 def test_setpoint_toward_another_vehicle_is_refused_by_the_separation_row():
-    vs, _ = vehicles([[(0.0, 0.0), (0.0, 2.0)], [(0.0, 4.0), (0.0, 6.0)]])
-    v0, v1 = vs
-    # vehicle 1 hovers 3 m east of vehicle 0 at the same altitude (field frame (0, 3))
-    v1.tel.pos_ned, v1.tel.vel_ned = np.array([0.0, -1.0, -8.0]), np.zeros(3)
-    tel = tel_at(0.0, (0.0, 0.0, -8.0), (0.0, 1.5, 0.0))
-    pos, vel, _ = v0.certify(0.0, tel, np.array([0.0, 3.0, -8.0]), np.array([0.0, 2.0, 0.0]))
-    d = v0.last_decision
+    (n0, _), _ = nets([[(0.0, 0.0), (0.0, 2.0)], [(0.0, 4.0), (0.0, 6.0)]])
+    # vehicle 1 hovers 3 m east of vehicle 0 at the same altitude
+    others = [("uav1", np.array([0.0, 3.0, -8.0]), np.zeros(3))]
+    d = n0.certify(0.0, state((0.0, 0.0, -8.0), (0.0, 1.5, 0.0)), others,
+                   np.array([0.0, 3.0, -8.0]), np.array([0.0, 2.0, 0.0]))  # fmt: skip
     assert d.mode is Mode.FALLBACK and d.reason == "separation 1 m from uav1"
-    assert pos is None and np.allclose(vel, 0)  # brake (flown in OFFBOARD)
+    assert d.command.pos_ned is None and np.allclose(d.command.vel_ned, 0)  # brake
 
 
 def test_setpoint_outside_the_formation_fence_is_refused():
-    vs, _ = vehicles([[(0.0, 0.0), (0.0, 2.0)]])
-    (v0,) = vs
-    tel = tel_at(0.0, (0.0, 8.0, -8.0), (0.0, 2.0, 0.0))  # 4 m from the fence, 2 m/s at it
-    v0.certify(0.0, tel, np.array([0.0, 9.0, -8.0]), np.array([0.0, 2.0, 0.0]))
-    assert (
-        v0.last_decision.mode is Mode.FALLBACK and "formation field edge" in v0.last_decision.reason
-    )
+    (n0,), _ = nets([[(0.0, 0.0), (0.0, 2.0)]])
+    d = n0.certify(0.0, state((0.0, 8.0, -8.0), (0.0, 2.0, 0.0)), [],  # 4 m from the fence
+                   np.array([0.0, 9.0, -8.0]), np.array([0.0, 2.0, 0.0]))  # fmt: skip
+    assert d.mode is Mode.FALLBACK and "formation field edge" in d.reason
+
+
+def test_a_vehicle_far_behind_chases_inside_the_acceleration_row_and_catches_up():
+    """At rest 40 m behind a reference moving at 2 m/s: the old 3 m leash + feed-forward asked
+    for a 4.85 m/s step (9.7 m/s² through τ = 0.5 s) and the net refused it for ever. The chase
+    keeps |u − v| inside the accel row, so every proposal is accepted and the speed builds up."""
+    (n0,), spec = nets([[(0.0, 0.0), (0.0, 60.0)]])
+    p, v = np.array([0.0, 0.0, -8.0]), np.zeros(3)
+    tau, dt = spec.dynamics.tau_s, 0.1
+    speeds = []
+    for i in range(200):  # 20 s: a first-order velocity response to what the net certified
+        t = i * dt
+        ref = np.array([0.0, min(40.0 + 2.0 * t, 60.0), -8.0])
+        d = n0.certify(t, state(p, v, t), [], ref, np.array([0.0, 2.0, 0.0]))
+        assert d.mode is Mode.AI and d.verdict == "accepted", (t, d.reason)
+        c = d.command
+        u = c.vel_ned + 0.95 * (c.pos_ned - p)  # what the autopilot flies (MPC_XY_P 0.95)
+        assert np.hypot(*(u[:2] - v[:2])) / tau <= spec.limits.accel_h_mps2
+        v = v + (u - v) * (dt / tau)
+        p = p + v * dt
+        speeds.append(float(np.hypot(*v[:2])))
+    assert max(speeds) > 4.0 and p[1] > 45.0  # faster than the reference: it closes the gap

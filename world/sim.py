@@ -51,7 +51,10 @@ class WorldParams:
     airframe: str = "quadrotor"
     instance: int = 0  # MAVLink vehicle instance N (ports, system id 1+N)
     seed: int = 0  # one seed for the vehicle, the UGV team and every other random source
-    scenario: str = "composite"  # UGV team: a training scenario or groundsim:<behaviour>
+    scenario: str = "composite"  # UGV team: a training scenario, groundsim:<behaviour>, "none"
+    home: tuple[float, float, float] | None = (
+        None  # lat [deg], lon [deg], alt AMSL [m]; None: default
+    )
     vehicle: str = "uav0"  # Zenoh key prefix
     camera_hz: float = 10.0  # camera frames per simulated second (the companion's tick)
     ugv_start: str = "offboard"  # "offboard" | "0" | seconds: when the team starts to drive
@@ -120,14 +123,20 @@ class World:
 
         self.p = params
         self.task = task if task is not None else TaskParams()
+        from flight.geo import DEFAULT_HOME, Home
+
+        home = DEFAULT_HOME if params.home is None else Home(*params.home, DEFAULT_HOME.heading_rad)
         self.autopilot = make_autopilot(params.airframe, seed=params.seed, instance=params.instance,
-                                        faults=faults)  # fmt: skip
+                                        faults=faults, home=home)  # fmt: skip
         self.clock = self.autopilot.clock
         cfg = endpoint_config or EndpointConfig(instance=params.instance)
         self.endpoint = MavlinkEndpoint(self.autopilot, cfg)
         self.endpoint.gated.add("api")  # read by the gate (lockstep) or by this loop (free-run)
         self.gate = LockstepGate(self.endpoint.api, self.endpoint.mav, params.lockstep_params)
-        self.team = new_team(params.scenario, params.seed, self.task.n_ugvs)
+        # no team: the vehicle alone (a formation vehicle); its ticks are marked all the same
+        self.team = None if params.scenario == "none" else new_team(params.scenario, params.seed,
+                                                                    self.task.n_ugvs)  # fmt: skip
+        n_ugvs = 0 if self.team is None else self.task.n_ugvs
         self.team_t: float | None = None  # team time [s]; None while parked
         self.renderer = FastRenderer(self.task.camera, UGVModel())
         self.pacer = Pacer(params.speedup)
@@ -137,7 +146,7 @@ class World:
         self.publisher = None
         self._ugv_pub = None
         self._clock_pub = None
-        if session is not None:
+        if session is not None and self.team is not None:
             from perception.transport import FramePublisher
 
             self.publisher = FramePublisher(session, params.vehicle, self.task.camera,
@@ -146,7 +155,7 @@ class World:
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
-        cols += ugv_columns(self.task.n_ugvs)
+        cols += ugv_columns(n_ugvs)
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
         self.frames = 0
         self.render_failures = 0
@@ -208,7 +217,7 @@ class World:
         self._move_team(t)
         state = getattr(self.autopilot, "true_state", self.autopilot.state)  # physics, not estimate
         uav = level_camera_mount(state) if self.p.gimbal else state
-        ugvs = team_states(self.team)
+        ugvs = None if self.team is None else team_states(self.team)
         seq = None
         if self.publisher is not None:
             if _during(self.p.camera_losses, t):
@@ -228,6 +237,8 @@ class World:
             self._write_truth(t, state, ugvs)
 
     def _move_team(self, t: float) -> None:
+        if self.team is None:
+            return
         if self.team_t is None:
             start = self.p.ugv_start
             from flight.autopilot_api import FlightMode
