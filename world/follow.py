@@ -25,7 +25,7 @@ from hil.client import Telemetry, update_telemetry
 from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
 from runio import CsvWriter, atomic_write_text
-from world.sim import level_camera_mount
+from world.sim import _during, level_camera_mount
 from world.team import new_team, team_states, truth_row, ugv_columns
 
 M = mavlink2
@@ -117,7 +117,8 @@ class FollowWorld:
             self.team_t = t - self._team_t0
         ugvs = team_states(self.team)
         uav = level_camera_mount(state)
-        if self.publisher is not None:
+        # --cut-camera windows count the vehicle's clock here (a fallback drill on a real autopilot)
+        if self.publisher is not None and not _during(self.p.camera_losses, t):
             try:
                 image = self.renderer.render(uav, ugvs)
             except ValueError:
