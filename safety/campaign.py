@@ -277,10 +277,17 @@ def campaign(spec: EnvelopeSpec, p: DrillParams, n: int, seed: int) -> list[Camp
 
 
 def make_vehicle(drill: CampaignDrill, seed: int):
-    """The autopilot a campaign drill flies: in the air at its start, with its fault plan."""
+    """The autopilot a campaign drill flies: in the air at its start, with its fault plan; the
+    fixed-wing with the drill's fence uploaded (as a mission would), so that its own HOLD
+    circle — after a link loss the net cannot command through — is one that fits inside."""
     from flight.airframes_registry import autopilot_class, make_autopilot
 
     if drill.airframe == "quadrotor":
         cls = autopilot_class("quadrotor")
         return cls(seed=seed, faults=drill.faults, start_pos_ned=tuple(drill.script.start_ned))
-    return make_autopilot("fixedwing", seed=seed, faults=drill.faults)
+    from safety.fence import vehicle_fence
+
+    ap = make_autopilot("fixedwing", seed=seed, faults=drill.faults)
+    ap.set_fence(vehicle_fence(drill.spec))  # the vehicle's own last line: its HOLD fits it
+    ap.drain_status()
+    return ap

@@ -140,3 +140,24 @@ def envelope_from_fence_items(
     except ValueError as e:
         raise FenceItemsError(f"uploaded fence: {e}") from e
     return spec
+
+
+@dataclasses.dataclass(frozen=True)
+class VehicleFenceShape:
+    """One area of the envelope's fence in the form the built-in autopilots' `set_fence` takes
+    (flight.geofence: kind, inclusion, vertices_ne (k, 2) [m, NED about home])."""
+
+    inclusion: bool
+    vertices_ne: np.ndarray
+    kind: str = "polygon"
+    center_ne: np.ndarray | None = None
+    radius: float = 0.0
+
+
+def vehicle_fence(spec: EnvelopeSpec) -> list[VehicleFenceShape]:
+    """The envelope's inclusion fence and exclusion zones (circles as their 16-gons), as the
+    vehicle's own fence: what a mission uploads so the autopilot's last line (refusals, breach
+    action, a HOLD circle that fits) knows the same boundary as the net."""
+    return [VehicleFenceShape(True, z.points.copy()) for z in spec.inclusions] + [
+        VehicleFenceShape(False, z.points.copy()) for z in spec.exclusions
+    ]

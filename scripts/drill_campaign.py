@@ -88,7 +88,7 @@ def _run_one(job: tuple) -> dict:
         "autopilot_excursion_m": "" if not math.isfinite(r.autopilot_excursion_m)
         else round(r.autopilot_excursion_m, 2),
         "first_reason": r.reasons[0] if r.reasons else "", "why": r.why,
-        "constraint_set_version": spec.version, "_events": sink.records,
+        "constraint_set_version": spec.version, "_events": sink.records, "_tol": tol,
         "_track": (pos - np.r_[_offset(d.spec, spec), 0.0]).tolist(),
     }  # fmt: skip
 
@@ -119,6 +119,7 @@ def run_campaign(args) -> int:
     tracks: dict[str, list] = {a: [] for a in airframes}
 
     def keep(row: dict) -> None:
+        row.setdefault("_tol", 0.0)
         for e in row.pop("_events"):
             events.write({"drill": row["drill"], "airframe": row["airframe"], **e})
         tracks[row["airframe"]].append((row["kind"], row.pop("_track")))
@@ -178,21 +179,22 @@ def run_campaign(args) -> int:
 def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
     """(per airframe × kind table, closest approaches table, totals line, breaches + overrides)."""
     keys = sorted({(r["airframe"], r["kind"]) for r in rows})
+    keys += [(a, "all") for a in sorted({r["airframe"] for r in rows})]
     out = []
     for a, k in keys:
-        rs = [r for r in rows if r["airframe"] == a and r["kind"] == k]
+        rs = [r for r in rows if r["airframe"] == a and k in ("all", r["kind"])]
         c = [r["min_clearance_m"] for r in rs if math.isfinite(r["min_clearance_m"])] or [math.nan]
+        own = [
+            float(r["autopilot_excursion_m"]) for r in rs if r.get("autopilot_excursion_m") != ""
+        ]
         out.append([a, k, len(rs), sum(r["passed"] for r in rs), sum(r["breach"] for r in rs),
                     sum(r["overridden"] for r in rs), sum(bool(r["yielded"]) for r in rs),
+                    sum(x > 0 for x in own), max(own) if own else "-",
                     min(c), float(np.median(c))])  # fmt: skip
-    for a in sorted({r["airframe"] for r in rows}):
-        rs = [r for r in rows if r["airframe"] == a]
-        out.append([a, "all", len(rs), sum(r["passed"] for r in rs), sum(r["breach"] for r in rs),
-                    sum(r["overridden"] for r in rs), sum(bool(r["yielded"]) for r in rs),
-                    float(np.nanmin([r["min_clearance_m"] for r in rs])),
-                    float(np.nanmedian([r["min_clearance_m"] for r in rs]))])  # fmt: skip
     table = markdown_table(["airframe", "kind", "drills", "passed", "breaches", "overridden failsafes",
-                            "yielded", "closest approach m", "median clearance m"], out)  # fmt: skip
+                            "yielded", "autopilot's own flight beyond the fence",
+                            "worst of it m (< 0 inside)", "closest approach m",
+                            "median clearance m"], out)  # fmt: skip
     finite = [r for r in rows if math.isfinite(r["min_clearance_m"])]
     near = sorted(finite, key=lambda r: r["min_clearance_m"])[:10]
     closest = markdown_table(
@@ -203,9 +205,12 @@ def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
     breaches = sum(r["breach"] for r in rows)
     overrides = sum(r["overridden"] for r in rows)
     failed = sum(not r["passed"] for r in rows)
+    own = sum(r.get("autopilot_excursion_m") not in ("", None)
+              and float(r["autopilot_excursion_m"]) > r.get("_tol", 0.0) for r in rows)  # fmt: skip
     totals = (f"{len(rows)} drills; ground-truth breaches beyond the tolerance: {breaches}; "
-              f"overridden autopilot failsafes: {overrides}; drills failing any check: {failed}")  # fmt: skip
-    return table, closest, totals, breaches + overrides
+              f"overridden autopilot failsafes: {overrides}; the autopilot's own flight after a "
+              f"yield beyond the fence: {own}; drills failing any check: {failed}")  # fmt: skip
+    return table, closest, totals, breaches + overrides + own
 
 
 def plot(rows, tracks, specs, path: Path) -> None:

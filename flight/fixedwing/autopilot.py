@@ -81,6 +81,9 @@ class Runway:
         return np.array([math.cos(self.heading), math.sin(self.heading)])
 
 
+HOLD_FIT_SLACK = 0.1
+"""A HOLD circle must fit inside the geofence with this share of its radius to spare."""
+
 LANDING_PHASES = (Phase.LAND_DESCEND, Phase.LAND_FINAL, Phase.FLARE, Phase.ROLLOUT, Phase.LANDED)
 
 
@@ -342,12 +345,10 @@ class FixedWingAutopilot(AutopilotBase):
     def default_loiter_radius(self) -> float:
         """NAV_LOITER_RAD, or V_trim^2 / (g tan(0.7 φ_max)) when it is 0 [m]."""
         r = self.p("NAV_LOITER_RAD")
-        v = self.p("FW_AIRSPD_TRIM")
-        phi = math.radians(self.p("FW_R_LIM"))
-        r_min = v * v / (GRAVITY * math.tan(phi)) * 1.1  # tightest circle with margin
         if r <= 0.0:
-            r = v * v / (GRAVITY * math.tan(0.7 * phi))
-        return max(r, r_min)
+            v = self.p("FW_AIRSPD_TRIM")
+            r = v * v / (GRAVITY * math.tan(0.7 * math.radians(self.p("FW_R_LIM"))))
+        return max(r, self._min_loiter_radius())
 
     # ---- Autopilot protocol: commands ---------------------------------------------------
     def arm(self, force: bool = False) -> Result:
@@ -578,14 +579,47 @@ class FixedWingAutopilot(AutopilotBase):
         self._v_dem = self.p("FW_AIRSPD_TRIM")
 
     def _enter_hold(self, alt: float | None = None) -> None:
-        """Loiter on a circle that passes through the present position, tangent to the course."""
-        r = self.default_loiter_radius()
-        pos = self._state.pos_ned[:2]
-        c = pos + r * right_of(
-            np.array([math.cos(self._course_now()), math.sin(self._course_now())])
-        )
-        h = self._state.altitude if alt is None else alt
-        self._set_loiter(c, r, 1, max(h, 15.0))
+        """Loiter on a circle that passes through the present position, tangent to the course,
+        at the present altitude; with a geofence, the first circle that fits inside it
+        (`hold_circle`)."""
+        h = max(self._state.altitude if alt is None else alt, 15.0)
+        c, r, direction = self.hold_circle(self._state.pos_ned[:2], self._course_now(), -h)
+        self._set_loiter(c, r, direction, h)
+
+    def hold_circle(self, pos_ne, course: float, down: float) -> tuple[np.ndarray, float, int]:
+        """HOLD's circle through `pos_ne` tangent to `course` [rad]: (centre (2,), radius [m],
+        direction +1 clockwise / −1). Default: NAV_LOITER_RAD on the right (clockwise). With a
+        geofence the circle must fit inside it with HOLD_FIT_SLACK of its radius to spare (the
+        L1 capture's overshoot): the right side, then the left, each at NAV_LOITER_RAD and then
+        shrinking by 15 % a try down to the tightest turn the bank limit flies; none fitting
+        (already at or past the fence): the default."""
+        r0 = self.default_loiter_radius()
+        pos = np.asarray(pos_ne, dtype=float)[:2]
+        d = np.array([math.cos(course), math.sin(course)])
+        right = right_of(d)
+        if self.fence_violation(np.array([pos[0], pos[1], down])) is not None:
+            return pos + r0 * right, r0, 1  # outside already: the breach action decides
+        if self.fence.fence.active:
+            r_min = self._min_loiter_radius()
+            r = r0
+            while True:
+                for side in (1, -1):
+                    c = pos + side * r * right
+                    if self.fence_violation(np.array([*c, down]), r * (1 + HOLD_FIT_SLACK)) is None:
+                        if (side, r) != (1, r0):
+                            self._event(f"hold: loiter r {r:.0f} m {'right' if side > 0 else 'left'}"
+                                        f" of the course fits the geofence")  # fmt: skip
+                        return c, r, side
+                if r <= r_min:
+                    break
+                r = max(r_min, 0.85 * r)
+            self._event(f"hold: no loiter circle fits the geofence; r {r0:.0f} m on the right")
+        return pos + r0 * right, r0, 1
+
+    def _min_loiter_radius(self) -> float:
+        """The tightest circle HOLD flies: V_trim² / (g tan FW_R_LIM) with 10 % in hand [m]."""
+        v = self.p("FW_AIRSPD_TRIM")
+        return v * v / (GRAVITY * math.tan(math.radians(self.p("FW_R_LIM")))) * 1.1
 
     def _set_track(self, a: np.ndarray, b: np.ndarray, alt: float) -> None:
         self._phase = Phase.TRACK
