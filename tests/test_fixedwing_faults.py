@@ -103,3 +103,53 @@ def test_gps_loss_beyond_timeout_loiters_and_arming_refused_without_fix():
     ground.step()
     r = ground.arm()
     assert not r.ok and "position" in r.reason
+
+
+def corridor(west: float, east: float, n: float = 3000.0):
+    """An inclusion polygon from `west` to `east` [m east of home], ±n north."""
+    return SimpleNamespace(kind="polygon", inclusion=True,
+                           vertices_ne=np.array([[-n, west], [n, west], [n, east], [-n, east]]))  # fmt: skip
+
+
+def _hold_after_offboard_loss(ap, seconds: float = 90.0) -> np.ndarray:
+    """Northbound in OFFBOARD, then the stream stops (a link cut): HOLD after COM_OF_LOSS_T."""
+    sp = Setpoint(vel_ned=np.array([24.0, 0.0, 0.0]))
+    ap.set_offboard_setpoint(sp)
+    assert ap.set_mode(FlightMode.OFFBOARD).ok
+    p = fly(ap, seconds)
+    assert ap.mode == FlightMode.HOLD
+    return p
+
+
+def test_hold_circle_fits_the_fence_on_the_side_with_room():
+    """A link cut flying north 150 m from the east edge of the fence: HOLD's default circle on
+    the right (2R = 258 m to the east) would cross it; the circle on the left fits, and the
+    aircraft loiters there (counter-clockwise) without ever leaving the fence."""
+    ap = airborne()
+    ap.set_fence([corridor(-1000.0, 150.0)])
+    ap.drain_status()
+    p = _hold_after_offboard_loss(ap)
+    r = ap.default_loiter_radius()
+    assert ap.loiter_radius == pytest.approx(r)
+    assert ap.loiter_center[1] == pytest.approx(-r, abs=5.0)  # west of the track: the left
+    assert p[:, 1].max() < 150.0 and ap.fence.breaches == 0
+    assert "left of the course fits the geofence" in " ".join(ap.drain_status())
+
+
+def test_sabotaged_loiter_radius_shrinks_to_fit_the_fence():
+    """NAV_LOITER_RAD = 400 m (the campaign's sabotage) in a corridor 400 m wide: neither side
+    fits at 400 m, the circle shrinks (15 % a try) until it does, never below the tightest turn
+    the bank limit flies, and the aircraft stays inside."""
+    ap = airborne()
+    assert ap.set_param("NAV_LOITER_RAD", 400.0).ok
+    ap.set_fence([corridor(-200.0, 200.0)])
+    p = _hold_after_offboard_loss(ap)
+    assert ap._min_loiter_radius() <= ap.loiter_radius < 200.0 / 1.1
+    assert np.abs(p[:, 1]).max() < 200.0 and ap.fence.breaches == 0
+
+
+def test_hold_without_a_fence_is_the_default_circle():
+    ap = airborne()
+    _hold_after_offboard_loss(ap, 5.0)
+    r = ap.default_loiter_radius()
+    assert ap.loiter_radius == pytest.approx(r) and ap.loiter_center[1] > 0.9 * r  # the right
