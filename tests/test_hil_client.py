@@ -65,7 +65,7 @@ def test_builtin_px4_personality_flies_two_missions(tmp_path):
 def test_builtin_ardupilot_personality_flies_two_missions(tmp_path):
     for c, fallback_name, sitl in _fly_twice(tmp_path, 71, Personality.ARDUPILOT):
         assert c.profile.name == "ArduCopter (skyherd built-in)"
-        assert fallback_name == "LOITER"  # the built-in shows its BRAKE hover as LOITER
+        assert fallback_name == "BRAKE"  # the hold asked for, shown as ArduCopter shows it
         assert sitl.autopilot.mode is FlightMode.LAND
         assert c.telemetry.unrequested_mode_change == 0
 

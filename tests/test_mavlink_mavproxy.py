@@ -1,6 +1,6 @@
 """MAVProxy 1.8.75 (its own venv, .venv-mavproxy: it pulls GUI packages otherwise) connects
 to the vehicle's ground-station link on udpin:127.0.0.1:14550 and reports its mode and arming
-state; with the ArduCopter personality it flies it (arm, takeoff, LOITER, LAND, disarm).
+state; with the ArduCopter personality it flies it (arm, takeoff, hover in GUIDED, LAND, disarm).
 
 MAVProxy's `mode NAME` cannot set PX4 modes (it passes PX4's mode tuple where a number is
 expected), so mode changes are driven with the ArduCopter personality, which is what
@@ -123,7 +123,7 @@ def test_mavproxy_flies_the_ardupilot_personality(tmp_path):
         mp = MavProxy(15, tmp_path)
         try:
             mp.expect(r"Detected vehicle 15:1")
-            mp.expect(r"Mode LOITER")
+            mp.expect(r"Mode BRAKE")  # its hold on the ground, shown as ArduCopter's BRAKE
             mp.send("arm throttle")
             mp.expect(r"^ARMED")
             mp.send("takeoff 4")
@@ -131,8 +131,11 @@ def test_mavproxy_flies_the_ardupilot_personality(tmp_path):
             mp.expect(
                 r"Mode GUIDED|^GUIDED> "
             )  # taking off (MAVProxy shows the mode as its prompt)
-            mp.expect(r"Mode LOITER|^LOITER> ")  # hovering at 4 m
+            deadline = time.monotonic() + 30.0  # hovering at 4 m, still GUIDED as ArduCopter
+            while sitl.autopilot.mode is not FlightMode.HOLD and time.monotonic() < deadline:
+                time.sleep(0.1)
             assert abs(sitl.autopilot.state.altitude - 4.0) < 0.5
+            assert sitl.endpoint.telemetry.custom_mode(FlightMode.HOLD) == 4  # GUIDED
             mp.send("mode LAND")
             mp.expect(r"Mode LAND|^LAND> ")
             mp.expect(r"^DISARMED", timeout=25.0)  # landed, auto-disarmed

@@ -152,7 +152,7 @@ def test_mode_numbers_px4_and_ardupilot():
     assert [
         custom_mode_of(apm, m)
         for m in (FlightMode.MISSION, FlightMode.HOLD, FlightMode.RTL, FlightMode.LAND)
-    ] == [3, 5, 6, 9]
+    ] == [3, 17, 6, 9]  # HOLD shows as BRAKE: LOITER reads a pilot's throttle
     assert mode_of_custom(apm, 17, 0) == FlightMode.HOLD  # BRAKE
     assert (
         mode_name(px4, FlightMode.HOLD) == "AUTO.LOITER"

@@ -24,7 +24,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from flight.autopilot_api import Autopilot, FlightMode, LandedState, Result
 from flight.geo import geodetic_to_ned
-from flight.mavlink.modes import Personality, mode_of_custom
+from flight.mavlink.modes import COPTER, Personality, mode_of_custom
 
 M = mavlink
 FORCE_MAGIC = 21196.0  # param2 of COMPONENT_ARM_DISARM that forces arming / disarming
@@ -108,6 +108,8 @@ class CommandService:
         self.ap = ap
         self.mav = mav
         self.personality = personality
+        self.mode_number: int | None = None  # ArduPilot: the mode number last set (DO_SET_MODE)
+        self.guided_hover = False  # ArduPilot: took off in GUIDED, no mode change since
         self.statustext = statustext
         self.request_message = request_message
         self.set_interval = set_interval
@@ -262,6 +264,8 @@ class CommandService:
             if not 0.0 < alt <= MAX_ALTITUDE_M:
                 raise Denied(f"takeoff altitude {alt:.1f} m above home out of range")
         res = self.ap.takeoff(alt)
+        if res.ok and self.personality is Personality.ARDUPILOT:  # ArduCopter stays in GUIDED
+            self.guided_hover = self.mode_number in (None, COPTER["GUIDED"])
         return res, self._takeoff_done
 
     def _takeoff_done(self) -> bool | None:
@@ -272,9 +276,11 @@ class CommandService:
         return None
 
     def _land(self, cmd: Cmd):
+        self.guided_hover = False
         return self.ap.land(), self._on_ground
 
     def _rtl(self, cmd: Cmd):
+        self.guided_hover = False
         return self.ap.return_to_launch(), self._on_ground
 
     def _on_ground(self) -> bool | None:
@@ -289,7 +295,10 @@ class CommandService:
         )
         if mode is None:
             raise Denied(f"mode {main:g}/{sub:g} not available")
-        return self.ap.set_mode(mode), None
+        res = self.ap.set_mode(mode)
+        if res.ok and self.personality is Personality.ARDUPILOT:
+            self.mode_number, self.guided_hover = int(main), False  # the heartbeat shows it
+        return res, None
 
     def _reposition(self, cmd: Cmd):
         home = self.ap.home
@@ -314,6 +323,7 @@ class CommandService:
         return self.ap.reposition(pos, None if math.isnan(yaw) else yaw), None
 
     def _mission_start(self, cmd: Cmd):
+        self.guided_hover = False
         first = cmd.p[0]
         n = self.mission_count()
         if n == 0:

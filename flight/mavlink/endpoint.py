@@ -176,6 +176,7 @@ class MavlinkEndpoint:
             lambda link, msg_id: self.streams[link.name].interval_us(msg_id),
             lambda: len(self.missions.lists[MISSION]),
         )
+        self.telemetry.mode_requests = self.commands  # ArduPilot: what the heartbeat shows
         self._sent_current: int | None = None
         self.gated: set[str] = set()  # links a lockstep gate reads instead of update()
         self._handlers = {
@@ -342,6 +343,8 @@ class MavlinkEndpoint:
                 res = self.ap.set_mode(mode)
                 if res.ok:
                     result = M.MAV_RESULT_ACCEPTED
+                    self.commands.mode_number = int(msg.custom_mode)
+                    self.commands.guided_hover = False
                 else:
                     self.statustext(M.MAV_SEVERITY_WARNING, res.reason)
         src = _src(msg)

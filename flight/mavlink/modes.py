@@ -72,7 +72,7 @@ _COPTER_OF_MODE: dict[FlightMode, int] = {
     FlightMode.STABILIZED: COPTER["STABILIZE"],
     FlightMode.ALTCTL: COPTER["ALT_HOLD"],
     FlightMode.POSCTL: COPTER["POSHOLD"],
-    FlightMode.HOLD: COPTER["LOITER"],
+    FlightMode.HOLD: COPTER["BRAKE"],  # a hold with no pilot (LOITER reads the pilot's throttle)
     FlightMode.TAKEOFF: COPTER["GUIDED"],
     FlightMode.OFFBOARD: COPTER["GUIDED"],
     FlightMode.MISSION: COPTER["AUTO"],

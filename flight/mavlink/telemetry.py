@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from flight.autopilot_api import Autopilot
+from flight.autopilot_api import Autopilot, FlightMode
 from flight.geo import ned_to_geodetic
-from flight.mavlink.modes import Personality, base_mode_of, custom_mode_of
+from flight.mavlink.modes import COPTER, Personality, base_mode_of, custom_mode_of, mode_of_custom
 
 M = mavlink
 SW_VERSION = (0, 1, 0)  # skyherd version, reported in AUTOPILOT_VERSION
@@ -86,12 +87,17 @@ def battery_voltage(remaining: float) -> float:
     return BATTERY_CELLS * (CELL_EMPTY_V + (CELL_FULL_V - CELL_EMPTY_V) * r)
 
 
+_NO_REQUESTS = SimpleNamespace(mode_number=None, guided_hover=False)
+
+
 class TelemetryBuilder:
     """Builds one message by id from the autopilot's current state."""
 
     def __init__(self, ap: Autopilot, ident: Identity):
         self.ap = ap
         self.ident = ident
+        # ArduPilot: `.mode_number` last set and `.guided_hover` (the endpoint's commands)
+        self.mode_requests = _NO_REQUESTS
         self._builders = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
             M.MAVLINK_MSG_ID_SYS_STATUS: self.sys_status,
@@ -137,9 +143,25 @@ class TelemetryBuilder:
             self.ident.mav_type,
             self.ident.personality.mav_autopilot,
             base_mode_of(ap.mode, armed),
-            custom_mode_of(self.ident.personality, ap.mode, ap.airframe),
+            self.custom_mode(ap.mode),
             status,
         )
+
+    def custom_mode(self, mode: FlightMode) -> int:
+        """HEARTBEAT `custom_mode`. With the ArduCopter personality the hover (HOLD) shows as
+        real ArduCopter would: GUIDED after a take-off in GUIDED (it stays in GUIDED holding its
+        target), the number asked for when a ground station set LOITER or BRAKE, else BRAKE (a
+        hold of its own: the offboard-loss failsafe)."""
+        ident, ap = self.ident, self.ap
+        number = custom_mode_of(ident.personality, mode, ap.airframe)
+        if ident.personality is not Personality.ARDUPILOT or ap.airframe == "fixedwing":
+            return number
+        asked = self.mode_requests.mode_number
+        if mode is FlightMode.HOLD and self.mode_requests.guided_hover:
+            return COPTER["GUIDED"]
+        if asked is not None and mode_of_custom(ident.personality, asked, 0, ap.airframe) is mode:
+            return asked
+        return number
 
     def sys_status(self, mav):
         ap = self.ap
