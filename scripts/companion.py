@@ -24,7 +24,7 @@ from scripts.cli import UsageError
 def add_arguments(
     parser,
     standalone: bool = True,
-    missions: tuple[str, ...] = ("groundair", "square", "formation"),
+    missions: tuple[str, ...] = ("groundair", "square", "formation", "orbit"),
 ) -> None:
     if standalone:
         parser.add_argument(
@@ -63,6 +63,23 @@ def add_arguments(
             help="MAVLink 2 signing key file (32 bytes) shared with the autopilot",
         )
         parser.add_argument(
+            "--orbit-team",
+            default="lateral",
+            metavar="SCENARIO",
+            help="--mission orbit: the UGV team's scenario the companion is briefed with (its start, speed, spread)",
+        )
+        parser.add_argument(
+            "--orbit-seed",
+            type=int,
+            default=0,
+            help="--mission orbit: the team's seed (the briefing)",
+        )
+        parser.add_argument(
+            "--orbit-no-land",
+            action="store_true",
+            help="--mission orbit: end in the orbit, no landing",
+        )
+        parser.add_argument(
             "--plan",
             default=None,
             metavar="FILE",
@@ -81,7 +98,8 @@ def add_arguments(
     parser.add_argument(
         "--mission", choices=list(missions), default="groundair",
         help="groundair: keep the UGVs in view behind the safety net; square: fly a square"
-        + ("; formation: K vehicles fly the SQL-SIE plan to their targets" if "formation" in missions else ""),
+        + ("; formation: K vehicles fly the SQL-SIE plan to their targets" if "formation" in missions else "")
+        + ("; orbit: a fixed-wing orbits the team, camera on a pointed gimbal" if "orbit" in missions else ""),
     )  # fmt: skip
     parser.add_argument(
         "--pilot",
@@ -126,6 +144,8 @@ def build_mission(args, run_dir: Path | None):
 
     task = TaskParams()
     altitude = 20.0 if args.altitude is None else args.altitude
+    if args.mission == "orbit":
+        return _orbit_mission(args, run_dir)
     try:
         if args.mission == "square":
             if not (0 < altitude <= 120 and 0 < args.side <= 500):
@@ -155,6 +175,37 @@ def build_mission(args, run_dir: Path | None):
 
         guard = ParamGuard(net.envelope.spec, net.p.pos_speed_max_mps, events=events)
     return SingleVehicleMission(pilot, net, plan, record, perception, guard), plan
+
+
+def _orbit_mission(args, run_dir: Path | None):
+    """The fixed-wing orbit (mission/orbit.py) behind the fixed-wing envelope's net."""
+    from hil.orbit import fence_reserve
+    from mission.flight import Record
+    from mission.orbit import OrbitFlight, OrbitMission, briefing_for
+    from runio import CsvWriter
+    from safety.config import ENVELOPE_DIR, EnvelopeFileError
+    from safety.net import load_net, warm_up
+
+    events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
+    try:
+        flight = OrbitFlight(
+            duration_s=args.duration, land=not getattr(args, "orbit_no_land", False)
+        )
+        net = load_net(
+            "fixedwing", args.envelope or ENVELOPE_DIR / "fixedwing_field.toml", events=events
+        )
+    except (EnvelopeFileError, ValueError) as e:
+        raise UsageError(f"{e}; fix the envelope file or the duration") from None
+    warm_up(net.envelope, net.p)
+    lim = net.envelope.spec.limits
+    brief = briefing_for(args.orbit_team, args.orbit_seed, flight.duration_s, flight.establish_s)
+    record = Record(
+        decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
+        track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
+    )
+    alt_band = (lim.floor_m + lim.margin_m, lim.ceiling_m - lim.margin_m - 15.0)
+    mission = OrbitMission(net, flight, brief, record, fence_reserve(net.envelope.spec), alt_band)
+    return mission, flight
 
 
 def _track_columns():
@@ -241,6 +292,8 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < args.duration <= 36000:
         raise UsageError("--duration must be in (0, 36000] s")
     use_camera = args.mission == "groundair" and not args.no_camera
+    if args.mission == "orbit":
+        use_camera = not args.no_camera
     if args.mission == "formation" and args.plan is None:
         raise UsageError(
             "--mission formation needs --plan FILE (a plan_K<K>.json from `skyherd train sql`)"
@@ -339,6 +392,19 @@ def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
     }
+    if getattr(mission, "plan", None) is not None and mission.name == "orbit":
+        import dataclasses as dc
+
+        out["orbit"] = {"plan": dc.asdict(mission.plan), "briefing": dc.asdict(mission.brief),
+                        "t_handover": mission.t_handover, "t_established": mission.t_established,
+                        "t_orbit_end": mission.t_orbit_end,
+                        "centre_limited": mission.limited, "roi": "DO_SET_ROI_LOCATION"}  # fmt: skip
+        from runio import CsvWriter
+
+        w = CsvWriter(run_dir / "sight.csv", ["t", "detected", "all_in_view"])
+        for t, n, all_in in mission.sight.rows:
+            w.write({"t": t, "detected": n, "all_in_view": int(all_in)})
+        w.close()
     if mission.net is not None:
         st = mission.net.stats
         out["net"] = {"switches": st.switches, "rejected": st.rejected, "projected": st.projected,

@@ -6,9 +6,11 @@ start as two child processes on the embedded defaults (a Zenoh peer on loopback,
 in lockstep on the simulator's clock; `fly` watches them, stops them in order, and writes one
 run folder with the summary and plots. `--mission square` flies a square the same way.
 
-`--connect ADDRESS` flies an outside autopilot (PX4, ArduPilot, another `skyherd sitl`) with
-the companion alone, free-running on the autopilot's clock. The K-vehicle formation and the
-fixed-wing orbit still fly in one process (scripts/fly_formation.py, scripts/fly_orbit.py).
+`--airframe fixedwing` flies the ground-air task as an orbit the same way (`skyherd sim
+--airframe fixedwing`, `skyherd companion --mission orbit`: mission/orbit.py). `--mission
+formation` starts K simulators and one companion (scripts/fly_formation.py). `--connect ADDRESS`
+flies an outside autopilot (PX4, ArduPilot, another `skyherd sitl`) with the companion alone,
+free-running on the autopilot's clock.
 """
 
 from __future__ import annotations
@@ -134,10 +136,6 @@ def run(args: argparse.Namespace) -> int:
         from scripts.fly_formation import run_formation
 
         return run_formation(args)
-    if args.airframe == "fixedwing":
-        from scripts.fly_inprocess import run_inprocess
-
-        return run_inprocess(args)
     return run_two_processes(args)
 
 
@@ -170,8 +168,9 @@ def _validate(args) -> tuple[list[str], list[str]]:
         from scripts.companion import _load_policy
 
         _load_policy(args.policy)
+    orbit = args.airframe == "fixedwing"  # the ground-air task, flown as an orbit
     altitude = args.altitude
-    if altitude is None and args.mission == "groundair":
+    if altitude is None and args.mission == "groundair" and not orbit:
         from policy.groundair.params import TaskParams
         from world.team import new_team, start_altitude
 
@@ -187,6 +186,16 @@ def _validate(args) -> tuple[list[str], list[str]]:
     sim = ["--instance", str(args.instance), "--seed", str(args.seed), "--ugvs", args.ugvs,
            "--speedup", repr(args.speedup), "--latency", repr(args.latency),
            "--zenoh-port", str(args.zenoh_port)]  # fmt: skip
+    if orbit:
+        duration = args.orbit_duration if args.orbit_duration is not None else 90.0
+        if not 0 < duration <= 3600:
+            raise UsageError("--orbit-duration must be in (0, 3600] s")
+        comp[1] = "orbit"
+        comp[comp.index("--duration") + 1] = repr(duration)
+        comp += ["--orbit-team", args.orbit_scenario, "--orbit-seed", str(args.seed)]
+        comp += ["--orbit-no-land"] if args.orbit_no_land else []
+        sim[sim.index("--ugvs") + 1] = args.orbit_scenario
+        sim += ["--airframe", "fixedwing"]
     if args.signing_key:
         key = str(Path(args.signing_key).resolve())
         sim += ["--signing-key", key]
@@ -231,6 +240,9 @@ def world_link(args) -> str:
     raise UsageError("the ground-air mission around a serial autopilot needs --world-link ADDRESS")
 
 
+_ENVELOPE = {"quadrotor": "quadrotor_groundair.toml", "fixedwing": "fixedwing_field.toml"}
+
+
 def run_two_processes(args: argparse.Namespace) -> int:
     from scripts import launch
     from scripts.fly_report import report
@@ -267,11 +279,13 @@ def _envelope(args) -> dict:
     """The safety net's constraint set (name, version, rows) for config.json; UsageError if bad."""
     from safety.config import ENVELOPE_DIR, EnvelopeFileError, load_envelope
 
-    path = args.envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
+    path = args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe]
     try:
         spec, _ = load_envelope(path)
     except (EnvelopeFileError, ValueError) as e:
         raise UsageError(f"{e}; fix the file or pass another --envelope") from None
+    if spec.airframe != args.airframe:
+        raise UsageError(f"--envelope {path} is for a {spec.airframe}; this flight is a {args.airframe}")
     return {"path": str(Path(path).resolve()), **spec.describe()}
 
 
@@ -309,7 +323,7 @@ def _recorder(args, run_dir: Path):
             from safety.config import ENVELOPE_DIR, load_envelope
 
             rec.log.geometry(
-                0.0, load_envelope(args.envelope or ENVELOPE_DIR / "quadrotor_groundair.toml")[0]
+                0.0, load_envelope(args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe])[0]
             )
         return _Recording(session, rec)
     except Exception as e:  # noqa: BLE001 - say so and fly without a recording

@@ -30,8 +30,7 @@ def add_orbit_arguments(group) -> None:
     group.add_argument("--orbit-scenario", choices=["lateral", "composite"], default="lateral",
                        help="UGV team behaviour (policy.groundair.scenarios), default lateral")  # fmt: skip
     group.add_argument("--orbit-duration", type=float, default=None,
-                       help="established orbit time before landing [s] (default: --duration "
-                       "when the command has one, else 90)")  # fmt: skip
+                       help="established orbit time before landing [s] (default 90)")  # fmt: skip
     group.add_argument(
-        "--orbit-no-land", action="store_true", help="end in HOLD (loiter) instead of landing"
+        "--orbit-no-land", action="store_true", help="end in the orbit instead of landing"
     )

@@ -62,7 +62,9 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
     ok = outcome == "completed" and rc == 0
     decisions = _jsonl(run_dir / "decisions.jsonl")
     track = _track(_rows(run_dir / "metrics.csv"))
-    if args.mission == "square":
+    if getattr(args, "airframe", "") == "fixedwing" or args.mission == "orbit":
+        table, title = _orbit_report(run_dir, comp, track)
+    elif args.mission == "square":
         table, title = _square_table(decisions, track), f"square mission, {args.side:.0f} m side"
         _plot_square(run_dir, track, decisions)
     else:
@@ -202,4 +204,74 @@ def _plot_groundair(
     axs[2].set(xlabel="time [s]", ylabel="feature value [0..1]", title="features and safety net")
     fig.tight_layout()
     fig.savefig(run_dir / "groundair.png", dpi=100)
+    plt.close(fig)
+
+
+def _orbit_report(run_dir: Path, comp: dict, track: np.ndarray) -> tuple[str, str]:
+    """The orbit's figures after it was established, judged on the simulator's truth
+    (world.csv: the aircraft and every UGV at each camera instant) and on what the companion's
+    camera saw (sight.csv); track.png."""
+    orbit = comp.get("orbit", {})
+    plan = orbit.get("plan", {})
+    t_est = orbit.get("t_established")
+    world = _rows(run_dir / "world.csv")
+    sight = _rows(run_dir / "sight.csv")
+    R, h = plan.get("radius_m", float("nan")), plan.get("altitude_m", float("nan"))
+    t_end = orbit.get("t_orbit_end") or float("inf")
+
+    def during(r) -> bool:  # the established orbit, before the landing
+        return t_est is not None and t_est <= float(r["t"]) <= t_end
+
+    after = [r for r in world if during(r)]
+    rad_err, alt_err = [], []
+    for r in after:
+        n_ugv = sum(1 for k in r if k.endswith("_n") and k.startswith("ugv"))
+        c = np.mean([[float(r[f"ugv{i}_n"]), float(r[f"ugv{i}_e"])] for i in range(n_ugv)], axis=0)
+        d = float(np.hypot(float(r["north"]) - c[0], float(r["east"]) - c[1]))
+        rad_err.append(abs(d - R))
+        alt_err.append(abs(-float(r["down"]) - h))
+    seen = [r for r in sight if during(r)]
+    all_in = float(np.mean([int(r["all_in_view"]) for r in seen])) if seen else float("nan")
+    net = comp.get("net", {})
+    rows = [
+        ["orbit radius R / altitude h [m]", f"{_fmt(R)} / {_fmt(h)}"],
+        ["hand-over → established (sim) [s]",
+         _fmt(t_est - orbit["t_handover"]) if t_est is not None and orbit.get("t_handover") else "—"],
+        ["frames in the established orbit", len(seen)],
+        ["all UGVs detected [fraction of those frames]", _fmt(all_in)],
+        ["|distance to the team's centre − R|, p95 [m] (truth)",
+         _fmt(float(np.percentile(rad_err, 95))) if rad_err else "—"],
+        ["|altitude − h|, p95 [m]", _fmt(float(np.percentile(alt_err, 95))) if alt_err else "—"],
+        ["orbit centre held back by the fence [decisions]", orbit.get("centre_limited", "—")],
+        ["safety-net switches", net.get("switches", "—")],
+        ["time in fallback [s]", _fmt(net.get("fallback_s"))],
+        ["autopilot took over", comp.get("yielded") or "no"],
+    ]  # fmt: skip
+    if world:
+        _plot_orbit(run_dir, world, track, plan, t_est)
+    return markdown_table(["metric", "value"], rows), "fixed-wing orbit over the UGV team"
+
+
+def _plot_orbit(run_dir: Path, world: list[dict], track: np.ndarray, plan: dict, t_est) -> None:
+    plt, fig, ax = _figure(1, (7, 7))
+    n_ugv = sum(1 for k in world[0] if k.startswith("ugv") and k.endswith("_n"))
+    w = np.array([[float(r["t"]), float(r["north"]), float(r["east"])] for r in world])
+    c = np.array([np.mean([[float(r[f"ugv{i}_n"]), float(r[f"ugv{i}_e"])] for i in range(n_ugv)],
+                          axis=0) for r in world])  # fmt: skip
+    ax.plot(w[:, 2], w[:, 1], "-", lw=0.8, color="tab:blue", label="aircraft (truth)")
+    ax.plot(c[:, 1], c[:, 0], "-", lw=1.5, color="tab:green", label="UGV team centre (truth)")
+    if t_est is not None and plan:
+        k = int(np.searchsorted(w[:, 0], t_est))
+        k = min(k, len(c) - 1)
+        a = np.linspace(0, 2 * np.pi, 200)
+        R = plan["radius_m"]
+        ax.plot(c[k, 1] + R * np.sin(a), c[k, 0] + R * np.cos(a), "k:", lw=1,
+                label=f"planned orbit R = {R:.0f} m (at t = {t_est:.0f} s)")  # fmt: skip
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8)
+    ax.set_title("fixed-wing orbit")
+    fig.tight_layout()
+    fig.savefig(run_dir / "track.png", dpi=110)
     plt.close(fig)

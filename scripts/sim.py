@@ -23,9 +23,10 @@ DEFAULT_ZENOH_PORT = 7447
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--airframe",
-        choices=["quadrotor"],
+        choices=["quadrotor", "fixedwing"],
         default="quadrotor",
-        help="the vehicle (the fixed-wing flies through `skyherd fly --airframe fixedwing`)",
+        help="the vehicle: the quadrotor (downward camera) or the JSBSim fixed-wing (its camera "
+        "on a pan-tilt gimbal pointed where a client sets the ROI: DO_SET_ROI_LOCATION)",
     )
     parser.add_argument(
         "--instance",
@@ -191,7 +192,7 @@ def build_world(args):
             camera_hz=args.camera_hz, ugv_start=args.ugv_start, lockstep=not args.free_run,
             lockstep_params=LockstepParams(latency_s=args.latency), speedup=args.speedup,
             link_cuts=_windows(args.cut_link, "--cut-link"), camera_losses=_windows(args.cut_camera, "--cut-camera"),
-            home=_home(args.home),
+            home=_home(args.home), camera="roi" if args.airframe == "fixedwing" else "down",
         )  # fmt: skip
         endpoint = EndpointConfig(instance=args.instance, bind_host=args.bind, remote_host=args.remote,
                                   signing_key=args.signing_key)  # fmt: skip

@@ -63,6 +63,8 @@ class WorldParams:
     speedup: float = 10.0  # simulation seconds per wall second; 0 = as fast as possible
     pace_s: float = 0.02  # the pacer sleeps once per this much simulation time [s]
     gimbal: bool = True  # roll/pitch-stabilised camera (the policy was trained with one)
+    camera: str = "down"  # "down": the quadrotor's downward camera; "roi": a zoomed camera on a
+    # pan-tilt gimbal pointed at the region of interest a client sets (DO_SET_ROI_LOCATION)
     link_cuts: tuple[
         tuple[float, float], ...
     ] = ()  # (start, duration) [s]: the API link cut both ways
@@ -78,6 +80,8 @@ class WorldParams:
                 f"the companion's latency {self.lockstep_params.latency_s} s must be shorter "
                 f"than the camera period {1.0 / self.camera_hz} s"
             )
+        if self.camera not in ("down", "roi"):
+            raise ValueError(f"camera must be 'down' or 'roi', not {self.camera!r}")
         if self.ugv_start != "offboard":
             try:
                 ok = float(self.ugv_start) >= 0
@@ -138,7 +142,14 @@ class World:
                                                                     self.task.n_ugvs)  # fmt: skip
         n_ugvs = 0 if self.team is None else self.task.n_ugvs
         self.team_t: float | None = None  # team time [s]; None while parked
-        self.renderer = FastRenderer(self.task.camera, UGVModel())
+        self.cam = self.task.camera
+        self.roi_ned: np.ndarray | None = None  # where the pointed gimbal looks (None: nadir)
+        self.roi_commands = 0
+        if params.camera == "roi":
+            from hil.orbit import ORBIT_CAMERA
+
+            self.cam = ORBIT_CAMERA
+        self.renderer = FastRenderer(self.cam, UGVModel())
         self.pacer = Pacer(params.speedup)
         self.lag = Lag()
         self._stop = threading.Event()
@@ -149,7 +160,7 @@ class World:
         if session is not None and self.team is not None:
             from perception.transport import FramePublisher
 
-            self.publisher = FramePublisher(session, params.vehicle, self.task.camera,
+            self.publisher = FramePublisher(session, params.vehicle, self.cam,
                                             rng=np.random.default_rng(params.seed))  # fmt: skip
             self._ugv_pub = UGVStatePublisher(session, self.task.n_ugvs)
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
@@ -198,7 +209,7 @@ class World:
                 if batch is None:
                     break
                 if not cut:  # ... and nothing from the companion reaches the vehicle
-                    ep.dispatch(ep.api, batch)
+                    ep.dispatch(ep.api, self._gimbal_commands(batch))
                 else:
                     self.cut_dropped += len(batch)
                 open_tick = None
@@ -216,7 +227,7 @@ class World:
         t = t_us / 1e6
         self._move_team(t)
         state = getattr(self.autopilot, "true_state", self.autopilot.state)  # physics, not estimate
-        uav = level_camera_mount(state) if self.p.gimbal else state
+        uav = self._camera_mount(state)
         ugvs = None if self.team is None else team_states(self.team)
         seq = None
         if self.publisher is not None:
@@ -235,6 +246,44 @@ class World:
             self.gate.mark(t_us, seq)
         if self.truth is not None:
             self._write_truth(t, state, ugvs)
+
+    def _camera_mount(self, state: VehicleState):
+        """The pose the camera renders from: the level downward gimbal, or the pan-tilt head
+        pointed at the ROI (straight down until a client sets one)."""
+        if self.p.camera == "down":
+            return level_camera_mount(state) if self.p.gimbal else state
+        from hil.orbit_gimbal import gimbal_pose
+
+        _, _, yaw = state.euler
+        target = self.roi_ned if self.roi_ned is not None else np.array([*state.pos_ned[:2], 0.0])
+        return gimbal_pose(self.cam, state.pos_ned, yaw, target)
+
+    def _gimbal_commands(self, batch: list) -> list:
+        """The gimbal manager on the vehicle: MAV_CMD_DO_SET_ROI_LOCATION (COMMAND_LONG, params
+        5–7 = lat [deg], lon [deg], alt AMSL [m]) points the pointed camera there and is
+        acknowledged here; every other message goes on to the autopilot, in order."""
+        if self.p.camera != "roi":
+            return batch
+        from pymavlink.dialects.v20 import ardupilotmega as M
+
+        from flight.geo import geodetic_to_ned
+
+        rest = []
+        for msg, src in batch:
+            if msg.get_type() == "COMMAND_LONG" and msg.command == M.MAV_CMD_DO_SET_ROI_LOCATION:
+                p = (msg.param5, msg.param6, msg.param7)
+                ok = all(math.isfinite(x) for x in p) and abs(p[0]) <= 90 and abs(p[1]) <= 180
+                if ok:
+                    self.roi_ned = geodetic_to_ned(self.autopilot.home, *p)
+                    self.roi_commands += 1
+                res = M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED
+                ep = self.endpoint
+                ack = ep.mav.command_ack_encode(msg.command, res, 0, 0, msg.get_srcSystem(),
+                                                msg.get_srcComponent())  # fmt: skip
+                ep.api.send(ack, to=src)
+            else:
+                rest.append((msg, src))
+        return rest
 
     def _move_team(self, t: float) -> None:
         if self.team is None:
@@ -270,7 +319,7 @@ class World:
         for msg, _ in got:
             if msg.get_type().startswith("SET_POSITION_TARGET"):
                 self.lag.samples.append(now - msg.time_boot_ms / 1000.0)
-        self.endpoint.dispatch(self.endpoint.api, got)
+        self.endpoint.dispatch(self.endpoint.api, self._gimbal_commands(got))
 
     def _publish_truth(self, t: float, ugvs) -> None:
         self._ugv_pub.publish(t, ugvs)

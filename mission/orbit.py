@@ -1,0 +1,335 @@
+"""The fixed-wing orbit as a companion mission: orbit over the UGV team's centre, seen through
+the camera, behind the safety net, in lockstep with `skyherd sim --airframe fixedwing`.
+
+The geometry is hil/orbit.py's (radius and altitude from the airframe's airspeed and bank
+limit, the camera's field of view and the team's extent; the certified circle inside the
+fence). What is new here is where the centre comes from and who renders: the simulator's
+camera sits on a pan-tilt gimbal pointed where the companion sets the region of interest
+(MAV_CMD_DO_SET_ROI_LOCATION); every frame received over Zenoh is detected, each UGV's
+centroid is back-projected from the frame's camera pose onto the ground, and their mean is
+the team's centre as seen. The orbit centre follows it as far as the fence allows.
+
+Phases: connect → read the airframe's parameters → plan (ValueError → refusal) → set the loiter
+radius (NAV_LOITER_RAD / WP_LOITER_RAD) → take off (the profile's recipe) → climb-out (the
+autopilot's own loiter, DO_REPOSITION to the orbit centre at the orbit altitude, until the net
+certifies the orbit's setpoint for `climb_hold_s`) → hand over → orbit (until established,
+then `duration_s`) → land (the profile's recipe).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from flight.autopilot_api import FlightMode, Setpoint
+from flight.geo import ned_to_geodetic
+from hil.client import reposition_command
+from hil.orbit import ORBIT_CAMERA, OrbitParams, OrbitPlan, circle_certified, plan_orbit
+from mission.authority import ModeAuthority
+from mission.flight import Record, verdict
+from mission.steps import MissionError, Phase, read_params, recipe, wait_ready
+from mission.vehicle import VehicleLink
+from perception.camera import backproject_to_ground, camera_pose
+from perception.detector import Detector, annotate
+from safety.monitor import make_z
+from safety.supervisor import Health, Supervisor
+
+M = mavlink2
+
+
+@dataclass(frozen=True)
+class OrbitFlight:
+    """What the orbit flight does (saved in config.json)."""
+
+    duration_s: float = 90.0  # established orbit flown before landing [s]
+    establish_s: float = 240.0  # the orbit must be established within this [s]
+    radius_tol: float = 0.10  # established: |d − R| <= tol·R ...
+    alt_tol_m: float = 2.0  # ... and |h_now − h| <= this [m]
+    establish_hold_s: float = 10.0  # ... both held this long (a capture crossing is not enough)
+    decision_s: float = 0.2  # the orbit centre moves this often [s]
+    takeoff_alt_m: float = 40.0  # runway take-off to this height above home [m]
+    climb_hold_s: float = 3.0  # the orbit certified this long before the hand-over [s]
+    climb_timeout_s: float = 300.0
+    reposition_s: float = 5.0  # DO_REPOSITION re-sent this often during the climb-out [s]
+    land: bool = True
+
+    def __post_init__(self) -> None:
+        if not (0 < self.duration_s <= 3600 and self.decision_s > 0 and self.takeoff_alt_m > 0):
+            raise ValueError("duration_s must be in (0, 3600] s, decision_s and takeoff_alt_m > 0")
+
+
+@dataclass(frozen=True)
+class Briefing:
+    """What the companion is told about the team before the flight: where it gathers and how
+    fast and how wide it may get (the orbit is sized for the worst)."""
+
+    rendezvous_ne: tuple[float, float]  # the team's centre at the start [m]
+    team_speed_mps: float
+    team_radius_m: float
+    n_ugvs: int
+
+
+class TeamSight:
+    """The team's centre as the camera sees it: detections back-projected to the ground."""
+
+    def __init__(self, n_ugvs: int, prior_ne):
+        self.detector = Detector(ORBIT_CAMERA, n_ugvs)
+        self.n = n_ugvs
+        self.centre = np.asarray(prior_ne, float)  # last seen centre (2,) [m]; the prior first
+        self.camera_t: float | None = None  # time of the last good frame [s]
+        self.rows: list[tuple[float, int, bool]] = []  # (t, detected, all in view) per frame
+        self.counts = {"ok": 0, "corrupt": 0, "lost": 0}
+        self.strip: list[tuple[float, np.ndarray]] = []
+
+    def on_frame(self, t: float, frame, status: str, strip_every_s: float = 8.0) -> None:
+        self.counts[status] = self.counts.get(status, 0) + 1
+        if frame is None:
+            return
+        det = self.detector.detect(frame.image)
+        self.camera_t = t
+        n = len(det.centroids_px)
+        self.rows.append((t, n, bool(det.all_in_view)))
+        if not self.strip or t >= self.strip[-1][0] + strip_every_s:
+            self.strip.append((t, annotate(frame.image, det)))
+        if n == 0:
+            return
+        pose = camera_pose(ORBIT_CAMERA, frame.pos_ned, frame.quat)
+        ground = backproject_to_ground(ORBIT_CAMERA, pose, det.centroids_px)
+        ok = np.isfinite(ground).all(axis=1)
+        if ok.any() and (n == self.n or self.camera_t is None):
+            self.centre = ground[ok, :2].mean(axis=0)  # all UGVs seen: their centre of mass
+        elif ok.any():  # some seen: move toward them, do not jump to a part of the team
+            self.centre = 0.8 * self.centre + 0.2 * ground[ok, :2].mean(axis=0)
+
+
+class OrbitMission:
+    """connect → plan → take off → climb-out → hand over → orbit → land (module docstring)."""
+
+    name = "orbit"
+
+    def __init__(self, supervisor: Supervisor, flight: OrbitFlight, briefing: Briefing,
+                 record: Record, reserve_m: float, alt_band: tuple[float, float]):  # fmt: skip
+        self.net, self.f, self.brief, self.rec = supervisor, flight, briefing, record
+        self.reserve_m = reserve_m
+        self.alt_band = alt_band  # (min, max) altitude the plan may use [m]
+        self.sight = TeamSight(briefing.n_ugvs, briefing.rendezvous_ne)
+        self.perception = self.sight
+        self.authority = ModeAuthority(getattr(supervisor, "events", None))
+        self.plan: OrbitPlan | None = None
+        self.centre = np.asarray(briefing.rendezvous_ne, float)  # the certified orbit centre
+        self.phase = "connect"
+        self.outcome, self.reason = "running", ""
+        self.t_decision: float | None = None
+        self.t_established: float | None = None
+        self.t_handover: float | None = None
+        self.t_orbit_end: float | None = None
+        self.limited = 0  # decisions where the fence held the centre short of the team's
+        self._written = 0
+        self.guard = None
+
+    # ---- called by the companion's loop --------------------------------------------------------
+    def on_frame(self, t: float, frame, status: str) -> None:
+        self.sight.on_frame(t, frame, status)
+
+    def write_track(self, v: VehicleLink) -> None:
+        if self.rec.track is None:
+            return
+        for t, p, vel, mode, armed in v.positions[self._written :]:
+            self.rec.track.write({"t": t, "north": p[0], "east": p[1], "down": p[2], "vn": vel[0],
+                                  "ve": vel[1], "vd": vel[2], "mode": mode, "armed": int(armed),
+                                  "phase": self.phase})  # fmt: skip
+        self._written = len(v.positions)
+
+    # ---- the mission ---------------------------------------------------------------------------
+    def run(self, v: VehicleLink) -> Phase:
+        f = self.f
+        yield from wait_ready(v)
+        prof = v.profile
+        if prof.vehicle != "fixedwing":
+            raise MissionError(
+                f"the orbit is a fixed-wing mission; this vehicle is a {prof.vehicle}"
+            )
+        self.phase = "parameters"
+        yield from read_params(v)
+        self.plan = self._plan(v)
+        self.net.loiter_radius_m = self.plan.radius_m  # what the autopilot's loiter flies
+        self.phase = "loiter radius"
+        yield from self._set_param(v, prof.param_name("loiter_radius"), self.plan.radius_m)
+        self.phase = "takeoff"
+        yield from recipe(v, prof.takeoff_steps(f.takeoff_alt_m, v.home_amsl_m))
+        self.phase = "climb-out"
+        yield from self._climb_out(v)
+        self.phase = "offboard"
+        self.t_handover = v.t
+        yield from recipe(v, prof.handover_steps(), hold=self._proposal)
+        self.authority.adopt(v, prof.ai_mode)
+        self.phase = "orbit"
+        t_in, t_end = None, math.inf
+        while v.t < t_end - 1e-9:
+            rule = self.authority.update(v)
+            if rule == "end":
+                break
+            if rule == "wait":
+                self.phase, v.setpoint = "autopilot", None
+                yield
+                continue
+            self.phase = "orbit" if self.t_established is None else "orbit established"
+            self._tick(v)
+            if self.t_established is None:
+                inside = self._inside(v)
+                t_in = (t_in if t_in is not None else v.t) if inside else None
+                if t_in is not None and v.t - t_in >= f.establish_hold_s - 1e-9:
+                    self.t_established, t_end = v.t, v.t + f.duration_s
+                elif v.t - self.t_handover > f.establish_s:
+                    raise MissionError(f"orbit not established in {f.establish_s:.0f} s")
+            yield
+        self.t_orbit_end = v.t
+        if self.authority.yielded is not None:
+            self.phase, v.setpoint = "autopilot", None
+            self.outcome, self.reason = "yielded", self.authority.yielded
+            return
+        if f.land:
+            self.phase = "land"
+            yield from recipe(v, prof.land_steps())
+            yield from recipe(v, prof.end_steps())
+        self.outcome = "completed"
+
+    def _plan(self, v: VehicleLink) -> OrbitPlan:
+        prof = v.profile
+        try:
+            V = prof.param_to_si("airspeed_trim", v.params[prof.param_name("airspeed_trim")])
+            bank = prof.param_to_si("bank_limit", v.params[prof.param_name("bank_limit")])
+        except (KeyError, ValueError) as e:
+            raise MissionError(f"cannot plan the orbit: the autopilot's {e} was not read") from None
+        b = self.brief
+        try:
+            return plan_orbit(OrbitParams(airspeed_mps=V, bank_max_rad=bank, team_speed_mps=b.team_speed_mps,
+                                          team_radius_m=b.team_radius_m, n_ugvs=b.n_ugvs,
+                                          alt_min_m=self.alt_band[0], alt_max_m=self.alt_band[1]))  # fmt: skip
+        except ValueError as e:
+            raise MissionError(f"refusing to fly the orbit: {e}") from None
+
+    def _set_param(self, v: VehicleLink, name: str, value: float) -> Phase:
+        """PARAM_SET until the PARAM_VALUE echo shows it (3 tries, 1 s apart)."""
+        for _ in range(3):
+            v.params.pop(name, None)
+            v.send(M.MAVLink_param_set_message(v.target_system or 1, 1, name.encode("ascii"),
+                                               float(value), M.MAV_PARAM_TYPE_REAL32))  # fmt: skip
+            t0 = v.t
+            while v.t - t0 < 1.0:
+                got = v.params.get(name)
+                if got is not None and abs(got - value) <= 1e-3 * max(1.0, abs(value)):
+                    return
+                yield
+        raise MissionError(f"the autopilot did not take {name} = {value:g}")
+
+    # ---- the climb-out -------------------------------------------------------------------------
+    def _climb_out(self, v: VehicleLink) -> Phase:
+        """The autopilot's own loiter to the orbit (DO_REPOSITION), until the net certifies the
+        orbit's setpoint at the present state for `climb_hold_s` (no supervisor state changed)."""
+        f = self.f
+        sent, since, t0 = -math.inf, None, v.t
+        while True:
+            self._aim(v)
+            if v.t - sent >= f.reposition_s:
+                target = np.array([self.centre[0], self.centre[1], -self.plan.altitude_m])
+                v.send(reposition_command(v.tel, v.profile, v.target_system or 1, target))
+                sent = v.t
+            vs = v.tel.vehicle_state()
+            ok = vs is not None and self._certified_now(vs)
+            since = (since if since is not None else v.t) if ok else None
+            if since is not None and v.t - since >= f.climb_hold_s - 1e-9:
+                return
+            if v.t - t0 > f.climb_timeout_s:
+                raise MissionError(
+                    f"climb-out: the orbit was not certified within {f.climb_timeout_s:.0f} s"
+                )
+            yield
+
+    # ---- per tick ------------------------------------------------------------------------------
+    def _proposal(self) -> Setpoint:
+        """The position setpoint the autopilot loiters about with radius R (its NAV_LOITER_RAD):
+        the orbit centre at the orbit altitude. The net certifies the turn it implies."""
+        return Setpoint(pos_ned=np.array([self.centre[0], self.centre[1], -self.plan.altitude_m]))
+
+    def _ok(self, c: np.ndarray) -> bool:
+        return circle_certified(self.net.geometry, c, self.plan.radius_m, self.plan.altitude_m,
+                                self.reserve_m, self.net.envelope.spec.limits.margin_m)  # fmt: skip
+
+    def _certified_now(self, state) -> bool:
+        if not self._ok(self.centre):
+            return False
+        u = self.net.implied_velocity(state, self._proposal())
+        return bool(self.net.envelope.worst(make_z(state, u)) <= 0.0)
+
+    def _move_centre(self) -> None:
+        """Toward the team's centre as seen, as far as the fence allows (bisection along the
+        segment, 12 halvings), so the centre slides along the certified region's boundary."""
+        target = self.sight.centre
+        if self._ok(target):
+            self.centre = target.copy()
+            return
+        self.limited += 1
+        if not self._ok(self.centre):
+            return
+        lo, hi = 0.0, 1.0
+        for _ in range(12):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (
+                (mid, hi) if self._ok(self.centre + mid * (target - self.centre)) else (lo, mid)
+            )
+        self.centre = self.centre + lo * (target - self.centre)
+
+    def _aim(self, v: VehicleLink) -> bool:
+        """Every decision period: point the camera at the team's centre as seen
+        (DO_SET_ROI_LOCATION at ground level) and move the orbit centre. True if it did."""
+        if self.t_decision is not None and v.t - self.t_decision < self.f.decision_s - 1e-9:
+            return False
+        self.t_decision = v.t
+        if v.tel.home is not None:
+            lat, lon, alt = ned_to_geodetic(v.tel.home, np.array([*self.sight.centre, 0.0]))
+            v.command_long(M.MAV_CMD_DO_SET_ROI_LOCATION, (0, 0, 0, 0, lat, lon, alt), 0)
+        self._move_centre()
+        return True
+
+    def _tick(self, v: VehicleLink) -> None:
+        state = v.tel.vehicle_state()
+        if state is None:
+            return
+        proposal = self._proposal() if self._aim(v) else None
+        d = self.net.update(v.t, state, proposal,
+                            Health(camera_t=self.sight.camera_t, link_t=v.heartbeat_t))  # fmt: skip
+        prof = v.profile
+        mode = prof.fallback_mode if d.autopilot_mode is FlightMode.HOLD else prof.ai_mode
+        self.authority.want(v, mode)
+        v.setpoint = (
+            d.command if d.command.pos_ned is not None or d.command.vel_ned is not None else None
+        )
+        if proposal is not None:
+            row = d.record(vehicle=self.rec.vehicle, pilot="orbit", autopilot_mode=mode)
+            row["verdict"] = verdict(d)
+            row["centre_seen"] = [round(float(x), 3) for x in self.sight.centre]
+            self.rec.decision(row)
+
+    def _inside(self, v: VehicleLink) -> bool:
+        p = v.tel.pos_ned
+        if p is None or self.net.mode.value != "ai":
+            return False
+        d = float(np.hypot(*(p[:2] - self.centre)))
+        return (abs(d - self.plan.radius_m) <= self.f.radius_tol * self.plan.radius_m
+                and abs(-p[2] - self.plan.altitude_m) <= self.f.alt_tol_m)  # fmt: skip
+
+
+def briefing_for(scenario: str, seed: int, duration_s: float, establish_s: float) -> Briefing:
+    """The team's briefing from its scenario (policy.groundair.scenarios): where it starts,
+    its speed, and the widest it gets over the flight."""
+    from policy.groundair.scenarios import Formation, draw_plan
+
+    team = Formation(draw_plan(scenario, np.random.default_rng(seed), 3))
+    p = team.plan
+    r = min(p.r0 + p.r_amp + abs(p.r_rate) * (duration_s + establish_s), p.r_max)
+    c = np.mean(np.array(team.positions(), float), axis=0)
+    return Briefing((float(c[0]), float(c[1])), float(p.speed), float(r), len(p.angles))
