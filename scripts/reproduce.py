@@ -379,8 +379,15 @@ def _panel_plot(path, panels, title, ylabel, window, cap, results, what):
     plt.close(fig)
 
 
+def _only_run(panels):
+    """The panels' lines that have runs (--learners may leave some out); empty panels dropped."""
+    kept = [(t, [(label, ss) for label, ss in lines if ss]) for t, lines in panels]
+    return [(t, lines) for t, lines in kept if lines]
+
+
 def _figures(folder, args, specs, results) -> list[str]:
-    g = _groups(specs)
+    groups = _groups(specs)
+    g = lambda key: groups.get(key, [])  # noqa: E731
     cap, w = args.max_steps, args.window
     n1 = args.sharing_periods[0]
     metric_y = f"min(max steps over agents, {cap}) per episode [steps]"
@@ -388,10 +395,11 @@ def _figures(folder, args, specs, results) -> list[str]:
     for rname in dict.fromkeys(s.rules.name for s in specs):
         tag = f"rules {rname}"
         compare = [
-            (f"K = {K}", [(_label(a, n), g[(rname, a, K, n)]) for a, n in
+            (f"K = {K}", [(_label(a, n), g((rname, a, K, n))) for a, n in
                           (("sql", 0), ("sql-d", 0), ("sql-sie", n1))])
             for K in args.agents
         ]  # fmt: skip
+        compare = _only_run(compare)
         for what, ylabel, name in (
             ("metric", metric_y, f"learning_{rname}.png"),
             (
@@ -400,26 +408,29 @@ def _figures(folder, args, specs, results) -> list[str]:
                 f"success_{rname}.png",
             ),
         ):
-            _panel_plot(folder.file(name), compare, f"SQL vs SQL-D vs SQL-SIE, {tag}",
-                        ylabel, w, cap, results, what)  # fmt: skip
-            names.append(name)
+            if compare:
+                _panel_plot(folder.file(name), compare, f"SQL vs SQL-D vs SQL-SIE, {tag}",
+                            ylabel, w, cap, results, what)  # fmt: skip
+                names.append(name)
         sharing = [
-            (f"SQL-SIE, K = {K}", [(f"N = {n}", g[(rname, "sql-sie", K, n)])
+            (f"SQL-SIE, K = {K}", [(f"N = {n}", g((rname, "sql-sie", K, n)))
                                    for n in args.sharing_periods])
             for K in args.agents
         ]  # fmt: skip
-        name = f"sharing_{rname}.png"
-        _panel_plot(folder.file(name), sharing, f"sharing period N, {tag}", metric_y, w, cap,
-                    results, "metric")  # fmt: skip
-        names.append(name)
+        sharing, name = _only_run(sharing), f"sharing_{rname}.png"
+        if sharing:
+            _panel_plot(folder.file(name), sharing, f"sharing period N, {tag}", metric_y, w,
+                        cap, results, "metric")  # fmt: skip
+            names.append(name)
         Ks = [*args.agents, *[k for k in args.scaling_agents if k not in args.agents]]
         if len(Ks) > 1:
             scaling = [
-                (_label(a, n), [(f"K = {K}", g[(rname, a, K, n)]) for K in Ks])
+                (_label(a, n), [(f"K = {K}", g((rname, a, K, n))) for K in Ks])
                 for a, n in (("sql", 0), ("sql-d", 0), ("sql-sie", n1))
             ]
-            name = f"scaling_{rname}.png"
-            _panel_plot(folder.file(name), scaling, f"scaling with K, {tag}", metric_y, w, cap,
-                        results, "metric")  # fmt: skip
-            names.append(name)
+            scaling, name = _only_run(scaling), f"scaling_{rname}.png"
+            if scaling:
+                _panel_plot(folder.file(name), scaling, f"scaling with K, {tag}", metric_y, w,
+                            cap, results, "metric")  # fmt: skip
+                names.append(name)
     return names
