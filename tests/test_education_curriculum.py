@@ -118,3 +118,33 @@ def test_educate_refuses_a_bad_curriculum_with_exit_2(tmp_path, capsys):
     assert len(err) == 1 and "'sen'" in err[0] and "lesson 'climb'" in err[0]
     assert not (tmp_path / "runs").exists()  # nothing was started
     assert main(["educate", str(tmp_path / "none.toml")]) == 2
+
+
+def _table(f: dict) -> dict[str, int]:
+    """The scripted demonstrator's rule written over the default curriculum's predicates."""
+    east_west, north_south = f["team_east"] or f["team_west"], f["team_south"] or f["team_north"]
+    if east_west and (f["mostly_east_west"] or not north_south):
+        lateral = 3 if f["team_east"] else 4
+    else:
+        lateral = (2 if f["team_south"] else 1) if north_south else 0
+    climb = 5 if (f["someone_out"] or f["too_wide"]) and not f["near_ceiling"] else 0
+    descend = 6 if f["too_tight"] and not (f["someone_out"] or f["near_floor"]) else 0
+    return {"lateral": lateral, "climb": climb, "descend": descend}
+
+
+def test_the_modules_predicates_can_express_the_demonstrator():
+    """A module reads predicates only; a table over them flies each skill scenario's test
+    episodes as the scripted demonstrator does (what the lessons' modules can learn)."""
+    from policy.demos import ExpertParams, rollout_stats, scripted_expert
+    from policy.education.teach import concept_features
+
+    cur = load_curriculum(DEFAULT_CURRICULUM)
+    feats = concept_features(cur)
+    for le in cur.lessons:
+        act = lambda o, m=le.module: _table(feats(o))[m]  # noqa: E731
+        table = rollout_stats(act, le.scenario, 4, 100_000, 0.97)[1]
+        expert = scripted_expert(le.scenario, ExpertParams(), 0)
+        expert = rollout_stats(expert, le.scenario, 4, 100_000, 0.97)[1]
+        assert table["all_in_view_frac"] == pytest.approx(expert["all_in_view_frac"], abs=0.02)
+        assert table["footprint_ratio"] == pytest.approx(expert["footprint_ratio"], rel=0.05)
+        assert table["all_in_view_frac"] >= 0.95, le.name
