@@ -107,8 +107,11 @@ def wait_ready(v: VehicleLink, timeout_s: float = 60.0) -> Phase:
     """A heartbeat, home and a local position (asks for HOME_POSITION every 2 s)."""
     t_ask = -math.inf
     t0 = v.t
+    on_wall = v.tel.time_boot_ms == 0  # free-running before any message: wall time counts
     while not (v.tel.mode is not None and v.tel.home_ok and v.tel.pos_ned is not None
                and v.tel.quat is not None):  # fmt: skip
+        if on_wall and v.tel.time_boot_ms > 0:  # the tick clock became the autopilot's: a
+            t0, on_wall = v.t, False  # second mission on a running PX4 starts at its uptime
         if v.t - t0 > timeout_s:
             raise MissionError(
                 f"timed out after {timeout_s:.0f} s waiting for a heartbeat, home and local "
@@ -123,6 +126,21 @@ def wait_ready(v: VehicleLink, timeout_s: float = 60.0) -> Phase:
         yield
     if v.unknown_autopilot:
         raise MissionError(v.unknown_autopilot)
+
+
+UNREAD_STREAMS = ("ATTITUDE", "GLOBAL_POSITION_INT", "ALTITUDE", "VFR_HUD", "BATTERY_STATUS")
+"""Streams a mission does not read: the attitude comes as ATTITUDE_QUATERNION, the position as
+LOCAL_POSITION_NED (45 of the 77 messages a second PX4 sends on its onboard link)."""
+
+
+def quiet_streams(v: VehicleLink, names: tuple[str, ...] = UNREAD_STREAMS) -> None:
+    """SET_MESSAGE_INTERVAL(−1) for `names` on the companion's link (the autopilot applies it to
+    the link that asked, as PX4 does; a ground station's link keeps its rates). With K links
+    the parsing of unread telemetry is the companion's largest cost."""
+    for name in names:
+        v.command_long(
+            M.MAV_CMD_SET_MESSAGE_INTERVAL, (getattr(M, f"MAVLINK_MSG_ID_{name}"), -1), 0
+        )
 
 
 def arm(v: VehicleLink, timeout_s: float = 30.0) -> Phase:
