@@ -180,7 +180,8 @@ class VehicleLink:
         )
 
         mask = IGNORE_ACC | IGNORE_YAW_RATE
-        p = [0.0, 0.0, 0.0] if pos_ned is None else [float(x) for x in pos_ned]
+        home = self.tel.home_local  # positions are about home; LOCAL_NED is about the EKF origin
+        p = [0.0, 0.0, 0.0] if pos_ned is None else [float(x + h) for x, h in zip(pos_ned, home)]
         v = [0.0, 0.0, 0.0] if vel_ned is None else [float(x) for x in vel_ned]
         mask |= IGNORE_POS if pos_ned is None else 0
         mask |= IGNORE_VEL if vel_ned is None else 0
