@@ -87,6 +87,7 @@ class ParamNames:
     bank_limit: tuple[str, float] = ("", 1.0)  # [rad]
     takeoff_altitude: tuple[str, float] = ("", 1.0)  # [m]
     fence_enable: tuple[str, float] = ("", 1.0)
+    integers: frozenset[str] = frozenset()  # names the autopilot stores as integers
 
 
 _DEG = math.pi / 180.0
@@ -118,6 +119,7 @@ PLANE_PARAMS = ParamNames(  # ArduPlane 4.5+ names (read from its Parameters.cpp
     speed_max_xy=("AIRSPEED_MAX", 1.0),
     takeoff_altitude=("TKOFF_ALT", 1.0),
     fence_enable=("FENCE_ENABLE", 1.0),
+    integers=frozenset({"WP_LOITER_RAD", "TKOFF_ALT"}),  # AP_Int16: 123.6 is stored as 123
 )
 
 # (number, autopilot's name, FlightMode it is read as or None). LOITER and ALT_HOLD read the
@@ -325,6 +327,14 @@ class AutopilotProfile:
     def param_to_si(self, key: str, value: float) -> float:
         return float(value) * getattr(self.params, key)[1]
 
+    def param_value(self, key: str, si_value: float) -> float:
+        """The value to PARAM_SET for `si_value` of a ParamNames field: in the autopilot's unit,
+        and rounded up to a whole number where it stores an integer (ArduPlane's WP_LOITER_RAD:
+        a set value must read back as sent, and a wider circle stays within the turn)."""
+        name, factor = getattr(self.params, key)
+        value = float(si_value) / factor
+        return float(math.ceil(value - 1e-9)) if name in self.params.integers else value
+
     # ---- recipes ---------------------------------------------------------------------------
     def takeoff_steps(self, alt_above_home_m: float, home_amsl_m: float) -> tuple[Step, ...]:
         raise NotImplementedError
@@ -479,7 +489,7 @@ class ArduPlaneProfile(AutopilotProfile):
     def takeoff_steps(self, alt_above_home_m: float, home_amsl_m: float) -> tuple[Step, ...]:
         a = float(alt_above_home_m)
         return (
-            Step("set_param", params=(a,), what="TKOFF_ALT"),
+            Step("set_param", params=(self.param_value("takeoff_altitude", a),), what="TKOFF_ALT"),
             Step("wait_on_ground", what="the aircraft on the ground"),
             Step("set_mode", FlightMode.TAKEOFF, retries=3, retry_s=1.0, what="TAKEOFF (13)"),
             Step("arm", retries=10, retry_s=2.0, what="arm (refused while the gyros settle)"),

@@ -129,3 +129,17 @@ def test_detection():
     assert real.version == "4.6.2" and real.decode_mode(5) is FlightMode.POSCTL
     builtin = refine(ARDUCOPTER, SimpleNamespace(flight_sw_version=1 << 16, uid=0x5348 << 48 | 1))
     assert builtin.name.endswith("(skyherd built-in)") and builtin.decode_mode(5) is FlightMode.HOLD
+
+
+def test_param_value_is_in_the_autopilots_unit_and_whole_where_it_stores_integers():
+    """ArduPlane stores WP_LOITER_RAD and TKOFF_ALT as AP_Int16: a set value must read back as
+    sent (123.613 would come back as 123 and the set would never be confirmed)."""
+    from hil.autopilots import ARDUCOPTER, ARDUPLANE, PX4
+
+    assert ARDUPLANE.param_value("loiter_radius", 123.613) == 124.0
+    assert ARDUPLANE.param_value("loiter_radius", 124.0) == 124.0
+    assert ARDUPLANE.param_value("takeoff_altitude", 29.2) == 30.0
+    assert PX4.param_value("loiter_radius", 123.613) == 123.613  # a float parameter
+    assert abs(ARDUCOPTER.param_value("loiter_radius", 12.5) - 1250.0) < 1e-9  # [cm]
+    step = ARDUPLANE.takeoff_steps(29.2, 584.0)[0]
+    assert step.kind == "set_param" and step.params == (30.0,)
