@@ -157,7 +157,8 @@ class OrbitMission:
         self.plan = self._plan(v)
         self.net.loiter_radius_m = self.plan.radius_m  # what the autopilot's loiter flies
         self.phase = "loiter radius"
-        yield from self._set_param(v, prof.param_name("loiter_radius"), self.plan.radius_m)
+        yield from self._set_param(v, prof.param_name("loiter_radius"),
+                                   prof.param_value("loiter_radius", self.plan.radius_m))  # fmt: skip
         self.phase = "takeoff"
         yield from recipe(v, prof.takeoff_steps(f.takeoff_alt_m, v.home_amsl_m))
         self.phase = "climb-out"
