@@ -56,9 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="teach the monolithic DQN on the first N seeds only (default all)")  # fmt: skip
     parser.add_argument("--workers", type=int, default=1, help="parallel seeds (default 1)")
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run folders go")
-    parser.add_argument("--from-run", type=Path, default=None,
+    parser.add_argument("--from-run", type=Path, action="append", default=None,
                         help="skip teaching: report on an earlier educate run's lessons.csv and "
-                        "policies (e.g. with --baselines that finished later)")  # fmt: skip
+                        "policies (e.g. with --baselines that finished later); repeatable: runs "
+                        "of the same curriculum and hyper-parameters on different seeds are "
+                        "reported together (default none)")  # fmt: skip
     parser.add_argument("--save-policy", type=Path, default=None,
                         help="also copy the best educated policy (composite test) to this file")  # fmt: skip
 
@@ -163,30 +165,41 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _report_only(args, cur) -> int:
-    """--from-run: the evaluation part of `run` on an earlier run's policies and lessons.csv."""
+    """--from-run: the evaluation part of `run` on earlier runs' policies and lessons.csv."""
     from policy.dqn import DQNParams
     from policy.education.teach import EduParams
 
-    src = args.from_run
-    try:
-        cfg = json.loads((src / "config.json").read_text())
-        hp = dict(cfg["hyper_parameters"])
-        d = hp.pop("dqn")
-        dqn = dict(d, hidden=tuple(d["hidden"]))
-        p = EduParams(dqn=DQNParams(**dqn), **hp)
-        rows = list(csv.DictReader(open(src / "lessons.csv")))
-    except (OSError, KeyError, TypeError, ValueError) as e:
-        raise UsageError(f"--from-run {src}: not a finished educate run ({e})") from None
-    if cfg["curriculum"]["sha256"] != cur.sha256:
-        raise UsageError(f"--from-run {src} was taught another curriculum (sha256 differs)")
-    results = _results_from_rows(rows)
+    p, cfg0, results, pol_dirs = None, None, [], {}
+    for src in args.from_run:
+        try:
+            cfg = json.loads((src / "config.json").read_text())
+            hp = dict(cfg["hyper_parameters"])
+            seed0 = hp.pop("seed", 0)
+            d = hp.pop("dqn")
+            dqn = dict(d, hidden=tuple(d["hidden"]), seed=0)
+            q = EduParams(dqn=DQNParams(**dqn), seed=seed0, **hp)
+            rows = list(csv.DictReader(open(src / "lessons.csv")))
+        except (OSError, KeyError, TypeError, ValueError) as e:
+            raise UsageError(f"--from-run {src}: not a finished educate run ({e})") from None
+        if cfg["curriculum"]["sha256"] != cur.sha256:
+            raise UsageError(f"--from-run {src} was taught another curriculum (sha256 differs)")
+        if p is not None and dataclasses.replace(q, seed=0) != dataclasses.replace(p, seed=0):
+            raise UsageError(f"--from-run {src}: other hyper-parameters than {args.from_run[0]}")
+        p, cfg0 = p or q, cfg0 or cfg
+        for r in _results_from_rows(rows):
+            if r["seed"] in pol_dirs:
+                raise UsageError(f"--from-run {src}: seed {r['seed']} is also in another run")
+            pol_dirs[r["seed"]] = src / "policies"
+            results.append(r)
     if not results:
-        raise UsageError(f"--from-run {src}: lessons.csv has no finished seed")
+        raise UsageError(f"--from-run {args.from_run[0]}: lessons.csv has no finished seed")
+    results.sort(key=lambda r: r["seed"])
     rf = RunFolder("educate", root=args.runs_dir)
-    print(f"skyherd educate: run folder {rf.path} (report on {src})")
-    rf.write_config({"curriculum": cfg["curriculum"], "hyper_parameters": p,
-                     "args": args_dict(args), "from_run": str(src)})  # fmt: skip
-    return _report(cur, p, args, results, src / "policies", rf)
+    srcs = [str(x) for x in args.from_run]
+    print(f"skyherd educate: run folder {rf.path} (report on {', '.join(srcs)})")
+    rf.write_config({"curriculum": cfg0["curriculum"], "hyper_parameters": p,
+                     "args": args_dict(args), "from_run": srcs[0] if len(srcs) == 1 else srcs})  # fmt: skip
+    return _report(cur, p, args, results, pol_dirs, rf)
 
 
 def _results_from_rows(rows: list[dict]) -> list[dict]:
@@ -204,10 +217,14 @@ def _results_from_rows(rows: list[dict]) -> list[dict]:
     return [{"seed": s, **v} for s, v in sorted(by.items()) if len(v.get("educated", [])) == n]
 
 
-def _report(cur, p, args, results, pol_dir: Path, rf) -> int:
+def _report(cur, p, args, results, pol_dir: Path | dict[int, Path], rf) -> int:
+    """pol_dir: the policies/ folder, or one per seed (--from-run of several runs)."""
     from policy.dqn import load_policy
 
-    educated = {r["seed"]: load_policy(pol_dir / f"educated_seed{r['seed']}.npz") for r in results}
+    where = pol_dir if isinstance(pol_dir, dict) else {r["seed"]: pol_dir for r in results}
+    educated = {
+        r["seed"]: load_policy(where[r["seed"]] / f"educated_seed{r['seed']}.npz") for r in results
+    }
     for r in results:  # the arbiter each seed learnt (also when read back from lessons.csv)
         r["educated"][-1]["detail"]["arbiter"] = educated[r["seed"]].arbiter.describe()
     print("evaluating on unseen episodes …")

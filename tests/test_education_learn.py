@@ -153,6 +153,7 @@ def test_two_lesson_curriculum_end_to_end(tmp_path, capsys):
     assert (other / "summary.md").read_text().split("## Lesson by lesson")[1].split("## Unseen")[
         0
     ] == (summary.split("## Lesson by lesson")[1].split("## Unseen")[0])
+    assert main(again + ["--from-run", str(run)]) == 2  # the same seed twice: refused
     cur.write_text(TWO.replace('version = "0.1"', 'version = "0.2"'))
     assert main(again) == 2  # another curriculum: refused
 
