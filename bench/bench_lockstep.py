@@ -54,12 +54,31 @@ def fly(args: list[str], busy: bool = False, check: bool = True) -> tuple[Path, 
 
 
 def digest(run: Path) -> str:
+    """First 12 hex digits of each compared file's SHA-256 (a formation: of the K vehicles'
+    world.csv together, as one more hash)."""
     h = [
         hashlib.sha256((run / n).read_bytes()).hexdigest()[:12]
         for n in COMPARED
         if (run / n).exists()
     ]
+    worlds = sorted(run.glob("uav*/world.csv"))
+    if worlds:
+        h.append(hashlib.sha256(b"".join(p.read_bytes() for p in worlds)).hexdigest()[:12])
     return " ".join(h)
+
+
+def sim_stats(run: Path) -> dict:
+    p = run / "sim_stats.json"
+    return json.loads((p if p.exists() else run / "uav0" / "sim_stats.json").read_text())
+
+
+def formation_plan() -> str:
+    """K = 9 from the study's start cells, 6 cells north in lock-step (a file for --policy-file)."""
+    from policy.sql.layout import STARTS
+
+    f = Path(tempfile.mkdtemp(prefix="skyherd-bench-")) / "plan_K9.json"
+    f.write_text(json.dumps([[[x, y + i] for i in range(7)] for x, y in STARTS[9]]))
+    return str(f)
 
 
 def main() -> None:
@@ -73,6 +92,10 @@ def main() -> None:
         "groundair": ["--duration", dur, "--instance", "5", "--zenoh-port", "7458"],
         "square": ["--mission", "square", "--side", "10", "--altitude", "5", "--instance", "5",
                    "--zenoh-port", "7458"],
+        "formation K=9": ["--mission", "formation", "--agents", "9", "--policy-file",
+                          formation_plan(), "--instance", "5"],
+        "orbit": ["--airframe", "fixedwing", "--orbit-duration", "10", "--orbit-no-land",
+                  "--instance", "5", "--zenoh-port", "7458"],
     }  # fmt: skip
     speedups = ["10", "0"] if a.quick else ["1", "10", "0"]
     if a.perf_only:
@@ -82,7 +105,7 @@ def main() -> None:
         for s in speedups:
             for busy in (False, True):
                 run, wall, _ = fly([*args, "--speedup", s], busy)
-                st = json.loads((run / "sim_stats.json").read_text())
+                st = sim_stats(run)
                 rows.append(
                     [
                         name,

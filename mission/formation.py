@@ -38,10 +38,11 @@ from mission.formation_plan import (
     formation_envelope,
     reference,
 )
-from mission.steps import MissionError, Phase, recipe, wait_ready, wait_until
+from mission.steps import MissionError, Phase, quiet_streams, recipe, wait_ready, wait_until
 from mission.vehicle import VehicleLink
 from runio import CsvWriter, JsonlWriter
 from safety.envelope import EnvelopeSpec
+from safety.net import warm_up
 from safety.separation import SeparationParams, separation_rows
 from safety.supervisor import Decision, Health, Supervisor
 
@@ -162,6 +163,7 @@ class FormationMission:
         self.spec = formation_envelope(list(self.paths), params)
         self.nets = [FormationNet(k, self.spec, Tagged(events, f"uav{k}") if events else None)
                      for k in range(self.K)]  # fmt: skip
+        warm_up(self.nets[0].net.envelope, FORMATION_NET)  # compile before the clock starts
         self.authority = [ModeAuthority(events, vehicle=f"uav{k}") for k in range(self.K)]
         self.phase = "connect"
         self.outcome, self.reason = "running", ""
@@ -196,6 +198,8 @@ class FormationMission:
         if len(vs) != self.K:
             raise MissionError(f"{len(vs)} vehicle links for a plan of {self.K} vehicles")
         yield from together(wait_ready(v) for v in vs)
+        for v in vs:
+            quiet_streams(v)
         self.phase = "takeoff"
         self.times["takeoff"] = vs[0].t
         yield from together(recipe(v, v.profile.takeoff_steps(p.altitude(k), v.home_amsl_m))

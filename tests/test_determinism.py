@@ -39,6 +39,7 @@ def fly(tmp_path, name, args, busy=False):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # only stops a hung run: lockstep flights take what the machine gives
 @pytest.mark.parametrize(
     "mission,args,runs",
     [
@@ -48,6 +49,8 @@ def fly(tmp_path, name, args, busy=False):
                     "--zenoh-port", "7454"], [("0", False), ("10", True)]),
         ("formation", ["--mission", "formation", "--agents", "9", "--instance", "40"],
          [("0", False), ("10", True)]),
+        ("orbit", ["--airframe", "fixedwing", "--orbit-duration", "10", "--orbit-no-land",
+                   "--instance", "14", "--zenoh-port", "7455"], [("0", False), ("10", True)]),
     ],
 )  # fmt: skip
 def test_same_seed_same_flight_at_any_speedup_and_load(tmp_path, mission, args, runs):
