@@ -13,6 +13,7 @@ import dataclasses
 import json
 import shutil
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -388,6 +389,7 @@ def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
         "decisions": len(mission.rec.rows),
         "decide_wall_p50_s": float(np.nanpercentile(lat, 50)) if np.isfinite(lat).any() else None,
         "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if np.isfinite(lat).any() else None,
+        "cpu_s": time.process_time(),  # the companion's CPU time since it started [s]
         "mode_requests": mission.authority.requests,
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
@@ -517,7 +519,8 @@ def _run_formation(args, run_dir: Path, folder) -> int:
            "mode_requests": sum(a.requests for a in mission.authority),
            "net": mission.net_counts(),
            "decide_wall_p50_s": float(np.nanpercentile(lat, 50)) if np.isfinite(lat).any() else None,
-           "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if np.isfinite(lat).any() else None}  # fmt: skip
+           "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if np.isfinite(lat).any() else None,
+           "cpu_s": time.process_time()}  # fmt: skip
     atomic_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
     if error:
         print(f"skyherd companion: aborted: {error}", file=sys.stderr)

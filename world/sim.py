@@ -192,7 +192,7 @@ class World:
         beacon = lambda: ep.api.send(ep._build(HEARTBEAT))  # noqa: E731
         if p.lockstep and not self.gate.wait_for_peer(beacon, self._stop):
             return self._stats(0.0, 0.0)
-        wall0, sim0 = time.monotonic(), clock.t
+        wall0, sim0, cpu0 = time.monotonic(), clock.t, time.process_time()
         ep.update()
         while not self._stop.is_set():
             t_us = clock.time_us
@@ -221,7 +221,7 @@ class World:
                 self.pacer.wait_until(clock.t)
                 next_pace_us += pace_us
         wall = time.monotonic() - wall0
-        return self._stats(clock.t - sim0, wall)
+        return self._stats(clock.t - sim0, wall, time.process_time() - cpu0)
 
     def _camera_instant(self, t_us: int) -> None:
         t = t_us / 1e6
@@ -332,11 +332,12 @@ class World:
                         team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
         self.truth.write(row)
 
-    def _stats(self, sim_s: float, wall_s: float) -> dict:
+    def _stats(self, sim_s: float, wall_s: float, cpu_s: float = 0.0) -> dict:
         g = self.gate.stats
         stats = {
             "sim_s": sim_s,
             "wall_s": wall_s,
+            "cpu_s": cpu_s,  # this process's CPU time while it ran (load-independent cost)
             "real_time_factor": sim_s / wall_s if wall_s > 0 else math.inf,
             "frames": self.frames,
             "render_failures": self.render_failures,
