@@ -28,11 +28,11 @@ def test_rule_sets_and_their_validation():
     assert (i.ties, i.team_bonus, i.roi_phase, i.assign, i.step_count) == (
         "random", "add", "online", "nearest", "own"
     )  # fmt: skip
-    assert (p.assign_cell, p.walk_draws, p.eps_schedule, p.q_form) == (
-        "agents-1-2", "per-move", "stop-decay", "blend"
+    assert (p.assign_cell, p.walk_draws, p.walk_end, p.eps_schedule, p.q_form) == (
+        "agents-1-2", "per-move", "step-onto", "stop-decay", "blend"
     )  # fmt: skip
-    assert (i.assign_cell, i.walk_draws, i.eps_schedule, i.q_form) == (
-        "own", "none", "clip", "delta"
+    assert (i.assign_cell, i.walk_draws, i.walk_end, i.eps_schedule, i.q_form) == (
+        "own", "none", "on-flag", "clip", "delta"
     )  # fmt: skip
     assert Rules.named("intended", "first").ties == "first" and Rules() == Rules.intended()
     assert Rules.named("intended", "first").name == "intended-first-ties"
@@ -247,3 +247,31 @@ def test_assign_cell_and_walk_draws_in_the_published_claim():
     # per-move draws: the 3 walk moves draw 3 numbers (splitmix64 adds its constant per draw)
     golden = 0x9E3779B97F4A7C15
     assert _claim_world(Rules.published()) == ((5, 6), (3 * golden) % 2**64)
+
+
+def _walk_from_the_flag(flag, q2_setup, rules):
+    """4×4 grid, ROI x, y ≥ 3, K = 1: the agent moves right from (2, y) onto its flag's cell
+    (3, y) on the ROI's edge, so its walk (next step) starts on its own flag."""
+    lay = make_layout(4, [(2, flag[1])], [flag], roi_min=3)
+    q1 = np.zeros((1, 16, 4))
+    q1[0, lay.cell(2, flag[1]), RIGHT] = 1.0
+    q2 = np.zeros((1, lay.n_roi, 4))
+    for (x, y), a in q2_setup:
+        q2[0, lay.roi_id[lay.cell(x, y)], a] = 1.0
+    h = SQLHyper(max_steps=10, **GREEDY)
+    paths, m = greedy_rollout(_result(Algorithm.SQL_D, lay, h, q1, q2, rules))
+    return int(m.steps[0]), bool(m.success[0]), lay.xy(paths[0][-1])
+
+
+def test_walk_end_step_onto_versus_on_flag():
+    pub = Rules.published()
+    on_flag = replace(pub, walk_end="on-flag")
+    # flag (3, 4) in the top row: the flag's own row of its table is all 0 → "up", off the
+    # grid: the agent stays. step-onto: no move ever lands on the flag, the walk uses its
+    # whole budget of 10 moves standing on it: metric 1 + 10 = 11, and it is on its flag
+    assert _walk_from_the_flag((3, 4), [], pub) == (11, True, (3, 4))
+    # on-flag: done at once, 0 moves: metric 1
+    assert _walk_from_the_flag((3, 4), [], on_flag) == (1, True, (3, 4))
+    # flag (3, 3): "up" to (3, 4), whose row says "down", back onto the flag: 2 moves → 3
+    assert _walk_from_the_flag((3, 3), [((3, 4), DOWN)], pub) == (3, True, (3, 3))
+    assert _walk_from_the_flag((3, 3), [((3, 4), DOWN)], on_flag) == (1, True, (3, 3))

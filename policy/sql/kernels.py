@@ -381,6 +381,7 @@ def run_sie(
     step_published,
     assign_x1x2,
     walk_draws,
+    walk_step_onto,
     q_blend,
     learn,
     rng,
@@ -407,6 +408,8 @@ def run_sie(
     assign_x1x2 (published): the pre-trained claim reads the values at `assign_cell(pos, M)`
     (x of agent 1, x of agent 2), all 0 when that cell is outside the ROI. walk_draws: one
     unused uniform draw per walk move (the published walk's `rand` at ε = 0).
+    walk_step_onto (published): the walk ends only with a move onto the target, so an agent
+    that starts its walk on its target first moves (`Rules.walk_end`).
     q_blend: every Q update in the published form (`q_update`).
     Knowledge sharing (`share_max_nonzero`) on q1 after every episode whose global index
     episode0 + e + 1 is a multiple of share_every (> 0).
@@ -458,12 +461,15 @@ def run_sie(
                     claimed[k] = True
                     goal[i] = k
                     s2, n = s, 0
-                    while s2 != targets[k] and n < max_steps:
+                    while n < max_steps and (walk_step_onto or s2 != targets[k]):
                         if walk_draws:
                             uniform(rng)  # drawn and compared with ε = 0: always greedy
                         a = choose_action(q2[k, roi_id[s2]], 0.0, rng, ties_first)
+                        s_prev = s2
                         s2 = roi_step(s2, a, next_cell, roi_id)
                         n += 1
+                        if walk_step_onto and s2 == targets[k] and s_prev != s2:
+                            break  # the published `collect`: this move stepped onto the flag
                     occ[s] -= 1
                     occ[s2] += 1
                     pos[i] = s2

@@ -117,6 +117,7 @@ ASSIGN = ("q-argmax", "nearest")
 STEP_COUNT = ("published", "own")
 ASSIGN_CELL = ("agents-1-2", "own")
 WALK_DRAWS = ("per-move", "none")
+WALK_END = ("step-onto", "on-flag")
 EPS_SCHEDULE = ("stop-decay", "clip")
 Q_FORM = ("blend", "delta")
 
@@ -169,6 +170,14 @@ class Rules:
     with ε = 0; "none" = no draw. Changes no rule, only which random numbers the later
     ε-greedy choices get (needed to replay the published code's random stream). Only read by
     roi_phase="pretrained"."""
+    walk_end: str = "on-flag"
+    """When a pre-trained ROI walk is done: "step-onto" = only after a move onto the target
+    (the published loop `while collect == 0` with collect = "the attempted move's cell is
+    the flag"), so an agent whose walk starts on its own flag first moves (off and back,
+    or, pressing a wall, for the whole 1000-move budget while standing on it); "on-flag" =
+    as soon as the agent stands on it (0 moves). Only a map with a flag on the ROI's edge
+    row or column can start a walk on a flag (the study's formations cannot). Only read by
+    roi_phase="pretrained"."""
     eps_schedule: str = "clip"
     """ε per episode: "stop-decay" = the published loop `if ε > ε_min, ε ← ε·decay` after each
     episode (repeated products; it stops at the first ε ≤ ε_min, 0.04996 for 0.999 and
@@ -187,6 +196,7 @@ class Rules:
             ("step_count", STEP_COUNT),
             ("assign_cell", ASSIGN_CELL),
             ("walk_draws", WALK_DRAWS),
+            ("walk_end", WALK_END),
             ("eps_schedule", EPS_SCHEDULE),
             ("q_form", Q_FORM),
         ):
@@ -204,15 +214,16 @@ class Rules:
         """The public MATLAB implementation's rules."""
         return Rules(
             "published", ties, "blend", "pretrained", "q-argmax", "published",
-            "agents-1-2", "per-move", "stop-decay", "blend",
+            "agents-1-2", "per-move", "step-onto", "stop-decay", "blend",
         )  # fmt: skip
 
     @staticmethod
     def intended(ties: str = "random") -> Rules:
         """The paper's description (skyherd's original kernels)."""
         return Rules(
-            "intended", ties, "add", "online", "nearest", "own", "own", "none", "clip", "delta"
-        )
+            "intended", ties, "add", "online", "nearest", "own", "own", "none", "on-flag",
+            "clip", "delta",
+        )  # fmt: skip
 
     @staticmethod
     def named(name: str, ties: str | None = None, switches: dict[str, str] | None = None) -> Rules:

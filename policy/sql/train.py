@@ -121,6 +121,7 @@ def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths, rul
             rules.step_count == "published",
             rules.assign_cell == "agents-1-2",
             rules.walk_draws == "per-move",
+            rules.walk_end == "step-onto",
             rules.q_form == "blend",
             learn,
             rng,
