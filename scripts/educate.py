@@ -183,7 +183,8 @@ def _report_only(args, cur) -> int:
             raise UsageError(f"--from-run {src}: not a finished educate run ({e})") from None
         if cfg["curriculum"]["sha256"] != cur.sha256:
             raise UsageError(f"--from-run {src} was taught another curriculum (sha256 differs)")
-        if p is not None and dataclasses.replace(q, seed=0) != dataclasses.replace(p, seed=0):
+        same = {"seed": 0, "monolith": True}  # a run without the monolith still compares
+        if p is not None and dataclasses.replace(q, **same) != dataclasses.replace(p, **same):
             raise UsageError(f"--from-run {src}: other hyper-parameters than {args.from_run[0]}")
         p, cfg0 = p or q, cfg0 or cfg
         for r in _results_from_rows(rows):
