@@ -58,7 +58,7 @@ def fly(k: int, instance: int, root: Path) -> list:
     sim = min(s["sim_s"] for s in stats)
     sim_wall = max(s["wall_s"] for s in stats)
     c_sims = sum(s["cpu_s"] for s in stats) / sim  # CPU s per simulated s, all K simulators
-    c_comp = comp["cpu_s"] / sim  # ... the companion (start-up included)
+    c_comp = comp["cpu_flight_s"] / sim  # ... the companion, from its first tick on
     # lockstep alternates: each tick the companion decides, then the K simulators step in
     # parallel; on 2 idle cores one simulated second takes about c_comp + c_sims / 2
     projected = 1.0 / (c_comp + c_sims / 2.0)

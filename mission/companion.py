@@ -81,6 +81,7 @@ class FrameInbox:
 class TickStats:
     ticks: int = 0
     decide_wall_s: list[float] | None = None  # wall time from tick start to close [s]
+    cpu_s: float = 0.0  # the loop's CPU time from the first tick on (start-up excluded) [s]
 
 
 def run(v: VehicleLink, mission: Mission, gen, frames: FrameSource | None,
@@ -102,6 +103,7 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
     if p.lockstep:  # hello: each simulator starts its clock when this arrives
         for v in vs:
             v.hello(p.link_patience_s)
+    cpu0 = time.process_time()
     while True:
         if p.lockstep:
             marks = [v.next_mark(p.link_patience_s) for v in vs]
@@ -148,5 +150,6 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
                 v.close_tick()
         stats.ticks += 1
         stats.decide_wall_s.append(time.monotonic() - start)
+        stats.cpu_s = time.process_time() - cpu0
         if done:
             return stats

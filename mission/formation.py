@@ -163,7 +163,7 @@ class FormationMission:
         self.spec = formation_envelope(list(self.paths), params)
         self.nets = [FormationNet(k, self.spec, Tagged(events, f"uav{k}") if events else None)
                      for k in range(self.K)]  # fmt: skip
-        warm_up(self.nets[0].net.envelope, FORMATION_NET)  # compile before the clock starts
+        self._warm_up()
         self.authority = [ModeAuthority(events, vehicle=f"uav{k}") for k in range(self.K)]
         self.phase = "connect"
         self.outcome, self.reason = "running", ""
@@ -173,6 +173,20 @@ class FormationMission:
         self.yielded: dict[int, str] = {}
         self.perception = None
         self._written: list[int] = [0] * self.K
+
+    def _warm_up(self) -> None:
+        """Compile the net's kernels before the clock starts, separation rows included (their
+        shapes are new signatures: compiled at the first tick, 2 s of CPU inside the flight)."""
+        warm_up(self.nets[0].net.envelope, FORMATION_NET)
+        net = FormationNet(0, self.spec)
+        from flight.state import VehicleState as S
+
+        for k, north in enumerate((0.0, 1e4)):  # inside, then far outside: AI and FALLBACK
+            st = S(t=float(k), pos_ned=np.array([north, 0.0, -8.0]), vel_ned=np.zeros(3),
+                   quat=np.array([1.0, 0, 0, 0]), omega_frd=np.zeros(3), accel_frd=np.zeros(3),
+                   on_ground=False)  # fmt: skip
+            net.certify(float(k), st, [("uav1", np.array([north, 5.0, -9.5]), np.zeros(3))],
+                        st.pos_ned, np.zeros(3))  # fmt: skip
 
     # ---- called by the companion's loop --------------------------------------------------------
     def on_frame(self, t: float, frame, status: str) -> None:

@@ -390,6 +390,7 @@ def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
         "decide_wall_p50_s": float(np.nanpercentile(lat, 50)) if np.isfinite(lat).any() else None,
         "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if np.isfinite(lat).any() else None,
         "cpu_s": time.process_time(),  # the companion's CPU time since it started [s]
+        "cpu_flight_s": stats.cpu_s if stats else None,  # ... from its first tick on [s]
         "mode_requests": mission.authority.requests,
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
@@ -520,7 +521,7 @@ def _run_formation(args, run_dir: Path, folder) -> int:
            "net": mission.net_counts(),
            "decide_wall_p50_s": float(np.nanpercentile(lat, 50)) if np.isfinite(lat).any() else None,
            "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if np.isfinite(lat).any() else None,
-           "cpu_s": time.process_time()}  # fmt: skip
+           "cpu_s": time.process_time(), "cpu_flight_s": stats.cpu_s if stats else None}  # fmt: skip
     atomic_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
     if error:
         print(f"skyherd companion: aborted: {error}", file=sys.stderr)
