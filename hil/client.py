@@ -312,7 +312,8 @@ def reposition_command(tel: Telemetry, profile: AutopilotProfile, target_system:
     z = amsl - tel.home.alt_m if relative else amsl
     return M.MAVLink_command_int_message(
         target_system, target_component, profile.reposition_frame, M.MAV_CMD_DO_REPOSITION, 0, 0,
-        -1.0, 0.0, 0.0, math.nan if yaw is None else math.degrees(yaw),
+        -1.0, float(M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE if profile.reposition_change_mode else 0),
+        0.0, math.nan if yaw is None else math.degrees(yaw),
         int(round(lat * 1e7)), int(round(lon * 1e7)), float(z),
     )  # fmt: skip
 
@@ -577,7 +578,7 @@ class VehicleClient:
 
     def _identify(self) -> None:
         """AUTOPILOT_VERSION refines the profile: its version, and whether this is skyherd's
-        built-in vehicle (whose ArduCopter personality reports its hover as LOITER)."""
+        built-in vehicle (whose ArduCopter personality hovers in LOITER too)."""
         before = self.latest("AUTOPILOT_VERSION")
         self.send_command_long(M.MAV_CMD_REQUEST_MESSAGE, MSG["AUTOPILOT_VERSION"])
         try:
@@ -764,8 +765,10 @@ class VehicleClient:
         p = self.profile
         if p is not None and p.setpoint_frame == "reposition":
             tel = self.telemetry
+            if pos_ned is None and vel_ned is not None and tel.pos_ned is not None:
+                pos_ned = tel.pos_ned + p.reposition_lead_s * np.asarray(vel_ned, float)
             if pos_ned is None or tel.home is None:
-                return None  # ArduPlane's GUIDED takes positions only
+                return None  # ArduPlane's GUIDED takes positions only: a velocity → a point ahead
             if tel.t - self._last_sp_t < p.setpoint_min_interval_s:
                 return None
             self._last_sp_t = tel.t

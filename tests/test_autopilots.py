@@ -143,3 +143,39 @@ def test_param_value_is_in_the_autopilots_unit_and_whole_where_it_stores_integer
     assert abs(ARDUCOPTER.param_value("loiter_radius", 12.5) - 1250.0) < 1e-9  # [cm]
     step = ARDUPLANE.takeoff_steps(29.2, 584.0)[0]
     assert step.kind == "set_param" and step.params == (30.0,)
+
+
+def test_companion_gives_arduplane_positions_as_do_reposition_and_velocities_as_a_point_ahead():
+    """ArduPlane's GUIDED moves only by DO_REPOSITION (SET_POSITION_TARGET_LOCAL_NED changes
+    just its altitude): the tick-driven companion sends one per second, with the change-mode flag
+    (a climb-out starts in TAKEOFF), and turns a velocity command into a target 5 s ahead."""
+    import numpy as np
+
+    from flight.geo import DEFAULT_HOME, geodetic_to_ned
+    from hil.autopilots import ARDUPLANE
+    from hil.client import Home
+    from mission.vehicle import VehicleLink
+
+    class Link:
+        sent: list = []
+
+        def send(self, msg) -> None:
+            self.sent.append(msg)
+
+    link = Link()
+    v = VehicleLink(link, target_system=1)
+    h = DEFAULT_HOME
+    v.tel.profile, v.tel.home = ARDUPLANE, Home(h.lat_deg, h.lon_deg, h.alt_m)
+    v.tel.pos_ned = np.array([0.0, 0.0, -50.0])
+    v.t = 10.0
+    v.position_target(vel_ned=[20.0, 0.0, 0.0])
+    v.position_target(pos_ned=[0.0, 0.0, -60.0])  # within 1 s of the last one: not sent
+    assert len(link.sent) == 1
+    m = link.sent[0]
+    assert m.get_type() == "COMMAND_INT" and m.command == 192  # MAV_CMD_DO_REPOSITION
+    assert m.param2 == 1.0 and m.frame == 6  # change mode; GLOBAL_RELATIVE_ALT_INT
+    ned = geodetic_to_ned(h, m.x / 1e7, m.y / 1e7, h.alt_m)
+    assert abs(ned[0] - 100.0) < 0.5 and abs(ned[1]) < 0.5 and abs(m.z - 50.0) < 1e-6
+    v.t = 11.0
+    v.position_target(pos_ned=[0.0, 30.0, -60.0])
+    assert len(link.sent) == 2 and abs(link.sent[1].z - 60.0) < 1e-6
