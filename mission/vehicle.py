@@ -19,7 +19,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from flight.autopilot_api import Setpoint
 from flight.lockstep import NS_PER_US, is_mark
 from hil.autopilots import UnknownAutopilot
-from hil.client import Telemetry, update_telemetry
+from hil.client import Telemetry, reposition_command, update_telemetry
 from hil.link import MavlinkLink
 
 M = mavlink2
@@ -50,6 +50,7 @@ class VehicleLink:
         self.param_updates: list[tuple[float, str, float]] = []  # (tick time, name, value), unread
         self._last_mark_ns = -1
         self.unknown_autopilot = ""  # the reason, if the vehicle's autopilot is not one we fly
+        self._reposition_t = -float("inf")  # tick time of the last DO_REPOSITION setpoint [s]
 
     # ---- receiving ---------------------------------------------------------------------------
     def _pull(self, timeout_s: float) -> bool:
@@ -170,7 +171,20 @@ class VehicleLink:
         )
 
     def position_target(self, pos_ned=None, vel_ned=None, yaw=None, stamp_s: float | None = None):
-        """SET_POSITION_TARGET_LOCAL_NED, stamped with the tick's time (the frame it answers)."""
+        """SET_POSITION_TARGET_LOCAL_NED, stamped with the tick's time (the frame it answers);
+        DO_REPOSITION at the profile's pace where that is how it takes positions (ArduPlane)."""
+        prof = self.profile
+        if prof is not None and prof.setpoint_frame == "reposition":
+            if pos_ned is None and vel_ned is not None and self.tel.pos_ned is not None:
+                pos_ned = self.tel.pos_ned + prof.reposition_lead_s * np.asarray(vel_ned, float)
+            if (
+                pos_ned is not None
+                and self.tel.home is not None
+                and (self.t - self._reposition_t >= prof.setpoint_min_interval_s - 1e-9)
+            ):
+                self._reposition_t = self.t
+                self.send(reposition_command(self.tel, prof, self.target_system or 1, pos_ned, yaw))
+            return
         from flight.mavlink.offboard import (
             IGNORE_ACC,
             IGNORE_POS,
