@@ -24,6 +24,7 @@ import argparse
 import json
 import math
 import os
+import resource
 import socket
 import struct
 import subprocess
@@ -269,31 +270,58 @@ def bench_px4_tcp(n: int) -> float:
     return float(peer.communicate(timeout=60)[0])
 
 
-def real_autopilots() -> list[dict]:
+def _cpu_s(who: int) -> float:
+    r = resource.getrusage(who)
+    return r.ru_utime + r.ru_stime
+
+
+def _fly_measured(name: str, path: Path, defaults: list[Path], fifo: bool) -> dict:
+    """One hover flight as fast as possible: its real-time factor and the CPU seconds of each
+    side (ours: this process; the autopilot's: the reaped child). `fifo`: this process and
+    the autopilot (which inherits it) at SCHED_FIFO priority 1."""
     from hil.bridge_flight import fly
 
+    if fifo:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    try:
+        ours0, theirs0 = _cpu_s(resource.RUSAGE_SELF), _cpu_s(resource.RUSAGE_CHILDREN)
+        r = fly(name, path, 75, 0.0, copter_defaults=defaults)
+        ours, theirs = (
+            _cpu_s(resource.RUSAGE_SELF) - ours0,
+            _cpu_s(resource.RUSAGE_CHILDREN) - theirs0,
+        )
+    finally:
+        if fifo:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return {"autopilot": name, "priority": "fifo" if fifo else "normal", "ok": r.ok,
+            "reason": r.reason, "sim_s": r.sim_s, "wall_s": r.wall_s, "frames": r.frames,
+            "rtf": r.real_time_factor, "hover_max_dev_m": r.hover_max_dev_m,
+            "cpu_ours_s": round(ours, 2), "cpu_autopilot_s": round(theirs, 2),
+            "us_per_frame_ours": round(1e6 * ours / max(1, r.frames), 1),
+            "us_per_frame_autopilot": round(1e6 * theirs / max(1, r.frames), 1)}  # fmt: skip
+
+
+def real_autopilots() -> list[dict]:
+    """Each real autopilot named by its variable, at normal priority and (when allowed) at
+    SCHED_FIFO: the difference is the time both sides wait for the CPU at every handoff."""
     out = []
+    defaults = [Path(p) for p in os.environ.get("SKYHERD_ARDUCOPTER_DEFAULTS", "").split(",") if p]
     for name, env in (("px4", "SKYHERD_PX4_BIN"), ("arducopter", "SKYHERD_ARDUCOPTER_BIN")):
         path = os.environ.get(env)
         if not path:
             print(f"  {name}: {env} not set, skipped")
             continue
-        defaults = [
-            Path(p) for p in os.environ.get("SKYHERD_ARDUCOPTER_DEFAULTS", "").split(",") if p
-        ]
-        r = fly(name, Path(path), 75, 0.0, copter_defaults=defaults)
-        out.append(
-            {
-                "autopilot": name,
-                "ok": r.ok,
-                "reason": r.reason,
-                "sim_s": r.sim_s,
-                "wall_s": r.wall_s,
-                "rtf": r.real_time_factor,
-                "hover_max_dev_m": r.hover_max_dev_m,
-            }
-        )
-        print(f"  {name}: {out[-1]}")
+        for fifo in (False, True):
+            try:
+                row = _fly_measured(name, Path(path), defaults, fifo)
+            except PermissionError:
+                print(f"  {name}: SCHED_FIFO not permitted, skipped")
+                continue
+            out.append(row)
+            print(f"  {name} {row['priority']:>6}: real-time factor {row['rtf']:5.2f}x "
+                  f"({row['frames']} frames, {row['wall_s']:.1f} s wall); CPU per frame: ours "
+                  f"{row['us_per_frame_ours']} us, the autopilot's {row['us_per_frame_autopilot']} us; "
+                  f"hover {row['hover_max_dev_m']} m, {row['reason']}")  # fmt: skip
     return out
 
 
