@@ -253,7 +253,7 @@ def _orbit_report(run_dir: Path, comp: dict, track: np.ndarray) -> tuple[str, st
 
 
 def _plot_orbit(run_dir: Path, world: list[dict], track: np.ndarray, plan: dict, t_est) -> None:
-    plt, fig, ax = _figure(1, (7, 7))
+    plt, fig, ax = _figure(1, (10, 7))
     n_ugv = sum(1 for k in world[0] if k.startswith("ugv") and k.endswith("_n"))
     w = np.array([[float(r["t"]), float(r["north"]), float(r["east"])] for r in world])
     c = np.array([np.mean([[float(r[f"ugv{i}_n"]), float(r[f"ugv{i}_e"])] for i in range(n_ugv)],
@@ -270,8 +270,8 @@ def _plot_orbit(run_dir: Path, world: list[dict], track: np.ndarray, plan: dict,
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
     ax.set_aspect("equal")
-    ax.legend(fontsize=8)
-    ax.set_title("fixed-wing orbit")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    ax.set_title("fixed-wing orbit (take-off north, climb-out, orbit, landing)")
     fig.tight_layout()
     fig.savefig(run_dir / "track.png", dpi=110)
     plt.close(fig)
