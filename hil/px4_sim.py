@@ -67,6 +67,9 @@ class Px4BridgeConfig:
 
     rate_hz          physics and HIL_SENSOR rate [Hz] (PX4 needs >= 250)
     mag_every, baro_every, gps_every, truth_every   send those every k-th frame
+    truth_max_hz     HIL_STATE_QUATERNION at most this often [Hz], whatever PX4 asks (it asks for
+                     200 Hz; the ground truth is only logged, and packing it every frame cost ~9 %
+                     of our time per frame and PX4 a parse per frame)
     boot_wait_s      [s wall] wait per frame for PX4's first actuator answer
     answer_timeout_s [s wall] once in lockstep: PX4 is given up after this long silent
     gps_eph_m, gps_epv_m, satellites   what HIL_GPS claims
@@ -80,6 +83,7 @@ class Px4BridgeConfig:
     baro_every: int = 5
     gps_every: int = 25
     truth_every: int = 5
+    truth_max_hz: float = 50.0
     boot_wait_s: float = 0.004
     answer_timeout_s: float = 20.0
     gps_eph_m: float = 0.3
@@ -95,6 +99,8 @@ class Px4BridgeConfig:
         for k in (self.mag_every, self.baro_every, self.gps_every, self.truth_every):
             if not (isinstance(k, int) and k >= 1):
                 raise ValueError("the *_every settings must be whole numbers >= 1")
+        if not self.truth_max_hz > 0:
+            raise ValueError(f"truth_max_hz must be > 0, got {self.truth_max_hz}")
         if not (self.boot_wait_s > 0 and self.answer_timeout_s > 0):
             raise ValueError("boot_wait_s and answer_timeout_s must be > 0")
 
@@ -244,7 +250,8 @@ class Px4SimBridge:
             out += self._gps_frame(o, nz)
         truth_every = c.truth_every
         if self.truth_interval_us:
-            truth_every = max(1, round(self.truth_interval_us / self.dt_us))
+            truth_every = max(1, round(self.truth_interval_us / self.dt_us),
+                              math.ceil(c.rate_hz / c.truth_max_hz - 1e-9))  # fmt: skip
         if k % truth_every == 0:
             out += self._truth_frame(o)
         return out
