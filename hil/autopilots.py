@@ -266,7 +266,6 @@ class AutopilotProfile:
     setpoint_frame: str = "local_ned"  # "local_ned" | "reposition" (DO_REPOSITION, global)
     setpoint_min_interval_s: float = 0.0  # [s] between setpoints (0: one per position sample)
     reposition_frame: int = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
-    reposition_change_mode: bool = False  # DO_REPOSITION param 2 bit 0: switch to GUIDED too
     reposition_lead_s: float = 5.0  # a velocity setpoint → a DO_REPOSITION this far ahead [s]
     landed_from_extended_sys_state: bool = False
     attitude_message: str = "ATTITUDE"
@@ -482,7 +481,7 @@ class ArduPlaneProfile(AutopilotProfile):
     params: ParamNames = PLANE_PARAMS
     setpoint_frame: str = "reposition"
     setpoint_min_interval_s: float = 1.0  # each DO_REPOSITION is a new guided waypoint
-    reposition_change_mode: bool = True  # else refused outside GUIDED (a climb-out in TAKEOFF)
+
     mode_table: tuple = field(default=_PLANE_TABLE, repr=False)
     set_table: tuple = field(default=_PLANE_SET, repr=False)
 

@@ -303,16 +303,19 @@ def local_setpoint(tel: Telemetry, target_system: int, pos_ned=None, vel_ned=Non
 
 
 def reposition_command(tel: Telemetry, profile: AutopilotProfile, target_system: int, pos_ned,
-                       yaw=None, target_component: int = 1) -> mavlink2.MAVLink_message:  # fmt: skip
+                       yaw=None, target_component: int = 1,
+                       change_mode: bool = False) -> mavlink2.MAVLink_message:  # fmt: skip
     """DO_REPOSITION as COMMAND_INT to a position about home, in the global frame the profile
     names: PX4 accepts GLOBAL_INT frames only; ArduPlane's GUIDED takes its targets this way
-    (GLOBAL_RELATIVE_ALT_INT). Needs `tel.home`."""
+    (GLOBAL_RELATIVE_ALT_INT). Needs `tel.home`. `change_mode`: param 2 bit 0, switch to the
+    mode that flies it as well (ArduPlane: GUIDED, refused without it in TAKEOFF; PX4: Hold);
+    never for a setpoint stream, which must not undo a hold the net asked for."""
     lat, lon, amsl = ned_to_geodetic(tel.home, np.asarray(pos_ned, dtype=float))
     relative = profile.reposition_frame == M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
     z = amsl - tel.home.alt_m if relative else amsl
     return M.MAVLink_command_int_message(
         target_system, target_component, profile.reposition_frame, M.MAV_CMD_DO_REPOSITION, 0, 0,
-        -1.0, float(M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE if profile.reposition_change_mode else 0),
+        -1.0, float(M.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE if change_mode else 0),
         0.0, math.nan if yaw is None else math.degrees(yaw),
         int(round(lat * 1e7)), int(round(lon * 1e7)), float(z),
     )  # fmt: skip

@@ -147,13 +147,14 @@ def test_param_value_is_in_the_autopilots_unit_and_whole_where_it_stores_integer
 
 def test_companion_gives_arduplane_positions_as_do_reposition_and_velocities_as_a_point_ahead():
     """ArduPlane's GUIDED moves only by DO_REPOSITION (SET_POSITION_TARGET_LOCAL_NED changes
-    just its altitude): the tick-driven companion sends one per second, with the change-mode flag
-    (a climb-out starts in TAKEOFF), and turns a velocity command into a target 5 s ahead."""
+    just its altitude): the tick-driven companion sends one per second, without the change-mode
+    flag (only the climb-out from TAKEOFF asks for it: a stream must not undo the net's LOITER),
+    and turns a velocity command into a target 5 s ahead."""
     import numpy as np
 
     from flight.geo import DEFAULT_HOME, geodetic_to_ned
     from hil.autopilots import ARDUPLANE
-    from hil.client import Home
+    from hil.client import Home, reposition_command
     from mission.vehicle import VehicleLink
 
     class Link:
@@ -173,9 +174,11 @@ def test_companion_gives_arduplane_positions_as_do_reposition_and_velocities_as_
     assert len(link.sent) == 1
     m = link.sent[0]
     assert m.get_type() == "COMMAND_INT" and m.command == 192  # MAV_CMD_DO_REPOSITION
-    assert m.param2 == 1.0 and m.frame == 6  # change mode; GLOBAL_RELATIVE_ALT_INT
+    assert m.param2 == 0.0 and m.frame == 6  # no mode change (the net's hold is LOITER)
     ned = geodetic_to_ned(h, m.x / 1e7, m.y / 1e7, h.alt_m)
     assert abs(ned[0] - 100.0) < 0.5 and abs(ned[1]) < 0.5 and abs(m.z - 50.0) < 1e-6
     v.t = 11.0
     v.position_target(pos_ned=[0.0, 30.0, -60.0])
     assert len(link.sent) == 2 and abs(link.sent[1].z - 60.0) < 1e-6
+    climb = reposition_command(v.tel, ARDUPLANE, 1, [0.0, 0.0, -60.0], change_mode=True)
+    assert climb.param2 == 1.0  # MAV_DO_REPOSITION_FLAGS_CHANGE_MODE
