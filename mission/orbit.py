@@ -237,7 +237,11 @@ class OrbitMission:
             self._aim(v)
             if v.t - sent >= f.reposition_s:
                 target = np.array([self.centre[0], self.centre[1], -self.plan.altitude_m])
-                v.send(reposition_command(v.tel, v.profile, v.target_system or 1, target))
+                v.send(
+                    reposition_command(
+                        v.tel, v.profile, v.target_system or 1, target, change_mode=True
+                    )
+                )  # ArduPlane: GUIDED from TAKEOFF
                 sent = v.t
             vs = v.tel.vehicle_state()
             ok = vs is not None and self._certified_now(vs)
