@@ -87,3 +87,20 @@ def test_a_module_reading_a_value_says_so():
     # roles: nothing read by value is passed off as not depending on it
     r = dict((n, role) for role, n in roles(pol, pol.values(o)))
     assert r["team_east"] == "cited_module" and r["team_west"] == "uncited_same_quantity"
+
+
+def test_the_module_part_walks_to_the_threshold_where_the_action_changes():
+    """A module that goes east unless the team is west of centre: at +0.31 its action does not
+    change at team_east's 0.08, only at team_west's −0.08, so that is what it cites."""
+    pol = _policy()
+    lat = pol.modules["lateral"]
+    qs = {3: {"team_west": -2.0}, 4: {"team_west": 1.0}}
+    lat.net = _linear(lat.inputs, lat.actions, qs, {0: 0.5, 3: 1.0})
+    o = np.full(14, 0.5, np.float32)
+    o[0], o[4], o[5] = 0.81, 1.0, 1.0
+    ex = pol.explain(o)
+    assert ex["action"] == "east" and ex["cited"] == ["someone_out", "team_west"]
+    assert ex["reason"].endswith("; not team_west (aim_east < -0.08)")
+    rows = fidelity(pol, _observations(60))
+    assert rows["cited_module"]["action_rate"] == 1.0
+    assert rows["uncited_other"]["action_rate"] == 0.0

@@ -13,12 +13,12 @@ module acted and why, citing every predicate the decision depends on:
 
 * the arbiter's part: the rule that fired (in the concept's own words) and the earlier rules,
   which had to be false — read off the rule list;
-* the module's part: for each quantity behind the module's predicate inputs, the nearest
-  threshold above and below its value, cited when moving the quantity just past it (by
-  ε = 1e-6·max(|θ|, 1), everything else held) would change the module's action — a
-  counterfactual the policy computes on its own concept values. (A farther threshold on the
-  same quantity is only reached through the nearer one: "team 0.31 right of centre" is the
-  reason for "east", not "team not left of centre".)
+* the module's part: for each quantity behind the module's predicate inputs and each
+  direction (up, down), the first threshold past which (by ε = 1e-6·max(|θ|, 1), everything
+  else held) the module's action would change — the edges of the region where the module does
+  what it does, a counterfactual the policy computes on its own concept values. ("team 0.31
+  right of centre" is the reason for "east"; team_west's −0.08 further down is not cited when
+  crossing 0.08 already changes the action.)
 
 A module that reads only predicates depends on nothing else, so the explanation is complete; a
 module that also reads quantities by value lists them as `read` (their values are in `concepts`)
@@ -181,9 +181,9 @@ class ModularPolicy:
         return {"rule": rule, "earlier": earlier, "module": mod, "read": read}
 
     def _module_cites(self, m: str, values: dict[str, float], a: int) -> list[str]:
-        """The module's predicate inputs that bound its action: per quantity, the nearest
-        threshold above and below its value, cited when moving just past it changes the action
-        (a farther threshold on the same quantity can only be reached through the nearer one)."""
+        """The module's predicate inputs that bound its action: per quantity and direction
+        (up, down), the first threshold past which (by ε) the action changes — the edge of the
+        region of that quantity where the module does what it does."""
         by_q: dict[str, list[Concept]] = {}
         for n in self.modules[m].inputs:
             if self.concepts[n].kind == "predicate":
@@ -193,13 +193,12 @@ class ModularPolicy:
             v = values[q]
             above = [p for p in ps if p.threshold >= v]
             below = [p for p in ps if p.threshold < v]
-            for side, near in ((1.0, above), (-1.0, below)):
-                if not near:
-                    continue
-                t = (min if side > 0 else max)(p.threshold for p in near)
-                v2 = dict(values, **{q: t + side * nudge(t)})
-                if self.module_action(m, v2) != a:
-                    out += [p.name for p in near if p.threshold == t]
+            for side, ahead in ((1.0, above), (-1.0, below)):
+                for t in sorted({p.threshold for p in ahead}, key=lambda t: side * t):
+                    v2 = dict(values, **{q: t + side * nudge(t)})
+                    if self.module_action(m, v2) != a:  # the action's boundary this way
+                        out += [p.name for p in ahead if p.threshold == t]
+                        break
         return [n for n in self.modules[m].inputs if n in out]  # in the module's input order
 
     def _say(self, name: str, values: dict[str, float]) -> str:
