@@ -86,6 +86,7 @@ class ClientOptions:
     climb_wait_s: float = 120.0
     land_wait_s: float = 240.0
     stall_s: float = 20.0  # a position target not approached by 1 m in this long is a stall
+    loiter_reach_m: float = 150.0  # a fixed-wing circling its target this close has reached it
     stall_dist_m: float = 3.0  # ... when farther than this
     version_wait_s: float = 3.0
     # Yield to the autopilot's own mode changes (the rule; default). False keeps them
@@ -447,6 +448,10 @@ class VehicleClient:
             return
         target = np.asarray(target, dtype=float)
         d = float(np.linalg.norm(tel.pos_ned - target))
+        if self.profile is not None and self.profile.vehicle == "fixedwing":  # it circles it
+            d = max(
+                0.0, float(np.linalg.norm((tel.pos_ned - target)[:2])) - self.options.loiter_reach_m
+            )
         now = tel.t
         st = self._stall
         if st is None or np.linalg.norm(st[0] - target) > 5.0 or d < st[1] - 1.0:

@@ -114,7 +114,9 @@ def _mission(c: VehicleClient, root: Path, altitude: float, target_ned, land: bo
         fs.connect_arm_takeoff(altitude)
         fs.offboard(altitude)
         fs.hold_target = np.asarray(target_ned, dtype=float)
-        radius = 3.0 if c.profile.vehicle == "multirotor" else 60.0
+        radius = (
+            3.0 if c.profile.vehicle == "multirotor" else 110.0
+        )  # circles at WP_LOITER_RAD 80 m
         c.wait_until(lambda: np.linalg.norm(tel.pos_ned[:2] - fs.hold_target[:2]) < radius,
                      300, "the target", vehicle_s=120)  # fmt: skip
         fs.set_mode(c.profile.fallback_mode)
