@@ -80,14 +80,12 @@ def _check_explanations(pol, scenario="composite", seed=0):
         # the values behind every concept the module reads are recorded
         behind = {pol.concepts[n].quantity or n for n in mod.inputs}
         assert behind <= set(ex["concepts"])
-        # a cited module predicate changes the module's action when crossed; an uncited one not
+        # a cited predicate changes the action when crossed; one on an uncited quantity not
         vals = pol.values(obs)
-        for n in mod.inputs:
-            c = pol.concepts[n]
-            if c.kind != "predicate" or n in [p for p, _ in pol.arbiter.rules]:
-                continue
+        for c in pol.preds:
+            n = c.name
             v2 = dict(vals, **{c.quantity: c.across(vals[c.quantity], 1e-6)})
-            changed = pol.module_action(ex["module"], v2) != a
+            changed = pol.decide(v2)[2] != a
             if n in ex["cited"]:
                 assert changed
             elif not any(pol.concepts[x].quantity == c.quantity for x in ex["cited"]):
@@ -197,7 +195,9 @@ def test_modular_file_roundtrip_and_the_fly_loader(tmp_path):
     o[5] = 0.0
     ex = back.explain(o)
     assert ex["module"] == "climb" and "out of view" in ex["reason"]
-    assert ex["cited"][0] == "someone_out" and ex["read"] == []
+    # …but the default is climb too: the rule is not decisive, and the explanation says so
+    assert "someone_out" not in ex["cited"] and "not decisive" in ex["reason"]
+    assert ex["read"] == []
     # `skyherd fly --policy FILE` loads it with the companion's loader; its pilot explains
     from flight.state import VehicleState
     from mission.pilots import Observation, PolicyPilot

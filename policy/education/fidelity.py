@@ -9,12 +9,14 @@ the changed values. Two sizes of move past the threshold θ:
 * far   a uniform draw in [0.02, 0.5]·max(|θ|, 0.01) (seeded): a cited concept must decide the
         action wherever it is on the other side, not only next to the threshold
 
-The explanation (ModularPolicy.citations) finds its module citations with a move of only
+The explanation (ModularPolicy.citations) finds what it cites with a move of only
 ε = 1e-6·max(|θ|, 1), so both sizes test it on moves it never made. Roles of a predicate:
 
-* cited_rule            the arbiter's rule that fired (made false)
-* cited_earlier         an earlier rule, false so it did not fire (made true)
-* cited_module          a predicate input of the acting module the explanation cites
+* cited_rule            the arbiter's rule that fired (made false), cited as decisive
+* cited_earlier         an earlier rule, false so it did not fire (made true), cited
+* cited_module          any other cited predicate (in the default curriculum: the module's)
+* named_not_decisive    a rule the arbiter went through (fired or earlier) that the
+                        explanation says is not decisive
 * uncited_same_quantity not cited, but its quantity is that of a cited predicate (moving it
                         may cross the cited threshold too: e.g. team_west's from 0.31 to −0.09
                         also makes team_east false)
@@ -36,6 +38,7 @@ ROLES = (
     "cited_rule",
     "cited_earlier",
     "cited_module",
+    "named_not_decisive",
     "uncited_same_quantity",
     "uncited_read",
     "uncited_other",
@@ -57,10 +60,11 @@ def roles(policy: ModularPolicy, values: dict[str, float]) -> list[tuple[str, st
     out += [("cited_earlier", n) for n in c["earlier"]]
     out += [("cited_module", n) for n in c["module"]]
     cited = {n for _, n in out}
+    out += [("named_not_decisive", n) for n in c["named"]]
     cited_q = {policy.concepts[n].quantity for n in cited}
     read = set(c["read"])
     for p in policy.preds:
-        if p.name in cited:
+        if p.name in cited or p.name in c["named"]:
             continue
         if p.quantity in cited_q:
             out.append(("uncited_same_quantity", p.name))

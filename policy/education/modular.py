@@ -11,14 +11,15 @@
 `policy(obs) → action index` flies like any skyherd policy; `policy.explain(obs)` says which
 module acted and why, citing every predicate the decision depends on:
 
-* the arbiter's part: the rule that fired (in the concept's own words) and the earlier rules,
-  which had to be false — read off the rule list;
-* the module's part: for each quantity behind the module's predicate inputs and each
-  direction (up, down), the first threshold past which (by ε = 1e-6·max(|θ|, 1), everything
-  else held) the module's action would change — the edges of the region where the module does
-  what it does, a counterfactual the policy computes on its own concept values. ("team 0.31
-  right of centre" is the reason for "east"; team_west's −0.08 further down is not cited when
-  crossing 0.08 already changes the action.)
+* the reason's path: the arbiter's rule that fired (in the concept's own words), or "none of …
+  holds" for the default;
+* the cited predicates: for each quantity behind a predicate and each direction (up, down),
+  the first threshold past which (by ε = 1e-6·max(|θ|, 1), everything else held) the action
+  would change — the edges of the region of the concept space where the policy does what it
+  does, a counterfactual the policy computes on its own concept values ("team 0.31 right of
+  centre" is the reason for "east"; team_west's −0.08 further down is not cited when crossing
+  0.08 already changes the action). A fired rule that is not among them is said to be "not
+  decisive"; earlier rules are cited only when making them true would change the action.
 
 A module that reads only predicates depends on nothing else, so the explanation is complete; a
 module that also reads quantities by value lists them as `read` (their values are in `concepts`)
@@ -167,27 +168,37 @@ class ModularPolicy:
 
     # ---- explaining -------------------------------------------------------------------------
     def citations(self, values: dict[str, float]) -> dict[str, list[str]]:
-        """What a decision depends on (module docstring): predicate names per part, and the
-        quantities the acting module reads by value. {rule, earlier, module, read}."""
+        """What a decision's action depends on (module docstring), as predicate names:
+        {rule: the fired rule's, if decisive; earlier: earlier rules' that are decisive; module:
+        the other decisive ones; named: rules the arbiter went through that are not decisive;
+        read: quantities the acting module reads by value}."""
         m, k, a = self.decide(values)
         if k == -2:
-            return {"rule": [], "earlier": [], "module": [], "read": []}
+            return {"rule": [], "earlier": [], "module": [], "named": [], "read": []}
         rules = self.arbiter.rules
-        rule = [rules[k][0]] if k >= 0 else []
+        fired = [rules[k][0]] if k >= 0 else []
         earlier = list(dict.fromkeys(p for p, _ in rules[: len(rules) if k < 0 else k]))
-        known = set(rule + earlier)
-        mod = [n for n in self._module_cites(m, values, a) if n not in known]
-        read = [n for n in self.modules[m].inputs if self.concepts[n].kind == "quantity"]
-        return {"rule": rule, "earlier": earlier, "module": mod, "read": read}
+        decisive = set(self._decisive(values, a))
+        rest = [n for n in self.modules[m].inputs if n in decisive and n not in fired + earlier]
+        rest += [p.name for p in self.preds if p.name in decisive and p.name not in rest
+                 and p.name not in fired + earlier]  # fmt: skip
+        return {
+            "rule": [n for n in fired if n in decisive],
+            "earlier": [n for n in earlier if n in decisive],
+            "module": rest,
+            "named": [n for n in fired + earlier if n not in decisive],
+            "read": [n for n in self.modules[m].inputs if self.concepts[n].kind == "quantity"],
+        }
 
-    def _module_cites(self, m: str, values: dict[str, float], a: int) -> list[str]:
-        """The module's predicate inputs that bound its action: per quantity and direction
-        (up, down), the first threshold past which (by ε) the action changes — the edge of the
-        region of that quantity where the module does what it does."""
+    def _decisive(self, values: dict[str, float], a: int) -> list[str]:
+        """Per quantity behind any predicate and per direction (up, down): the first threshold
+        past which (by ε, all else held) the action changes — the edges of the region of the
+        concept space where the policy does what it does. Between two consecutive thresholds of
+        a quantity every predicate on it keeps its truth, so for modules that read predicates
+        only this is exact."""
         by_q: dict[str, list[Concept]] = {}
-        for n in self.modules[m].inputs:
-            if self.concepts[n].kind == "predicate":
-                by_q.setdefault(self.concepts[n].quantity, []).append(self.concepts[n])
+        for p in self.preds:
+            by_q.setdefault(p.quantity, []).append(p)
         out = []
         for q, ps in by_q.items():
             v = values[q]
@@ -196,10 +207,10 @@ class ModularPolicy:
             for side, ahead in ((1.0, above), (-1.0, below)):
                 for t in sorted({p.threshold for p in ahead}, key=lambda t: side * t):
                     v2 = dict(values, **{q: t + side * nudge(t)})
-                    if self.module_action(m, v2) != a:  # the action's boundary this way
+                    if self.decide(v2)[2] != a:  # the action's boundary this way
                         out += [p.name for p in ahead if p.threshold == t]
                         break
-        return [n for n in self.modules[m].inputs if n in out]  # in the module's input order
+        return out
 
     def _say(self, name: str, values: dict[str, float]) -> str:
         p = self.concepts[name]
@@ -214,6 +225,8 @@ class ModularPolicy:
             reason = "concepts undefined (a formula divided by zero): hover"
         elif k >= 0:
             reason = self._say(rules[k][0], values)
+            if not c["rule"]:
+                reason += " [not decisive: without it the action is the same]"
         else:
             names = ", ".join(dict.fromkeys(p for p, _ in rules))
             reason = f"none of {names} holds" if names else "the arbiter's only module"
