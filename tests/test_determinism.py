@@ -47,7 +47,7 @@ def fly(tmp_path, name, args, busy=False):
          [("0", False), ("10", False), ("0", True)]),
         ("square", ["--mission", "square", "--side", "8", "--altitude", "4", "--instance", "13",
                     "--zenoh-port", "7454"], [("0", False), ("10", True)]),
-        ("formation", ["--mission", "formation", "--agents", "9", "--instance", "40"],
+        ("formation", ["--mission", "formation", "--agents", "9", "--instance", "180"],
          [("0", False), ("10", True)]),
         ("orbit", ["--airframe", "fixedwing", "--orbit-duration", "10", "--orbit-no-land",
                    "--instance", "14", "--zenoh-port", "7455"], [("0", False), ("10", True)]),
