@@ -353,7 +353,8 @@ def test_ardupilot_personality():
         Client(9) as c,
     ):
         hb = c.wait_heartbeat()
-        assert hb.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA and hb.custom_mode == 5  # LOITER
+        # its hold on the ground shows as BRAKE (17): LOITER reads a pilot's throttle
+        assert hb.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA and hb.custom_mode == 17
         assert custom_mode_of(Personality.ARDUPILOT, FlightMode.RTL) == 6
         assert c.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == 0
         # ArduCopter: NAV_TAKEOFF param7 is the height above home.
@@ -370,6 +371,8 @@ def test_ardupilot_personality():
             c.command(M.MAV_CMD_DO_SET_MODE, 1, 5).result == 0
             and sitl.autopilot.mode == FlightMode.HOLD
         )
+        # ... and then shows the number asked for, as ArduCopter would
+        assert c.recv("HEARTBEAT", 3, lambda m: m.custom_mode == 5) is not None
 
 
 def test_qgroundcontrol_connection_sequence_on_the_gcs_link():
