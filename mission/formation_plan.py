@@ -235,6 +235,20 @@ def formation_envelope(paths_ne: list[np.ndarray], params: FormationParams,
     )  # fmt: skip
 
 
+def vehicle_instances(base: int, n: int) -> list[int]:
+    """The MAVLink instances of n formation vehicles from `base` up, skipping every instance
+    whose companion port (14540+N, the PX4 layout) is the ground stations' 14550 (N = 10: its
+    companion would hear every vehicle's ground-station stream; CONVENTIONS.md, "overlaps")."""
+    from flight.mavlink.endpoint import API_REMOTE_PORT, GCS_REMOTE_PORT
+
+    out, i = [], base
+    while len(out) < n:
+        if API_REMOTE_PORT + i != GCS_REMOTE_PORT:
+            out.append(i)
+        i += 1
+    return out
+
+
 def field_offsets(origin: Home, homes: list[Home]) -> list[np.ndarray]:
     """Field-frame (north, east) [m] of each vehicle's home."""
     return [geodetic_to_ned(origin, h.lat_deg, h.lon_deg, h.alt_m)[:2] for h in homes]

@@ -448,6 +448,7 @@ def _run_formation(args, run_dir: Path, folder) -> int:
         load_plan,
         plan_ne,
         vehicle_homes,
+        vehicle_instances,
     )
     from mission.vehicle import COMPANION_COMPONENT, VehicleLink
     from runio import CsvWriter
@@ -469,10 +470,11 @@ def _run_formation(args, run_dir: Path, folder) -> int:
                          CsvWriter(run_dir / "metrics.csv", TRACK_COLUMNS))  # fmt: skip
     mission = FormationMission(plan_ne(plan, params.cell_m), field_offsets(DEFAULT_HOME, homes),
                                params, record, events)  # fmt: skip
+    instances = vehicle_instances(args.instance, K)
     links = []
     try:
         for k in range(K):
-            inst = args.instance + k
+            inst = instances[k]
             (run_dir / f"uav{k}").mkdir(exist_ok=True)
             links.append(MavlinkLink.open(f"udpin:127.0.0.1:{14540 + inst}", source_system=1 + inst,
                                           source_component=COMPANION_COMPONENT,
@@ -481,10 +483,10 @@ def _run_formation(args, run_dir: Path, folder) -> int:
         for link in links:
             link.close()
         raise UsageError(
-            f"{e}; is another companion using instances {args.instance}..{args.instance + K - 1}?"
+            f"{e}; is another companion using instances {instances[0]}..{instances[-1]}?"
         ) from None
-    vs = [VehicleLink(link, target_system=1 + args.instance + k) for k, link in enumerate(links)]
-    print(f"skyherd companion: formation of {K} (instances {args.instance}..{args.instance + K - 1}), "
+    vs = [VehicleLink(link, target_system=1 + inst) for link, inst in zip(links, instances)]
+    print(f"skyherd companion: formation of {K} (instances {', '.join(map(str, instances))}), "
           f"lockstep; run folder {run_dir}", file=sys.stderr, flush=True)  # fmt: skip
     from tqdm import tqdm
 

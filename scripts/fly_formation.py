@@ -33,6 +33,7 @@ from mission.formation_plan import (
     tracking_error,
     validate_plan,
     vehicle_homes,
+    vehicle_instances,
 )
 from runio.runfolder import RunFolder, args_dict, atomic_write_text, markdown_table
 from scripts.cli import UsageError
@@ -102,7 +103,7 @@ def run_formation(args: argparse.Namespace) -> int:
     params = _params(args)
     K = args.agents
     plan, plan_info = obtain_plan(args)
-    instances = [args.instance + k for k in range(K)]
+    instances = vehicle_instances(args.instance, K)
     _ports_free(instances)
     homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
     folder = RunFolder("fly", root=args.runs_dir)
@@ -115,7 +116,12 @@ def run_formation(args: argparse.Namespace) -> int:
     )  # fmt: skip
     atomic_write_text(run_dir / "plan.json", _plan_json(plan))
     print(f"skyherd fly: run folder {run_dir}", flush=True)
-    print(f"skyherd fly: {K} vehicles (instances {instances[0]}..{instances[-1]}), plan of "
+    skipped = (
+        " (10 skipped: its companion port is the ground stations' 14550)"
+        if 10 in range(instances[0], instances[-1])
+        else ""
+    )
+    print(f"skyherd fly: {K} vehicles (instances {instances[0]}..{instances[-1]}{skipped}), plan of "
           f"{len(plan[0]) - 1} steps, speed-up {args.speedup:g}, lockstep", flush=True)  # fmt: skip
     sims = []
     for k, (inst, h) in enumerate(zip(instances, homes)):
@@ -202,7 +208,9 @@ def formation_report(run_dir: Path, rc: int, why: str) -> bool:
     t_plan = times.get("plan_start", math.nan)
     paths_ne = plan_ne(plan, params.cell_m)
     tracks = read_tracks(run_dir, K)
-    base = int(cfg.get("args", {}).get("instance", 0))
+    instances = cfg.get("instances") or vehicle_instances(
+        int(cfg.get("args", {}).get("instance", 0)), K
+    )
     moves = plan_moves(plan)
     rows, land_err = [], []
     for k in range(K):
@@ -210,7 +218,7 @@ def formation_report(run_dir: Path, rc: int, why: str) -> bool:
         err = float(np.hypot(*(tr[-1, 1:3] - paths_ne[k, -1]))) if len(tr) else math.nan
         land_err.append(err)
         alt_end = round(-float(tr[-1, 3]), 3) + 0.0 if len(tr) else math.nan
-        rows.append([base + k, str(plan[k][0]), str(plan[k][-1]), params.altitude(k), moves[k],
+        rows.append([instances[k], str(plan[k][0]), str(plan[k][-1]), params.altitude(k), moves[k],
                      *tracking_error(tr, paths_ne[k], t_plan, params.step_s), err, alt_end])  # fmt: skip
     table = markdown_table(
         ["instance", "start cell", "target cell", "cruise alt [m]", "moves",

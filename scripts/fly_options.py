@@ -10,7 +10,8 @@ def add_formation_arguments(group) -> None:
     """Options of the formation mission (added to `skyherd fly` in an argument group)."""
     group.add_argument("--agents", type=int, choices=AGENT_CHOICES, default=9,
                        help="K: vehicles and formation targets (1, 4, 9 or 16; default 9; 1 needs --policy-file); "
-                       "the vehicles are instances N..N+K-1 with N = --instance")  # fmt: skip
+                       "the vehicles are instances N, N+1, ... with N = --instance, skipping 10 (PX4 layout: its "
+                       "companion port is the ground stations' 14550)")  # fmt: skip
     group.add_argument(
         "--sql-seed",
         type=int,

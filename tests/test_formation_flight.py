@@ -27,6 +27,7 @@ from mission.formation_plan import (
     tracking_error,
     validate_plan,
     vehicle_homes,
+    vehicle_instances,
 )
 from policy.sql import Algorithm, GridParams, SQLHyper, build_layout, plan_paths, train
 from policy.sql.layout import STARTS, TARGET_LATTICE
@@ -63,6 +64,15 @@ def test_cell_to_field_mapping_and_vehicle_homes():
         assert h.alt_m == DEFAULT_HOME.alt_m
     # (1, 9) is 16 m north: 16 m / (meridian radius 6.357e6 m) = 1.442e-4 degrees of latitude
     assert homes[0].lat_deg - DEFAULT_HOME.lat_deg == pytest.approx(1.442e-4, rel=1e-3)
+
+
+def test_vehicle_instances_skip_the_one_whose_companion_port_is_the_ground_stations():
+    # PX4 layout: instance N's companion listens on 14540+N; for N = 10 that is 14550, where
+    # every vehicle's ground-station link sends (a K = 9 flight from instance 5 hung on it)
+    assert vehicle_instances(0, 16) == [*range(10), *range(11, 17)]
+    assert vehicle_instances(5, 9) == [5, 6, 7, 8, 9, 11, 12, 13, 14]
+    assert vehicle_instances(120, 4) == [120, 121, 122, 123]
+    assert all(14540 + n != 14550 for n in vehicle_instances(0, 40))
 
 
 def test_reference_moves_one_cell_per_step_with_feed_forward():
