@@ -6,7 +6,7 @@
 2. Closed-loop real-time factor of the ground-air flight: lockstep as fast as possible vs
    free-running at 10× and 20× (paced; its lag — how late each setpoint acts — p50 / p95).
 3. The companion's decision latency (tick start → close, wall time) p50 / p95.
-4. `make run`'s job (`skyherd fly` with its defaults): wall and CPU time.
+4. `make run`'s job (`skyherd fly --speedup 0`): wall and CPU time.
 
     .venv/bin/python bench/bench_lockstep.py [--quick]
 """
@@ -157,9 +157,9 @@ def main() -> None:
     c = rtf["companion"]
     print(f"\ncompanion decision latency (wall): p50 {1e3 * c['decide_wall_p50_s']:.1f} ms, "
           f"p95 {1e3 * c['decide_wall_p95_s']:.1f} ms over {c['ticks']} ticks")  # fmt: skip
-    run, wall, cpu = fly(["--instance", "5", "--zenoh-port", "7458"])
-    print(f"\n`make run`'s job (skyherd fly, defaults: 60 s at 10×): wall {wall:.1f} s, CPU {cpu:.1f} s "
-          f"(sim + companion + fly)")  # fmt: skip
+    run, wall, cpu = fly(["--speedup", "0", "--instance", "5", "--zenoh-port", "7458"])
+    print(f"\n`make run`'s job (skyherd fly --speedup 0: 60 s behind the net): wall {wall:.1f} s, "
+          f"CPU {cpu:.1f} s (sim + companion + fly)")  # fmt: skip
 
 
 if __name__ == "__main__":
