@@ -25,7 +25,11 @@ def test_ugv_states_over_zenoh():
         sub = UGVStateSubscriber(b)
         pub = UGVStatePublisher(a, 3)
         junk = a.declare_publisher("skyherd/ugv/9/state")
-        time.sleep(0.5)
+        probe = a.declare_publisher("skyherd/ugv/0/state")
+        deadline = time.monotonic() + 30  # the sessions meet, then the subscriber is matched
+        while not (junk.matching_status.matching and probe.matching_status.matching):
+            assert time.monotonic() < deadline, "the subscriber never matched"
+            time.sleep(0.02)
         st = UGVStates(np.array([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]]), np.array([0.1, 0.2, 0.3]),
                        np.array([1.0, 2.0, 3.0]), np.array([False, True, False]))  # fmt: skip
         junk.put(b'{"id": 9, "pos_ned": ["nan", 0, 0]}')
