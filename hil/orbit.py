@@ -155,6 +155,30 @@ def circle_certified(geometry, centre_ne, radius_m: float, alt_m: float, reserve
     return bool(w <= 0.0)
 
 
+def slide_centre(ok, centre: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The orbit centre toward `target` as far as the fence allows: `target` when `ok(target)`
+    (its orbit certifies), else the farthest certified point on the segment from `centre`
+    toward it (bisection, 12 halvings: < 0.03 % of the step), so it slides along the boundary of
+    the certified region instead of stopping at its first touch; `centre` itself when that is
+    not certified (the fence moved). Returns (new centre, held back by the fence)."""
+    if ok(target):
+        return np.asarray(target, float).copy(), False
+    if not ok(centre):
+        return centre, True
+    lo, hi = 0.0, 1.0
+    for _ in range(12):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(centre + mid * (target - centre)) else (lo, mid)
+    return centre + lo * (target - centre), True
+
+
+def setpoint_certified(sup: Supervisor, state: VehicleState, setpoint: Setpoint) -> bool:
+    """Would the net accept `setpoint` at this state? The velocity it implies against the
+    envelope; no supervisor state is changed (the climb-out's hand-over test)."""
+    u = sup.implied_velocity(state, setpoint)
+    return bool(sup.envelope.worst(make_z(state, u)) <= 0.0)
+
+
 def fence_reserve(spec) -> float:
     """Distance [m] the orbit circle keeps from every fence row: the envelope's margin, its
     loiter-fallback diameter 2·R_turn(v_max) and the reaction-time run-on (dt + t_react)·v_max,
@@ -258,12 +282,8 @@ class OrbitCompanion:
     def certified_now(self, state: VehicleState) -> bool:
         """Would the net accept the orbit's setpoint at this state? (No supervisor state is
         changed: the hand-over test of `climb_out`.)"""
-        sup = self.supervisor
-        if not self._ok(self.centre):
-            return False
-        u = sup.implied_velocity(state, self.proposal(state))
-        z = make_z(state, u)
-        return bool(sup.envelope.worst(z) <= 0.0)
+        return self._ok(self.centre) and setpoint_certified(self.supervisor, state,
+                                                             self.proposal(state))  # fmt: skip
 
     def update(self, t: float, state: VehicleState, link_t: float | None = None) -> Decision:
         """Vehicle time t [s] and state → the certified decision to fly now. link_t: the
@@ -290,21 +310,9 @@ class OrbitCompanion:
                                 self.plan.altitude_m, self.reserve_m, self.margin_v_m)  # fmt: skip
 
     def _move_centre(self, com: np.ndarray) -> None:
-        """The orbit centre follows the centre of mass as far as the fence allows: com when its
-        orbit certifies, else the farthest certified point on the segment from the present
-        centre toward com (bisection, 12 halvings: < 0.03 % of the step), so it slides along the
-        boundary of the certified region instead of stopping at its first touch."""
-        if self._ok(com):
-            self.centre = com
-            return
-        self.limited += 1
-        if not self._ok(self.centre):  # not certified where it is (the fence moved): stay
-            return
-        lo, hi = 0.0, 1.0
-        for _ in range(12):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if self._ok(self.centre + mid * (com - self.centre)) else (lo, mid)
-        self.centre = self.centre + lo * (com - self.centre)
+        """The orbit centre follows the centre of mass as far as the fence allows (slide_centre)."""
+        self.centre, held = slide_centre(self._ok, self.centre, com)
+        self.limited += held
 
     def setpoint(self) -> tuple:
         """(pos_ned, vel_ned, yaw) for the offboard stream from the last decision."""

@@ -57,6 +57,17 @@ def _sp(s: Setpoint | None) -> dict | None:
             "yaw": None if s.yaw is None else round(float(s.yaw), 6)}  # fmt: skip
 
 
+def append_track(track: CsvWriter | None, v: VehicleLink, written: int, phase: str) -> int:
+    """Append the position samples that arrived since `written` to metrics.csv (TRACK_COLUMNS);
+    returns how many are written now."""
+    if track is not None:
+        for t, p, vel, mode, armed in v.positions[written:]:
+            track.write({"t": t, "north": p[0], "east": p[1], "down": p[2], "vn": vel[0],
+                         "ve": vel[1], "vd": vel[2], "mode": mode, "armed": int(armed),
+                         "phase": phase})  # fmt: skip
+    return len(v.positions)
+
+
 def verdict(d: Decision) -> str:
     if d.mode is Mode.FALLBACK:
         return "fallback"
@@ -112,14 +123,7 @@ class SingleVehicleMission:
             self.perception.on_frame(t, frame, status)
 
     def write_track(self, v: VehicleLink) -> None:
-        """Append the position samples that arrived this tick to metrics.csv."""
-        if self.rec.track is None:
-            return
-        for t, p, vel, mode, armed in v.positions[self._written :]:
-            self.rec.track.write({"t": t, "north": p[0], "east": p[1], "down": p[2], "vn": vel[0],
-                                  "ve": vel[1], "vd": vel[2], "mode": mode, "armed": int(armed),
-                                  "phase": self.phase})  # fmt: skip
-        self._written = len(v.positions)
+        self._written = append_track(self.rec.track, v, self._written, self.phase)
 
     # ---- the mission ---------------------------------------------------------------------------
     def run(self, v: VehicleLink) -> Phase:

@@ -179,12 +179,10 @@ class FormationMission:
         shapes are new signatures: compiled at the first tick, 2 s of CPU inside the flight)."""
         warm_up(self.nets[0].net.envelope, FORMATION_NET)
         net = FormationNet(0, self.spec)
-        from flight.state import VehicleState as S
-
         for k, north in enumerate((0.0, 1e4)):  # inside, then far outside: AI and FALLBACK
-            st = S(t=float(k), pos_ned=np.array([north, 0.0, -8.0]), vel_ned=np.zeros(3),
-                   quat=np.array([1.0, 0, 0, 0]), omega_frd=np.zeros(3), accel_frd=np.zeros(3),
-                   on_ground=False)  # fmt: skip
+            st = VehicleState(t=float(k), pos_ned=np.array([north, 0.0, -8.0]), vel_ned=np.zeros(3),
+                              quat=np.array([1.0, 0, 0, 0]), omega_frd=np.zeros(3),
+                              accel_frd=np.zeros(3), on_ground=False)  # fmt: skip
             net.certify(float(k), st, [("uav1", np.array([north, 5.0, -9.5]), np.zeros(3))],
                         st.pos_ned, np.zeros(3))  # fmt: skip
 

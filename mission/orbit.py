@@ -27,14 +27,21 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from flight.autopilot_api import FlightMode, Setpoint
 from flight.geo import ned_to_geodetic
 from hil.client import reposition_command
-from hil.orbit import ORBIT_CAMERA, OrbitParams, OrbitPlan, circle_certified, plan_orbit
+from hil.orbit import (
+    ORBIT_CAMERA,
+    OrbitParams,
+    OrbitPlan,
+    circle_certified,
+    plan_orbit,
+    setpoint_certified,
+    slide_centre,
+)
 from mission.authority import ModeAuthority
-from mission.flight import Record, verdict
+from mission.flight import Record, append_track, verdict
 from mission.steps import MissionError, Phase, read_params, recipe, wait_ready
 from mission.vehicle import VehicleLink
 from perception.camera import backproject_to_ground, camera_pose
 from perception.detector import Detector, annotate
-from safety.monitor import make_z
 from safety.supervisor import Health, Supervisor
 
 M = mavlink2
@@ -99,7 +106,7 @@ class TeamSight:
         pose = camera_pose(ORBIT_CAMERA, frame.pos_ned, frame.quat)
         ground = backproject_to_ground(ORBIT_CAMERA, pose, det.centroids_px)
         ok = np.isfinite(ground).all(axis=1)
-        if ok.any() and (n == self.n or self.camera_t is None):
+        if ok.any() and n == self.n:
             self.centre = ground[ok, :2].mean(axis=0)  # all UGVs seen: their centre of mass
         elif ok.any():  # some seen: move toward them, do not jump to a part of the team
             self.centre = 0.8 * self.centre + 0.2 * ground[ok, :2].mean(axis=0)
@@ -135,13 +142,7 @@ class OrbitMission:
         self.sight.on_frame(t, frame, status)
 
     def write_track(self, v: VehicleLink) -> None:
-        if self.rec.track is None:
-            return
-        for t, p, vel, mode, armed in v.positions[self._written :]:
-            self.rec.track.write({"t": t, "north": p[0], "east": p[1], "down": p[2], "vn": vel[0],
-                                  "ve": vel[1], "vd": vel[2], "mode": mode, "armed": int(armed),
-                                  "phase": self.phase})  # fmt: skip
-        self._written = len(v.positions)
+        self._written = append_track(self.rec.track, v, self._written, self.phase)
 
     # ---- the mission ---------------------------------------------------------------------------
     def run(self, v: VehicleLink) -> Phase:
@@ -265,28 +266,12 @@ class OrbitMission:
                                 self.reserve_m, self.net.envelope.spec.limits.margin_m)  # fmt: skip
 
     def _certified_now(self, state) -> bool:
-        if not self._ok(self.centre):
-            return False
-        u = self.net.implied_velocity(state, self._proposal())
-        return bool(self.net.envelope.worst(make_z(state, u)) <= 0.0)
+        return self._ok(self.centre) and setpoint_certified(self.net, state, self._proposal())
 
     def _move_centre(self) -> None:
-        """Toward the team's centre as seen, as far as the fence allows (bisection along the
-        segment, 12 halvings), so the centre slides along the certified region's boundary."""
-        target = self.sight.centre
-        if self._ok(target):
-            self.centre = target.copy()
-            return
-        self.limited += 1
-        if not self._ok(self.centre):
-            return
-        lo, hi = 0.0, 1.0
-        for _ in range(12):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (
-                (mid, hi) if self._ok(self.centre + mid * (target - self.centre)) else (lo, mid)
-            )
-        self.centre = self.centre + lo * (target - self.centre)
+        """Toward the team's centre as seen, as far as the fence allows (hil.orbit.slide_centre)."""
+        self.centre, held = slide_centre(self._ok, self.centre, self.sight.centre)
+        self.limited += held
 
     def _aim(self, v: VehicleLink) -> bool:
         """Every decision period: point the camera at the team's centre as seen

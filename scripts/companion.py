@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import shutil
 import sys
 import time
@@ -378,19 +379,27 @@ def run(args: argparse.Namespace) -> int:
     return rc
 
 
+def _tick_stats(stats) -> dict:
+    """companion.json's loop figures: ticks, decision latency (wall) and CPU time."""
+    lat = np.array(stats.decide_wall_s if stats and stats.decide_wall_s else [np.nan])
+    some = bool(np.isfinite(lat).any())
+    return {
+        "ticks": stats.ticks if stats else 0,
+        "decide_wall_p50_s": float(np.nanpercentile(lat, 50)) if some else None,
+        "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if some else None,
+        "cpu_s": time.process_time(),  # the companion's CPU time since it started [s]
+        "cpu_flight_s": stats.cpu_s if stats else None,  # ... from its first tick on [s]
+    }
+
+
 def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
     """companion.json: how the mission ended, its counters, the decision latency."""
-    lat = np.array(stats.decide_wall_s if stats and stats.decide_wall_s else [np.nan])
     out = {
         "outcome": mission.outcome,
         "reason": mission.reason,
         "phase": mission.phase,
-        "ticks": stats.ticks if stats else 0,
         "decisions": len(mission.rec.rows),
-        "decide_wall_p50_s": float(np.nanpercentile(lat, 50)) if np.isfinite(lat).any() else None,
-        "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if np.isfinite(lat).any() else None,
-        "cpu_s": time.process_time(),  # the companion's CPU time since it started [s]
-        "cpu_flight_s": stats.cpu_s if stats else None,  # ... from its first tick on [s]
+        **_tick_stats(stats),
         "mode_requests": mission.authority.requests,
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
@@ -515,15 +524,12 @@ def _run_formation(args, run_dir: Path, folder) -> int:
             link.close()
         for w in (events, record.decisions, record.track):
             w.close()
-    lat = np.array(stats.decide_wall_s if stats and stats.decide_wall_s else [np.nan])
+    times = {k: None if math.isnan(t) else t for k, t in mission.times.items()}
     out = {"outcome": mission.outcome, "reason": mission.reason, "phase": mission.phase,
-           "ticks": stats.ticks if stats else 0, "decisions": record.rows, "vehicles": K,
-           "times": {k: None if t != t else t for k, t in mission.times.items()}, "yielded": {f"uav{k}": w for k, w in mission.yielded.items()},
+           "decisions": record.rows, "vehicles": K, "times": times,
+           "yielded": {f"uav{k}": w for k, w in mission.yielded.items()},
            "mode_requests": sum(a.requests for a in mission.authority),
-           "net": mission.net_counts(),
-           "decide_wall_p50_s": float(np.nanpercentile(lat, 50)) if np.isfinite(lat).any() else None,
-           "decide_wall_p95_s": float(np.nanpercentile(lat, 95)) if np.isfinite(lat).any() else None,
-           "cpu_s": time.process_time(), "cpu_flight_s": stats.cpu_s if stats else None}  # fmt: skip
+           "net": mission.net_counts(), **_tick_stats(stats)}  # fmt: skip
     atomic_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
     if error:
         print(f"skyherd companion: aborted: {error}", file=sys.stderr)
