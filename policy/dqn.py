@@ -101,8 +101,13 @@ class ReplayBuffer:
         return self.n
 
 
-def td_update(q, q_target, opt, batch, gamma: float, double: bool, grad_clip: float) -> float:
-    """One gradient step on a batch (numpy arrays). Returns the loss."""
+def td_update(
+    q, q_target, opt, batch, gamma: float, double: bool, grad_clip: float, extra=None
+) -> float:
+    """One gradient step on a batch (numpy arrays). Returns the loss.
+
+    extra: optional callable(q) → a scalar torch loss added to the TD loss before the step
+    (DQfD's supervised term, policy.education.dqfd)."""
     import torch
     import torch.nn.functional as F
 
@@ -116,6 +121,8 @@ def td_update(q, q_target, opt, batch, gamma: float, double: bool, grad_clip: fl
         y = r + gamma * (1.0 - d) * q_next
     q_sa = q(o).gather(1, a.unsqueeze(1)).squeeze(1)
     loss = F.smooth_l1_loss(q_sa, y)
+    if extra is not None:
+        loss = loss + extra(q)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(q.parameters(), grad_clip)
@@ -141,11 +148,15 @@ def train_dqn(
     checkpoint_every: int = 0,
     progress: bool = False,
     desc: str = "dqn",
+    init: MLPPolicy | None = None,
+    extra=None,
 ) -> DQNResult:
     """Train on a gymnasium env with Box obs and Discrete actions.
 
     reward_fn(obs_next, env_reward, info) → reward replaces the env's reward (IRL uses wᵀψ).
     checkpoint: path of a torch checkpoint written atomically every `checkpoint_every` steps.
+    init: start from these weights (same shape) instead of fresh ones.
+    extra: callable(q) → a torch loss added to every TD step (td_update's `extra`).
     """
     import torch
 
@@ -155,6 +166,8 @@ def train_dqn(
     obs_dim = int(np.prod(env.observation_space.shape))
     n_actions = int(env.action_space.n)
     q = build_qnet(obs_dim, n_actions, params.hidden)
+    if init is not None:
+        load_weights(q, init)
     q_target = build_qnet(obs_dim, n_actions, params.hidden)
     q_target.load_state_dict(q.state_dict())
     opt = torch.optim.Adam(q.parameters(), lr=params.lr)
@@ -188,7 +201,9 @@ def train_dqn(
         if step >= params.learning_starts and step % params.train_every == 0:
             batch = buf.sample(rng, params.batch_size)
             loss_acc.append(
-                td_update(q, q_target, opt, batch, params.gamma, params.double, params.grad_clip)
+                td_update(
+                    q, q_target, opt, batch, params.gamma, params.double, params.grad_clip, extra
+                )  # fmt: skip
             )
             updates += 1
         if step % params.target_update_every == 0:
@@ -208,6 +223,17 @@ def train_dqn(
         save_checkpoint(checkpoint, q, opt, params.total_steps, params)
     policy = MLPPolicy.from_torch(q, meta={"dqn": to_jsonable(params)})
     return DQNResult(policy, returns, ends, losses, time.perf_counter() - t0, updates)
+
+
+def load_weights(q, init: MLPPolicy) -> None:
+    """Copy an MLPPolicy's weights into a torch Q-network of the same shape."""
+    import torch
+
+    lin = [m for m in q if isinstance(m, torch.nn.Linear)]
+    with torch.no_grad():
+        for m, W, b in zip(lin, init.weights, init.biases):
+            m.weight.copy_(torch.as_tensor(W, dtype=torch.float32))
+            m.bias.copy_(torch.as_tensor(b, dtype=torch.float32))
 
 
 def save_checkpoint(path: Path, q, opt, step: int, params: DQNParams) -> None:

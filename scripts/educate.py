@@ -167,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
 def _report_only(args, cur) -> int:
     """--from-run: the evaluation part of `run` on earlier runs' policies and lessons.csv."""
     from policy.dqn import DQNParams
+    from policy.education.dqfd import DQfDParams
     from policy.education.teach import EduParams
 
     p, cfg0, results, pol_dirs = None, None, [], {}
@@ -177,6 +178,8 @@ def _report_only(args, cur) -> int:
             seed0 = hp.pop("seed", 0)
             d = hp.pop("dqn")
             dqn = dict(d, hidden=tuple(d["hidden"]), seed=0)
+            if "dqfd" in hp:  # runs before DQfD have the default
+                hp["dqfd"] = DQfDParams(**hp["dqfd"])
             q = EduParams(dqn=DQNParams(**dqn), seed=seed0, **hp)
             rows = list(csv.DictReader(open(src / "lessons.csv")))
         except (OSError, KeyError, TypeError, ValueError) as e:

@@ -85,7 +85,11 @@ def test_other_bad_files_are_refused_naming_the_key(tmp_path):
     _refused(tmp_path, TEXT.replace('formula = "com_u - 0.5"', 'formula = "__import__(1)"'),
              "concepts.offset_east.formula", "not allowed")  # fmt: skip
     _refused(tmp_path, TEXT.replace('"skyherd-curriculum/1"', '"skyherd-curriculum/9"'), "format")
-    _refused(tmp_path, TEXT.replace('version = "2.0.0"', 'version = "one"'), "version")
+    _refused(tmp_path, re.sub(r'(?m)^version = ".*"', 'version = "one"', TEXT), "version")
+    _refused(tmp_path, re.sub(r'(?m)^warm_start = "demos"', 'warm_start = "guess"', TEXT, count=1),
+             "lessons[0] (lateral).warm_start", "'guess'")  # fmt: skip
+    _refused(tmp_path, TEXT.replace("retention_weight = 0.0", "retention_weight = -1"),
+             "composite.retention_weight", "-1")  # fmt: skip
     _refused(tmp_path, TEXT.replace('pass = {all_in_view_frac = ">= 0.9"}\n\n[[lessons]]\nname = "climb"',
                                     'pass = {all_in_view_frac = "> 0.9"}\n\n[[lessons]]\nname = "climb"'),
              "lessons[0] (lateral).pass.all_in_view_frac")  # fmt: skip

@@ -44,6 +44,7 @@ module = "climb"
 inputs = ["spread_error", "in_view"]
 actions = ["hover", "climb"]
 method = "irl"
+warm_start = "demos"
 pass = {all_in_view_frac = ">= 0.5"}
 
 [[lessons]]
@@ -62,6 +63,7 @@ requires = ["climb"]
 scenario = "composite"
 method = "reward"
 reward = {all_in_view = 1.0, spread_30_45 = 0.4}
+retention_weight = 0.5
 arbiter_inputs = ["someone_out", "too_wide", "too_tight"]
 modules = ["climb", "descend"]
 requires = ["climb", "descend"]

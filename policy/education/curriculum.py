@@ -24,6 +24,8 @@ Format `skyherd-curriculum/1` (the default is curricula/groundair.toml; docs/edu
     actions = ["hover", "east", "west"]     # the module's actions (params.ACTION_NAMES)
     method = "irl"                          # irl: projection IRL on its demos | dqn: on `reward`
     demos = "scripted"                      # scripted expert, or a demo file (.npz) path
+    warm_start = "demos"                    # "demos": behaviour cloning first, the demos kept in
+                                            # every TD step (DQfD, policy.education.dqfd) | "none"
     pass = {all_in_view_frac = ">= 0.9"}    # pass criterion (also the retention score)
     requires = []                           # earlier lessons it builds on
 
@@ -32,6 +34,8 @@ Format `skyherd-curriculum/1` (the default is curricula/groundair.toml; docs/edu
     scenario = "composite"
     method = "ab"                           # ab: μ_E from the lessons' demos | irl: `demos` | reward
     arbiter_inputs = ["team_east"]          # predicates only (the arbiter reads concepts)
+    retention_weight = 1.0                  # the arbiter search also replays the skill lessons
+                                            # (their μ_E on their scenarios; 0 = composite only)
     modules = ["lateral"]
     requires = ["lateral"]
     pass = {all_in_view_frac = ">= 0.9"}
@@ -60,6 +64,7 @@ MODULE_METHODS = ("irl", "dqn")
 COMPOSITE_METHODS = ("ab", "irl", "reward")
 METRICS = ("all_in_view_frac", "footprint_ratio", "ugv_losses")
 KEEP = ("freeze",)
+WARM_STARTS = ("none", "demos")
 
 
 class CurriculumError(ValueError):
@@ -94,6 +99,7 @@ class Lesson:
     passes: tuple[PassCriterion, ...] = ()
     requires: tuple[str, ...] = ()
     keep: str = "freeze"
+    warm_start: str = "none"  # "demos": DQfD pre-training (behaviour cloning) + J_E in every step
 
 
 @dataclass(frozen=True)
@@ -109,6 +115,7 @@ class CompositeLesson:
     demos: str = "scripted"
     reward: tuple[float, ...] = ()
     ab_rule: str = "mean"
+    retention_weight: float = 0.0  # weight of the skill lessons' replay in the arbiter objective
 
 
 @dataclass(frozen=True)
@@ -282,6 +289,9 @@ def parse_curriculum(doc: dict, sha256: str, path: Path = Path(".")) -> Curricul
                 f"{where}.module", f"module {module!r} is already taught by an earlier lesson"
             )
         modules.add(module)
+        warm = _get(ld, "warm_start", where, str, "none")
+        if warm not in WARM_STARTS:
+            raise _err(f"{where}.warm_start", f"{warm!r}; choose from {', '.join(WARM_STARTS)}")
         lessons.append(
             Lesson(
                 name=lname,
@@ -296,6 +306,7 @@ def parse_curriculum(doc: dict, sha256: str, path: Path = Path(".")) -> Curricul
                 passes=_passes(ld, where),
                 requires=_names(ld, "requires", where, ()),
                 keep=keep,
+                warm_start=warm,
             )
         )
     composite = None
@@ -310,6 +321,9 @@ def parse_curriculum(doc: dict, sha256: str, path: Path = Path(".")) -> Curricul
         rule = _get(cd, "ab_rule", where, str, "mean")
         if rule not in RULES:
             raise _err(f"{where}.ab_rule", f"{rule!r}; choose from {', '.join(RULES)}")
+        rw = _get(cd, "retention_weight", where, int | float, 0.0)
+        if isinstance(rw, bool) or not 0.0 <= rw < float("inf"):
+            raise _err(f"{where}.retention_weight", f"expected a number >= 0, got {rw!r}")
         composite = CompositeLesson(
             name=_get(cd, "name", where, str, "composite"),
             scenario=_scenario(cd, where),
@@ -322,6 +336,7 @@ def parse_curriculum(doc: dict, sha256: str, path: Path = Path(".")) -> Curricul
             demos=_demos(cd, where, base),
             reward=_reward(cd, where, method == "reward"),
             ab_rule=rule,
+            retention_weight=float(rw),
         )
     cur = Curriculum(name, version, sha256, concepts, tuple(lessons), composite, str(path))
     check_semantic_order(cur)

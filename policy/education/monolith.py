@@ -3,60 +3,30 @@
 One Q-network over the raw observation (14,) and all 7 actions. Lesson i continues training the
 network left by lesson i−1 (fresh replay buffer, ε schedule restarted) on lesson i's scenario
 with lesson i's reward: the IRL reward weights the educated module of that lesson ended with
-(`reward_w`), so both learners are asked the same thing; the composite lesson's reward is the
+(`reward_w`), so both learners are asked the same thing; a lesson with warm_start = "demos" is
+taught to it as to the module (DQfD: behaviour cloning on the lesson's demonstrations from the
+current weights, then fine-tuning with them in every TD step; policy.education.dqfd); the composite lesson's reward is the
 first projection-IRL step from the current network, w = μ_E − μ(π) (normalised). Nothing is
 frozen, so later lessons may overwrite what earlier ones taught: what `skyherd educate` measures
 by re-testing every earlier lesson after each one.
 
 The loop is policy.dqn.train_dqn's (same TD step, buffer, ε schedule, target copies) with one
-addition: it starts from given weights.
+addition: it starts from given weights (policy.education.dqfd.run_dqn without demonstrations).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from policy.dqn import DQNParams, MLPPolicy, ReplayBuffer, build_qnet, epsilon_at, td_update
+from policy.dqn import DQNParams, MLPPolicy
+from policy.education.dqfd import run_dqn
 
 
 def continue_dqn(env, params: DQNParams, init: MLPPolicy | None) -> MLPPolicy:
     """Train (from `init`'s weights if given) for params.total_steps env steps → greedy policy."""
-    import torch
-
-    torch.set_num_threads(params.num_threads)
-    torch.manual_seed(params.seed)
-    rng = np.random.default_rng(params.seed)
-    obs_dim = int(np.prod(env.observation_space.shape))
-    n_actions = int(env.action_space.n)
-    q = build_qnet(obs_dim, n_actions, params.hidden)
-    if init is not None:
-        lin = [m for m in q if isinstance(m, torch.nn.Linear)]
-        with torch.no_grad():
-            for m, W, b in zip(lin, init.weights, init.biases):
-                m.weight.copy_(torch.as_tensor(W, dtype=torch.float32))
-                m.bias.copy_(torch.as_tensor(b, dtype=torch.float32))
-    q_target = build_qnet(obs_dim, n_actions, params.hidden)
-    q_target.load_state_dict(q.state_dict())
-    opt = torch.optim.Adam(q.parameters(), lr=params.lr)
-    buf = ReplayBuffer(min(params.buffer_size, params.total_steps), obs_dim)
-    obs, _ = env.reset(seed=params.seed)
-    for step in range(params.total_steps):
-        if rng.random() < epsilon_at(params, step):
-            a = int(rng.integers(n_actions))
-        else:
-            with torch.no_grad():
-                a = int(q(torch.as_tensor(obs, dtype=torch.float32).unsqueeze(0)).argmax())
-        obs2, r, term, trunc, _ = env.step(a)
-        buf.add(obs, a, r, obs2, term)
-        obs = obs2
-        if term or trunc:
-            obs, _ = env.reset()
-        if step >= params.learning_starts and step % params.train_every == 0:
-            batch = buf.sample(rng, params.batch_size)
-            td_update(q, q_target, opt, batch, params.gamma, params.double, params.grad_clip)
-        if step % params.target_update_every == 0:
-            q_target.load_state_dict(q.state_dict())
-    return MLPPolicy.from_torch(q, meta={"learner": "monolithic_dqn"})
+    net = run_dqn(env, params, init)
+    net.meta["learner"] = "monolithic_dqn"
+    return net
 
 
 def teach_monolith(cur, p, educated_results, composite_target, on_lesson=None):
@@ -69,7 +39,8 @@ def teach_monolith(cur, p, educated_results, composite_target, on_lesson=None):
     import time
 
     from policy.demos import rollout_stats
-    from policy.education.teach import LessonResult, test_policy
+    from policy.education.dqfd import behaviour_clone, finetune_params
+    from policy.education.teach import LessonResult, lesson_demos, test_policy
     from policy.groundair.env import GroundAirEnv
 
     net, out, taught = None, [], []
@@ -87,9 +58,18 @@ def teach_monolith(cur, p, educated_results, composite_target, on_lesson=None):
             steps = p.dqn.total_steps * p.irl_iters
         else:
             w = np.asarray(by_name[le.name].detail["reward_w"], float)
+            w = w / max(float(np.linalg.norm(w)), 1e-12)
             steps = max(by_name[le.name].dqn_steps, p.dqn.total_steps)
         dq = dataclasses.replace(p.dqn, total_steps=steps, seed=p.seed * 1000 + 900 + i)
-        net = continue_dqn(GroundAirEnv(le.scenario, reward_weights=w), dq, net)
+        env = GroundAirEnv(le.scenario, reward_weights=w)
+        if le is not cur.composite and le.warm_start == "demos":  # DQfD, as the module was
+            d = lesson_demos(le, p)
+            pairs = (d.obs.astype(np.float32), d.actions.astype(np.int64))
+            net = behaviour_clone(*pairs, 7, p.dqn.hidden, p.dqfd, dq.seed, init=net)
+            net = run_dqn(env, finetune_params(dq, p.dqfd), net, pairs, p.dqfd)
+            net.meta["learner"] = "monolithic_dqn"
+        else:
+            net = continue_dqn(env, dq, net)
         taught.append(le)
         ret = {x.name: test_policy(net, x, p) for x in taught}
         passed = {x.name: all(c.ok(ret[x.name]) for c in x.passes) for x in taught}

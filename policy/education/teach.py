@@ -3,7 +3,10 @@
 Lesson i (a skill lesson) trains module m_i on its scenario with only its actions and its input
 concepts, from its demonstrations (method "irl": projection IRL, DQN as the inner solver, the
 learned policy closest to μ_E in μ kept; policy.irl) or from a given reward (method "dqn").
-The module is then frozen: later lessons never change its weights.
+With warm_start = "demos" the module is first cloned from its lesson's demonstrations (DQfD's
+pre-training, policy.education.dqfd); that clone is IRL's π⁽⁰⁾ and competes in the final
+choice, and every DQN solve starts from it with the demonstrations' margin loss J_E in each TD
+step (DQfD's fine-tuning). The module is then frozen: later lessons never change its weights.
 
 The composite lesson trains the arbiter only: an ordered rule list over the curriculum's
 predicates (policy.education.modular.Arbiter), built greedily (Rivest's decision lists, learnt
@@ -14,6 +17,9 @@ does; then drop every rule whose removal does not raise it. Objective on fixed e
             demonstrations (Apprenticeship Bootstrapping: no composite demonstration)
     irl     ‖μ_E − μ(π)‖₂ with μ_E from composite demonstrations
     reward  −wᵀμ(π)
+plus, with the composite's retention_weight λ_R > 0, the replay of the skill lessons:
+    + λ_R · mean_l ‖μ_E^l − μ_l(π)‖₂      (μ_l: the whole policy on lesson l's scenario)
+so the arbiter is also asked to keep calling each module where its own lesson needs it.
 
 After every lesson each earlier lesson is re-tested on its own scenario (retention): before the
 composite lesson with its own module, after it with the whole modular policy. A monolithic DQN
@@ -23,6 +29,7 @@ composite lesson with its own module, after it with the whole modular policy. A 
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -43,6 +50,7 @@ from policy.demos import (
 from policy.dqn import DQNParams, train_dqn
 from policy.education.concepts import compile_concepts
 from policy.education.curriculum import CompositeLesson, Curriculum, Lesson
+from policy.education.dqfd import DQfDParams, behaviour_clone, finetune_params, run_dqn
 from policy.education.modular import Arbiter, ModularPolicy, SkillModule, features
 from policy.groundair.env import GroundAirEnv
 from policy.irl import IRLParams, projection_irl, select_policy
@@ -53,6 +61,7 @@ class EduParams:
     """Hyper-parameters of `skyherd educate` (saved in config.json)."""
 
     dqn: DQNParams = DQNParams(total_steps=6_000, hidden=(32, 32))  # per DQN solve
+    dqfd: DQfDParams = DQfDParams()  # lessons with warm_start = "demos"
     irl_iters: int = 1  # projection-IRL iterations per skill lesson
     irl_epsilon: float = 0.01  # IRL stop: t ≤ ε
     mu_episodes: int = 10  # Monte-Carlo episodes per μ(π) estimate
@@ -63,6 +72,7 @@ class EduParams:
     demo_lag: float = 0.05  # demonstrator's repeat-action probability
     arbiter_episodes: int = 6  # episodes per arbiter-objective estimate
     arbiter_seed: int = 60_000  # first env seed of the arbiter search
+    replay_episodes: int = 3  # episodes per skill lesson replayed in the arbiter objective
     max_rules: int = 8  # longest rule list
     test_episodes: int = 10  # test episodes per lesson (retention)
     test_seed: int = 100_000  # first env seed of the lesson tests (never trained on)
@@ -72,6 +82,8 @@ class EduParams:
 
 QUICK = EduParams(
     dqn=DQNParams(total_steps=400, learning_starts=100, hidden=(16,), target_update_every=100),
+    dqfd=DQfDParams(bc_steps=200),
+    replay_episodes=1,
     irl_iters=1,
     mu_episodes=2,
     demo_episodes=2,
@@ -151,46 +163,84 @@ def teach_module(
     index: int,
     progress: bool = False,
 ) -> tuple[SkillModule, dict[str, Any]]:
-    """Train lesson's module (irl: from `demo`; dqn: on lesson.reward). Returns it and a log."""
+    """Train lesson's module (irl: from `demo`; dqn: on lesson.reward; warm_start "demos":
+    DQfD, behaviour cloning first). Returns it and a log."""
     values = concept_features(cur)
     gamma = p.dqn.gamma
     steps = 0
+    warm = lesson.warm_start == "demos"
+    pairs = module_pairs(lesson, demo, values) if warm else None
+    bc = None
+    if warm:
+        seed = p.seed * 1000 + 100 * index
+        bc = behaviour_clone(*pairs, len(lesson.actions), p.dqn.hidden, p.dqfd, seed)
+        bc.meta.update({"irl_w": [], "module": lesson.module})
 
     def solve(w: np.ndarray, i: int) -> SkillModule:
         nonlocal steps
         wn = w / max(float(np.linalg.norm(w)), 1e-12)
         env = ConceptEnv(lesson.scenario, values, lesson.inputs, lesson.actions, wn)
         dq = dataclasses.replace(p.dqn, seed=p.seed * 1000 + 100 * index + i)
-        res = train_dqn(env, dq, progress=progress, desc=f"{lesson.name} dqn {i}")
+        if warm:  # DQfD fine-tuning: from the cloned weights, J_E on the demos in every step
+            net = run_dqn(env, finetune_params(dq, p.dqfd), bc, pairs, p.dqfd)
+        else:
+            net = train_dqn(env, dq, progress=progress, desc=f"{lesson.name} dqn {i}").policy
         steps += dq.total_steps
-        res.policy.meta.update({"irl_w": wn.tolist(), "module": lesson.module})
-        return SkillModule(lesson.module, lesson.name, lesson.inputs, lesson.actions, res.policy)
+        net.meta.update({"irl_w": wn.tolist(), "module": lesson.module})
+        return SkillModule(lesson.module, lesson.name, lesson.inputs, lesson.actions, net)
 
+    log: dict[str, Any] = {}
+    if warm:
+        mod0 = SkillModule(lesson.module, lesson.name, lesson.inputs, lesson.actions, bc)
+        log.update(demo_pairs=len(pairs[1]), bc_agreement=agreement(mod0, pairs))
     if lesson.method == "dqn":
         mod = solve(np.asarray(lesson.reward, float), 1)
-        return mod, {"dqn_steps": steps, "reward_w": list(lesson.reward)}
+        log.update(dqn_steps=steps, reward_w=list(lesson.reward))
+        if warm:
+            log.update(dqfd_agreement=agreement(mod, pairs))
+        return mod, log
 
     def mu_of(pol) -> np.ndarray:
         act = as_obs_policy(pol, values) if isinstance(pol, SkillModule) else pol
         return rollout_stats(act, lesson.scenario, p.mu_episodes, p.mu_seed, gamma)[0]
 
     rng = np.random.default_rng(p.seed)
-    pi0 = lambda obs: int(rng.choice(lesson.actions))  # noqa: E731
+    # π⁽⁰⁾: random, or (warm start) the cloned module — Abbeel & Ng allow any initial policy;
+    # then it also competes in the final "closest μ" choice
+    pi0 = mod0 if warm else (lambda obs: int(rng.choice(lesson.actions)))
     mu_e = demo_feature_expectations(demo, gamma)
     irl = projection_irl(
         mu_e, pi0, solve, mu_of, IRLParams(epsilon=p.irl_epsilon, max_iters=p.irl_iters)
     )
-    chosen = select_policy(irl)
+    chosen = select_policy(irl, include_initial=warm)
     mod = irl.policies[chosen]
     if not isinstance(mod, SkillModule):
         raise RuntimeError(f"lesson {lesson.name}: IRL learned no module (μ_E ≈ random's)")
-    return mod, {
-        "dqn_steps": steps,
-        "irl_t": [h.t for h in irl.history],
-        "chosen": chosen,
-        "reward_w": mod.net.meta["irl_w"],
-        "mu_expert": mu_e.tolist(),
-    }
+    # the reward the lesson ended with (the monolith is taught it): the chosen policy's, or if
+    # that is π⁽⁰⁾ the last one IRL solved for (μ_E itself if IRL stopped at once)
+    w_end = mod.net.meta["irl_w"] or (irl.history[-1].w.tolist() if irl.history else mu_e.tolist())
+    log.update(dqn_steps=steps, irl_t=[h.t for h in irl.history], chosen=chosen,
+               irl_dist=[float(np.linalg.norm(mu_e - m)) for m in irl.mus],
+               reward_w=w_end, mu_expert=mu_e.tolist())  # fmt: skip
+    if warm:
+        log.update(chosen_agreement=agreement(mod, pairs))
+    return mod, log
+
+
+def module_pairs(lesson: Lesson, demo: Demonstration, values) -> tuple[np.ndarray, np.ndarray]:
+    """The demonstrations as the module sees them: (input concepts (N, k), action index (N,));
+    rows whose action is not one of the module's are left out."""
+    index = {a: i for i, a in enumerate(lesson.actions)}
+    keep = [t for t, a in enumerate(demo.actions) if int(a) in index]
+    x = np.array([[values(demo.obs[t])[n] for n in lesson.inputs] for t in keep], np.float32)
+    a = np.array([index[int(demo.actions[t])] for t in keep], np.int64)
+    return x.reshape(len(keep), len(lesson.inputs)), a
+
+
+def agreement(mod: SkillModule, pairs: tuple[np.ndarray, np.ndarray]) -> float:
+    """Fraction of demonstrated pairs whose action the module's greedy choice repeats."""
+    x, a = pairs
+    return float(np.mean(np.argmax(mod.net.q_values(x), axis=1) == a)) if len(a) else math.nan
 
 
 # --------------------------------------------------------------------------- the arbiter
@@ -217,8 +267,14 @@ def learn_arbiter(
     target,
     p: EduParams,
     on_eval: Callable[[], None] | None = None,
+    replay: list[tuple[str, np.ndarray]] = (),
 ) -> tuple[Arbiter, list[dict]]:
-    """Greedy decision-list search (module docstring). Returns the arbiter and its search log."""
+    """Greedy decision-list search (module docstring). Returns the arbiter and its search log.
+
+    replay: (scenario, μ_E) of the skill lessons; with comp.retention_weight = λ_R > 0 the
+    objective is J(π) + λ_R · mean_l ‖μ_E^l − μ_l(π)‖₂, μ_l on lesson l's scenario (a
+    regulariser that keeps what the lessons taught: the arbiter must still call each module
+    where its lesson needs it)."""
     kind, vec = target
 
     def objective(arb: Arbiter) -> float:
@@ -226,7 +282,12 @@ def learn_arbiter(
         mu, _ = rollout_stats(pol, comp.scenario, p.arbiter_episodes, p.arbiter_seed, p.dqn.gamma)
         if on_eval:
             on_eval()
-        return float(np.linalg.norm(vec - mu)) if kind == "mu" else -float(vec @ mu)
+        j = float(np.linalg.norm(vec - mu)) if kind == "mu" else -float(vec @ mu)
+        if comp.retention_weight > 0 and replay:
+            ds = [np.linalg.norm(mu_l - rollout_stats(pol, sc, p.replay_episodes, p.arbiter_seed,
+                                                      p.dqn.gamma)[0]) for sc, mu_l in replay]  # fmt: skip
+            j += comp.retention_weight * float(np.mean(ds))
+        return j
 
     log: list[dict] = []
     scored = [(objective(Arbiter((), m)), m) for m in comp.modules]
@@ -279,7 +340,7 @@ def teach(
     taught: list[Lesson] = []
     for i, le in enumerate(cur.lessons):
         t0 = time.process_time()
-        if le.method == "irl":
+        if le.method == "irl" or le.warm_start == "demos":
             demos[le.name] = lesson_demos(le, p)
         mod, detail = teach_module(le, cur, p, demos.get(le.name), i, progress)
         modules[le.module] = mod  # frozen from here on: nothing below trains it again
@@ -305,8 +366,10 @@ def teach(
         return ModularPolicy(cur.concept_list(), mods, arb, meta)
 
     target = composite_target(comp, cur, demos, p)
+    replay = [(le.scenario, demo_feature_expectations(demos[le.name], p.dqn.gamma))
+              for le in cur.lessons if le.module in comp.modules and le.name in demos]  # fmt: skip
     arb, log = learn_arbiter(
-        comp, policy_of, target, p, (lambda: tick("arbiter")) if tick else None
+        comp, policy_of, target, p, (lambda: tick("arbiter")) if tick else None, replay
     )
     pol = policy_of(arb)
     pol.meta["composite_target"] = {"kind": target[0], "vector": target[1].tolist()}
