@@ -106,6 +106,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "dynamics.decel_v_mps2": (0.05, 30.0),
     "dynamics.react_s": (0.01, 10.0),  # a zero reaction time is never true
     "dynamics.bank_max_rad": (0.0, 1.4),
+    "dynamics.sink_reserve_m": (0.0, 1000.0),
     "limits.ceiling_m": (1.0, 10_000.0),
     "limits.floor_m": (0.0, 9_999.0),
     "limits.speed_h_mps": (0.1, 150.0),
@@ -150,11 +151,16 @@ def check_spec(spec: EnvelopeSpec) -> None:
             f"limits.margin_m ({lim.margin_m:g} m) must be below half the altitude band "
             f"({0.5 * (lim.ceiling_m - lim.floor_m):g} m)"
         )
+    if lim.margin_m + spec.dynamics.sink_reserve_m >= lim.ceiling_m - lim.floor_m - lim.margin_m:
+        raise ValueError(
+            f"dynamics.sink_reserve_m ({spec.dynamics.sink_reserve_m:g} m) leaves no altitude "
+            f"between the floor's and the ceiling's margins; lower it or widen the band"
+        )
 
 
 def _check_limits(dyn: Dynamics, lim: Limits) -> None:
     vals = {f"dynamics.{k}": getattr(dyn, k) for k in ("dt_s", "tau_s", "decel_h_mps2",
-            "decel_v_mps2", "react_s", "bank_max_rad")}  # fmt: skip
+            "decel_v_mps2", "react_s", "bank_max_rad", "sink_reserve_m")}  # fmt: skip
     vals.update({f"limits.{f.name}": getattr(lim, f.name) for f in dataclasses.fields(lim)})
     for k, (lo, hi) in RANGES.items():
         v = vals[k]

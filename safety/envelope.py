@@ -81,6 +81,8 @@ class Dynamics:
     decel_v_mps2: float = 2.0  # vertical braking [m/s^2]
     react_s: float = 0.3  # detection + switching delay [s]
     bank_max_rad: float = 0.0  # fixed-wing: bank limit of the loiter [rad]; 0 = can hover
+    sink_reserve_m: float = 0.0  # height a gust may take before the climb answers it [m]
+    # (the floor row keeps it on top of the margin; fixed-wing rule in fixedwing_field.toml)
 
     def turn_radius(self, speed_mps: float) -> float:
         """Loiter radius R = v^2 / (g tan(bank_max)) [m] at horizontal speed v (0 if it hovers)."""
@@ -299,7 +301,12 @@ def build(spec: EnvelopeSpec, predictive: bool) -> Envelope:
     )
     rows.append(
         pos_row(
-            np.array([0, 0, 1.0]), -lim.floor_m, td, 0.0, f"floor {lim.floor_m:g} m", Kind.ALTITUDE
+            np.array([0, 0, 1.0]),
+            -lim.floor_m,
+            td,
+            dyn.sink_reserve_m,
+            f"floor {lim.floor_m:g} m",
+            Kind.ALTITUDE,
         )
     )
     if lim.home_radius_m > 0:

@@ -256,7 +256,10 @@ class RecoveryPID:
         dh = float(np.hypot(du[0], du[1]))
         if dh > self.dv_h and self.min_speed == 0:  # multirotor: respect the accel rows
             du[:2] *= self.dv_h / dh  # (a fixed-wing turns at its own bank limit instead)
-        du[2] = float(np.clip(du[2], -self.dv_v, self.dv_v))
+        if self.min_speed == 0:
+            du[2] = float(np.clip(du[2], -self.dv_v, self.dv_v))
+        # A fixed-wing's vertical command is TECS's climb-rate demand, which TECS paces itself:
+        # slewing it from the measured sink would turn "climb" into "descend" in a downdraft.
         u = state.vel_ned + du
         if not sat and float(np.linalg.norm(e)) < self.g.i_zone_m:  # conditional integration
             self.integral = np.clip(

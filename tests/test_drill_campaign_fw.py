@@ -7,6 +7,7 @@ with the drill's fence uploaded and its HOLD circle fits inside it."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
@@ -29,3 +30,42 @@ def test_loiter_radius_sabotage_then_link_cut_stays_inside(index):
     assert r.yielded == "HOLD"  # the offboard-loss failsafe took over during the cut ...
     assert r.autopilot_excursion_m < -10.0  # ... and its own circle stayed well inside
     assert r.min_clearance_m > 10.0
+
+
+def _fw_drill(index: int, seed: int, kind: str):
+    spec, table = load_envelope(default_envelope_path("fixedwing"))
+    sp = fill_dataclass(SupervisorParams, table, "supervisor")
+    p = DrillParams()
+    assert kinds_for("fixedwing")[index % len(kinds_for("fixedwing"))] == kind
+    d = make_drill(kind, index, drill_rng(seed, "fixedwing", index), spec, p)
+    return d, spec, sp, p
+
+
+def test_wind_0208_seed_52_stays_above_the_floor():
+    """Campaign run 3's one breach: a 9 m/s tailwind (+ 2 m/s gusts) stepped in at the drill's
+    start took the J3Cub below stall; the recovery flew FW_AIRSPD_MIN, slewed its climb demand
+    into a descent while sinking, and passed 12.2 m below the 30 m floor. Now the aircraft starts
+    trimmed in the air mass, the vertical gusts follow the stated model, the recovery flies trim
+    airspeed and climbs, and the floor row keeps the gust sink reserve."""
+    d, spec, sp, p = _fw_drill(208, 52, "wind")
+    assert max(abs(x) for x in d.faults.wind.mean_ned) > 8.0  # still the 9 m/s tailwind drill
+    assert d.faults.wind.gust_std > 1.9
+    ap = make_vehicle(d, 52)
+    r = run_drill(d.script, ap, d.spec, sp, p)
+    assert r.passed, r.why
+    assert r.min_clearance_m > 5.0  # was -12.2 m (through the floor)
+
+
+def test_air_start_in_wind_is_trimmed_in_the_air_mass():
+    """No wind step at the start: the airspeed at the first steps is the trim airspeed, not the
+    trim airspeed minus the tailwind (15 m/s, below the 17.5 m/s stall, before the fix)."""
+    d, spec, sp, p = _fw_drill(208, 52, "wind")
+    ap = make_vehicle(d, 52)
+    ap.start_in_air(-float(d.script.start_ned[2]), p.fixedwing_speed_mps, d.script.start_heading)
+    speeds = []
+    for _ in range(25):  # 0.5 s
+        ap.step()
+        speeds.append(ap.model.airspeed)
+    assert min(speeds) > p.fixedwing_speed_mps - 2.5, speeds
+    ground = float(np.hypot(*ap.true_state.vel_ned[:2]))
+    assert abs(ground - p.fixedwing_speed_mps) > 5.0  # the ground speed carries the wind

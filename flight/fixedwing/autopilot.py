@@ -173,8 +173,13 @@ class FixedWingAutopilot(AutopilotBase):
         self._reported = -1
 
     def start_in_air(self, altitude: float, airspeed: float, heading: float = 0.0) -> Surfaces:
-        """Put the aircraft trimmed in level flight over home, armed, in HOLD. Returns trim."""
-        trim = self.model.reset_airborne(altitude, airspeed, heading)
+        """Put the aircraft trimmed in level flight over home, armed, in HOLD. Returns trim.
+
+        In a fault plan's mean wind the aircraft starts trimmed in the air mass (`airspeed`
+        through the air, not over the ground): the wind is there before the start, the gusts
+        grow from 0 per their Gauss-Markov model, and the start injects no wind step."""
+        mean = None if self.faults is None else self.faults.wind.mean_ned
+        trim = self.model.reset_airborne(altitude, airspeed, heading, mean)
         self._armed = True
         self._reset_loops(trim.elevator, trim.throttle)
         self._state = self._true_state = self._stamp(self.model.state())

@@ -139,11 +139,35 @@ class JSBSimPlane:
         self._t = 0.0
         self.ground_cg_height = self.agl  # [m] CG height above ground when resting
 
-    def reset_airborne(self, altitude: float, airspeed: float, heading: float = 0.0) -> Surfaces:
-        """Level flight at `altitude` [m] above home, trimmed; returns the trim surfaces."""
+    def reset_airborne(
+        self, altitude: float, airspeed: float, heading: float = 0.0, wind_ned=None
+    ) -> Surfaces:
+        """Level flight at `altitude` [m] above home, trimmed; returns the trim surfaces.
+
+        With `wind_ned` (3,) [m/s] the aircraft starts trimmed *in the air mass*: the same
+        airspeed, attitude and surfaces as the calm trim, its ground velocity the calm one +
+        the wind (JSBSim's own trim does not converge with wind set, so the calm trim is moved
+        with the air). Without it the start is exactly the calm one."""
         self._ic(np.array([0.0, 0.0, -altitude]), heading, airspeed, altitude)
         self.set_engine(True)
-        return self.trim()
+        trim = self.trim()
+        w = np.zeros(3) if wind_ned is None else np.asarray(wind_ned, dtype=float)
+        if w.shape != (3,) or not np.all(np.isfinite(w)):
+            raise ValueError(f"wind must be 3 finite numbers [m/s], got {wind_ned!r}")
+        if np.any(w):
+            f = self._fdm
+            theta = f["attitude/theta-deg"]
+            v = self.state().vel_ned + w
+            f["ic/vw-mag-fps"] = float(np.hypot(w[0], w[1])) / FT
+            f["ic/vw-dir-deg"] = math.degrees(math.atan2(w[1], w[0]))
+            f["ic/theta-deg"] = theta
+            f["ic/vn-fps"], f["ic/ve-fps"], f["ic/vd-fps"] = (float(x) / FT for x in v)
+            if not f.run_ic():
+                raise RuntimeError("JSBSim rejected the initial conditions in wind")
+            self.set_wind(w)
+            self._apply(trim)
+            self._t = 0.0
+        return trim
 
     def trim(self) -> Surfaces:
         """JSBSim's full trim about the present condition; returns the trimmed commands."""
