@@ -20,7 +20,9 @@ by (seed, airframe, index), so any drill can be replayed alone):
                    push: the autopilot's RTL / LAND must stand (the fixed-wing model has no
                    battery failsafe: not drilled)
   param_sabotage   a client sets COM_OF_LOSS_T to 1-5 s (or the fixed-wing's NAV_LOITER_RAD, the
-                   multirotor's MPC_XY_VEL_MAX) mid-push, then the link is cut near the fence
+                   multirotor's MPC_XY_VEL_MAX) mid-push, then the link is cut near the fence;
+                   1-4 s after the link is back another client sets it back: the net re-checks
+                   at that PARAM_VALUE and hands back to the AI (it never sets it back itself)
 
 Faults play on the autopilot (flight/faults.py: wind, GPS error in the estimate it flies on,
 battery) and in the harness (link cut, PARAM_SET), see safety.drills.run_drill.
@@ -45,6 +47,23 @@ WIND_LIMIT_MPS = {"quadrotor": 12.0, "fixedwing": 10.0}
 """Largest mean wind drilled [m/s] (gusts up to 2 m/s σ on top): the quadrotor holds 12 m/s
 with its 45° tilt limit and keeps >= 2.5 m/s² of braking downwind; the fixed-wing (24 m/s
 trim) keeps a ground speed >= 14 m/s into it."""
+GUST_STD_H_MPS = 2.0
+"""Largest horizontal gust σ drilled [m/s] (above MIL-HDBK-1797's low-altitude 1.5 m/s at 60 m
+for a 10 m/s wind: the drills are harsher than the standard horizontally)."""
+GUST_TAU_S = 2.0  # gust correlation time [s], every axis
+
+
+def vertical_gust_std(mean_mps: float) -> float:
+    """The campaign's vertical gust σ_w [m/s] for a mean wind [m/s]: MIL-HDBK-1797's (and
+    MIL-F-8785C's) low-altitude Dryden intensity σ_w = 0.1 W20, with the drill's mean wind taken
+    as W20 (the wind 6 m above ground, which is weaker than the wind at the drill's 60-120 m:
+    conservative). Vertical gusts as strong as the horizontal ones (σ 2 m/s at 9 m/s, as in the
+    campaign's runs 1-3) are not what the airframe's wind limit states; see docs/safety.md."""
+    return 0.1 * abs(float(mean_mps))
+
+
+RESTORE_S = {"quadrotor": 16.0, "fixedwing": 45.0}
+"""A sabotage drill runs this long after the restore [s]: fallback, recovery, hysteresis."""
 HANDOVER_S = {"quadrotor": 1.5, "fixedwing": 2.0}  # air start, settled in HOLD, then the AI
 
 
@@ -145,7 +164,9 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
     if fw:
         # The fixed-wing starts over home (start_in_air): the fence is moved instead, so that
         # home lies 30-250 m inside the certified boundary, straight ahead of the push.
-        alt = rng.uniform(lim.floor_m + 30.0, lim.ceiling_m - 30.0)
+        # the floor row keeps margin + the gust sink reserve: start 10 m above that at least
+        alt = rng.uniform(max(lim.floor_m + 30.0, lim.floor_m + lim.margin_m + dyn.sink_reserve_m
+                              + 10.0), lim.ceiling_m - 30.0)  # fmt: skip
         reserve = lim.margin_m + 2 * dyn.turn_radius(vmax) + (dyn.dt_s + dyn.react_s) * vmax
         signed = SignedDistance(spec)
         for _ in range(2000):
@@ -223,8 +244,9 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
         expect = ("position jumped",)
     elif kind == "wind":
         w = rng.uniform(0.3, 1.0) * WIND_LIMIT_MPS[spec.airframe]
-        wind = WindModel(tuple(float(x) for x in w * d), float(rng.uniform(0.0, 2.0)),
-                         2.0, int(rng.integers(1 << 30)))  # fmt: skip
+        g_h = float(rng.uniform(0.0, GUST_STD_H_MPS))
+        wind = WindModel(tuple(float(x) for x in w * d), g_h, GUST_TAU_S, int(rng.integers(1 << 30)),
+                         gust_std_down=min(g_h, vertical_gust_std(w)))  # fmt: skip
     elif kind == "battery":
         t_b = t_h + t_on + t_arr * rng.uniform(0.3, 1.0)
         frac = rng.choice([0.065, 0.045])  # below BAT_CRIT_THR (RTL) or BAT_EMERGEN_THR (LAND)
@@ -242,8 +264,13 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
             params = ((t_s, "MPC_XY_VEL_MAX", float(rng.uniform(14.0, 20.0))),)
         a = t_s + rng.uniform(0.5, 3.0)
         link_cut = (a, a + rng.uniform(2.0, 6.0))
+        # ... then another client sets it back (value None: the value before): the net
+        # re-checks at that PARAM_VALUE and must hand back to the AI, which now behaves
+        t_r = link_cut[1] + rng.uniform(1.0, 4.0)
+        params = (*params, (t_r, params[0][1], None))
         expect = ("autopilot parameters",)
-        t_off = duration
+        t_off = t_r
+        duration = max(duration, t_r + (RESTORE_S[spec.airframe]))
     else:
         raise ValueError(f"unknown drill kind {kind!r}; choose one of {KINDS}")
     script = Script(

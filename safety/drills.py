@@ -71,7 +71,9 @@ class Script:
     handover_s: float = 0.0  # absolute sim time of the hand-over when air_start (fault times)
     link_cut: tuple[float, float] | None = None  # both directions cut in [a, b): no commands,
     # no telemetry, no heartbeats (the net sees the last state; the autopilot its own failsafe)
-    params: tuple[tuple[float, str, float], ...] = ()  # (t, name, value): a client's PARAM_SET
+    params: tuple[tuple[float, str, float | None], ...] = ()  # (t, name, value): a client's
+    # PARAM_SET; value None = a client sets it back to the value before the first PARAM_SET.
+    # After such a restore the net must re-check and hand back to the AI (unless it yielded).
     expect_yield: bool = False  # the autopilot's failsafe must take over (and is not undone)
     kind: str = ""
     after_yield_s: float = 15.0  # keep judging this long after the net yielded, then stop
@@ -98,6 +100,9 @@ class DrillResult:
     yielded: str = ""  # the mode the net yielded to ("" = never)
     min_clearance_m: float = math.nan  # ground truth: smallest distance inside the fence [m]
     autopilot_excursion_m: float = -math.inf  # worst, in the autopilot's own flight after a yield
+    autopilot_excursion_mode: str = ""  # the autopilot's mode at that worst point (HOLD, RTL ...)
+    restored: str = ""  # after a client restored a sabotaged parameter: "handed back" (the net
+    # re-checked and the AI flew again), "waiting (yielded to X)", "not handed back"; "" = none
 
 
 def slew(u_des: np.ndarray, v: np.ndarray, dh: float, dv: float) -> np.ndarray:
@@ -551,7 +556,7 @@ def run_drill(
     own = {"mode": ap.mode, "by_autopilot": False}  # the mode now and who chose it
 
     run_on = spec.stop_times()[0] + RUN_ON_S  # after a yield the net's last command still counts
-    judge = {"t_yield": math.nan, "own_worst": -math.inf}
+    judge = {"t_yield": math.nan, "own_worst": -math.inf, "own_mode": ""}
 
     def fly(k: int) -> None:
         """Step the autopilot; ground truth judged every step. After the net yielded, the
@@ -566,8 +571,8 @@ def run_drill(
             w = geo.worst(z)
             if math.isnan(ty) or ap.clock.t - ty <= run_on:
                 worst = max(worst, w)
-            else:
-                judge["own_worst"] = max(judge["own_worst"], w)
+            elif w > judge["own_worst"]:
+                judge["own_worst"], judge["own_mode"] = w, ap.mode.name
         if ap.mode is not own["mode"]:
             own["mode"], own["by_autopilot"] = ap.mode, True
 
@@ -613,7 +618,10 @@ def run_drill(
     prev_mode = Mode.AI
     rows = []
     overridden = 0
-    pending = sorted(script.params)
+    pending = sorted(script.params, key=lambda e: e[0])
+    pre_set: dict[str, float | None] = {}  # each parameter's value before the first PARAM_SET
+    t_restore = max((t for t, _, v in script.params if v is None), default=math.nan)
+    after_restore = {"clear_t": math.nan, "ai_t": math.nan}
     seen_reasons: set[str] = set()  # every reason the net gave while it was not the AI flying
     seen_state = ap.state
     t_yield = math.nan
@@ -623,7 +631,10 @@ def run_drill(
         tr = t - t0
         while pending and pending[0][0] <= tr:  # a rogue client's PARAM_SET
             _, name, value = pending.pop(0)
-            ap.set_param(name, value)
+            pre_set.setdefault(name, ap.get_param(name))
+            value = pre_set[name] if value is None else value
+            if value is not None:
+                ap.set_param(name, value)
         cut = script.link_cut is not None and script.link_cut[0] <= tr < script.link_cut[1]
         link_up = script.link_ok(tr) and not cut
         if not cut:  # telemetry, heartbeat and PARAM_VALUE arrive
@@ -660,6 +671,11 @@ def run_drill(
             t_yield = judge["t_yield"] = t
         if d.mode is not Mode.AI and d.reason:
             seen_reasons.add(d.reason)
+        if tr >= t_restore:  # after the restore: the net's re-check, then the AI again
+            if math.isnan(after_restore["clear_t"]) and not guard.fault:
+                after_restore["clear_t"] = tr
+            if math.isnan(after_restore["ai_t"]) and d.mode is Mode.AI and not guard.fault:
+                after_restore["ai_t"] = tr
         rows.append((tr, *truth().pos_ned, {Mode.AI: 0, Mode.FALLBACK: 1, Mode.PID: 2}[d.mode]))
         ty = judge["t_yield"]
         if math.isnan(ty) or ap.clock.t - ty <= run_on:
@@ -687,6 +703,22 @@ def run_drill(
         why.append("the autopilot's failsafe was expected to take over; the net never yielded")
     if script.must_recover and not script.expect_yield and not yielded and sup.mode is not Mode.AI:
         why.append(f"not recovered: {sup.mode.value} at the end")
+    restored = ""
+    if not math.isnan(t_restore):
+        if yielded:
+            restored = f"waiting (yielded to {yielded})"
+        elif not math.isnan(after_restore["ai_t"]):
+            restored = f"handed back {after_restore['ai_t'] - t_restore:.1f} s after the restore"
+        else:
+            restored = "not handed back"
+            why.append(
+                "a client restored the sabotaged parameter but the net did not hand back to the AI"
+                + (
+                    ""
+                    if not math.isnan(after_restore["clear_t"])
+                    else " (its re-check still failed)"
+                )
+            )
     tr_arr = np.array(rows)
     return DrillResult(
         script.name,
@@ -707,6 +739,8 @@ def run_drill(
         yielded,
         float(-max(worst, clear)),
         float(judge["own_worst"]),
+        str(judge["own_mode"]),
+        restored,
     )
 
 

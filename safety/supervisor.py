@@ -50,6 +50,10 @@ class Severity(enum.IntEnum):
     FALLBACK = 3  # the airframe fallback takes over
 
 
+DR_GAP_S = 1.0
+"""A telemetry gap longer than this [s] restarts the GPS guard's dead reckoning."""
+
+
 @dataclass(frozen=True)
 class SupervisorParams:
     """Supervisor settings (saved with each run)."""
@@ -360,10 +364,19 @@ class Supervisor:
         if p.gps_jump_m <= 0:
             return ""
         pos, t = state.pos_ned, float(state.t)
-        if self._p_dr is None or self._dr_t is None or not np.all(np.isfinite(self._p_dr)):
+        if (
+            self._p_dr is None
+            or self._dr_t is None
+            or not np.all(np.isfinite(self._p_dr))
+            or t - self._dr_t > DR_GAP_S
+        ):
+            # first state, or telemetry came back after a gap (a cut link): the dead reckoning
+            # has no basis across the gap (the vehicle braked, turned, held meanwhile), so it
+            # starts again here; a step hidden inside a gap is not seen (the margin covers it)
             self._p_dr, self._dr_t = np.array(pos, float), t
+            self.position_suspect = False
             return ""
-        dt = min(max(t - self._dr_t, 0.0), 1.0)
+        dt = max(t - self._dr_t, 0.0)
         self._dr_t = t
         self._p_dr = self._p_dr + dt * np.asarray(state.vel_ned, float)
         innov = pos - self._p_dr

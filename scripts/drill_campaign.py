@@ -4,8 +4,15 @@ in-process, seeded, on one or more worker processes.
 Writes a run folder: config.json, metrics.csv (one row per drill, flushed as drills finish),
 events.jsonl (every switch, yield and parameter verdict, tagged with the drill), campaign.png
 (closest approach per drill and kind), summary.md (the table and the closest approaches).
-Exit 1 when any drill breached the fence beyond the constraint set's breach tolerance or the
-net overrode an autopilot failsafe.
+Exit rule (`summarize`): exit 1 when any drill breached the fence beyond the constraint set's
+breach tolerance (the net's flight: ground truth up to the stopping time + RUN_ON_S after a
+yield), or the net overrode an autopilot failsafe, or the autopilot's own HOLD after a yield left
+the fence (the built-in vehicle fits its HOLD to the uploaded fence: its own last line), or a
+drill crashed (not judged). The
+autopilot's own RTL / LAND path after a yield (PX4's RTL flies straight home and does not route
+around a fence; the net must not undo it) is counted and reported in its own column, and does
+not set the exit code: it is the autopilot's failsafe, owned by the autopilot, and the fence and
+home are the mission planner's to choose so that the line home stays inside.
 """
 
 from __future__ import annotations
@@ -20,8 +27,10 @@ from runio.runfolder import RunFolder, markdown_table
 from scripts.cli import UsageError
 
 COLS = ["drill", "airframe", "kind", "passed", "min_clearance_m", "breach", "overridden",
-        "yielded", "switches", "fallback_s", "pid_s", "autopilot_excursion_m", "first_reason",
-        "why", "constraint_set_version"]  # fmt: skip
+        "yielded", "switches", "fallback_s", "pid_s", "autopilot_excursion_m",
+        "autopilot_excursion_mode", "first_reason", "why", "constraint_set_version"]  # fmt: skip
+FAILSAFE_PATH_MODES = ("RTL", "LAND")
+"""The autopilot's own failsafe paths (straight line home, descent): reported, not failing."""
 
 
 class _Collect:
@@ -87,6 +96,7 @@ def _run_one(job: tuple) -> dict:
         "fallback_s": round(r.fallback_s, 2), "pid_s": round(r.pid_s, 2),
         "autopilot_excursion_m": "" if not math.isfinite(r.autopilot_excursion_m)
         else round(r.autopilot_excursion_m, 2),
+        "autopilot_excursion_mode": r.autopilot_excursion_mode, "restored": r.restored,
         "first_reason": r.reasons[0] if r.reasons else "", "why": r.why,
         "constraint_set_version": spec.version, "_events": sink.records, "_tol": tol,
         "_track": (pos - np.r_[_offset(d.spec, spec), 0.0]).tolist(),
@@ -184,16 +194,16 @@ def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
     for a, k in keys:
         rs = [r for r in rows if r["airframe"] == a and k in ("all", r["kind"])]
         c = [r["min_clearance_m"] for r in rs if math.isfinite(r["min_clearance_m"])] or [math.nan]
-        own = [
-            float(r["autopilot_excursion_m"]) for r in rs if r.get("autopilot_excursion_m") != ""
-        ]
+        own = [_own(r) for r in rs if _own(r) is not None]
         out.append([a, k, len(rs), sum(r["passed"] for r in rs), sum(r["breach"] for r in rs),
                     sum(r["overridden"] for r in rs), sum(bool(r["yielded"]) for r in rs),
-                    sum(x > 0 for x in own), max(own) if own else "-",
+                    sum(_own_counts(r) for r in rs), sum(_own_path(r) for r in rs),
+                    max(x for x, _ in own) if own else "-",
                     min(c), float(np.median(c))])  # fmt: skip
     table = markdown_table(["airframe", "kind", "drills", "passed", "breaches", "overridden failsafes",
-                            "yielded", "autopilot's own flight beyond the fence",
-                            "worst of it m (< 0 inside)", "closest approach m",
+                            "yielded", "own HOLD beyond the fence (fails)",
+                            "own RTL/LAND path beyond the fence (reported)",
+                            "autopilot's own worst m (< 0 inside)", "closest approach m",
                             "median clearance m"], out)  # fmt: skip
     finite = [r for r in rows if math.isfinite(r["min_clearance_m"])]
     near = sorted(finite, key=lambda r: r["min_clearance_m"])[:10]
@@ -205,12 +215,36 @@ def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
     breaches = sum(r["breach"] for r in rows)
     overrides = sum(r["overridden"] for r in rows)
     failed = sum(not r["passed"] for r in rows)
-    own = sum(r.get("autopilot_excursion_m") not in ("", None)
-              and float(r["autopilot_excursion_m"]) > r.get("_tol", 0.0) for r in rows)  # fmt: skip
+    own = sum(_own_counts(r) for r in rows)
+    crashed = sum(r["kind"] == "crash" for r in rows)  # unjudged: never a pass
+    path = sum(_own_path(r) for r in rows)
     totals = (f"{len(rows)} drills; ground-truth breaches beyond the tolerance: {breaches}; "
-              f"overridden autopilot failsafes: {overrides}; the autopilot's own flight after a "
-              f"yield beyond the fence: {own}; drills failing any check: {failed}")  # fmt: skip
-    return table, closest, totals, breaches + overrides + own
+              f"overridden autopilot failsafes: {overrides}; the autopilot's own HOLD after a "
+              f"yield beyond the fence: {own}; its own RTL/LAND path beyond the fence (reported, "
+              f"not failing): {path}; crashed drills: {crashed}; drills failing any check: "
+              f"{failed}; exit 1 on breaches + overrides + own HOLD + crashes = "
+              f"{breaches + overrides + own + crashed}")  # fmt: skip
+    return table, closest, totals, breaches + overrides + own + crashed
+
+
+def _own(r: dict) -> tuple[float, str] | None:
+    """(the autopilot's own worst excursion after a yield [m], its mode there), or None."""
+    x = r.get("autopilot_excursion_m")
+    if x in ("", None) or not math.isfinite(float(x)):
+        return None
+    return float(x), str(r.get("autopilot_excursion_mode", ""))
+
+
+def _own_counts(r: dict) -> bool:
+    """The autopilot's own flight beyond the fence in a mode that must fit it (its HOLD)."""
+    o = _own(r)
+    return o is not None and o[0] > r.get("_tol", 0.0) and o[1] not in FAILSAFE_PATH_MODES
+
+
+def _own_path(r: dict) -> bool:
+    """The autopilot's own RTL / LAND path beyond the fence: reported, not failing."""
+    o = _own(r)
+    return o is not None and o[0] > r.get("_tol", 0.0) and o[1] in FAILSAFE_PATH_MODES
 
 
 def plot(rows, tracks, specs, path: Path) -> None:

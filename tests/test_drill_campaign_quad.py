@@ -1,0 +1,55 @@
+"""Campaign regressions for the quadrotor and the campaign's exit rule (scripts.drill_campaign).
+
+Run 3 (seed 51) found battery 0182: the autopilot's own battery RTL flew its straight line home
+across a reflex corner of the notched field, 1.3 m beyond the fence, after the net had yielded.
+PX4's RTL does the same (it does not route around a fence) and the net must never undo the
+autopilot's failsafe: the campaign reports such a path in its own column and does not fail on it;
+the autopilot's own HOLD beyond the fence (which the built-in vehicle fits to the fence) fails."""
+
+from __future__ import annotations
+
+from safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
+from safety.config import default_envelope_path, fill_dataclass, load_envelope
+from safety.drills import DrillParams, run_drill
+from safety.supervisor import SupervisorParams
+from scripts.drill_campaign import summarize
+
+
+def test_battery_0182_rtl_path_is_the_autopilots_and_reported():
+    spec, table = load_envelope(default_envelope_path("quadrotor"))
+    sp = fill_dataclass(SupervisorParams, table, "supervisor")
+    p = DrillParams()
+    ks = kinds_for("quadrotor")
+    assert ks[182 % len(ks)] == "battery"
+    d = make_drill("battery", 182, drill_rng(51, "quadrotor", 182), spec, p)
+    r = run_drill(d.script, make_vehicle(d, 51), d.spec, sp, p)
+    assert r.passed, r.why
+    assert r.overridden == 0 and r.yielded == "RTL"  # the failsafe stood
+    assert r.min_clearance_m > 0.0  # the net's own flight stayed inside
+    assert r.autopilot_excursion_mode == "RTL"
+    assert 0.0 < r.autopilot_excursion_m < 5.0  # RTL's straight line home cut the corner
+
+
+def _row(drill, mode, excursion, **kw):
+    return {"drill": drill, "airframe": "quadrotor", "kind": "battery", "passed": True,
+            "min_clearance_m": 3.0, "breach": False, "overridden": 0, "yielded": mode,
+            "autopilot_excursion_m": excursion, "autopilot_excursion_mode": mode,
+            "first_reason": "", "_tol": 0.0} | kw  # fmt: skip
+
+
+def test_exit_rule_counts_own_hold_not_rtl_path():
+    rtl = [_row("a", "RTL", 1.3), _row("b", "LAND", -2.0), _row("c", "RTL", "")]
+    table, _, totals, bad = summarize(rtl)
+    assert bad == 0, totals
+    assert "RTL/LAND path beyond the fence (reported, not failing): 1" in totals
+    hold = rtl + [_row("d", "HOLD", 0.4)]
+    _, _, totals, bad = summarize(hold)
+    assert bad == 1, totals
+    assert "own HOLD after a yield beyond the fence: 1" in totals
+    _, _, _, bad = summarize(rtl + [_row("e", "", 0.0, breach=True, min_clearance_m=-0.2)])
+    assert bad == 1  # the net's breach
+    _, _, _, bad = summarize(rtl + [_row("f", "RTL", "", overridden=2)])
+    assert bad == 2  # overridden failsafes count one each
+    crash = _row("g", "", "", kind="crash", passed=False, min_clearance_m=float("nan"))
+    _, _, totals, bad = summarize(rtl + [crash])
+    assert bad == 1 and "crashed drills: 1" in totals  # an unjudged drill is never a pass
