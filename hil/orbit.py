@@ -20,8 +20,12 @@ side of the image:
 
     f · ρ / (D − ρ) ≤ fill · min(W, H) / 2                                     (3)
 
-(the nearest UGV is at most ρ closer than the centre). `plan_orbit` raises ValueError when (3) or
-p ≥ `marker_px_min` fails, with the numbers.
+(the nearest UGV is at most ρ closer than the centre). (3) is a lower bound on the slant range,
+D ≥ ρ (1 + f / (fill · min(W, H) / 2)), so on a steep bank limit (1) may give a circle too
+small for the camera: the planner then widens it to the smallest R whose D meets (3) — a
+shallower bank than k·φ_max, the one the orbit will command, atan((V + s)² / (g R)) — and
+never beyond `radius_max_m` (the autopilot's hold circle the envelope allows). `plan_orbit`
+raises ValueError when (3) or p ≥ `marker_px_min` still fails, with the numbers.
 
 Companion (`OrbitCompanion.update`, once per telemetry sample, simulation time):
 1. the UGV team moves to time t; its centre of mass c(t) is the orbit centre;
@@ -74,6 +78,7 @@ class OrbitParams:
     fill: float = 0.8  # (3): share of the half short side the team may cover
     marker_m: float = UGVModel.marker_size_m  # UGV top marker side [m]
     marker_px_min: float = 2.0  # short side of a marker in the image at least [px]
+    radius_max_m: float = math.inf  # the widest orbit allowed (the envelope's loiter reserve) [m]
 
     def __post_init__(self) -> None:
         vals = [self.airspeed_mps, self.bank_max_rad, self.bank_fraction, self.team_speed_mps,
@@ -86,6 +91,8 @@ class OrbitParams:
             raise ValueError("bank_fraction and fill must be in (0, 1], n_ugvs >= 1")
         if not (0 < self.alt_min_m < self.alt_max_m and self.team_speed_mps >= 0):
             raise ValueError("need 0 < alt_min_m < alt_max_m and team_speed_mps >= 0")
+        if not self.radius_max_m > 0:
+            raise ValueError("radius_max_m must be > 0")
 
 
 @dataclass(frozen=True)
@@ -101,6 +108,7 @@ class OrbitPlan:
     team_px: float  # (3): f ρ / (D − ρ)
     team_px_max: float  # fill · min(W, H) / 2
     marker_px: float  # (2)
+    bank_cmd_rad: float = math.nan  # the bank it commands at the worst, atan((V + s)² / (g R))
 
 
 def turn_radius(airspeed_mps: float, bank_rad: float) -> float:
@@ -108,22 +116,48 @@ def turn_radius(airspeed_mps: float, bank_rad: float) -> float:
     return airspeed_mps**2 / (GRAVITY * math.tan(bank_rad))
 
 
+def camera_radius(d_min: float, alt_min: float, alt_max: float) -> float:
+    """The smallest R [m] whose slant range √(R² + h²), h = R clamped to [alt_min, alt_max],
+    reaches `d_min` [m] (0 when any R does): D grows with R, so each branch of the clamp is
+    solved in closed form."""
+    if d_min <= alt_min:
+        return 0.0
+    r = d_min / math.sqrt(2.0)
+    if r < alt_min:
+        return math.sqrt(d_min * d_min - alt_min * alt_min)
+    if r > alt_max:
+        return math.sqrt(d_min * d_min - alt_max * alt_max)
+    return r
+
+
 def plan_orbit(p: OrbitParams, cam: CameraParams = ORBIT_CAMERA) -> OrbitPlan:
-    """Radius and altitude by (1)–(3); ValueError when the camera cannot hold the team."""
-    r = turn_radius(p.airspeed_mps + p.team_speed_mps, p.bank_fraction * p.bank_max_rad)
-    h = min(max(r, p.alt_min_m), p.alt_max_m)
-    d = math.hypot(r, h)
+    """Radius and altitude by (1)–(3): the turn (1) at k·φ_max, widened (a shallower bank) until
+    the team fits (3) if it does not; ValueError when the camera still cannot hold the team."""
     rho = 2.0 * p.team_radius_m * (p.n_ugvs - 1) / p.n_ugvs if p.n_ugvs > 1 else 0.0
     rho = max(rho, 0.5 * p.marker_m)
-    team_px = cam.fx * rho / max(d - rho, 1e-9)
     team_max = p.fill * 0.5 * min(cam.width_px, cam.height_px)
+    vs = p.airspeed_mps + p.team_speed_mps
+    r = turn_radius(vs, p.bank_fraction * p.bank_max_rad)
+    r_cam = camera_radius(rho * (1.0 + cam.fx / team_max), p.alt_min_m, p.alt_max_m)
+    if r_cam > r:  # (3) fails on the turn's circle: the smallest circle it holds on
+        r = min(r_cam * (1.0 + 1e-9), max(p.radius_max_m, r))
+    h = min(max(r, p.alt_min_m), p.alt_max_m)
+    d = math.hypot(r, h)
+    team_px = cam.fx * rho / max(d - rho, 1e-9)
     marker_px = cam.fx * p.marker_m * h / (r * r + h * h)
     plan = OrbitPlan(r, h, d, math.atan2(h, r), math.atan(p.airspeed_mps**2 / (GRAVITY * r)),
-                     rho, team_px, team_max, marker_px)  # fmt: skip
+                     rho, team_px, team_max, marker_px, math.atan(vs * vs / (GRAVITY * r)))  # fmt: skip
+    if r > p.radius_max_m * (1.0 + 1e-6):
+        raise ValueError(
+            f"the orbit's circle ({r:.0f} m at a bank of {math.degrees(p.bank_fraction * p.bank_max_rad):.0f}°) "
+            f"is wider than the {p.radius_max_m:.0f} m the envelope allows the autopilot's loiter; "
+            "raise the autopilot's bank limit or fly slower"
+        )
     if team_px > team_max:
         raise ValueError(
             f"the team ({2 * rho:.0f} m across) does not fit the camera at {d:.0f} m: "
-            f"{team_px:.0f} px > {team_max:.0f} px; widen the field of view"
+            f"{team_px:.0f} px > {team_max:.0f} px (its radius may be at most "
+            f"{p.radius_max_m:.0f} m); widen the field of view"
         )
     if marker_px < p.marker_px_min:
         raise ValueError(

@@ -9,11 +9,17 @@ camera sits on a pan-tilt gimbal pointed where the companion sets the region of 
 centroid is back-projected from the frame's camera pose onto the ground, and their mean is
 the team's centre as seen. The orbit centre follows it as far as the fence allows.
 
-Phases: connect → read the airframe's parameters → plan (ValueError → refusal) → set the loiter
-radius (NAV_LOITER_RAD / WP_LOITER_RAD) → take off (the profile's recipe) → climb-out (the
-autopilot's own loiter, DO_REPOSITION to the orbit centre at the orbit altitude, until the net
-certifies the orbit's setpoint for `climb_hold_s`) → hand over → orbit (until established,
-then `duration_s`) → land (the profile's recipe).
+Phases: connect → read the airframe's parameters → plan (ValueError → refusal) → make the
+autopilot agree with the envelope (its loiter radius NAV_LOITER_RAD / WP_LOITER_RAD = the
+orbit's, its climb and sink limits TECS_CLMB_MAX / TECS_SINK_MAX lowered to the envelope's:
+safety.consistency; any other mismatch → refusal) → take off (the profile's recipe) → climb-out
+(the autopilot's own loiter, DO_REPOSITION to the orbit centre at the orbit altitude, until
+the net certifies the orbit's setpoint for `climb_hold_s`) → hand over → orbit (until
+established, then `duration_s`) → land (the profile's recipe).
+
+What the net certifies is what is flown: the orbit proposes the position setpoint (centre, −h)
+and the autopilot is sent exactly that (DO_REPOSITION on ArduPlane), with the loiter radius the
+net's implied motion assumes; the parameter guard watches every PARAM_VALUE during the flight.
 """
 
 from __future__ import annotations
@@ -42,6 +48,7 @@ from mission.steps import MissionError, Phase, read_params, recipe, wait_ready
 from mission.vehicle import VehicleLink
 from perception.camera import backproject_to_ground, camera_pose
 from perception.detector import Detector, annotate
+from safety.consistency import ParamGuard, agreeing_values
 from safety.supervisor import Health, Supervisor
 
 M = mavlink2
@@ -135,7 +142,8 @@ class OrbitMission:
         self.t_orbit_end: float | None = None
         self.limited = 0  # decisions where the fence held the centre short of the team's
         self._written = 0
-        self.guard = None
+        self.guard = ParamGuard(supervisor.envelope.spec, supervisor.p.pos_speed_max_mps,
+                                getattr(supervisor, "events", None), record.vehicle)  # fmt: skip
 
     # ---- called by the companion's loop --------------------------------------------------------
     def on_frame(self, t: float, frame, status: str) -> None:
@@ -160,6 +168,7 @@ class OrbitMission:
         self.phase = "loiter radius"
         yield from self._set_param(v, prof.param_name("loiter_radius"),
                                    prof.param_value("loiter_radius", self.plan.radius_m))  # fmt: skip
+        yield from self._agree(v)
         self.phase = "takeoff"
         yield from recipe(v, prof.takeoff_steps(f.takeoff_alt_m, v.home_amsl_m))
         self.phase = "climb-out"
@@ -167,8 +176,7 @@ class OrbitMission:
         self.phase = "offboard"
         self.t_handover = v.t
         yield from recipe(v, prof.handover_steps(), hold=self._proposal)
-        self.authority.adopt(v, prof.ai_mode)
-        self.phase = "orbit"
+        self._begin_orbit(v)
         t_in, t_end = None, math.inf
         while v.t < t_end - 1e-9:
             rule = self.authority.update(v)
@@ -199,6 +207,15 @@ class OrbitMission:
             yield from recipe(v, prof.end_steps())
         self.outcome = "completed"
 
+    def _begin_orbit(self, v: VehicleLink) -> None:
+        """The hand-over is done: the net has the vehicle. Its first decision must carry the
+        orbit's setpoint — the climb-out aimed moments ago, and a decision without an action
+        is judged as "no velocity command" (ArduPlane is in GUIDED already: the hand-over can
+        take less than one decision period)."""
+        self.authority.adopt(v, v.profile.ai_mode)
+        self.t_decision = None
+        self.phase = "orbit"
+
     def _plan(self, v: VehicleLink) -> OrbitPlan:
         prof = v.profile
         try:
@@ -207,12 +224,37 @@ class OrbitMission:
         except (KeyError, ValueError) as e:
             raise MissionError(f"cannot plan the orbit: the autopilot's {e} was not read") from None
         b = self.brief
+        spec = self.net.envelope.spec  # the autopilot's hold circle may be at most R(v_max) (C4)
+        r_max = spec.dynamics.turn_radius(spec.limits.speed_h_mps)
         try:
             return plan_orbit(OrbitParams(airspeed_mps=V, bank_max_rad=bank, team_speed_mps=b.team_speed_mps,
                                           team_radius_m=b.team_radius_m, n_ugvs=b.n_ugvs,
-                                          alt_min_m=self.alt_band[0], alt_max_m=self.alt_band[1]))  # fmt: skip
+                                          alt_min_m=self.alt_band[0], alt_max_m=self.alt_band[1],
+                                          radius_max_m=r_max))  # fmt: skip
         except ValueError as e:
             raise MissionError(f"refusing to fly the orbit: {e}") from None
+
+    def _agree(self, v: VehicleLink) -> Phase:
+        """The autopilot's parameters against the envelope (safety.consistency): those a
+        companion may set are set to agree (a fixed-wing's climb and sink limits), then any
+        mismatch left refuses the take-off with the rule's reason."""
+        self.phase = "parameters"
+        self.guard.load(v.t, v.params)
+        v.param_updates.clear()  # the list just read, and the loiter radius's echo
+        for name, value in agreeing_values(self.guard.spec, self.guard.params).items():
+            yield from self._set_param(v, name, value)
+        self._read_param_updates(v)
+        ok, why = self.guard.handover()
+        if not ok:
+            raise MissionError(
+                f"refusing to take off: the autopilot's parameters disagree with the envelope: {why}"
+            )
+
+    def _read_param_updates(self, v: VehicleLink) -> None:
+        """Anyone's PARAM_SET seen since the last tick (PARAM_VALUE) → the guard."""
+        for t_p, name, value in v.param_updates:
+            self.guard.update(t_p, name, value)
+        v.param_updates.clear()
 
     def _set_param(self, v: VehicleLink, name: str, value: float) -> Phase:
         """PARAM_SET until the PARAM_VALUE echo shows it (3 tries, 1 s apart)."""
@@ -244,8 +286,9 @@ class OrbitMission:
                     )
                 )  # ArduPlane: GUIDED from TAKEOFF
                 sent = v.t
+            self._read_param_updates(v)
             vs = v.tel.vehicle_state()
-            ok = vs is not None and self._certified_now(vs)
+            ok = vs is not None and not self.guard.problems and self._certified_now(vs)
             since = (since if since is not None else v.t) if ok else None
             if since is not None and v.t - since >= f.climb_hold_s - 1e-9:
                 return
@@ -275,13 +318,17 @@ class OrbitMission:
 
     def _aim(self, v: VehicleLink) -> bool:
         """Every decision period: point the camera at the team's centre as seen
-        (DO_SET_ROI_LOCATION at ground level) and move the orbit centre. True if it did."""
+        (DO_SET_ROI_LOCATION at ground level, addressed to the vehicle's gimbal component,
+        MAV_COMP_ID_GIMBAL: world/follow.py plays it beside a real autopilot, whose routing
+        forwards the command) and move the orbit centre. True if it did."""
         if self.t_decision is not None and v.t - self.t_decision < self.f.decision_s - 1e-9:
             return False
         self.t_decision = v.t
-        if v.tel.home is not None:
+        if v.tel.home is not None:  # to the vehicle's gimbal: the autopilot routes it there
             lat, lon, alt = ned_to_geodetic(v.tel.home, np.array([*self.sight.centre, 0.0]))
-            v.command_long(M.MAV_CMD_DO_SET_ROI_LOCATION, (0, 0, 0, 0, lat, lon, alt), 0)
+            v.send(M.MAVLink_command_long_message(v.target_system or 1, M.MAV_COMP_ID_GIMBAL,
+                                                  M.MAV_CMD_DO_SET_ROI_LOCATION, 0,
+                                                  0, 0, 0, 0, lat, lon, alt))  # fmt: skip
         self._move_centre()
         return True
 
@@ -290,8 +337,11 @@ class OrbitMission:
         if state is None:
             return
         proposal = self._proposal() if self._aim(v) else None
+        self._read_param_updates(v)  # anyone's PARAM_SET mid-flight is re-checked here
+        g = self.guard
         d = self.net.update(v.t, state, proposal,
-                            Health(camera_t=self.sight.camera_t, link_t=v.heartbeat_t))  # fmt: skip
+                            Health(camera_t=self.sight.camera_t, link_t=v.heartbeat_t,
+                                   params_fault=g.fault, hold_ok=g.hold_ok))  # fmt: skip
         prof = v.profile
         mode = prof.fallback_mode if d.autopilot_mode is FlightMode.HOLD else prof.ai_mode
         self.authority.want(v, mode)

@@ -21,6 +21,11 @@ that is true. The rules, each with the parameter names of PX4 and ArduPilot:
      ArduPilot ROLL_LIMIT_DEG) must reach the envelope's bank_max.       (C4)
   R5 offboard-loss action (PX4 COM_OBL_RC_ACT where present): one that brakes or returns
      (0 position, 3 return, 4 land, 5 hold); altitude/manual modes drift.   (C5)
+  R6 fixed-wing climb and sink.  The net certifies a position setpoint by the climb it implies,
+     clipped at the envelope's climb_mps / descent_mps; the autopilot's height controller
+     climbs and sinks at up to its own limits (ArduPlane TECS_CLMB_MAX / TECS_SINK_MAX, PX4
+     FW_T_CLMB_MAX / FW_T_SINK_MAX [m/s]), which must not be higher.        (C6)
+     `agreeing_values` gives the values a companion may set to agree (the envelope's).
 
 A parameter that is absent is not checked (an autopilot without it); a value that is not
 finite is a mismatch. `ParamGuard` keeps the parameters it has seen and the problems now.
@@ -36,6 +41,7 @@ from flight.geo import GRAVITY
 from safety.envelope import EnvelopeSpec
 
 PX4_OBL_OK = {0: "position", 3: "return", 4: "land", 5: "hold"}
+CLIMB_PARAMS = (("TECS_CLMB_MAX", "FW_T_CLMB_MAX"), ("TECS_SINK_MAX", "FW_T_SINK_MAX"))
 HOLD_PARAMS = frozenset({"MPC_TILTMAX_AIR", "ANGLE_MAX", "MPC_ACC_HOR", "LOIT_BRK_ACCEL",
                          "FW_R_LIM", "ROLL_LIMIT_DEG", "NAV_LOITER_RAD", "WP_LOITER_RAD"})  # fmt: skip
 
@@ -116,6 +122,13 @@ def check_params(spec: EnvelopeSpec, params: Mapping[str, float],
             if abs(r) > r_env:
                 bad[n] = (f"{n} = {got[1]:g}: the hold circle ({abs(r):.0f} m) is wider than the "
                           f"envelope's loiter reserve R = {r_env:.0f} m")  # fmt: skip
+        for names, (what, limit) in zip(CLIMB_PARAMS, _climb_limits(spec)):
+            got = _get(params, *names)
+            if got and not nonfinite(*got):
+                n, v = got
+                if v > limit + 1e-6:
+                    bad[n] = (f"{n} = {v:g} m/s: the autopilot may {what} faster than the "
+                              f"envelope's {limit:g} m/s (set {n} <= {limit:g})")  # fmt: skip
     got = _get(params, "COM_OBL_RC_ACT")
     if got and not nonfinite(*got):
         n, v = got
@@ -123,6 +136,25 @@ def check_params(spec: EnvelopeSpec, params: Mapping[str, float],
             bad[n] = (f"{n} = {v:g}: offboard loss would not brake or return "
                       f"(use one of {sorted(PX4_OBL_OK.items())})")  # fmt: skip
     return bad
+
+
+def _climb_limits(spec: EnvelopeSpec) -> tuple[tuple[str, float], tuple[str, float]]:
+    lim = spec.limits
+    return (("climb", lim.climb_mps), ("sink", lim.descent_mps))
+
+
+def agreeing_values(spec: EnvelopeSpec, params: Mapping[str, float]) -> dict[str, float]:
+    """{name: value} a companion may PARAM_SET so that the autopilot agrees with the envelope
+    where it can (C6: a fixed-wing's climb and sink limits, lowered to the envelope's); {} for
+    a multirotor or when nothing needs changing. Other mismatches are the operator's to fix."""
+    if spec.dynamics.bank_max_rad <= 0:
+        return {}
+    out: dict[str, float] = {}
+    for names, (_, limit) in zip(CLIMB_PARAMS, _climb_limits(spec)):
+        got = _get(params, *names)
+        if got and not (math.isfinite(got[1]) and got[1] <= limit + 1e-6):
+            out[got[0]] = float(limit)
+    return out
 
 
 class ParamGuard:

@@ -12,6 +12,7 @@ from groundsim.ugv import UGVStates
 from hil.orbit import (
     ORBIT_CAMERA,
     OrbitParams,
+    camera_radius,
     circle_certified,
     plan_orbit,
     turn_radius,
@@ -46,6 +47,33 @@ def test_plan_closed_form():
     assert plan.bank_rad < 0.7 * math.radians(35.0)
 
 
+def test_a_steep_bank_limit_is_not_the_orbits_bank_the_camera_sets_the_circle():
+    """ArduPlane's stock ROLL_LIMIT_DEG 65: the turn at 0.7 · 65° is a 55 m circle, too small
+    for the camera to hold a 25 m team (173 px > 96 px); the plan widens it to the smallest
+    circle (3) holds on and commands the shallower bank that flies it."""
+    p = OrbitParams(airspeed_mps=22.0, bank_max_rad=math.radians(65.0), team_speed_mps=1.5,
+                    team_radius_m=9.375, alt_min_m=40.0, alt_max_m=125.0, radius_max_m=189.0)  # fmt: skip
+    r_turn = turn_radius(23.5, 0.7 * math.radians(65.0))
+    plan = plan_orbit(p)
+    f, rho = ORBIT_CAMERA.fx, 12.5
+    d_min = rho * (1 + f / plan.team_px_max)  # (3) as a bound on the slant range
+    assert r_turn < 60.0 < plan.radius_m
+    assert plan.slant_m == pytest.approx(d_min, rel=1e-6)  # the smallest circle that fits
+    assert plan.radius_m == pytest.approx(d_min / math.sqrt(2), rel=1e-6) == plan.altitude_m
+    assert plan.team_px <= plan.team_px_max + 1e-9
+    bank = math.atan(23.5**2 / (GRAVITY * plan.radius_m))
+    assert plan.bank_cmd_rad == pytest.approx(bank, rel=1e-12)
+    assert math.radians(31.0) < plan.bank_cmd_rad < 0.7 * math.radians(65.0)
+    # where the turn's circle already fits, the plan is the turn's, as before
+    same = plan_orbit(OrbitParams())
+    assert same.radius_m == turn_radius(27.0, 0.7 * math.radians(35.0))
+    assert same.bank_cmd_rad == pytest.approx(0.7 * math.radians(35.0), rel=1e-12)
+    # below the band: h = alt_min and R from D² = R² + h²; above it: h = alt_max
+    assert camera_radius(50.0, 40.0, 125.0) == pytest.approx(30.0)
+    assert camera_radius(200.0, 40.0, 125.0) == pytest.approx(math.sqrt(200**2 - 125**2))
+    assert camera_radius(30.0, 40.0, 125.0) == 0.0
+
+
 def test_h_equal_r_maximises_the_marker_size():
     r = 150.0
     h = np.linspace(20.0, 600.0, 2901)
@@ -59,8 +87,12 @@ def test_altitude_clamped_to_the_envelope_band():
 
 
 def test_plan_refuses_what_the_camera_cannot_hold():
-    with pytest.raises(ValueError, match="does not fit"):
+    with pytest.raises(ValueError, match="does not fit"):  # the circle it needs is too wide
+        plan_orbit(OrbitParams(team_radius_m=40.0, radius_max_m=189.0))
+    with pytest.raises(ValueError, match="too small"):  # widened to fit: markers too small
         plan_orbit(OrbitParams(team_radius_m=40.0))
+    with pytest.raises(ValueError, match="wider than"):  # the turn alone exceeds the hold
+        plan_orbit(OrbitParams(bank_max_rad=math.radians(15.0), radius_max_m=189.0))
     with pytest.raises(ValueError, match="too small"):
         plan_orbit(OrbitParams(), CameraParams(hfov_rad=math.radians(70.0)))
     for bad in (dict(airspeed_mps=math.nan), dict(bank_max_rad=2.0), dict(alt_min_m=200.0)):

@@ -6,6 +6,12 @@ The world listens on a second MAVLink link of the autopilot (PX4's ground-statio
 ArduPilot serial port), asks for the streams it needs, and at every camera instant of the
 autopilot's clock (`time_boot_ms`) renders the team from the vehicle's reported pose and publishes
 the frame on Zenoh. Free-running by nature: an outside autopilot does not wait for anyone.
+
+A fixed-wing's camera (`params.camera == "roi"`) is the orbit's zoomed one on a pan-tilt head,
+as in world/sim.py. The world plays that gimbal on the MAVLink network: it announces itself as
+the vehicle's gimbal component (HEARTBEAT from the autopilot's system id, MAV_COMP_ID_GIMBAL),
+so the autopilot routes a MAV_CMD_DO_SET_ROI_LOCATION addressed to its gimbal onto this link
+(ArduPilot's routing table; the companion addresses it so), and points the head there.
 """
 
 from __future__ import annotations
@@ -52,10 +58,17 @@ class FollowWorld:
         self.team = new_team(params.scenario, params.seed, self.task.n_ugvs)
         self.team_t: float | None = None
         self._team_t0 = 0.0
-        self.renderer = FastRenderer(self.task.camera, UGVModel())
+        self.cam = self.task.camera
+        self.roi_ned: np.ndarray | None = None  # where the pointed head looks (None: nadir)
+        self.roi_commands = 0
+        if getattr(params, "camera", "down") == "roi":
+            from hil.orbit import ORBIT_CAMERA
+
+            self.cam = ORBIT_CAMERA
+        self.renderer = FastRenderer(self.cam, UGVModel())
         self.publisher = None
         if session is not None:
-            self.publisher = FramePublisher(session, params.vehicle, self.task.camera,
+            self.publisher = FramePublisher(session, params.vehicle, self.cam,
                                             rng=np.random.default_rng(params.seed))  # fmt: skip
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down", "mode", "armed", "team_t"]
@@ -73,10 +86,12 @@ class FollowWorld:
         period = 1.0 / self.p.camera_hz
         t_first: float | None = None
         next_t: float | None = None
-        asked = -1e9
+        asked = announced = -1e9
         wall0 = time.monotonic()
         while not self._stop.is_set():
             for msg in self.link.recv(0.05):
+                if self.cam is not self.task.camera and self._gimbal_command(msg):
+                    continue
                 if msg.get_srcSystem() != self.system_id or msg.get_srcComponent() != 1:
                     continue  # another vehicle on a shared ground-station port (14550)
                 try:
@@ -85,6 +100,9 @@ class FollowWorld:
                     self.error = str(e)
                     return self._stats(wall0)
             now = time.monotonic()
+            if self.cam is not self.task.camera and now - announced > 1.0:
+                announced = now
+                self._announce_gimbal()
             if self.tel.profile is not None and now - asked > 5.0:  # ArduPilot: ask for streams
                 asked = now
                 for msg_id, hz in self.tel.profile.stream_requests():
@@ -116,7 +134,7 @@ class FollowWorld:
             self.team.step(t - self._team_t0 - self.team_t)
             self.team_t = t - self._team_t0
         ugvs = team_states(self.team)
-        uav = level_camera_mount(state)
+        uav = self._camera_mount(state)
         # --cut-camera windows count the vehicle's clock here (a fallback drill on a real autopilot)
         if self.publisher is not None and not _during(self.p.camera_losses, t):
             try:
@@ -130,9 +148,49 @@ class FollowWorld:
                             team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
             self.truth.write(row)
 
+    def _camera_mount(self, state):
+        """The level downward mount, or the pan-tilt head pointed at the ROI."""
+        if self.cam is self.task.camera:
+            return level_camera_mount(state)
+        from hil.orbit_gimbal import gimbal_pose
+
+        _, _, yaw = state.euler
+        target = self.roi_ned if self.roi_ned is not None else np.array([*state.pos_ned[:2], 0.0])
+        return gimbal_pose(self.cam, state.pos_ned, yaw, target)
+
+    def _announce_gimbal(self) -> None:
+        """HEARTBEAT as the followed vehicle's gimbal (its system id, MAV_COMP_ID_GIMBAL)."""
+        enc = M.MAVLink(None, srcSystem=self.system_id, srcComponent=M.MAV_COMP_ID_GIMBAL)
+        hb = M.MAVLink_heartbeat_message(M.MAV_TYPE_GIMBAL, M.MAV_AUTOPILOT_INVALID, 0, 0,
+                                         M.MAV_STATE_ACTIVE, 3)  # fmt: skip
+        self.link.transport.send(hb.pack(enc))
+
+    def _gimbal_command(self, msg) -> bool:
+        """A DO_SET_ROI_LOCATION routed to the gimbal (params 5-7: lat, lon [deg], alt AMSL
+        [m]): point the head there and acknowledge. True if the message was one."""
+        if msg.get_type() != "COMMAND_LONG" or msg.command != M.MAV_CMD_DO_SET_ROI_LOCATION:
+            return False
+        if (msg.target_system, msg.target_component) != (self.system_id, M.MAV_COMP_ID_GIMBAL):
+            return False
+        from flight.geo import geodetic_to_ned
+
+        p = (msg.param5, msg.param6, msg.param7)
+        ok = (self.tel.home is not None and all(np.isfinite(p))
+              and abs(p[0]) <= 90 and abs(p[1]) <= 180)  # fmt: skip
+        if ok:
+            self.roi_ned = geodetic_to_ned(self.tel.home, *p)
+            self.roi_commands += 1
+        enc = M.MAVLink(None, srcSystem=self.system_id, srcComponent=M.MAV_COMP_ID_GIMBAL)
+        ack = M.MAVLink_command_ack_message(msg.command, M.MAV_RESULT_ACCEPTED if ok else
+                                            M.MAV_RESULT_DENIED, 0, 0, msg.get_srcSystem(),
+                                            msg.get_srcComponent())  # fmt: skip
+        self.link.transport.send(ack.pack(enc))
+        return True
+
     def _stats(self, wall0: float) -> dict:
         stats = {"followed": True, "frames": self.frames, "wall_s": time.monotonic() - wall0,
                  "vehicle_t_s": self.tel.t, "autopilot": self.tel.profile.name if self.tel.profile else None,
+                 "roi_commands": self.roi_commands,
                  "error": self.error}  # fmt: skip
         if self.run_dir is not None:
             atomic_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")
