@@ -84,6 +84,7 @@ class LockstepGate:
             self.link.send(self.mav.camera_image_captured_encode(
                 t_us // 1000, 0, 0, 0, 0, 0, 0, [1.0, 0.0, 0.0, 0.0], frame_seq, 1, b""), force=True)  # fmt: skip
         self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US), force=True)
+        self.link.flush()  # the tick's telemetry, the announcement and the mark: one datagram
 
     def wait_for_peer(
         self, beacon: Callable[[], None], stop: threading.Event | None = None
@@ -97,6 +98,7 @@ class LockstepGate:
         while not self._carry:
             if time.monotonic() >= next_beacon:
                 beacon()
+                self.link.flush()
                 next_beacon = time.monotonic() + self.p.resend_s
             got = self.link.receive()
             if got:
@@ -146,6 +148,7 @@ class LockstepGate:
                 )
             if now >= next_resend:
                 self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US), force=True)
+                self.link.flush()
                 self.stats.resends += 1
                 if on_wait is not None:
                     on_wait()

@@ -269,11 +269,17 @@ class MavlinkLink:
         return MavlinkLink(open_transport(address, connect_wait_s), **kwargs)
 
     def send(self, msg: MAVLinkMessage) -> None:
+        self.send_many([msg])
+
+    def send_many(self, msgs: list[MAVLinkMessage]) -> None:
+        """Send messages in order, as one write (one UDP datagram holds whole frames, as PX4
+        packs its own): a lockstep tick's setpoints and its close wake the vehicle once."""
         with self._send_lock:
-            data = self.codec.pack(msg)
-            self.transport.send(data)
+            frames = [self.codec.pack(m) for m in msgs]
+            self.transport.send(b"".join(frames))
         if self.tlog:
-            self.tlog.write(data)
+            for data in frames:
+                self.tlog.write(data)
 
     def recv(self, timeout: float = 0.1) -> list[MAVLinkMessage]:
         """Messages decoded from whatever arrives within `timeout` [s]. Bad bytes are skipped."""

@@ -139,6 +139,10 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
             done = False
         except StopIteration:
             done = True
+        except BaseException:  # what the failing tick queued still goes out (its close not)
+            for v in vs:
+                v.flush()
+            raise
         for v in vs:
             if not done and v.setpoint is not None:
                 sp: Setpoint = v.setpoint

@@ -51,6 +51,7 @@ class VehicleLink:
         self._last_mark_ns = -1
         self.unknown_autopilot = ""  # the reason, if the vehicle's autopilot is not one we fly
         self._reposition_t = -float("inf")  # tick time of the last DO_REPOSITION setpoint [s]
+        self._outbox: list | None = None  # lockstep: what this tick sends, sent with its close
 
     # ---- receiving ---------------------------------------------------------------------------
     def _pull(self, timeout_s: float) -> bool:
@@ -72,6 +73,7 @@ class VehicleLink:
                         continue
                     self._last_mark_ns = msg.ts1
                     self.t = msg.ts1 / (NS_PER_US * 1e6)
+                    self._outbox = []
                     return self.t
                 self.apply(msg)
             left = deadline - time.monotonic()
@@ -103,11 +105,18 @@ class VehicleLink:
                 break
         self.t = self.tel.time_boot_ms / 1000.0
 
+    def flush(self) -> None:
+        """Send what this tick queued, without closing it (the mission ended abnormally)."""
+        out, self._outbox = self._outbox, None
+        if out:
+            self.link.send_many(out)
+
     def close_tick(self) -> None:
-        """Lockstep: tell the vehicle this tick's decision has been sent."""
-        self.link.send(
-            self.link.mav.timesync_encode(max(1, self._last_mark_ns), self._last_mark_ns)
-        )
+        """Lockstep: send this tick's messages and its close (the TIMESYNC answer) together."""
+        out = self._outbox or []
+        self._outbox = None
+        out.append(self.link.mav.timesync_encode(max(1, self._last_mark_ns), self._last_mark_ns))
+        self.link.send_many(out)
 
     def _from_vehicle(self, msg) -> bool:
         return self.target_system is None or msg.get_srcSystem() == self.target_system
@@ -158,7 +167,10 @@ class VehicleLink:
 
     # ---- sending -----------------------------------------------------------------------------
     def send(self, msg) -> None:
-        self.link.send(msg)
+        if self._outbox is not None:  # inside a lockstep tick: goes out with its close
+            self._outbox.append(msg)
+        else:
+            self.link.send(msg)
 
     def heartbeat(self) -> None:
         self.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_ONBOARD_CONTROLLER,

@@ -137,6 +137,7 @@ class World:
         self.endpoint = MavlinkEndpoint(self.autopilot, cfg)
         self.endpoint.gated.add("api")  # read by the gate (lockstep) or by this loop (free-run)
         self.gate = LockstepGate(self.endpoint.api, self.endpoint.mav, params.lockstep_params)
+        self.endpoint.api.coalesce = params.lockstep  # what a tick sends leaves with its mark
         # no team: the vehicle alone (a formation vehicle); its ticks are marked all the same
         self.team = None if params.scenario == "none" else new_team(params.scenario, params.seed,
                                                                     self.task.n_ugvs)  # fmt: skip

@@ -15,6 +15,7 @@ from flight.mavlink.signing import Signing
 
 Address = tuple[str, int]
 MAX_DATAGRAM = 65535
+PACKED_DATAGRAM = 1400  # coalesced frames per datagram, at most [bytes] (fits a 1500 B MTU)
 
 
 class UdpLink:
@@ -52,6 +53,8 @@ class UdpLink:
             pass
         self.send_errors = 0
         self.rx_datagrams = 0
+        self.coalesce = False  # hold frames for the default peers until `flush()` (lockstep)
+        self._held: list[bytes] = []
 
     def receive(self, max_datagrams: int = 256) -> list[tuple[MAVLinkMessage, Address]]:
         """Drain up to `max_datagrams` waiting datagrams; returns decoded messages with senders."""
@@ -83,8 +86,28 @@ class UdpLink:
         if self._on_frame is not None:
             self._on_frame("out", buf)
         if to is not None:
+            self.flush()  # what was held goes first: frames leave in the order they were sent
             self._sendto(buf, to)
-            return
+        elif self.coalesce:
+            self._held.append(buf)
+        else:
+            self._send_default(buf)
+
+    def flush(self) -> None:
+        """Send the held frames, packed whole into as few datagrams as fit PACKED_DATAGRAM (as
+        PX4 packs its UDP output): a lockstep tick's telemetry and its mark wake the companion
+        once. Frame order is kept."""
+        held, self._held = self._held, []
+        chunk = b""
+        for buf in held:
+            if chunk and len(chunk) + len(buf) > PACKED_DATAGRAM:
+                self._send_default(chunk)
+                chunk = b""
+            chunk += buf
+        if chunk:
+            self._send_default(chunk)
+
+    def _send_default(self, buf: bytes) -> None:
         self._sendto(buf, self.remote)
         if self.peer is not None and self.peer != self.remote:
             self._sendto(buf, self.peer)
@@ -96,4 +119,5 @@ class UdpLink:
             self.send_errors += 1
 
     def close(self) -> None:
+        self.flush()
         self.sock.close()
