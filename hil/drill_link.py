@@ -2,13 +2,19 @@
 real loopback UDP), the companion side on hil.client.VehicleClient with the whole safety net
 (safety.net.SafetyNet: supervisor, authority, health from arrivals, parameter guard).
 
-Kinds flown this way: max_speed, battery, param_sabotage (safety.campaign). The vehicle
-starts in the air at the drill's start point (armed, HOLD, before the endpoint opens); the
+Kinds flown this way, both airframes (`skyherd sitl --airframe quadrotor|fixedwing`'s vehicle):
+max_speed, battery, param_sabotage, link_loss (safety.campaign). The vehicle starts in the air
+at the drill's start point (armed, HOLD, before the endpoint opens; the fixed-wing trimmed in
+level flight over home with the drill's fence uploaded, as safety.campaign.make_vehicle); the
 companion connects, reads the parameters the guard watches, hands over to OFFBOARD and flies
 the scripted AI through the net from the client's receive thread; mode requests go out from
 the calling thread. A parameter sabotage is a PARAM_SET sent on the same link (any sender is
-obeyed: the endpoint answers with a PARAM_VALUE broadcast that the guard reads). Ground truth
-is judged on every simulation step (Sitl.run's on_step) as in safety.drills.run_drill.
+obeyed: the endpoint answers with a PARAM_VALUE broadcast that the guard reads); a restore
+(value None) sends the value read before the sabotage. A link cut is real: during it the
+vehicle's API link sends nothing (`muted`) and is not read, and what the companion sent meanwhile
+is dropped from its socket at the end of the cut; the companion hears nothing, so it commands
+nothing. Ground truth is judged on every simulation step (Sitl.run's on_step) as in
+safety.drills.run_drill.
 """
 
 from __future__ import annotations
@@ -32,7 +38,8 @@ from safety.drills import RUN_ON_S, WATCHED_PARAMS, DrillParams
 from safety.net import SafetyNet
 from safety.supervisor import Mode, Supervisor, SupervisorParams
 
-MAVLINK_KINDS = ("max_speed", "battery", "param_sabotage")
+MAVLINK_KINDS = ("max_speed", "battery", "param_sabotage", "link_loss")
+AIRFRAMES = ("quadrotor", "fixedwing")
 
 
 @dataclass
@@ -46,25 +53,48 @@ class LinkDrillResult:
     reasons: list[str]
     why: str
     setpoints: int  # setpoints the client sent
+    airframe: str = "quadrotor"
+    restored: str = ""  # after a client's restore: "handed back", "waiting (yielded ...)", ...
+    cut_dropped: int = 0  # datagrams from the companion dropped by the link cut
 
 
 def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
-                      speedup: float = 1.0, events=None, timeout_s: float = 300.0) -> LinkDrillResult:  # fmt: skip
-    """One quadrotor campaign drill of `kind` through MAVLink on vehicle `instance`."""
+                      speedup: float = 1.0, events=None, timeout_s: float = 300.0,
+                      airframe: str = "quadrotor") -> LinkDrillResult:  # fmt: skip
+    """One campaign drill of `kind` for `airframe` through MAVLink on vehicle `instance`."""
     if kind not in MAVLINK_KINDS:
         raise ValueError(f"kind {kind!r} is not flown over MAVLink; choose one of {MAVLINK_KINDS}")
-    spec, table = load_envelope(default_envelope_path("quadrotor"))
+    if airframe not in AIRFRAMES:
+        raise ValueError(f"airframe {airframe!r}: choose one of {AIRFRAMES}")
+    spec, table = load_envelope(default_envelope_path(airframe))
     sp = fill_dataclass(SupervisorParams, table, "supervisor")
-    d = make_drill(kind, index, drill_rng(seed, "quadrotor", index), spec, DrillParams())
+    p = DrillParams()
+    d = make_drill(kind, index, drill_rng(seed, airframe, index), spec, p)
     s = d.script
     ap = make_vehicle(d, seed)
-    ap.arm(force=True)
-    ap.set_mode(FlightMode.HOLD)
+    if airframe == "fixedwing":
+        ap.start_in_air(-float(s.start_ned[2]), p.fixedwing_speed_mps, s.start_heading)
+    else:
+        ap.arm(force=True)
+        ap.set_mode(FlightMode.HOLD)
     geo = d.spec.geometry()
     run_on = d.spec.stop_times()[0] + RUN_ON_S
     judge = {"worst": -math.inf, "t_yield": math.nan, "overridden": 0, "mode": ap.mode}
+    cut = {"t0": math.nan, "on": False, "dropped": 0}  # t0: sim time of the hand-over
 
     def on_step(sitl: Sitl) -> None:  # simulation thread, every step
+        if s.link_cut is not None and not math.isnan(cut["t0"]):
+            tr = ap.clock.t - cut["t0"]
+            on = s.link_cut[0] <= tr < s.link_cut[1]
+            api = sitl.endpoint.api
+            if on and not cut["on"]:
+                api.muted = True  # nothing from the vehicle reaches the companion ...
+                sitl.endpoint.gated.add(api.name)  # ... and nothing is read from it
+            elif not on and cut["on"]:
+                cut["dropped"] += len(api.receive(1 << 16))  # sent during the cut: lost
+                sitl.endpoint.gated.discard(api.name)
+                api.muted = False
+            cut["on"] = on
         z = np.zeros(11)
         z[0:3] = ap.true_state.pos_ned
         ty = judge["t_yield"]
@@ -125,14 +155,27 @@ def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
         client.set_mode(FlightMode.OFFBOARD)
         net.handover(tel.t, tel.mode)  # what the heartbeat shows now (may lag the switch)
         shared["t0"] = tel.t
-        pending = sorted(s.params)
+        cut["t0"] = shared["t0"]  # telemetry time is simulation time (time_boot_ms)
+        pending = sorted(s.params, key=lambda e: e[0])
+        pre_set: dict[str, float] = {}
+        t_restore = max((t for t, _, v in s.params if v is None), default=math.nan)
+        ai_after = math.nan
         wall_end = time.monotonic() + timeout_s
         while sim.is_alive() and time.monotonic() < wall_end:
             tr = tel.t - shared["t0"]
             if tr >= s.duration_s:
                 break
+            if (
+                tr >= t_restore
+                and math.isnan(ai_after)
+                and net.supervisor.mode is Mode.AI
+                and not net.params.fault
+            ):
+                ai_after = tr
             while pending and pending[0][0] <= tr:  # a client's PARAM_SET on the link
                 _, name, value = pending.pop(0)
+                pre_set.setdefault(name, float(net.params.params.get(name, math.nan)))
+                value = pre_set[name] if value is None else value
                 client.link.send(mavlink2.MAVLink_param_set_message(
                     1 + instance, 1, name.encode(), float(value), mavlink2.MAV_PARAM_TYPE_REAL32))  # fmt: skip
             ask = shared["ask"]
@@ -164,12 +207,22 @@ def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
             why.append(f"expected {s.expect}, got {reasons or 'none'}")
         if s.expect_yield and not yielded:
             why.append("the autopilot's failsafe was expected to take over; the net never yielded")
+        restored = ""
+        if not math.isnan(t_restore):
+            if yielded:
+                restored = f"waiting (yielded to {yielded})"
+            elif not math.isnan(ai_after):
+                restored = f"handed back {ai_after - t_restore:.1f} s after the restore"
+            else:
+                restored = "not handed back"
+                why.append("a client restored the sabotaged parameter; the net did not hand back")
         if net.authority.yields:
             reasons.append(net.authority.reason)
         if tel.yielded:
             reasons.append(f"client: {tel.yielded}")
         return LinkDrillResult(s.name, kind, not why, -judge["worst"], judge["overridden"],
-                               yielded, reasons, "; ".join(why), shared["sent"])  # fmt: skip
+                               yielded, reasons, "; ".join(why), shared["sent"], airframe,
+                               restored, cut["dropped"])  # fmt: skip
     finally:
         if client is not None:
             client.stream_offboard(None)

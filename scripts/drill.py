@@ -79,8 +79,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=0,
         metavar="N",
-        help="also fly N quadrotor campaign drills (max speed, battery, parameter sabotage) "
-        "through MAVLink: the built-in vehicle's endpoint and hil.client (instance --instance)",
+        help="also fly N campaign drills per airframe (max speed, battery, parameter sabotage "
+        "and its restore, link loss: a real cut of the vehicle's API link) through MAVLink: the "
+        "built-in vehicle's endpoint and hil.client (instance --instance)",
     )
     parser.add_argument(
         "--instance", type=int, default=85, help="vehicle instance for --mavlink (default 85)"

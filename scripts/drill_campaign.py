@@ -151,24 +151,32 @@ def run_campaign(args) -> int:
     if n_link:
         from hil.drill_link import MAVLINK_KINDS, run_mavlink_drill
 
-        for i in tqdm(range(n_link), desc="through MAVLink", unit="drill"):
+        link_jobs = [(a, i) for a in airframes for i in range(n_link)]
+        for a, i in tqdm(link_jobs, desc="through MAVLink", unit="drill"):
             kind = MAVLINK_KINDS[i % len(MAVLINK_KINDS)]
             sink = _Collect()
-            r = run_mavlink_drill(kind, args.instance, args.seed, index=1_000_000 + i, events=sink)
+            r = run_mavlink_drill(kind, args.instance, args.seed, index=1_000_000 + i,
+                                  events=sink, airframe=a)  # fmt: skip
             for e in sink.records:
-                events.write({"drill": f"mavlink {r.name}", "airframe": "quadrotor", **e})
+                events.write({"drill": f"mavlink {r.name}", "airframe": a, **e})
             link_rows.append(r)
     events.close()
     metrics.close()
     table, closest, totals, bad = summarize(rows) if rows else ("", "", "no in-process drills", 0)
     if link_rows:
         lt = markdown_table(
-            ["drill (MAVLink)", "passed", "closest approach m", "overridden", "yielded to", "why"],
-            [[r.name, r.passed, round(r.min_clearance_m, 2), r.overridden, r.yielded or "-",
-              r.why or "-"] for r in link_rows],
+            ["airframe", "drill (MAVLink)", "passed", "closest approach m", "overridden",
+             "yielded to", "restore", "dropped by the cut", "why"],
+            [[r.airframe, r.name, r.passed, round(r.min_clearance_m, 2), r.overridden,
+              r.yielded or "-", r.restored or "-", r.cut_dropped, r.why or "-"]
+             for r in link_rows],
         )  # fmt: skip
         table = f"{table}\n\n{lt}"
         bad += sum(r.min_clearance_m < 0 or r.overridden > 0 for r in link_rows)
+        totals += (f"; through MAVLink: {len(link_rows)} drills, "
+                   f"{sum(r.min_clearance_m < 0 for r in link_rows)} breaches, "
+                   f"{sum(r.overridden for r in link_rows)} overridden failsafes, "
+                   f"{sum(not r.passed for r in link_rows)} failing a check")  # fmt: skip
     if not args.no_plots and rows:
         plot(rows, tracks, {a: s for a, (s, _) in specs.items()}, run_dir.file("campaign.png"))
     versions = ", ".join(f"{a}: {s.name} {s.version}" for a, (s, _) in specs.items())

@@ -153,3 +153,25 @@ def test_hold_without_a_fence_is_the_default_circle():
     _hold_after_offboard_loss(ap, 5.0)
     r = ap.default_loiter_radius()
     assert ap.loiter_radius == pytest.approx(r) and ap.loiter_center[1] > 0.9 * r  # the right
+
+
+def test_fixedwing_battery_failsafe_stands_in_a_drill():
+    """The fixed-wing's battery (fuel) failsafe, PX4 COM_LOW_BAT_ACT 3 as the multirotor's:
+    below BAT_CRIT_THR it returns, below BAT_EMERGEN_THR it lands; the net yields to it and
+    never undoes it (safety.campaign battery drills, in-process; seed 7, drills 0 and 1)."""
+    from safety.campaign import drill_rng, make_drill, make_vehicle
+    from safety.config import default_envelope_path, fill_dataclass, load_envelope
+    from safety.drills import DrillParams, run_drill
+    from safety.supervisor import SupervisorParams
+
+    spec, table = load_envelope(default_envelope_path("fixedwing"))
+    sp = fill_dataclass(SupervisorParams, table, "supervisor")
+    p = DrillParams()
+    for index, want, said in ((0, "RTL", "critical -> return"), (1, "LAND", "emergency -> land")):
+        d = make_drill("battery", index, drill_rng(7, "fixedwing", index), spec, p)
+        ap = make_vehicle(d, 7)
+        r = run_drill(d.script, ap, d.spec, sp, p)
+        assert r.passed, r.why
+        assert r.yielded == want and r.overridden == 0
+        assert r.min_clearance_m > 10.0
+        assert any(said in line for line in ap.drain_status())

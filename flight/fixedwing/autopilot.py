@@ -131,6 +131,8 @@ class FixedWingAutopilot(AutopilotBase):
             )
         self.fence = FenceMonitor()
         self._status: list[str] = []
+        self._battery_drop = 0.0  # [0, 1] charge lost to battery faults (flight.faults)
+        self._next_battery_check = 0.0
         self._gps_fix = True
         self._pos_valid = True
         self.model = JSBSimPlane(self.home, model_params or ModelParams())
@@ -284,6 +286,11 @@ class FixedWingAutopilot(AutopilotBase):
         inj, t, dt = self._inj, self.clock.t, self.control_dt
         if not inj.calm:
             self.model.set_wind(inj.wind_ned(t, dt))
+        if inj._battery_events:
+            drop, _watts = inj.battery(t)  # a drain's watts: the piston engine has no battery
+            if drop is not None and drop < self.battery_remaining:
+                self._battery_drop += self.battery_remaining - drop
+                self._event(f"battery fault: charge {drop:.0%}")
         if not inj.touches_estimate:
             return
         e = inj.update(t, dt)
@@ -345,7 +352,20 @@ class FixedWingAutopilot(AutopilotBase):
 
     @property
     def battery_remaining(self) -> float:
-        return self.model.fuel_fraction
+        """The J3Cub's fuel fraction, less what battery faults took (the failsafes' charge)."""
+        return max(0.0, self.model.fuel_fraction - self._battery_drop)
+
+    def _battery_failsafe(self) -> None:
+        """PX4 COM_LOW_BAT_ACT 3 (as the multirotor): critical → return, emergency → land."""
+        if not self._flying():
+            return
+        rem, mode = self.battery_remaining, self._mode
+        if rem <= self.p("BAT_EMERGEN_THR") and mode != FlightMode.LAND:
+            self._event(f"battery {rem:.0%}: emergency -> land")
+            self.land()
+        elif rem <= self.p("BAT_CRIT_THR") and mode not in (FlightMode.RTL, FlightMode.LAND):
+            self._event(f"battery {rem:.0%}: critical -> return")
+            self.return_to_launch()
 
     def default_loiter_radius(self) -> float:
         """NAV_LOITER_RAD, or V_trim^2 / (g tan(0.7 φ_max)) when it is 0 [m]."""
@@ -789,6 +809,9 @@ class FixedWingAutopilot(AutopilotBase):
         t = self.clock.t
         if not self._armed:
             return Surfaces(brake=1.0)
+        if t >= self._next_battery_check:  # 1 Hz, as the multirotor
+            self._next_battery_check = t + 1.0
+            self._battery_failsafe()
         if self._mode == FlightMode.OFFBOARD and t - self._offboard_t > self.p("COM_OF_LOSS_T"):
             self._event(offboard_lost_text(t - self._offboard_t, self.p("COM_OF_LOSS_T")))
             self._mode = FlightMode.HOLD  # offboard lost (COM_OF_LOSS_T): hold = loiter

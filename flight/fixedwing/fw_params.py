@@ -36,6 +36,8 @@ FW_PARAM_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("FW_LND_APP_ALT", 25.0, 10.0, 100.0, "height at the approach gate", "m"),
     ParamSpec("FW_LND_FLALT", 3.0, 0.5, 10.0, "flare height (wheels)", "m"),
     ParamSpec("COM_OF_LOSS_T", 0.5, 0.1, 10.0, "offboard setpoint timeout", "s"),
+    ParamSpec("BAT_CRIT_THR", 0.07, 0.0, 0.5, "battery (fuel) fraction → return (RTL)", "-"),
+    ParamSpec("BAT_EMERGEN_THR", 0.05, 0.0, 0.5, "battery (fuel) fraction → land", "-"),
     ParamSpec("COM_DISARM_LAND", 2.0, -1.0, 20.0, "disarm after landing, -1 = never", "s"),
     ParamSpec("EKF2_NOAID_TOUT", 5.0, 0.5, 60.0, "dead reckoning without GPS, then loiter", "s"),
     *GEOFENCE_PARAMS,
