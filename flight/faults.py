@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flight.quadrotor import WindField, WindModel
+from flight.wind import WindField, WindModel
 
 KINDS = ("gps_glitch", "gps_drift", "gps_loss", "wind", "battery", "drain")
 

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flight.faults import FaultEvent, FaultPlan
-from flight.quadrotor import WindModel
+from flight.wind import WindModel
 from safety.drills import DrillParams, Script, lead, orbit, slew, toward
 from safety.envelope import EnvelopeSpec, SignedDistance, Zone
 
