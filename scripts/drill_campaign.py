@@ -149,14 +149,18 @@ def run_campaign(args) -> int:
                     bar.update(1)
     link_rows = []
     if n_link:
-        from hil.drill_link import MAVLINK_KINDS, run_mavlink_drill
+        from hil.drill_link import MAVLINK_KINDS, LinkDrillResult, run_mavlink_drill
 
         link_jobs = [(a, i) for a in airframes for i in range(n_link)]
         for a, i in tqdm(link_jobs, desc="through MAVLink", unit="drill"):
             kind = MAVLINK_KINDS[i % len(MAVLINK_KINDS)]
             sink = _Collect()
-            r = run_mavlink_drill(kind, args.instance, args.seed, index=1_000_000 + i,
-                                  events=sink, airframe=a)  # fmt: skip
+            try:
+                r = run_mavlink_drill(kind, args.instance, args.seed, index=1_000_000 + i,
+                                      events=sink, airframe=a)  # fmt: skip
+            except Exception as e:  # noqa: BLE001  one broken drill must not lose the run
+                r = LinkDrillResult(f"{kind} {1_000_000 + i:04d}", kind, False, math.nan, 0, "",
+                                    [], f"crashed: {type(e).__name__}: {e}", 0, a)  # fmt: skip
             for e in sink.records:
                 events.write({"drill": f"mavlink {r.name}", "airframe": a, **e})
             link_rows.append(r)
@@ -172,7 +176,7 @@ def run_campaign(args) -> int:
              for r in link_rows],
         )  # fmt: skip
         table = f"{table}\n\n{lt}"
-        bad += sum(r.min_clearance_m < 0 or r.overridden > 0 for r in link_rows)
+        bad += sum(not r.min_clearance_m >= 0 or r.overridden > 0 for r in link_rows)  # nan: crash
         totals += (f"; through MAVLink: {len(link_rows)} drills, "
                    f"{sum(r.min_clearance_m < 0 for r in link_rows)} breaches, "
                    f"{sum(r.overridden for r in link_rows)} overridden failsafes, "
