@@ -28,7 +28,8 @@ from scripts.cli import UsageError
 
 COLS = ["drill", "airframe", "kind", "passed", "min_clearance_m", "breach", "overridden",
         "yielded", "switches", "fallback_s", "pid_s", "autopilot_excursion_m",
-        "autopilot_excursion_mode", "first_reason", "why", "constraint_set_version"]  # fmt: skip
+        "autopilot_excursion_mode", "first_reason", "why", "constraint_set_version",
+        "restored"]  # fmt: skip
 FAILSAFE_PATH_MODES = ("RTL", "LAND")
 """The autopilot's own failsafe paths (straight line home, descent): reported, not failing."""
 
