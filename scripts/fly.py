@@ -41,9 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--world-system",
         type=int,
-        default=1,
+        default=0,
         metavar="ID",
-        help="with --connect: the outside autopilot's MAVLink system id on the world link",
+        help="with --connect: the outside autopilot's MAVLink system id on the world link (0: the first autopilot heard)",
     )
     parser.add_argument(
         "--param",
@@ -285,7 +285,9 @@ def _envelope(args) -> dict:
     except (EnvelopeFileError, ValueError) as e:
         raise UsageError(f"{e}; fix the file or pass another --envelope") from None
     if spec.airframe != args.airframe:
-        raise UsageError(f"--envelope {path} is for a {spec.airframe}; this flight is a {args.airframe}")
+        raise UsageError(
+            f"--envelope {path} is for a {spec.airframe}; this flight is a {args.airframe}"
+        )
     return {"path": str(Path(path).resolve()), **spec.describe()}
 
 

@@ -121,9 +121,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--follow-system",
         type=int,
-        default=1,
+        default=0,
         metavar="ID",
-        help="with --follow: the followed autopilot's MAVLink system id",
+        help="with --follow: the followed autopilot's MAVLink system id (0: the first autopilot heard)",
     )
     parser.add_argument(
         "--param",

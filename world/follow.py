@@ -37,6 +37,12 @@ from world.team import new_team, team_states, truth_row, ugv_columns
 M = mavlink2
 
 
+def _is_autopilot_heartbeat(msg) -> bool:
+    """HEARTBEAT of an autopilot (component 1, not a ground station's or a companion's)."""
+    return (msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() == 1
+            and msg.autopilot != M.MAV_AUTOPILOT_INVALID)  # fmt: skip
+
+
 class FollowWorld:
     """UGV team + camera around the vehicle at `link` (a hil.link.MavlinkLink)."""
 
@@ -52,7 +58,7 @@ class FollowWorld:
         from perception.transport import FramePublisher
 
         self.link, self.p = link, params
-        self.system_id = system_id  # the followed autopilot's MAVLink system id
+        self.system_id = system_id  # the followed autopilot's system id (0: the first heard)
         self.task = task if task is not None else TaskParams()
         self.tel = Telemetry()
         self.team = new_team(params.scenario, params.seed, self.task.n_ugvs)
@@ -92,6 +98,8 @@ class FollowWorld:
             for msg in self.link.recv(0.05):
                 if self.cam is not self.task.camera and self._gimbal_command(msg):
                     continue
+                if self.system_id == 0 and _is_autopilot_heartbeat(msg):
+                    self.system_id = msg.get_srcSystem()  # auto: the first autopilot heard
                 if msg.get_srcSystem() != self.system_id or msg.get_srcComponent() != 1:
                     continue  # another vehicle on a shared ground-station port (14550)
                 try:
@@ -100,13 +108,13 @@ class FollowWorld:
                     self.error = str(e)
                     return self._stats(wall0)
             now = time.monotonic()
-            if self.cam is not self.task.camera and now - announced > 1.0:
+            if self.cam is not self.task.camera and self.system_id and now - announced > 1.0:
                 announced = now
                 self._announce_gimbal()
             if self.tel.profile is not None and now - asked > 5.0:  # ArduPilot: ask for streams
                 asked = now
                 for msg_id, hz in self.tel.profile.stream_requests():
-                    self.link.send(M.MAVLink_command_long_message(1, 1, M.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                    self.link.send(M.MAVLink_command_long_message(self.system_id, 1, M.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                                                   msg_id, 1e6 / hz, 0, 0, 0, 0, 0))  # fmt: skip
             state = self.tel.vehicle_state()
             if state is None:
@@ -190,7 +198,7 @@ class FollowWorld:
     def _stats(self, wall0: float) -> dict:
         stats = {"followed": True, "frames": self.frames, "wall_s": time.monotonic() - wall0,
                  "vehicle_t_s": self.tel.t, "autopilot": self.tel.profile.name if self.tel.profile else None,
-                 "roi_commands": self.roi_commands,
+                 "roi_commands": self.roi_commands, "system_id": self.system_id,
                  "error": self.error}  # fmt: skip
         if self.run_dir is not None:
             atomic_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")
