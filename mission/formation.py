@@ -192,17 +192,19 @@ class FormationMission:
 
     def write_track(self, vs: list[VehicleLink]) -> None:
         """Append the position samples that arrived this tick to metrics.csv (field frame)."""
+        rows = []
         for k, v in enumerate(vs):
             for t, p, vel, mode, armed in v.positions[self._written[k] :]:
                 ref = self._ref(k, t)[0] if self.t0 is not None else None
-                if self.rec.track is not None:
-                    self.rec.track.write({
-                        "t": t, "vehicle": k, "north": p[0] + self.off[k][0],
-                        "east": p[1] + self.off[k][1], "down": p[2], "vn": vel[0], "ve": vel[1],
-                        "vd": vel[2], "ref_north": "" if ref is None else ref[0],
-                        "ref_east": "" if ref is None else ref[1], "mode": mode,
-                        "armed": int(armed), "phase": self.phase})  # fmt: skip
+                rows.append({
+                    "t": t, "vehicle": k, "north": p[0] + self.off[k][0],
+                    "east": p[1] + self.off[k][1], "down": p[2], "vn": vel[0], "ve": vel[1],
+                    "vd": vel[2], "ref_north": "" if ref is None else ref[0],
+                    "ref_east": "" if ref is None else ref[1], "mode": mode,
+                    "armed": int(armed), "phase": self.phase})  # fmt: skip
             self._written[k] = len(v.positions)
+        if rows and self.rec.track is not None:
+            self.rec.track.write_rows(rows)
 
     # ---- the mission ---------------------------------------------------------------------------
     def run(self, vs: list[VehicleLink]) -> Phase:

@@ -38,6 +38,9 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 def to_jsonable(obj: Any) -> Any:
     """Dataclasses, enums, numpy values and paths → plain JSON values."""
+    t = type(obj)
+    if t is float or t is int or t is str or t is bool or obj is None:
+        return obj  # the common leaf, first (a decision record holds dozens of them)
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, enum.Enum):
@@ -127,7 +130,12 @@ class CsvWriter:
             self._f.flush()
 
     def write(self, row: dict[str, Any]) -> None:
-        self._w.writerow({k: to_jsonable(row.get(k, "")) for k in self.columns})
+        self.write_rows([row])
+
+    def write_rows(self, rows: list[dict[str, Any]]) -> None:
+        """Several rows, flushed once (a tick's samples of every vehicle)."""
+        for row in rows:
+            self._w.writerow({k: to_jsonable(row.get(k, "")) for k in self.columns})
         self._f.flush()
 
     def close(self) -> None:
