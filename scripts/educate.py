@@ -1,7 +1,7 @@
 """`skyherd educate CURRICULUM`: teach a curriculum lesson by lesson; a modular policy that explains.
 
 For each seed: every skill lesson trains its module (projection IRL on its demonstrations, or DQN
-on its reward), freezes it, and re-tests every earlier lesson; the composite lesson learns the
+on its reward; warm-started from the demonstrations by DQfD where the lesson says so), freezes it, and re-tests every earlier lesson; the composite lesson learns the
 arbiter (policy/education/teach.py). A monolithic DQN is taught the same lessons in the same
 order (unless --no-monolith) so retention can be compared. Then, on test episodes never used in
 training: the educated policies beside the scripted expert and, with --baselines RUN, the
