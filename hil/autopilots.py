@@ -270,6 +270,11 @@ class AutopilotProfile:
     reposition_frame: int = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
     reposition_lead_s: float = 5.0  # a velocity setpoint → a DO_REPOSITION this far ahead [s]
     landed_from_extended_sys_state: bool = False
+    # its loiter flies radius · EAS2TAS² (ArduPlane's L1 loiter_radius() with NAVL1_LIM_BANK 0):
+    # a companion that wants radius R sets R / EAS2TAS² (`loiter_radius_setting`)
+    loiter_tas_scaled: bool = False
+    # its loiter about a moving centre runs wide of the set radius: trim it in flight
+    loiter_radius_trim: bool = False
     attitude_message: str = "ATTITUDE"
     mode_table: tuple = field(default=(), repr=False)
     set_table: tuple = field(default=(), repr=False)
@@ -329,6 +334,14 @@ class AutopilotProfile:
 
     def param_to_si(self, key: str, value: float) -> float:
         return float(value) * getattr(self.params, key)[1]
+
+    def loiter_radius_setting(self, radius_m: float, altitude_amsl_m: float) -> float:
+        """The loiter-radius parameter [its unit] that makes the autopilot fly `radius_m` at
+        `altitude_amsl_m` (ISA: EAS2TAS² = ρ0 / ρ(h), ρ / ρ0 = (1 − 2.25577e-5 h)^4.25588)."""
+        r = float(radius_m)
+        if self.loiter_tas_scaled:
+            r *= (1.0 - 2.25577e-5 * float(altitude_amsl_m)) ** 4.25588
+        return self.param_value("loiter_radius", r)
 
     def param_value(self, key: str, si_value: float) -> float:
         """The value to PARAM_SET for `si_value` of a ParamNames field: in the autopilot's unit,
@@ -483,6 +496,8 @@ class ArduPlaneProfile(AutopilotProfile):
     params: ParamNames = PLANE_PARAMS
     setpoint_frame: str = "reposition"
     setpoint_min_interval_s: float = 1.0  # each DO_REPOSITION is a new guided waypoint
+    loiter_tas_scaled: bool = True
+    loiter_radius_trim: bool = True
 
     mode_table: tuple = field(default=_PLANE_TABLE, repr=False)
     set_table: tuple = field(default=_PLANE_SET, repr=False)

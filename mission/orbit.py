@@ -63,6 +63,7 @@ class OrbitFlight:
     radius_tol: float = 0.10  # established: |d − R| <= tol·R ...
     alt_tol_m: float = 2.0  # ... and |h_now − h| <= this [m]
     establish_hold_s: float = 10.0  # ... both held this long (a capture crossing is not enough)
+    radius_trims: int = 3  # loiter-radius corrections before established (_trim_radius)
     decision_s: float = 0.2  # the orbit centre moves this often [s]
     takeoff_alt_m: float = 40.0  # runway take-off to this height above home [m]
     climb_hold_s: float = 3.0  # the orbit certified this long before the hand-over [s]
@@ -142,6 +143,11 @@ class OrbitMission:
         self.t_orbit_end: float | None = None
         self.limited = 0  # decisions where the fence held the centre short of the team's
         self._written = 0
+        self.loiter_setting = math.nan  # the loiter radius parameter as set [its unit]
+        self.trims, self.trim_log = 0, []  # _trim_radius's corrections: (t, mean distance, set)
+        self._trim_d: list[float] = []
+        self._trim_t = 0.0
+        self._airspeed = 20.0
         self.guard = ParamGuard(supervisor.envelope.spec, supervisor.p.pos_speed_max_mps,
                                 getattr(supervisor, "events", None), record.vehicle)  # fmt: skip
 
@@ -166,8 +172,9 @@ class OrbitMission:
         self.plan = self._plan(v)
         self.net.loiter_radius_m = self.plan.radius_m  # what the autopilot's loiter flies
         self.phase = "loiter radius"
-        yield from self._set_param(v, prof.param_name("loiter_radius"),
-                                   prof.param_value("loiter_radius", self.plan.radius_m))  # fmt: skip
+        self.loiter_setting = prof.loiter_radius_setting(self.plan.radius_m,
+                                                         v.home_amsl_m + self.plan.altitude_m)  # fmt: skip
+        yield from self._set_param(v, prof.param_name("loiter_radius"), self.loiter_setting)
         yield from self._agree(v)
         self.phase = "takeoff"
         yield from recipe(v, prof.takeoff_steps(f.takeoff_alt_m, v.home_amsl_m))
@@ -189,6 +196,7 @@ class OrbitMission:
             self.phase = "orbit" if self.t_established is None else "orbit established"
             self._tick(v)
             if self.t_established is None:
+                self._trim_radius(v)
                 inside = self._inside(v)
                 t_in = (t_in if t_in is not None else v.t) if inside else None
                 if t_in is not None and v.t - t_in >= f.establish_hold_s - 1e-9:
@@ -207,6 +215,42 @@ class OrbitMission:
             yield from recipe(v, prof.end_steps())
         self.outcome = "completed"
 
+    def _trim_radius(self, v: VehicleLink) -> None:
+        """Until established, once per revolution (2πR / V of the plan): the mean distance to
+        the orbit centre flown in AI against R; off by more than radius_tol/2 · R, the loiter
+        radius parameter is scaled by R / mean (PARAM_SET, at most `radius_trims` times; the
+        guard sees the echo). An autopilot's loiter about a moving centre runs wide of its set
+        radius (measured on ArduPlane: 108 m for 93 m × EAS2TAS² = 99 m)."""
+        p = v.tel.pos_ned
+        if (p is None or not v.profile.loiter_radius_trim or self.net.mode.value != "ai"
+                or self.trims >= self.f.radius_trims):  # fmt: skip
+            self._trim_d = []
+            return
+        if not self._trim_d:
+            self._trim_t = v.t
+        self._trim_d.append(float(np.hypot(*(p[:2] - self.centre))))
+        R = self.plan.radius_m
+        if v.t - self._trim_t < 2 * math.pi * R / self._airspeed:
+            return
+        mean = float(np.mean(self._trim_d))
+        self._trim_d = []
+        if abs(mean - R) <= 0.5 * self.f.radius_tol * R:
+            return
+        prof = v.profile
+        value = prof.param_value("loiter_radius", self.loiter_setting * R / mean)
+        if value == self.loiter_setting:
+            return
+        self.trims += 1
+        self.loiter_setting = value
+        self.trim_log.append((round(v.t, 3), round(mean, 2), value))
+        if self.net.events is not None:
+            self.net.events.write({"t": round(v.t, 6), "event": "loiter_radius_trim",
+                                   "vehicle": self.rec.vehicle, "mean_distance_m": round(mean, 2),
+                                   "radius_m": round(R, 2), "set": value})  # fmt: skip
+        name = prof.param_name("loiter_radius")
+        v.send(M.MAVLink_param_set_message(v.target_system or 1, 1, name.encode("ascii"),
+                                           float(value), M.MAV_PARAM_TYPE_REAL32))  # fmt: skip
+
     def _begin_orbit(self, v: VehicleLink) -> None:
         """The hand-over is done: the net has the vehicle. Its first decision must carry the
         orbit's setpoint — the climb-out aimed moments ago, and a decision without an action
@@ -220,6 +264,7 @@ class OrbitMission:
         prof = v.profile
         try:
             V = prof.param_to_si("airspeed_trim", v.params[prof.param_name("airspeed_trim")])
+            self._airspeed = V
             bank = prof.param_to_si("bank_limit", v.params[prof.param_name("bank_limit")])
         except (KeyError, ValueError) as e:
             raise MissionError(f"cannot plan the orbit: the autopilot's {e} was not read") from None

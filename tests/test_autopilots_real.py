@@ -181,3 +181,59 @@ def test_real_px4_sih_flies_twice_and_is_left_disarmed(tmp_path):
         assert not c.telemetry.yielded
         names = [n for _, n, _ in c.telemetry.modes]
         assert names.count("AUTO.TAKEOFF") == 2 and names.count("AUTO.LAND") == 2
+
+
+@contextlib.contextmanager
+def ardupilot_listening(binary: Path, model: str, parm: str, cwd: Path):
+    """The autopilot started, waiting on SERIAL0 for a client that is not ours (`fly`'s)."""
+    args = [str(binary), "--model", model, "--speedup", "1", "-I", str(ARDUPILOT_INSTANCE),
+            "--home", HOME, "-w"]  # fmt: skip
+    d = _defaults(binary, parm)
+    if d is not None:
+        args += ["--defaults", str(d)]
+    log_path = cwd / "autopilot.log"
+    log = open(log_path, "wb")
+    proc = subprocess.Popen(args, cwd=cwd, stdout=log, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 60
+        while b"Waiting for connection" not in log_path.read_bytes():
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"{binary} did not listen; see {log_path}")
+            time.sleep(0.2)
+        yield proc
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
+
+
+def test_real_arduplane_flies_the_fixed_wing_orbit_on_stock_parameters(tmp_path):
+    """`skyherd fly --connect --airframe fixedwing` on stock plane.parm: the plan fits the
+    camera on ROLL_LIMIT_DEG 65, TECS_CLMB_MAX / TECS_SINK_MAX are lowered to the envelope's,
+    the orbit is established, flown for 60 s and ended in RTL; the world's gimballed camera
+    saw the team (the ROI routed to it as the vehicle's gimbal)."""
+    import json
+
+    from scripts.cli import main
+
+    binary = _binary("SKYHERD_ARDUPLANE_BIN")
+    port = 5760 + 10 * ARDUPILOT_INSTANCE
+    with ardupilot_listening(binary, "plane", "plane.parm", tmp_path):
+        rc = main(["fly", "--connect", f"tcp:127.0.0.1:{port}", "--airframe", "fixedwing",
+                   "--orbit-duration", "60", "--instance", "75", "--zenoh-port", "7471",
+                   "--timeout", "900", "--runs-dir", str(tmp_path / "runs")])  # fmt: skip
+    (run,) = (tmp_path / "runs").iterdir()
+    comp = json.loads((run / "companion.json").read_text())
+    assert rc == 0, (run / "summary.md").read_text()
+    orbit = comp["orbit"]
+    assert orbit["t_established"] is not None and orbit["plan"]["radius_m"] < 100.0
+    assert orbit["t_orbit_end"] - orbit["t_established"] >= 60.0 - 0.5
+    world = json.loads((run / "sim_stats.json").read_text())
+    assert world["followed"] and world["autopilot"] == "ArduPlane" and world["roi_commands"] > 100
+    events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
+    said = [e["reason"] for e in events if e["event"] == "params"]
+    assert said[0].startswith("TECS_CLMB_MAX = 5 m/s") and said[-1].startswith("autopilot")

@@ -41,7 +41,7 @@ class FakeTel:
         self.home = None  # no ROI command (it needs home)
 
     def vehicle_state(self):
-        return VehicleState(t=0.0, pos_ned=self.pos_ned, vel_ned=self.vel_ned,
+        return VehicleState(t=getattr(self, "t", 0.0), pos_ned=self.pos_ned, vel_ned=self.vel_ned,
                             quat=np.array([1.0, 0.0, 0.0, 0.0]), omega_frd=np.zeros(3),
                             accel_frd=np.array([0.0, 0.0, -9.8]), on_ground=False)  # fmt: skip
 
@@ -239,3 +239,34 @@ def test_the_followed_world_plays_the_gimbal_the_autopilot_routes_the_roi_to():
     uv, _ = project(ORBIT_CAMERA, camera_pose(ORBIT_CAMERA, gp.pos_ned, gp.quat), w.roi_ned)
     assert uv == pytest.approx(ORBIT_CAMERA.centre_px, abs=1e-6)
     w.close()
+
+
+def test_the_loiter_radius_is_set_for_the_true_airspeed_and_trimmed_once_per_revolution():
+    """ArduPlane flies WP_LOITER_RAD · EAS2TAS²: the orbit sets R / EAS2TAS² (87 for 92.4 m at
+    676 m AMSL). Flown wide of R (108 m measured on real ArduPlane about the moving centre),
+    one revolution later the setting is scaled by R / mean and PARAM_SET; within tolerance
+    nothing is sent."""
+    assert ARDUPLANE.loiter_radius_setting(92.4, 584.0 + 92.4) == 87.0
+    m, events = _mission()
+    v = FakePlane({**STOCK, "WP_LOITER_RAD": 87.0})
+    m.plan = m._plan(v)
+    m.net.loiter_radius_m = m.plan.radius_m
+    m.loiter_setting = 87.0
+    _run(m._agree(v), v)
+    m._begin_orbit(v)
+    R = m.plan.radius_m
+    period = 2 * math.pi * R / 22.0
+    for a in np.arange(0.0, period + 0.2, 0.2):
+        th = 22.0 * a / 108.0  # at 22 m/s on a 108 m circle
+        v.tel.pos_ned = np.array([108.0 * math.cos(th), 108.0 * math.sin(th), -R])
+        v.tel.vel_ned = np.array([-22.0 * math.sin(th), 22.0 * math.cos(th), 0.0])
+        v.tel.t = v.heartbeat_t = v.t
+        m._tick(v)
+        m._trim_radius(v)
+        v.t += 0.2
+    assert m.net.mode.value == "ai", m.net.stats.reasons
+    assert m.trims == 1 and m.loiter_setting == math.ceil(87.0 * R / 108.0)
+    assert v.params["WP_LOITER_RAD"] == m.loiter_setting
+    (trim,) = [e for e in events.records if e["event"] == "loiter_radius_trim"]
+    assert trim["mean_distance_m"] == pytest.approx(108.0) and trim["set"] == m.loiter_setting
+    assert m.guard.handover() == (True, "")  # a narrower hold circle agrees with the envelope

@@ -142,10 +142,10 @@ class FollowWorld:
             self.team.step(t - self._team_t0 - self.team_t)
             self.team_t = t - self._team_t0
         ugvs = team_states(self.team)
-        uav = self._camera_mount(state)
         # --cut-camera windows count the vehicle's clock here (a fallback drill on a real autopilot)
         if self.publisher is not None and not _during(self.p.camera_losses, t):
-            try:
+            try:  # a position not yet known (NaN before the EKF's) renders nothing
+                uav = self._camera_mount(state)
                 image = self.renderer.render(uav, ugvs)
             except ValueError:
                 return
