@@ -74,23 +74,8 @@ def _defaults(binary: Path, name: str) -> Path | None:
 
 @contextlib.contextmanager
 def ardupilot(binary: Path, model: str, parm: str, cwd: Path):
-    args = [str(binary), "--model", model, "--speedup", "1", "-I", str(ARDUPILOT_INSTANCE),
-            "--home", HOME, "-w"]  # fmt: skip
-    d = _defaults(binary, parm)
-    if d is not None:
-        args += ["--defaults", str(d)]
-    log = open(cwd / "autopilot.log", "wb")
-    proc = subprocess.Popen(args, cwd=cwd, stdout=log, stderr=subprocess.STDOUT)
-    try:
+    with ardupilot_listening(binary, model, parm, cwd) as proc:
         yield _connect(f"tcp:127.0.0.1:{5760 + 10 * ARDUPILOT_INSTANCE}", proc, cwd)
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        log.close()
 
 
 def _connect(address: str, proc: subprocess.Popen, cwd: Path) -> MavlinkLink:
