@@ -9,11 +9,11 @@ camera sits on a pan-tilt gimbal pointed where the companion sets the region of 
 centroid is back-projected from the frame's camera pose onto the ground, and their mean is
 the team's centre as seen. The orbit centre follows it as far as the fence allows.
 
-Phases: connect → read the airframe's parameters → plan (ValueError → refusal) → make the
-autopilot agree with the envelope (its loiter radius NAV_LOITER_RAD / WP_LOITER_RAD = the
-orbit's, its climb and sink limits TECS_CLMB_MAX / TECS_SINK_MAX lowered to the envelope's:
-safety.consistency; any other mismatch → refusal) → take off (the profile's recipe) → climb-out
-(the autopilot's own loiter, DO_REPOSITION to the orbit centre at the orbit altitude, until
+Phases: connect → read the airframe's parameters → make the autopilot agree with the envelope
+(its climb and sink limits TECS_CLMB_MAX / TECS_SINK_MAX and its bank limit ROLL_LIMIT_DEG
+lowered to the envelope's: safety.consistency; any other mismatch → refusal) → plan
+(ValueError → refusal) → set its loiter radius (NAV_LOITER_RAD / WP_LOITER_RAD) → take off
+(the profile's recipe) → climb-out (the autopilot's own loiter, DO_REPOSITION to the orbit centre at the orbit altitude, until
 the net certifies the orbit's setpoint for `climb_hold_s`) → hand over → orbit (until
 established, then `duration_s`) → land (the profile's recipe).
 
@@ -169,13 +169,13 @@ class OrbitMission:
             )
         self.phase = "parameters"
         yield from read_params(v)
+        yield from self._agree(v)  # first: the plan reads the bank limit as it will be
         self.plan = self._plan(v)
         self.net.loiter_radius_m = self.plan.radius_m  # what the autopilot's loiter flies
         self.phase = "loiter radius"
         self.loiter_setting = prof.loiter_radius_setting(self.plan.radius_m,
                                                          v.home_amsl_m + self.plan.altitude_m)  # fmt: skip
         yield from self._set_param(v, prof.param_name("loiter_radius"), self.loiter_setting)
-        yield from self._agree(v)
         self.phase = "takeoff"
         yield from recipe(v, prof.takeoff_steps(f.takeoff_alt_m, v.home_amsl_m))
         self.phase = "climb-out"
@@ -282,7 +282,9 @@ class OrbitMission:
     def _agree(self, v: VehicleLink) -> Phase:
         """The autopilot's parameters against the envelope (safety.consistency): those a
         companion may set are set to agree (a fixed-wing's climb and sink limits), then any
-        mismatch left refuses the take-off with the rule's reason."""
+        mismatch left refuses the take-off with the rule's reason. Before the plan, which reads
+        the bank limit as set; the loiter radius the plan sets is checked by the guard as its
+        echo arrives (the climb-out waits for a consistent guard)."""
         self.phase = "parameters"
         self.guard.load(v.t, v.params)
         v.param_updates.clear()  # the list just read, and the loiter radius's echo

@@ -25,7 +25,11 @@ that is true. The rules, each with the parameter names of PX4 and ArduPilot:
      clipped at the envelope's climb_mps / descent_mps; the autopilot's height controller
      climbs and sinks at up to its own limits (ArduPlane TECS_CLMB_MAX / TECS_SINK_MAX, PX4
      FW_T_CLMB_MAX / FW_T_SINK_MAX [m/s]), which must not be higher.        (C6)
-     `agreeing_values` gives the values a companion may set to agree (the envelope's).
+  R7 fixed-wing bank.  The envelope's attitude rows stop the AI at |roll| > attitude_max_rad;
+     an autopilot allowed to bank further (FW_R_LIM, ROLL_LIMIT_DEG) trips them in its own
+     turns (measured: ArduPlane's stock 65° reached 50° returning from a recovery). Its limit
+     must keep BANK_OVERSHOOT_DEG below the attitude row.                    (C7)
+     `agreeing_values` gives the values a companion may set to agree (C6, C7).
 
 A parameter that is absent is not checked (an autopilot without it); a value that is not
 finite is a mismatch. `ParamGuard` keeps the parameters it has seen and the problems now.
@@ -41,6 +45,7 @@ from flight.geo import GRAVITY
 from safety.envelope import EnvelopeSpec
 
 PX4_OBL_OK = {0: "position", 3: "return", 4: "land", 5: "hold"}
+BANK_OVERSHOOT_DEG = 5.0  # a bank limit's overshoot in a turn's entry [deg]
 CLIMB_PARAMS = (("TECS_CLMB_MAX", "FW_T_CLMB_MAX"), ("TECS_SINK_MAX", "FW_T_SINK_MAX"))
 HOLD_PARAMS = frozenset({"MPC_TILTMAX_AIR", "ANGLE_MAX", "MPC_ACC_HOR", "LOIT_BRK_ACCEL",
                          "FW_R_LIM", "ROLL_LIMIT_DEG", "NAV_LOITER_RAD", "WP_LOITER_RAD"})  # fmt: skip
@@ -111,6 +116,10 @@ def check_params(spec: EnvelopeSpec, params: Mapping[str, float],
             if math.radians(v) < dyn.bank_max_rad - 1e-9:
                 bad[n] = (f"{n} = {v:g} deg: below the envelope's loiter bank "
                           f"{math.degrees(dyn.bank_max_rad):.1f} deg")  # fmt: skip
+            elif v > _bank_ceiling_deg(spec) + 1e-6:
+                bad[n] = (f"{n} = {v:g} deg: the autopilot may bank past the envelope's attitude "
+                          f"limit {math.degrees(lim.attitude_max_rad):.0f} deg "
+                          f"(set {n} <= {_bank_ceiling_deg(spec):g})")  # fmt: skip
         got = _get(params, "NAV_LOITER_RAD", "WP_LOITER_RAD")
         if got and not nonfinite(*got):
             n, r = got
@@ -143,10 +152,16 @@ def _climb_limits(spec: EnvelopeSpec) -> tuple[tuple[str, float], tuple[str, flo
     return (("climb", lim.climb_mps), ("sink", lim.descent_mps))
 
 
+def _bank_ceiling_deg(spec: EnvelopeSpec) -> float:
+    """The highest bank limit C7 allows [whole deg]."""
+    return float(math.floor(math.degrees(spec.limits.attitude_max_rad) - BANK_OVERSHOOT_DEG))
+
+
 def agreeing_values(spec: EnvelopeSpec, params: Mapping[str, float]) -> dict[str, float]:
     """{name: value} a companion may PARAM_SET so that the autopilot agrees with the envelope
     where it can (C6: a fixed-wing's climb and sink limits, lowered to the envelope's); {} for
-    a multirotor or when nothing needs changing. Other mismatches are the operator's to fix."""
+    a multirotor or when nothing needs changing; C7: a bank limit lowered to the attitude row's
+    less the overshoot. Other mismatches are the operator's to fix."""
     if spec.dynamics.bank_max_rad <= 0:
         return {}
     out: dict[str, float] = {}
@@ -154,6 +169,11 @@ def agreeing_values(spec: EnvelopeSpec, params: Mapping[str, float]) -> dict[str
         got = _get(params, *names)
         if got and not (math.isfinite(got[1]) and got[1] <= limit + 1e-6):
             out[got[0]] = float(limit)
+    got = _get(params, "FW_R_LIM", "ROLL_LIMIT_DEG")
+    top = _bank_ceiling_deg(spec)
+    if got and top >= math.degrees(spec.dynamics.bank_max_rad):
+        if not (math.isfinite(got[1]) and got[1] <= top + 1e-6):
+            out[got[0]] = top
     return out
 
 

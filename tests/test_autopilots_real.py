@@ -221,4 +221,4 @@ def test_real_arduplane_flies_the_fixed_wing_orbit_on_stock_parameters(tmp_path)
     assert world["followed"] and world["autopilot"] == "ArduPlane" and world["roi_commands"] > 100
     events = [json.loads(line) for line in (run / "events.jsonl").read_text().splitlines()]
     said = [e["reason"] for e in events if e["event"] == "params"]
-    assert said[0].startswith("TECS_CLMB_MAX = 5 m/s") and said[-1].startswith("autopilot")
+    assert "TECS_CLMB_MAX = 5 m/s" in said[0] and said[-1].startswith("autopilot")

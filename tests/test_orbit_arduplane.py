@@ -97,13 +97,18 @@ def test_stock_arduplane_climb_and_sink_limits_disagree_and_are_lowered_to_the_e
     net = load_net("fixedwing")
     spec = net.envelope.spec
     bad = check_params(spec, STOCK)
-    assert set(bad) == {"TECS_CLMB_MAX", "TECS_SINK_MAX"}
+    assert set(bad) == {"TECS_CLMB_MAX", "TECS_SINK_MAX", "ROLL_LIMIT_DEG"}
+    assert (
+        "ROLL_LIMIT_DEG = 65 deg: the autopilot may bank past the envelope's attitude"
+        in (bad["ROLL_LIMIT_DEG"])
+    )
     assert (
         "TECS_CLMB_MAX = 5 m/s: the autopilot may climb faster than the envelope's 2.5"
         in (bad["TECS_CLMB_MAX"])
     )
     fix = agreeing_values(spec, STOCK)
-    assert fix == {"TECS_CLMB_MAX": spec.limits.climb_mps, "TECS_SINK_MAX": spec.limits.descent_mps}
+    assert fix == {"TECS_CLMB_MAX": spec.limits.climb_mps, "TECS_SINK_MAX": spec.limits.descent_mps,
+                   "ROLL_LIMIT_DEG": 44.0}  # attitude row 50° less 5° of overshoot  # fmt: skip
     assert check_params(spec, {**STOCK, **fix}) == {}
     assert agreeing_values(spec, {**STOCK, **fix}) == {}
     # PX4's fixed-wing names obey the same rule; a multirotor has none to lower
@@ -131,8 +136,9 @@ def test_the_orbit_sets_the_climb_limits_before_the_takeoff_and_refuses_what_it_
     assert v.params["TECS_CLMB_MAX"] == 2.5 and v.params["TECS_SINK_MAX"] == 3.0
     assert m.guard.handover() == (True, "")
     said = [(r["consistent"], r["trigger"]) for r in events.records if r["event"] == "params"]
+    assert v.params["ROLL_LIMIT_DEG"] == 44.0
     assert said == [(False, "parameters read"), (False, "TECS_CLMB_MAX = 2.5"),
-                    (True, "TECS_SINK_MAX = 3.0")]  # fmt: skip
+                    (False, "TECS_SINK_MAX = 3.0"), (True, "ROLL_LIMIT_DEG = 44.0")]  # fmt: skip
 
     m, _ = _mission()  # an autopilot that does not take the value: refused, with the name
     v = FakePlane(STOCK, refuse={"TECS_CLMB_MAX"})
