@@ -168,7 +168,7 @@ def _report_only(args, cur) -> int:
     """--from-run: the evaluation part of `run` on earlier runs' policies and lessons.csv."""
     from policy.dqn import DQNParams
     from policy.education.dqfd import DQfDParams
-    from policy.education.teach import EduParams
+    from policy.education.teach import EduParams, MeasuresObjective
 
     p, cfg0, results, pol_dirs = None, None, [], {}
     for src in args.from_run:
@@ -180,6 +180,8 @@ def _report_only(args, cur) -> int:
             dqn = dict(d, hidden=tuple(d["hidden"]), seed=0)
             if "dqfd" in hp:  # runs before DQfD have the default
                 hp["dqfd"] = DQfDParams(**hp["dqfd"])
+            if "measures" in hp:  # runs before the measures objective have the default
+                hp["measures"] = MeasuresObjective(**hp["measures"])
             q = EduParams(dqn=DQNParams(**dqn), seed=seed0, **hp)
             rows = list(csv.DictReader(open(src / "lessons.csv")))
         except (OSError, KeyError, TypeError, ValueError) as e:

@@ -37,7 +37,7 @@ def test_default_curriculum_loads_in_semantic_order():
         "climb",
         "descend",
     ]
-    assert cur.composite.method == "ab" and set(cur.composite.modules) == {
+    assert cur.composite.method == "measures" and set(cur.composite.modules) == {
         "lateral",
         "climb",
         "descend",

@@ -61,7 +61,7 @@ from policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS
 FORMAT = "skyherd-curriculum/1"
 DEFAULT_CURRICULUM = Path(__file__).with_name("curricula") / "groundair.toml"
 MODULE_METHODS = ("irl", "dqn")
-COMPOSITE_METHODS = ("ab", "irl", "reward")
+COMPOSITE_METHODS = ("ab", "irl", "reward", "measures")
 METRICS = ("all_in_view_frac", "footprint_ratio", "ugv_losses")
 KEEP = ("freeze",)
 WARM_STARTS = ("none", "demos")

@@ -41,7 +41,7 @@ def teach_monolith(cur, p, educated_results, composite_target, on_lesson=None):
     from policy.demos import rollout_stats
     from policy.education.dqfd import behaviour_clone, finetune_params
     from policy.education.teach import LessonResult, lesson_demos, test_policy
-    from policy.groundair.env import GroundAirEnv
+    from policy.groundair.env import TASK_WEIGHTS, GroundAirEnv
 
     net, out, taught = None, [], []
     by_name = {r.lesson: r for r in educated_results}
@@ -50,6 +50,8 @@ def teach_monolith(cur, p, educated_results, composite_target, on_lesson=None):
         t0 = time.process_time()
         if le is cur.composite:
             kind, vec = composite_target
+            if kind == "measures":  # no ψ target: the environment's own task reward w_taskᵀψ
+                vec = np.asarray(TASK_WEIGHTS, float)
             if kind == "mu":
                 act = net if net is not None else (lambda o: 0)
                 mu, _ = rollout_stats(act, le.scenario, p.mu_episodes, p.mu_seed, p.dqn.gamma)

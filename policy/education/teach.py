@@ -17,6 +17,10 @@ does; then drop every rule whose removal does not raise it. Objective on fixed e
             demonstrations (Apprenticeship Bootstrapping: no composite demonstration)
     irl     ‖μ_E − μ(π)‖₂ with μ_E from composite demonstrations
     reward  −wᵀμ(π)
+    measures  the task's own measures on the composite scenario's training episodes (seeds
+            arbiter_seed+, never the test episodes): J = −all_in_view_frac + β·footprint_ratio,
+            a weighted-sum scalarisation of the two (Marler & Arora 2004, Struct. Multidisc.
+            Optim. 26:369), β and the episode count in EduParams.measures (MeasuresObjective)
 plus, with the composite's retention_weight λ_R > 0, the replay of the skill lessons:
     + λ_R · mean_l ‖μ_E^l − μ_l(π)‖₂      (μ_l: the whole policy on lesson l's scenario)
 so the arbiter is also asked to keep calling each module where its own lesson needs it.
@@ -57,6 +61,30 @@ from policy.irl import IRLParams, projection_irl, select_policy
 
 
 @dataclass(frozen=True)
+class MeasuresObjective:
+    """The arbiter objective of composite method "measures": the task's measures, scalarised.
+
+    J(π) = −all_in_view_frac + footprint_weight · footprint_ratio on `episodes` training episodes
+    of the composite scenario (seeds EduParams.arbiter_seed+). With footprint_weight = 0.01 one
+    unit of footprint ratio (footprint / smallest circle around the UGVs) is worth 1 % of the
+    episode in view: keeping the team in view comes first, a tighter view breaks near-ties.
+    """
+
+    episodes: int = 12  # training episodes per estimate (the ab search uses arbiter_episodes)
+    footprint_weight: float = 0.01  # β
+    footprint_if_never: float = 50.0  # footprint ratio counted when no step had all in view
+
+    def describe(self) -> str:
+        return (f"J = -all_in_view_frac + {self.footprint_weight:g} * footprint_ratio "
+                f"on {self.episodes} composite training episodes")  # fmt: skip
+
+    def __call__(self, metrics: dict[str, float]) -> float:
+        fp = metrics["footprint_ratio"]
+        fp = self.footprint_if_never if math.isnan(fp) else fp
+        return -metrics["all_in_view_frac"] + self.footprint_weight * fp
+
+
+@dataclass(frozen=True)
 class EduParams:
     """Hyper-parameters of `skyherd educate` (saved in config.json)."""
 
@@ -72,6 +100,7 @@ class EduParams:
     demo_lag: float = 0.05  # demonstrator's repeat-action probability
     arbiter_episodes: int = 6  # episodes per arbiter-objective estimate
     arbiter_seed: int = 60_000  # first env seed of the arbiter search
+    measures: MeasuresObjective = MeasuresObjective()  # composite method "measures"
     replay_episodes: int = 3  # episodes per skill lesson replayed in the arbiter objective
     max_rules: int = 8  # longest rule list
     test_episodes: int = 10  # test episodes per lesson (retention)
@@ -245,10 +274,12 @@ def agreement(mod: SkillModule, pairs: tuple[np.ndarray, np.ndarray]) -> float:
 
 # --------------------------------------------------------------------------- the arbiter
 def composite_target(comp: CompositeLesson, cur: Curriculum, demos: dict, p: EduParams):
-    """(kind, vector): ('mu', μ_E) for ab / irl, ('w', w) for reward."""
+    """(kind, vector): ("mu", μ_E) for ab / irl, ("w", w) for reward, ("measures", [β])."""
     gamma = p.dqn.gamma
     if comp.method == "reward":
         return "w", np.asarray(comp.reward, float)
+    if comp.method == "measures":
+        return "measures", np.array([p.measures.footprint_weight])
     if comp.method == "irl":
         return "mu", demo_feature_expectations(lesson_demos(comp, p), gamma)
     by_scenario = {le.scenario: demos[le.name] for le in cur.lessons if le.name in demos}
@@ -279,10 +310,14 @@ def learn_arbiter(
 
     def objective(arb: Arbiter) -> float:
         pol = policy_of(arb)
-        mu, _ = rollout_stats(pol, comp.scenario, p.arbiter_episodes, p.arbiter_seed, p.dqn.gamma)
+        n = p.measures.episodes if kind == "measures" else p.arbiter_episodes
+        mu, met = rollout_stats(pol, comp.scenario, n, p.arbiter_seed, p.dqn.gamma)
         if on_eval:
             on_eval()
-        j = float(np.linalg.norm(vec - mu)) if kind == "mu" else -float(vec @ mu)
+        if kind == "measures":
+            j = p.measures(met)
+        else:
+            j = float(np.linalg.norm(vec - mu)) if kind == "mu" else -float(vec @ mu)
         if comp.retention_weight > 0 and replay:
             ds = [np.linalg.norm(mu_l - rollout_stats(pol, sc, p.replay_episodes, p.arbiter_seed,
                                                       p.dqn.gamma)[0]) for sc, mu_l in replay]  # fmt: skip
@@ -290,6 +325,8 @@ def learn_arbiter(
         return j
 
     log: list[dict] = []
+    if kind == "measures":
+        log.append({"step": "objective", "text": p.measures.describe()})
     scored = [(objective(Arbiter((), m)), m) for m in comp.modules]
     best, default = min(scored)
     log.append({"step": "default", "module": default, "objective": best})
