@@ -133,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
     p = _params(args)
     rf = RunFolder("educate", root=args.runs_dir)
     print(f"skyherd educate: run folder {rf.path}")
+    if cur.composite is not None and cur.composite.method == "measures":
+        print(f"skyherd educate: arbiter objective {p.measures.describe()}")
     from policy.education.teach import curriculum_meta
 
     rf.write_config(

@@ -112,6 +112,7 @@ class EduParams:
 QUICK = EduParams(
     dqn=DQNParams(total_steps=400, learning_starts=100, hidden=(16,), target_update_every=100),
     dqfd=DQfDParams(bc_steps=200),
+    measures=MeasuresObjective(episodes=2),
     replay_episodes=1,
     irl_iters=1,
     mu_episodes=2,
