@@ -1,0 +1,89 @@
+"""Pre-registered evaluation of issue 14's composite goals on 100 fresh unseen episodes.
+
+The rule was fixed before the run (session 5, edu3):
+  episodes: composite, env seeds 700000..700099 (no one used them before);
+  metrics: `policy.demos.rollout_stats`, the same code and gamma (0.97) as `skyherd educate`'s
+  unseen-episode table, called once per episode so the per-episode standard error can be given;
+  goal 1 holds iff all_in_view(educated) >= 0.98 * all_in_view(AB);
+  goal 2 holds iff |fp(educated) - fp(expert)| < |fp(AB) - fp(expert)|.
+With several educated seed policies, their mean over policies is the educated figure.
+
+Run: python -m policy.education.prereg EDUCATED.npz... --ab AB.npz --out results.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+SCENARIO = "composite"
+FIRST_SEED = 700_000
+N_EPISODES = 100
+GAMMA = 0.97  # EduParams().dqn.gamma, as in the educate run's config.json
+KEYS = ("all_in_view_frac", "footprint_ratio")
+
+
+def per_episode(act, first: int = FIRST_SEED, n: int = N_EPISODES) -> list[dict[str, float]]:
+    from policy.demos import rollout_stats
+
+    return [rollout_stats(act, SCENARIO, 1, first + k, GAMMA)[1] for k in range(n)]
+
+
+def summarise(eps: list[dict[str, float]]) -> dict[str, dict[str, float]]:
+    """Mean (NaN episodes left out, as rollout_stats does) and standard error over episodes."""
+    out = {}
+    for key in KEYS:
+        v = np.array([e[key] for e in eps if not math.isnan(e[key])])
+        se = float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else math.nan
+        out[key] = {"mean": float(v.mean()), "se": se, "n": int(len(v))}
+    return out
+
+
+def verdicts(edu: dict, ab: dict, expert: dict) -> dict[str, bool]:
+    a = "all_in_view_frac"
+    f = "footprint_ratio"
+    return {
+        "goal1_all_in_view": edu[a] >= 0.98 * ab[a],
+        "goal2_footprint": abs(edu[f] - expert[f]) < abs(ab[f] - expert[f]),
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    import torch
+
+    from policy.demos import ExpertParams, scripted_expert
+    from policy.dqn import load_policy
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("educated", type=Path, nargs="+", help="educated policy .npz (one per seed)")
+    ap.add_argument("--ab", type=Path, required=True, help="the kept AB policy .npz")
+    ap.add_argument("--out", type=Path, required=True, help="results JSON to write")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(1)
+    eps = {f"educated:{f.stem}": per_episode(load_policy(f)) for f in args.educated}
+    eps["ab"] = per_episode(load_policy(args.ab))
+    eps["expert"] = per_episode(scripted_expert(SCENARIO, ExpertParams(), 0))
+    summ = {k: summarise(v) for k, v in eps.items()}
+    edu_keys = [k for k in summ if k.startswith("educated:")]
+    edu = {m: float(np.mean([summ[k][m]["mean"] for k in edu_keys])) for m in KEYS}
+    means = {k: {m: summ[k][m]["mean"] for m in KEYS} for k in ("ab", "expert")}
+    res = {
+        "rule": __doc__,
+        "seeds": [FIRST_SEED, FIRST_SEED + N_EPISODES - 1],
+        "summary": summ,
+        "educated_mean_over_policies": edu,
+        "verdicts": verdicts(edu, means["ab"], means["expert"]),
+        "per_episode": eps,
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(res, indent=1))
+    print(json.dumps({k: res[k] for k in ("summary", "educated_mean_over_policies", "verdicts")},
+                     indent=1))  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
