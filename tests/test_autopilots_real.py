@@ -72,6 +72,17 @@ def _defaults(binary: Path, name: str) -> Path | None:
     return None
 
 
+def _stop(proc: subprocess.Popen, log) -> None:
+    """Terminate the autopilot (kill it after 10 s) and close its log."""
+    proc.terminate()
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    log.close()
+
+
 @contextlib.contextmanager
 def ardupilot(binary: Path, model: str, parm: str, cwd: Path):
     with ardupilot_listening(binary, model, parm, cwd) as proc:
@@ -146,13 +157,7 @@ def px4(binary: Path, cwd: Path):
     try:
         yield MavlinkLink.open(f"udpin:127.0.0.1:{port}", tlog=cwd / "telemetry.tlog")
     finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        log.close()
+        _stop(proc, log)
 
 
 def test_real_px4_sih_flies_twice_and_is_left_disarmed(tmp_path):
@@ -187,13 +192,7 @@ def ardupilot_listening(binary: Path, model: str, parm: str, cwd: Path):
             time.sleep(0.2)
         yield proc
     finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        log.close()
+        _stop(proc, log)
 
 
 def test_real_arduplane_flies_the_fixed_wing_orbit_on_stock_parameters(tmp_path):
