@@ -34,6 +34,7 @@ split into convex pieces; the splits are not fences, so their rows carry the pre
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -47,7 +48,16 @@ from safety.geometry import (
     outer_edges,
     validate_polygon,
 )
-from safety.kernels import worst_residual
+
+
+@functools.cache
+def _kernels():
+    """The compiled kernels, imported on first use: loading or checking an envelope (`skyherd
+    fly` validating its file) does not compile numba."""
+    from safety import kernels
+
+    return kernels
+
 
 NZ = 11
 P, V, ATT, U = slice(0, 3), slice(3, 6), slice(6, 8), slice(8, 11)
@@ -203,7 +213,7 @@ class Envelope:
 
         z: (NZ,) float64. NaN when z is not finite. Compiled: ~1 µs.
         """
-        return worst_residual(
+        return _kernels().worst_residual(
             self.A, self.b, z, self.n_base, self.n_piece_end, self.piece_starts, self.zone_starts
         )
 
