@@ -107,3 +107,22 @@ def gimbal_pose(
     r_wb = r_wc @ cam.r_body_from_cam.T
     lens = pos - r_wb @ np.asarray(cam.mount_offset_frd)  # so camera_pose puts the lens at pos
     return GimbalPose(lens, dcm_to_quat(r_wb), tilt, pan)
+
+
+def pointed_pose(cam: CameraParams, state, roi_ned: np.ndarray | None) -> GimbalPose:
+    """The pan-tilt head of a vehicle in `state` (a VehicleState) pointed at the ROI, or straight
+    down below the vehicle until a client has set one."""
+    _, _, yaw = state.euler
+    target = roi_ned if roi_ned is not None else np.array([*state.pos_ned[:2], 0.0])
+    return gimbal_pose(cam, state.pos_ned, yaw, target)
+
+
+def roi_ned(home, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> np.ndarray | None:
+    """MAV_CMD_DO_SET_ROI_LOCATION's target (params 5-7) in local NED about `home`; None when the
+    location is not a finite latitude/longitude (the command is then denied)."""
+    from flight.geo import geodetic_to_ned
+
+    p = (lat_deg, lon_deg, alt_amsl_m)
+    if home is None or not all(math.isfinite(x) for x in p) or abs(p[0]) > 90 or abs(p[1]) > 180:
+        return None
+    return geodetic_to_ned(home, *p)

@@ -160,11 +160,9 @@ class FollowWorld:
         """The level downward mount, or the pan-tilt head pointed at the ROI."""
         if self.cam is self.task.camera:
             return level_camera_mount(state)
-        from hil.orbit_gimbal import gimbal_pose
+        from hil.orbit_gimbal import pointed_pose
 
-        _, _, yaw = state.euler
-        target = self.roi_ned if self.roi_ned is not None else np.array([*state.pos_ned[:2], 0.0])
-        return gimbal_pose(self.cam, state.pos_ned, yaw, target)
+        return pointed_pose(self.cam, state, self.roi_ned)
 
     def _announce_gimbal(self) -> None:
         """HEARTBEAT as the followed vehicle's gimbal (its system id, MAV_COMP_ID_GIMBAL)."""
@@ -180,13 +178,12 @@ class FollowWorld:
             return False
         if (msg.target_system, msg.target_component) != (self.system_id, M.MAV_COMP_ID_GIMBAL):
             return False
-        from flight.geo import geodetic_to_ned
+        from hil.orbit_gimbal import roi_ned
 
-        p = (msg.param5, msg.param6, msg.param7)
-        ok = (self.tel.home is not None and all(np.isfinite(p))
-              and abs(p[0]) <= 90 and abs(p[1]) <= 180)  # fmt: skip
+        target = roi_ned(self.tel.home, msg.param5, msg.param6, msg.param7)
+        ok = target is not None
         if ok:
-            self.roi_ned = geodetic_to_ned(self.tel.home, *p)
+            self.roi_ned = target
             self.roi_commands += 1
         enc = M.MAVLink(None, srcSystem=self.system_id, srcComponent=M.MAV_COMP_ID_GIMBAL)
         ack = M.MAVLink_command_ack_message(msg.command, M.MAV_RESULT_ACCEPTED if ok else

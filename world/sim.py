@@ -253,11 +253,9 @@ class World:
         pointed at the ROI (straight down until a client sets one)."""
         if self.p.camera == "down":
             return level_camera_mount(state) if self.p.gimbal else state
-        from hil.orbit_gimbal import gimbal_pose
+        from hil.orbit_gimbal import pointed_pose
 
-        _, _, yaw = state.euler
-        target = self.roi_ned if self.roi_ned is not None else np.array([*state.pos_ned[:2], 0.0])
-        return gimbal_pose(self.cam, state.pos_ned, yaw, target)
+        return pointed_pose(self.cam, state, self.roi_ned)
 
     def _gimbal_commands(self, batch: list) -> list:
         """The gimbal manager on the vehicle: MAV_CMD_DO_SET_ROI_LOCATION (COMMAND_LONG, params
@@ -267,15 +265,15 @@ class World:
             return batch
         from pymavlink.dialects.v20 import ardupilotmega as M
 
-        from flight.geo import geodetic_to_ned
+        from hil.orbit_gimbal import roi_ned
 
         rest = []
         for msg, src in batch:
             if msg.get_type() == "COMMAND_LONG" and msg.command == M.MAV_CMD_DO_SET_ROI_LOCATION:
-                p = (msg.param5, msg.param6, msg.param7)
-                ok = all(math.isfinite(x) for x in p) and abs(p[0]) <= 90 and abs(p[1]) <= 180
+                target = roi_ned(self.autopilot.home, msg.param5, msg.param6, msg.param7)
+                ok = target is not None
                 if ok:
-                    self.roi_ned = geodetic_to_ned(self.autopilot.home, *p)
+                    self.roi_ned = target
                     self.roi_commands += 1
                 res = M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED
                 ep = self.endpoint
