@@ -102,9 +102,10 @@ def fly(k: int, instance: int, root: Path) -> list:
     (run,) = runs.iterdir()
     stats = [json.loads((run / f"uav{i}" / "sim_stats.json").read_text()) for i in range(k)]
     comp = json.loads((run / "companion.json").read_text())
-    sim = min(s["sim_s"] for s in stats)
-    sim_wall = max(s["wall_s"] for s in stats)
-    c_sims = sum(s["cpu_s"] for s in stats) / sim  # CPU s per simulated s, all K simulators
+    # each simulator's flight: up to the last tick the companion closed (world.sim._stats)
+    sim = min(s["flight_sim_s"] for s in stats)
+    sim_wall = max(s["flight_wall_s"] for s in stats)
+    c_sims = sum(s["flight_cpu_s"] for s in stats) / sim  # CPU s per simulated s, K simulators
     c_comp = comp["cpu_flight_s"] / sim  # ... the companion, from its first tick on
     # lockstep alternates: each tick the companion decides, then the K simulators step in
     # parallel; on 2 idle cores one simulated second takes about c_comp + c_sims / 2

@@ -38,6 +38,7 @@ from mission.formation_plan import (
 from runio.runfolder import RunFolder, args_dict, atomic_write_text, markdown_table
 from scripts.cli import UsageError
 from scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
+from scripts.launch import flight_reason
 
 MAX_INSTANCE = 200  # EndpointConfig's limit
 
@@ -227,8 +228,9 @@ def formation_report(run_dir: Path, rc: int, why: str) -> bool:
     ok = rc == 0 and comp.get("outcome") == "completed"
     landed = ok and all(e < params.cell_m / 2 for e in land_err)
     stats = [_json(run_dir / f"uav{k}" / "sim_stats.json") for k in range(K)]
-    sim_s = min((s.get("sim_s", math.nan) for s in stats), default=math.nan)
-    wall_s = max((s.get("wall_s", math.nan) for s in stats), default=math.nan)
+    # the flight: up to each simulator's last tick closed by the companion (world.sim)
+    sim_s = min((s.get("flight_sim_s", math.nan) for s in stats), default=math.nan)
+    wall_s = max((s.get("flight_wall_s", math.nan) for s in stats), default=math.nan)
     net = comp.get("net", {})
     summary_rows = [
         ["vehicles", K],
@@ -262,7 +264,7 @@ def formation_report(run_dir: Path, rc: int, why: str) -> bool:
     if any(len(t) for t in tracks):
         _plot(run_dir, params, plan, paths_ne, tracks, layout, sep)
     status = "completed" if ok else ("YIELDED" if comp.get("outcome") == "yielded" else "ABORTED")
-    reason = comp.get("reason") or why
+    reason = flight_reason(comp.get("reason"), why)
     atomic_write_text(run_dir / "summary.md",
         f"# skyherd fly: formation mission {status}\n\n"
         f"K = {K} quadrotors fly the learned lock-step grid plan ({params.cell_m:g} m cells, "

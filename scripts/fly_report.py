@@ -13,6 +13,7 @@ import numpy as np
 from mission.metrics import cross_track, groundair_metrics
 from policy.groundair.params import TaskParams
 from runio import atomic_write_text, markdown_table
+from scripts.launch import flight_reason
 
 
 def _rows(path: Path) -> list[dict]:
@@ -54,7 +55,7 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
     if (run_dir / "companion.json").exists():
         comp = json.loads((run_dir / "companion.json").read_text())
     outcome = comp.get("outcome", "aborted")
-    reason = comp.get("reason") or why
+    reason = flight_reason(comp.get("reason"), why)
     if rc == 130:
         outcome, reason = "interrupted", "interrupted (Ctrl-C)"
     elif rc != 0 and outcome == "completed":

@@ -49,14 +49,34 @@ def start(name: str, argv: list[str], log: Path | None) -> Child:
 
 def stop(child: Child, grace_s: float = 10.0) -> int:
     """SIGINT, then SIGKILL after `grace_s`; returns the exit code."""
-    if child.proc.poll() is None:
-        child.proc.send_signal(signal.SIGINT)
+    return stop_all([child], grace_s)[0]
+
+
+def stop_all(children: list[Child], grace_s: float = 10.0) -> list[int]:
+    """SIGINT to every child at once, then wait for each; SIGKILL to any still running
+    `grace_s` after the signal. K simulators end together, not one after another."""
+    for c in children:
+        if c.proc.poll() is None:
+            c.proc.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + grace_s
+    for c in children:
         try:
-            child.proc.wait(grace_s)
+            c.proc.wait(max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
-            child.proc.kill()
-            child.proc.wait()
-    return child.proc.returncode
+            c.proc.kill()
+            c.proc.wait()
+    return [c.proc.returncode for c in children]
+
+
+COMPANION_EXITED = "the companion exited with code"
+
+
+def flight_reason(companion_reason: str | None, why: str) -> str:
+    """Why the flight ended: the supervisor's reason when it stopped the companion (the time
+    limit, a simulator that died), else the companion's own (it ended the flight)."""
+    if why and not why.startswith(COMPANION_EXITED):
+        return why
+    return companion_reason or why
 
 
 def supervise(
@@ -70,7 +90,7 @@ def supervise(
         while True:
             rc = companion.proc.poll()
             if rc is not None:
-                return rc, "" if rc == 0 else f"the companion exited with code {rc}"
+                return rc, "" if rc == 0 else f"{COMPANION_EXITED} {rc}"
             for s in sims:
                 if s.proc.poll() is not None:
                     why = f"the simulator {s.name} exited with code {s.proc.returncode} during the flight"
@@ -85,5 +105,4 @@ def supervise(
         stop(companion)
         raise
     finally:
-        for s in sims:
-            stop(s)
+        stop_all(sims)

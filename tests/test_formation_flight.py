@@ -201,7 +201,13 @@ def test_fly_formation_k4_learned_plan_lands_every_vehicle_on_its_target(tmp_pat
         n = BASE + k
         assert {("HEARTBEAT", 1 + n, 1), ("LOCAL_POSITION_NED", 1 + n, 1),
                 ("SET_POSITION_TARGET_LOCAL_NED", 1 + n, 191)} <= seen  # fmt: skip
-        assert json.loads((run / f"uav{k}" / "sim_stats.json").read_text())["lockstep"]
+        st = json.loads((run / f"uav{k}" / "sim_stats.json").read_text())
+        assert st["lockstep"]
+        # the flight ends at the last tick the companion closed; the simulator then only waits
+        # (until fly stops it): that wait is not in the real-time factor
+        assert 0 < st["flight_sim_s"] <= st["sim_s"] and 0 < st["flight_wall_s"] <= st["wall_s"]
+        assert st["real_time_factor"] == st["flight_sim_s"] / st["flight_wall_s"]
+        assert st["sim_s"] - st["flight_sim_s"] < 0.2  # at most one camera period past it
 
 
 def test_fly_formation_from_a_plan_file_with_3m_cells(tmp_path):
@@ -266,3 +272,26 @@ def test_flight_out_of_time_aborts_with_exit_1_and_frees_every_port_walltime(tmp
     for port in [p + inst + k for p in (14580, 18570, 14540) for k in range(4)]:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.bind(("127.0.0.1", port))  # closed: nothing of the flight is left running
+
+
+def test_stop_all_signals_every_child_at_once_and_reasons_prefer_the_supervisor_walltime():
+    """Wall time: four children that each take 1 s to end after SIGINT end in about 1 s, not 4."""
+    import subprocess
+    import sys
+    import time
+
+    from scripts import launch
+
+    code = "import signal, time\nsignal.signal(signal.SIGINT, lambda *a: (time.sleep(1.0), exit(3)))\nprint('up', flush=True)\ntime.sleep(60)\n"  # fmt: skip
+    kids = [launch.Child(f"k{i}", subprocess.Popen([sys.executable, "-c", code],
+                                                   stdout=subprocess.PIPE), None) for i in range(4)]  # fmt: skip
+    for k in kids:
+        assert k.proc.stdout.readline() == b"up\n"
+    t0 = time.monotonic()
+    assert launch.stop_all(kids, grace_s=30.0) == [3, 3, 3, 3]
+    assert time.monotonic() - t0 < 3.5  # sequential stops would take >= 4 s
+    assert launch.flight_reason("landed", "") == "landed"
+    assert launch.flight_reason("x", f"{launch.COMPANION_EXITED} 2") == "x"
+    assert launch.flight_reason("interrupted", "the flight took longer than --timeout 2 s") == (
+        "the flight took longer than --timeout 2 s"
+    )

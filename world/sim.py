@@ -194,6 +194,7 @@ class World:
         if p.lockstep and not self.gate.wait_for_peer(beacon, self._stop):
             return self._stats(0.0, 0.0)
         wall0, sim0, cpu0 = time.monotonic(), clock.t, time.process_time()
+        span = None  # (sim, wall, CPU) seconds from the start to the last tick closed
         ep.update()
         while not self._stop.is_set():
             t_us = clock.time_us
@@ -209,6 +210,7 @@ class World:
                 batch = self.gate.collect(open_tick, self._stop, self._republish)
                 if batch is None:
                     break
+                span = (clock.t - sim0, time.monotonic() - wall0, time.process_time() - cpu0)
                 if not cut:  # ... and nothing from the companion reaches the vehicle
                     ep.dispatch(ep.api, self._gimbal_commands(batch))
                 else:
@@ -222,7 +224,7 @@ class World:
                 self.pacer.wait_until(clock.t)
                 next_pace_us += pace_us
         wall = time.monotonic() - wall0
-        return self._stats(clock.t - sim0, wall, time.process_time() - cpu0)
+        return self._stats(clock.t - sim0, wall, time.process_time() - cpu0, span)
 
     def _camera_instant(self, t_us: int) -> None:
         t = t_us / 1e6
@@ -331,13 +333,21 @@ class World:
                         team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
         self.truth.write(row)
 
-    def _stats(self, sim_s: float, wall_s: float, cpu_s: float = 0.0) -> dict:
+    def _stats(self, sim_s: float, wall_s: float, cpu_s: float = 0.0, span=None) -> dict:
+        """The run's figures. In lockstep the flight is the span up to the last tick the
+        companion closed: after it the simulator only waits (for a companion that ended, until
+        `skyherd fly` stops it), which is not simulation, so the real-time factor and the CPU
+        per simulated second are taken over that span."""
         g = self.gate.stats
+        f_sim, f_wall, f_cpu = span if span is not None else (sim_s, wall_s, cpu_s)
         stats = {
             "sim_s": sim_s,
             "wall_s": wall_s,
             "cpu_s": cpu_s,  # this process's CPU time while it ran (load-independent cost)
-            "real_time_factor": sim_s / wall_s if wall_s > 0 else math.inf,
+            "flight_sim_s": f_sim,  # lockstep: up to the last closed tick (else the whole run)
+            "flight_wall_s": f_wall,
+            "flight_cpu_s": f_cpu,
+            "real_time_factor": f_sim / f_wall if f_wall > 0 else math.inf,
             "frames": self.frames,
             "render_failures": self.render_failures,
             "lockstep": self.p.lockstep,
