@@ -278,8 +278,7 @@ class MavlinkLink:
             frames = [self.codec.pack(m) for m in msgs]
             self.transport.send(b"".join(frames))
         if self.tlog:
-            for data in frames:
-                self.tlog.write(data)
+            self.tlog.write_many(frames)
 
     def recv(self, timeout: float = 0.1) -> list[MAVLinkMessage]:
         """Messages decoded from whatever arrives within `timeout` [s]. Bad bytes are skipped."""
@@ -294,9 +293,8 @@ class MavlinkLink:
             msgs = [m for m in (self._stream.parse_buffer(data) or [])
                     if not isinstance(m, mavlink.MAVLink_bad_data | mavlink.MAVLink_unknown)
                     and self.codec.accept(m)]  # fmt: skip
-        if self.tlog:
-            for m in msgs:
-                self.tlog.write(bytes(m.get_msgbuf()))
+        if self.tlog and msgs:
+            self.tlog.write_many([bytes(m.get_msgbuf()) for m in msgs])
         return msgs
 
     def close(self) -> None:

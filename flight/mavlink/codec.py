@@ -9,13 +9,96 @@ or corrupt datagram cannot swallow the next one. MAVLink 1 frames are parsed too
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
+from operator import itemgetter
 
+from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from flight.mavlink.signing import Signing
 
 MAVLinkMessage = mavlink.MAVLink_message
+_HDR_V2 = struct.Struct("<BBBBBBBHB")  # stx len incompat compat seq sys comp msgid(lo16, hi8)
+_X25 = crc16.mcrf4xx  # MAVLink's X.25 checksum (CRC-16/MCRF4XX), as pymavlink uses it
+
+
+class _Layout:
+    """How pymavlink's `decode` turns one message id's payload into its message object,
+    precomputed: the struct, the wire → declaration field order, the array groups, the
+    char fields (NUL-stripped)."""
+
+    def __init__(self, cls):
+        self.cls = cls
+        self.size = cls.unpacker.size
+        self.unpack = cls.unpacker.unpack
+        self.extra = bytes((cls.crc_extra,))
+        orders, lengths = cls.orders, cls.lengths
+        self.flat = sum(lengths) == len(lengths)
+        if self.flat:
+            self.order = itemgetter(*orders) if len(orders) > 1 else (lambda t: (t[orders[0]],))
+        else:  # (start, length) of each field in the unpacked tuple, in declaration order
+            starts = [sum(lengths[:o]) for o in range(len(lengths))]
+            self.groups = [(starts[o], lengths[o]) for o in orders]
+        self.chars = [i for i, o in enumerate(orders) if cls.fieldtypes[i] == "char"]
+
+    def message(self, payload: bytes):
+        t = self.unpack(payload)
+        if self.flat:
+            fields = list(self.order(t))
+        else:
+            fields = [
+                t[a] if n == 1 or isinstance(t[a], bytes) else list(t[a : a + n])
+                for a, n in self.groups
+            ]
+        for i in self.chars:
+            fields[i] = fields[i].rstrip(b"\x00")
+        return self.cls(*fields)
+
+
+_LAYOUTS = {msg_id: _Layout(cls) for msg_id, cls in mavlink.mavlink_map.items()}
+
+
+def parse_unsigned_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
+    """Every frame of a datagram made only of whole, unsigned MAVLink 2 frames of known ids
+    with good checksums, decoded to exactly what pymavlink's parser gives (the tests compare
+    them over every message of the dialect); None for anything else (MAVLink 1, signed,
+    unknown, corrupt or truncated), which the caller then parses the slow, counting way.
+
+    A datagram of telemetry decoded here costs a few µs a frame; pymavlink's byte-wise
+    parser, tens: with K vehicles' streams that parser was the companion's largest cost."""
+    out = []
+    i, n = 0, len(datagram)
+    while i < n:
+        if n - i < 12 or datagram[i] != 0xFD or datagram[i + 2] != 0:
+            return None  # not MAVLink 2, or incompat flags (signed, or unknown: slow path)
+        plen = datagram[i + 1]
+        end = i + 12 + plen
+        if end > n:
+            return None
+        _, _, _, compat, seq, src_sys, src_comp, lo, hi = _HDR_V2.unpack_from(datagram, i)
+        msg_id = lo | hi << 16
+        lay = _LAYOUTS.get(msg_id)
+        if lay is None:
+            return None
+        crc = datagram[end - 2] | datagram[end - 1] << 8
+        if _X25(lay.extra, _X25(datagram[i + 1 : end - 2])) != crc:
+            return None
+        payload = datagram[i + 10 : end - 2]
+        if plen < lay.size:
+            payload += bytes(lay.size - plen)  # MAVLink 2 trailing-zero truncation
+        elif plen > lay.size:
+            payload = payload[: lay.size]
+        m = lay.message(payload)
+        buf = bytearray(datagram[i:end])
+        m._signed = False
+        m._msgbuf = buf
+        m._payload = buf[6:-2]  # as pymavlink's decode sets it
+        m._crc = crc
+        m._header = mavlink.MAVLink_header(msg_id, 0, compat, plen, seq, src_sys, src_comp)
+        out.append(m)
+        i = end
+    return out
 
 
 @dataclass
@@ -59,6 +142,11 @@ class Codec:
 
     def parse(self, datagram: bytes) -> list[MAVLinkMessage]:
         """Decode every valid frame in one datagram; malformed bytes are counted and dropped."""
+        if self.signing is None or self.signing.key is None:
+            fast = parse_unsigned_v2(bytes(datagram))
+            if fast is not None:
+                self.stats.rx_frames += len(fast)
+                return fast
         rx = self.rx
         rx.buf = bytearray()
         rx.buf_index = 0

@@ -27,6 +27,7 @@ from flight.clock import SimClock
 
 log = logging.getLogger(__name__)
 SETUP_SIGNING_ID = 256
+_STAMP = struct.Struct(">Q")  # record header: µs since the Unix epoch, big-endian
 
 
 def frame_msg_id(frame: bytes) -> int | None:
@@ -88,16 +89,26 @@ class TlogWriter:
             self._on_error(self.error)
 
     def write(self, frame: bytes) -> None:
-        if self._f is None or frame_msg_id(frame) == SETUP_SIGNING_ID:
+        self.write_many((frame,))
+
+    def write_many(self, frames) -> None:
+        """Append frames (one datagram's, one send's) as one write, each with the same stamp;
+        with `flush_interval_s` 0 they are flushed together before this returns."""
+        if self._f is None:
             return
+        stamp = _STAMP.pack(self._stamp_us())
+        kept = [stamp + f for f in frames if frame_msg_id(f) != SETUP_SIGNING_ID]
+        if not kept:
+            return
+        data = b"".join(kept)
         with self._lock:
             if self._f is None:
                 return
             try:
-                self._f.write(struct.pack(">Q", self._stamp_us()) + frame)
+                self._f.write(data)
                 if self._flush_interval_s <= 0:
                     self._f.flush()
-                self.records += 1
+                self.records += len(kept)
             except OSError as e:
                 self._fail("write", e)
 
