@@ -15,6 +15,7 @@ lies on j's side of it. Rows are rebuilt every step from the other vehicles' lat
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -38,17 +39,25 @@ def separation_rows(spec: EnvelopeSpec, p_k: np.ndarray, others: list[tuple[str,
     alpha = min(dyn.dt_s / dyn.tau_s, 1.0)
     T = spec.stop_times()[0]
     k = dyn.dt_s + T
-    A = np.zeros((len(others), NZ))
-    b = np.zeros(len(others))
-    names = []
-    for i, (name, pj, vj) in enumerate(others):
-        d = np.asarray(p_k, float) - np.asarray(pj, float)
-        dist = float(np.linalg.norm(d))
-        n = d / dist if dist > 1e-6 else np.array([0.0, 0.0, -1.0])
-        # −n·p' − T n·v' <= −(r + n·p_j + T n·v_j) with p' = p + dt v', v' = (1−α) v + α u
-        A[i, P] = -n
-        A[i, V] = -k * (1 - alpha) * n
-        A[i, U] = -k * alpha * n
-        b[i] = -(params.radius_m + float(n @ pj) + T * float(n @ vj))
-        names.append(f"separation {params.radius_m:g} m from {name}")
-    return A, b, tuple(names)
+    m = len(others)
+    A = np.zeros((m, NZ))
+    if m == 0:
+        return A, np.zeros(0), ()
+    pj = np.array([o[1] for o in others], dtype=float).reshape(m, 3)
+    vj = np.array([o[2] for o in others], dtype=float).reshape(m, 3)
+    d = np.asarray(p_k, float) - pj
+    dist = np.sqrt((d * d).sum(axis=1))
+    near = dist <= 1e-6
+    n = d / np.where(near, 1.0, dist)[:, None]
+    n[near] = (0.0, 0.0, -1.0)  # on top of each other: push up
+    # −n·p' − T n·v' <= −(r + n·p_j + T n·v_j) with p' = p + dt v', v' = (1−α) v + α u
+    A[:, P] = -n
+    A[:, V] = -k * (1 - alpha) * n
+    A[:, U] = -k * alpha * n
+    b = -(params.radius_m + (n * pj).sum(axis=1) + T * (n * vj).sum(axis=1))
+    return A, b, tuple(_name(params.radius_m, o[0]) for o in others)
+
+
+@lru_cache(maxsize=4096)
+def _name(radius_m: float, other: str) -> str:
+    return f"separation {radius_m:g} m from {other}"
