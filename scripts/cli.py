@@ -27,6 +27,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "watch": ("scripts.watch", "watch a flight's camera frames with detections"),
     "record": ("scripts.record", "flight.mcap (Foxglove, PlotJuggler) from a run folder"),
     "educate": ("scripts.educate", "teach a curriculum of lessons; a modular policy that explains"),
+    "evaluate": (
+        "scripts.evaluate",
+        "the pre-registered evaluation of educated policies (100 fresh composite episodes)",
+    ),
     "explain": (
         "scripts.explain",
         "a run's decisions as a readable timeline (module, reason, net)",

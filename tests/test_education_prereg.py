@@ -26,3 +26,26 @@ def test_summarise_drops_nan_and_gives_standard_error():
     assert s["all_in_view_frac"]["mean"] == 0.5 and s["all_in_view_frac"]["n"] == 3
     assert math.isclose(s["all_in_view_frac"]["se"], 0.5 / math.sqrt(3))
     assert s["footprint_ratio"] == {"mean": 3.0, "se": 1.0, "n": 2}
+
+
+def test_skyherd_evaluate_reproduces_the_recorded_ab_and_expert_figures(tmp_path):
+    """The command on the kept AB policy as both sides: AB and the expert give the figures of
+    docs/education.md (seeds 700000-700099), equal distances fail goal 2 (the rule is a strict
+    <), so the exit code is 1; the run folder has results.json and the table."""
+    import json
+    from pathlib import Path
+
+    from scripts.cli import main
+
+    ab = Path(__file__).resolve().parents[1] / "policy" / "models" / "groundair_ab.npz"
+    assert main(["evaluate", str(ab), "--ab", str(ab), "--runs-dir", str(tmp_path)]) == 1
+    (run,) = tmp_path.iterdir()
+    res = json.loads((run / "results.json").read_text())
+    s = res["summary"]
+    assert round(s["ab"]["all_in_view_frac"]["mean"], 4) == 0.9807
+    assert round(s["ab"]["footprint_ratio"]["mean"], 3) == 8.066
+    assert round(s["expert"]["all_in_view_frac"]["mean"], 4) == 0.9747
+    assert round(s["expert"]["footprint_ratio"]["mean"], 3) == 7.359
+    assert res["verdicts"] == {"goal1_all_in_view": True, "goal2_footprint": False}
+    assert "FAILS" in (run / "summary.md").read_text()
+    assert main(["evaluate", str(tmp_path / "none.npz"), "--ab", str(ab)]) == 2  # clear error

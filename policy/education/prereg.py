@@ -8,14 +8,13 @@ The rule was fixed before the run (session 5, edu3):
   goal 2 holds iff |fp(educated) - fp(expert)| < |fp(AB) - fp(expert)|.
 With several educated seed policies, their mean over policies is the educated figure.
 
-Run: python -m policy.education.prereg EDUCATED.npz... --ab AB.npz --out results.json
+Run: skyherd evaluate EDUCATED.npz... --ab AB.npz (scripts/evaluate.py)
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -52,26 +51,31 @@ def verdicts(edu: dict, ab: dict, expert: dict) -> dict[str, bool]:
     }
 
 
-def main(argv: list[str] | None = None) -> None:
-    import torch
-
+def evaluate(educated: list[Path], ab: Path, on_episode: Callable[[], None] | None = None) -> dict:
+    """The pre-registered evaluation of `educated` policies (.npz, one per seed) against the
+    kept AB policy and the scripted expert: per-episode figures, their summaries, the verdicts.
+    `on_episode()` runs after each of the (len(educated) + 2) * N_EPISODES episodes."""
     from policy.demos import ExpertParams, scripted_expert
     from policy.dqn import load_policy
 
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("educated", type=Path, nargs="+", help="educated policy .npz (one per seed)")
-    ap.add_argument("--ab", type=Path, required=True, help="the kept AB policy .npz")
-    ap.add_argument("--out", type=Path, required=True, help="results JSON to write")
-    args = ap.parse_args(argv)
-    torch.set_num_threads(1)
-    eps = {f"educated:{f.stem}": per_episode(load_policy(f)) for f in args.educated}
-    eps["ab"] = per_episode(load_policy(args.ab))
-    eps["expert"] = per_episode(scripted_expert(SCENARIO, ExpertParams(), 0))
+    def run(act) -> list[dict[str, float]]:
+        from policy.demos import rollout_stats
+
+        out = []
+        for k in range(N_EPISODES):
+            out.append(rollout_stats(act, SCENARIO, 1, FIRST_SEED + k, GAMMA)[1])
+            if on_episode is not None:
+                on_episode()
+        return out
+
+    eps = {f"educated:{f.stem}": run(load_policy(f)) for f in educated}
+    eps["ab"] = run(load_policy(ab))
+    eps["expert"] = run(scripted_expert(SCENARIO, ExpertParams(), 0))
     summ = {k: summarise(v) for k, v in eps.items()}
     edu_keys = [k for k in summ if k.startswith("educated:")]
     edu = {m: float(np.mean([summ[k][m]["mean"] for k in edu_keys])) for m in KEYS}
     means = {k: {m: summ[k][m]["mean"] for m in KEYS} for k in ("ab", "expert")}
-    res = {
+    return {
         "rule": __doc__,
         "seeds": [FIRST_SEED, FIRST_SEED + N_EPISODES - 1],
         "summary": summ,
@@ -79,11 +83,3 @@ def main(argv: list[str] | None = None) -> None:
         "verdicts": verdicts(edu, means["ab"], means["expert"]),
         "per_episode": eps,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(res, indent=1))
-    print(json.dumps({k: res[k] for k in ("summary", "educated_mean_over_policies", "verdicts")},
-                     indent=1))  # fmt: skip
-
-
-if __name__ == "__main__":
-    main()
