@@ -15,6 +15,8 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import signal
+import threading
 import time
 
 import cv2
@@ -144,7 +146,7 @@ def _session(args: argparse.Namespace):
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from runio import RunFolder, atomic_write_bytes, markdown_table
+    from runio import RunFolder, markdown_table
 
     _check(args)
     zp, session = _session(args)
@@ -215,43 +217,18 @@ def run(args: argparse.Namespace) -> int:
              "latency_ms", *FEATURE_NAMES]
         )  # fmt: skip
         run.at_end(finish, "summary")
-        shown = not args.no_show
-        t_last = time.monotonic()
         bar = run.closing(tqdm(total=args.frames, desc="watch", unit="frame", disable=None))
-        while st["processed"] < args.frames:
-            fr = sub.wait(0.2)
-            if fr is None:
-                if time.monotonic() - t_last > args.timeout:
-                    break
-                continue
-            t_last = time.monotonic()
-            det_ = st["detector"]
-            if det_ is None or det_.cam.width_px != fr.image.shape[1]:
-                det_ = st["detector"] = Detector(
-                    _camera_from(sub.info, fr.image.shape[:2]), args.ugvs
-                )
-            det = det_.detect(fr.image)
-            phi = det_.features(det, -float(fr.pos_ned[2]))
-            img = annotate(fr.image, det, scale=2)
-            com = det.measure.com_px if det.measure.com_px is not None else (np.nan, np.nan)
-            metrics.write({
-                "seq": fr.seq, "t_sim": fr.t_sim, "count": det.count,
-                "all_in_view": int(det.all_in_view), "com_u_px": float(com[0]),
-                "com_v_px": float(com[1]), "radius_px": det.measure.radius_px,
-                "latency_ms": 1e3 * fr.latency_s, **dict(zip(FEATURE_NAMES, phi.tolist())),
-            })  # fmt: skip
-            if st["processed"] % args.save_every == 0:
-                ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-                if ok:
-                    atomic_write_bytes(
-                        run.path / "frames" / f"frame_{fr.seq:06d}.png", png.tobytes()
-                    )
-            st["strip"].append((fr.t_sim, img))
-            shown = _try_show(img, shown)
-            st["counts"].append(det.count)
-            st["all_in"].append(det.all_in_view)
-            st["processed"] += 1
-            bar.update(1)
+        # Ctrl-C sets a flag, checked between frames: a KeyboardInterrupt raised inside the
+        # subscriber's condition wait could leave its lock to the Zenoh callback thread and
+        # hang the shutdown (seen once in the suite: no exit 120 s after SIGINT)
+        stop = threading.Event()
+        prev = signal.signal(signal.SIGINT, lambda *_: stop.set())
+        try:
+            _loop(args, sub, st, metrics, run, bar, stop)
+        finally:
+            signal.signal(signal.SIGINT, prev)
+        if stop.is_set():
+            raise KeyboardInterrupt  # outside every lock: the run folder ends as interrupted
         if st["processed"] == 0:
             run.fail(f"no frame on skyherd/{args.vehicle}/camera/frame within {args.timeout:g} s "
                      f"(is a flight publishing? --connect {args.connect})")  # fmt: skip
@@ -259,6 +236,46 @@ def run(args: argparse.Namespace) -> int:
         print(f"skyherd watch: {run.reason}")
         return 1
     return 0
+
+
+def _loop(args, sub, st: dict, metrics, run, bar, stop) -> None:
+    """Detect on frames until --frames are processed, --timeout passes without one, or Ctrl-C
+    (`stop`, checked between frames)."""
+    from runio import atomic_write_bytes
+
+    shown = not args.no_show
+    t_last = time.monotonic()
+    while st["processed"] < args.frames and not stop.is_set():
+        fr = sub.wait(0.2)
+
+        if fr is None:
+            if time.monotonic() - t_last > args.timeout:
+                break
+            continue
+        t_last = time.monotonic()
+        det_ = st["detector"]
+        if det_ is None or det_.cam.width_px != fr.image.shape[1]:
+            det_ = st["detector"] = Detector(_camera_from(sub.info, fr.image.shape[:2]), args.ugvs)
+        det = det_.detect(fr.image)
+        phi = det_.features(det, -float(fr.pos_ned[2]))
+        img = annotate(fr.image, det, scale=2)
+        com = det.measure.com_px if det.measure.com_px is not None else (np.nan, np.nan)
+        metrics.write({
+            "seq": fr.seq, "t_sim": fr.t_sim, "count": det.count,
+            "all_in_view": int(det.all_in_view), "com_u_px": float(com[0]),
+            "com_v_px": float(com[1]), "radius_px": det.measure.radius_px,
+            "latency_ms": 1e3 * fr.latency_s, **dict(zip(FEATURE_NAMES, phi.tolist())),
+        })  # fmt: skip
+        if st["processed"] % args.save_every == 0:
+            ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+            if ok:
+                atomic_write_bytes(run.path / "frames" / f"frame_{fr.seq:06d}.png", png.tobytes())
+        st["strip"].append((fr.t_sim, img))
+        shown = _try_show(img, shown)
+        st["counts"].append(det.count)
+        st["all_in"].append(det.all_in_view)
+        st["processed"] += 1
+        bar.update(1)
 
 
 def _legend(width: int) -> np.ndarray:
