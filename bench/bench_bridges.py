@@ -275,17 +275,17 @@ def _cpu_s(who: int) -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _fly_measured(name: str, path: Path, defaults: list[Path], fifo: bool) -> dict:
+def _fly_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rates=None) -> dict:
     """One hover flight as fast as possible: its real-time factor and the CPU seconds of each
     side (ours: this process; the autopilot's: the reaped child). `fifo`: this process and
     the autopilot (which inherits it) at SCHED_FIFO priority 1."""
-    from hil.bridge_flight import fly
+    from hil.bridge_flight import CopterRates, fly
 
     if fifo:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
     try:
         ours0, theirs0 = _cpu_s(resource.RUSAGE_SELF), _cpu_s(resource.RUSAGE_CHILDREN)
-        r = fly(name, path, 75, 0.0, copter_defaults=defaults)
+        r = fly(name, path, 75, 0.0, copter_defaults=defaults, copter_rates=rates or CopterRates())
         ours, theirs = (
             _cpu_s(resource.RUSAGE_SELF) - ours0,
             _cpu_s(resource.RUSAGE_CHILDREN) - theirs0,
@@ -295,7 +295,9 @@ def _fly_measured(name: str, path: Path, defaults: list[Path], fifo: bool) -> di
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     return {"autopilot": name, "priority": "fifo" if fifo else "normal", "ok": r.ok,
             "reason": r.reason, "sim_s": r.sim_s, "wall_s": r.wall_s, "frames": r.frames,
-            "rtf": r.real_time_factor, "hover_max_dev_m": r.hover_max_dev_m,
+            "rtf": r.real_time_factor, "flight_rtf": r.flight_real_time_factor,
+            "rates": "" if rates is None else f" {rates.sim_rate_hz}/{rates.loop_rate_hz} Hz",
+            "hover_max_dev_m": r.hover_max_dev_m,
             "cpu_ours_s": round(ours, 2), "cpu_autopilot_s": round(theirs, 2),
             "us_per_frame_ours": round(1e6 * ours / max(1, r.frames), 1),
             "us_per_frame_autopilot": round(1e6 * theirs / max(1, r.frames), 1)}  # fmt: skip
@@ -311,14 +313,22 @@ def real_autopilots() -> list[dict]:
         if not path:
             print(f"  {name}: {env} not set, skipped")
             continue
-        for fifo in (False, True):
+        # ArduCopter also at half the physics rate (SIM_RATE_HZ 200, SCHED_LOOP_RATE 100):
+        # the lockstep's cost is per frame, so half the frames per simulated second
+        runs = [(False, None), (True, None)]
+        if name == "arducopter":
+            from hil.bridge_flight import CopterRates
+
+            runs.append((False, CopterRates(200, 100)))
+        for fifo, rates in runs:
             try:
-                row = _fly_measured(name, Path(path), defaults, fifo)
+                row = _fly_measured(name, Path(path), defaults, fifo, rates)
             except PermissionError:
                 print(f"  {name}: SCHED_FIFO not permitted, skipped")
                 continue
             out.append(row)
-            print(f"  {name} {row['priority']:>6}: real-time factor {row['rtf']:5.2f}x "
+            print(f"  {name}{row['rates']} {row['priority']:>6}: real-time factor {row['rtf']:5.2f}x "
+                  f"(from arming {row['flight_rtf']:5.2f}x) "
                   f"({row['frames']} frames, {row['wall_s']:.1f} s wall); CPU per frame: ours "
                   f"{row['us_per_frame_ours']} us, the autopilot's {row['us_per_frame_autopilot']} us; "
                   f"hover {row['hover_max_dev_m']} m, {row['reason']}")  # fmt: skip

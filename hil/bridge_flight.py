@@ -228,12 +228,24 @@ SERIAL0_STREAMS = ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "E
                    "EXTRA3", "PARAMS", "ADSB")  # fmt: skip
 
 
+@dataclass(frozen=True)
+class CopterRates:
+    """ArduCopter's physics frame rate (SIM_RATE_HZ: one JSON frame each) and its main loop
+    (SCHED_LOOP_RATE) [Hz]. It arms only with the loop at most about 0.55 of the frame rate
+    (400 → 222 seen); fewer frames per simulated second is what the lockstep's speed scales with."""
+
+    sim_rate_hz: int = 400
+    loop_rate_hz: int = 200
+
+
 def _copter_process(
-    bin_path: Path, instance: int, speedup: float, workdir: Path, defaults: list[Path], log
-) -> subprocess.Popen:
+    bin_path: Path, instance: int, speedup: float, workdir: Path, defaults: list[Path], log,
+    rates: CopterRates = CopterRates(),
+) -> subprocess.Popen:  # fmt: skip
     extra = workdir / "skyherd-json.parm"
     extra.write_text(
-        "FRAME_CLASS 1\nFRAME_TYPE 1\nSIM_RATE_HZ 400\nSCHED_LOOP_RATE 200\n"
+        f"FRAME_CLASS 1\nFRAME_TYPE 1\nSIM_RATE_HZ {rates.sim_rate_hz}\n"
+        f"SCHED_LOOP_RATE {rates.loop_rate_hz}\n"
         "MOT_THST_HOVER 0.46\nMOT_PWM_MIN 1000\nMOT_PWM_MAX 2000\n"
         # the hover pilot reads only HEARTBEAT, COMMAND_ACK and STATUSTEXT (sent unasked):
         # no telemetry streams on SERIAL0 (parsing them was half of our CPU per frame)
@@ -291,6 +303,7 @@ def fly(
     mission: HoverMission | None = None,
     workdir: Path | None = None,
     copter_defaults: list[Path] | None = None,
+    copter_rates: CopterRates = CopterRates(),
 ) -> FlightResult:
     """Fly the hover mission on `autopilot` ("px4" | "arducopter") and return the result."""
     mission = mission or HoverMission()
@@ -313,7 +326,8 @@ def fly(
             every = 25
         else:
             bridge = ArduPilotJsonBridge(instance=instance).open()
-            proc = _copter_process(bin_path, instance, speedup, work, copter_defaults or [], log)
+            proc = _copter_process(bin_path, instance, speedup, work, copter_defaults or [], log,
+                                   copter_rates)  # fmt: skip
             link = _connect_tcp(5760 + 10 * instance, 60.0)  # SITL waits for this before flying
             if link is None:
                 res.reason = "ArduCopter's MAVLink TCP port never accepted"
@@ -372,6 +386,11 @@ def main(argv: list[str] | None = None) -> int:
         default=[],
         help="ArduCopter parameter file (repeatable)",
     )
+    d = CopterRates()
+    ap.add_argument("--sim-rate-hz", type=int, default=d.sim_rate_hz,
+                    help="ArduCopter's physics frame rate (SIM_RATE_HZ) [Hz]")  # fmt: skip
+    ap.add_argument("--loop-rate-hz", type=int, default=d.loop_rate_hz,
+                    help="ArduCopter's main loop (SCHED_LOOP_RATE) [Hz]")  # fmt: skip
     ap.add_argument("--workdir", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
     ap.add_argument(
@@ -400,6 +419,7 @@ def main(argv: list[str] | None = None) -> int:
         args.speedup,
         workdir=args.workdir,
         copter_defaults=args.defaults,
+        copter_rates=CopterRates(args.sim_rate_hz, args.loop_rate_hz),
     )
     text = json.dumps(asdict(res))
     if args.out:
