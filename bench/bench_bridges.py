@@ -39,6 +39,7 @@ from tqdm import tqdm
 from flight.quadrotor import QuadrotorParams
 from hil import bridge_mavlink as wire
 from hil.ardupilot_json import ArduPilotJsonBridge
+from hil.bridge_flight import CopterRates
 from hil.px4_sim import Px4BridgeConfig, Px4SimBridge
 
 SERVO = struct.Struct("<HHI16H")
@@ -279,7 +280,7 @@ def _fly_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rates
     """One hover flight as fast as possible: its real-time factor and the CPU seconds of each
     side (ours: this process; the autopilot's: the reaped child). `fifo`: this process and
     the autopilot (which inherits it) at SCHED_FIFO priority 1."""
-    from hil.bridge_flight import CopterRates, fly
+    from hil.bridge_flight import fly
 
     if fifo:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
@@ -317,8 +318,6 @@ def real_autopilots() -> list[dict]:
         # the lockstep's cost is per frame, so half the frames per simulated second
         runs = [(False, None), (True, None)]
         if name == "arducopter":
-            from hil.bridge_flight import CopterRates
-
             runs.append((False, CopterRates(200, 100)))
         for fifo, rates in runs:
             try:

@@ -40,7 +40,7 @@ class _Layout:
         else:  # (start, length) of each field in the unpacked tuple, in declaration order
             starts = [sum(lengths[:o]) for o in range(len(lengths))]
             self.groups = [(starts[o], lengths[o]) for o in orders]
-        self.chars = [i for i, o in enumerate(orders) if cls.fieldtypes[i] == "char"]
+        self.chars = [i for i, t in enumerate(cls.fieldtypes) if t == "char"]  # declaration order
 
     def message(self, payload: bytes):
         t = self.unpack(payload)

@@ -26,10 +26,18 @@ GAMMA = 0.97  # EduParams().dqn.gamma, as in the educate run's config.json
 KEYS = ("all_in_view_frac", "footprint_ratio")
 
 
-def per_episode(act, first: int = FIRST_SEED, n: int = N_EPISODES) -> list[dict[str, float]]:
+def per_episode(
+    act, first: int = FIRST_SEED, n: int = N_EPISODES, on_episode: Callable[[], None] | None = None
+) -> list[dict[str, float]]:
+    """One `rollout_stats` call per episode (seeds first..first+n-1); `on_episode()` after each."""
     from policy.demos import rollout_stats
 
-    return [rollout_stats(act, SCENARIO, 1, first + k, GAMMA)[1] for k in range(n)]
+    out = []
+    for k in range(n):
+        out.append(rollout_stats(act, SCENARIO, 1, first + k, GAMMA)[1])
+        if on_episode is not None:
+            on_episode()
+    return out
 
 
 def summarise(eps: list[dict[str, float]]) -> dict[str, dict[str, float]]:
@@ -59,14 +67,7 @@ def evaluate(educated: list[Path], ab: Path, on_episode: Callable[[], None] | No
     from policy.dqn import load_policy
 
     def run(act) -> list[dict[str, float]]:
-        from policy.demos import rollout_stats
-
-        out = []
-        for k in range(N_EPISODES):
-            out.append(rollout_stats(act, SCENARIO, 1, FIRST_SEED + k, GAMMA)[1])
-            if on_episode is not None:
-                on_episode()
-        return out
+        return per_episode(act, on_episode=on_episode)
 
     eps = {f"educated:{f.stem}": run(load_policy(f)) for f in educated}
     eps["ab"] = run(load_policy(ab))
