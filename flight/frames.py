@@ -68,7 +68,7 @@ def euler_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 def quat_to_euler(q: np.ndarray) -> tuple[float, float, float]:
     """ZYX Euler angles (roll, pitch, yaw) [rad] from a quaternion (w, x, y, z)."""
-    w, x, y, z = q
+    w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else q  # floats: 3x numpy scalars' speed
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
     pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))

@@ -60,8 +60,9 @@ def geodetic_to_ned(home: Home, lat_deg: float, lon_deg: float, alt_m: float) ->
 
 def ned_to_geodetic(home: Home, ned: np.ndarray) -> tuple[float, float, float]:
     """NED [m] about home → latitude, longitude [deg] and altitude AMSL [m]."""
+    north, east, down = (float(v) for v in ned)
     lat0 = math.radians(home.lat_deg)
     r_m, r_n = _radii(lat0)
-    lat = home.lat_deg + math.degrees(ned[0] / (r_m + home.alt_m))
-    lon = home.lon_deg + math.degrees(ned[1] / ((r_n + home.alt_m) * math.cos(lat0)))
-    return lat, lon, home.alt_m - float(ned[2])
+    lat = home.lat_deg + math.degrees(north / (r_m + home.alt_m))
+    lon = home.lon_deg + math.degrees(east / ((r_n + home.alt_m) * math.cos(lat0)))
+    return lat, lon, home.alt_m - down

@@ -74,6 +74,7 @@ class LockstepGate:
         self.link, self.mav, self.p = link, mav, params
         self.stats = GateStats()
         self._carry: deque[tuple[object, Address]] = deque()
+        self._next_beacon = 0.0  # wall time of the next heartbeat while waiting for a hello
 
     def mark(self, t_us: int, frame_seq: int | None = None) -> None:
         """Mark the camera instant t_us [µs] on the link (sent to the companion), announcing
@@ -94,20 +95,25 @@ class LockstepGate:
         where the vehicle is. Nothing else is sent before the hello, so nothing is lost to a
         companion that has not bound its socket yet; the hello is kept for the first batch.
         False when `stop` is set first."""
-        next_beacon = 0.0
-        while not self._carry:
-            if time.monotonic() >= next_beacon:
-                beacon()
-                self.link.flush()
-                next_beacon = time.monotonic() + self.p.resend_s
-            got = self.link.receive()
-            if got:
-                self._carry.extend(got)
-                return True
+        while not self.poll_peer(beacon):
             if stop is not None and stop.is_set():
                 return False
             select.select([self.link.sock], [], [], 0.1)
         return True
+
+    def poll_peer(self, beacon: Callable[[], None]) -> bool:
+        """`wait_for_peer` without the wait: beacon if one is due, True once the hello came."""
+        if self._carry:
+            return True
+        if time.monotonic() >= self._next_beacon:
+            beacon()
+            self.link.flush()
+            self._next_beacon = time.monotonic() + self.p.resend_s
+        got = self.link.receive()
+        if got:
+            self._carry.extend(got)
+            return True
+        return False
 
     def collect(
         self,

@@ -17,6 +17,7 @@ import argparse
 import csv
 import json
 import math
+import os
 from dataclasses import asdict
 from pathlib import Path
 
@@ -57,6 +58,10 @@ def _check(args) -> None:
         raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
     if args.sql_seed < 0:
         raise UsageError("--sql-seed must be >= 0")
+    if not 0 <= args.sims <= args.agents:
+        raise UsageError(
+            f"--sims {args.sims}: give 1..{args.agents} processes (or 0: one per CPU core)"
+        )
     if not 0 <= args.instance <= MAX_INSTANCE - args.agents + 1:
         raise UsageError(
             f"--instance {args.instance} + {args.agents} vehicles goes past instance "
@@ -124,14 +129,18 @@ def run_formation(args: argparse.Namespace) -> int:
     )
     print(f"skyherd fly: {K} vehicles (instances {instances[0]}..{instances[-1]}{skipped}), plan of "
           f"{len(plan[0]) - 1} steps, speed-up {args.speedup:g}, lockstep", flush=True)  # fmt: skip
+    groups = sim_groups(K, args.sims)
+    print(f"skyherd fly: {len(groups)} simulator process{'es' if len(groups) > 1 else ''} "
+          f"({', '.join(str(len(g)) for g in groups)} vehicles), logs sim<g>.log", flush=True)  # fmt: skip
     sims = []
-    for k, (inst, h) in enumerate(zip(instances, homes)):
-        d = run_dir / f"uav{k}"
-        d.mkdir()
-        sims.append(launch.start(f"uav{k}", launch.skyherd_cmd(
-            "sim", "--instance", str(inst), "--ugvs", "none", f"--home={h.lat_deg!r},{h.lon_deg!r},{h.alt_m!r}",
-            "--seed", str(args.seed + k), "--speedup", repr(args.speedup), "--latency", repr(args.latency),
-            "--run-dir", str(d)), d / "sim.log"))  # fmt: skip
+    for g, group in enumerate(groups):
+        fleet = [{"name": f"uav{k}", "instance": instances[k], "seed": args.seed + k,
+                  "home": [homes[k].lat_deg, homes[k].lon_deg, homes[k].alt_m]} for k in group]  # fmt: skip
+        fleet_file = run_dir / f"sim{g}.json"
+        atomic_write_text(fleet_file, json.dumps(fleet, indent=1) + "\n")
+        sims.append(launch.start(f"sim{g}", launch.skyherd_cmd(
+            "sim", "--fleet", str(fleet_file), "--ugvs", "none", "--speedup", repr(args.speedup),
+            "--latency", repr(args.latency), "--run-dir", str(run_dir)), run_dir / f"sim{g}.log"))  # fmt: skip
     companion = launch.start("companion", launch.skyherd_cmd(
         "companion", "--mission", "formation", "--plan", str(run_dir / "plan.json"), "--cell-m",
         repr(params.cell_m), "--instance", str(args.instance), "--run-dir", str(run_dir)), None)  # fmt: skip
@@ -142,6 +151,19 @@ def run_formation(args: argparse.Namespace) -> int:
         rc = 130
     ok = formation_report(run_dir, rc, why)
     return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
+
+
+def sim_groups(K: int, sims: int) -> list[list[int]]:
+    """Vehicles 0..K-1 shared among `sims` processes (0: one per CPU core, at most K), in
+    contiguous groups whose sizes differ by at most one."""
+    n = sims if sims > 0 else max(1, min(K, os.cpu_count() or 1))
+    base, extra = divmod(K, n)
+    groups, k = [], 0
+    for g in range(n):
+        size = base + (1 if g < extra else 0)
+        groups.append(list(range(k, k + size)))
+        k += size
+    return groups
 
 
 def _ports_free(instances: list[int]) -> None:

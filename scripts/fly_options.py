@@ -21,6 +21,10 @@ def add_formation_arguments(group) -> None:
     group.add_argument(
         "--cell-m", type=float, default=2.0, help="grid cell size on the field [m] (default 2)"
     )
+    group.add_argument("--sims", type=int, default=0, metavar="G",
+                       help="simulator processes the K vehicles are shared among (1..K; default 0: one per "
+                       "CPU core, at most K): each steps its vehicles in turn, each vehicle in lockstep with "
+                       "the companion, so the flight is the same for any G")  # fmt: skip
     group.add_argument("--policy-file", default=None,
                        help="a plan_K<K>.json from `skyherd train sql` (default: train SQL-SIE in-process, "
                        "10,000 episodes, a few seconds)")  # fmt: skip

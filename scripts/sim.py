@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import sys
+from dataclasses import dataclass
 
 from runio import RunFolder, args_dict
 from scripts.cli import UsageError
@@ -155,6 +157,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="T:D",
         help="stop the camera's frames at T [s] for D [s] (repeatable)",
     )
+    parser.add_argument(
+        "--fleet",
+        default=None,
+        metavar="FILE",
+        help="several built-in vehicles in this one process (with --ugvs none): a JSON list of "
+        '{"name": "uav0", "instance": N, "seed": S, "home": [LAT, LON, ALT]}; each writes into '
+        "<run folder>/<name>/, each in lockstep with its own companion (docs/formation.md)",
+    )
     parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
     parser.add_argument(
         "--run-dir",
@@ -219,6 +229,7 @@ def run(args: argparse.Namespace) -> int:
     from world.sim import World
 
     params, endpoint = build_world(args)
+    fleet = read_fleet(args) if args.fleet else None
     if args.run_dir is not None:
         run_dir = Path(args.run_dir)
         if not run_dir.is_dir():
@@ -227,6 +238,8 @@ def run(args: argparse.Namespace) -> int:
         folder = RunFolder("sim", root=args.runs_dir)
         folder.write_config({"args": args_dict(args), "world": params})
         run_dir = folder.path
+    if fleet is not None:
+        return run_fleet(args, params, endpoint, fleet, run_dir)
     session = (
         _NoSession() if args.ugvs == "none" else open_zenoh(args.zenoh_port, args.zenoh_config)
     )
@@ -274,6 +287,102 @@ def run(args: argparse.Namespace) -> int:
         world.close()
         session.close()
     print(json.dumps(stats), file=sys.stderr)
+    return 0
+
+
+@dataclass(frozen=True)
+class FleetVehicle:
+    """One vehicle of a `--fleet` file."""
+
+    name: str  # its folder in the run folder
+    instance: int
+    seed: int
+    home: tuple[float, float, float]  # lat [deg], lon [deg], alt AMSL [m]
+
+
+def read_fleet(args) -> list[FleetVehicle]:
+    """The `--fleet` file, checked (UsageError naming the file and the entry otherwise)."""
+    from pathlib import Path
+
+    if args.ugvs != "none":
+        raise UsageError("--fleet flies built-in vehicles alone: add --ugvs none")
+    if (
+        args.follow
+        or args.autopilot != "builtin"
+        or args.airframe != "quadrotor"
+        or args.param
+        or args.signing_key
+        or args.cut_link
+    ):
+        raise UsageError("--fleet: built-in quadrotors only; drop --follow, --autopilot, --airframe, "
+                         "--param, --signing-key, --cut-link (or run one `skyherd sim` per vehicle)")  # fmt: skip
+    path = Path(args.fleet)
+    try:
+        entries = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as e:
+        raise UsageError(f"--fleet {path}: not a readable JSON file ({e})") from None
+    if not isinstance(entries, list) or not entries:
+        raise UsageError(f"--fleet {path}: expected a non-empty JSON list of vehicles")
+    fleet = []
+    for i, e in enumerate(entries):
+        try:
+            v = FleetVehicle(str(e["name"]), int(e["instance"]), int(e["seed"]),
+                             tuple(float(x) for x in e["home"]))  # fmt: skip
+            ok = (len(v.home) == 3 and all(math.isfinite(x) for x in v.home) and v.instance >= 0
+                  and v.name.isidentifier() and v.instance == e["instance"] and v.seed == e["seed"])  # fmt: skip
+        except (TypeError, KeyError, ValueError):
+            ok = False
+        if not ok:
+            raise UsageError(f"--fleet {path}: vehicle {i} is not "
+                             '{"name": IDENTIFIER, "instance": INT >= 0, "seed": INT, "home": [LAT, LON, ALT]}')  # fmt: skip
+        _home(",".join(repr(x) for x in v.home))  # the range checks of --home
+        fleet.append(v)
+    for attr in ("name", "instance"):
+        values = [getattr(v, attr) for v in fleet]
+        if len(set(values)) != len(values):
+            raise UsageError(f"--fleet {path}: two vehicles with the same {attr}")
+    return fleet
+
+
+def run_fleet(args, params, endpoint, fleet: list[FleetVehicle], run_dir) -> int:
+    """Several built-in vehicles in this process: one step of each in turn, each in lockstep
+    with its companion (world.sim.run_worlds); each writes into run_dir/<name>/."""
+    import dataclasses
+
+    from flight.clock import Pacer
+    from world.sim import World, run_worlds
+
+    worlds: list[World] = []
+    try:
+        for v in fleet:
+            d = run_dir / v.name
+            d.mkdir(exist_ok=True)
+            p = dataclasses.replace(params, instance=v.instance, seed=v.seed, home=v.home)
+            cfg = dataclasses.replace(endpoint, instance=v.instance)
+            worlds.append(World(p, run_dir=d, endpoint_config=cfg, faults=_faults(args, v.seed)))
+    except (OSError, ValueError) as e:
+        for w in worlds:
+            w.close()
+        hint = (
+            f"; is another vehicle using instance {v.instance}?" if isinstance(e, OSError) else ""
+        )
+        raise UsageError(f"--fleet {v.name}: {e}{hint}") from None
+    stop = lambda *_: [w.stop() for w in worlds]  # noqa: E731
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, stop)
+    names = ", ".join(f"{v.name} (instance {v.instance})" for v in fleet)
+    print(f"skyherd sim: fleet of {len(fleet)}: {names}; lockstep (latency {args.latency:g} s), "
+          f"speed-up {args.speedup:g}; run folder {run_dir}", file=sys.stderr, flush=True)  # fmt: skip
+    try:
+        stats = run_worlds(worlds, Pacer(params.speedup), args.duration)
+    except Exception as e:  # noqa: BLE001 - say what stopped the world, then close its sockets
+        print(f"skyherd sim: stopped: {type(e).__name__}: {e}", file=sys.stderr)
+        return 1
+    finally:
+        for w in worlds:
+            w.close()
+    for v, st in zip(fleet, stats):
+        print(v.name, json.dumps(st), file=sys.stderr)
     return 0
 
 
@@ -329,14 +438,14 @@ def _home(text: str | None) -> tuple[float, float, float] | None:
     return lat, lon, alt
 
 
-def _faults(args):
+def _faults(args, seed: int | None = None):
     """The fault plan of --wind/--gust/--noise/--fault (None: calm air, perfect state)."""
     from flight.faults import plan_from_args
 
     if not (args.wind or args.gust or args.noise or args.fault):
         return None
     try:
-        return plan_from_args(args, seed=args.seed)
+        return plan_from_args(args, seed=args.seed if seed is None else seed)
     except ValueError as e:
         raise UsageError(str(e)) from None
 

@@ -232,12 +232,78 @@ def test_fly_formation_from_a_plan_file_with_3m_cells(tmp_path):
         assert math.hypot(float(last["north"]) - end[0], float(last["east"]) - end[1]) < 1.0
 
 
+def test_the_flight_is_the_same_in_one_simulator_process_or_one_per_vehicle(tmp_path):
+    """A fleet (several vehicles stepped in turn by one `skyherd sim --fleet`) flies exactly as
+    the same vehicles in a process each: decisions, events, metrics and every world.csv."""
+    plan = [[[1, 5], [2, 5], [2, 6]], [[1, 2], [2, 2], [2, 3]], [[2, 1], [3, 1], [4, 1]],
+            [[5, 1], [6, 1], [6, 2]]]  # fmt: skip
+    f = tmp_path / "plan_K4.json"
+    f.write_text(json.dumps(plan))
+    runs = {}
+    for sims in (4, 1):
+        out = tmp_path / f"sims{sims}"
+        code = main(["fly", "--mission", "formation", "--agents", "4", "--policy-file", str(f),
+                     "--sims", str(sims), "--speedup", "0", "--instance", str(BASE + 40),
+                     "--timeout", "600", "--runs-dir", str(out)])  # fmt: skip
+        (run,) = out.iterdir()
+        assert code == 0, (run / "summary.md").read_text()
+        runs[sims] = run
+    assert sorted(p.name for p in runs[1].glob("sim*.json")) == ["sim0.json"]
+    assert len(list(runs[4].glob("sim*.json"))) == 4
+    fleet = json.loads((runs[1] / "sim0.json").read_text())
+    assert [v["name"] for v in fleet] == ["uav0", "uav1", "uav2", "uav3"]
+    for name in ["decisions.jsonl", "events.jsonl", "metrics.csv"] + [
+        f"uav{k}/world.csv" for k in range(4)
+    ]:
+        assert (runs[1] / name).read_bytes() == (runs[4] / name).read_bytes(), name
+    for k in range(4):
+        one = json.loads((runs[1] / f"uav{k}" / "sim_stats.json").read_text())
+        own = json.loads((runs[4] / f"uav{k}" / "sim_stats.json").read_text())
+        assert (one["process_vehicles"], own["process_vehicles"]) == (4, 1)
+        assert one["ticks_closed"] == own["ticks_closed"] > 50
+
+
+def test_sim_groups_share_the_vehicles_in_contiguous_near_equal_groups():
+    from scripts.fly_formation import sim_groups
+
+    assert sim_groups(16, 2) == [list(range(8)), list(range(8, 16))]
+    assert sim_groups(9, 2) == [list(range(5)), list(range(5, 9))]
+    assert sim_groups(4, 4) == [[0], [1], [2], [3]]
+    assert sim_groups(1, 0) == [[0]]
+    groups = sim_groups(9, 0)  # one per CPU core, at most K
+    assert sorted(k for g in groups for k in g) == list(range(9)) and 1 <= len(groups) <= 9
+
+
+def test_sim_fleet_file_errors_exit_2_with_the_reason(tmp_path, capsys):
+    def fleet(entries) -> str:
+        f = tmp_path / "fleet.json"
+        f.write_text(entries if isinstance(entries, str) else json.dumps(entries))
+        return str(f)
+
+    good = {"name": "uav0", "instance": BASE + 50, "seed": 0, "home": [-35.36, 149.16, 584.0]}
+    base = ["sim", "--ugvs", "none", "--runs-dir", str(tmp_path / "runs"), "--fleet"]
+    assert main([*base, fleet("[{")]) == 2  # not JSON
+    assert main([*base, fleet([])]) == 2  # empty
+    assert main([*base, fleet([{**good, "home": [1.0, 2.0]}])]) == 2  # home of two numbers
+    assert main([*base, fleet([{**good, "home": [95.0, 2.0, 0.0]}])]) == 2  # latitude out of range
+    assert main([*base, fleet([{**good, "instance": 1.5}])]) == 2
+    assert main([*base, fleet([{**good, "name": "a/b"}])]) == 2
+    assert main([*base, fleet([good, {**good, "name": "uav1"}])]) == 2  # same instance twice
+    assert main([*base, fleet([{**good, "instance": 201}])]) == 2  # past EndpointConfig's range
+    assert main(["sim", "--fleet", fleet([good]), "--runs-dir", str(tmp_path / "runs")]) == 2
+    err = capsys.readouterr().err
+    assert "not a readable JSON file" in err and "non-empty JSON list" in err
+    assert "vehicle 0 is not" in err and "out of range" in err and "same instance" in err
+    assert "instance must be in [0, 200]" in err and "add --ugvs none" in err
+
+
 def test_fly_formation_bad_usage_exits_2(tmp_path, capsys):
     runs = str(tmp_path / "runs")
     base = ["fly", "--mission", "formation", "--runs-dir", runs]
     assert main([*base, "--connect", "udpin:127.0.0.1:14540"]) == 2
     assert main([*base, "--cell-m", "nan", "--instance", str(BASE)]) == 2
     assert main([*base, "--agents", "4", "--instance", "199"]) == 2
+    assert main([*base, "--agents", "4", "--sims", "5", "--instance", str(BASE)]) == 2
     bad = tmp_path / "bad.json"
     bad.write_text("[[1, 2], [3")
     assert main([*base, "--agents", "4", "--policy-file", str(bad)]) == 2
@@ -253,6 +319,7 @@ def test_fly_formation_bad_usage_exits_2(tmp_path, capsys):
                      "--instance", str(BASE + 20)]) == 2  # fmt: skip
     err = capsys.readouterr().err
     assert "drop --connect" in err and "--cell-m" in err and "--instance" in err
+    assert "--sims 5: give 1..4 processes" in err
     assert "cannot read plan" in err and "pick another --instance" in err
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import select
 import threading
 import time
 from dataclasses import dataclass, field
@@ -181,50 +182,65 @@ class World:
 
     def run(self, duration_s: float | None = None) -> dict:
         """Step until `stop()` (or `duration_s` of simulation time); return the run's stats."""
+        return run_worlds([self], self.pacer, duration_s)[0]
+
+    # One world's loop in three parts, so that several worlds (a fleet: world/fleet.py) can
+    # share one process and one pacer: `begin`, then `step` until it returns False, `finish`.
+    def begin(self, duration_s: float | None = None) -> None:
+        """Start the run's counters (after the companion's hello, in lockstep)."""
+        p, clock = self.p, self.clock
+        self._step_us = round(self.autopilot.control_dt * 1e6)
+        self._period_us = round(1e6 / p.camera_hz)
+        self._latency_us = round(p.lockstep_params.latency_s * 1e6 / self._step_us) * self._step_us
+        self._t_end_us = None if duration_s is None else clock.time_us + round(duration_s * 1e6)
+        self._next_frame_us = clock.time_us
+        self._open_tick: int | None = None  # camera instant whose close is awaited [µs]
+        self._t0 = (time.monotonic(), clock.t, time.process_time())  # wall, sim, CPU
+        self._span = None  # (sim, wall, CPU) seconds from the start to the last tick closed
+        self.endpoint.update()
+
+    def beacon(self) -> None:
+        """The vehicle's heartbeat on the API link, while it waits for the companion's hello."""
+        self.endpoint.api.send(self.endpoint._build(HEARTBEAT))
+
+    def step(self) -> bool:
+        """One autopilot step with what falls due before it (camera instant, lockstep close);
+        False when the run is over (stopped, out of time, or the companion gone at a close)."""
         p, clock, ep = self.p, self.clock, self.endpoint
-        step_us = round(self.autopilot.control_dt * 1e6)
-        period_us = round(1e6 / p.camera_hz)
-        latency_us = round(p.lockstep_params.latency_s * 1e6 / step_us) * step_us
-        pace_us = max(step_us, round(p.pace_s * 1e6))
-        t_end_us = None if duration_s is None else clock.time_us + round(duration_s * 1e6)
-        next_frame_us = clock.time_us
-        next_pace_us = clock.time_us
-        open_tick: int | None = None  # camera instant whose close is awaited [µs]
-        beacon = lambda: ep.api.send(ep._build(HEARTBEAT))  # noqa: E731
-        if p.lockstep and not self.gate.wait_for_peer(beacon, self._stop):
-            return self._stats(0.0, 0.0)
-        wall0, sim0, cpu0 = time.monotonic(), clock.t, time.process_time()
-        span = None  # (sim, wall, CPU) seconds from the start to the last tick closed
+        if self._stop.is_set():
+            return False
+        t_us = clock.time_us
+        if self._t_end_us is not None and t_us >= self._t_end_us:
+            return False
+        if t_us >= self._next_frame_us:
+            self._camera_instant(t_us)
+            self._next_frame_us += self._period_us
+            self._open_tick = t_us if p.lockstep else None
+        cut = _during(p.link_cuts, clock.t)
+        ep.api.muted = cut  # a real cut: nothing from the vehicle reaches the companion
+        if self._open_tick is not None and t_us >= self._open_tick + self._latency_us:
+            batch = self.gate.collect(self._open_tick, self._stop, self._republish)
+            if batch is None:
+                return False
+            wall0, sim0, cpu0 = self._t0
+            self._span = (clock.t - sim0, time.monotonic() - wall0, time.process_time() - cpu0)
+            if not cut:  # ... and nothing from the companion reaches the vehicle
+                ep.dispatch(ep.api, self._gimbal_commands(batch))
+            else:
+                self.cut_dropped += len(batch)
+            self._open_tick = None
+        if not p.lockstep:
+            self._free_run_receive()
+        self.autopilot.step()
         ep.update()
-        while not self._stop.is_set():
-            t_us = clock.time_us
-            if t_end_us is not None and t_us >= t_end_us:
-                break
-            if t_us >= next_frame_us:
-                self._camera_instant(t_us)
-                next_frame_us += period_us
-                open_tick = t_us if p.lockstep else None
-            cut = _during(p.link_cuts, clock.t)
-            ep.api.muted = cut  # a real cut: nothing from the vehicle reaches the companion
-            if open_tick is not None and t_us >= open_tick + latency_us:
-                batch = self.gate.collect(open_tick, self._stop, self._republish)
-                if batch is None:
-                    break
-                span = (clock.t - sim0, time.monotonic() - wall0, time.process_time() - cpu0)
-                if not cut:  # ... and nothing from the companion reaches the vehicle
-                    ep.dispatch(ep.api, self._gimbal_commands(batch))
-                else:
-                    self.cut_dropped += len(batch)
-                open_tick = None
-            if not p.lockstep:
-                self._free_run_receive()
-            self.autopilot.step()
-            ep.update()
-            if clock.time_us >= next_pace_us:
-                self.pacer.wait_until(clock.t)
-                next_pace_us += pace_us
-        wall = time.monotonic() - wall0
-        return self._stats(clock.t - sim0, wall, time.process_time() - cpu0, span)
+        return True
+
+    def finish(self, process_vehicles: int = 1) -> dict:
+        """The run's stats (written to sim_stats.json); `process_vehicles` worlds shared the
+        process, its CPU time and its wall time."""
+        wall0, sim0, cpu0 = self._t0
+        return self._stats(self.clock.t - sim0, time.monotonic() - wall0, time.process_time() - cpu0,
+                           self._span, process_vehicles)  # fmt: skip
 
     def _camera_instant(self, t_us: int) -> None:
         t = t_us / 1e6
@@ -333,7 +349,8 @@ class World:
                         team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
         self.truth.write(row)
 
-    def _stats(self, sim_s: float, wall_s: float, cpu_s: float = 0.0, span=None) -> dict:
+    def _stats(self, sim_s: float, wall_s: float, cpu_s: float = 0.0, span=None,
+               process_vehicles: int = 1) -> dict:  # fmt: skip
         """The run's figures. In lockstep the flight is the span up to the last tick the
         companion closed: after it the simulator only waits (for a companion that ended, until
         `skyherd fly` stops it), which is not simulation, so the real-time factor and the CPU
@@ -344,6 +361,7 @@ class World:
             "sim_s": sim_s,
             "wall_s": wall_s,
             "cpu_s": cpu_s,  # this process's CPU time while it ran (load-independent cost)
+            "process_vehicles": process_vehicles,  # worlds sharing that CPU time (a fleet: > 1)
             "flight_sim_s": f_sim,  # lockstep: up to the last closed tick (else the whole run)
             "flight_wall_s": f_wall,
             "flight_cpu_s": f_cpu,
@@ -377,3 +395,43 @@ class World:
                 except Exception:  # noqa: BLE001 - already closed with its session
                     pass
         self.endpoint.close()
+
+
+def run_worlds(worlds: list[World], pacer: Pacer, duration_s: float | None = None) -> list[dict]:
+    """Run worlds that share one process and one clock rate, one step of each in turn, until
+    any of them ends (stopped, out of time, its companion gone); their stats, in order.
+
+    Each world keeps its own lockstep with its companion: at a camera instant every world marks
+    it, at t + L every world waits for its close, so a fleet flies exactly as the same vehicles
+    in one process each. Pacing sleeps once per `pace_s` of simulation time for all of them."""
+    steps = {round(w.autopilot.control_dt * 1e6) for w in worlds}
+    if len(steps) != 1:
+        raise ValueError(
+            f"worlds of one process must share the control step, not {sorted(steps)} us"
+        )
+    first = worlds[0]
+    if first.p.lockstep and not wait_for_peers(worlds):
+        return [w._stats(0.0, 0.0, process_vehicles=len(worlds)) for w in worlds]
+    for w in worlds:
+        w.begin(duration_s)
+    pace_us = max(first._step_us, round(first.p.pace_s * 1e6))
+    next_pace_us = first.clock.time_us
+    while all(w.step() for w in worlds):
+        if first.clock.time_us >= next_pace_us:
+            pacer.wait_until(first.clock.t)
+            next_pace_us += pace_us
+    return [w.finish(len(worlds)) for w in worlds]
+
+
+def wait_for_peers(worlds: list[World]) -> bool:
+    """Lockstep: block until every world's companion has said hello, beaconing each world's
+    heartbeat while it waits (a companion may wait for all its vehicles before it speaks).
+    False when any world is stopped first."""
+    waiting = list(worlds)
+    while waiting:
+        waiting = [w for w in waiting if not w.gate.poll_peer(w.beacon)]
+        if any(w._stop.is_set() for w in worlds):
+            return False
+        if waiting:
+            select.select([w.gate.link.sock for w in waiting], [], [], 0.1)
+    return True

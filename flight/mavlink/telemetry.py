@@ -75,10 +75,10 @@ class Identity:
 def prearm_ok(ap: Autopilot) -> bool:
     """Pre-arm checks as the endpoint can see them: finite state and battery above 10 %."""
     s = ap.state
-    return (
-        bool(np.all(np.isfinite(s.pos_ned)) and np.all(np.isfinite(s.quat)))
-        and ap.battery_remaining > 0.1
+    finite = all(map(math.isfinite, s.pos_ned.tolist())) and all(
+        map(math.isfinite, s.quat.tolist())
     )
+    return finite and ap.battery_remaining > 0.1
 
 
 def battery_voltage(remaining: float) -> float:
@@ -98,6 +98,8 @@ class TelemetryBuilder:
         self.ident = ident
         # ArduPilot: `.mode_number` last set and `.guided_hover` (the endpoint's commands)
         self.mode_requests = _NO_REQUESTS
+        self._geo_t_us, self._geo_state = -1, None  # time [us] and state of the cached position
+        self._geo = (0.0, 0.0, 0.0)
         self._builders = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self.heartbeat,
             M.MAVLINK_MSG_ID_SYS_STATUS: self.sys_status,
@@ -132,7 +134,12 @@ class TelemetryBuilder:
         return self.ap.clock.time_us
 
     def _geodetic(self) -> tuple[float, float, float]:
-        return ned_to_geodetic(self.ap.home, self.ap.state.pos_ned)
+        """Latitude, longitude [deg], altitude AMSL [m] now (three messages of a step share it)."""
+        t_us, state = self.ap.clock.time_us, self.ap.state
+        if t_us != self._geo_t_us or state is not self._geo_state:
+            self._geo_t_us, self._geo_state = t_us, state
+            self._geo = ned_to_geodetic(self.ap.home, state.pos_ned)
+        return self._geo
 
     # --- messages ------------------------------------------------------------------------
     def heartbeat(self, mav):
@@ -193,25 +200,25 @@ class TelemetryBuilder:
     def attitude(self, mav):
         s = self.ap.state
         roll, pitch, yaw = s.euler
-        p, q, r = (float(v) for v in s.omega_frd)
+        p, q, r = s.omega_frd.tolist()
         return mav.attitude_encode(self._ms, roll, pitch, yaw, p, q, r)
 
     def attitude_quaternion(self, mav):
         s = self.ap.state
-        w, x, y, z = (float(v) for v in s.quat)
-        p, q, r = (float(v) for v in s.omega_frd)
+        w, x, y, z = s.quat.tolist()
+        p, q, r = s.omega_frd.tolist()
         return mav.attitude_quaternion_encode(self._ms, w, x, y, z, p, q, r, [0.0, 0.0, 0.0, 0.0])
 
     def local_position_ned(self, mav):
         s = self.ap.state
-        x, y, z = (float(v) for v in s.pos_ned)
-        vx, vy, vz = (float(v) for v in s.vel_ned)
+        x, y, z = s.pos_ned.tolist()
+        vx, vy, vz = s.vel_ned.tolist()
         return mav.local_position_ned_encode(self._ms, x, y, z, vx, vy, vz)
 
     def global_position_int(self, mav):
         s = self.ap.state
         lat, lon, alt = self._geodetic()
-        vx, vy, vz = (_clamp_i16(v * 100) for v in s.vel_ned)
+        vx, vy, vz = (_clamp_i16(v * 100) for v in s.vel_ned.tolist())
         hdg = int(round(math.degrees(s.euler[2]) * 100)) % 36000
         return mav.global_position_int_encode(
             self._ms,
@@ -228,7 +235,7 @@ class TelemetryBuilder:
     def gps_raw_int(self, mav):
         s = self.ap.state
         lat, lon, alt = self._geodetic()
-        vn, ve = float(s.vel_ned[0]), float(s.vel_ned[1])
+        vn, ve = s.vel_ned.tolist()[:2]
         gs = math.hypot(vn, ve)
         cog = int(round(math.degrees(math.atan2(ve, vn)) * 100)) % 36000 if gs > 0.2 else 65535
         return mav.gps_raw_int_encode(
@@ -286,13 +293,14 @@ class TelemetryBuilder:
 
     def vfr_hud(self, mav):
         s = self.ap.state
-        gs = float(np.hypot(s.vel_ned[0], s.vel_ned[1]))
+        vn, ve = s.vel_ned.tolist()[:2]
+        gs = float(np.hypot(vn, ve))
         hdg = int(round(math.degrees(s.euler[2]))) % 360
         lat, lon, alt = self._geodetic()
         # No wind: airspeed = ground speed. Throttle: mean motor command when the autopilot
         # exposes it (multirotor), else 0.
         motors = getattr(self.ap, "motor_commands", None)
-        thr = int(round(100 * float(np.mean(motors)))) if motors is not None else 0
+        thr = int(round(100 * (sum(motors.tolist()) / len(motors)))) if motors is not None else 0
         return mav.vfr_hud_encode(gs, gs, hdg, max(0, min(100, thr)), alt, -float(s.vel_ned[2]))
 
     def mission_current(self, mav, total: int = 0):
