@@ -184,7 +184,7 @@ class World:
         """Step until `stop()` (or `duration_s` of simulation time); return the run's stats."""
         return run_worlds([self], self.pacer, duration_s)[0]
 
-    # One world's loop in three parts, so that several worlds (a fleet: world/fleet.py) can
+    # One world's loop in three parts, so that several worlds (a fleet: `skyherd sim --fleet`) can
     # share one process and one pacer: `begin`, then `step` until it returns False, `finish`.
     def begin(self, duration_s: float | None = None) -> None:
         """Start the run's counters (after the companion's hello, in lockstep)."""
