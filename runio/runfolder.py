@@ -41,6 +41,8 @@ def to_jsonable(obj: Any) -> Any:
     t = type(obj)
     if t is float or t is int or t is str or t is bool or obj is None:
         return obj  # the common leaf, first (a decision record holds dozens of them)
+    if t is np.float64:
+        return float(obj)  # the next most common (numpy arithmetic on a vehicle's state)
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, enum.Enum):
@@ -124,9 +126,10 @@ class CsvWriter:
         self.columns = list(columns)
         new = not self.path.exists() or self.path.stat().st_size == 0
         self._f = open(self.path, "a", newline="", encoding="utf-8")
-        self._w = csv.DictWriter(self._f, fieldnames=self.columns)
+        self._known = frozenset(self.columns)
+        self._w = csv.writer(self._f)
         if new:
-            self._w.writeheader()
+            self._w.writerow(self.columns)
             self._f.flush()
 
     def write(self, row: dict[str, Any]) -> None:
@@ -135,7 +138,10 @@ class CsvWriter:
     def write_rows(self, rows: list[dict[str, Any]]) -> None:
         """Several rows, flushed once (a tick's samples of every vehicle)."""
         for row in rows:
-            self._w.writerow({k: to_jsonable(row.get(k, "")) for k in self.columns})
+            if not self._known.issuperset(row):
+                extra = sorted(set(row) - self._known)
+                raise ValueError(f"{self.path.name}: columns {extra} are not in its header")
+            self._w.writerow([to_jsonable(row.get(k, "")) for k in self.columns])
         self._f.flush()
 
     def close(self) -> None:

@@ -227,3 +227,27 @@ def test_run_streams_go_in_the_folder_lazily(tmp_path):
         assert run.created and os.path.exists(run.file("decisions.jsonl"))
         d.write({"t": 0.0, "verdict": "pid"})
     assert "`decisions.jsonl`" in (_only_run(tmp_path) / "summary.md").read_text()
+
+
+def test_csv_writer_writes_what_a_dict_writer_writes_and_refuses_unknown_columns(tmp_path):
+    import csv
+
+    import numpy as np
+
+    from runio import CsvWriter
+
+    cols = ["t", "north", "mode", "armed", "ref"]
+    rows = [{"t": 0.1, "north": np.float64(1.0) / 3, "mode": "OFFBOARD", "armed": 1},
+            {"t": np.float32(0.2), "north": np.nan, "mode": "HOLD", "armed": 0, "ref": ""}]  # fmt: skip
+    w = CsvWriter(tmp_path / "m.csv", cols)
+    w.write_rows(rows)
+    with pytest.raises(ValueError, match=r"\['typo'\] are not in its header"):
+        w.write({"t": 0.3, "typo": 1})
+    w.close()
+    with open(tmp_path / "ref.csv", "w", newline="", encoding="utf-8") as f:
+        d = csv.DictWriter(f, fieldnames=cols)
+        d.writeheader()
+        for r in rows:
+            d.writerow({k: (v.item() if isinstance(v, np.generic) else v) for k, v in r.items()})
+    assert (tmp_path / "m.csv").read_text() == (tmp_path / "ref.csv").read_text()
+    assert (tmp_path / "m.csv").read_text().splitlines()[1] == "0.1,0.3333333333333333,OFFBOARD,1,"
