@@ -93,6 +93,8 @@ class MissionPilot:
         self.hover: list = []
         self.armed = False
         self.target_sys = 1
+        # PX4 climbs to MIS_TAKEOFF_ALT (default 2.5 m): arm only once it echoed ours
+        self.takeoff_alt_set = autopilot != "px4"
 
     def event(self, t: float, text: str) -> None:
         self.r.events.append([round(t, 3), text])
@@ -116,6 +118,10 @@ class MissionPilot:
                         self.r.disarmed_at = t
             elif kind == "COMMAND_ACK":
                 self.event(t, f"ack {msg.command} result {msg.result}")
+            elif kind == "PARAM_VALUE" and msg.param_id == "MIS_TAKEOFF_ALT":
+                if abs(msg.param_value - self.m.takeoff_alt_m) < 1e-3 and not self.takeoff_alt_set:
+                    self.takeoff_alt_set = True
+                    self.event(t, f"MIS_TAKEOFF_ALT = {msg.param_value:g}")
             elif kind == "STATUSTEXT":
                 self.event(t, f"text: {msg.text}")
 
@@ -145,7 +151,9 @@ class MissionPilot:
                 return True
             elif t >= self.next_try:
                 self.next_try = t + 2.0
-                if self.ap == "px4":
+                if self.ap == "px4" and not self.takeoff_alt_set:
+                    # a PARAM_SET sent beside the arm command was seen lost in that race (bench,
+                    # SCHED_FIFO: the climb stopped at the default 2.5 m): set, confirm, then arm
                     self.link.mav.param_set_send(
                         self.target_sys,
                         1,
@@ -153,7 +161,9 @@ class MissionPilot:
                         m.takeoff_alt_m,
                         MAV.MAV_PARAM_TYPE_REAL32,
                     )
-                else:
+                    self.next_try = t + 0.5
+                    return False
+                if self.ap != "px4":
                     self.link.mav.request_data_stream_send(
                         self.target_sys, 1, MAV.MAV_DATA_STREAM_ALL, 4, 1
                     )
