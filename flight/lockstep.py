@@ -87,22 +87,12 @@ class LockstepGate:
         self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US), force=True)
         self.link.flush()  # the tick's telemetry, the announcement and the mark: one datagram
 
-    def wait_for_peer(
-        self, beacon: Callable[[], None], stop: threading.Event | None = None
-    ) -> bool:
-        """Block until the companion's first datagram (its hello) arrives, calling `beacon()`
-        (the vehicle's heartbeat) every `resend_s` so a companion listening with `udpin` learns
-        where the vehicle is. Nothing else is sent before the hello, so nothing is lost to a
-        companion that has not bound its socket yet; the hello is kept for the first batch.
-        False when `stop` is set first."""
-        while not self.poll_peer(beacon):
-            if stop is not None and stop.is_set():
-                return False
-            select.select([self.link.sock], [], [], 0.1)
-        return True
-
     def poll_peer(self, beacon: Callable[[], None]) -> bool:
-        """`wait_for_peer` without the wait: beacon if one is due, True once the hello came."""
+        """True once the companion's first datagram (its hello) has arrived; until then calls
+        `beacon()` (the vehicle's heartbeat) every `resend_s`, so a companion listening with
+        `udpin` learns where the vehicle is. Nothing else is sent before the hello, so nothing is
+        lost to a companion that has not bound its socket yet; the hello is kept for the first
+        batch. Never blocks: `world.sim.wait_for_peers` waits on the sockets of a whole fleet."""
         if self._carry:
             return True
         if time.monotonic() >= self._next_beacon:
