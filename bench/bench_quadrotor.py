@@ -99,7 +99,8 @@ def _fly(ap: MultirotorAutopilot, seconds: float, target: np.ndarray | None = No
     for k in range(n):
         if target is not None:
             ap.set_offboard_setpoint(Setpoint(pos_ned=target))
-        s = ap.step()
+        ap.step()
+        s = ap.state
         out[k, 0], out[k, 1:] = s.t, s.pos_ned
     return out
 
@@ -223,7 +224,8 @@ def fence_overshoot() -> list[list[str]]:
                     ap.set_offboard_setpoint(sp)
                 if math.isnan(v_breach) and ap.mode == FlightMode.HOLD:
                     v_breach = float(ap.state.vel_ned[0])
-                far = max(far, float(ap.step().pos_ned[0]))
+                ap.step()
+                far = max(far, float(ap.state.pos_ned[0]))
             rows.append(
                 [f"{wind:g} m/s", f"{v:g} m/s", f"{v_breach:.1f} m/s", f"{far - 160.0:.1f} m",
                  ap.mode.value]

@@ -142,8 +142,9 @@ class Autopilot(Protocol):
     @property
     def mission_progress(self) -> MissionProgress: ...
 
-    def step(self) -> VehicleState:
-        """Advance the clock by `control_dt`: autopilot once, physics as many substeps as needed."""
+    def step(self) -> None:
+        """Advance the clock by `control_dt`: autopilot once, physics as many substeps as needed;
+        read `state` (and `true_state`) after it."""
         ...
 
     def arm(self, force: bool = False) -> Result: ...

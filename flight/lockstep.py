@@ -74,6 +74,7 @@ class LockstepGate:
         self.link, self.mav, self.p = link, mav, params
         self.stats = GateStats()
         self._carry: deque[tuple[object, Address]] = deque()
+        self._batch: list[tuple[object, Address]] = []  # what arrived of the open tick so far
         self._next_beacon = 0.0  # wall time of the next heartbeat while waiting for a hello
 
     def mark(self, t_us: int, frame_seq: int | None = None) -> None:
@@ -115,43 +116,85 @@ class LockstepGate:
 
         `on_wait()` runs every `resend_s` of waiting (after the mark is re-sent); returns None
         when `stop` is set. Raises LockstepTimeout after `timeout_s`."""
+        stopped = (lambda: stop.is_set()) if stop is not None else (lambda: False)
+        got = collect_closes([(self, t_us, on_wait)], stopped)
+        return None if got is None else got[0]
+
+    def poll_close(self, t_us: int) -> list[tuple[object, Address]] | None:
+        """Never blocks: once the companion's close of tick t_us has arrived, what it sent
+        before it (in arrival order); None until then (what came so far is kept)."""
         t_ns = t_us * NS_PER_US
-        batch: list[tuple[object, Address]] = []
-        wall0 = time.monotonic()
-        next_resend = wall0 + self.p.resend_s
-        sock = self.link.sock
         while True:
             while self._carry:
                 msg, addr = self._carry.popleft()
                 if is_close(msg, t_ns):
-                    self._finish(batch, wall0)
+                    batch, self._batch = self._batch, []
                     return batch
                 if is_close(msg):
                     self.stats.stale_closes += 1
                     continue
-                batch.append((msg, addr))
+                self._batch.append((msg, addr))
             got = self.link.receive()
-            if got:
-                self._carry.extend(got)
-                continue
-            if stop is not None and stop.is_set():
+            if not got:
                 return None
-            now = time.monotonic()
-            if now - wall0 > self.p.timeout_s:
-                raise LockstepTimeout(
-                    f"the companion did not close the tick at t = {t_us / 1e6:.3f} s within "
-                    f"{self.p.timeout_s:.0f} s of wall time (stuck, or not running)"
-                )
-            if now >= next_resend:
-                self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US), force=True)
-                self.link.flush()
-                self.stats.resends += 1
-                if on_wait is not None:
-                    on_wait()
-                next_resend = now + self.p.resend_s
-            select.select([sock], [], [], min(0.05, max(0.0, next_resend - now)))
+            self._carry.extend(got)
+
+    def resend_mark(self, t_us: int) -> None:
+        """The mark of tick t_us again (the companion started late or lost a datagram)."""
+        self.link.send(self.mav.timesync_encode(0, t_us * NS_PER_US), force=True)
+        self.link.flush()
+        self.stats.resends += 1
 
     def _finish(self, batch: list, wall0: float) -> None:
         self.stats.ticks += 1
         self.stats.wait_wall_s += time.monotonic() - wall0
         self.stats.batch_sizes.append(len(batch))
+
+
+Wait = tuple[LockstepGate, int, Callable[[], None] | None]  # gate, tick [µs], on_wait
+
+
+def collect_closes(waits: list[Wait], stopped: Callable[[], bool]) -> list[list] | None:
+    """Block until every gate's companion closed its tick; each tick's batch, in order. One
+    `select` waits on all the sockets still open, so a fleet (or a companion flying several
+    vehicles) that answers in a burst wakes this process once, not once per vehicle.
+
+    While waiting, each gate re-sends its mark and runs its `on_wait` every `resend_s`; None
+    once `stopped()`; LockstepTimeout when a gate waited longer than its `timeout_s`."""
+    out: list[list | None] = [None] * len(waits)
+    wall0 = time.monotonic()
+    resend_s = min(g.p.resend_s for g, _, _ in waits)
+    next_resend = wall0 + resend_s
+    pending = list(range(len(waits)))
+    while True:
+        still = []
+        for i in pending:
+            gate, t_us, _ = waits[i]
+            batch = gate.poll_close(t_us)
+            if batch is None:
+                still.append(i)
+            else:
+                gate._finish(batch, wall0)
+                out[i] = batch
+        pending = still
+        if not pending:
+            return out  # type: ignore[return-value]
+        if stopped():
+            return None
+        now = time.monotonic()
+        for i in pending:
+            gate, t_us, _ = waits[i]
+            if now - wall0 > gate.p.timeout_s:
+                raise LockstepTimeout(
+                    f"the companion did not close the tick at t = {t_us / 1e6:.3f} s within "
+                    f"{gate.p.timeout_s:.0f} s of wall time (stuck, or not running)"
+                )
+        if now >= next_resend:
+            for i in pending:
+                gate, t_us, on_wait = waits[i]
+                gate.resend_mark(t_us)
+                if on_wait is not None:
+                    on_wait()
+            next_resend = now + resend_s
+        socks = [waits[i][0].link.sock for i in pending]
+        select.select(socks, [], [], min(0.05, max(0.0, next_resend - now)))

@@ -272,8 +272,8 @@ class MavlinkLink:
         self.send_many([msg])
 
     def send_many(self, msgs: list[MAVLinkMessage]) -> None:
-        """Send messages in order, as one write (one UDP datagram holds whole frames, as PX4
-        packs its own): a lockstep tick's setpoints and its close wake the vehicle once."""
+        """Send messages in order, as one write (one UDP datagram of whole frames): a lockstep
+        tick's setpoints and its close wake the vehicle once."""
         with self._send_lock:
             frames = [self.codec.pack(m) for m in msgs]
             self.transport.send(b"".join(frames))

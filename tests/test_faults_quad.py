@@ -31,7 +31,8 @@ def run(ap, seconds: float) -> tuple[np.ndarray, np.ndarray]:
     n = round(seconds / ap.control_dt)
     est, tru = np.empty((n, 3)), np.empty((n, 3))
     for k in range(n):
-        est[k] = ap.step().pos_ned
+        ap.step()
+        est[k] = ap.state.pos_ned
         tru[k] = ap.true_state.pos_ned
     return est, tru
 

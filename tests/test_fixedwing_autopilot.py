@@ -12,7 +12,8 @@ from flight.geo import GRAVITY
 
 def fly(ap, seconds, each=None):
     for _ in range(round(seconds / ap.control_dt)):
-        s = ap.step()
+        ap.step()
+        s = ap.state
         if each is not None:
             each(s)
     return ap.state
@@ -24,7 +25,8 @@ def stream(ap, sp, seconds, each=None):
     for i in range(round(seconds / ap.control_dt)):
         if i % n == 0:
             assert ap.set_offboard_setpoint(sp).ok
-        s = ap.step()
+        ap.step()
+        s = ap.state
         if each is not None:
             each(s)
 

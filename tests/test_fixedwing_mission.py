@@ -32,7 +32,8 @@ class Recorder:
 
 def run_until(ap, rec, cond, limit_s):
     for _ in range(round(limit_s / ap.control_dt)):
-        s = ap.step()
+        ap.step()
+        s = ap.state
         rec(s)
         if cond(s):
             return s

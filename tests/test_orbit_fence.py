@@ -64,7 +64,8 @@ def test_team_driving_out_of_the_field_freezes_the_orbit_inside_the_fence():
             if ap.mode is not FlightMode.OFFBOARD:
                 assert ap.set_mode(FlightMode.OFFBOARD).ok, d.reason
         for _ in range(5):  # 0.1 s per companion update
-            state = ap.step()
+            ap.step()
+            state = ap.state
         north_max = max(north_max, float(state.pos_ned[0]))
     # the team drove on to ~1200 m north; the orbit centre stopped where its circle still
     # certifies (R + reserve inside the field edge at 1000 m), and so did the aircraft

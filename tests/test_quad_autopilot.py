@@ -24,7 +24,8 @@ def fly(ap, seconds, each=None):
     for k in range(n):
         if each is not None:
             each(ap, ap.state)
-        s = ap.step()
+        ap.step()
+        s = ap.state
         ts[k], ps[k] = s.t, s.pos_ned
     return ts, ps
 

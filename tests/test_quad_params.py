@@ -53,7 +53,8 @@ def test_autopilot_reads_params_file_and_live_changes(tmp_path):
     ap.takeoff()
     vz = []
     for _ in range(750):
-        vz.append(ap.step().vel_ned[2])
+        ap.step()
+        vz.append(ap.state.vel_ned[2])
     assert min(vz) == pytest.approx(-2.0, abs=0.15)  # climbs at MPC_TKO_SPEED
     assert ap.set_param("MPC_Z_VEL_MAX_UP", 1.0).ok
     for _ in range(3000):

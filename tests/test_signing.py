@@ -93,13 +93,24 @@ def test_endpoint_accepts_signed_rejects_unsigned_wrong_replayed_and_stale(tmp_p
             p.close()
 
 
+def _frames(datagram: bytes) -> list[bytes]:
+    """The MAVLink 2 frames of one datagram, cut by their headers (length, signed flag)."""
+    out, i = [], 0
+    while i < len(datagram):
+        assert datagram[i] == 0xFD, "a datagram holds whole MAVLink 2 frames"
+        n = 10 + datagram[i + 1] + 2 + (13 if datagram[i + 2] & sg.IFLAG_SIGNED else 0)
+        out.append(datagram[i : i + n])
+        i += n
+    return out
+
+
 def test_endpoint_frames_verify_in_pymavlink_and_fail_with_another_key(tmp_path):
     with Rig(INSTANCE, signing_key=_key_file(tmp_path)) as rig:
         rig.step(2.0)
-        raw = []
+        raw = []  # each frame on its own (a step's frames leave in one datagram)
         while True:
             try:
-                raw.append(rig.client.sock.recv(65535))
+                raw += _frames(rig.client.sock.recv(65535))
             except BlockingIOError:
                 break
         assert len(raw) > 50 and all(sg.is_signed(f) for f in raw)

@@ -32,7 +32,7 @@ import numpy as np
 
 from flight.clock import Pacer
 from flight.frames import euler_to_quat
-from flight.lockstep import LockstepGate, LockstepParams
+from flight.lockstep import LockstepGate, LockstepParams, collect_closes
 from flight.state import VehicleState
 from groundsim.transport import UGVStatePublisher
 from groundsim.ugv import UGVModel
@@ -185,7 +185,8 @@ class World:
         return run_worlds([self], self.pacer, duration_s)[0]
 
     # One world's loop in three parts, so that several worlds (a fleet: `skyherd sim --fleet`) can
-    # share one process and one pacer: `begin`, then `step` until it returns False, `finish`.
+    # share one process and one pacer: `begin`, then steps (`start_step`, `close_due` /
+    # `take_close`, `finish_step`) until `start_step` returns False, then `finish`.
     def begin(self, duration_s: float | None = None) -> None:
         """Start the run's counters (after the companion's hello, in lockstep)."""
         p, clock = self.p, self.clock
@@ -197,16 +198,28 @@ class World:
         self._open_tick: int | None = None  # camera instant whose close is awaited [µs]
         self._t0 = (time.monotonic(), clock.t, time.process_time())  # wall, sim, CPU
         self._span = None  # (sim, wall, CPU) seconds from the start to the last tick closed
+        self._cut = False  # the API link is cut now (link_cuts)
+        self._read_fds = frozenset(link.sock.fileno() for link in self.endpoint.read_links())
+        self._api_fd = self.endpoint.api.sock.fileno()
         self.endpoint.update()
 
     def beacon(self) -> None:
         """The vehicle's heartbeat on the API link, while it waits for the companion's hello."""
         self.endpoint.api.send(self.endpoint._build(HEARTBEAT))
 
-    def step(self) -> bool:
-        """One autopilot step with what falls due before it (camera instant, lockstep close);
-        False when the run is over (stopped, out of time, or the companion gone at a close)."""
-        p, clock, ep = self.p, self.clock, self.endpoint
+    def sockets(self) -> list:
+        """The sockets `step` reads: the endpoint's ungated links, and free-running the API link
+        (in lockstep the gate reads it, blocking, at each close)."""
+        links = self.endpoint.read_links() + ([] if self.p.lockstep else [self.endpoint.api])
+        return [link.sock for link in links]
+
+    # One step in three parts, so that a fleet marks all its vehicles' camera instants, then
+    # waits for all their closes at once, then steps them (`run_worlds`): the companion's burst
+    # of closes wakes the process once, not once per vehicle.
+    def start_step(self) -> bool:
+        """What falls due before the step: the camera instant (rendered, published, marked).
+        False when the run is over (stopped, or out of time)."""
+        p, clock = self.p, self.clock
         if self._stop.is_set():
             return False
         t_us = clock.time_us
@@ -216,24 +229,43 @@ class World:
             self._camera_instant(t_us)
             self._next_frame_us += self._period_us
             self._open_tick = t_us if p.lockstep else None
-        cut = _during(p.link_cuts, clock.t)
-        ep.api.muted = cut  # a real cut: nothing from the vehicle reaches the companion
-        if self._open_tick is not None and t_us >= self._open_tick + self._latency_us:
-            batch = self.gate.collect(self._open_tick, self._stop, self._republish)
-            if batch is None:
-                return False
-            wall0, sim0, cpu0 = self._t0
-            self._span = (clock.t - sim0, time.monotonic() - wall0, time.process_time() - cpu0)
-            if not cut:  # ... and nothing from the companion reaches the vehicle
-                ep.dispatch(ep.api, self._gimbal_commands(batch))
-            else:
-                self.cut_dropped += len(batch)
-            self._open_tick = None
-        if not p.lockstep:
+        self._cut = bool(p.link_cuts) and _during(p.link_cuts, clock.t)
+        self.endpoint.api.muted = self._cut  # a real cut: nothing reaches the companion
+        return True
+
+    def close_due(self) -> int | None:
+        """Lockstep: the tick [µs] whose close the companion must have sent before this step
+        (at t_k + L), else None."""
+        tick = self._open_tick
+        if tick is not None and self.clock.time_us >= tick + self._latency_us:
+            return tick
+        return None
+
+    def take_close(self, batch: list) -> None:
+        """The companion's messages of the tick just closed, handed to the vehicle in order."""
+        clock, ep = self.clock, self.endpoint
+        wall0, sim0, cpu0 = self._t0
+        self._span = (clock.t - sim0, time.monotonic() - wall0, time.process_time() - cpu0)
+        if not self._cut:  # ... and nothing from the companion reaches the vehicle
+            ep.dispatch(ep.api, self._gimbal_commands(batch))
+        else:
+            self.cut_dropped += len(batch)
+        self._open_tick = None
+
+    def finish_step(self, ready: set[int] | None = None) -> None:
+        """The autopilot's step and the endpoint's. `ready`: the file descriptors of
+        `sockets()` that have data (a fleet polls them all at once); None: polled here."""
+        ep = self.endpoint
+        if ready is None:
+            if not self.p.lockstep:
+                self._free_run_receive()
+            self.autopilot.step()
+            ep.update()
+            return
+        if ready and not self.p.lockstep and self._api_fd in ready:
             self._free_run_receive()
         self.autopilot.step()
-        ep.update()
-        return True
+        ep.update(bool(ready) and not ready.isdisjoint(self._read_fds))
 
     def finish(self, process_vehicles: int = 1) -> dict:
         """The run's stats (written to sim_stats.json); `process_vehicles` worlds shared the
@@ -402,8 +434,8 @@ def run_worlds(worlds: list[World], pacer: Pacer, duration_s: float | None = Non
     any of them ends (stopped, out of time, its companion gone); their stats, in order.
 
     Each world keeps its own lockstep with its companion: at a camera instant every world marks
-    it, at t + L every world waits for its close, so a fleet flies exactly as the same vehicles
-    in one process each. Pacing sleeps once per `pace_s` of simulation time for all of them."""
+    it, at t + L the process waits for all their closes at once (`collect_closes`), so a fleet
+    flies exactly as the same vehicles in one process each. Pacing sleeps once per `pace_s` of simulation time for all of them."""
     steps = {round(w.autopilot.control_dt * 1e6) for w in worlds}
     if len(steps) != 1:
         raise ValueError(
@@ -416,7 +448,24 @@ def run_worlds(worlds: list[World], pacer: Pacer, duration_s: float | None = Non
         w.begin(duration_s)
     pace_us = max(first._step_us, round(first.p.pace_s * 1e6))
     next_pace_us = first.clock.time_us
-    while all(w.step() for w in worlds):
+    poller = select.poll() if hasattr(select, "poll") else None
+    for sock in (s for w in worlds for s in w.sockets()) if poller is not None else ():
+        poller.register(sock.fileno(), select.POLLIN)
+    stopped = lambda: any(w._stop.is_set() for w in worlds)  # noqa: E731
+    while True:
+        # one system call per round of steps tells which of the fleet's sockets have data
+        ready = {fd for fd, _ in poller.poll(0)} if poller is not None else None
+        if not all(w.start_step() for w in worlds):
+            break
+        due = [(w, tick) for w in worlds if (tick := w.close_due()) is not None]
+        if due:
+            batches = collect_closes([(w.gate, tick, w._republish) for w, tick in due], stopped)
+            if batches is None:
+                break
+            for (w, _), batch in zip(due, batches, strict=True):
+                w.take_close(batch)
+        for w in worlds:
+            w.finish_step(ready)
         if first.clock.time_us >= next_pace_us:
             pacer.wait_until(first.clock.t)
             next_pace_us += pace_us

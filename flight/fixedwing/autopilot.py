@@ -791,7 +791,7 @@ class FixedWingAutopilot(AutopilotBase):
             self._v_dem = min(hi, max(lo, vh)) if vh > 0.5 else self.p("FW_AIRSPD_TRIM")
 
     # ---- the loop -------------------------------------------------------------------------
-    def step(self) -> VehicleState:
+    def step(self) -> None:
         """Advance the clock by `control_dt`: autopilot once, JSBSim `control_dt/physics_dt` times."""
         if self._inj is not None:
             self._apply_faults()
@@ -802,7 +802,6 @@ class FixedWingAutopilot(AutopilotBase):
         self.clock.advance(self._dt_us)
         self._true_state = self._stamp(s)
         self._state = self._estimate(self._true_state)
-        return self._state
 
     def _control(self, st: VehicleState) -> Surfaces:
         dt = self.control_dt

@@ -150,6 +150,8 @@ class MavlinkEndpoint:
         except OSError:
             self.close()
             raise
+        for link in self.links:  # a step's frames leave together, one system call per link
+            link.coalesce = True  # and step (update() flushes them; a gate flushes its link)
         self.streams = {link.name: StreamScheduler() for link in self.links}
         self._poller = select.poll() if hasattr(select, "poll") else None
         if self._poller is not None:
@@ -207,13 +209,14 @@ class MavlinkEndpoint:
         }
 
     # --- the lockstep hook ---------------------------------------------------------------------
-    def update(self) -> None:
-        """Answer what arrived, finish timed work, send due streams. Call once per step."""
-        ready = self._poller.poll(0) if self._poller is not None else self.links
-        if ready:  # one system call per step tells whether any socket has data
-            for link in self.links:
-                if link.name in self.gated:
-                    continue  # read at lockstep barriers only (flight.lockstep)
+    def update(self, readable: bool | None = None) -> None:
+        """Answer what arrived, finish timed work, send due streams. Call once per step.
+        `readable`: whether the caller's poll found data on `read_links()` (a fleet polls all its
+        vehicles' sockets at once: `world.sim.run_worlds`); None: poll them here."""
+        if readable is None:  # one system call per step tells whether any socket has data
+            readable = bool(self._poller.poll(0)) if self._poller is not None else True
+        if readable:
+            for link in self.read_links():
                 for msg, addr in link.receive():
                     self._dispatch(link, msg, addr)
         if self.commands.pending:
@@ -223,11 +226,19 @@ class MavlinkEndpoint:
         self._mission_events()
         self._forward_status()
         self._send_streams()
+        for link in self.links:  # what this step sent leaves together (a gate flushes its own)
+            if link.name not in self.gated:
+                link.flush()
         if self._tlog is not None:
             self._tlog.maybe_flush()
             if self._tlog.error and not self._tlog_warned:  # a full disk: say so, keep flying
                 self._tlog_warned = True
                 self.statustext(M.MAV_SEVERITY_WARNING, self._tlog.error)
+
+    def read_links(self) -> list[UdpLink]:
+        """The links `update()` reads: all but the gated ones, which are read at lockstep
+        barriers only (flight.lockstep)."""
+        return [link for link in self.links if link.name not in self.gated]
 
     def close(self) -> None:
         for link in self.links:

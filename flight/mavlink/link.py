@@ -53,7 +53,8 @@ class UdpLink:
             pass
         self.send_errors = 0
         self.rx_datagrams = 0
-        self.coalesce = False  # hold frames for the default peers until `flush()` (lockstep)
+        self.coalesce = False  # hold frames for the default peers until `flush()` (the endpoint:
+        # until the end of its step; a lockstep gate: until the tick's mark)
         self._held: list[bytes] = []
 
     def receive(self, max_datagrams: int = 256) -> list[tuple[MAVLinkMessage, Address]]:
@@ -94,9 +95,12 @@ class UdpLink:
             self._send_default(buf)
 
     def flush(self) -> None:
-        """Send the held frames, packed whole into as few datagrams as fit PACKED_DATAGRAM (as
-        PX4 packs its UDP output): a lockstep tick's telemetry and its mark wake the companion
-        once. Frame order is kept."""
+        """Send the held frames, packed whole into as few datagrams as fit PACKED_DATAGRAM: a
+        step's telemetry costs one system call, a lockstep tick's telemetry and its mark wake
+        the companion once. Frame order is kept; every MAVLink parser reads several frames from
+        one datagram (PX4 itself sends one frame per datagram)."""
+        if not self._held:
+            return
         held, self._held = self._held, []
         chunk = b""
         for buf in held:

@@ -280,7 +280,7 @@ class MultirotorAutopilot(AutopilotBase):
         return out
 
     # ------------------------------------------------------------------ stepping
-    def step(self) -> VehicleState:
+    def step(self) -> None:
         if self._c_rev != self.params.revision:
             self._build_constants()
         t = self.clock.t
@@ -309,11 +309,17 @@ class MultirotorAutopilot(AutopilotBase):
             _control_step(self._w, self._k, self._dt_sub, self._n_sub)
         self.clock.advance(self._dt_us)
         if self._est_on:
-            self._true_state = None  # built when asked for (true_state)
             self._gps_update(inj, self.clock.t)
-            self._state = self._make_state(self._ex)
-        else:
-            self._true_state = self._state = self._make_state()
+        # both built when first asked for: most steps nobody reads them (telemetry at 10-50 Hz,
+        # the camera at 10 Hz), and a VehicleState costs as much as a third of the physics
+        self._true_state = self._state = None
+
+    @property
+    def state(self) -> VehicleState:
+        """What the autopilot believes and reports now (the truth unless faults touch the
+        estimate)."""
+        if self._state is None:
+            self._state = self._make_state(self._ex) if self._est_on else self.true_state
         return self._state
 
     @property
