@@ -115,3 +115,68 @@ def test_the_simulation_holds_until_the_companion_closes_each_tick():
         world.close()
         link.close()
     assert not is_mark(link.mav.timesync_encode(5, 5))
+
+
+def _udp_pair():
+    """A vehicle-side link and a companion-side link joined on loopback (ephemeral ports)."""
+    from flight.mavlink.link import UdpLink
+
+    vehicle = UdpLink("api", ("127.0.0.1", 0), ("127.0.0.1", 9), 1, 1)
+    companion = UdpLink("c", ("127.0.0.1", 0), vehicle.sock.getsockname(), 255, COMPANION_COMPONENT)
+    vehicle.remote = companion.sock.getsockname()
+    return vehicle, companion
+
+
+def test_collect_closes_waits_for_every_gate_and_keeps_each_ticks_messages_apart():
+    """One wait for a fleet's closes: each gate gets what its companion sent before its own
+    close, in order, whatever order the gates' closes arrive in; a stale close is dropped."""
+    from flight.lockstep import LockstepGate, collect_closes
+
+    pairs = [_udp_pair(), _udp_pair()]
+    gates = [LockstepGate(v, v.codec.mav, LockstepParams(resend_s=0.05, timeout_s=30.0))
+             for v, _ in pairs]  # fmt: skip
+    t_us, t_ns = 100_000, 100_000_000
+    try:
+        c0, c1 = pairs[0][1], pairs[1][1]
+        m = c0.codec.mav
+        c1.send(m.heartbeat_encode(6, 8, 0, 0, 4))  # gate 1 closes first
+        c1.send(m.timesync_encode(t_ns, t_ns))
+        c0.send(m.timesync_encode(1, 0))  # a close of an older tick (a mark answered twice)
+        c0.send(m.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
+        c0.send(m.set_mode_encode(1, 1, 4))
+        c0.send(m.timesync_encode(t_ns, t_ns))
+        c0.send(m.heartbeat_encode(6, 8, 0, 0, 4))  # after the close: the next tick's
+        got = collect_closes([(g, t_us, None) for g in gates], lambda: False)
+        assert [[msg.get_type() for msg, _ in b] for b in got] == [
+            ["COMMAND_LONG", "SET_MODE"],
+            ["HEARTBEAT"],
+        ]
+        assert gates[0].stats.stale_closes == 1 and gates[1].stats.stale_closes == 0
+        assert [g.stats.ticks for g in gates] == [1, 1]
+        # the message after gate 0's close is kept for its next tick
+        c0.send(m.timesync_encode(2 * t_ns, 2 * t_ns))
+        (b,) = collect_closes([(gates[0], 2 * t_us, None)], lambda: False)
+        assert [msg.get_type() for msg, _ in b] == ["HEARTBEAT"]
+    finally:
+        for v, c in pairs:
+            v.close()
+            c.close()
+
+
+def test_collect_closes_resends_marks_stops_and_times_out_in_wall_time():
+    """Waiting (wall time, with margin): the open gates re-send their marks every resend_s;
+    stopped() ends the wait with None; a companion that never closes raises LockstepTimeout."""
+    from flight.lockstep import LockstepGate, LockstepTimeout, collect_closes, is_mark
+
+    vehicle, companion = _udp_pair()
+    gate = LockstepGate(vehicle, vehicle.codec.mav, LockstepParams(resend_s=0.05, timeout_s=0.6))
+    waits = []
+    try:
+        assert collect_closes([(gate, 5000, lambda: waits.append(1))], lambda: True) is None
+        with pytest.raises(LockstepTimeout, match="t = 0.005 s"):
+            collect_closes([(gate, 5000, lambda: waits.append(1))], lambda: False)
+        marks = [msg for msg, _ in companion.receive(1 << 12) if is_mark(msg, 5_000_000)]
+        assert len(marks) >= 2 and gate.stats.resends == len(marks) and len(waits) == len(marks)
+    finally:
+        vehicle.close()
+        companion.close()
