@@ -255,17 +255,10 @@ class World:
     def finish_step(self, ready: set[int] | None = None) -> None:
         """The autopilot's step and the endpoint's. `ready`: the file descriptors of
         `sockets()` that have data (a fleet polls them all at once); None: polled here."""
-        ep = self.endpoint
-        if ready is None:
-            if not self.p.lockstep:
-                self._free_run_receive()
-            self.autopilot.step()
-            ep.update()
-            return
-        if ready and not self.p.lockstep and self._api_fd in ready:
+        if not self.p.lockstep and (ready is None or self._api_fd in ready):
             self._free_run_receive()
         self.autopilot.step()
-        ep.update(bool(ready) and not ready.isdisjoint(self._read_fds))
+        self.endpoint.update(None if ready is None else not ready.isdisjoint(self._read_fds))
 
     def finish(self, process_vehicles: int = 1) -> dict:
         """The run's stats (written to sim_stats.json); `process_vehicles` worlds shared the
