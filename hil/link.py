@@ -229,6 +229,9 @@ class MavlinkLink:
         self.codec = Codec(source_system, source_component, self.signing, link_id)
         self.mav = self.codec.mav
         self.tlog = TlogWriter(tlog) if tlog else None
+        self.defer_log = False  # hold tlog records until `flush_log()` (a lockstep companion
+        # writes them after its tick's close, off the simulation's critical path)
+        self._unlogged: list[tuple[int, list]] = []  # (stamp [µs], frames or messages)
         self._send_lock = threading.Lock()
         self.datagrams = isinstance(transport, UdpTransport)
         self._stream = Codec(source_system, source_component).rx  # byte streams (TCP, serial)
@@ -278,7 +281,7 @@ class MavlinkLink:
             frames = [self.codec.pack(m) for m in msgs]
             self.transport.send(b"".join(frames))
         if self.tlog:
-            self.tlog.write_many(frames)
+            self._log(frames)
 
     def recv(self, timeout: float = 0.1) -> list[MAVLinkMessage]:
         """Messages decoded from whatever arrives within `timeout` [s]. Bad bytes are skipped."""
@@ -294,10 +297,30 @@ class MavlinkLink:
                     if not isinstance(m, mavlink.MAVLink_bad_data | mavlink.MAVLink_unknown)
                     and self.codec.accept(m)]  # fmt: skip
         if self.tlog and msgs:
-            self.tlog.write_many([bytes(m.get_msgbuf()) for m in msgs])
+            self._log(msgs)
         return msgs
+
+    def _log(self, items: list) -> None:
+        """Frames sent or messages received, to the tlog now or (`defer_log`) at `flush_log`,
+        stamped now either way."""
+        if self.defer_log:
+            self._unlogged.append((self.tlog.stamp_us(), items))
+        else:
+            self.tlog.write_many(_frames(items))
+
+    def flush_log(self) -> None:
+        """Write the tlog records `defer_log` held, in the order they were sent and received."""
+        held, self._unlogged = self._unlogged, []
+        for stamp_us, items in held:
+            self.tlog.write_many(_frames(items), stamp_us)
 
     def close(self) -> None:
         self.transport.close()
         if self.tlog:
+            self.flush_log()
             self.tlog.close()
+
+
+def _frames(items: list) -> list[bytes]:
+    """Frames as bytes: sent frames are bytes already, a received message gives its buffer."""
+    return [m if isinstance(m, bytes) else bytes(m.get_msgbuf()) for m in items]

@@ -102,6 +102,7 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
     lead = vs[0]
     if p.lockstep:  # hello: each simulator starts its clock when this arrives
         for v in vs:
+            v.link.defer_log = True  # a tick's tlog records are written after its close
             v.hello(p.link_patience_s)
     cpu0 = time.process_time()
     while True:
@@ -147,13 +148,18 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
             if not done and v.setpoint is not None:
                 sp: Setpoint = v.setpoint
                 v.position_target(sp.pos_ned, sp.vel_ned, sp.yaw)
-        if on_tick is not None:
-            on_tick(vs)
         if p.lockstep:
             for v in vs:
                 v.close_tick()
         stats.ticks += 1
         stats.decide_wall_s.append(time.monotonic() - start)
+        # the tick's bookkeeping (metrics rows, its tlog records) after the close: in lockstep
+        # the simulators step on while it is written, instead of waiting for it
+        if on_tick is not None:
+            on_tick(vs)
+        if p.lockstep:
+            for v in vs:
+                v.link.flush_log()
         stats.cpu_s = time.process_time() - cpu0
         if done:
             return stats

@@ -136,16 +136,23 @@ class Tagged:
 
 @dataclasses.dataclass
 class FleetRecord:
-    """What the formation companion writes (each writer appends and flushes)."""
+    """What the formation companion writes (each writer appends and flushes). A tick's
+    decisions are held until `flush()`, which the companion calls after the tick's close."""
 
     decisions: JsonlWriter | None = None
     track: CsvWriter | None = None
-    rows: int = 0  # decisions written
+    rows: int = 0  # decisions recorded
+    _held: list[dict] = dataclasses.field(default_factory=list, repr=False)
 
     def decision(self, row: dict) -> None:
         self.rows += 1
         if self.decisions is not None:
-            self.decisions.write(row)
+            self._held.append(row)
+
+    def flush(self) -> None:
+        held, self._held = self._held, []
+        if held:
+            self.decisions.write_many(held)
 
 
 class FormationMission:
@@ -205,6 +212,7 @@ class FormationMission:
             self._written[k] = len(v.positions)
         if rows and self.rec.track is not None:
             self.rec.track.write_rows(rows)
+        self.rec.flush()
 
     # ---- the mission ---------------------------------------------------------------------------
     def run(self, vs: list[VehicleLink]) -> Phase:

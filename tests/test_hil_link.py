@@ -68,6 +68,42 @@ def test_udp_roundtrip_skips_garbage_and_writes_tlog(tmp_path):
     assert types == [("HEARTBEAT", 255)] * 3 + [("HEARTBEAT", 1)]
 
 
+def test_deferred_tlog_holds_records_until_flush_log_in_order_with_their_stamps(tmp_path):
+    """A lockstep companion writes its tick's tlog records after the tick's close: nothing is
+    in the file before `flush_log()`, then what was received and sent, in that order, each
+    with the stamp of the moment it crossed the link (not of the flush)."""
+    port = _free_udp_port()
+    tlog = tmp_path / "t.tlog"
+    rx = MavlinkLink.open(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1, tlog=tlog)
+    tx = MavlinkLink.open(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
+    rx.defer_log = True
+    try:
+        tx.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3))
+        got = []
+        for _ in range(20):
+            got += rx.recv(0.1)
+            if got:
+                break
+        assert got
+        rx.send(mavlink2.MAVLink_heartbeat_message(2, 12, 0, 0, 0, 3))
+        stamps = [s for s, _ in rx._unlogged]
+        assert tlog.stat().st_size == 0  # held
+        rx.flush_log()
+        size = tlog.stat().st_size
+        assert size > 0 and rx._unlogged == []
+        rx.flush_log()  # nothing more held: nothing more written
+        assert tlog.stat().st_size == size
+    finally:
+        rx.close()
+        tx.close()
+    log = mavutil.mavlink_connection(str(tlog))
+    rows = []
+    while (m := log.recv_match()) is not None:
+        rows.append((m.get_type(), m.get_srcSystem(), round(m._timestamp * 1e6)))
+    assert [(t, s) for t, s, _ in rows] == [("HEARTBEAT", 255), ("HEARTBEAT", 1)]
+    assert [us for _, _, us in rows] == stamps  # the crossing's stamp, µs for µs
+
+
 def test_busy_port_and_refused_tcp_give_clear_errors():
     port = _free_udp_port()
     a = MavlinkLink.open(f"udpin:127.0.0.1:{port}")

@@ -66,6 +66,10 @@ class TlogWriter:
     def active(self) -> bool:
         return self._f is not None
 
+    def stamp_us(self) -> int:
+        """The stamp a record written now gets [µs since the Unix epoch]."""
+        return self._stamp_us()
+
     def _stamp_us(self) -> int:
         if self._clock is None:
             return int(time.time() * 1e6)
@@ -91,12 +95,13 @@ class TlogWriter:
     def write(self, frame: bytes) -> None:
         self.write_many((frame,))
 
-    def write_many(self, frames) -> None:
-        """Append frames (one datagram's, one send's) as one write, each with the same stamp;
-        with `flush_interval_s` 0 they are flushed together before this returns."""
+    def write_many(self, frames, stamp_us: int | None = None) -> None:
+        """Append frames (one datagram's, one send's) as one write, each with the same stamp
+        (`stamp_us`, default now); with `flush_interval_s` 0 they are flushed together before
+        this returns."""
         if self._f is None:
             return
-        stamp = _STAMP.pack(self._stamp_us())
+        stamp = _STAMP.pack(self._stamp_us() if stamp_us is None else stamp_us)
         kept = [stamp + f for f in frames if frame_msg_id(f) != SETUP_SIGNING_ID]
         if not kept:
             return
