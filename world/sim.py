@@ -271,10 +271,10 @@ class World:
         t = t_us / 1e6
         self._move_team(t)
         state = getattr(self.autopilot, "true_state", self.autopilot.state)  # physics, not estimate
-        uav = self._camera_mount(state)
         ugvs = None if self.team is None else team_states(self.team)
         seq = None
         if self.publisher is not None:
+            uav = self._camera_mount(state)
             if _during(self.p.camera_losses, t):
                 self.camera_dropped += 1  # the camera is lost: no frame leaves
             else:

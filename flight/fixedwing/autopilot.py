@@ -202,6 +202,8 @@ class FixedWingAutopilot(AutopilotBase):
 
     def drain_status(self) -> list[str]:
         """Human-readable events since the last call (breaches, failsafes, fence uploads)."""
+        if not self._status:
+            return []  # the common step: nothing happened
         out, self._status = self._status, []
         return out
 

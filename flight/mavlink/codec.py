@@ -88,11 +88,10 @@ _LAYOUTS = {msg_id: _Layout(cls) for msg_id, cls in mavlink.mavlink_map.items()}
 _BY_CLASS = {lay.cls: lay for lay in _LAYOUTS.values()}
 
 
-def pack_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int) -> bytes | None:
+def frame_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int) -> bytes | None:
     """One unsigned MAVLink 2 frame of `msg`, byte for byte what pymavlink's `msg.pack` gives
-    (trailing-zero truncation, CRC_EXTRA) and with the same bookkeeping on `msg` (header,
-    payload, crc, msgbuf); the tests compare them over every message of the dialect. None for a
-    message class the dialect does not know (the caller packs it with pymavlink).
+    (trailing-zero truncation, CRC_EXTRA), leaving `msg` as it was; None for a message class
+    the dialect does not know (the caller packs it with pymavlink).
 
     It costs a third of pymavlink's `_pack`, which builds a header object and an X.25
     accumulator in Python per frame: with K vehicles' streams that was a simulator's largest
@@ -102,15 +101,26 @@ def pack_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int)
         return None
     payload = lay.pack_payload(*lay.wire_values(msg))
     body = payload.rstrip(b"\x00") or payload[:1]  # MAVLink 2 drops trailing zeros, keeps one
-    msg_id, plen = lay.msg_id, len(body)
-    frame = _HDR_V2.pack(0xFD, plen, 0, 0, seq, src_sys, src_comp, msg_id & 0xFFFF, msg_id >> 16)
+    msg_id = lay.msg_id
+    frame = _HDR_V2.pack(
+        0xFD, len(body), 0, 0, seq, src_sys, src_comp, msg_id & 0xFFFF, msg_id >> 16
+    )
     frame += body
-    crc = _X25(lay.extra, _X25(frame[1:]))
-    frame += _CRC.pack(crc)
-    msg._payload = body
+    return frame + _CRC.pack(_X25(lay.extra, _X25(frame[1:])))
+
+
+def pack_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int) -> bytes | None:
+    """`frame_unsigned_v2`, with pymavlink's bookkeeping on `msg` as `msg.pack` leaves it
+    (header, payload, crc, msgbuf); the tests compare both over every message of the dialect."""
+    frame = frame_unsigned_v2(msg, seq, src_sys, src_comp)
+    if frame is None:
+        return None
+    plen = frame[1]
+    msg._payload = frame[10:-2]
+    msg_id = frame[7] | frame[8] << 8 | frame[9] << 16  # (a field may be named `id`)
     msg._header = mavlink.MAVLink_header(msg_id, 0, 0, plen, seq, src_sys, src_comp)
     msg._msgbuf = bytearray(frame)
-    msg._crc = crc
+    msg._crc = frame[-2] | frame[-1] << 8
     return frame
 
 
@@ -188,8 +198,8 @@ class Codec:
     def pack(self, msg: MAVLinkMessage) -> bytes:
         """Frame one message (MAVLink 2) with the next sequence number."""
         tx = self.tx
-        buf = pack_unsigned_v2(msg, tx.seq, tx.srcSystem, tx.srcComponent)
-        if buf is None:
+        buf = frame_unsigned_v2(msg, tx.seq, tx.srcSystem, tx.srcComponent)  # nobody reads a
+        if buf is None:  # sent message's bookkeeping: not written back (a sixth of the cost)
             buf = bytes(msg.pack(tx))
         if self.signing is not None and self.signing.key is not None:
             buf = self.signing.sign(buf, self.link_id)

@@ -34,7 +34,7 @@ from flight.mavlink.offboard import (
 from flight.mavlink.params import ParamFile, ParamService
 from flight.mavlink.signing import Signing, load_key, save_key
 from flight.mavlink.statustext import split_text
-from flight.mavlink.streams import StreamScheduler
+from flight.mavlink.streams import GCS_RATES_HZ, StreamScheduler
 from flight.mavlink.telemetry import Identity, TelemetryBuilder
 from flight.mavlink.tlog import TlogWriter
 
@@ -152,7 +152,8 @@ class MavlinkEndpoint:
             raise
         for link in self.links:  # a step's frames leave together, one system call per link
             link.coalesce = True  # and step (update() flushes them; a gate flushes its link)
-        self.streams = {link.name: StreamScheduler() for link in self.links}
+        self.streams = {link.name: StreamScheduler(GCS_RATES_HZ if link is self.gcs else None)
+                        for link in self.links}  # fmt: skip
         self._poller = select.poll() if hasattr(select, "poll") else None
         if self._poller is not None:
             for link in self.links:
@@ -180,6 +181,7 @@ class MavlinkEndpoint:
         )
         self.telemetry.mode_requests = self.commands  # ArduPilot: what the heartbeat shows
         self._sent_current: int | None = None
+        self._drain_status = getattr(autopilot, "drain_status", None)
         self.gated: set[str] = set()  # links a lockstep gate reads instead of update()
         self._handlers = {
             "HEARTBEAT": self._on_heartbeat,
@@ -219,10 +221,13 @@ class MavlinkEndpoint:
             for link in self.read_links():
                 for msg, addr in link.receive():
                     self._dispatch(link, msg, addr)
+        # timed work, each asked first whether it has any: most steps have none
         if self.commands.pending:
             self.commands.service()
-        self.missions.service()
-        self.params.pump()
+        if self.missions.busy:
+            self.missions.service()
+        if self.params.busy:
+            self.params.pump()
         self._mission_events()
         self._forward_status()
         self._send_streams()
@@ -262,7 +267,10 @@ class MavlinkEndpoint:
         t = self.ap.clock.t
         built: dict[int, object] = {}
         for link in self.links:
-            for msg_id in self.streams[link.name].due(t):
+            sched = self.streams[link.name]
+            if t < sched.next_due - 1e-9:
+                continue  # the common step: nothing due on this link
+            for msg_id in sched.due(t):
                 msg = built.get(msg_id)
                 if msg is None:
                     msg = built[msg_id] = self._build(msg_id)
@@ -283,7 +291,7 @@ class MavlinkEndpoint:
 
     def _forward_status(self) -> None:
         """The autopilot's own event lines (mode changes, failsafes) as STATUSTEXT INFO."""
-        drain = getattr(self.ap, "drain_status", None)
+        drain = self._drain_status
         if drain is None:
             return
         for line in drain():

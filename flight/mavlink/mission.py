@@ -185,6 +185,11 @@ class MissionService:
         self._upload = None
         self._apply(up.mission_type, up.items, reply, sender)
 
+    @property
+    def busy(self) -> bool:
+        """An upload is running (`service` has work to time)."""
+        return self._upload is not None
+
     def service(self) -> None:
         """Re-request a missing item after RETRY_S of simulation time; give up after retries."""
         up = self._upload

@@ -203,6 +203,11 @@ class ParamService:
                 log.warning("cannot save parameters to %s: %s", self.store.path, e)
         self.broadcast(self.value_msg(name))
 
+    @property
+    def busy(self) -> bool:
+        """A list request is being answered (`pump` has values to send)."""
+        return bool(self._lists)
+
     def pump(self) -> None:
         """Send up to `per_update` PARAM_VALUEs of pending list requests, one per requester
         in turn (round-robin)."""

@@ -1,8 +1,9 @@
 """Telemetry stream scheduling on simulation time, with per-message rates per link.
 
-Default rates follow what PX4 streams on a normal/onboard link. SET_MESSAGE_INTERVAL changes
+Default rates: the API link's (`DEFAULT_RATES_HZ`, what the companion's flights are tuned on)
+and the ground-station link's (`GCS_RATES_HZ`, PX4's normal mode). SET_MESSAGE_INTERVAL changes
 one message's rate on the link that asked (as PX4 does); interval -1 stops it, 0 restores the
-default.
+link's default.
 """
 
 from __future__ import annotations
@@ -28,6 +29,18 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 0.0,
 }
+# The ground-station link: PX4's MAVLINK_MODE_NORMAL rates (mavlink_main.cpp,
+# configure_streams_to_default) for the messages above; MISSION_CURRENT as on the API link.
+GCS_RATES_HZ: dict[int, float] = {
+    **DEFAULT_RATES_HZ,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 15.0,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 1.0,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 5.0,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
+    mavlink.MAVLINK_MSG_ID_ALTITUDE: 1.0,
+}
 MAX_RATE_HZ = 500.0  # faster requests are clamped
 
 
@@ -38,7 +51,7 @@ class StreamScheduler:
         self.defaults = dict(DEFAULT_RATES_HZ if defaults is None else defaults)
         self.rates: dict[int, float] = dict(self.defaults)
         self._next: dict[int, float] = {}
-        self._earliest = -1.0  # no message is due before this time [s]
+        self.next_due = -1.0  # no message is due before this time [s] (-1: recompute at once)
 
     def supports(self, msg_id: int) -> bool:
         return msg_id in self.defaults
@@ -58,7 +71,7 @@ class StreamScheduler:
             return False
         self.rates[msg_id] = rate
         self._next.pop(msg_id, None)
-        self._earliest = -1.0
+        self.next_due = -1.0
         return True
 
     def interval_us(self, msg_id: int) -> int:
@@ -70,7 +83,7 @@ class StreamScheduler:
 
     def due(self, t: float) -> list[int]:
         """Message ids to send now; each is rescheduled one period later (no catch-up bursts)."""
-        if t < self._earliest - 1e-9:
+        if t < self.next_due - 1e-9:
             return []  # the common case, checked once per step
         out = []
         for msg_id, rate in self.rates.items():
@@ -85,5 +98,5 @@ class StreamScheduler:
                     nxt = t + period
                 self._next[msg_id] = nxt
         # _next holds only streamed messages (set_interval drops the others).
-        self._earliest = min(self._next.values(), default=math.inf)
+        self.next_due = min(self._next.values(), default=math.inf)
         return out

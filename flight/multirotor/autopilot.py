@@ -276,6 +276,8 @@ class MultirotorAutopilot(AutopilotBase):
 
     def drain_status(self) -> list[str]:
         """Human-readable events since the last call (mode changes, failsafes)."""
+        if not self._status:
+            return []  # the common step: nothing happened
         out, self._status = self._status, []
         return out
 
