@@ -321,6 +321,6 @@ class MavlinkLink:
             self.tlog.close()
 
 
-def _frames(items: list) -> list[bytes]:
-    """Frames as bytes: sent frames are bytes already, a received message gives its buffer."""
-    return [m if isinstance(m, bytes) else bytes(m.get_msgbuf()) for m in items]
+def _frames(items: list) -> list:
+    """The frames: sent frames are bytes already, a received message gives its buffer."""
+    return [m if isinstance(m, bytes) else m.get_msgbuf() for m in items]

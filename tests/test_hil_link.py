@@ -104,6 +104,32 @@ def test_deferred_tlog_holds_records_until_flush_log_in_order_with_their_stamps(
     assert [us for _, _, us in rows] == stamps  # the crossing's stamp, µs for µs
 
 
+def test_tlog_never_records_setup_signing_the_frame_that_carries_the_key(tmp_path):
+    """SETUP_SIGNING (MAVLink 2 only, id 256) is dropped from a record batch; MAVLink 1 and 2
+    frames around it are kept, in order."""
+    from flight.mavlink.tlog import TlogWriter
+
+    mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    hb = mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3)
+    v2_hb = bytes(hb.pack(mav))
+    key = bytes(mav.setup_signing_encode(1, 1, list(range(32)), 123).pack(mav))
+    mav1 = mavlink2.MAVLink(None, srcSystem=7, srcComponent=1)
+    mav1.WIRE_PROTOCOL_VERSION = "1.0"
+    v1_hb = bytes(hb.pack(mav1, force_mavlink1=True))
+    assert v1_hb[0] == 0xFE and key[0] == 0xFD
+    w = TlogWriter(tmp_path / "k.tlog")
+    w.write_many([v2_hb, key, v1_hb])
+    w.close()
+    assert w.records == 2
+    data = (tmp_path / "k.tlog").read_bytes()
+    assert bytes(range(32)) not in data
+    log = mavutil.mavlink_connection(str(tmp_path / "k.tlog"))
+    got = []
+    while (m := log.recv_match()) is not None:
+        got.append((m.get_type(), m.get_srcSystem()))
+    assert got == [("HEARTBEAT", 255), ("HEARTBEAT", 7)]
+
+
 def test_busy_port_and_refused_tcp_give_clear_errors():
     port = _free_udp_port()
     a = MavlinkLink.open(f"udpin:127.0.0.1:{port}")

@@ -28,15 +28,7 @@ from flight.clock import SimClock
 log = logging.getLogger(__name__)
 SETUP_SIGNING_ID = 256
 _STAMP = struct.Struct(">Q")  # record header: µs since the Unix epoch, big-endian
-
-
-def frame_msg_id(frame: bytes) -> int | None:
-    """Message id of a MAVLink 1 or 2 frame (None if the bytes are no frame header)."""
-    if len(frame) >= 10 and frame[0] == 0xFD:
-        return frame[7] | frame[8] << 8 | frame[9] << 16
-    if len(frame) >= 6 and frame[0] == 0xFE:
-        return frame[5]
-    return None
+_SIGNING_ID_V2 = SETUP_SIGNING_ID.to_bytes(3, "little")
 
 
 class TlogWriter:
@@ -102,7 +94,8 @@ class TlogWriter:
         if self._f is None:
             return
         stamp = _STAMP.pack(self._stamp_us() if stamp_us is None else stamp_us)
-        kept = [stamp + f for f in frames if frame_msg_id(f) != SETUP_SIGNING_ID]
+        # SETUP_SIGNING (id 256) exists only in MAVLink 2: bytes 7..9 of a v2 frame hold its id
+        kept = [stamp + f for f in frames if f[7:10] != _SIGNING_ID_V2 or f[0] != 0xFD]
         if not kept:
             return
         data = b"".join(kept)
