@@ -166,9 +166,13 @@ def collect_closes(waits: list[Wait], stopped: Callable[[], bool]) -> list[list]
     resend_s = min(g.p.resend_s for g, _, _ in waits)
     next_resend = wall0 + resend_s
     pending = list(range(len(waits)))
+    look = pending  # the gates to read now: at first all, then those whose socket woke us
     while True:
         still = []
         for i in pending:
+            if i not in look:
+                still.append(i)
+                continue
             gate, t_us, _ = waits[i]
             batch = gate.poll_close(t_us)
             if batch is None:
@@ -196,5 +200,6 @@ def collect_closes(waits: list[Wait], stopped: Callable[[], bool]) -> list[list]
                 if on_wait is not None:
                     on_wait()
             next_resend = now + resend_s
-        socks = [waits[i][0].link.sock for i in pending]
-        select.select(socks, [], [], min(0.05, max(0.0, next_resend - now)))
+        socks = {waits[i][0].link.sock: i for i in pending}
+        readable, _, _ = select.select(list(socks), [], [], min(0.05, max(0.0, next_resend - now)))
+        look = {socks[s] for s in readable}
