@@ -27,10 +27,9 @@ from dataclasses import dataclass
 from fastcrc import crc16
 from pymavlink.dialects.v20 import common as _mav
 
-STX_V2 = 0xFD
-STX_V1 = 0xFE
-_HDR_V2 = struct.Struct("<BBBBBBBHB")  # stx len incompat compat seq sys comp msgid(lo16, hi8)
-_CRC = struct.Struct("<H")
+from flight.mavlink.wire import CRC as _CRC
+from flight.mavlink.wire import HDR_V2 as _HDR_V2
+from flight.mavlink.wire import STX_V1, STX_V2
 
 
 def _layout(cls, expected_fields: list[str]) -> tuple[int, int, struct.Struct]:

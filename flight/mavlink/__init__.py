@@ -6,7 +6,18 @@ calls and never touches dynamics. Single-threaded: the SITL runner calls `update
 autopilot step, so every MAVLink timeout runs on the simulation clock.
 """
 
-from flight.mavlink.endpoint import EndpointConfig, MavlinkEndpoint
-from flight.mavlink.modes import Personality
-
 __all__ = ["EndpointConfig", "MavlinkEndpoint", "Personality"]
+
+
+def __getattr__(name: str):
+    """The endpoint's names, imported when first asked for (PEP 562): a module of the package
+    (`flight.mavlink.wire`, the frame layout) can be imported without the whole endpoint."""
+    if name in ("EndpointConfig", "MavlinkEndpoint"):
+        from flight.mavlink import endpoint
+
+        return getattr(endpoint, name)
+    if name == "Personality":
+        from flight.mavlink.modes import Personality
+
+        return Personality
+    raise AttributeError(f"module 'flight.mavlink' has no attribute {name!r}")

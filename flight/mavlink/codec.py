@@ -9,7 +9,6 @@ or corrupt datagram cannot swallow the next one. MAVLink 1 frames are parsed too
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
 from operator import attrgetter, itemgetter
 
@@ -17,10 +16,9 @@ from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from flight.mavlink.signing import Signing
+from flight.mavlink.wire import CRC, HDR_V2, STX_V2
 
 MAVLinkMessage = mavlink.MAVLink_message
-_HDR_V2 = struct.Struct("<BBBBBBBHB")  # stx len incompat compat seq sys comp msgid(lo16, hi8)
-_CRC = struct.Struct("<H")
 _X25 = crc16.mcrf4xx  # MAVLink's X.25 checksum (CRC-16/MCRF4XX), as pymavlink uses it
 
 
@@ -102,11 +100,11 @@ def frame_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int
     payload = lay.pack_payload(*lay.wire_values(msg))
     body = payload.rstrip(b"\x00") or payload[:1]  # MAVLink 2 drops trailing zeros, keeps one
     msg_id = lay.msg_id
-    frame = _HDR_V2.pack(
-        0xFD, len(body), 0, 0, seq, src_sys, src_comp, msg_id & 0xFFFF, msg_id >> 16
+    frame = HDR_V2.pack(
+        STX_V2, len(body), 0, 0, seq, src_sys, src_comp, msg_id & 0xFFFF, msg_id >> 16
     )
     frame += body
-    return frame + _CRC.pack(_X25(lay.extra, _X25(frame[1:])))
+    return frame + CRC.pack(_X25(lay.extra, _X25(frame[1:])))
 
 
 def pack_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int) -> bytes | None:
@@ -135,13 +133,13 @@ def parse_unsigned_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
     out = []
     i, n = 0, len(datagram)
     while i < n:
-        if n - i < 12 or datagram[i] != 0xFD or datagram[i + 2] != 0:
+        if n - i < 12 or datagram[i] != STX_V2 or datagram[i + 2] != 0:
             return None  # not MAVLink 2, or incompat flags (signed, or unknown: slow path)
         plen = datagram[i + 1]
         end = i + 12 + plen
         if end > n:
             return None
-        _, _, _, compat, seq, src_sys, src_comp, lo, hi = _HDR_V2.unpack_from(datagram, i)
+        _, _, _, compat, seq, src_sys, src_comp, lo, hi = HDR_V2.unpack_from(datagram, i)
         msg_id = lo | hi << 16
         lay = _LAYOUTS.get(msg_id)
         if lay is None:
