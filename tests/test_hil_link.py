@@ -18,6 +18,17 @@ def _free_udp_port() -> int:
     return port
 
 
+def _recv_until(link: MavlinkLink, n: int, tries: int = 20) -> list:
+    """Messages from `link` until at least `n` arrived, giving up after `tries` waits of up to
+    0.1 s of wall time each (2 s: a loopback datagram already sent arrives well within it)."""
+    got = []
+    for _ in range(tries):
+        got += link.recv(0.1)
+        if len(got) >= n:
+            break
+    return got
+
+
 def test_parse_address_forms():
     assert parse_address("udpin:127.0.0.1:14540") == Address("udpin", "127.0.0.1", 14540)
     assert parse_address("udpout:10.0.0.2:14550").kind == "udpout"
@@ -41,21 +52,13 @@ def test_udp_roundtrip_skips_garbage_and_writes_tlog(tmp_path):
         tx.transport.send(os.urandom(300))  # garbage first
         for _ in range(3):
             tx.send(hb)
-        got = []
-        for _ in range(20):
-            got += rx.recv(0.1)
-            if len(got) >= 3:
-                break
+        got = _recv_until(rx, 3)
         assert [m.get_type() for m in got] == ["HEARTBEAT"] * 3
         assert [m.get_seq() for m in got] == [0, 1, 2]
         assert got[0].get_srcSystem() == 255
         # udpin answers whoever sent last
         rx.send(mavlink2.MAVLink_heartbeat_message(2, 12, 0, 0, 0, 3))
-        back = []
-        for _ in range(20):
-            back += tx.recv(0.1)
-            if back:
-                break
+        back = _recv_until(tx, 1)
         assert back and back[0].autopilot == 12 and back[0].get_srcSystem() == 1
     finally:
         rx.close()
@@ -79,11 +82,7 @@ def test_deferred_tlog_holds_records_until_flush_log_in_order_with_their_stamps(
     rx.defer_log = True
     try:
         tx.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3))
-        got = []
-        for _ in range(20):
-            got += rx.recv(0.1)
-            if got:
-                break
+        got = _recv_until(rx, 1)
         assert got
         rx.send(mavlink2.MAVLink_heartbeat_message(2, 12, 0, 0, 0, 3))
         stamps = [s for s, _ in rx._unlogged]
