@@ -270,7 +270,8 @@ class World:
     def _camera_instant(self, t_us: int) -> None:
         t = t_us / 1e6
         self._move_team(t)
-        state = getattr(self.autopilot, "true_state", self.autopilot.state)  # physics, not estimate
+        ap = self.autopilot  # the physics, not the estimate, where the two differ
+        state = ap.true_state if hasattr(ap, "true_state") else ap.state
         ugvs = None if self.team is None else team_states(self.team)
         seq = None
         if self.publisher is not None:
