@@ -7,9 +7,13 @@ Exit codes: 0 success, 1 the job ran and failed, 2 bad usage or configuration.
 from __future__ import annotations
 
 import argparse
+import atexit
 import importlib
+import os
 import re
 import sys
+import threading
+from typing import NoReturn
 
 # name → (module, one-line help). Modules are imported only when their command runs,
 # so `skyherd --help` stays fast and one broken sub-command cannot break the others.
@@ -151,5 +155,29 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def exit_now(rc: int) -> NoReturn:
+    """End the process with `rc` once a command has returned: the atexit handlers run and
+    standard output and error are flushed, then the interpreter's teardown (freeing every
+    module and object, numba's LLVM) is skipped. It cost 0.2-0.4 s of wall time per process
+    at the end of every flight (measured), and nothing is left to write then: every run-folder
+    file is closed by the command that opened it. A non-daemon thread still running gets the
+    normal exit, which waits for it."""
+    if any(t.is_alive() and not t.daemon for t in threading.enumerate()
+           if t is not threading.main_thread()):  # fmt: skip
+        sys.exit(rc)
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed or broken pipe: nothing more can be said
+            pass
+    os._exit(rc)
+
+
+def console() -> NoReturn:
+    """The `skyherd` console script (pyproject [project.scripts]): `main`, then `exit_now`."""
+    exit_now(main())
+
+
+if __name__ == "__main__":  # the children of `skyherd fly` (scripts.launch.skyherd_cmd)
+    exit_now(main())

@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 import subprocess
 import sys
 
@@ -102,6 +103,34 @@ def test_cli_help_lists_commands():
     ).stdout
     for name in ("sitl", "fly", "drill", "train", "teleop", "watch"):
         assert name in out
+
+
+def test_exit_now_runs_atexit_flushes_output_and_waits_for_a_working_thread(tmp_path):
+    """`exit_now` (how `skyherd` and its children end) skips only the interpreter's teardown:
+    the exit code, buffered output, atexit handlers and a non-daemon thread's work survive."""
+    done, late = tmp_path / "atexit", tmp_path / "thread"
+    code = f"""
+import atexit, sys, threading, time
+from pathlib import Path
+from scripts.cli import exit_now
+atexit.register(lambda: Path({str(done)!r}).write_text("ran"))
+sys.stdout.write("buffered, no newline")
+def work():
+    time.sleep(0.3)
+    Path({str(late)!r}).write_text("finished")
+threading.Thread(target=work).start()
+exit_now(3)
+"""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # output is buffered
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                       env=env)  # fmt: skip
+    assert r.returncode == 3, r.stderr
+    assert r.stdout == "buffered, no newline"
+    assert done.read_text() == "ran" and late.read_text() == "finished"
+    code = code.replace("threading.Thread(target=work).start()", "")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                       env=env)  # fmt: skip
+    assert (r.returncode, r.stdout, done.read_text()) == (3, "buffered, no newline", "ran")
 
 
 @pytest.mark.parametrize(
