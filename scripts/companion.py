@@ -97,6 +97,13 @@ def add_arguments(
             default=None,
             help="write into this existing run folder (used by `skyherd fly`)",
         )
+        parser.add_argument(
+            "--wait-go",
+            action="store_true",
+            help="set up, then wait for a line on standard input before the first message to the "
+            "vehicle (its clock starts on it): how `skyherd fly` starts the flight once its "
+            "recorder listens",
+        )
     parser.add_argument(
         "--mission", choices=list(missions), default="groundair",
         help="groundair: keep the UGVs in view behind the safety net; square: fly a square"
@@ -263,6 +270,25 @@ def open_frames(args, vehicle: str = "uav0"):
     return session, FrameInbox(FrameSubscriber(session, vehicle))
 
 
+GO_PATIENCE_S = 120.0
+"""--wait-go: how long [s of wall time] the companion waits for its go."""
+
+
+def wait_go(args, patience_s: float = GO_PATIENCE_S) -> None:
+    """--wait-go: block until a line arrives on standard input (UsageError when it is closed
+    first or nothing comes within `patience_s` of wall time)."""
+    import select
+
+    if not getattr(args, "wait_go", False):
+        return
+    ready, _, _ = select.select([sys.stdin], [], [], patience_s)
+    if not ready:
+        raise UsageError(f"--wait-go: no go on standard input within {patience_s:.0f} s")
+    if not sys.stdin.readline():
+        raise UsageError("--wait-go: standard input closed before the go "
+                         "(did the `skyherd fly` that started this companion stop?)")  # fmt: skip
+
+
 def open_client(p, patience_s: float = 60.0):
     """A Zenoh session that connects to a simulator which may not listen yet (a client's open
     fails at once when nothing answers): retried every 0.2 s of wall time for `patience_s`."""
@@ -355,6 +381,7 @@ def run(args: argparse.Namespace) -> int:
         bar.update()
 
     try:
+        wait_go(args)
         stats = run_companion(v, mission, mission.run(v), frames, params, on_tick)
     except Exception as e:  # noqa: BLE001 - the flight ends; say why, keep what was recorded
         error = f"{type(e).__name__}: {e}" if not str(e).startswith(type(e).__name__) else str(e)
@@ -510,6 +537,7 @@ def _run_formation(args, run_dir: Path, folder) -> int:
 
     error, stats, interrupted = "", None, False
     try:
+        wait_go(args)
         stats = run_fleet(vs, mission, mission.run(vs), None, CompanionParams(), on_tick)
     except Exception as e:  # noqa: BLE001 - the flight ends; say why, keep what was recorded
         error = str(e) or type(e).__name__

@@ -258,11 +258,12 @@ def run_two_processes(args: argparse.Namespace) -> int:
     if args.connect is None or args.mission == "groundair":
         sim = launch.start("sim", launch.skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
                            run_dir / "sim.log")  # fmt: skip
-    # the recorder subscribes before the companion starts: the simulator steps only once the
-    # companion has said hello, so the recording holds the flight from its first frame
+    # the companion sets up meanwhile and says hello (the simulator's clock starts on it) only
+    # once the recorder has subscribed, so the recording holds the flight from its first frame
+    companion = launch.start("companion", launch.skyherd_cmd(
+        "companion", *comp_args, "--run-dir", str(run_dir), "--wait-go"), None, wait_go=True)  # fmt: skip
     recorder = _recorder(args, run_dir) if sim is not None else None
-    companion = launch.start("companion",
-                             launch.skyherd_cmd("companion", *comp_args, "--run-dir", str(run_dir)), None)  # fmt: skip
+    companion.go()
     why = "interrupted (Ctrl-C)"
     try:
         rc, why = launch.supervise(companion, sim, args.timeout)

@@ -24,6 +24,16 @@ class Child:
     proc: subprocess.Popen
     log: Path | None
 
+    def go(self) -> None:
+        """Let a child started with `wait_go` begin (one line on its standard input)."""
+        if self.proc.stdin is None or self.proc.stdin.closed:
+            return
+        try:
+            self.proc.stdin.write(b"go\n")
+            self.proc.stdin.close()
+        except (BrokenPipeError, OSError):
+            pass  # it ended already: supervise() reports how
+
     def tail(self, n: int = 5) -> str:
         if self.log is None or not self.log.exists():
             return ""
@@ -36,12 +46,14 @@ def skyherd_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "scripts.cli", *args]
 
 
-def start(name: str, argv: list[str], log: Path | None) -> Child:
-    """Start a child; its stdout and stderr go to `log` (None: inherited, e.g. a progress bar)."""
+def start(name: str, argv: list[str], log: Path | None, wait_go: bool = False) -> Child:
+    """Start a child; its stdout and stderr go to `log` (None: inherited, e.g. a progress bar).
+    `wait_go`: its standard input is a pipe that `go()` writes to (`skyherd companion
+    --wait-go`), otherwise empty."""
     out = open(log, "ab") if log is not None else None  # noqa: SIM115 - closed with the child
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT if out else None,
-                            stdin=subprocess.DEVNULL, env=env)  # fmt: skip
+                            stdin=subprocess.PIPE if wait_go else subprocess.DEVNULL, env=env)  # fmt: skip
     if out is not None:
         out.close()
     return Child(name, proc, log)
@@ -100,7 +112,7 @@ def supervise(
             if time.monotonic() > deadline:
                 stop(companion)
                 return 1, f"the flight took longer than --timeout {timeout_s:.0f} s of wall time"
-            time.sleep(0.1)
+            time.sleep(0.02)  # a child's end is seen within 20 ms (it ends the flight)
     except KeyboardInterrupt:
         stop(companion)
         raise
