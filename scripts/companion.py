@@ -275,18 +275,18 @@ GO_PATIENCE_S = 120.0
 
 
 def wait_go(args, patience_s: float = GO_PATIENCE_S) -> None:
-    """--wait-go: block until a line arrives on standard input (UsageError when it is closed
-    first or nothing comes within `patience_s` of wall time)."""
+    """--wait-go: block until a line arrives on standard input (EOFError when it is closed
+    first, TimeoutError when nothing comes within `patience_s` of wall time)."""
     import select
 
     if not getattr(args, "wait_go", False):
         return
     ready, _, _ = select.select([sys.stdin], [], [], patience_s)
     if not ready:
-        raise UsageError(f"--wait-go: no go on standard input within {patience_s:.0f} s")
+        raise TimeoutError(f"--wait-go: no go on standard input within {patience_s:.0f} s")
     if not sys.stdin.readline():
-        raise UsageError("--wait-go: standard input closed before the go "
-                         "(did the `skyherd fly` that started this companion stop?)")  # fmt: skip
+        raise EOFError("--wait-go: standard input closed before the go "
+                       "(did the `skyherd fly` that started this companion stop?)")  # fmt: skip
 
 
 def open_client(p, patience_s: float = 60.0):

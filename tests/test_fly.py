@@ -5,6 +5,8 @@ of the machine's load, so they run as fast as possible (--speedup 0)."""
 import csv
 import json
 import re
+import subprocess
+import sys
 
 import numpy as np
 from pymavlink import mavutil
@@ -73,6 +75,19 @@ def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     assert rec.complete and counts["/uav0/decision"] == decisions
     frames = sum(1 for _ in open(run / "world.csv")) - 1
     assert counts["/uav0/camera/image"] >= 0.9 * frames and counts["/ugvs"] >= 0.9 * 3 * frames
+
+
+def test_companion_waiting_for_its_go_ends_cleanly_when_standard_input_closes(tmp_path):
+    """`skyherd companion --wait-go` (as `fly` starts it) whose parent is gone: it says why and
+    writes its run folder, without a word to the vehicle."""
+    r = subprocess.run([sys.executable, "-m", "scripts.cli", "companion", "--mission", "square",
+                        "--no-camera", "--wait-go", "--instance", "62", "--runs-dir", str(tmp_path)],
+                       stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 1, r.stderr
+    (run,) = tmp_path.iterdir()
+    comp = json.loads((run / "companion.json").read_text())
+    assert comp["outcome"] == "aborted" and "--wait-go: standard input closed" in comp["reason"]
+    assert comp["ticks"] == 0
 
 
 def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
