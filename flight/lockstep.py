@@ -39,6 +39,7 @@ class LockstepTimeout(Exception):
 class LockstepParams:
     latency_s: float = 0.02  # the companion's declared compute latency L [s of simulation time]
     resend_s: float = 0.25  # re-send the mark / frame while waiting, every [s of wall time]
+    beacon_s: float = 0.05  # before the hello: the vehicle's heartbeat, every [s of wall time]
     timeout_s: float = 60.0  # give up on a tick after [s of wall time]
 
     def __post_init__(self) -> None:
@@ -46,6 +47,8 @@ class LockstepParams:
             raise ValueError(f"latency_s must be >= 0, got {self.latency_s}")
         if not (self.resend_s > 0.0 and self.timeout_s > self.resend_s):
             raise ValueError("resend_s must be > 0 and timeout_s > resend_s")
+        if not self.beacon_s > 0.0:
+            raise ValueError(f"beacon_s must be > 0, got {self.beacon_s}")
 
 
 def is_mark(msg, t_ns: int | None = None) -> bool:
@@ -90,8 +93,8 @@ class LockstepGate:
 
     def poll_peer(self, beacon: Callable[[], None]) -> bool:
         """True once the companion's first datagram (its hello) has arrived; until then calls
-        `beacon()` (the vehicle's heartbeat) every `resend_s`, so a companion listening with
-        `udpin` learns where the vehicle is. Nothing else is sent before the hello, so nothing is
+        `beacon()` (the vehicle's heartbeat) every `beacon_s`, so a companion listening with
+        `udpin` learns where the vehicle is (and the clock starts within `beacon_s` of it). Nothing else is sent before the hello, so nothing is
         lost to a companion that has not bound its socket yet; the hello is kept for the first
         batch. Never blocks: `world.sim.wait_for_peers` waits on the sockets of a whole fleet."""
         if self._carry:
@@ -99,7 +102,7 @@ class LockstepGate:
         if time.monotonic() >= self._next_beacon:
             beacon()
             self.link.flush()
-            self._next_beacon = time.monotonic() + self.p.resend_s
+            self._next_beacon = time.monotonic() + self.p.beacon_s
         got = self.link.receive()
         if got:
             self._carry.extend(got)

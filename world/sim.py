@@ -476,5 +476,6 @@ def wait_for_peers(worlds: list[World]) -> bool:
         if any(w._stop.is_set() for w in worlds):
             return False
         if waiting:
-            select.select([w.gate.link.sock for w in waiting], [], [], 0.1)
+            select.select([w.gate.link.sock for w in waiting], [], [],
+                          min(w.gate.p.beacon_s for w in waiting))  # fmt: skip
     return True
