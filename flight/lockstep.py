@@ -94,9 +94,10 @@ class LockstepGate:
     def poll_peer(self, beacon: Callable[[], None]) -> bool:
         """True once the companion's first datagram (its hello) has arrived; until then calls
         `beacon()` (the vehicle's heartbeat) every `beacon_s`, so a companion listening with
-        `udpin` learns where the vehicle is (and the clock starts within `beacon_s` of it). Nothing else is sent before the hello, so nothing is
-        lost to a companion that has not bound its socket yet; the hello is kept for the first
-        batch. Never blocks: `world.sim.wait_for_peers` waits on the sockets of a whole fleet."""
+        `udpin` learns where the vehicle is (and the clock starts within `beacon_s` of its
+        binding). Nothing else is sent before the hello, so nothing is lost to a companion that
+        has not bound its socket yet; the hello is kept for the first batch. Never blocks:
+        `world.sim.wait_for_peers` waits on the sockets of a whole fleet."""
         if self._carry:
             return True
         if time.monotonic() >= self._next_beacon:
