@@ -245,7 +245,6 @@ _ENVELOPE = {"quadrotor": "quadrotor_groundair.toml", "fixedwing": "fixedwing_fi
 
 def run_two_processes(args: argparse.Namespace) -> int:
     from scripts import launch
-    from scripts.fly_report import report
 
     sim_args, comp_args = _validate(args)
     envelope = _envelope(args) if args.mission == "groundair" else None
@@ -272,6 +271,8 @@ def run_two_processes(args: argparse.Namespace) -> int:
     finally:
         if recorder is not None:
             recorder.close()
+    from scripts.fly_report import report  # (its imports, 0.07 s, after the children started)
+
     ok = report(run_dir, args, rc, why)
     return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
 
