@@ -43,7 +43,7 @@ from mission.vehicle import VehicleLink
 from runio import CsvWriter, JsonlWriter
 from safety.envelope import EnvelopeSpec
 from safety.net import warm_up
-from safety.separation import SeparationParams, separation_rows
+from safety.separation import SeparationParams, fleet_separation_rows, separation_rows
 from safety.supervisor import Decision, Health, Supervisor
 
 
@@ -74,15 +74,18 @@ class FormationNet:
         self.net = Supervisor(spec.envelope(), FORMATION_NET, events)
         self.separation = separation
 
-    def certify(self, t: float, state: VehicleState, others, target: np.ndarray,
+    def rows_against(self, state: VehicleState, others) -> tuple:
+        """The separation rows (A, b, names) against `others` = [(name, position (3,), velocity
+        (3,))]; a fleet's are made all at once by safety.separation.fleet_separation_rows."""
+        return separation_rows(self.spec, state.pos_ned, others, self.separation)
+
+    def certify(self, t: float, state: VehicleState, separation: tuple, target: np.ndarray,
                 vel_ff: np.ndarray | None, health: Health | None = None) -> Decision:  # fmt: skip
         """The plan's point `target` (3,) with feed-forward `vel_ff` through the net, all in the
-        field frame; `others` = [(name, position (3,), velocity (3,))]. A reference far ahead is
-        chased on a leash (`_chase`, LEASH_V_M) so the setpoint stays inside the speed and
-        acceleration rows."""
-        self.net.set_dynamic_rows(
-            *separation_rows(self.spec, state.pos_ned, others, self.separation)
-        )
+        field frame; `separation` = the rows (A, b, names) against the other vehicles. A
+        reference far ahead is chased on a leash (`_chase`, LEASH_V_M) so the setpoint stays
+        inside the speed and acceleration rows."""
+        self.net.set_dynamic_rows(*separation)
         p, v = state.pos_ned, state.vel_ned
         ff = np.zeros(3) if vel_ff is None else np.asarray(vel_ff, float)
         ff_h, d = self._chase(p[:2], v[:2], np.asarray(target[:2], float), ff[:2])
@@ -190,8 +193,8 @@ class FormationMission:
             st = VehicleState(t=float(k), pos_ned=np.array([north, 0.0, -8.0]), vel_ned=np.zeros(3),
                               quat=np.array([1.0, 0, 0, 0]), omega_frd=np.zeros(3),
                               accel_frd=np.zeros(3), on_ground=False)  # fmt: skip
-            net.certify(float(k), st, [("uav1", np.array([north, 5.0, -9.5]), np.zeros(3))],
-                        st.pos_ned, np.zeros(3))  # fmt: skip
+            rows = net.rows_against(st, [("uav1", np.array([north, 5.0, -9.5]), np.zeros(3))])
+            net.certify(float(k), st, rows, st.pos_ned, np.zeros(3))
 
     # ---- called by the companion's loop --------------------------------------------------------
     def on_frame(self, t: float, frame, status: str) -> None:
@@ -290,6 +293,10 @@ class FormationMission:
 
     def _fly(self, vs: list[VehicleLink]) -> None:
         states = [self.field_state(k, v) for k, v in enumerate(vs)]
+        seen = [k for k, s in enumerate(states) if s is not None]  # yielded ones too: they fly
+        rows = dict(zip(seen, fleet_separation_rows(
+            self.spec, [states[k].pos_ned for k in seen], [states[k].vel_ned for k in seen],
+            [f"uav{k}" for k in seen], self.nets[0].separation)))  # fmt: skip
         for k, v in enumerate(vs):
             if k in self.yielded:
                 continue
@@ -300,11 +307,9 @@ class FormationMission:
                 continue
             if states[k] is None:
                 continue
-            others = [(f"uav{j}", s.pos_ned, s.vel_ned) for j, s in enumerate(states)
-                      if j != k and s is not None]  # fmt: skip
             ref, vel = self._ref(k, v.t)
             target = np.array([ref[0], ref[1], -self.p.altitude(k)])
-            d = self.nets[k].certify(v.t, states[k], others, target, np.array([vel[0], vel[1], 0.0]),
+            d = self.nets[k].certify(v.t, states[k], rows[k], target, np.array([vel[0], vel[1], 0.0]),
                                      Health(link_t=v.heartbeat_t))  # fmt: skip
             c = d.command
             pos = None if c.pos_ned is None else np.asarray(c.pos_ned, float) - self.off[k]

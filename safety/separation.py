@@ -58,6 +58,44 @@ def separation_rows(spec: EnvelopeSpec, p_k: np.ndarray, others: list[tuple[str,
     return A, b, tuple(_name(params.radius_m, o[0]) for o in others)
 
 
+def fleet_separation_rows(spec: EnvelopeSpec, positions: np.ndarray, velocities: np.ndarray,
+                          names: list[str], params: SeparationParams = SeparationParams()):  # fmt: skip
+    """`separation_rows` for every vehicle of a fleet against all the others at once, value
+    for value the same: entry k is vehicle k's (A, b, names) against every j != k in order.
+    positions, velocities (m, 3); one pass over all m × m pairs instead of m passes."""
+    dyn = spec.dynamics
+    alpha = min(dyn.dt_s / dyn.tau_s, 1.0)
+    T = spec.stop_times()[0]
+    k = dyn.dt_s + T
+    p = np.asarray(positions, float).reshape(-1, 3)
+    v = np.asarray(velocities, float).reshape(-1, 3)
+    m = len(p)
+    if m == 0:
+        return []
+    d = p[:, None, :] - p[None, :, :]  # d[k, j] = p_k − p_j
+    dist = np.sqrt((d * d).sum(axis=2))
+    near = dist <= 1e-6
+    n = d / np.where(near, 1.0, dist)[:, :, None]
+    n[near] = (0.0, 0.0, -1.0)
+    A = np.zeros((m, m, NZ))
+    A[:, :, P] = -n
+    A[:, :, V] = -k * (1 - alpha) * n
+    A[:, :, U] = -k * alpha * n
+    b = -(params.radius_m + (n * p[None, :, :]).sum(axis=2) + T * (n * v[None, :, :]).sum(axis=2))
+    rows, js = np.arange(m)[:, None], _others(m)  # js[i]: every j != i, in order
+    A, b = A[rows, js], b[rows, js]
+    label = [_name(params.radius_m, x) for x in names]
+    return [(A[i], b[i], tuple(label[j] for j in js[i])) for i in range(m)]
+
+
+@lru_cache(maxsize=64)
+def _others(m: int) -> np.ndarray:
+    """(m, m − 1): row i lists 0..m−1 without i."""
+    return np.array([[j for j in range(m) if j != i] for i in range(m)], dtype=np.intp).reshape(
+        m, m - 1
+    )
+
+
 @lru_cache(maxsize=4096)
 def _name(radius_m: float, other: str) -> str:
     return f"separation {radius_m:g} m from {other}"
