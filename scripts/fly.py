@@ -253,21 +253,22 @@ def run_two_processes(args: argparse.Namespace) -> int:
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
                          "companion": comp_args, "envelope": envelope})  # fmt: skip
     print(f"skyherd fly: run folder {run_dir}", flush=True)
-    sim = None
-    if args.connect is None or args.mission == "groundair":
-        sim = launch.start("sim", launch.skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
-                           run_dir / "sim.log")  # fmt: skip
-    # the companion sets up meanwhile and says hello (the simulator's clock starts on it) only
-    # once the recorder has subscribed, so the recording holds the flight from its first frame
-    companion = launch.start("companion", launch.skyherd_cmd(
-        "companion", *comp_args, "--run-dir", str(run_dir), "--wait-go"), None, wait_go=True)  # fmt: skip
-    recorder = _recorder(args, run_dir) if sim is not None else None
-    companion.go()
+    sim = companion = recorder = None
     why = "interrupted (Ctrl-C)"
     try:
+        if args.connect is None or args.mission == "groundair":
+            sim = launch.start("sim", launch.skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
+                               run_dir / "sim.log")  # fmt: skip
+        # the companion sets up meanwhile and says hello (the simulator's clock starts on it)
+        # only once the recorder has subscribed: the recording holds the flight from its start
+        companion = launch.start("companion", launch.skyherd_cmd(
+            "companion", *comp_args, "--run-dir", str(run_dir), "--wait-go"), None, wait_go=True)  # fmt: skip
+        recorder = _recorder(args, run_dir) if sim is not None else None
+        companion.go()
         rc, why = launch.supervise(companion, sim, args.timeout)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # (supervise stops the children itself; before it, this does)
         rc = 130
+        launch.stop_all([c for c in (companion, sim) if c is not None])
     finally:
         if recorder is not None:
             recorder.close()

@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from pymavlink import mavutil
 
 from record import read_messages
@@ -88,6 +89,28 @@ def test_companion_waiting_for_its_go_ends_cleanly_when_standard_input_closes(tm
     comp = json.loads((run / "companion.json").read_text())
     assert comp["outcome"] == "aborted" and "--wait-go: standard input closed" in comp["reason"]
     assert comp["ticks"] == 0
+
+
+@pytest.mark.parametrize("after_s", [0.4, 1.0, 2.0])
+def test_fly_interrupted_while_starting_stops_both_children_wall_time(tmp_path, after_s):
+    """Ctrl-C to `skyherd fly` alone, at a moment of wall time (before, while or after the
+    recorder starts and the companion sets up: which one depends on the machine's load): it
+    ends with 130 and neither child outlives it."""
+    import signal
+    import time
+
+    p = subprocess.Popen([sys.executable, "-m", "scripts.cli", "fly", "--speedup", "0",
+                          "--instance", "63", "--zenoh-port", "7473", "--runs-dir", str(tmp_path)],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
+    time.sleep(after_s)
+    p.send_signal(signal.SIGINT)
+    assert p.wait(timeout=120) == 130
+    left = subprocess.run(["pgrep", "-f", "scripts.cli (sim|companion) .*--instance 63"],
+                          capture_output=True, text=True).stdout.split()  # fmt: skip
+    for pid in left:  # (stopped, so that a failure here leaves nothing behind either)
+        subprocess.run(["kill", "-9", pid])
+    assert left == []
 
 
 def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
