@@ -95,7 +95,7 @@ def test_companion_waiting_for_its_go_ends_cleanly_when_standard_input_closes(tm
 def test_fly_interrupted_while_starting_stops_both_children_wall_time(tmp_path, after_s):
     """Ctrl-C to `skyherd fly` alone, at a moment of wall time (before, while or after the
     recorder starts and the companion sets up: which one depends on the machine's load): it
-    ends with 130 and neither child outlives it."""
+    ends interrupted and neither child outlives it."""
     import signal
     import time
 
@@ -105,7 +105,8 @@ def test_fly_interrupted_while_starting_stops_both_children_wall_time(tmp_path, 
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
     time.sleep(after_s)
     p.send_signal(signal.SIGINT)
-    assert p.wait(timeout=120) == 130
+    # 130; or 1 / −SIGINT when the signal came before `main` began (the interpreter's start-up)
+    assert p.wait(timeout=120) in (130, 1, -signal.SIGINT)
     left = subprocess.run(["pgrep", "-f", "scripts.cli (sim|companion) .*--instance 63"],
                           capture_output=True, text=True).stdout.split()  # fmt: skip
     for pid in left:  # (stopped, so that a failure here leaves nothing behind either)
