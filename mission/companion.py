@@ -160,6 +160,6 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
         if p.lockstep:
             for v in vs:
                 v.link.flush_log()
-        stats.cpu_s = time.process_time() - cpu0
         if done:
+            stats.cpu_s = time.process_time() - cpu0
             return stats
