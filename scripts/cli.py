@@ -160,8 +160,10 @@ def exit_now(rc: int) -> NoReturn:
     standard output and error are flushed, then the interpreter's teardown (freeing every
     module and object, numba's LLVM) is skipped. It cost 0.2-0.4 s of wall time per process
     at the end of every flight (measured), and nothing is left to write then: every run-folder
-    file is closed by the command that opened it. A non-daemon thread still running gets the
-    normal exit, which waits for it."""
+    file is closed by the command that opened it (the tlog, mcap, CSV and JSONL writers; their
+    owners close them in `finally` or `with`). A non-daemon thread still running gets the normal
+    exit, which waits for it. `atexit._run_exitfuncs` is CPython's own step of a normal exit
+    (the handlers, last registered first)."""
     if any(t.is_alive() and not t.daemon for t in threading.enumerate()
            if t is not threading.main_thread()):  # fmt: skip
         sys.exit(rc)
