@@ -4,9 +4,11 @@ of the machine's load, so they run as fast as possible (--speedup 0)."""
 
 import csv
 import json
+import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -107,11 +109,24 @@ def test_fly_interrupted_while_starting_stops_both_children_wall_time(tmp_path, 
     p.send_signal(signal.SIGINT)
     # 130; or 1 / −SIGINT when the signal came before `main` began (the interpreter's start-up)
     assert p.wait(timeout=120) in (130, 1, -signal.SIGINT)
-    left = subprocess.run(["pgrep", "-f", "scripts.cli (sim|companion) .*--instance 63"],
-                          capture_output=True, text=True).stdout.split()  # fmt: skip
+    left = _children_of_instance(63)
     for pid in left:  # (stopped, so that a failure here leaves nothing behind either)
-        subprocess.run(["kill", "-9", pid])
+        os.kill(pid, signal.SIGKILL)
     assert left == []
+
+
+def _children_of_instance(n: int) -> list[int]:
+    """PIDs of `skyherd sim` / `skyherd companion` processes of instance n (from /proc)."""
+    found = []
+    for d in Path("/proc").iterdir():
+        try:
+            argv = (d / "cmdline").read_bytes().split(b"\0")
+        except OSError:  # not a process, or it ended meanwhile
+            continue
+        if b"scripts.cli" in argv and {b"sim", b"companion"} & set(argv) and b"--instance" in argv:
+            if argv[argv.index(b"--instance") + 1] == str(n).encode():
+                found.append(int(d.name))
+    return found
 
 
 def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
