@@ -35,26 +35,12 @@ def separation_rows(spec: EnvelopeSpec, p_k: np.ndarray, others: list[tuple[str,
                     params: SeparationParams = SeparationParams()):  # fmt: skip
     """Rows (A (m, NZ), b (m,), names) of (S1) for vehicle k at p_k against `others`
     [(name, p_j (3,), v_j (3,))]."""
-    dyn = spec.dynamics
-    alpha = min(dyn.dt_s / dyn.tau_s, 1.0)
-    T = spec.stop_times()[0]
-    k = dyn.dt_s + T
     m = len(others)
-    A = np.zeros((m, NZ))
     if m == 0:
-        return A, np.zeros(0), ()
+        return np.zeros((0, NZ)), np.zeros(0), ()
     pj = np.array([o[1] for o in others], dtype=float).reshape(m, 3)
     vj = np.array([o[2] for o in others], dtype=float).reshape(m, 3)
-    d = np.asarray(p_k, float) - pj
-    dist = np.sqrt((d * d).sum(axis=1))
-    near = dist <= 1e-6
-    n = d / np.where(near, 1.0, dist)[:, None]
-    n[near] = (0.0, 0.0, -1.0)  # on top of each other: push up
-    # −n·p' − T n·v' <= −(r + n·p_j + T n·v_j) with p' = p + dt v', v' = (1−α) v + α u
-    A[:, P] = -n
-    A[:, V] = -k * (1 - alpha) * n
-    A[:, U] = -k * alpha * n
-    b = -(params.radius_m + (n * pj).sum(axis=1) + T * (n * vj).sum(axis=1))
+    A, b = _half_planes(spec, np.asarray(p_k, float) - pj, pj, vj, params.radius_m)
     return A, b, tuple(_name(params.radius_m, o[0]) for o in others)
 
 
@@ -63,29 +49,39 @@ def fleet_separation_rows(spec: EnvelopeSpec, positions: np.ndarray, velocities:
     """`separation_rows` for every vehicle of a fleet against all the others at once, value
     for value the same: entry k is vehicle k's (A, b, names) against every j != k in order.
     positions, velocities (m, 3); one pass over all m × m pairs instead of m passes."""
-    dyn = spec.dynamics
-    alpha = min(dyn.dt_s / dyn.tau_s, 1.0)
-    T = spec.stop_times()[0]
-    k = dyn.dt_s + T
     p = np.asarray(positions, float).reshape(-1, 3)
     v = np.asarray(velocities, float).reshape(-1, 3)
     m = len(p)
     if m == 0:
         return []
-    d = p[:, None, :] - p[None, :, :]  # d[k, j] = p_k − p_j
-    dist = np.sqrt((d * d).sum(axis=2))
-    near = dist <= 1e-6
-    n = d / np.where(near, 1.0, dist)[:, :, None]
-    n[near] = (0.0, 0.0, -1.0)
-    A = np.zeros((m, m, NZ))
-    A[:, :, P] = -n
-    A[:, :, V] = -k * (1 - alpha) * n
-    A[:, :, U] = -k * alpha * n
-    b = -(params.radius_m + (n * p[None, :, :]).sum(axis=2) + T * (n * v[None, :, :]).sum(axis=2))
+    # pair (k, j): d = p_k − p_j, vehicle j at p[j], v[j]
+    A, b = _half_planes(spec, p[:, None, :] - p[None, :, :], p[None, :, :], v[None, :, :],
+                        params.radius_m)  # fmt: skip
     rows, js = np.arange(m)[:, None], _others(m)  # js[i]: every j != i, in order
     A, b = A[rows, js], b[rows, js]
     label = [_name(params.radius_m, x) for x in names]
     return [(A[i], b[i], tuple(label[j] for j in js[i])) for i in range(m)]
+
+
+def _half_planes(spec: EnvelopeSpec, d: np.ndarray, pj: np.ndarray, vj: np.ndarray,
+                 radius_m: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(S1) for pairs along the leading axes: d = p_k − p_j (..., 3), p_j and v_j (..., 3) or
+    broadcasting to it → A (..., NZ), b (...)."""
+    dyn = spec.dynamics
+    alpha = min(dyn.dt_s / dyn.tau_s, 1.0)
+    T = spec.stop_times()[0]
+    k = dyn.dt_s + T
+    dist = np.sqrt((d * d).sum(axis=-1))
+    near = dist <= 1e-6
+    n = d / np.where(near, 1.0, dist)[..., None]
+    n[near] = (0.0, 0.0, -1.0)  # on top of each other: push up
+    # −n·p' − T n·v' <= −(r + n·p_j + T n·v_j) with p' = p + dt v', v' = (1−α) v + α u
+    A = np.zeros((*d.shape[:-1], NZ))
+    A[..., P] = -n
+    A[..., V] = -k * (1 - alpha) * n
+    A[..., U] = -k * alpha * n
+    b = -(radius_m + (n * pj).sum(axis=-1) + T * (n * vj).sum(axis=-1))
+    return A, b
 
 
 @lru_cache(maxsize=64)
