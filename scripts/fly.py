@@ -272,7 +272,7 @@ def run_two_processes(args: argparse.Namespace) -> int:
     finally:
         if recorder is not None:
             recorder.close()
-    from scripts.fly_report import report  # (its imports, 0.07 s, after the children started)
+    from scripts.fly_report import report  # after the flight: not on the way to the launch
 
     ok = report(run_dir, args, rc, why)
     return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
