@@ -142,9 +142,9 @@ class MavlinkEndpoint:
                 self.signing, link_id=0,
             )  # fmt: skip
             self.links.append(self.api)
-            self.gcs = UdpLink(
+            self.gcs = UdpLink(  # streams only heartbeats while nothing listens at 14550
                 "gcs", config.gcs_bind, config.gcs_remote, config.system_id, COMPONENT_ID, hook,
-                self.signing, link_id=1,
+                self.signing, link_id=1, watch_remote=True,
             )  # fmt: skip
             self.links.append(self.gcs)
         except OSError:
@@ -270,7 +270,12 @@ class MavlinkEndpoint:
             sched = self.streams[link.name]
             if t < sched.next_due - 1e-9:
                 continue  # the common step: nothing due on this link
-            for msg_id in sched.due(t):
+            due = sched.due(t)
+            if link.nobody_listens():  # the heartbeat goes on: it finds the next listener
+                kept = [m for m in due if m == M.MAVLINK_MSG_ID_HEARTBEAT]
+                self.stats["tx_stream_unheard"] += len(due) - len(kept)
+                due = kept
+            for msg_id in due:
                 msg = built.get(msg_id)
                 if msg is None:
                     msg = built[msg_id] = self._build(msg_id)

@@ -3,11 +3,20 @@
 Outgoing frames go to the link's default remote address (CONVENTIONS.md) and also to
 whoever last sent us a valid frame on this socket, so clients that bind elsewhere
 (`udpout:` in pymavlink, a second ground station) are answered too.
+
+A link made with `watch_remote` also learns whether anything listens at its default remote:
+a datagram sent to a loopback or LAN port nobody has bound comes back as ICMP port
+unreachable, which Linux queues on the sender's socket with IP_RECVERR (read with
+MSG_ERRQUEUE; loopback answers inside the sendto itself). `nobody_listens()` says so, and the
+endpoint then streams only heartbeats there until one is no longer refused.
 """
 
 from __future__ import annotations
 
+import errno
 import socket
+import struct
+import sys
 from collections.abc import Callable
 
 from flight.mavlink.codec import Codec, MAVLinkMessage
@@ -16,6 +25,10 @@ from flight.mavlink.signing import Signing
 Address = tuple[str, int]
 MAX_DATAGRAM = 65535
 PACKED_DATAGRAM = 1400  # coalesced frames per datagram, at most [bytes] (fits a 1500 B MTU)
+# Linux's IP_RECVERR (netinet/in.h; the socket module does not name it): ICMP errors of an
+# unconnected UDP socket are queued for MSG_ERRQUEUE instead of dropped. None elsewhere.
+IP_RECVERR = getattr(socket, "IP_RECVERR", 11 if sys.platform.startswith("linux") else None)
+_EE_ERRNO = struct.Struct("=I")  # struct sock_extended_err's first field, ee_errno
 
 
 class UdpLink:
@@ -31,6 +44,7 @@ class UdpLink:
         on_frame: Callable[[str, bytes], None] | None = None,
         signing: Signing | None = None,
         link_id: int = 0,
+        watch_remote: bool = False,
     ):
         self.name = name
         self.bind_addr = bind
@@ -56,6 +70,9 @@ class UdpLink:
         self.coalesce = False  # hold frames for the default peers until `flush()` (the endpoint:
         # until the end of its step; a lockstep gate: until the tick's mark)
         self._held: list[bytes] = []
+        self.watch_remote = watch_remote and IP_RECVERR is not None and self._recverr_on()
+        self.remote_refuses = False  # the last datagrams sent to `remote` came back refused
+        self._sent_remote = False  # something went to `remote` since nobody_listens() last looked
 
     def receive(self, max_datagrams: int = 256) -> list[tuple[MAVLinkMessage, Address]]:
         """Drain up to `max_datagrams` waiting datagrams; returns decoded messages with senders."""
@@ -113,14 +130,56 @@ class UdpLink:
 
     def _send_default(self, buf: bytes) -> None:
         self._sendto(buf, self.remote)
+        self._sent_remote = True
         if self.peer is not None and self.peer != self.remote:
             self._sendto(buf, self.peer)
 
     def _sendto(self, buf: bytes, addr: Address) -> None:
         try:
             self.sock.sendto(buf, addr)
+        except ConnectionRefusedError:  # an earlier datagram's refusal (IP_RECVERR), not this
+            try:  # one's: the kernel reports it once, on the next call; send again
+                self.sock.sendto(buf, addr)
+            except OSError:
+                self.send_errors += 1
         except OSError:  # nobody listening, buffer full: UDP drops, so do we
             self.send_errors += 1
+
+    def nobody_listens(self) -> bool:
+        """True while this link's frames reach no one: it watches its remote, no client has
+        spoken on it (a `peer` is answered whatever the remote does), and the datagrams sent
+        to the remote since the last look were refused (ICMP port unreachable). False as soon
+        as one is sent there and not refused. Never True on a link without `watch_remote`, nor
+        where no ICMP comes back (a firewall): there it streams as any PX4 link does."""
+        if not self.watch_remote or self.peer is not None:
+            return False
+        if self._take_refusals():
+            self.remote_refuses = True
+        elif self._sent_remote:
+            self.remote_refuses = False
+        self._sent_remote = False
+        return self.remote_refuses
+
+    def _recverr_on(self) -> bool:
+        try:
+            self.sock.setsockopt(socket.IPPROTO_IP, IP_RECVERR, 1)
+            return True
+        except OSError:
+            return False
+
+    def _take_refusals(self) -> bool:
+        """Drain the socket's error queue; whether it held a refusal from `remote`."""
+        refused = False
+        while True:
+            try:
+                _, anc, _, dest = self.sock.recvmsg(1, 512, socket.MSG_ERRQUEUE)
+            except OSError:  # BlockingIOError: the queue is empty
+                return refused
+            if dest is None or tuple(dest[:2]) != self.remote:
+                continue  # a peer's refusal: the peer is answered anyway
+            for _level, _type, data in anc:  # struct sock_extended_err
+                if len(data) >= _EE_ERRNO.size:
+                    refused |= _EE_ERRNO.unpack_from(data)[0] == errno.ECONNREFUSED
 
     def close(self) -> None:
         self.flush()
