@@ -16,7 +16,6 @@ import argparse
 import os
 import re
 import signal
-import threading
 import time
 
 import cv2
@@ -143,13 +142,53 @@ def _session(args: argparse.Namespace):
         raise UsageError(f"cannot open a Zenoh session ({where}): {zenoh_reason(e)}") from e
 
 
+class CtrlC:
+    """SIGINT (Ctrl-C) while `skyherd watch` runs: noted (`requested`), never raised where
+    it lands.
+
+    watch takes SIGINT for the whole command, from before its Zenoh session opens until its
+    run folder is written, whatever the process inherited. A background job of a
+    non-interactive shell (`cmd &` in a script) starts with SIGINT ignored; watch used to take
+    it for its frame loop only, so a Ctrl-C during start-up (even just after metrics.csv
+    appeared) was lost and watch waited on until --timeout (the suite saw no exit 120 s after
+    SIGINT, --timeout 300). The flag is checked once the session is open and between frames:
+    the KeyboardInterrupt that ends the run is raised outside every lock and Zenoh call, and a
+    second Ctrl-C cannot cut the ending (session closed, summary.md) half-way. A plain
+    attribute, no lock: a handler may run inside another one."""
+
+    def __init__(self) -> None:
+        self.requested = False
+
+    def __call__(self, signum, frame) -> None:
+        self.requested = True
+
+    def check(self) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+
+
 def run(args: argparse.Namespace) -> int:
+    _check(args)
+    ctrl_c = CtrlC()
+    prev = signal.signal(signal.SIGINT, ctrl_c)
+    try:
+        zp, session = _session(args)
+        try:
+            ctrl_c.check()  # during the session's opening: no run folder
+            return _watch(args, zp, session, ctrl_c)
+        finally:
+            # on every ending, however early (closing twice is harmless): its subscribers'
+            # callback threads are not daemons, and the exit waits for them
+            session.close()
+    finally:
+        signal.signal(signal.SIGINT, prev)
+
+
+def _watch(args: argparse.Namespace, zp: ZenohParams, session, ctrl_c: CtrlC) -> int:
     from tqdm import tqdm
 
     from runio import RunFolder, markdown_table
 
-    _check(args)
-    zp, session = _session(args)
     sub = FrameSubscriber(session, args.vehicle)
     st = {"processed": 0, "counts": [], "all_in": [], "strip": [], "detector": None}
 
@@ -218,17 +257,8 @@ def run(args: argparse.Namespace) -> int:
         )  # fmt: skip
         run.at_end(finish, "summary")
         bar = run.closing(tqdm(total=args.frames, desc="watch", unit="frame", disable=None))
-        # Ctrl-C sets a flag, checked between frames: a KeyboardInterrupt raised inside the
-        # subscriber's condition wait could leave its lock to the Zenoh callback thread and
-        # hang the shutdown (seen once in the suite: no exit 120 s after SIGINT)
-        stop = threading.Event()
-        prev = signal.signal(signal.SIGINT, lambda *_: stop.set())
-        try:
-            _loop(args, sub, st, metrics, run, bar, stop)
-        finally:
-            signal.signal(signal.SIGINT, prev)
-        if stop.is_set():
-            raise KeyboardInterrupt  # outside every lock: the run folder ends as interrupted
+        _loop(args, sub, st, metrics, run, bar, ctrl_c)
+        ctrl_c.check()  # outside every lock: the run folder ends as interrupted
         if st["processed"] == 0:
             run.fail(f"no frame on skyherd/{args.vehicle}/camera/frame within {args.timeout:g} s "
                      f"(is a flight publishing? --connect {args.connect})")  # fmt: skip
@@ -238,14 +268,14 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _loop(args, sub, st: dict, metrics, run, bar, stop) -> None:
+def _loop(args, sub, st: dict, metrics, run, bar, ctrl_c: CtrlC) -> None:
     """Detect on frames until --frames are processed, --timeout passes without one, or Ctrl-C
-    (`stop`, checked between frames)."""
+    (`ctrl_c`, checked between frames; also at once, for one that came during start-up)."""
     from runio import atomic_write_bytes
 
     shown = not args.no_show
     t_last = time.monotonic()
-    while st["processed"] < args.frames and not stop.is_set():
+    while st["processed"] < args.frames and not ctrl_c.requested:
         fr = sub.wait(0.2)
 
         if fr is None:

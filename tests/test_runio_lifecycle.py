@@ -156,6 +156,42 @@ def test_skyherd_watch_interrupted_by_sigint_writes_its_summary_walltime(tmp_pat
     assert b"interrupted" in err
 
 
+@pytest.mark.parametrize(
+    ("sigint", "moment", "after_s"),
+    [("ignored", "config.json", 0.0), ("ignored", "metrics.csv", 0.0),
+     ("ignored", "metrics.csv", 1.0), ("default", "config.json", 0.0)],
+)  # fmt: skip
+def test_skyherd_watch_interrupted_during_start_up_walltime(tmp_path, sigint, moment, after_s):
+    """SIGINT to `skyherd watch` as soon as its run folder appears (start-up: the recorder
+    subscribes, metrics.csv is made), as soon as metrics.csv does, or 1 s later (the frame
+    loop), also when watch inherited SIGINT ignored, as a background job of a non-interactive
+    shell does (`make test &`): exit 130, and summary.md says interrupted, with its table. The
+    code before lost a SIGINT that came before its frame loop when it started ignored (it ran
+    on to --timeout), and one that came before its summary was registered left no table."""
+    disposition = signal.SIG_IGN if sigint == "ignored" else signal.SIG_DFL
+    p = subprocess.Popen(
+        [SKYHERD, "watch", "--connect", "tcp:127.0.0.1:7464", "--timeout", "300", "--runs-dir",
+         str(tmp_path), "--no-show"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, disposition),
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob(f"*/{moment}")):
+            assert time.monotonic() < deadline and p.poll() is None, "watch did not start"
+            time.sleep(0.001)
+        time.sleep(after_s)
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.communicate()
+    assert p.returncode == 130, err
+    text = (_only_run(tmp_path) / "summary.md").read_text()
+    assert "**Ended: interrupted**: Ctrl-C" in text and "| processed" in text
+    assert b"interrupted" in err
+
+
 def test_config_records_input_files_and_envelope_hashes(tmp_path):
     from safety.config import default_envelope_path, load_envelope
 
