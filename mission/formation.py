@@ -73,6 +73,12 @@ class FormationNet:
         self.spec = spec
         self.net = Supervisor(spec.envelope(), FORMATION_NET, events)
         self.separation = separation
+        # _chase's bounds: 90 % of the inradius of the envelope's n-gon speed and accel rows
+        lim = spec.limits
+        cosk = math.cos(math.pi / lim.speed_sides)
+        a_h = min(lim.accel_h_mps2, GRAVITY * math.tan(lim.tilt_cmd_rad))
+        self.du_max = 0.9 * a_h * spec.dynamics.tau_s * cosk  # |u − v| [m/s]
+        self.u_max = 0.9 * lim.speed_h_mps * cosk  # |u| [m/s]
 
     def rows_against(self, state: VehicleState, others) -> tuple:
         """The separation rows (A, b, names) against `others` = [(name, position (3,), velocity
@@ -86,17 +92,20 @@ class FormationNet:
         reference far ahead is chased on a leash (`_chase`, LEASH_V_M) so the setpoint stays
         inside the speed and acceleration rows."""
         self.net.set_dynamic_rows(*separation)
-        p, v = state.pos_ned, state.vel_ned
-        ff = np.zeros(3) if vel_ff is None else np.asarray(vel_ff, float)
-        ff_h, d = self._chase(p[:2], v[:2], np.asarray(target[:2], float), ff[:2])
-        dz = float(np.clip(target[2] - p[2], -LEASH_V_M, LEASH_V_M))
-        target = np.array([*(p[:2] + d), p[2] + dz])
-        vel_ff = np.array([ff_h[0], ff_h[1], ff[2]])
-        sp = Setpoint(pos_ned=target, vel_ned=vel_ff, yaw=0.0)
+        p0, p1, p2 = state.pos_ned.tolist()
+        v0, v1, _ = state.vel_ned.tolist()
+        t0, t1, t2 = np.asarray(target, float).tolist()
+        f0, f1, f2 = (0.0, 0.0, 0.0) if vel_ff is None else np.asarray(vel_ff, float).tolist()
+        (f0, f1), (d0, d1) = self._chase((p0, p1), (v0, v1), (t0, t1), (f0, f1))
+        dz = min(max(t2 - p2, -LEASH_V_M), LEASH_V_M)  # np.clip's value, NaN included
+        sp = Setpoint(pos_ned=np.array([p0 + d0, p1 + d1, p2 + dz]),
+                      vel_ned=np.array([f0, f1, f2]), yaw=0.0)  # fmt: skip
         return self.net.update(t, state, sp, health if health is not None else Health())
 
-    def _chase(self, p: np.ndarray, v: np.ndarray, target: np.ndarray, ff: np.ndarray):
-        """The horizontal part of the setpoint: (feed-forward (2,), offset d (2,) from p) such
+    def _chase(self, p: tuple[float, float], v: tuple[float, float], target: tuple[float, float],
+               ff: tuple[float, float]) -> tuple[tuple[float, float], tuple[float, float]]:  # fmt: skip
+        """The horizontal part of the setpoint, from the position p, velocity v, reference
+        `target` and its feed-forward ff (north, east): (feed-forward, offset d from p) such
         that the velocity the autopilot flies, u = ff + K d (SupervisorParams.pos_gain_xy), is
         inside the envelope's speed and acceleration rows with 10 % to spare:
 
@@ -104,26 +113,29 @@ class FormationNet:
 
         d points at the plan's reference, as far as those allow (at most LEASH_M): a vehicle
         behind its reference (after a fallback) speeds up along the accel limit instead of
-        proposing a jump the net refuses for ever."""
-        lim, dyn = self.spec.limits, self.spec.dynamics
-        cosk = math.cos(math.pi / lim.speed_sides)
-        a_h = min(lim.accel_h_mps2, GRAVITY * math.tan(lim.tilt_cmd_rad))
-        du_max, u_max = 0.9 * a_h * dyn.tau_s * cosk, 0.9 * lim.speed_h_mps * cosk
-        dv = ff - v
-        if float(np.hypot(*dv)) > du_max:  # the plan's own speed change is too abrupt
-            ff = v + dv * (du_max / float(np.hypot(*dv)))
-        e = target - p
-        dist = float(np.hypot(*e))
+        proposing a jump the net refuses for ever. Plain floats, except numpy's hypot and dot:
+        math.hypot and a·b + c·d on floats differ from them in the last bit."""
+        du_max, u_max = self.du_max, self.u_max  # (__init__)
+        (p0, p1), (v0, v1), (t0, t1), (f0, f1) = p, v, target, ff
+        dv0, dv1 = f0 - v0, f1 - v1
+        h = float(np.hypot(dv0, dv1))
+        if h > du_max:  # the plan's own speed change is too abrupt
+            s = du_max / h
+            f0, f1 = v0 + dv0 * s, v1 + dv1 * s
+        e0, e1 = t0 - p0, t1 - p1
+        dist = float(np.hypot(e0, e1))
         if dist < 1e-9:
-            return ff, np.zeros(2)
-        n = e / dist
+            return (f0, f1), (0.0, 0.0)
+        n = np.array([e0 / dist, e1 / dist])
         k = self.net.p.pos_gain_xy
         reach = min(dist, LEASH_M)
-        for w, r in ((ff - v, du_max), (ff, u_max)):  # |w + k x n| ≤ r ⇔ x ≤ (−w·n + √D) / k
-            wn = float(w @ n)
-            disc = wn * wn - float(w @ w) + r * r
+        for w, r in ((np.array([f0 - v0, f1 - v1]), du_max), (np.array([f0, f1]), u_max)):
+            # |w + k x n| ≤ r ⇔ x ≤ (−w·n + √D) / k
+            wn = float(w.dot(n))
+            disc = wn * wn - float(w.dot(w)) + r * r
             reach = min(reach, max(0.0, (-wn + math.sqrt(disc)) / k) if disc > 0 else 0.0)
-        return ff, n * reach
+        n0, n1 = n.tolist()
+        return (f0, f1), (n0 * reach, n1 * reach)
 
 
 @dataclasses.dataclass
@@ -284,7 +296,10 @@ class FormationMission:
 
     def field_state(self, k: int, v: VehicleLink) -> VehicleState | None:
         s = v.tel.vehicle_state()
-        return None if s is None else dataclasses.replace(s, pos_ned=s.pos_ned + self.off[k])
+        if s is None:
+            return None
+        return VehicleState(s.t, s.pos_ned + self.off[k], s.vel_ned, s.quat, s.omega_frd,
+                            s.accel_frd, s.on_ground)  # fmt: skip
 
     def _over_target(self, k: int, v: VehicleLink) -> bool:
         s = self.field_state(k, v)

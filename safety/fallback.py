@@ -26,6 +26,13 @@ from safety.kernels import select_mask
 ZERO3 = np.zeros(3)
 
 
+def norm(v: np.ndarray) -> float:
+    """np.linalg.norm(v) of a vector: sqrt(v·v), numpy's own formula (the same dot, so the
+    same bits), without its argument handling (µs on a 3-vector)."""
+    a = np.asarray(v, float)
+    return math.sqrt(a.dot(a))
+
+
 class HoverFallback:
     """Multirotor: brake (velocity setpoint 0) until slower than `settle_mps`, then hold there."""
 
@@ -37,7 +44,7 @@ class HoverFallback:
         self.hold_pos = None
 
     def command(self, state: VehicleState) -> Setpoint:
-        if self.hold_pos is None and float(np.linalg.norm(state.vel_ned)) < self.settle_mps:
+        if self.hold_pos is None and norm(state.vel_ned) < self.settle_mps:
             self.hold_pos = np.array(state.pos_ned, float)
         if self.hold_pos is None:
             return Setpoint(vel_ned=ZERO3.copy())
@@ -127,22 +134,27 @@ def selected_rows(geometry: Envelope, pos_ned: np.ndarray) -> tuple[np.ndarray, 
 def inside_with_margin(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> bool:
     """Every selected position row holds with its recovery margin (row_margins)."""
     sel, r = selected_rows(geometry, pos_ned)
-    return bool(np.all(r[sel] <= -row_margins(geometry, margin_m)[sel]))
+    return bool((r[sel] <= -row_margins(geometry, margin_m)[sel]).all())
 
 
-def recovery_target(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> np.ndarray:
+def recovery_target(
+    geometry: Envelope, pos_ned: np.ndarray, margin_m: float, algebra: str | None = None
+) -> np.ndarray:
     """Nearest point to pos_ned (3,) inside the fence with a margin to every position row:
 
         minimise ||p - p0||^2  s.t.  A_p p <= b - m    (rows of the selected polyhedron,
                                                          m from row_margins)
 
-    Halves the margins until feasible (a small piece may not fit them). NED [m]."""
+    Halves the margins until feasible (a small piece may not fit them). NED [m].
+    algebra: OSQP's linear-algebra backend (None: osqp.default_algebra(), which OSQP() would
+    pick too, found by trying to import each backend: ~80 µs a look-up)."""
     sel, _ = selected_rows(geometry, pos_ned)
     A = geometry.A[sel][:, P]
     b = geometry.b[sel]
     m = row_margins(geometry, margin_m)[sel]
+    algebra = algebra or osqp.default_algebra()
     for _ in range(8):
-        prob = osqp.OSQP()
+        prob = osqp.OSQP(algebra=algebra)
         prob.setup(
             sp.csc_matrix(2 * np.eye(3)),
             -2 * np.asarray(pos_ned, float),
@@ -209,14 +221,15 @@ class RecoveryPID:
         self.target = np.zeros(3)
         self.integral = np.zeros(3)
         self.t_last: float | None = None
+        self.algebra = osqp.default_algebra()  # recovery_target's, looked up once
 
     def engage(self, state: VehicleState) -> None:
-        self.target = recovery_target(self.geometry, state.pos_ned, self.margin)
+        self.target = recovery_target(self.geometry, state.pos_ned, self.margin, self.algebra)
         self.integral = np.zeros(3)
         self.t_last = None
 
     def error(self, state: VehicleState) -> float:
-        return float(np.linalg.norm(self.target - state.pos_ned))
+        return norm(self.target - state.pos_ned)
 
     def command(self, t: float, state: VehicleState) -> Setpoint:
         dt = 0.0 if self.t_last is None else max(t - self.t_last, 0.0)
@@ -251,17 +264,17 @@ class RecoveryPID:
         elif h < self.min_speed:
             sat = True
             u[:2] = u[:2] / h * self.min_speed if h > 1e-6 else state.vel_ned[:2]
-        u[2] = float(np.clip(u[2], -self.climb, self.descent))
+        u[2] = min(max(u[2], -self.climb), self.descent)  # np.clip's value, NaN included
         du = u - state.vel_ned
         dh = float(np.hypot(du[0], du[1]))
         if dh > self.dv_h and self.min_speed == 0:  # multirotor: respect the accel rows
             du[:2] *= self.dv_h / dh  # (a fixed-wing turns at its own bank limit instead)
         if self.min_speed == 0:
-            du[2] = float(np.clip(du[2], -self.dv_v, self.dv_v))
+            du[2] = min(max(du[2], -self.dv_v), self.dv_v)
         # A fixed-wing's vertical command is TECS's climb-rate demand, which TECS paces itself:
         # slewing it from the measured sink would turn "climb" into "descend" in a downdraft.
         u = state.vel_ned + du
-        if not sat and float(np.linalg.norm(e)) < self.g.i_zone_m:  # conditional integration
+        if not sat and norm(e) < self.g.i_zone_m:  # conditional integration
             self.integral = np.clip(
                 self.integral + self.g.ki * e * dt, -self.g.i_limit_m_s, self.g.i_limit_m_s
             )

@@ -17,7 +17,6 @@ Every switch is written to `events` (anything with `.write(dict)`, e.g. JsonlWri
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import math
 from dataclasses import dataclass, field
@@ -181,7 +180,10 @@ def setpoint_record(sp: Setpoint | None) -> dict[str, Any]:
             a = np.asarray(v, dtype=float).ravel()
         except (TypeError, ValueError):
             return None
-        return [float(x) if math.isfinite(x) else None for x in a]
+        a = a.tolist()
+        if math.isfinite(sum(a)):  # every entry finite (a NaN or inf shows in the sum)
+            return a
+        return [x if math.isfinite(x) else None for x in a]
 
     if sp is None:
         return {"pos_ned": None, "vel_ned": None, "yaw": None}
@@ -309,7 +311,7 @@ class Supervisor:
         u = self.last_u
         if u is None:
             return Severity.FALLBACK, "malformed action (no velocity command)", None
-        u0, u1, u2 = float(u[0]), float(u[1]), float(u[2])
+        u0, u1, u2 = u.tolist()
         if not (math.isfinite(u0) and math.isfinite(u1) and math.isfinite(u2)):
             return Severity.FALLBACK, "non-finite action (NaN/inf)", None
         big = max(abs(u0), abs(u1), abs(u2))
@@ -322,7 +324,7 @@ class Supervisor:
         z[8], z[9], z[10] = u0, u1, u2
         if self._dyn_A is not None and len(self._dyn_b):
             r = self._dyn_A @ z - self._dyn_b
-            i = int(np.argmax(r))
+            i = int(r.argmax())
             if not r[i] <= 0.0:  # NaN too
                 return Severity.FALLBACK, self._dyn_names[i], None
         w = worst_residual(*self._args)
@@ -331,8 +333,7 @@ class Supervisor:
             if i >= 0:
                 return Severity.NEAR, self.envelope.names[i], u
             return Severity.NONE, "", u
-        viol = self.envelope.violated(z)
-        name = viol[0][0] if viol else "non-finite state or action"
+        name = self.envelope.worst_violated(z) or "non-finite state or action"
         if self.projector is not None:
             up = self.projector.project(z.copy())
             if up is not None:
@@ -428,18 +429,21 @@ class Supervisor:
             Δψ ≤ τ g tan(φ_max) / V, at the present airspeed; vertical as the multirotor."""
         p = self.p
         pos = np.asarray(sp.pos_ned, float)
-        e = pos - state.pos_ned
-        ff = np.zeros(3) if sp.vel_ned is None else np.asarray(sp.vel_ned, float)
-        vd = ff[2] + p.pos_gain_z * e[2]
+        (x0, x1, x2), (y0, y1, y2) = pos.tolist(), np.asarray(state.pos_ned, float).tolist()
+        e0, e1, e2 = x0 - y0, x1 - y1, x2 - y2  # e = p_sp − p
+        f0, f1, f2 = (
+            (0.0, 0.0, 0.0) if sp.vel_ned is None else np.asarray(sp.vel_ned, float).tolist()
+        )
         lim = self.envelope.spec.limits
-        vd = min(max(vd, -lim.climb_mps), lim.descent_mps)
+        vd = min(max(f2 + p.pos_gain_z * e2, -lim.climb_mps), lim.descent_mps)
         dyn = self.envelope.spec.dynamics
         if dyn.bank_max_rad <= 0:
-            u = ff[:2] + p.pos_gain_xy * e[:2]
-            h = float(np.hypot(u[0], u[1]))
+            u0, u1 = f0 + p.pos_gain_xy * e0, f1 + p.pos_gain_xy * e1
+            h = float(np.hypot(u0, u1))  # numpy's hypot: math.hypot differs in the last bit
             if h > p.pos_speed_max_mps:
-                u *= p.pos_speed_max_mps / h
-            return np.array([u[0], u[1], vd])
+                s = p.pos_speed_max_mps / h
+                u0, u1 = u0 * s, u1 * s
+            return np.array([u0, u1, vd])
         v = state.vel_ned[:2]
         speed = max(float(np.hypot(v[0], v[1])), p.fixedwing_min_speed_mps)
         radius = self.loiter_radius_m or dyn.turn_radius(speed)
@@ -533,13 +537,18 @@ class Supervisor:
                     proposed,
                 )
 
-        # Mode.PID
-        there = self.pid.error(state) <= self.p.recover_tol_m
-        inside = inside_with_margin(
-            self.geometry, state.pos_ned, self.p.recover_margin_m - self.p.recover_tol_m
-        )
+        # Mode.PID; the position tests (pure) only when the AI's proposals would qualify
         clean = self.clean_since is not None and t - self.clean_since >= self.p.hysteresis_s
-        if (there or inside) and clean and sev < Severity.PROJECTED:
+        if (
+            clean
+            and sev < Severity.PROJECTED
+            and (
+                self.pid.error(state) <= self.p.recover_tol_m  # there
+                or inside_with_margin(
+                    self.geometry, state.pos_ned, self.p.recover_margin_m - self.p.recover_tol_m
+                )
+            )
+        ):
             self._switch(
                 t,
                 Mode.AI,
@@ -567,7 +576,9 @@ class Supervisor:
         last = self.last_sp
         if cmd.yaw is not None or cmd.yaw_rate is not None or last is None or last.yaw is None:
             return cmd
-        return dataclasses.replace(cmd, yaw=last.yaw)
+        return Setpoint(
+            pos_ned=cmd.pos_ned, vel_ned=cmd.vel_ned, yaw=last.yaw, yaw_rate=cmd.yaw_rate
+        )
 
     def _fallback_command(self, state: VehicleState, health: Health) -> tuple[Setpoint, FlightMode]:
         """The fallback's command and the mode it is flown in. Normally the autopilot's own
@@ -648,10 +659,10 @@ def _bad_extras(sp: Setpoint) -> str:
             p = np.asarray(sp.pos_ned, dtype=float).reshape(-1)
         except (TypeError, ValueError):
             return "position not numeric"
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
+        if p.shape != (3,) or not all(map(math.isfinite, p.tolist())):
             return "position setpoint not 3 finite numbers"
     return ""
 
 
 def _finite(z: np.ndarray) -> bool:
-    return bool(np.isfinite(z.sum()))  # one reduction: a NaN or inf anywhere shows in the sum
+    return math.isfinite(z.sum())  # one reduction: a NaN or inf anywhere shows in the sum
