@@ -253,22 +253,23 @@ def run_two_processes(args: argparse.Namespace) -> int:
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
                          "companion": comp_args, "envelope": envelope})  # fmt: skip
     print(f"skyherd fly: run folder {run_dir}", flush=True)
-    sim = companion = recorder = None
+    recorder = None
     why = "interrupted (Ctrl-C)"
     try:
-        if args.connect is None or args.mission == "groundair":
-            sim = launch.start("sim", launch.skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
-                               run_dir / "sim.log")  # fmt: skip
-        # the companion sets up meanwhile and says hello (the simulator's clock starts on it)
-        # only once the recorder has subscribed: the recording holds the flight from its start
-        companion = launch.start("companion", launch.skyherd_cmd(
-            "companion", *comp_args, "--run-dir", str(run_dir), "--wait-go"), None, wait_go=True)  # fmt: skip
-        recorder = _recorder(args, run_dir) if sim is not None else None
-        companion.go()
-        rc, why = launch.supervise(companion, sim, args.timeout)
-    except KeyboardInterrupt:  # (supervise stops the children itself; before it, this does)
+        with launch.Launch() as kids:  # stopped on every way out, the companion first
+            if args.connect is None or args.mission == "groundair":
+                kids.start_sim("sim", launch.skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
+                         run_dir / "sim.log")  # fmt: skip
+            # the companion sets up meanwhile and says hello (the simulator's clock starts on
+            # it) only once the recorder has subscribed: the recording holds the flight from
+            # its start
+            companion = kids.start_companion(launch.skyherd_cmd(
+                "companion", *comp_args, "--run-dir", str(run_dir), "--wait-go"), wait_go=True)  # fmt: skip
+            recorder = _recorder(args, run_dir) if kids.sims else None
+            companion.go()
+            rc, why = kids.supervise(args.timeout)
+    except KeyboardInterrupt:
         rc = 130
-        launch.stop_all([c for c in (companion, sim) if c is not None])
     finally:
         if recorder is not None:
             recorder.close()

@@ -132,24 +132,23 @@ def run_formation(args: argparse.Namespace) -> int:
     groups = sim_groups(K, args.sims)
     print(f"skyherd fly: {len(groups)} simulator process{'es' if len(groups) > 1 else ''} "
           f"({', '.join(str(len(g)) for g in groups)} vehicles), logs sim<g>.log", flush=True)  # fmt: skip
-    sims, companion = [], None
     why = "interrupted (Ctrl-C)"
     try:
-        for g, group in enumerate(groups):
-            fleet = [{"name": f"uav{k}", "instance": instances[k], "seed": args.seed + k,
-                      "home": [homes[k].lat_deg, homes[k].lon_deg, homes[k].alt_m]} for k in group]  # fmt: skip
-            fleet_file = run_dir / f"sim{g}.json"
-            atomic_write_text(fleet_file, json.dumps(fleet, indent=1) + "\n")
-            sims.append(launch.start(f"sim{g}", launch.skyherd_cmd(
-                "sim", "--fleet", str(fleet_file), "--ugvs", "none", "--speedup", repr(args.speedup),
-                "--latency", repr(args.latency), "--run-dir", str(run_dir)), run_dir / f"sim{g}.log"))  # fmt: skip
-        companion = launch.start("companion", launch.skyherd_cmd(
-            "companion", "--mission", "formation", "--plan", str(run_dir / "plan.json"), "--cell-m",
-            repr(params.cell_m), "--instance", str(args.instance), "--run-dir", str(run_dir)), None)  # fmt: skip
-        rc, why = launch.supervise(companion, sims, args.timeout)
-    except KeyboardInterrupt:  # (supervise stops the children itself; before it, this does)
+        with launch.Launch() as kids:  # stopped on every way out, the companion first
+            for g, group in enumerate(groups):
+                fleet = [{"name": f"uav{k}", "instance": instances[k], "seed": args.seed + k,
+                          "home": [homes[k].lat_deg, homes[k].lon_deg, homes[k].alt_m]} for k in group]  # fmt: skip
+                fleet_file = run_dir / f"sim{g}.json"
+                atomic_write_text(fleet_file, json.dumps(fleet, indent=1) + "\n")
+                kids.start_sim(f"sim{g}", launch.skyherd_cmd(
+                    "sim", "--fleet", str(fleet_file), "--ugvs", "none", "--speedup", repr(args.speedup),
+                    "--latency", repr(args.latency), "--run-dir", str(run_dir)), run_dir / f"sim{g}.log")  # fmt: skip
+            kids.start_companion(launch.skyherd_cmd(
+                "companion", "--mission", "formation", "--plan", str(run_dir / "plan.json"), "--cell-m",
+                repr(params.cell_m), "--instance", str(args.instance), "--run-dir", str(run_dir)))  # fmt: skip
+            rc, why = kids.supervise(args.timeout)
+    except KeyboardInterrupt:
         rc = 130
-        launch.stop_all([c for c in (companion, *sims) if c is not None])
     ok = formation_report(run_dir, rc, why)
     return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
 

@@ -91,19 +91,46 @@ def flight_reason(companion_reason: str | None, why: str) -> str:
     return companion_reason or why
 
 
-def supervise(
-    companion: Child, sim: Child | list[Child] | None, timeout_s: float
-) -> tuple[int, str]:
-    """Wait for the flight to end; return (exit code, why it ended). `sim`: the simulator, or
-    one per vehicle (a formation); any that dies ends the flight."""
-    sims = [] if sim is None else (list(sim) if isinstance(sim, list) else [sim])
-    deadline = time.monotonic() + timeout_s
-    try:
+class Launch:
+    """The children of one flight, stopped on every way out of `with Launch() as kids:` (the
+    flight's end, an error, a Ctrl-C at any moment, the start-up included): the companion first,
+    so that the vehicles it flies land or disarm, then every simulator at once."""
+
+    def __init__(self) -> None:
+        self.companion: Child | None = None
+        self.sims: list[Child] = []
+
+    def start_sim(self, name: str, argv: list[str], log: Path | None) -> Child:
+        child = start(name, argv, log)
+        self.sims.append(child)
+        return child
+
+    def start_companion(self, argv: list[str], log: Path | None = None,
+                        wait_go: bool = False) -> Child:  # fmt: skip
+        self.companion = start("companion", argv, log, wait_go)
+        return self.companion
+
+    def __enter__(self) -> Launch:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        try:  # a second Ctrl-C while the companion ends still stops the simulators
+            if self.companion is not None:
+                stop(self.companion)
+        finally:
+            stop_all(self.sims)
+
+    def supervise(self, timeout_s: float) -> tuple[int, str]:
+        """Wait for the flight to end; return (exit code, why it ended). The companion's end
+        is the flight's; a simulator that dies first ends it too, and so does the wall-clock
+        limit (the companion is stopped then, and its code is not the flight's)."""
+        companion = self.companion
+        deadline = time.monotonic() + timeout_s
         while True:
             rc = companion.proc.poll()
             if rc is not None:
                 return rc, "" if rc == 0 else f"{COMPANION_EXITED} {rc}"
-            for s in sims:
+            for s in self.sims:
                 if s.proc.poll() is not None:
                     why = f"the simulator {s.name} exited with code {s.proc.returncode} during the flight"
                     tail = s.tail()
@@ -113,8 +140,3 @@ def supervise(
                 stop(companion)
                 return 1, f"the flight took longer than --timeout {timeout_s:.0f} s of wall time"
             time.sleep(0.02)  # a child's end is seen within 20 ms (it ends the flight)
-    except KeyboardInterrupt:
-        stop(companion)
-        raise
-    finally:
-        stop_all(sims)

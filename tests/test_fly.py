@@ -8,6 +8,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -127,6 +128,46 @@ def _children_of_instance(n: int) -> list[int]:
             if argv[argv.index(b"--instance") + 1] == str(n).encode():
                 found.append(int(d.name))
     return found
+
+
+_CHILD = """
+import signal, sys, time
+def on_int(*_):
+    open(sys.argv[1], "a").write(f"{sys.argv[2]} sigint {time.monotonic()}\\n")
+    time.sleep(float(sys.argv[3]))  # what it takes to land / to close its files
+    open(sys.argv[1], "a").write(f"{sys.argv[2]} ended {time.monotonic()}\\n")
+    sys.exit(0)
+signal.signal(signal.SIGINT, on_int)
+open(sys.argv[1], "a").write(f"{sys.argv[2]} ready {time.monotonic()}\\n")
+while True:
+    time.sleep(0.01)
+"""
+
+
+def test_a_launch_stops_the_companion_first_then_every_simulator_on_a_ctrl_c(tmp_path):
+    """`scripts.launch.Launch` on a KeyboardInterrupt inside its `with` (a Ctrl-C while the
+    children start or fly): the companion gets SIGINT and is waited for (it lands or disarms
+    the vehicles) before the simulators get theirs; none is left running. Ordered by the log
+    the children write, not by a clock's margin."""
+    from scripts import launch
+
+    log = tmp_path / "order.log"
+    ready = lambda: log.read_text().count("ready") if log.exists() else 0  # noqa: E731
+    kids = None
+    with pytest.raises(KeyboardInterrupt):
+        with launch.Launch() as kids:
+            for name in ("sim0", "sim1"):
+                kids.start_sim(name, [sys.executable, "-c", _CHILD, str(log), name, "0"], None)
+            kids.start_companion([sys.executable, "-c", _CHILD, str(log), "companion", "0.3"])
+            while ready() < 3:
+                assert all(c.proc.poll() is None for c in (kids.companion, *kids.sims))
+                time.sleep(0.01)
+            raise KeyboardInterrupt
+    assert all(c.proc.poll() == 0 for c in (kids.companion, *kids.sims))
+    lines = [ln.split()[:2] for ln in log.read_text().splitlines() if "ready" not in ln]
+    assert lines[:2] == [["companion", "sigint"], ["companion", "ended"]]
+    assert sorted(lines[2:]) == [["sim0", "ended"], ["sim0", "sigint"], ["sim1", "ended"],
+                                 ["sim1", "sigint"]]  # fmt: skip
 
 
 def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
