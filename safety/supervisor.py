@@ -17,6 +17,7 @@ Every switch is written to `events` (anything with `.write(dict)`, e.g. JsonlWri
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import math
 from dataclasses import dataclass, field
@@ -576,9 +577,7 @@ class Supervisor:
         last = self.last_sp
         if cmd.yaw is not None or cmd.yaw_rate is not None or last is None or last.yaw is None:
             return cmd
-        return Setpoint(
-            pos_ned=cmd.pos_ned, vel_ned=cmd.vel_ned, yaw=last.yaw, yaw_rate=cmd.yaw_rate
-        )
+        return dataclasses.replace(cmd, yaw=last.yaw)
 
     def _fallback_command(self, state: VehicleState, health: Health) -> tuple[Setpoint, FlightMode]:
         """The fallback's command and the mode it is flown in. Normally the autopilot's own
