@@ -4,7 +4,9 @@ rate it sustains.
 Scenario (both runs identical): the quadrotor arms, takes off to 10 m and hovers, autopilot
 at 250 Hz with 1 kHz physics. "alone" steps the autopilot only; "with MAVLink" runs the SITL
 runner at --speedup 0 with both links streaming at their default rates while a separate
-process receives the API link and counts what arrives. "signing on" is the same run with a
+process receives the API link and counts what arrives (and a socket is bound on the ground
+stations' port 14550, as QGroundControl binds it: with nobody there the ground-station link
+streams only its heartbeat). "signing on" is the same run with a
 MAVLink 2 signing key: every frame sent is signed (SHA-256 per frame).
 
     .venv/bin/python bench/bench_sitl.py [--quick]
@@ -13,6 +15,7 @@ MAVLink 2 signing key: every frame sent is signed (SHA-256 per frame).
 from __future__ import annotations
 
 import argparse
+import socket
 import subprocess
 import sys
 import tempfile
@@ -77,7 +80,12 @@ def bench_endpoint(sim_s: float, signing_key: Path | None = None) -> dict:
     ap = make_autopilot("quadrotor", clock=SimClock())
     _fly(ap)
     cfg = EndpointConfig(instance=INSTANCE, signing_key=signing_key)
-    with Sitl(ap, cfg, speedup=0.0) as sitl:
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # a ground station's port, bound
+    try:
+        gcs.bind(cfg.gcs_remote)
+    except OSError:  # a real ground station has it: it listens too
+        pass
+    with gcs, Sitl(ap, cfg, speedup=0.0) as sitl:
         c0 = time.process_time()
         stats = sitl.run(duration_s=sim_s)
         cpu = time.process_time() - c0
