@@ -36,13 +36,22 @@ def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+_LEAVES = frozenset({float, int, str, bool, type(None)})  # plain JSON values, kept as they are
+
+
 def to_jsonable(obj: Any) -> Any:
     """Dataclasses, enums, numpy values and paths → plain JSON values."""
     t = type(obj)
-    if t is float or t is int or t is str or t is bool or obj is None:
+    if t in _LEAVES:
         return obj  # the common leaf, first (a decision record holds dozens of them)
     if t is np.float64:
         return float(obj)  # the next most common (numpy arithmetic on a vehicle's state)
+    # plain dicts and lists (a record's own): their leaves are kept without a call each
+    if t is dict:
+        return {k if type(k) is str else str(k): v if type(v) in _LEAVES else to_jsonable(v)
+                for k, v in obj.items()}  # fmt: skip
+    if t is list:
+        return [v if type(v) in _LEAVES else to_jsonable(v) for v in obj]
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, enum.Enum):
