@@ -119,7 +119,7 @@ def test_plan_validation_rejects_bad_plans(tmp_path):
 
 
 def test_params_reject_nan_and_out_of_range():
-    assert FormationParams().altitude(3) == pytest.approx(8.0 + 4.5)
+    assert FormationParams().altitude(3) == pytest.approx(8.0 + 9.0)  # 3 m layers
     assert FormationParams(cell_m=3.0).step_s == pytest.approx(1.5)  # 2 m/s at any cell size
     assert FormationParams(cell_m=20.0, speed_mps=4.0).step_s == pytest.approx(5.0)
     bad_sets = ({"cell_m": math.nan}, {"cell_m": 0.5}, {"speed_mps": 0.0},
@@ -176,9 +176,9 @@ def test_fly_formation_k4_learned_plan_lands_every_vehicle_on_its_target(tmp_pat
     by = _tracks(run)
     for k in range(4):
         pos = np.array([[float(r["north"]), float(r["east"]), float(r["down"])] for r in by[k]])
-        # starts on its start cell, cruises at 8 + 1.5 k m, lands on its target cell's centre
+        # starts on its start cell, cruises at 8 + 3 k m, lands on its target cell's centre
         assert np.linalg.norm(pos[0, :2] - cell_ne(tuple(plan[k][0]), 2.0)) < 0.05
-        assert (-pos[:, 2]).max() == pytest.approx(8.0 + 1.5 * k, abs=0.5)
+        assert (-pos[:, 2]).max() == pytest.approx(8.0 + 3.0 * k, abs=0.5)
         assert np.linalg.norm(pos[-1, :2] - cell_ne(tuple(plan[k][-1]), 2.0)) < 1.0
         assert -pos[-1, 2] < 0.3 and by[k][-1]["armed"] == "0"
         assert {"takeoff", "plan", "land"} <= {r["phase"] for r in by[k]}
