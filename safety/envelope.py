@@ -251,35 +251,27 @@ class Envelope:
         r = self.residual(z)
         if not np.all(np.isfinite(r)):
             return [("non-finite state or action", math.nan)]
-        sel = self.select(r)
+        sel = self.selected(r)
         bad = sel[r[sel] > 0]
         bad = bad[np.argsort(-r[bad])]
         return [(self.names[i], float(r[i])) for i in bad]
-
-    def worst_violated(self, z: np.ndarray) -> str:
-        """The name `violated(z)` lists first, without building the list: its worst row, or
-        "non-finite state or action"; "" when no row is violated. The selected rows come from
-        the compiled kernels.select_mask (the same rows as `select`, in the same order)."""
-        r = self.residual(z)
-        if not np.isfinite(r).all():
-            return "non-finite state or action"
-        k = _kernels()
-        sel = np.flatnonzero(
-            k.select_mask(r, self.n_base, self.n_piece_end, self.piece_starts, self.zone_starts)
-        )
-        bad = sel[r[sel] > 0]
-        if not len(bad):
-            return ""
-        return self.names[bad[np.argsort(-r[bad])[0]]]
 
     def nearly_active(self, z: np.ndarray) -> list[tuple[str, float]]:
         """Rows of the selected polyhedron within their `near` threshold of the limit."""
         r = self.residual(z)
         if not np.all(np.isfinite(r)):
             return []
-        sel = self.select(r)
+        sel = self.selected(r)
         hit = sel[(r[sel] > -self.near[sel]) & (r[sel] <= 0)]
         return [(self.names[i], float(r[i])) for i in hit[np.argsort(-r[hit])]]
+
+    def selected(self, r: np.ndarray) -> np.ndarray:
+        """`select(r)` from the compiled kernels.select_mask (the same rows in the same order,
+        tested against it): what the net's checks use at run time, `select` is the reference."""
+        k = _kernels()
+        return np.flatnonzero(
+            k.select_mask(r, self.n_base, self.n_piece_end, self.piece_starts, self.zone_starts)
+        )
 
     def distance_outside(self, p_ned: np.ndarray) -> float:
         """For a position-only (geometric) envelope: metres beyond the fence (<= 0 inside)."""

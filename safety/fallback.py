@@ -21,7 +21,6 @@ from flight.autopilot_api import Setpoint
 from flight.geo import GRAVITY
 from flight.state import VehicleState
 from safety.envelope import NZ, Envelope, Kind, P
-from safety.kernels import select_mask
 
 ZERO3 = np.zeros(3)
 
@@ -127,8 +126,7 @@ def selected_rows(geometry: Envelope, pos_ned: np.ndarray) -> tuple[np.ndarray, 
     z = np.zeros(NZ)
     z[P] = pos_ned
     r = geometry.residual(z)
-    e = geometry
-    return np.flatnonzero(select_mask(r, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)), r
+    return geometry.selected(r), r
 
 
 def inside_with_margin(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> bool:

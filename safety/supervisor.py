@@ -334,7 +334,8 @@ class Supervisor:
             if i >= 0:
                 return Severity.NEAR, self.envelope.names[i], u
             return Severity.NONE, "", u
-        name = self.envelope.worst_violated(z) or "non-finite state or action"
+        viol = self.envelope.violated(z)
+        name = viol[0][0] if viol else "non-finite state or action"
         if self.projector is not None:
             up = self.projector.project(z.copy())
             if up is not None:

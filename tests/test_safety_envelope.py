@@ -121,6 +121,10 @@ def test_compiled_check_equals_numpy_reference_on_a_union():
             rng.normal(0, 0.4, 2),
         )
         assert env.worst(z) == pytest.approx(env.worst_of(env.residual(z)), abs=1e-12)
+        r = env.residual(z)
+        assert np.array_equal(env.selected(r), env.select(r))  # the rows and their order
+        tied = np.round(r, 0)  # equal residuals: both take the first of the tied rows
+        assert np.array_equal(env.selected(tied), env.select(tied))
 
 
 def test_monitor_prediction_and_stopping_distance():
