@@ -10,6 +10,13 @@ time-passed-in machine; its rules in its docstring): a mode the net did not ask 
 or link-loss failsafe, a fence action, a ground station, an RC pilot) ends the AI's authority;
 the mission ends on RTL / LAND and waits on any other mode until someone gives OFFBOARD back.
 A request counts as asked for when it is sent, and is withdrawn if the autopilot refuses it.
+
+Every change of (mode, armed) the vehicle's heartbeats show (`VehicleLink.seen`, in arrival
+order, not sampled per tick) is fed to the rules, so an RTL that comes and goes between two
+ticks still ends the AI's authority, and is written to modes.jsonl (`log`): t, mode, armed,
+alt_m, by_companion (true / false while the net has the vehicle; null before the hand-over and
+after the AI phase, when the take-off and landing steps own the modes), authority (the rules'
+phase). A disarm in the air while the net has the vehicle ends the mission as failed.
 """
 
 from __future__ import annotations
@@ -19,8 +26,8 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from flight.autopilot_api import FlightMode
-from mission.steps import mode_params
-from mission.vehicle import VehicleLink
+from mission.steps import MissionError, mode_params
+from mission.vehicle import Seen, VehicleLink
 from safety.authority import Authority
 
 M = mavlink2
@@ -35,13 +42,51 @@ class ModeAuthority:
     pending: FlightMode | None = None  # the request sent and not yet answered
     t_sent: float = -1e9
     requests: int = 0
+    log: object | None = None  # modes.jsonl (a runio.JsonlWriter) or None
+    airborne_m: float = 0.5  # a disarm above this altitude [m] is a disarm in the air
+    t_start: float | None = None  # tick time of the hand-over [s]
+    t_last: float | None = None  # tick time of the last update under the rules [s]
+    _read: int = 0  # how many of VehicleLink.seen are taken
 
     def __post_init__(self) -> None:
         self.rules = Authority(self.events, self.vehicle)
 
     def adopt(self, v: VehicleLink, mode: FlightMode) -> None:
         """The hand-over: a phase put the vehicle in `mode`; the net now has it."""
+        self.record(v)
         self.rules.start(v.t, v.tel.mode, mode)
+        self.t_start = self.t_last = v.t
+
+    def record(self, v: VehicleLink) -> None:
+        """Write the changes seen since the last call, outside the rules (take-off, landing)."""
+        self._take(v, feed=False)
+
+    def _take(self, v: VehicleLink, feed: bool) -> None:
+        new = v.seen[self._read :]
+        self._read = len(v.seen)
+        for s in new:
+            mode_changed = s.mode is not self.rules.observed
+            by = None
+            if feed and self.rules.has_authority:
+                by = mode_changed and s.mode is self.rules.asked and s.armed
+                if not s.armed and s.alt_m > self.airborne_m:
+                    self._write(s, by)
+                    raise MissionError(f"disarmed in the air at {s.alt_m:.1f} m (t = {s.t:.2f} s)"
+                                       f": not by the companion; the vehicle falls")  # fmt: skip
+            if feed:
+                self.rules.observe(s.t, s.mode, v.tel.statustext)
+            self._write(s, by)
+
+    def _write(self, s: Seen, by: bool | None) -> None:
+        if self.log is None:
+            return
+        rec = {"t": round(s.t, 6), "mode": s.mode.name if s.mode else None, "armed": s.armed,
+               "alt_m": None if s.alt_m != s.alt_m else round(s.alt_m, 3), "by_companion": by,
+               "authority": self.rules.phase.value}  # fmt: skip
+        try:
+            self.log.write(rec)
+        except Exception:  # noqa: BLE001  the record never stops the flight
+            pass
 
     def update(self, v: VehicleLink) -> str:
         """Once per tick: the autopilot's answer to a pending request, then its reported mode.
@@ -53,7 +98,8 @@ class ModeAuthority:
                 if result != M.MAV_RESULT_ACCEPTED:
                     self.rules.requested(v.t, self.pending, accepted=False)
                 self.pending = None
-        self.rules.observe(v.t, v.tel.mode, v.tel.statustext)
+        self._take(v, feed=True)  # every change in arrival order, not the tick's last
+        self.t_last = v.t
         return self.rules.mission
 
     @property

@@ -204,6 +204,8 @@ class SingleVehicleMission:
                             v.tel.mode)  # fmt: skip
             return
         camera_t = self.perception.camera_t if self.perception is not None else t
+        if camera_t is None:  # no frame since the hand-over: lost, not unmonitored
+            camera_t = self.authority.t_start
         params_fault = ""
         if self.guard is not None:  # anyone's PARAM_SET mid-flight is re-checked here
             for t_p, name, value in v.param_updates:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from typing import NamedTuple
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -24,6 +25,15 @@ from hil.link import MavlinkLink
 
 M = mavlink2
 COMPANION_COMPONENT = M.MAV_COMP_ID_ONBOARD_COMPUTER  # 191 (CONVENTIONS.md)
+
+
+class Seen(NamedTuple):
+    """A change of the autopilot's (mode, armed) in a HEARTBEAT, in arrival order."""
+
+    t: float  # the tick time it arrived in [s] (the latest mark)
+    mode: object  # FlightMode or None
+    armed: bool
+    alt_m: float  # the companion's altitude above home then [m] (NaN before a position)
 
 
 class LinkLost(Exception):
@@ -52,6 +62,7 @@ class VehicleLink:
         self.unknown_autopilot = ""  # the reason, if the vehicle's autopilot is not one we fly
         self._reposition_t = -float("inf")  # tick time of the last DO_REPOSITION setpoint [s]
         self._outbox: list | None = None  # lockstep: what this tick sends, sent with its close
+        self.seen: list[Seen] = []  # every change of (mode, armed), not sampled per tick
 
     # ---- receiving ---------------------------------------------------------------------------
     def _pull(self, timeout_s: float) -> bool:
@@ -137,6 +148,10 @@ class VehicleLink:
             return
         if t == "HEARTBEAT":
             self.heartbeat_t = self.t
+            tel = self.tel
+            if not self.seen or (tel.mode, tel.armed) != self.seen[-1][1:3]:
+                alt = -float(tel.pos_ned[2]) if tel.pos_ned is not None else float("nan")
+                self.seen.append(Seen(self.t, tel.mode, tel.armed, alt))
         elif t == "LOCAL_POSITION_NED":
             tel = self.tel
             self.telemetry_t = self.t

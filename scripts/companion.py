@@ -351,6 +351,11 @@ def run(args: argparse.Namespace) -> int:
     if use_camera:
         session, frames = open_frames(args)
         _publish_live(session, mission)
+        from mission.companion import LoggedFrames
+        from runio import CsvWriter
+
+        frames = LoggedFrames(frames, CsvWriter(run_dir / "frames.csv", ["t", "status"]))
+    mission.authority.log = JsonlWriter(run_dir / "modes.jsonl")  # every (mode, armed) change
     try:
         link = MavlinkLink.open(address, source_system=1 + args.instance, source_component=COMPANION_COMPONENT,
                                 tlog=run_dir / "telemetry.tlog", signing_key=args.signing_key)  # fmt: skip
@@ -375,6 +380,7 @@ def run(args: argparse.Namespace) -> int:
 
     def on_tick(veh):
         mission.write_track(veh)
+        mission.authority.record(veh)  # the changes outside the net's loop (take-off, landing)
         if shown["phase"] != mission.phase:
             shown["phase"] = mission.phase
             bar.set_description_str(mission.phase, refresh=False)
@@ -431,6 +437,8 @@ def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
         "mode_requests": mission.authority.requests,
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
+        "authority": {"t_start": mission.authority.t_start, "t_end": mission.authority.t_last,
+                      "land": bool(getattr(getattr(mission, "f", mission.plan), "land", True))},  # fmt: skip
     }
     if getattr(mission, "plan", None) is not None and mission.name == "orbit":
         import dataclasses as dc

@@ -4,6 +4,7 @@ summary.md that says how the flight ended (completed / aborted with the reason /
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -13,6 +14,7 @@ import numpy as np
 from mission.metrics import cross_track, groundair_metrics
 from policy.groundair.params import TaskParams
 from runio import atomic_write_text, markdown_table
+from safety.judge import Check, Ending, JudgeParams, ModeChange, Truth, first_failed, judge
 from scripts.launch import flight_reason
 
 
@@ -60,6 +62,10 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
         outcome, reason = "interrupted", "interrupted (Ctrl-C)"
     elif rc != 0 and outcome == "completed":
         outcome = "aborted"
+    checks = judge_run(run_dir, args, comp, outcome, reason)
+    failed = first_failed(checks)
+    if failed is not None and outcome == "completed":
+        outcome, reason = "failed", f"{failed.name}: {failed.figure}: {failed.reason}"
     ok = outcome == "completed" and rc == 0
     decisions = _jsonl(run_dir / "decisions.jsonl")
     track = _track(_rows(run_dir / "metrics.csv"))
@@ -90,10 +96,16 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
     status = {"completed": "completed", "yielded": "ended: the autopilot took over"}.get(
         outcome, outcome.upper()
     )
+    if failed is not None and outcome != "interrupted":
+        reason = f"{reason}; first failed check: {failed.name}: {failed.figure}: {failed.reason}"
+        if outcome == "failed":
+            reason = f"first failed check: {failed.name}: {failed.figure}: {failed.reason}"
     lines = [f"# skyherd fly: {status}", "", title + ".", ""]
     if not ok:
         lines += [f"**Why it ended:** {reason or 'see companion.json and sim.log'}", ""]
     lines += [table]
+    verdicts = judge_table(checks)
+    lines += ["", "## The judge (safety/judge.py: truth and the companion's records)", "", verdicts]
     if any("explanation" in d for d in decisions):  # a modular policy said why it acted
         from policy.education.timeline import read_decisions, timeline
 
@@ -106,11 +118,58 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
         ]
     atomic_write_text(run_dir / "summary.md", "\n".join(lines))
     print(table)
+    if not ok:
+        print(verdicts)
     files = sorted(p.name for p in run_dir.iterdir())
     print(
         f"skyherd fly: {status}{'' if ok else ': ' + (reason or '')}; {', '.join(files)} in {run_dir}"
     )
     return ok
+
+
+def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> list[Check]:
+    """safety.judge on the run folder: world.csv (the truth; without a simulator, the
+    autopilot's own track in metrics.csv, said so), the envelope of config.json (the
+    airframe's default set for a mission without one), modes.jsonl, frames.csv and
+    companion.json's hand-over window."""
+    from safety.config import ENVELOPE_DIR, fill_dataclass, load_envelope
+    from safety.supervisor import SupervisorParams
+    from scripts.fly import _ENVELOPE
+
+    cfg = {}
+    if (run_dir / "config.json").exists():
+        cfg = json.loads((run_dir / "config.json").read_text())
+    env = (cfg.get("envelope") or {}).get("path") or getattr(args, "envelope", None)
+    spec, table = load_envelope(env or ENVELOPE_DIR / _ENVELOPE[getattr(args, "airframe", "quadrotor")])
+    params = fill_dataclass(SupervisorParams, table, "supervisor")
+    world = _rows(run_dir / "world.csv")
+    rows = world or _rows(run_dir / "metrics.csv")
+    truth = Truth.from_rows(rows)
+    changes = [ModeChange(float(r["t"]), r.get("mode") or "", bool(r.get("armed")),
+                          r.get("by_companion"),
+                          math.nan if r.get("alt_m") is None else float(r["alt_m"]))
+               for r in _jsonl(run_dir / "modes.jsonl")]  # fmt: skip
+    auth = comp.get("authority") or {}
+    t0, t1 = auth.get("t_start"), auth.get("t_end")
+    window = (float(t0), float(t1)) if t0 is not None and t1 is not None else None
+    frames = None
+    if (run_dir / "frames.csv").exists():
+        frames = [float(r["t"]) for r in _rows(run_dir / "frames.csv") if r["status"] == "ok"]
+    rendered = 0
+    if window is not None:
+        rendered = sum(1 for r in world if window[0] - 1e-9 <= float(r["t"]) <= window[1] + 1e-9)
+    ending = Ending(outcome, reason, bool(auth.get("land", True)))
+    checks = judge(truth, spec, changes, window, frames, rendered, ending,
+                   JudgeParams(camera_gap_max_s=params.camera_timeout_s))  # fmt: skip
+    if not world:  # no simulator: say whose track the truth checks used
+        checks = [dataclasses.replace(c, figure=c.figure + " (autopilot's track: no simulator truth)")
+                  if c.name in ("fence", "armed", "end") else c for c in checks]  # fmt: skip
+    return checks
+
+
+def judge_table(checks: list[Check]) -> str:
+    return markdown_table(["check", "result", "figure", "reason"],
+                          [[c.name, "pass" if c.ok else "FAIL", c.figure, c.reason] for c in checks])  # fmt: skip
 
 
 def _legs(decisions: list[dict]) -> list[tuple[float, float, np.ndarray]]:
