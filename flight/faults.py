@@ -20,6 +20,10 @@ Models (all NED, SI):
            (σ_v, τ_v), the smoothed error an EKF output shows (not white GPS noise).
   battery  `battery@T:F` drops the remaining charge to F ∈ [0, 1] at T (a failing cell);
            `drain@T:W:D` draws W watts more for D s (heater, stuck motor).
+  disarm   `disarm@T`: the autopilot is force-disarmed at T (a kill switch, or a ground
+           station's COMPONENT_ARM_DISARM 0 with 21196); in the air the vehicle falls.
+  rtl      `rtl@T[:D]`: the autopilot switches to RTL at T and, after D s, back to the mode it
+           was in (a ground station's or an RC pilot's RTL and back); D omitted = stays in RTL.
 
 Command line (`parse_fault_args`, the same flags for `skyherd sitl` and `skyherd sim`):
   --wind SPEED,FROM[,DOWN]  mean wind [m/s] blowing from FROM [deg clockwise from north]
@@ -33,6 +37,8 @@ Command line (`parse_fault_args`, the same flags for `skyherd sitl` and `skyherd
       wind@40:16,90:10          extra 16 m/s from the east for 10 s (a gust front)
       battery@60:0.06           charge drops to 6 % at t = 60 s
       drain@10:300:60           300 W more for 60 s
+      disarm@25                 forced disarm at t = 25 s
+      rtl@25.02:0.05            RTL at t = 25.02 s, the mode before it again at 25.07 s
 """
 
 from __future__ import annotations
@@ -45,7 +51,8 @@ import numpy as np
 
 from flight.wind import WindField, WindModel
 
-KINDS = ("gps_glitch", "gps_drift", "gps_loss", "wind", "battery", "drain")
+KINDS = ("gps_glitch", "gps_drift", "gps_loss", "wind", "battery", "drain", "disarm", "rtl")
+SWITCH_KINDS = ("disarm", "rtl")  # faults that act on the autopilot's arming or mode
 
 
 class FaultSpecError(ValueError):
@@ -78,6 +85,8 @@ class FaultEvent:
             raise FaultSpecError(f"{self.kind}: duration must be > 0 s (omit it for 'to the end')")
         if self.kind == "battery" and not 0.0 <= self.value <= 1.0:
             raise FaultSpecError(f"battery@T:F needs F in [0, 1], got {self.value}")
+        if self.kind == "disarm" and self.duration is not None:
+            raise FaultSpecError("disarm@T takes no duration: a disarm is for good")
         if self.kind == "drain" and not 0.0 <= self.value <= 1e5:
             raise FaultSpecError(f"drain@T:W:D needs 0 <= W <= 1e5 watts, got {self.value}")
 
@@ -88,8 +97,10 @@ class FaultEvent:
         """The command-line form (parse_fault_event(e.to_text()) == e)."""
         dur = "" if self.duration is None else f":{self.duration:g}"
         v = ",".join(f"{c:g}" for c in self.vec)
-        if self.kind == "gps_loss":
-            return f"gps_loss@{self.t0:g}{dur}"
+        if self.kind in ("gps_loss", "rtl"):
+            return f"{self.kind}@{self.t0:g}{dur}"
+        if self.kind == "disarm":
+            return f"disarm@{self.t0:g}"
         if self.kind == "wind":
             sp = math.hypot(self.vec[0], self.vec[1])
             frm = math.degrees(math.atan2(-self.vec[1], -self.vec[0])) % 360.0
@@ -185,15 +196,15 @@ def parse_fault_event(text: str) -> FaultEvent:
     parts = rest.split(":")
     t0 = _floats(parts[0], f"--fault {text!r} time", 1, 1)[0]
     args = parts[1:]
-    want = 0 if kind == "gps_loss" else 1
+    want = 0 if kind in ("gps_loss", "disarm", "rtl") else 1
     if len(args) < want or len(args) > want + 1:
-        form = "gps_loss@T[:DURATION]" if kind == "gps_loss" else f"{kind}@T:ARGS[:DURATION]"
+        form = f"{kind}@T[:DURATION]" if want == 0 else f"{kind}@T:ARGS[:DURATION]"
         raise FaultSpecError(f"--fault {text!r}: write {form}")
     dur = None
     if len(args) > want:
         dur = _floats(args[-1], f"--fault {text!r} duration", 1, 1)[0]
     try:
-        if kind == "gps_loss":
+        if kind in ("gps_loss", "disarm", "rtl"):
             return FaultEvent(kind, t0, dur)
         if kind in ("battery", "drain"):
             v = _floats(args[0], f"--fault {text!r}", 1, 1)[0]
@@ -251,7 +262,8 @@ def add_fault_arguments(parser) -> None:
                         help="estimate noise std: position [m], velocity [m/s]; default none")  # fmt: skip
     parser.add_argument("--fault", action="append", default=[], metavar="KIND@T[:ARGS][:DUR]",
                         help="timed fault, repeatable: gps_glitch@30:20,0,0:5, gps_drift@30:0.5,0,0:20, "
-                        "gps_loss@30:10, wind@40:16,90:10, battery@60:0.06, drain@10:300:60")  # fmt: skip
+                        "gps_loss@30:10, wind@40:16,90:10, battery@60:0.06, drain@10:300:60, "
+                        "disarm@25, rtl@25.02:0.05")  # fmt: skip
 
 
 def plan_from_args(args, seed: int = 0) -> FaultPlan:
@@ -297,6 +309,8 @@ class FaultInjector:
             (e, np.asarray(e.vec, dtype=float)) for e in plan.events if e.kind.startswith("gps_")
         )
         self._battery_events = tuple(e for e in plan.events if e.kind in ("battery", "drain"))
+        self._switch_events = tuple(e for e in plan.events if e.kind in SWITCH_KINDS)
+        self._switched: set[tuple[int, int]] = set()
         self.touches_estimate = plan.touches_estimate
         self.calm = self.wind.calm and not self._wind_events
 
@@ -318,6 +332,20 @@ class FaultInjector:
             elif e.kind == "drain" and e.active(t):
                 watts += e.value
         return drop, watts
+
+    def switches(self, t: float) -> list[str]:
+        """The arming / mode actions due at t, each once, in order: "disarm", "rtl" and
+        "rtl_end" (back to the mode before the RTL)."""
+        out = []
+        for i, e in enumerate(self._switch_events):
+            if t >= e.t0 and (i, 0) not in self._switched:
+                self._switched.add((i, 0))
+                out.append(e.kind)
+            end = e.t0 + e.duration if e.duration is not None else math.inf
+            if e.kind == "rtl" and t >= end and (i, 1) not in self._switched:
+                self._switched.add((i, 1))
+                out.append("rtl_end")
+        return out
 
     def update(self, t: float, dt: float) -> GpsError:
         """The estimate's error at time t (dt: the step, for the noise processes)."""

@@ -141,6 +141,7 @@ class FixedWingAutopilot(AutopilotBase):
             raise ValueError(f"control_dt {control_dt} s is not a whole number of microseconds")
         self._armed = False
         self._mode = FlightMode.HOLD
+        self._mode_before_rtl = FlightMode.HOLD  # the rtl fault's way back (flight.faults)
         self._phase = Phase.IDLE
         self._progress = MissionProgress()
         self._mission: list[MissionItem] = []
@@ -283,6 +284,21 @@ class FixedWingAutopilot(AutopilotBase):
             self.land()
             self._event("mode -> land (geofence)")
 
+    def _fault_switches(self, due: list[str]) -> None:
+        """The disarm / rtl faults (flight.faults): as a kill switch or a ground station would."""
+        for what in due:
+            if what == "disarm":
+                self._event("fault: forced disarm")
+                self.disarm(force=True)
+            elif what == "rtl":
+                self._mode_before_rtl = self._mode
+                self._event("fault: RTL")
+                self.set_mode(FlightMode.RTL)
+            else:
+                back = self._mode_before_rtl
+                self._event(f"fault: back to {back.name}")
+                self.set_mode(back)
+
     def _apply_faults(self) -> None:
         """Wind on JSBSim and the estimate's GPS error for the step that starts now."""
         inj, t, dt = self._inj, self.clock.t, self.control_dt
@@ -293,6 +309,8 @@ class FixedWingAutopilot(AutopilotBase):
             if drop is not None and drop < self.battery_remaining:
                 self._battery_drop += self.battery_remaining - drop
                 self._event(f"battery fault: charge {drop:.0%}")
+        if inj._switch_events:
+            self._fault_switches(inj.switches(t))
         if not inj.touches_estimate:
             return
         e = inj.update(t, dt)

@@ -172,6 +172,7 @@ class MultirotorAutopilot(AutopilotBase):
         # commander / navigator state
         self._armed = False
         self._mode = FlightMode.HOLD
+        self._mode_before_rtl = FlightMode.HOLD  # the rtl fault's way back (flight.faults)
         self._ground_since: float | None = 0.0
         self._armed_at = 0.0
         self._flown = False  # took off since arming
@@ -337,6 +338,21 @@ class MultirotorAutopilot(AutopilotBase):
         ex[:] = self._x
         ex[0:6] += self._inj.err.pv
 
+    def _fault_switches(self, due: list[str]) -> None:
+        """The disarm / rtl faults (flight.faults): as a kill switch or a ground station would."""
+        for what in due:
+            if what == "disarm":
+                self._event("fault: forced disarm")
+                self.disarm(force=True)
+            elif what == "rtl":
+                self._mode_before_rtl = self._mode
+                self._event("fault: RTL")
+                self.set_mode(FlightMode.RTL)
+            else:
+                back = self._mode_before_rtl
+                self._event(f"fault: back to {back.name}")
+                self.set_mode(back)
+
     def _apply_faults(self, inj: FaultInjector, t: float) -> None:
         """Wind, GPS error and battery faults for the step that starts at t."""
         dt = self.control_dt
@@ -348,6 +364,8 @@ class MultirotorAutopilot(AutopilotBase):
                 self._battery_drop += self.battery_remaining - drop
                 self._event(f"battery fault: charge {drop:.0%}")
             self._extra_j += watts * dt
+        if inj._switch_events:
+            self._fault_switches(inj.switches(t))
 
     def _gps_update(self, inj: FaultInjector, t: float) -> None:
         """The estimate at t (after the physics step) and the GPS-loss rule."""
