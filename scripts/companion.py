@@ -437,8 +437,11 @@ def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
         "mode_requests": mission.authority.requests,
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
-        "authority": {"t_start": mission.authority.t_start, "t_end": mission.authority.t_last,
-                      "land": bool(getattr(getattr(mission, "f", mission.plan), "land", True))},  # fmt: skip
+        "authority": {
+            "t_start": mission.authority.t_start,
+            "t_end": mission.authority.t_last,
+            "land": bool(getattr(getattr(mission, "f", mission.plan), "land", True)),
+        },  # fmt: skip
     }
     if getattr(mission, "plan", None) is not None and mission.name == "orbit":
         import dataclasses as dc
