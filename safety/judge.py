@@ -10,7 +10,9 @@ passes, and the first that fails is the one named:
   armed     never disarmed in the air (truth samples, and every arming change the companion saw).
   modes     every mode or arming change in the AI phase was one the companion asked for.
   camera    camera frames arrived through the AI phase: ≥ `frame_fraction_min` of the frames the
-            simulator rendered there, and no gap longer than the net's camera timeout.
+            simulator rendered there, and every gap longer than the net's camera timeout (+ the
+            detection time `camera_catch_s`) caught by the net: a lost camera is a net event and
+            a fallback (the net not in "ai" once the timeout ran out), not a blind flight.
   end       landed (truth altitude ≤ `landed_m`) and disarmed; or, for a flight that ends in
             the air by design (the fixed-wing orbit with --orbit-no-land: docs/orbit.md), armed,
             airborne and in one of the net's modes.
@@ -38,6 +40,7 @@ class JudgeParams:
     landed_m: float = 0.3  # truth altitude above home at the end at most this = landed [m]
     frame_fraction_min: float = 0.9  # frames received / rendered in the AI phase, at least
     camera_gap_max_s: float = 1.0  # longest gap between good frames (the net's camera timeout) [s]
+    camera_catch_s: float = 0.2  # the net's detection time after the timeout (a tick + margin) [s]
 
 
 @dataclass(frozen=True)
@@ -92,16 +95,18 @@ class Check:
 
 def judge(truth: Truth, spec: EnvelopeSpec, changes: Sequence[ModeChange],
           ai_window: tuple[float, float] | None, frame_t: Sequence[float] | None,
-          rendered: int, ending: Ending, p: JudgeParams = JudgeParams()) -> list[Check]:  # fmt: skip
+          rendered: int, ending: Ending, net_modes: Sequence[tuple[float, str]] = (),
+          p: JudgeParams = JudgeParams()) -> list[Check]:  # fmt: skip
     """Every check, in order (module docstring). ai_window: (hand-over, end of the net's
     authority) [s], None when the net never had the vehicle; frame_t: the tick times of the
     good frames the companion received (None: the mission flies without a camera); rendered:
-    the frames the simulator rendered in the AI window (one per world.csv row)."""
+    the frames the simulator rendered in the AI window (one per world.csv row); net_modes: the
+    net's switches (t, to: "ai" | "fallback" | "pid"), events.jsonl; "ai" from the hand-over."""
     return [
         fence_check(truth, spec, ai_window, p),
         armed_check(truth, changes, p),
         modes_check(changes),
-        camera_check(frame_t, ai_window, rendered, p),
+        camera_check(frame_t, ai_window, rendered, net_modes, p),
         end_check(truth, ending, p),
         Check(
             "mission",
@@ -221,8 +226,18 @@ def modes_check(changes: Sequence[ModeChange]) -> Check:
                  f"mode change not the companion's ({len(foreign)} of {len(judged)} in the AI phase)")  # fmt: skip
 
 
+def net_mode_at(net_modes: Sequence[tuple[float, str]], t: float) -> str:
+    """The net's mode at t from its switches (t, to), "ai" before the first."""
+    mode = "ai"
+    for t_s, to in sorted(net_modes):
+        if t_s > t + 1e-9:
+            break
+        mode = to
+    return mode
+
+
 def camera_check(frame_t: Sequence[float] | None, ai_window, rendered: int,
-                 p: JudgeParams) -> Check:  # fmt: skip
+                 net_modes: Sequence[tuple[float, str]], p: JudgeParams) -> Check:  # fmt: skip
     if frame_t is None:
         return Check("camera", True, "no camera", "this mission flies without a camera")
     if ai_window is None:
@@ -239,10 +254,17 @@ def camera_check(frame_t: Sequence[float] | None, ai_window, rendered: int,
     if frac < p.frame_fraction_min:
         return Check("camera", False, fig, f"fewer than {100 * p.frame_fraction_min:.0f} % of the "
                      f"frames arrived in the AI phase ({t0:.1f}-{t1:.1f} s)")  # fmt: skip
-    if gap > p.camera_gap_max_s + 1e-9:
-        return Check("camera", False, fig, f"a gap longer than the camera timeout "
-                     f"{p.camera_gap_max_s:g} s in the AI phase")  # fmt: skip
-    return Check("camera", True, fig, "the frames arrived at their rate through the AI phase")
+    late = p.camera_gap_max_s + p.camera_catch_s
+    for g, a in zip(gaps, edges[:-1]):
+        if g > late + 1e-9 and net_mode_at(net_modes, a + late) == "ai":
+            return Check("camera", False, fig, f"blind: no frame for {g:.1f} s from t = {a:.1f} s "
+                         f"and the net still in ai at {a + late:.1f} s (camera timeout "
+                         f"{p.camera_gap_max_s:g} s)")  # fmt: skip
+    caught = sum(1 for g in gaps if g > late + 1e-9)
+    why = "the frames arrived at their rate through the AI phase"
+    if caught:
+        why += f"; {caught} gap(s) beyond the camera timeout, each caught by the net"
+    return Check("camera", True, fig, why)
 
 
 def end_check(truth: Truth, ending: Ending, p: JudgeParams) -> Check:

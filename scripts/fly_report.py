@@ -161,7 +161,9 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     if window is not None:
         rendered = sum(1 for r in world if window[0] - 1e-9 <= float(r["t"]) <= window[1] + 1e-9)
     ending = Ending(outcome, reason, bool(auth.get("land", True)))
-    checks = judge(truth, spec, changes, window, frames, rendered, ending,
+    net_modes = [(float(e["t"]), str(e["to"])) for e in _jsonl(run_dir / "events.jsonl")
+                 if e.get("event") == "switch" and "to" in e]  # fmt: skip
+    checks = judge(truth, spec, changes, window, frames, rendered, ending, net_modes,
                    JudgeParams(camera_gap_max_s=params.camera_timeout_s))  # fmt: skip
     if not world:  # no simulator: say whose track the truth checks used
         checks = [dataclasses.replace(c, figure=c.figure + " (autopilot's track: no simulator truth)")
