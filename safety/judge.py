@@ -54,12 +54,21 @@ class Truth:
 
     @staticmethod
     def from_rows(rows: Sequence[dict]) -> Truth:
-        """From world.csv rows as read by csv.DictReader (t, north, east, down, mode, armed)."""
+        """From world.csv rows as read by csv.DictReader (t, north, east, down, mode, armed);
+        a row that does not parse (the last one, cut by a kill) is left out."""
+        rows = [r for r in rows if _parses(r)]
         t = np.array([float(r["t"]) for r in rows], dtype=float)
         pos = np.array([[float(r["north"]), float(r["east"]), float(r["down"])] for r in rows],
                        dtype=float).reshape(-1, 3)  # fmt: skip
         armed = np.array([str(r.get("armed", "0")).strip() in ("1", "True") for r in rows], bool)
         return Truth(t, pos, armed, tuple(str(r.get("mode", "")) for r in rows))
+
+
+def _parses(row: dict) -> bool:
+    try:
+        return all(math.isfinite(float(row[k])) for k in ("t", "north", "east", "down"))
+    except (KeyError, TypeError, ValueError):
+        return False
 
 
 @dataclass(frozen=True)

@@ -156,10 +156,11 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     window = (float(t0), float(t1)) if t0 is not None and t1 is not None else None
     frames = None
     if (run_dir / "frames.csv").exists():
-        frames = [float(r["t"]) for r in _rows(run_dir / "frames.csv") if r["status"] == "ok"]
+        frames = [float(r["t"]) for r in _rows(run_dir / "frames.csv")
+                  if r.get("status") == "ok" and r.get("t")]  # fmt: skip
     rendered = 0
     if window is not None:
-        rendered = sum(1 for r in world if window[0] - 1e-9 <= float(r["t"]) <= window[1] + 1e-9)
+        rendered = int(np.sum((truth.t >= window[0] - 1e-9) & (truth.t <= window[1] + 1e-9)))
     ending = Ending(outcome, reason, bool(auth.get("land", True)))
     net_modes = [(float(e["t"]), str(e["to"])) for e in _jsonl(run_dir / "events.jsonl")
                  if e.get("event") == "switch" and "to" in e]  # fmt: skip
