@@ -78,15 +78,22 @@ class FrameInbox:
 
 
 class LoggedFrames:
-    """A FrameSource whose every frame received (ok or corrupt) goes to `log` as (t, status):
-    frames.csv, what the judge counts the camera's rate on (safety.judge)."""
+    """A FrameSource whose every frame received (ok or corrupt) goes to `log` as (t, status,
+    n): frames.csv, what the judge counts the camera's rate on (safety.judge). n: the frames
+    the row stands for (free-running, the newest frame is taken and those that came since the
+    last take were skipped: 1 + their count)."""
+
+    COLUMNS = ["t", "status", "n"]
 
     def __init__(self, source: FrameSource, log):
         self.source, self.log = source, log
+        stats = getattr(getattr(source, "sub", None), "stats", None)
+        self._skipped = (lambda: stats.skipped) if stats is not None else (lambda: 0)
+        self._skipped0 = self._skipped()
 
-    def _write(self, t: float, status: str) -> None:
+    def _write(self, t: float, status: str, n: int = 1) -> None:
         try:
-            self.log.write({"t": round(float(t), 6), "status": status})
+            self.log.write({"t": round(float(t), 6), "status": status, "n": n})
         except Exception:  # noqa: BLE001 - the record never stops the flight
             pass
 
@@ -99,7 +106,8 @@ class LoggedFrames:
     def newest(self):
         fr, status = self.source.newest()
         if fr is not None:
-            self._write(fr.t_sim, status)
+            skipped, self._skipped0 = self._skipped() - self._skipped0, self._skipped()
+            self._write(fr.t_sim, status, 1 + max(skipped, 0))
         return fr, status
 
 

@@ -105,17 +105,19 @@ class Check:
 def judge(truth: Truth, spec: EnvelopeSpec, changes: Sequence[ModeChange],
           ai_window: tuple[float, float] | None, frame_t: Sequence[float] | None,
           rendered: int, ending: Ending, net_modes: Sequence[tuple[float, str]] = (),
-          p: JudgeParams = JudgeParams()) -> list[Check]:  # fmt: skip
+          p: JudgeParams = JudgeParams(), received: int | None = None) -> list[Check]:  # fmt: skip
     """Every check, in order (module docstring). ai_window: (hand-over, end of the net's
     authority) [s], None when the net never had the vehicle; frame_t: the tick times of the
     good frames the companion received (None: the mission flies without a camera); rendered:
     the frames the simulator rendered in the AI window (one per world.csv row); net_modes: the
-    net's switches (t, to: "ai" | "fallback" | "pid"), events.jsonl; "ai" from the hand-over."""
+    net's switches (t, to: "ai" | "fallback" | "pid"), events.jsonl; "ai" from the hand-over;
+    received: the good frames that arrived in the AI window when more than `frame_t` holds (a
+    free-running companion takes the newest frame per tick and skips the others)."""
     return [
         fence_check(truth, spec, ai_window, p),
         armed_check(truth, changes, p),
         modes_check(changes),
-        camera_check(frame_t, ai_window, rendered, net_modes, p),
+        camera_check(frame_t, ai_window, rendered, net_modes, p, received),
         end_check(truth, ending, p),
         Check(
             "mission",
@@ -131,8 +133,17 @@ def first_failed(checks: Sequence[Check]) -> Check | None:
 
 
 # ---- the checks ----------------------------------------------------------------------------
+def height(truth: Truth) -> np.ndarray:
+    """Height above the ground [m]: the altitude above the first sample's when the vehicle
+    starts disarmed (on the ground: a fixed-wing's reference point sits ~1 m up on its gear),
+    else above home."""
+    alt = -truth.pos_ned[:, 2]
+    ground = alt[0] if len(alt) and not truth.armed[0] else 0.0
+    return alt - ground
+
+
 def _airborne(truth: Truth, p: JudgeParams) -> np.ndarray:
-    return -truth.pos_ned[:, 2] > p.airborne_m if len(truth.t) else np.zeros(0, bool)
+    return height(truth) > p.airborne_m if len(truth.t) else np.zeros(0, bool)
 
 
 def clearances(truth: Truth, spec: EnvelopeSpec,
@@ -206,14 +217,19 @@ def fence_check(truth: Truth, spec: EnvelopeSpec, ai_window, p: JudgeParams) -> 
 def armed_check(truth: Truth, changes: Sequence[ModeChange], p: JudgeParams) -> Check:
     air = _airborne(truth, p)
     bad = np.flatnonzero(air & ~truth.armed)
-    seen = [c for c in changes if not c.armed and c.alt_m > p.airborne_m]
+    h = height(truth)
+
+    def at(c: ModeChange) -> float:  # the truth's height then; the companion's without truth
+        return float(np.interp(c.t, truth.t, h)) if len(h) else c.alt_m
+
+    seen = [c for c in changes if not c.armed and at(c) > p.airborne_m]
     if len(bad):
         k = int(bad[0])
-        fig = f"disarmed at {-truth.pos_ned[k, 2]:.1f} m, t = {truth.t[k]:.1f} s"
+        fig = f"disarmed at {height(truth)[k]:.1f} m, t = {truth.t[k]:.1f} s"
         return Check("armed", False, fig, f"disarmed in the air on {len(bad)} truth samples")
     if seen:
         c = seen[0]
-        fig = f"disarmed at {c.alt_m:.1f} m, t = {c.t:.1f} s (heartbeat)"
+        fig = f"disarmed at {at(c):.1f} m, t = {c.t:.1f} s (heartbeat)"
         return Check("armed", False, fig, "the companion saw a disarm in the air")
     return Check("armed", True, f"armed on all {int(air.sum())} airborne samples",
                  "never disarmed in the air")  # fmt: skip
@@ -246,7 +262,8 @@ def net_mode_at(net_modes: Sequence[tuple[float, str]], t: float) -> str:
 
 
 def camera_check(frame_t: Sequence[float] | None, ai_window, rendered: int,
-                 net_modes: Sequence[tuple[float, str]], p: JudgeParams) -> Check:  # fmt: skip
+                 net_modes: Sequence[tuple[float, str]], p: JudgeParams,
+                 received: int | None = None) -> Check:  # fmt: skip
     if frame_t is None:
         return Check("camera", True, "no camera", "this mission flies without a camera")
     if ai_window is None:
@@ -257,8 +274,9 @@ def camera_check(frame_t: Sequence[float] | None, ai_window, rendered: int,
     gaps = np.diff(edges)
     k = int(np.argmax(gaps))
     gap, at = float(gaps[k]), float(edges[k])
-    frac = len(got) / rendered if rendered > 0 else (1.0 if len(got) else 0.0)
-    fig = (f"{len(got)} of {rendered} frames ({100 * frac:.0f} %), longest gap {gap:.1f} s "
+    n = len(got) if received is None else max(received, len(got))
+    frac = n / rendered if rendered > 0 else (1.0 if n else 0.0)
+    fig = (f"{n} of {rendered} frames ({100 * frac:.0f} %), longest gap {gap:.1f} s "
            f"from t = {at:.1f} s")  # fmt: skip
     if frac < p.frame_fraction_min:
         return Check("camera", False, fig, f"fewer than {100 * p.frame_fraction_min:.0f} % of the "
@@ -279,8 +297,8 @@ def camera_check(frame_t: Sequence[float] | None, ai_window, rendered: int,
 def end_check(truth: Truth, ending: Ending, p: JudgeParams) -> Check:
     if not len(truth.t):
         return Check("end", False, "no truth", "the simulator wrote no world.csv rows")
-    alt, armed, mode = 0.0 - truth.pos_ned[-1, 2], bool(truth.armed[-1]), truth.mode[-1]
-    alt = float(alt) + 0.0  # no "-0.00 m"
+    alt = float(height(truth)[-1]) + 0.0  # (+ 0.0: no "-0.00 m")
+    armed, mode = bool(truth.armed[-1]), truth.mode[-1]
     fig = f"{alt:.2f} m, {'armed' if armed else 'disarmed'}, {mode} at t = {truth.t[-1]:.1f} s"
     if ending.land:
         ok = alt <= p.landed_m and not armed

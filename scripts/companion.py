@@ -354,7 +354,7 @@ def run(args: argparse.Namespace) -> int:
         from mission.companion import LoggedFrames
         from runio import CsvWriter
 
-        frames = LoggedFrames(frames, CsvWriter(run_dir / "frames.csv", ["t", "status"]))
+        frames = LoggedFrames(frames, CsvWriter(run_dir / "frames.csv", LoggedFrames.COLUMNS))
     mission.authority.log = JsonlWriter(run_dir / "modes.jsonl")  # every (mode, armed) change
     try:
         link = MavlinkLink.open(address, source_system=1 + args.instance, source_component=COMPANION_COMPONENT,

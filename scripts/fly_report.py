@@ -154,18 +154,20 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     auth = comp.get("authority") or {}
     t0, t1 = auth.get("t_start"), auth.get("t_end")
     window = (float(t0), float(t1)) if t0 is not None and t1 is not None else None
-    frames = None
+    frames, received, rendered = None, None, 0
     if (run_dir / "frames.csv").exists():
-        frames = [float(r["t"]) for r in _rows(run_dir / "frames.csv")
-                  if r.get("status") == "ok" and r.get("t")]  # fmt: skip
-    rendered = 0
+        ok = [r for r in _rows(run_dir / "frames.csv") if r.get("status") == "ok" and r.get("t")]
+        frames = [float(r["t"]) for r in ok]
+        if window is not None:
+            received = sum(int(r.get("n") or 1) for r in ok
+                           if window[0] - 1e-9 <= float(r["t"]) <= window[1] + 1e-9)  # fmt: skip
     if window is not None:
         rendered = int(np.sum((truth.t >= window[0] - 1e-9) & (truth.t <= window[1] + 1e-9)))
     ending = Ending(outcome, reason, bool(auth.get("land", True)))
     net_modes = [(float(e["t"]), str(e["to"])) for e in _jsonl(run_dir / "events.jsonl")
                  if e.get("event") == "switch" and "to" in e]  # fmt: skip
     checks = judge(truth, spec, changes, window, frames, rendered, ending, net_modes,
-                   JudgeParams(camera_gap_max_s=params.camera_timeout_s))  # fmt: skip
+                   JudgeParams(camera_gap_max_s=params.camera_timeout_s), received)  # fmt: skip
     if not world:  # no simulator: say whose track the truth checks used
         checks = [dataclasses.replace(c, figure=c.figure + " (autopilot's track: no simulator truth)")
                   if c.name in ("fence", "armed", "end") else c for c in checks]  # fmt: skip
