@@ -41,6 +41,7 @@ class JudgeParams:
     frame_fraction_min: float = 0.9  # frames received / rendered in the AI phase, at least
     camera_gap_max_s: float = 1.0  # longest gap between good frames (the net's camera timeout) [s]
     camera_catch_s: float = 0.2  # the net's detection time after the timeout (a tick + margin) [s]
+    floor: bool = True  # judge the floor in the AI phase (False: a mission without a net)
 
 
 @dataclass(frozen=True)
@@ -114,7 +115,7 @@ def judge(truth: Truth, spec: EnvelopeSpec, changes: Sequence[ModeChange],
     received: the good frames that arrived in the AI window when more than `frame_t` holds (a
     free-running companion takes the newest frame per tick and skips the others)."""
     return [
-        fence_check(truth, spec, ai_window, p),
+        fence_check(truth, spec, ai_window if p.floor else None, p),
         armed_check(truth, changes, p),
         modes_check(changes),
         camera_check(frame_t, ai_window, rendered, net_modes, p, received),

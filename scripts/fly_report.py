@@ -129,9 +129,9 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
 
 def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> list[Check]:
     """safety.judge on the run folder: world.csv (the truth; without a simulator, the
-    autopilot's own track in metrics.csv, said so), the envelope of config.json (the
-    airframe's default set for a mission without one), modes.jsonl, frames.csv and
-    companion.json's hand-over window."""
+    autopilot's own track in metrics.csv, said so), the envelope of config.json (a mission
+    flown without a net, the square, is judged on the airframe's default fence and ceiling, no
+    floor), modes.jsonl, frames.csv and companion.json's hand-over window."""
     from safety.config import ENVELOPE_DIR, fill_dataclass, load_envelope
     from safety.supervisor import SupervisorParams
     from scripts.fly import _ENVELOPE
@@ -167,7 +167,8 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     net_modes = [(float(e["t"]), str(e["to"])) for e in _jsonl(run_dir / "events.jsonl")
                  if e.get("event") == "switch" and "to" in e]  # fmt: skip
     checks = judge(truth, spec, changes, window, frames, rendered, ending, net_modes,
-                   JudgeParams(camera_gap_max_s=params.camera_timeout_s), received)  # fmt: skip
+                   JudgeParams(camera_gap_max_s=params.camera_timeout_s,
+                               floor=bool(cfg.get("envelope"))), received)  # fmt: skip
     if not world:  # no simulator: say whose track the truth checks used
         checks = [dataclasses.replace(c, figure=c.figure + " (autopilot's track: no simulator truth)")
                   if c.name in ("fence", "armed", "end") else c for c in checks]  # fmt: skip

@@ -8,7 +8,7 @@ import pytest
 
 from safety.config import ENVELOPE_DIR, load_envelope
 from safety.envelope import circle_zone, polygon_zone
-from safety.judge import Ending, ModeChange, Truth, first_failed, judge
+from safety.judge import Ending, JudgeParams, ModeChange, Truth, first_failed, judge
 
 NORTH = 35.0  # the fence's north edge [m]
 
@@ -80,6 +80,9 @@ def test_the_ceiling_counts_always_the_floor_only_in_the_ai_phase(spec):
     low = flight(alt=4.0)  # the AI phase flown 1 m under the floor
     by, _ = run(spec, low)
     assert not by["fence"].ok and "floor" in by["fence"].figure and "-1.00 m" in by["fence"].figure
+    # a mission flown without a net (the square) has no floor to keep
+    no_net = judge(low, spec, (), (10.0, 30.0), None, 0, Ending(), p=JudgeParams(floor=False))
+    assert no_net[0].ok
 
 
 def test_outside_the_fence_on_the_ground_is_not_a_breach(spec):
