@@ -140,9 +140,9 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     if (run_dir / "config.json").exists():
         cfg = json.loads((run_dir / "config.json").read_text())
     env = (cfg.get("envelope") or {}).get("path") or getattr(args, "envelope", None)
-    spec, table = load_envelope(
-        env or ENVELOPE_DIR / _ENVELOPE[getattr(args, "airframe", "quadrotor")]
-    )
+    orbit = getattr(args, "mission", "") == "orbit"  # `skyherd companion --mission orbit`
+    airframe = "fixedwing" if orbit else getattr(args, "airframe", "quadrotor")
+    spec, table = load_envelope(env or ENVELOPE_DIR / _ENVELOPE[airframe])
     params = fill_dataclass(SupervisorParams, table, "supervisor")
     world = _rows(run_dir / "world.csv")
     rows = world or _rows(run_dir / "metrics.csv")

@@ -70,6 +70,14 @@ def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     decisions = int(re.search(r"decisions +\| (\d+)", summary)[1])
     assert decisions >= 55  # one every 0.5 s for 30 s
     assert frac >= 0.9, summary
+    # the judge (safety/judge.py; tests/test_fly_judge.py): every check passed
+    judged = re.findall(r"^\| (\w+) +\| (pass|FAIL) +\|", summary, re.M)
+    assert [c for c, _ in judged] == ["fence", "armed", "modes", "camera", "end", "mission"]
+    assert {r for _, r in judged} == {"pass"}, summary
+    modes = [json.loads(x) for x in (run / "modes.jsonl").read_text().splitlines()]
+    assert [(m["mode"], m["armed"]) for m in modes][:3] == [("HOLD", False), ("HOLD", True),
+                                                            ("TAKEOFF", True)]  # fmt: skip
+    assert not any(m["by_companion"] is False for m in modes)  # every change in order, all asked
     rows = list(csv.DictReader(open(run / "metrics.csv")))
     modes = {r["mode"] for r in rows}
     assert "OFFBOARD" in modes and float(rows[-1]["down"]) > -0.3  # flew offboard, landed
@@ -188,6 +196,14 @@ def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
     assert "pilot `pid`" in summary and "groundsim:route" in summary
     frac = float(re.search(r"all UGVs in view \[fraction of decisions\] \| ([0-9.]+)", summary)[1])
     assert frac >= 0.9, summary
+    # the judge (safety/judge.py; tests/test_fly_judge.py): every check passed
+    judged = re.findall(r"^\| (\w+) +\| (pass|FAIL) +\|", summary, re.M)
+    assert [c for c, _ in judged] == ["fence", "armed", "modes", "camera", "end", "mission"]
+    assert {r for _, r in judged} == {"pass"}, summary
+    modes = [json.loads(x) for x in (run / "modes.jsonl").read_text().splitlines()]
+    assert [(m["mode"], m["armed"]) for m in modes][:3] == [("HOLD", False), ("HOLD", True),
+                                                            ("TAKEOFF", True)]  # fmt: skip
+    assert not any(m["by_companion"] is False for m in modes)  # every change in order, all asked
     assert main(["fly", "--ugvs", "nowhere", "--runs-dir", str(tmp_path)]) == 2
 
 
