@@ -62,7 +62,10 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
         outcome, reason = "interrupted", "interrupted (Ctrl-C)"
     elif rc != 0 and outcome == "completed":
         outcome = "aborted"
-    checks = judge_run(run_dir, args, comp, outcome, reason)
+    try:
+        checks = judge_run(run_dir, args, comp, outcome, reason)
+    except (OSError, ValueError, KeyError, TypeError) as e:  # a run folder the judge cannot read
+        checks = [Check("judge", False, "not judged", f"{type(e).__name__}: {e}")]
     failed = first_failed(checks)
     if failed is not None and outcome == "completed":
         outcome, reason = "failed", f"{failed.name}: {failed.figure}: {failed.reason}"
