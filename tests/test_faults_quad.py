@@ -224,6 +224,30 @@ def test_battery_fault_fires_the_autopilots_failsafes_at_their_thresholds():
     assert any("emergency -> land" in t for t in ap.drain_status())
 
 
+def test_disarm_and_rtl_faults_act_on_the_autopilot_at_their_times():
+    """disarm@T: a forced disarm in the air (the vehicle falls); rtl@T:D: RTL at T and the mode
+    before it again at T + D (a ground station's RTL and back), each exactly once."""
+    for text in ("disarm@25", "rtl@25.02:0.05", "rtl@30"):
+        assert parse_fault_event(text).to_text() == text
+    with pytest.raises(FaultSpecError, match="no duration"):
+        parse_fault_event("disarm@25:3")
+    with pytest.raises(FaultSpecError, match=r"rtl@T\[:DURATION\]"):
+        parse_fault_event("rtl@25:1:2")
+    ap = hovering(parse_fault_args(faults=["rtl@12.5:0.05"]))
+    assert ap.mode == FlightMode.HOLD
+    run(ap, 12.5 - ap.clock.t + 0.02)
+    assert ap.mode == FlightMode.RTL
+    run(ap, 0.05)
+    assert ap.mode == FlightMode.HOLD  # back, and stays
+    run(ap, 1.0)
+    assert ap.mode == FlightMode.HOLD and any("fault: RTL" in t for t in ap.drain_status())
+    ap = hovering(parse_fault_args(faults=["disarm@13"]))
+    run(ap, 13.0 - ap.clock.t + 0.01)
+    assert not ap.armed and any("forced" in t for t in ap.drain_status())
+    _, tru = run(ap, 1.0)
+    assert tru[-1, 2] > tru[0, 2] + 2.0  # falling: > 2 m in the first second
+
+
 def test_gusts_deterministic_for_the_seed():
     plan = FaultPlan(wind=WindModel((3.0, 0.0, 0.0), gust_std=2.0, gust_tau=1.0, seed=5))
     a, b = hovering(plan), hovering(plan)
