@@ -1,9 +1,10 @@
 """The one place that maps the safety net's decision onto the autopilot's modes, over MAVLink.
 
-The net's decision names the mode the vehicle should fly in: the AI's (OFFBOARD; GUIDED on
-ArduPilot) or the fallback (the autopilot's own position hold: PX4 Hold, ArduCopter BRAKE,
-ArduPlane LOITER). `ModeAuthority.want(v, mode)` requests it with DO_SET_MODE (the profile's
-numbers), re-sent every `retry_s` until the heartbeat shows it, without blocking the tick.
+The net (safety.net.SafetyNet) decides the mode the vehicle should fly in: the AI's (OFFBOARD;
+GUIDED on ArduPilot) or the fallback (the autopilot's own position hold: PX4 Hold, ArduCopter
+BRAKE, ArduPlane LOITER). `ModeAuthority.want(v, mode)` carries that request over MAVLink with
+DO_SET_MODE (the profile's numbers), re-sent every `retry_s` until the heartbeat shows it,
+without blocking the tick; it maps nothing itself.
 
 Whether the companion may ask at all is decided by `safety.authority.Authority` (a pure,
 time-passed-in machine; its rules in its docstring): a mode the net did not ask for (a battery
@@ -28,16 +29,11 @@ M = mavlink2
 
 @dataclass
 class ModeAuthority:
-    events: object | None = None  # where the rules write their hand-over / yield events
-    vehicle: str = "uav0"
+    rules: Authority = field(default_factory=Authority)  # the net's (SafetyNet.authority)
     retry_s: float = 1.0  # re-send a request not yet shown after this long [s]
-    rules: Authority = field(init=False)
     pending: FlightMode | None = None  # the request sent and not yet answered
     t_sent: float = -1e9
     requests: int = 0
-
-    def __post_init__(self) -> None:
-        self.rules = Authority(self.events, self.vehicle)
 
     def adopt(self, v: VehicleLink, mode: FlightMode) -> None:
         """The hand-over: a phase put the vehicle in `mode`; the net now has it."""

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from flight.autopilot_api import FlightMode, Setpoint
+from flight.autopilot_api import Setpoint
 from flight.geo import ned_to_geodetic
 from hil.client import reposition_command
 from hil.orbit import (
@@ -43,13 +43,13 @@ from hil.orbit import (
     slide_centre,
 )
 from mission.authority import ModeAuthority
-from mission.flight import Record, append_track, verdict
+from mission.flight import Record, append_track
 from mission.steps import MissionError, Phase, read_params, recipe, wait_ready
 from mission.vehicle import VehicleLink
 from perception.camera import backproject_to_ground, camera_pose
 from perception.detector import Detector, annotate
-from safety.consistency import ParamGuard, agreeing_values
-from safety.supervisor import Health, Supervisor
+from safety.consistency import agreeing_values
+from safety.net import SafetyNet
 
 M = mavlink2
 
@@ -125,14 +125,14 @@ class OrbitMission:
 
     name = "orbit"
 
-    def __init__(self, supervisor: Supervisor, flight: OrbitFlight, briefing: Briefing,
+    def __init__(self, net: SafetyNet, flight: OrbitFlight, briefing: Briefing,
                  record: Record, reserve_m: float, alt_band: tuple[float, float]):  # fmt: skip
-        self.net, self.f, self.brief, self.rec = supervisor, flight, briefing, record
+        self.net, self.f, self.brief, self.rec = net, flight, briefing, record
         self.reserve_m = reserve_m
         self.alt_band = alt_band  # (min, max) altitude the plan may use [m]
         self.sight = TeamSight(briefing.n_ugvs, briefing.rendezvous_ne)
         self.perception = self.sight
-        self.authority = ModeAuthority(getattr(supervisor, "events", None))
+        self.authority = ModeAuthority(net.authority)
         self.plan: OrbitPlan | None = None
         self.centre = np.asarray(briefing.rendezvous_ne, float)  # the certified orbit centre
         self.phase = "connect"
@@ -148,12 +148,13 @@ class OrbitMission:
         self._trim_d: list[float] = []
         self._trim_t = 0.0
         self._airspeed = 20.0
-        self.guard = ParamGuard(supervisor.envelope.spec, supervisor.p.pos_speed_max_mps,
-                                getattr(supervisor, "events", None), record.vehicle)  # fmt: skip
+        self.guard = net.params  # the autopilot's parameters against the envelope
 
     # ---- called by the companion's loop --------------------------------------------------------
     def on_frame(self, t: float, frame, status: str) -> None:
         self.sight.on_frame(t, frame, status)
+        if frame is not None:
+            self.net.frame(t)
 
     def write_track(self, v: VehicleLink) -> None:
         self._written = append_track(self.rec.track, v, self._written, self.phase)
@@ -171,7 +172,7 @@ class OrbitMission:
         yield from read_params(v)
         yield from self._agree(v)  # first: the plan reads the bank limit as it will be
         self.plan = self._plan(v)
-        self.net.loiter_radius_m = self.plan.radius_m  # what the autopilot's loiter flies
+        self.net.supervisor.loiter_radius_m = self.plan.radius_m  # what its loiter flies
         self.phase = "loiter radius"
         self.loiter_setting = prof.loiter_radius_setting(self.plan.radius_m,
                                                          v.home_amsl_m + self.plan.altitude_m)  # fmt: skip
@@ -256,7 +257,7 @@ class OrbitMission:
         orbit's setpoint — the climb-out aimed moments ago, and a decision without an action
         is judged as "no velocity command" (ArduPlane is in GUIDED already: the hand-over can
         take less than one decision period)."""
-        self.authority.adopt(v, v.profile.ai_mode)
+        self.net.handover(v.t, v.tel.mode, v.profile.ai_mode)
         self.t_decision = None
         self.phase = "orbit"
 
@@ -352,11 +353,13 @@ class OrbitMission:
         return Setpoint(pos_ned=np.array([self.centre[0], self.centre[1], -self.plan.altitude_m]))
 
     def _ok(self, c: np.ndarray) -> bool:
-        return circle_certified(self.net.geometry, c, self.plan.radius_m, self.plan.altitude_m,
+        return circle_certified(self.net.supervisor.geometry, c, self.plan.radius_m, self.plan.altitude_m,
                                 self.reserve_m, self.net.envelope.spec.limits.margin_m)  # fmt: skip
 
     def _certified_now(self, state) -> bool:
-        return self._ok(self.centre) and setpoint_certified(self.net, state, self._proposal())
+        return self._ok(self.centre) and setpoint_certified(
+            self.net.supervisor, state, self._proposal()
+        )
 
     def _move_centre(self) -> None:
         """Toward the team's centre as seen, as far as the fence allows (hil.orbit.slide_centre)."""
@@ -385,19 +388,15 @@ class OrbitMission:
             return
         proposal = self._proposal() if self._aim(v) else None
         self._read_param_updates(v)  # anyone's PARAM_SET mid-flight is re-checked here
-        g = self.guard
-        d = self.net.update(v.t, state, proposal,
-                            Health(camera_t=self.sight.camera_t, link_t=v.heartbeat_t,
-                                   params_fault=g.fault, hold_ok=g.hold_ok))  # fmt: skip
-        prof = v.profile
-        mode = prof.fallback_mode if d.autopilot_mode is FlightMode.HOLD else prof.ai_mode
+        self.net.link(v.heartbeat_t, v.telemetry_t)
+        d = self.net.step(v.t, state, proposal)
+        mode = self.net.wanted_mode(d)
         self.authority.want(v, mode)
         v.setpoint = (
             d.command if d.command.pos_ned is not None or d.command.vel_ned is not None else None
         )
         if proposal is not None:
             row = d.record(vehicle=self.rec.vehicle, pilot="orbit", autopilot_mode=mode)
-            row["verdict"] = verdict(d)
             row["centre_seen"] = [round(float(x), 3) for x in self.sight.centre]
             self.rec.decision(row)
 

@@ -170,7 +170,7 @@ def build_mission(args, run_dir: Path | None):
                 if args.pilot == "policy"
                 else PerceptionFollower(task)
             )
-            net, events = _load_net(args.envelope, run_dir)
+            net = _load_net(args.envelope, run_dir)
             perception = Perception(task)
     except ValueError as e:
         raise UsageError(str(e)) from None
@@ -178,12 +178,7 @@ def build_mission(args, run_dir: Path | None):
         decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
         track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
     )
-    guard = None
-    if net is not None:
-        from safety.consistency import ParamGuard
-
-        guard = ParamGuard(net.envelope.spec, net.p.pos_speed_max_mps, events=events)
-    return SingleVehicleMission(pilot, net, plan, record, perception, guard), plan
+    return SingleVehicleMission(pilot, net, plan, record, perception), plan
 
 
 def _orbit_mission(args, run_dir: Path | None):
@@ -193,14 +188,14 @@ def _orbit_mission(args, run_dir: Path | None):
     from mission.orbit import OrbitFlight, OrbitMission, briefing_for
     from runio import CsvWriter
     from safety.config import ENVELOPE_DIR, EnvelopeFileError
-    from safety.net import load_net, warm_up
+    from safety.net import SafetyNet, warm_up
 
     events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
     try:
         flight = OrbitFlight(
             duration_s=args.duration, land=not getattr(args, "orbit_no_land", False)
         )
-        net = load_net(
+        net = SafetyNet.load(
             "fixedwing", args.envelope or ENVELOPE_DIR / "fixedwing_field.toml", events=events
         )
     except (EnvelopeFileError, ValueError) as e:
@@ -234,17 +229,18 @@ def _load_policy(path):
 
 
 def _load_net(envelope, run_dir):
+    """The ground-air mission's SafetyNet (the camera is one of its inputs)."""
     from safety.config import ENVELOPE_DIR, EnvelopeFileError
-    from safety.net import load_net, warm_up
+    from safety.net import SafetyNet, warm_up
 
     path = envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
     events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
     try:
-        net = load_net("quadrotor", path, events=events)
+        net = SafetyNet.load("quadrotor", path, events=events, camera=True)
     except (EnvelopeFileError, ValueError) as e:
         raise UsageError(f"{e}; fix the file or pass another --envelope") from None
     warm_up(net.envelope, net.p)  # compile now, not at the first switch in flight
-    return net, events
+    return net
 
 
 def zenoh_endpoint(address: str) -> str:
@@ -465,10 +461,7 @@ def _publish_live(session, mission, vehicle: str = "uav0") -> None:
 
     mission.rec.live = session.declare_publisher(f"skyherd/{vehicle}/decision")
     if mission.net is not None:
-        mission.net.events = Tee(mission.net.events, ZenohEventSink(session, vehicle))
-        if mission.guard is not None:
-            mission.guard.events = mission.net.events
-        mission.authority.rules.events = mission.net.events
+        mission.net.set_events(Tee(mission.net.events, ZenohEventSink(session, vehicle)))
 
 
 def _run_formation(args, run_dir: Path, folder) -> int:
