@@ -19,7 +19,7 @@ import numpy as np
 
 from flight.autopilot_api import FlightMode, Setpoint
 from mission.authority import ModeAuthority
-from mission.pilots import Observation, Pilot, Proposal
+from mission.pilots import DescentPilot, Observation, Pilot, Proposal
 from mission.steps import MissionError, Phase, read_params, recipe, wait_ready, wait_until
 from mission.vehicle import VehicleLink
 from runio import CsvWriter, JsonlWriter
@@ -38,6 +38,9 @@ class FlightPlan:
     duration_s: float = 60.0  # flight behind the safety net after the hand-over [s]
     decision_s: float = 0.5  # the pilot decides this often [s] (the policy's training step)
     land: bool = True  # land at the end (else hold position and stop)
+    descend_above_floor_m: float = 1.0  # the descent behind the net ends this far above the
+    # envelope's floor + margin; the autopilot's LAND flies the column below it [m]
+    descend_timeout_s: float = 60.0  # the descent behind the net must end within this [s]
     yield_wait_s: float = 60.0  # after the autopilot took over, wait this long for its landing [s]
 
     def __post_init__(self) -> None:
@@ -124,6 +127,10 @@ class SingleVehicleMission:
                 raise MissionError(
                     f"refusing to take off: the autopilot's parameters disagree with the envelope: {why}"
                 )
+        if self.net is not None:  # the take-off column, certified before the take-off
+            ok, why = self.net.certify_column(v.tel.pos_ned, plan.altitude_m)
+            if not ok:
+                raise MissionError(f"refusing to take off: {why}")
         self.phase = "takeoff"
         yield from recipe(v, prof.takeoff_steps(plan.altitude_m, v.home_amsl_m))
         self.phase = "offboard"
@@ -147,12 +154,41 @@ class SingleVehicleMission:
         if self.authority.yielded is not None:
             yield from self._yield_to_autopilot(v)
             return
+        if plan.land and self.net is not None and prof.vehicle == "multirotor":
+            yield from self._descend(v)
+            if self.authority.yielded is not None:
+                yield from self._yield_to_autopilot(v)
+                return
         self.phase = "land"
         if plan.land:
             v.setpoint = Setpoint(pos_ned=v.tel.pos_ned.copy(), yaw=0.0)
             yield from recipe(v, prof.land_steps())
             yield from recipe(v, prof.end_steps())
         self.outcome = "completed"
+
+    def _descend(self, v: VehicleLink) -> Phase:
+        """The landing behind the net: from the mission's altitude down to the envelope's floor
+        + margin (+ descend_above_floor_m), certified tick by tick like the pilot's flight (a
+        wind that pushes the vehicle toward the fence meets the same rows and fallback); the
+        autopilot's LAND then flies only the column below. Ends early on a yield."""
+        lim = self.net.spec.limits
+        goal = -(lim.floor_m + lim.margin_m + self.plan.descend_above_floor_m)
+        p = v.tel.pos_ned
+        pilot = DescentPilot(float(p[0]), float(p[1]), goal)
+        self.phase = pilot.name
+        t0 = v.t
+        while True:
+            if self.authority.update(v) != "fly":
+                return
+            self._tick(v, pilot)
+            p, vel = v.tel.pos_ned, v.tel.vel_ned
+            if (abs(p[2] - goal) < 0.5 and float(np.linalg.norm(vel)) < 0.5
+                    and self.net.mode is Mode.AI):  # fmt: skip
+                return
+            if v.t - t0 > self.plan.descend_timeout_s:
+                raise MissionError(f"the descent behind the net did not reach {-goal:.1f} m in "
+                                   f"{self.plan.descend_timeout_s:.0f} s ({self.net.mode.value})")  # fmt: skip
+            yield
 
     def _hold(self, v: VehicleLink) -> Setpoint:
         p = v.tel.pos_ned
@@ -170,17 +206,18 @@ class SingleVehicleMission:
         except MissionError:
             self.reason += f"; still armed in {v.tel.mode_name or v.tel.mode} after {self.plan.yield_wait_s:.0f} s: left to the autopilot"
 
-    def _tick(self, v: VehicleLink) -> None:
+    def _tick(self, v: VehicleLink, pilot: Pilot | None = None) -> None:
         state = v.tel.vehicle_state()
         if state is None:
             return
+        pilot = self.pilot if pilot is None else pilot
         t = v.t
         proposal = None
         phi = self.perception.phi if self.perception is not None else None
         if self.t_decision is None or t - self.t_decision >= self.plan.decision_s - 1e-9:
             self.t_decision = t
             obs = self.perception.observation(state) if self.perception is not None else np.zeros(0)
-            proposal = self.pilot.propose(Observation(t, state, phi, obs, self.plan.decision_s))
+            proposal = pilot.propose(Observation(t, state, phi, obs, self.plan.decision_s))
             if self.perception is not None:
                 self.perception.decided()
         sp = None if proposal is None else proposal.setpoint
@@ -190,7 +227,7 @@ class SingleVehicleMission:
                 v.setpoint = sp
                 d = Decision(sp, Mode.AI, Severity.NONE, "no safety net", FlightMode.OFFBOARD,
                              False, t, sp)  # fmt: skip
-                self._write(d, phi, proposal, v.tel.mode)
+                self._write(d, phi, proposal, v.tel.mode, pilot)
             return
         net.link(v.heartbeat_t, v.telemetry_t)
         for t_p, name, value in v.param_updates:  # anyone's PARAM_SET mid-flight is re-checked
@@ -201,8 +238,8 @@ class SingleVehicleMission:
         self.authority.want(v, want)
         v.setpoint = d.command
         if proposal is not None:
-            self._write(d, phi, proposal, want)
+            self._write(d, phi, proposal, want, pilot)
 
-    def _write(self, d: Decision, phi, proposal: Proposal, autopilot_mode) -> None:
-        self.rec.decision(d.record(self.rec.vehicle, self.pilot.name, phi, autopilot_mode or "",
+    def _write(self, d: Decision, phi, proposal: Proposal, autopilot_mode, pilot: Pilot) -> None:
+        self.rec.decision(d.record(self.rec.vehicle, pilot.name, phi, autopilot_mode or "",
                                    proposal.explanation, proposal.action))  # fmt: skip

@@ -143,3 +143,24 @@ class WaypointPilot:
                 self.reached.append(o.t)
         target = self.waypoints[min(self.index, len(self.waypoints) - 1)]
         return Proposal(Setpoint(pos_ned=np.array(target, dtype=float), yaw=0.0))
+
+
+DESCENT_PILOT = "descend"
+"""The pilot name of the descent behind the net (mission.flight): its decisions are the
+landing's, not the mission pilot's, and the mission's metrics leave them out."""
+
+
+@dataclass
+class DescentPilot:
+    """The landing's descent behind the net: hold the horizontal position where the mission
+    ended and descend to `goal_down_m` (NED down about home), as a position setpoint the net
+    certifies like any pilot's (its implied velocity against the envelope's rows)."""
+
+    north_m: float
+    east_m: float
+    goal_down_m: float
+    name: str = DESCENT_PILOT
+
+    def propose(self, o: Observation) -> Proposal:
+        return Proposal(Setpoint(pos_ned=np.array([self.north_m, self.east_m, self.goal_down_m]),
+                                 yaw=0.0))  # fmt: skip

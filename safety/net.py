@@ -32,6 +32,7 @@ from flight.state import VehicleState
 from safety.authority import NET_MODES, Authority
 from safety.config import default_envelope_path, fill_dataclass, load_envelope
 from safety.consistency import ParamGuard
+from safety.fallback import inside_with_margin
 from safety.health import HealthParams, HealthTracker
 from safety.supervisor import Decision, EventSink, Health, Mode, Supervisor, SupervisorParams
 
@@ -199,6 +200,22 @@ class SafetyNet:
         """The supervisor's input now — built here and nowhere else."""
         tr = self.tracker
         return Health(tr.camera_t, tr.link_t, self.params.fault, self.params.hold_ok)
+
+    def certify_column(self, pos_ned: np.ndarray, altitude_m: float) -> tuple[bool, str]:
+        """Before a take-off from `pos_ned` (NED about home) to `altitude_m` above home: the
+        hand-over point above it must be inside every position row (fence, exclusion zones,
+        floor and ceiling) with the envelope's margin, since the autopilot's own take-off flies
+        the column straight up to it. (ok, reason)."""
+        p = np.array([float(pos_ned[0]), float(pos_ned[1]), -float(altitude_m)])
+        margin = self.spec.limits.margin_m
+        if not np.isfinite(p).all():
+            return False, f"the take-off position {p.tolist()} is not finite"
+        if inside_with_margin(self.supervisor.geometry, p, margin):
+            return True, ""
+        return False, (f"the take-off column at {p[0]:.1f} m N, {p[1]:.1f} m E up to "
+                       f"{altitude_m:.1f} m is not inside the envelope {self.spec.name!r} with "
+                       f"its {margin:.1f} m margin (fence, exclusion zones, floor "
+                       f"{self.spec.limits.floor_m:.0f} m, ceiling {self.spec.limits.ceiling_m:.0f} m)")  # fmt: skip
 
     def step(self, t: float, state: VehicleState, proposed: Setpoint | None,
              autopilot_mode: FlightMode | None = None, why: str = "") -> Decision:  # fmt: skip
