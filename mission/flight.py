@@ -174,7 +174,8 @@ class SingleVehicleMission:
         lim = self.net.spec.limits
         goal = -(lim.floor_m + lim.margin_m + self.plan.descend_above_floor_m)
         p = v.tel.pos_ned
-        pilot = DescentPilot(float(p[0]), float(p[1]), goal)
+        spec = self.net.spec
+        pilot = DescentPilot(float(p[0]), float(p[1]), goal, spec.limits, spec.dynamics.tau_s)
         self.phase = pilot.name
         t0 = v.t
         while True:

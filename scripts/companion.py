@@ -112,9 +112,11 @@ def add_arguments(
     )  # fmt: skip
     parser.add_argument(
         "--pilot",
-        choices=["policy", "pid"],
+        type=pilot_choice,
         default="policy",
-        help="groundair pilot: the learned policy or the classic PID follower on φ(s)",
+        help="groundair pilot: policy (the learned one), pid (the classic follower on φ(s)), or "
+        "drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. "
+        "drill:lateral-fence with --envelope safety/envelopes/quadrotor_field.toml",
     )
     parser.add_argument(
         "--policy",
@@ -165,12 +167,14 @@ def build_mission(args, run_dir: Path | None):
             plan = FlightPlan(altitude_m=altitude, duration_s=600.0)
         else:
             plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
-            pilot = (
-                PolicyPilot(_load_policy(args.policy), task)
-                if args.pilot == "policy"
-                else PerceptionFollower(task)
-            )
             net = _load_net(args.envelope, run_dir)
+            if args.pilot == "policy":
+                pilot = PolicyPilot(_load_policy(args.policy), task)
+            elif args.pilot == "pid":
+                pilot = PerceptionFollower(task)
+            else:  # a drill's adversarial AI, deciding every tick as the drills' AI does
+                pilot = drill_pilot(args.pilot, net.spec)
+                plan = FlightPlan(altitude_m=altitude, duration_s=args.duration, decision_s=0.1)
             perception = Perception(task)
     except ValueError as e:
         raise UsageError(str(e)) from None
@@ -179,6 +183,33 @@ def build_mission(args, run_dir: Path | None):
         track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
     )
     return SingleVehicleMission(pilot, net, plan, record, perception), plan
+
+
+def pilot_choice(value: str) -> str:
+    """--pilot: policy, pid, or drill:NAME (a named drill of safety.drills; - for a space)."""
+    if value in ("policy", "pid") or value.startswith("drill:"):
+        return value
+    raise argparse.ArgumentTypeError(f"{value!r}: use policy, pid or drill:NAME")
+
+
+INPUT_FAULT_DRILLS = ("camera loss", "link loss")
+"""Named drills whose fault is an input, not the AI's action: in a flight those are the
+simulator's --cut-camera / --cut-link, not a pilot."""
+
+
+def drill_pilot(choice: str, spec):
+    """The adversarial pilot of `--pilot drill:NAME` for the flight's envelope (ValueError
+    naming the drills there are)."""
+    from mission.pilots import DrillPilot
+    from safety.drills import DrillParams, scripted_drills
+
+    p = DrillParams()
+    name = choice.split(":", 1)[1].replace("-", " ").strip()
+    scripts = {s.name: s for s in scripted_drills(spec, p) if s.name not in INPUT_FAULT_DRILLS}
+    if name not in scripts:
+        names = ", ".join("drill:" + n.replace(" ", "-") for n in scripts)
+        raise ValueError(f"--pilot {choice}: no such drill for {spec.name}; use one of {names}")
+    return DrillPilot(scripts[name], p, p.duration(spec.airframe), name=f"drill:{name}")
 
 
 def _orbit_mission(args, run_dir: Path | None):

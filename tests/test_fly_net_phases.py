@@ -13,8 +13,10 @@ import json
 import re
 
 import numpy as np
+import pytest
 
 from safety.config import ENVELOPE_DIR, load_envelope
+from safety.envelope import SignedDistance
 from scripts.cli import main
 
 
@@ -34,7 +36,7 @@ def test_the_landing_descends_behind_the_net_to_the_floor_band(tmp_path):
     rows = [json.loads(x) for x in (run / "decisions.jsonl").read_text().splitlines()]
     down = [r for r in rows if r["pilot"] == "descend"]
     assert len(down) >= 10 and all(r["autopilot_mode"] == "OFFBOARD" for r in down)
-    assert all(r["proposed"]["pos_ned"][2] == -band for r in down)
+    assert all(r["proposed"]["vel_ned"][2] >= -0.01 for r in down)  # down, never up
     assert {r["verdict"] for r in down} <= {"accepted", "projected"}  # certified, never a switch
     track = list(csv.DictReader(open(run / "metrics.csv")))
     phases = [r["phase"] for r in track]
@@ -65,3 +67,38 @@ def test_a_home_the_envelope_does_not_allow_is_refused_before_the_take_off(tmp_p
     world = list(csv.DictReader(open(run / "world.csv")))
     assert world and all(r["armed"] == "0" for r in world)  # never armed
     assert np.all([abs(float(r["down"])) < 0.05 for r in world])
+
+
+@pytest.mark.parametrize(
+    "drill,keyword",
+    [("lateral-fence", "field"), ("exclusion-zone", "barn"), ("nan-action", "non-finite")],
+)
+def test_a_named_drill_flies_the_missions_code_through_fly(tmp_path, drill, keyword):
+    """A drill = a mission with an adversarial pilot: the drill's scripted AI flies through
+    `skyherd fly` (MAVLink, lockstep, the companion's SafetyNet), the net catches the attack
+    with the drill's reason, the truth stays inside the field's fence, and the flight ends
+    completed and landed."""
+    field = ENVELOPE_DIR / "quadrotor_field.toml"
+    rc, run = _fly(tmp_path, "--pilot", f"drill:{drill}", "--envelope", str(field),
+                   "--duration", "60")  # fmt: skip
+    assert rc == 0, (run / "summary.md").read_text()
+    events = [json.loads(x) for x in (run / "events.jsonl").read_text().splitlines()]
+    caught = [e for e in events if e.get("event") == "switch" and keyword in e.get("reason", "")]
+    assert caught, [e.get("reason") for e in events]
+    spec, _ = load_envelope(field)
+    signed = SignedDistance(spec)
+    world = list(csv.DictReader(open(run / "world.csv")))
+    above = [r for r in world if -float(r["down"]) > spec.limits.floor_m]
+    worst = max(signed(np.array([float(r["north"]), float(r["east"]), float(r["down"])]))
+                for r in above)  # fmt: skip
+    assert worst <= 0.0  # never beyond the fence, a zone, the floor or the ceiling
+    assert world[-1]["armed"] == "0" and abs(float(world[-1]["down"])) < 0.3
+
+
+def test_an_unknown_drill_is_bad_usage(tmp_path, capsys):
+    args = ["fly", "--pilot", "drill:meteor", "--runs-dir", str(tmp_path), "--instance", "21",
+            "--zenoh-port", "7461", "--speedup", "0", "--timeout", "120"]  # fmt: skip
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "no such drill" in err and "drill:lateral-fence" in err
+    assert not any(tmp_path.iterdir())  # refused before anything started or was written
