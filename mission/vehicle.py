@@ -52,7 +52,7 @@ class VehicleLink:
         self.telemetry_t: float | None = None  # tick time of the last position sample [s]
         self.positions: list[tuple[float, np.ndarray, np.ndarray, str, bool]] = []
         self.attitudes: deque[tuple[float, np.ndarray]] = deque(maxlen=ATTITUDES_KEPT)
-        self.roi_ned: np.ndarray | None = None  # where the gimbal looks, as acknowledged (None: nadir)
+        self.roi_ned: np.ndarray | None = None  # gimbal ROI as acknowledged (None: nadir)
         self._roi_sent: np.ndarray | None = None  # the last ROI sent, until its ack
         self.setpoint: Setpoint | None = None  # streamed every tick while set (offboard)
         self._held: deque = deque()
