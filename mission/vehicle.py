@@ -21,7 +21,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from flight.autopilot_api import Setpoint
-from flight.geo import ned_to_geodetic
+from flight.geo import geodetic_to_ned, ned_to_geodetic
 from flight.lockstep import NS_PER_US, is_mark
 from hil.autopilots import UnknownAutopilot
 from hil.client import Telemetry, reposition_command, update_telemetry
@@ -215,7 +215,9 @@ class VehicleLink:
         self.send(M.MAVLink_command_long_message(self.target_system or 1, M.MAV_COMP_ID_GIMBAL,
                                                  M.MAV_CMD_DO_SET_ROI_LOCATION, 0,
                                                  0, 0, 0, 0, lat, lon, alt))  # fmt: skip
-        self._roi_sent = np.array(roi_ned, dtype=float)
+        # where the gimbal will look: params 5-7 travel as float32 (~1 m at this latitude)
+        lat, lon, alt = (float(np.float32(x)) for x in (lat, lon, alt))
+        self._roi_sent = geodetic_to_ned(self.tel.home, lat, lon, alt)
         return True
 
     def command_long(self, command: int, params: tuple[float, ...], confirmation: int) -> None:
