@@ -179,7 +179,8 @@ class VehicleLink:
         """The autopilot's estimate of the vehicle's pose at time `t` [s of its clock]: its
         newest position and attitude samples not after t (sample and hold: at most one
         telemetry period old; in lockstep the built-in vehicle streams both at each camera
-        instant, before its mark). None until both have arrived."""
+        instant, before its mark), or the oldest kept when all are after t (the nearest: a
+        frame stamped on a clock behind the autopilot's). None until both have arrived."""
         pos = _newest_until(self.positions, t)
         att = _newest_until(self.attitudes, t)
         if pos is None or att is None:
@@ -263,8 +264,9 @@ class VehicleLink:
 
 
 def _newest_until(samples, t: float):
-    """The newest sample (a tuple whose first item is its time [s]) not after t, or None."""
+    """The newest sample (a tuple whose first item is its time [s]) not after t; the oldest when
+    all are after t; None when there is none."""
     for sample in reversed(samples):
         if sample[0] <= t + 1e-6:
             return sample
-    return None
+    return samples[0] if samples else None

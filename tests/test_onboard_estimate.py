@@ -143,7 +143,8 @@ def test_the_companion_frame_has_no_truth_and_follows_the_telemetry():
 
 def test_the_estimate_is_taken_at_the_frames_capture_time():
     """Telemetry at 4.9 s and 5.0 s (and 5.1 s, after the frame): a frame stamped 5.0 s gets the
-    5.0 s sample, a frame stamped 4.95 s the 4.9 s one."""
+    5.0 s sample, a frame stamped 4.95 s the 4.9 s one; one stamped before every sample (a
+    camera clock behind the autopilot's) the nearest, the oldest; no telemetry, no pose."""
     v = _vehicle([0.0, 0.0, -10.0], t_ms=4900)
     enc, dec = M.MAVLink(None, srcSystem=1, srcComponent=1), M.MAVLink(None)
     for t_ms, alt in ((5000, 11.0), (5100, 12.0)):
@@ -152,7 +153,8 @@ def test_the_estimate_is_taken_at_the_frames_capture_time():
             v.apply(dec.parse_char(m.pack(enc)))
     assert -v.pose_at(5.0).pos_ned[2] == 11.0
     assert -v.pose_at(4.95).pos_ned[2] == 10.0
-    assert v.pose_at(4.8) is None  # before any sample
+    assert -v.pose_at(4.8).pos_ned[2] == 10.0
+    assert VehicleLink(link=None).pose_at(5.0) is None
 
 
 def test_a_gps_offset_moves_what_the_companion_sees_on_the_ground_by_the_offset():
