@@ -3,7 +3,8 @@
 Lockstep (the built-in vehicle of `skyherd sim`): each tick starts at the vehicle's tick mark
 (the camera instant t_k), takes frame k from Zenoh (the bytes received are the bytes detected
 on; the mission gets it as a mission.onboard.CameraFrame: pixels, stamp and the autopilot's
-estimate at the stamp, never the simulator's header pose), steps the mission once, sends the setpoint stream and the heartbeat, and closes the tick.
+estimate at the stamp, never the simulator's header pose), steps the mission once, sends the
+setpoint stream and the heartbeat, and closes the tick.
 
 Free-running (a real autopilot, or `skyherd sim --free-run`): the link is drained continuously
 and a tick runs every `tick_s` of the autopilot's own clock; the newest frame, if any, is used.

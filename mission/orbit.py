@@ -8,7 +8,8 @@ camera sits on a pan-tilt gimbal pointed where the companion sets the region of 
 (MAV_CMD_DO_SET_ROI_LOCATION); every frame received over Zenoh is detected, each UGV's
 centroid is back-projected onto the ground from the camera pose the companion computes (the
 autopilot's estimate at the frame's time through the head pointed at the acknowledged ROI:
-mission.onboard), and their mean is the team's centre as seen. The orbit centre follows it as far as the fence allows.
+mission.onboard), and their mean is the team's centre as seen. The orbit centre follows it as
+far as the fence allows.
 
 Phases: connect → read the airframe's parameters → make the autopilot agree with the envelope
 (its climb and sink limits TECS_CLMB_MAX / TECS_SINK_MAX and its bank limit ROLL_LIMIT_DEG

@@ -2,8 +2,9 @@
 
 The frame detected on is the frame received (its bytes, as they came off the wire); φ's
 altitude is the autopilot's estimate at the frame's capture time (mission.onboard.CameraFrame),
-never the simulator's truth. A corrupt or lost frame leaves φ(s) as it was and the camera's last-good time where it was, so the safety
-net sees the camera go stale exactly as a real link would show it.
+never the simulator's truth. A corrupt or lost frame leaves φ(s) as it was and the camera's
+last-good time where it was, so the safety net sees the camera go stale exactly as a real link
+would show it.
 """
 
 from __future__ import annotations

@@ -148,8 +148,9 @@ def test_the_estimate_is_taken_at_the_frames_capture_time():
     v = _vehicle([0.0, 0.0, -10.0], t_ms=4900)
     enc, dec = M.MAVLink(None, srcSystem=1, srcComponent=1), M.MAVLink(None)
     for t_ms, alt in ((5000, 11.0), (5100, 12.0)):
-        for m in (M.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -alt, 0, 0, 0),
-                  M.MAVLink_attitude_quaternion_message(t_ms, 1, 0, 0, 0, 0, 0, 0, [0] * 4)):  # fmt: skip
+        pos = M.MAVLink_local_position_ned_message(t_ms, 0.0, 0.0, -alt, 0, 0, 0)
+        att = M.MAVLink_attitude_quaternion_message(t_ms, 1, 0, 0, 0, 0, 0, 0, [0] * 4)
+        for m in (pos, att):
             v.apply(dec.parse_char(m.pack(enc)))
     assert -v.pose_at(5.0).pos_ned[2] == 11.0
     assert -v.pose_at(4.95).pos_ned[2] == 10.0
