@@ -30,7 +30,7 @@ from mission.vehicle import VehicleLink
 from perception.camera import CameraParams, backproject_to_ground, project
 from perception.features import FeatureParams
 from perception.render_fast import FastRenderer
-from perception.transport import decode_frame, encode_frame
+from perception.transport import camera_info, decode_frame, encode_frame
 from policy.groundair.params import TaskParams
 from scripts.cli import main
 
@@ -82,6 +82,8 @@ def test_pointed_head_puts_the_roi_at_the_image_centre_and_looks_down_without_on
     with pytest.raises(ValueError, match="mount must be one of"):
         mounted_camera_pose(CAM, "gimballed", pos, q)
     assert MOUNTS == ("body", "level", "pointed")
+    info = camera_info(ORBIT_CAMERA, "raw", "pointed")  # the camera announces how it is carried
+    assert info["mount"] == "pointed" and info["fx_px"] == ORBIT_CAMERA.fx
 
 
 # ---- a frame on the companion's side -----------------------------------------------------------
