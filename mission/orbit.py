@@ -6,8 +6,10 @@ limit, the camera's field of view and the team's extent; the certified circle in
 fence). What is new here is where the centre comes from and who renders: the simulator's
 camera sits on a pan-tilt gimbal pointed where the companion sets the region of interest
 (MAV_CMD_DO_SET_ROI_LOCATION); every frame received over Zenoh is detected, each UGV's
-centroid is back-projected from the frame's camera pose onto the ground, and their mean is
-the team's centre as seen. The orbit centre follows it as far as the fence allows.
+centroid is back-projected onto the ground from the camera pose the companion computes (the
+autopilot's estimate at the frame's time through the head pointed at the acknowledged ROI:
+mission.onboard), and their mean is the team's centre as seen. The orbit centre follows it as
+far as the fence allows.
 
 Phases: connect → read the airframe's parameters → make the autopilot agree with the envelope
 (its climb and sink limits TECS_CLMB_MAX / TECS_SINK_MAX and its bank limit ROLL_LIMIT_DEG
@@ -31,7 +33,6 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from flight.autopilot_api import Setpoint
-from flight.geo import ned_to_geodetic
 from hil.client import reposition_command
 from hil.orbit import (
     ORBIT_CAMERA,
@@ -44,9 +45,10 @@ from hil.orbit import (
 )
 from mission.authority import ModeAuthority
 from mission.flight import Record, append_track
+from mission.onboard import CameraFrame
 from mission.steps import MissionError, Phase, read_params, recipe, wait_ready
 from mission.vehicle import VehicleLink
-from perception.camera import backproject_to_ground, camera_pose
+from perception.camera import backproject_to_ground
 from perception.detector import Detector, annotate
 from safety.consistency import agreeing_values
 from safety.net import SafetyNet
@@ -99,7 +101,8 @@ class TeamSight:
         self.counts = {"ok": 0, "corrupt": 0, "lost": 0}
         self.strip: list[tuple[float, np.ndarray]] = []
 
-    def on_frame(self, t: float, frame, status: str, strip_every_s: float = 8.0) -> None:
+    def on_frame(self, t: float, frame: CameraFrame | None, status: str,
+                 strip_every_s: float = 8.0) -> None:  # fmt: skip
         self.counts[status] = self.counts.get(status, 0) + 1
         if frame is None:
             return
@@ -109,9 +112,9 @@ class TeamSight:
         self.rows.append((t, n, bool(det.all_in_view)))
         if not self.strip or t >= self.strip[-1][0] + strip_every_s:
             self.strip.append((t, annotate(frame.image, det)))
-        if n == 0:
+        pose = frame.camera_pose(ORBIT_CAMERA, "pointed")
+        if n == 0 or pose is None:
             return
-        pose = camera_pose(ORBIT_CAMERA, frame.pos_ned, frame.quat)
         ground = backproject_to_ground(ORBIT_CAMERA, pose, det.centroids_px)
         ok = np.isfinite(ground).all(axis=1)
         if ok.any() and n == self.n:
@@ -374,11 +377,7 @@ class OrbitMission:
         if self.t_decision is not None and v.t - self.t_decision < self.f.decision_s - 1e-9:
             return False
         self.t_decision = v.t
-        if v.tel.home is not None:  # to the vehicle's gimbal: the autopilot routes it there
-            lat, lon, alt = ned_to_geodetic(v.tel.home, np.array([*self.sight.centre, 0.0]))
-            v.send(M.MAVLink_command_long_message(v.target_system or 1, M.MAV_COMP_ID_GIMBAL,
-                                                  M.MAV_CMD_DO_SET_ROI_LOCATION, 0,
-                                                  0, 0, 0, 0, lat, lon, alt))  # fmt: skip
+        v.point_gimbal(np.array([*self.sight.centre, 0.0]))  # the autopilot routes it there
         self._move_centre()
         return True
 

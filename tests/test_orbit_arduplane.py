@@ -18,6 +18,7 @@ from hil.orbit import fence_reserve
 from mission.flight import Record
 from mission.orbit import Briefing, OrbitFlight, OrbitMission
 from mission.steps import MissionError
+from mission.vehicle import VehicleLink
 from safety.consistency import agreeing_values, check_params
 from safety.net import SafetyNet, load_net
 
@@ -73,6 +74,9 @@ class FakePlane:
 
     def command_long(self, command, params, confirmation):
         self.sent.append((command, params))
+
+    def point_gimbal(self, roi_ned):
+        return VehicleLink.point_gimbal(self, roi_ned)  # VehicleLink's, through send()
 
 
 def _mission():
