@@ -21,8 +21,9 @@ from safety.config import default_envelope_path, load_envelope
 from safety.drills import DrillParams, toward
 from safety.envelope import NZ, U
 from safety.monitor import make_z
+from safety.net import SafetyNet
 from safety.projection import Projector, qp_cvxpy
-from safety.supervisor import Health, Supervisor, SupervisorParams
+from safety.supervisor import Supervisor, SupervisorParams
 
 
 def timed(fn, args_list) -> np.ndarray:
@@ -150,7 +151,8 @@ def main() -> None:
         vehicle.step()
     vehicle.set_offboard_setpoint(Setpoint(vel_ned=np.zeros(3)))
     vehicle.set_mode(FlightMode.OFFBOARD)
-    net = Supervisor(env, SupervisorParams())
+    net = SafetyNet(Supervisor(env, SupervisorParams()))
+    net.handover(vehicle.clock.t, vehicle.mode)
     goals = [np.array([40.0, -40.0, -25.0]), np.array([-40.0, 30.0, -30.0])]
     n_sub = round(p.policy_dt_s / vehicle.control_dt)
     t0 = vehicle.clock.t
@@ -161,7 +163,9 @@ def main() -> None:
         s = vehicle.state
         prop = toward(goals[int((t - t0) // 15) % 2], 5.0, 1.5, p)(t - t0, s)
         a0 = pc()
-        cmd = net.update(t, s, prop, Health(camera_t=t, link_t=t)).command
+        net.frame(t)
+        net.link(t, t)
+        cmd = net.step(t, s, prop).command
         a1 = pc()
         vehicle.set_offboard_setpoint(cmd)
         for _ in range(n_sub):

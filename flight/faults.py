@@ -1,4 +1,4 @@
-"""Faults in the simulation: wind, GPS glitch / drift / loss, sensor noise, battery faults.
+"""Faults in the simulation: wind, GPS glitch / drift / loss, baro offset, sensor noise, battery.
 
 A `FaultPlan` (frozen, saved with the run) says what happens and when; a `FaultInjector`
 plays it on the simulation clock with a seeded `numpy.random.Generator` passed in, so a run
@@ -12,6 +12,8 @@ Models (all NED, SI):
   gps_glitch  a step offset e_p = (n, e, d) [m] for the event's duration (not rejected by an
            innovation gate: the worst case, a spoofed or multipath fix).
   gps_drift   e_p grows at (v_n, v_e, v_d) [m/s] during the event, back to 0 when it ends.
+  baro     a barometer offset: the estimate's altitude reads OFFSET [m] above the truth (its
+           down error is −OFFSET) for the event's duration; the horizontal estimate is untouched.
   gps_loss    no fix: the estimate dead-reckons; its error grows from the loss on as
            e_v = b t, e_p = ½ b t² with an accelerometer bias b ~ N(0, σ_b²) per horizontal
            axis drawn at the loss (σ_b = DeadReckoning.accel_bias_std). The autopilot's rule
@@ -34,6 +36,7 @@ Command line (`parse_fault_args`, the same flags for `skyherd sitl` and `skyherd
       gps_glitch@30:20,0,0:5    +20 m north for 5 s from t = 30 s
       gps_drift@30:0.5,0,0:20   north error growing 0.5 m/s for 20 s
       gps_loss@30:10            no fix for 10 s (gps_loss@30 = for ever)
+      baro@30:5:20              the altitude estimate 5 m high for 20 s
       wind@40:16,90:10          extra 16 m/s from the east for 10 s (a gust front)
       battery@60:0.06           charge drops to 6 % at t = 60 s
       drain@10:300:60           300 W more for 60 s
@@ -51,7 +54,8 @@ import numpy as np
 
 from flight.wind import WindField, WindModel
 
-KINDS = ("gps_glitch", "gps_drift", "gps_loss", "wind", "battery", "drain", "disarm", "rtl")
+KINDS = ("gps_glitch", "gps_drift", "gps_loss", "baro", "wind", "battery", "drain", "disarm", "rtl")
+ESTIMATE_KINDS = ("gps_glitch", "gps_drift", "gps_loss", "baro")  # faults of the estimate
 SWITCH_KINDS = ("disarm", "rtl")  # faults that act on the autopilot's arming or mode
 
 
@@ -89,6 +93,8 @@ class FaultEvent:
             raise FaultSpecError("disarm@T takes no duration: a disarm is for good")
         if self.kind == "drain" and not 0.0 <= self.value <= 1e5:
             raise FaultSpecError(f"drain@T:W:D needs 0 <= W <= 1e5 watts, got {self.value}")
+        if self.kind == "baro" and not abs(self.value) <= 1000.0:
+            raise FaultSpecError(f"baro@T:OFFSET needs |OFFSET| <= 1000 m, got {self.value}")
 
     def active(self, t: float) -> bool:
         return self.t0 <= t and (self.duration is None or t < self.t0 + self.duration)
@@ -105,7 +111,7 @@ class FaultEvent:
             sp = math.hypot(self.vec[0], self.vec[1])
             frm = math.degrees(math.atan2(-self.vec[1], -self.vec[0])) % 360.0
             return f"wind@{self.t0:g}:{sp:g},{frm:g},{self.vec[2]:g}{dur}"
-        if self.kind in ("battery", "drain"):
+        if self.kind in ("battery", "drain", "baro"):
             return f"{self.kind}@{self.t0:g}:{self.value:g}{dur}"
         return f"{self.kind}@{self.t0:g}:{v}{dur}"
 
@@ -151,8 +157,8 @@ class FaultPlan:
 
     @property
     def touches_estimate(self) -> bool:
-        """True when the estimate can differ from the truth (GPS faults or noise)."""
-        gps = any(e.kind.startswith("gps_") for e in self.events)
+        """True when the estimate can differ from the truth (GPS or baro faults, or noise)."""
+        gps = any(e.kind in ESTIMATE_KINDS for e in self.events)
         return gps or self.noise.pos_std > 0.0 or self.noise.vel_std > 0.0
 
     def to_args(self) -> list[str]:
@@ -206,7 +212,7 @@ def parse_fault_event(text: str) -> FaultEvent:
     try:
         if kind in ("gps_loss", "disarm", "rtl"):
             return FaultEvent(kind, t0, dur)
-        if kind in ("battery", "drain"):
+        if kind in ("battery", "drain", "baro"):
             v = _floats(args[0], f"--fault {text!r}", 1, 1)[0]
             return FaultEvent(kind, t0, dur, value=v)
         if kind == "wind":
@@ -262,8 +268,8 @@ def add_fault_arguments(parser) -> None:
                         help="estimate noise std: position [m], velocity [m/s]; default none")  # fmt: skip
     parser.add_argument("--fault", action="append", default=[], metavar="KIND@T[:ARGS][:DUR]",
                         help="timed fault, repeatable: gps_glitch@30:20,0,0:5, gps_drift@30:0.5,0,0:20, "
-                        "gps_loss@30:10, wind@40:16,90:10, battery@60:0.06, drain@10:300:60, "
-                        "disarm@25, rtl@25.02:0.05")  # fmt: skip
+                        "gps_loss@30:10, baro@30:5:20, wind@40:16,90:10, battery@60:0.06, "
+                        "drain@10:300:60, disarm@25, rtl@25.02:0.05")  # fmt: skip
 
 
 def plan_from_args(args, seed: int = 0) -> FaultPlan:
@@ -306,7 +312,7 @@ class FaultInjector:
         self._fired: set[int] = set()
         self._wind_events = tuple(e for e in plan.events if e.kind == "wind")
         self._gps_events = tuple(
-            (e, np.asarray(e.vec, dtype=float)) for e in plan.events if e.kind.startswith("gps_")
+            (e, np.asarray(e.vec, dtype=float)) for e in plan.events if e.kind in ESTIMATE_KINDS
         )
         self._battery_events = tuple(e for e in plan.events if e.kind in ("battery", "drain"))
         self._switch_events = tuple(e for e in plan.events if e.kind in SWITCH_KINDS)
@@ -361,6 +367,8 @@ class FaultInjector:
             elif e.kind == "gps_drift":
                 err.pos += vec * (t - e.t0)
                 err.vel += vec
+            elif e.kind == "baro":
+                err.pos[2] -= e.value
             else:
                 lost = True
         if lost:

@@ -139,7 +139,8 @@ def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
                 return vs.pos_ned, None, None  # the stream PX4 wants before OFFBOARD
             tr = t - shared["t0"]
             act = s.attack if s.t_on <= tr < s.t_off else s.behave
-            dec, ask = net.step(t, vs, act(tr, vs), tel.mode)
+            dec = net.step(t, vs, act(tr, vs), tel.mode)
+            ask = net.request(dec)
             shared["ask"] = ask
             if dec.mode is not Mode.AI and dec.reason:
                 shared["reasons"].add(dec.reason)

@@ -1,9 +1,10 @@
 """The one place that maps the safety net's decision onto the autopilot's modes, over MAVLink.
 
-The net's decision names the mode the vehicle should fly in: the AI's (OFFBOARD; GUIDED on
-ArduPilot) or the fallback (the autopilot's own position hold: PX4 Hold, ArduCopter BRAKE,
-ArduPlane LOITER). `ModeAuthority.want(v, mode)` requests it with DO_SET_MODE (the profile's
-numbers), re-sent every `retry_s` until the heartbeat shows it, without blocking the tick.
+The net (safety.net.SafetyNet) decides the mode the vehicle should fly in: the AI's (OFFBOARD;
+GUIDED on ArduPilot) or the fallback (the autopilot's own position hold: PX4 Hold, ArduCopter
+BRAKE, ArduPlane LOITER). `ModeAuthority.want(v, mode)` carries that request over MAVLink with
+DO_SET_MODE (the profile's numbers), re-sent every `retry_s` until the heartbeat shows it,
+without blocking the tick; it maps nothing itself.
 
 Whether the companion may ask at all is decided by `safety.authority.Authority` (a pure,
 time-passed-in machine; its rules in its docstring): a mode the net did not ask for (a battery
@@ -35,10 +36,8 @@ M = mavlink2
 
 @dataclass
 class ModeAuthority:
-    events: object | None = None  # where the rules write their hand-over / yield events
-    vehicle: str = "uav0"
+    rules: Authority = field(default_factory=Authority)  # the net's (SafetyNet.authority)
     retry_s: float = 1.0  # re-send a request not yet shown after this long [s]
-    rules: Authority = field(init=False)
     pending: FlightMode | None = None  # the request sent and not yet answered
     t_sent: float = -1e9
     requests: int = 0
@@ -47,9 +46,6 @@ class ModeAuthority:
     t_start: float | None = None  # tick time of the hand-over [s]
     t_last: float | None = None  # tick time of the last update under the rules [s]
     _read: int = 0  # how many of VehicleLink.seen are taken
-
-    def __post_init__(self) -> None:
-        self.rules = Authority(self.events, self.vehicle)
 
     def adopt(self, v: VehicleLink, mode: FlightMode) -> None:
         """The hand-over: a phase put the vehicle in `mode`; the net now has it."""
@@ -65,10 +61,9 @@ class ModeAuthority:
         new = v.seen[self._read :]
         self._read = len(v.seen)
         for s in new:
-            mode_changed = s.mode is not self.rules.observed
             by = None
             if feed and self.rules.has_authority:
-                by = mode_changed and s.mode is self.rules.asked and s.armed
+                by = s.mode is self.rules.asked and s.armed
                 if not s.armed and s.alt_m > self.airborne_m:
                     self._write(s, by)
                     raise MissionError(f"disarmed in the air at {s.alt_m:.1f} m (t = {s.t:.2f} s)"
@@ -98,6 +93,9 @@ class ModeAuthority:
                 if result != M.MAV_RESULT_ACCEPTED:
                     self.rules.requested(v.t, self.pending, accepted=False)
                 self.pending = None
+        if self.t_start is None:  # the first tick under the rules: the hand-over's (a net's
+            self.record(v)  # `handover` started the rules); what came before it is the phases'
+            self.t_start = v.t
         self._take(v, feed=True)  # every change in arrival order, not the tick's last
         self.t_last = v.t
         return self.rules.mission

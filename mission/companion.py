@@ -2,7 +2,9 @@
 
 Lockstep (the built-in vehicle of `skyherd sim`): each tick starts at the vehicle's tick mark
 (the camera instant t_k), takes frame k from Zenoh (the bytes received are the bytes detected
-on), steps the mission once, sends the setpoint stream and the heartbeat, and closes the tick.
+on; the mission gets it as a mission.onboard.CameraFrame: pixels, stamp and the autopilot's
+estimate at the stamp, never the simulator's header pose), steps the mission once, sends the
+setpoint stream and the heartbeat, and closes the tick.
 
 Free-running (a real autopilot, or `skyherd sim --free-run`): the link is drained continuously
 and a tick runs every `tick_s` of the autopilot's own clock; the newest frame, if any, is used.
@@ -17,6 +19,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from flight.autopilot_api import Setpoint
+from mission.onboard import CameraFrame, onboard_frame
 from mission.vehicle import LinkLost, VehicleLink
 
 
@@ -36,18 +39,21 @@ class CompanionParams:
 
 
 class FrameSource(Protocol):
-    def frame_at(self, t: float, patience_s: float) -> tuple[object | None, str]: ...
-    def newest(self) -> tuple[object | None, str]: ...
+    def frame_at(self, t: float, patience_s: float,
+                 v: VehicleLink | None = None) -> tuple[CameraFrame | None, str]: ...  # fmt: skip
+    def newest(self, v: VehicleLink | None = None) -> tuple[CameraFrame | None, str]: ...
 
 
 class Mission(Protocol):
     name: str
 
-    def on_frame(self, t: float, frame, status: str) -> None: ...
+    def on_frame(self, t: float, frame: CameraFrame | None, status: str) -> None: ...
 
 
 class FrameInbox:
-    """Frames of one vehicle from Zenoh (perception.transport.FrameSubscriber), by tick time.
+    """Frames of one vehicle from Zenoh (perception.transport.FrameSubscriber), by tick time,
+    handed on as the onboard computer has them (mission.onboard.CameraFrame, with vehicle `v`'s
+    estimate at the stamp): the companion's only way to a frame.
 
     `frame_at(t)` returns (frame, "ok") for the frame stamped t, (None, "corrupt") when the
     frame for t arrived damaged (CRC, size: it is dropped, as a real link would), or
@@ -57,14 +63,14 @@ class FrameInbox:
         self.sub = subscriber
         self.ok = self.corrupt = self.lost = 0
 
-    def frame_at(self, t: float, patience_s: float):
+    def frame_at(self, t: float, patience_s: float, v: VehicleLink | None = None):
         deadline = time.monotonic() + patience_s
         corrupt0 = self.sub.stats.corrupt
         while True:
             fr = self.sub.wait(0.05)
             if fr is not None and abs(fr.t_sim - t) < 1e-6:
                 self.ok += 1
-                return fr, "ok"
+                return onboard_frame(fr, v), "ok"
             if self.sub.stats.corrupt > corrupt0:
                 self.corrupt += 1
                 return None, "corrupt"
@@ -72,9 +78,9 @@ class FrameInbox:
                 self.lost += 1
                 return None, "lost"
 
-    def newest(self):
+    def newest(self, v: VehicleLink | None = None):
         fr = self.sub.take()
-        return (fr, "ok") if fr is not None else (None, "none")
+        return (onboard_frame(fr, v), "ok") if fr is not None else (None, "none")
 
 
 class LoggedFrames:
@@ -149,7 +155,7 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
             start = time.monotonic()
             if frames is not None:  # wait only for a frame the vehicle announced for this tick
                 if lead.frame_announced_ms == round(t * 1000):
-                    mission.on_frame(t, *frames.frame_at(t, p.frame_patience_s))
+                    mission.on_frame(t, *frames.frame_at(t, p.frame_patience_s, lead))
                 else:
                     mission.on_frame(t, None, "lost")
         else:
@@ -162,7 +168,7 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
             t_next = lead.t + p.tick_s
             start = time.monotonic()
             if frames is not None:
-                fr, status = frames.newest()
+                fr, status = frames.newest(lead)
                 if fr is not None:
                     mission.on_frame(lead.t, fr, status)
         if lead.t - t_heartbeat >= p.heartbeat_s - 1e-9:

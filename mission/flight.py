@@ -2,11 +2,12 @@
 land — as one generator (mission.steps), with what the run folder records.
 
 The flying part is the same for every pilot: at each decision (every `decision_s`) the pilot
-proposes a setpoint from the observation; at every tick the safety net certifies (it may hold a
-proposal, project it, or take over with its fallback); `Authority` maps the net's mode onto the
-autopilot's (AI: OFFBOARD, fallback: the autopilot's own hold) and yields when the autopilot
-takes over by itself. Every decision goes to decisions.jsonl: proposed, certified, verdict,
-reason, mode (LAYOUT of the per-decision record in docs/mission.md).
+proposes a setpoint from the observation; at every tick the safety net (safety.net.SafetyNet)
+certifies it (it may hold a proposal, project it, or take over with its fallback) and names the
+autopilot mode to fly it in (AI: OFFBOARD, fallback: the autopilot's own hold), which
+`ModeAuthority` requests over MAVLink; the net yields when the autopilot takes over by itself.
+Every decision goes to decisions.jsonl as `Decision.record()`: proposed, certified, verdict,
+reason, mode.
 """
 
 from __future__ import annotations
@@ -18,11 +19,13 @@ import numpy as np
 
 from flight.autopilot_api import FlightMode, Setpoint
 from mission.authority import ModeAuthority
-from mission.pilots import Observation, Pilot, Proposal
+from mission.pilots import DescentPilot, Observation, Pilot, Proposal
 from mission.steps import MissionError, Phase, read_params, recipe, wait_ready, wait_until
 from mission.vehicle import VehicleLink
 from runio import CsvWriter, JsonlWriter
-from safety.supervisor import Decision, Health, Mode, Supervisor
+from safety.authority import Authority
+from safety.net import SafetyNet
+from safety.supervisor import Decision, Mode, Severity
 
 TRACK_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "phase"]
 
@@ -35,6 +38,9 @@ class FlightPlan:
     duration_s: float = 60.0  # flight behind the safety net after the hand-over [s]
     decision_s: float = 0.5  # the pilot decides this often [s] (the policy's training step)
     land: bool = True  # land at the end (else hold position and stop)
+    descend_above_floor_m: float = 1.0  # the descent behind the net ends this far above the
+    # envelope's floor + margin; the autopilot's LAND flies the column below it [m]
+    descend_timeout_s: float = 60.0  # the descent behind the net must end within this [s]
     yield_wait_s: float = 60.0  # after the autopilot took over, wait this long for its landing [s]
 
     def __post_init__(self) -> None:
@@ -46,17 +52,6 @@ class FlightPlan:
             raise ValueError(f"decision_s must be > 0, got {self.decision_s}")
 
 
-def _vec(x) -> list[float] | None:
-    return None if x is None else [round(float(a), 6) for a in x]
-
-
-def _sp(s: Setpoint | None) -> dict | None:
-    if s is None:
-        return None
-    return {"pos_ned": _vec(s.pos_ned), "vel_ned": _vec(s.vel_ned),
-            "yaw": None if s.yaw is None else round(float(s.yaw), 6)}  # fmt: skip
-
-
 def append_track(track: CsvWriter | None, v: VehicleLink, written: int, phase: str) -> int:
     """Append the position samples that arrived since `written` to metrics.csv (TRACK_COLUMNS);
     returns how many are written now."""
@@ -66,14 +61,6 @@ def append_track(track: CsvWriter | None, v: VehicleLink, written: int, phase: s
                          "ve": vel[1], "vd": vel[2], "mode": mode, "armed": int(armed),
                          "phase": phase})  # fmt: skip
     return len(v.positions)
-
-
-def verdict(d: Decision) -> str:
-    if d.mode is Mode.FALLBACK:
-        return "fallback"
-    if d.mode is Mode.PID:
-        return "pid"
-    return "projected" if d.ai_rejected else "accepted"
 
 
 @dataclass
@@ -101,14 +88,11 @@ class Record:
 class SingleVehicleMission:
     """connect → arm → take off → hand over → pilot behind the net → land."""
 
-    def __init__(self, pilot: Pilot, supervisor: Supervisor | None, plan: FlightPlan,
-                 record: Record, perception=None, guard=None):  # fmt: skip
-        self.pilot, self.net, self.plan, self.rec = pilot, supervisor, plan, record
+    def __init__(self, pilot: Pilot, net: SafetyNet | None, plan: FlightPlan, record: Record,
+                 perception=None):  # fmt: skip
+        self.pilot, self.net, self.plan, self.rec = pilot, net, plan, record
         self.perception = perception  # mission.perception.Perception or None (no camera)
-        self.authority = ModeAuthority(getattr(supervisor, "events", None))
-        self.guard = (
-            guard  # safety.consistency.ParamGuard: the autopilot's parameters vs the envelope
-        )
+        self.authority = ModeAuthority(net.authority if net is not None else Authority())
         self.phase = "connect"
         self.outcome = "running"
         self.reason = ""
@@ -121,6 +105,8 @@ class SingleVehicleMission:
     def on_frame(self, t: float, frame, status: str) -> None:
         if self.perception is not None:
             self.perception.on_frame(t, frame, status)
+        if frame is not None and self.net is not None:
+            self.net.frame(t)  # arrival = capture: the tick's own frame, or the newest
 
     def write_track(self, v: VehicleLink) -> None:
         self._written = append_track(self.rec.track, v, self._written, self.phase)
@@ -131,21 +117,28 @@ class SingleVehicleMission:
         self.phase = "connect"
         yield from wait_ready(v)
         prof = v.profile
-        if self.guard is not None:  # envelope ↔ autopilot: refuse to fly on a mismatch
+        if self.net is not None:  # envelope ↔ autopilot: refuse to fly on a mismatch
             self.phase = "parameters"
             yield from read_params(v)
-            self.guard.load(v.t, v.params)
+            self.net.load_params(v.t, v.params)
             v.param_updates.clear()
-            ok, why = self.guard.handover()
+            ok, why = self.net.handover_ok()
             if not ok:
                 raise MissionError(
                     f"refusing to take off: the autopilot's parameters disagree with the envelope: {why}"
                 )
+        if self.net is not None:  # the take-off column, certified before the take-off
+            ok, why = self.net.certify_column(v.tel.pos_ned, plan.altitude_m)
+            if not ok:
+                raise MissionError(f"refusing to take off: {why}")
         self.phase = "takeoff"
         yield from recipe(v, prof.takeoff_steps(plan.altitude_m, v.home_amsl_m))
         self.phase = "offboard"
         yield from recipe(v, prof.handover_steps(), hold=lambda: self._hold(v))
-        self.authority.adopt(v, prof.ai_mode)
+        if self.net is not None:
+            self.net.handover(v.t, v.tel.mode, prof.ai_mode)
+        else:
+            self.authority.adopt(v, prof.ai_mode)
         self.phase = self.pilot.name
         t_end = v.t + plan.duration_s
         while v.t < t_end - 1e-9 and not getattr(self.pilot, "done", False):
@@ -161,12 +154,42 @@ class SingleVehicleMission:
         if self.authority.yielded is not None:
             yield from self._yield_to_autopilot(v)
             return
+        if plan.land and self.net is not None and prof.vehicle == "multirotor":
+            yield from self._descend(v)
+            if self.authority.yielded is not None:
+                yield from self._yield_to_autopilot(v)
+                return
         self.phase = "land"
         if plan.land:
             v.setpoint = Setpoint(pos_ned=v.tel.pos_ned.copy(), yaw=0.0)
             yield from recipe(v, prof.land_steps())
             yield from recipe(v, prof.end_steps())
         self.outcome = "completed"
+
+    def _descend(self, v: VehicleLink) -> Phase:
+        """The landing behind the net: from the mission's altitude down to the envelope's floor
+        + margin (+ descend_above_floor_m), certified tick by tick like the pilot's flight (a
+        wind that pushes the vehicle toward the fence meets the same rows and fallback); the
+        autopilot's LAND then flies only the column below. Ends early on a yield."""
+        lim = self.net.spec.limits
+        goal = -(lim.floor_m + lim.margin_m + self.plan.descend_above_floor_m)
+        p = v.tel.pos_ned
+        spec = self.net.spec
+        pilot = DescentPilot(float(p[0]), float(p[1]), goal, spec.limits, spec.dynamics.tau_s)
+        self.phase = pilot.name
+        t0 = v.t
+        while True:
+            if self.authority.update(v) != "fly":
+                return
+            self._tick(v, pilot)
+            p, vel = v.tel.pos_ned, v.tel.vel_ned
+            if (abs(p[2] - goal) < 0.5 and float(np.linalg.norm(vel)) < 0.5
+                    and self.net.mode is Mode.AI):  # fmt: skip
+                return
+            if v.t - t0 > self.plan.descend_timeout_s:
+                raise MissionError(f"the descent behind the net did not reach {-goal:.1f} m in "
+                                   f"{self.plan.descend_timeout_s:.0f} s ({self.net.mode.value})")  # fmt: skip
+            yield
 
     def _hold(self, v: VehicleLink) -> Setpoint:
         p = v.tel.pos_ned
@@ -184,50 +207,40 @@ class SingleVehicleMission:
         except MissionError:
             self.reason += f"; still armed in {v.tel.mode_name or v.tel.mode} after {self.plan.yield_wait_s:.0f} s: left to the autopilot"
 
-    def _tick(self, v: VehicleLink) -> None:
+    def _tick(self, v: VehicleLink, pilot: Pilot | None = None) -> None:
         state = v.tel.vehicle_state()
         if state is None:
             return
+        pilot = self.pilot if pilot is None else pilot
         t = v.t
         proposal = None
         phi = self.perception.phi if self.perception is not None else None
         if self.t_decision is None or t - self.t_decision >= self.plan.decision_s - 1e-9:
             self.t_decision = t
             obs = self.perception.observation(state) if self.perception is not None else np.zeros(0)
-            proposal = self.pilot.propose(Observation(t, state, phi, obs, self.plan.decision_s))
+            proposal = pilot.propose(Observation(t, state, phi, obs, self.plan.decision_s))
             if self.perception is not None:
                 self.perception.decided()
-        if self.net is None:
+        sp = None if proposal is None else proposal.setpoint
+        net = self.net
+        if net is None:
             if proposal is not None:
-                v.setpoint = proposal.setpoint
-                self._write(t, phi, proposal, proposal.setpoint, "accepted", "no safety net", "ai",
-                            v.tel.mode)  # fmt: skip
+                v.setpoint = sp
+                d = Decision(sp, Mode.AI, Severity.NONE, "no safety net", FlightMode.OFFBOARD,
+                             False, t, sp)  # fmt: skip
+                self._write(d, phi, proposal, v.tel.mode, pilot)
             return
-        camera_t = self.perception.camera_t if self.perception is not None else t
-        if camera_t is None:  # no frame since the hand-over: lost, not unmonitored
-            camera_t = self.authority.t_start
-        params_fault = ""
-        if self.guard is not None:  # anyone's PARAM_SET mid-flight is re-checked here
-            for t_p, name, value in v.param_updates:
-                self.guard.update(t_p, name, value)
-            v.param_updates.clear()
-            params_fault = self.guard.fault
-        d = self.net.update(t, state, None if proposal is None else proposal.setpoint,
-                            Health(camera_t=camera_t, link_t=v.heartbeat_t, params_fault=params_fault))  # fmt: skip
-        prof = v.profile
-        ai_mode = prof.fallback_mode if d.autopilot_mode is FlightMode.HOLD else prof.ai_mode
-        self.authority.want(v, ai_mode)
+        net.link(v.heartbeat_t, v.telemetry_t)
+        for t_p, name, value in v.param_updates:  # anyone's PARAM_SET mid-flight is re-checked
+            net.param(t_p, name, value)
+        v.param_updates.clear()
+        d = net.step(t, state, sp)
+        want = net.wanted_mode(d)
+        self.authority.want(v, want)
         v.setpoint = d.command
         if proposal is not None:
-            self._write(t, phi, proposal, d.command, verdict(d), d.reason, d.mode.value, ai_mode)
+            self._write(d, phi, proposal, want, pilot)
 
-    def _write(self, t, phi, proposal: Proposal, certified: Setpoint, verdict_: str, reason: str,
-               mode: str, autopilot_mode) -> None:  # fmt: skip
-        row = {"t": round(t, 6), "vehicle": self.rec.vehicle, "pilot": self.pilot.name,
-               "phi": _vec(phi), "action": proposal.action,
-               "proposed": _sp(proposal.setpoint), "certified": _sp(certified),
-               "verdict": verdict_, "reason": reason, "mode": mode,
-               "autopilot_mode": autopilot_mode.name if autopilot_mode else ""}  # fmt: skip
-        if proposal.explanation is not None:
-            row["explanation"] = proposal.explanation
-        self.rec.decision(row)
+    def _write(self, d: Decision, phi, proposal: Proposal, autopilot_mode, pilot: Pilot) -> None:
+        self.rec.decision(d.record(self.rec.vehicle, pilot.name, phi, autopilot_mode or "",
+                                   proposal.explanation, proposal.action))  # fmt: skip

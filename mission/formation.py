@@ -42,9 +42,9 @@ from mission.steps import MissionError, Phase, quiet_streams, recipe, wait_ready
 from mission.vehicle import VehicleLink
 from runio import CsvWriter, JsonlWriter
 from safety.envelope import EnvelopeSpec
-from safety.net import warm_up
+from safety.net import SafetyNet, warm_up
 from safety.separation import SeparationParams, fleet_separation_rows, separation_rows
-from safety.supervisor import Decision, Health, Supervisor
+from safety.supervisor import Decision, Supervisor
 
 
 def together(phases: Iterable[Phase]) -> Phase:
@@ -64,14 +64,17 @@ def together(phases: Iterable[Phase]) -> Phase:
 
 
 class FormationNet:
-    """One vehicle's safety net in the field frame: its own supervisor over the formation's
-    envelope, with the other vehicles as separation rows."""
+    """One vehicle's safety net in the field frame: its SafetyNet over the formation's envelope,
+    with the other vehicles as separation rows. Its fallback is flown as a setpoint in OFFBOARD
+    (use_autopilot_hold False): K vehicles each waiting out a mode switch beside the others
+    would hold worse than the fallback's own brake."""
 
     def __init__(self, index: int, spec: EnvelopeSpec, events=None,
                  separation: SeparationParams = SEPARATION):  # fmt: skip
         self.index = index
         self.spec = spec
-        self.net = Supervisor(spec.envelope(), FORMATION_NET, events)
+        self.net = SafetyNet(Supervisor(spec.envelope(), FORMATION_NET, events), events,
+                             vehicle=f"uav{index}", camera=False, use_autopilot_hold=False)  # fmt: skip
         self.separation = separation
         # _chase's bounds: 90 % of the inradius of the envelope's n-gon speed and accel rows
         lim = spec.limits
@@ -86,12 +89,12 @@ class FormationNet:
         return separation_rows(self.spec, state.pos_ned, others, self.separation)
 
     def certify(self, t: float, state: VehicleState, separation: tuple, target: np.ndarray,
-                vel_ff: np.ndarray | None, health: Health | None = None) -> Decision:  # fmt: skip
+                vel_ff: np.ndarray | None) -> Decision:  # fmt: skip
         """The plan's point `target` (3,) with feed-forward `vel_ff` through the net, all in the
         field frame; `separation` = the rows (A, b, names) against the other vehicles. A
         reference far ahead is chased on a leash (`_chase`, LEASH_V_M) so the setpoint stays
         inside the speed and acceleration rows."""
-        self.net.set_dynamic_rows(*separation)
+        self.net.supervisor.set_dynamic_rows(*separation)
         p0, p1, p2 = state.pos_ned.tolist()
         v0, v1, _ = state.vel_ned.tolist()
         t0, t1, t2 = np.asarray(target, float).tolist()
@@ -100,7 +103,7 @@ class FormationNet:
         dz = min(max(t2 - p2, -LEASH_V_M), LEASH_V_M)  # np.clip's value, NaN included
         sp = Setpoint(pos_ned=np.array([p0 + d0, p1 + d1, p2 + dz]),
                       vel_ned=np.array([f0, f1, f2]), yaw=0.0)  # fmt: skip
-        return self.net.update(t, state, sp, health if health is not None else Health())
+        return self.net.step(t, state, sp)
 
     def _chase(self, p: tuple[float, float], v: tuple[float, float], target: tuple[float, float],
                ff: tuple[float, float]) -> tuple[tuple[float, float], tuple[float, float]]:  # fmt: skip
@@ -186,7 +189,7 @@ class FormationMission:
         self.nets = [FormationNet(k, self.spec, Tagged(events, f"uav{k}") if events else None)
                      for k in range(self.K)]  # fmt: skip
         self._warm_up()
-        self.authority = [ModeAuthority(events, vehicle=f"uav{k}") for k in range(self.K)]
+        self.authority = [ModeAuthority(n.net.authority) for n in self.nets]
         self.phase = "connect"
         self.outcome, self.reason = "running", ""
         self.t0: float | None = None  # plan start [s]
@@ -246,7 +249,7 @@ class FormationMission:
                                    hold=lambda k=k: self._local(k, self._start_point(k)))
                             for k, v in enumerate(vs))  # fmt: skip
         for k, v in enumerate(vs):
-            self.authority[k].adopt(v, v.profile.ai_mode)
+            self.nets[k].net.handover(v.t, v.tel.mode, v.profile.ai_mode)
         self.phase = "plan"
         self.t0 = vs[0].t + p.lead_s
         t_end = self.t0 + (self.paths.shape[1] - 1) * p.step_s
@@ -324,8 +327,10 @@ class FormationMission:
                 continue
             ref, vel = self._ref(k, v.t)
             target = np.array([ref[0], ref[1], -self.p.altitude(k)])
-            d = self.nets[k].certify(v.t, states[k], rows[k], target, np.array([vel[0], vel[1], 0.0]),
-                                     Health(link_t=v.heartbeat_t))  # fmt: skip
+            net = self.nets[k]
+            net.net.link(v.heartbeat_t, v.telemetry_t)
+            d = net.certify(v.t, states[k], rows[k], target, np.array([vel[0], vel[1], 0.0]))
+            self.authority[k].want(v, net.net.wanted_mode(d))
             c = d.command
             pos = None if c.pos_ned is None else np.asarray(c.pos_ned, float) - self.off[k]
             v.setpoint = Setpoint(pos_ned=pos, vel_ned=c.vel_ned, yaw=c.yaw)

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from mission.pilots import DESCENT_PILOT
 from policy.groundair.fastphi import min_circle
 from policy.groundair.params import TaskParams
 
@@ -15,7 +16,9 @@ from policy.groundair.params import TaskParams
 def groundair_metrics(decisions: list[dict], world: list[dict], task: TaskParams) -> dict:
     """All-in-view fraction (φ's all-in-view flag over the pilot's decisions), the footprint over
     the team's smallest enclosing circle (true altitude and UGV positions at each decision, only
-    where all UGVs are in view), and the number of times the team went out of view."""
+    where all UGVs are in view), and the number of times the team went out of view. The
+    landing's descent behind the net (pilot DESCENT_PILOT) is not the mission's."""
+    decisions = [d for d in decisions if d.get("pilot") != DESCENT_PILOT]  # the landing's
     cam = task.camera
     world_t = np.array([float(r["t"]) for r in world])
     in_view = np.array([bool(d["phi"]) and d["phi"][5] > 0.5 for d in decisions], dtype=bool)

@@ -6,8 +6,10 @@ limit, the camera's field of view and the team's extent; the certified circle in
 fence). What is new here is where the centre comes from and who renders: the simulator's
 camera sits on a pan-tilt gimbal pointed where the companion sets the region of interest
 (MAV_CMD_DO_SET_ROI_LOCATION); every frame received over Zenoh is detected, each UGV's
-centroid is back-projected from the frame's camera pose onto the ground, and their mean is
-the team's centre as seen. The orbit centre follows it as far as the fence allows.
+centroid is back-projected onto the ground from the camera pose the companion computes (the
+autopilot's estimate at the frame's time through the head pointed at the acknowledged ROI:
+mission.onboard), and their mean is the team's centre as seen. The orbit centre follows it as
+far as the fence allows.
 
 Phases: connect → read the airframe's parameters → make the autopilot agree with the envelope
 (its climb and sink limits TECS_CLMB_MAX / TECS_SINK_MAX and its bank limit ROLL_LIMIT_DEG
@@ -30,8 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.geo import ned_to_geodetic
+from flight.autopilot_api import Setpoint
 from hil.client import reposition_command
 from hil.orbit import (
     ORBIT_CAMERA,
@@ -43,13 +44,14 @@ from hil.orbit import (
     slide_centre,
 )
 from mission.authority import ModeAuthority
-from mission.flight import Record, append_track, verdict
+from mission.flight import Record, append_track
+from mission.onboard import CameraFrame
 from mission.steps import MissionError, Phase, read_params, recipe, wait_ready
 from mission.vehicle import VehicleLink
-from perception.camera import backproject_to_ground, camera_pose
+from perception.camera import backproject_to_ground
 from perception.detector import Detector, annotate
-from safety.consistency import ParamGuard, agreeing_values
-from safety.supervisor import Health, Supervisor
+from safety.consistency import agreeing_values
+from safety.net import SafetyNet
 
 M = mavlink2
 
@@ -99,7 +101,8 @@ class TeamSight:
         self.counts = {"ok": 0, "corrupt": 0, "lost": 0}
         self.strip: list[tuple[float, np.ndarray]] = []
 
-    def on_frame(self, t: float, frame, status: str, strip_every_s: float = 8.0) -> None:
+    def on_frame(self, t: float, frame: CameraFrame | None, status: str,
+                 strip_every_s: float = 8.0) -> None:  # fmt: skip
         self.counts[status] = self.counts.get(status, 0) + 1
         if frame is None:
             return
@@ -109,9 +112,9 @@ class TeamSight:
         self.rows.append((t, n, bool(det.all_in_view)))
         if not self.strip or t >= self.strip[-1][0] + strip_every_s:
             self.strip.append((t, annotate(frame.image, det)))
-        if n == 0:
+        pose = frame.camera_pose(ORBIT_CAMERA, "pointed")
+        if n == 0 or pose is None:
             return
-        pose = camera_pose(ORBIT_CAMERA, frame.pos_ned, frame.quat)
         ground = backproject_to_ground(ORBIT_CAMERA, pose, det.centroids_px)
         ok = np.isfinite(ground).all(axis=1)
         if ok.any() and n == self.n:
@@ -125,14 +128,14 @@ class OrbitMission:
 
     name = "orbit"
 
-    def __init__(self, supervisor: Supervisor, flight: OrbitFlight, briefing: Briefing,
+    def __init__(self, net: SafetyNet, flight: OrbitFlight, briefing: Briefing,
                  record: Record, reserve_m: float, alt_band: tuple[float, float]):  # fmt: skip
-        self.net, self.f, self.brief, self.rec = supervisor, flight, briefing, record
+        self.net, self.f, self.brief, self.rec = net, flight, briefing, record
         self.reserve_m = reserve_m
         self.alt_band = alt_band  # (min, max) altitude the plan may use [m]
         self.sight = TeamSight(briefing.n_ugvs, briefing.rendezvous_ne)
         self.perception = self.sight
-        self.authority = ModeAuthority(getattr(supervisor, "events", None))
+        self.authority = ModeAuthority(net.authority)
         self.plan: OrbitPlan | None = None
         self.centre = np.asarray(briefing.rendezvous_ne, float)  # the certified orbit centre
         self.phase = "connect"
@@ -148,12 +151,13 @@ class OrbitMission:
         self._trim_d: list[float] = []
         self._trim_t = 0.0
         self._airspeed = 20.0
-        self.guard = ParamGuard(supervisor.envelope.spec, supervisor.p.pos_speed_max_mps,
-                                getattr(supervisor, "events", None), record.vehicle)  # fmt: skip
+        self.guard = net.params  # the autopilot's parameters against the envelope
 
     # ---- called by the companion's loop --------------------------------------------------------
     def on_frame(self, t: float, frame, status: str) -> None:
         self.sight.on_frame(t, frame, status)
+        if frame is not None:
+            self.net.frame(t)
 
     def write_track(self, v: VehicleLink) -> None:
         self._written = append_track(self.rec.track, v, self._written, self.phase)
@@ -171,7 +175,7 @@ class OrbitMission:
         yield from read_params(v)
         yield from self._agree(v)  # first: the plan reads the bank limit as it will be
         self.plan = self._plan(v)
-        self.net.loiter_radius_m = self.plan.radius_m  # what the autopilot's loiter flies
+        self.net.supervisor.loiter_radius_m = self.plan.radius_m  # what its loiter flies
         self.phase = "loiter radius"
         self.loiter_setting = prof.loiter_radius_setting(self.plan.radius_m,
                                                          v.home_amsl_m + self.plan.altitude_m)  # fmt: skip
@@ -256,7 +260,7 @@ class OrbitMission:
         orbit's setpoint — the climb-out aimed moments ago, and a decision without an action
         is judged as "no velocity command" (ArduPlane is in GUIDED already: the hand-over can
         take less than one decision period)."""
-        self.authority.adopt(v, v.profile.ai_mode)
+        self.net.handover(v.t, v.tel.mode, v.profile.ai_mode)
         self.t_decision = None
         self.phase = "orbit"
 
@@ -352,11 +356,13 @@ class OrbitMission:
         return Setpoint(pos_ned=np.array([self.centre[0], self.centre[1], -self.plan.altitude_m]))
 
     def _ok(self, c: np.ndarray) -> bool:
-        return circle_certified(self.net.geometry, c, self.plan.radius_m, self.plan.altitude_m,
+        return circle_certified(self.net.supervisor.geometry, c, self.plan.radius_m, self.plan.altitude_m,
                                 self.reserve_m, self.net.envelope.spec.limits.margin_m)  # fmt: skip
 
     def _certified_now(self, state) -> bool:
-        return self._ok(self.centre) and setpoint_certified(self.net, state, self._proposal())
+        return self._ok(self.centre) and setpoint_certified(
+            self.net.supervisor, state, self._proposal()
+        )
 
     def _move_centre(self) -> None:
         """Toward the team's centre as seen, as far as the fence allows (hil.orbit.slide_centre)."""
@@ -371,11 +377,7 @@ class OrbitMission:
         if self.t_decision is not None and v.t - self.t_decision < self.f.decision_s - 1e-9:
             return False
         self.t_decision = v.t
-        if v.tel.home is not None:  # to the vehicle's gimbal: the autopilot routes it there
-            lat, lon, alt = ned_to_geodetic(v.tel.home, np.array([*self.sight.centre, 0.0]))
-            v.send(M.MAVLink_command_long_message(v.target_system or 1, M.MAV_COMP_ID_GIMBAL,
-                                                  M.MAV_CMD_DO_SET_ROI_LOCATION, 0,
-                                                  0, 0, 0, 0, lat, lon, alt))  # fmt: skip
+        v.point_gimbal(np.array([*self.sight.centre, 0.0]))  # the autopilot routes it there
         self._move_centre()
         return True
 
@@ -385,19 +387,15 @@ class OrbitMission:
             return
         proposal = self._proposal() if self._aim(v) else None
         self._read_param_updates(v)  # anyone's PARAM_SET mid-flight is re-checked here
-        g = self.guard
-        d = self.net.update(v.t, state, proposal,
-                            Health(camera_t=self.sight.camera_t, link_t=v.heartbeat_t,
-                                   params_fault=g.fault, hold_ok=g.hold_ok))  # fmt: skip
-        prof = v.profile
-        mode = prof.fallback_mode if d.autopilot_mode is FlightMode.HOLD else prof.ai_mode
+        self.net.link(v.heartbeat_t, v.telemetry_t)
+        d = self.net.step(v.t, state, proposal)
+        mode = self.net.wanted_mode(d)
         self.authority.want(v, mode)
         v.setpoint = (
             d.command if d.command.pos_ned is not None or d.command.vel_ned is not None else None
         )
         if proposal is not None:
             row = d.record(vehicle=self.rec.vehicle, pilot="orbit", autopilot_mode=mode)
-            row["verdict"] = verdict(d)
             row["centre_seen"] = [round(float(x), 3) for x in self.sight.centre]
             self.rec.decision(row)
 

@@ -1,14 +1,17 @@
 """The companion's perception: the frame received over Zenoh → detector → φ(s) → observation.
 
-The frame detected on is the frame received (its bytes, as they came off the wire); a corrupt
-or lost frame leaves φ(s) as it was and the camera's last-good time where it was, so the safety
-net sees the camera go stale exactly as a real link would show it.
+The frame detected on is the frame received (its bytes, as they came off the wire); φ's
+altitude is the autopilot's estimate at the frame's capture time (mission.onboard.CameraFrame),
+never the simulator's truth. A corrupt or lost frame leaves φ(s) as it was and the camera's
+last-good time where it was, so the safety net sees the camera go stale exactly as a real link
+would show it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from mission.onboard import CameraFrame
 from perception.detector import Detector, annotate
 from policy.groundair.env import make_observation
 from policy.groundair.params import TaskParams
@@ -26,12 +29,12 @@ class Perception:
         self.counts = {"ok": 0, "corrupt": 0, "lost": 0}
         self.strip: list[tuple[float, np.ndarray]] = []
 
-    def on_frame(self, t: float, frame, status: str) -> None:
+    def on_frame(self, t: float, frame: CameraFrame | None, status: str) -> None:
         self.counts[status] = self.counts.get(status, 0) + 1
         if frame is None:
             return
         det = self.detector.detect(frame.image)
-        self.phi = self.detector.features(det, -float(frame.pos_ned[2]))
+        self.phi = self.detector.features(det, frame.altitude_m)
         self.camera_t = t
         if not self.strip or t >= self.strip[-1][0] + STRIP_EVERY_S:
             self.strip.append((t, annotate(frame.image, det)))

@@ -37,7 +37,7 @@ class Observation:
 
 @dataclass(frozen=True)
 class Proposal:
-    setpoint: Setpoint
+    setpoint: Setpoint | None  # None: no action this decision (a stalled AI)
     action: int = -1  # the discrete action of a learned policy (-1: none)
     explanation: dict | None = None  # a modular policy's reason (module, reason, concepts)
 
@@ -143,3 +143,77 @@ class WaypointPilot:
                 self.reached.append(o.t)
         target = self.waypoints[min(self.index, len(self.waypoints) - 1)]
         return Proposal(Setpoint(pos_ned=np.array(target, dtype=float), yaw=0.0))
+
+
+DESCENT_PILOT = "descend"
+"""The pilot name of the descent behind the net (mission.flight): its decisions are the
+landing's, not the mission pilot's, and the mission's metrics leave them out."""
+
+
+@dataclass
+class DescentPilot:
+    """The landing's descent behind the net: back over the point where the mission ended, down
+    to `goal_down_m` (NED about home), as velocity commands the envelope accepts as they are —
+    a P law (0.5 /s) limited to 90 % of the envelope's speed rows and, around the present
+    velocity, to 80 % of what its acceleration and tilt rows allow in one velocity-loop time
+    constant (a position setpoint 12 m below would imply a step the rows refuse)."""
+
+    north_m: float
+    east_m: float
+    goal_down_m: float
+    limits: object  # safety.envelope.Limits of the flight's envelope
+    tau_s: float  # the envelope's velocity-loop time constant [s]
+    name: str = DESCENT_PILOT
+
+    def propose(self, o: Observation) -> Proposal:
+        from flight.geo import GRAVITY
+        from safety.drills import slew
+
+        lim, p, v = self.limits, o.state.pos_ned, o.state.vel_ned
+        u = 0.5 * (np.array([self.north_m, self.east_m, self.goal_down_m]) - p)
+        h = float(np.hypot(u[0], u[1]))
+        if h > 0.9 * lim.speed_h_mps:
+            u[:2] *= 0.9 * lim.speed_h_mps / h
+        u[2] = float(np.clip(u[2], -0.9 * lim.climb_mps, 0.9 * lim.descent_mps))
+        a_h = min(lim.accel_h_mps2, GRAVITY * np.tan(lim.tilt_cmd_rad))
+        u = slew(u, v, 0.8 * a_h * self.tau_s, 0.8 * lim.accel_v_mps2 * self.tau_s)
+        return Proposal(Setpoint(vel_ned=u, yaw=0.0))
+
+
+@dataclass
+class DrillPilot:
+    """A drill's adversarial AI (safety.drills.Script) as a mission pilot: the same mission
+    code, MAVLink path and SafetyNet as `skyherd fly`, with the drill's scripted attack in place
+    of the policy (a drill = a mission with an adversarial pilot).
+
+    It first flies to the script's start point (the drills' behave law), then runs the script on
+    its own clock from there: `attack` in [t_on, t_off), `behave` otherwise, for the script's
+    duration; `done` after it. A stall proposes no action (the net sees the deadline pass)."""
+
+    script: object  # safety.drills.Script
+    params: object  # safety.drills.DrillParams
+    duration_s: float = 35.0
+    name: str = "drill"
+    t0: float | None = None  # the script's clock starts at the start point [s]
+    t: float = 0.0
+
+    @property
+    def done(self) -> bool:
+        return self.t0 is not None and self.t - self.t0 >= self.duration_s - 1e-9
+
+    def propose(self, o: Observation) -> Proposal:
+        from safety.drills import toward
+
+        s, self.t = self.script, o.t
+        if self.t0 is None:
+            there = np.linalg.norm(o.state.pos_ned - s.start_ned) < 1.0
+            if not (there and np.linalg.norm(o.state.vel_ned) < 0.5):
+                return Proposal(toward(s.start_ned, 3.0, 1.0, self.params)(0.0, o.state))
+            self.t0 = o.t
+        tr = o.t - self.t0
+        if s.t_on <= tr < s.t_off:
+            act = s.attack
+        else:
+            target = s.start_ned if s.behave_target is None else s.behave_target
+            act = s.behave or toward(target, 3.0, 1.0, self.params)
+        return Proposal(act(tr, o.state))

@@ -6,6 +6,10 @@ autopilot's own `time_boot_ms` when free-running. Every message from the vehicle
 to `Telemetry` in arrival order; in lockstep the link is cut exactly at the tick's mark, and
 what arrived after it waits for the next tick, so a decision sees exactly the vehicle's state
 up to the frame it was taken on.
+
+The camera's side of it (mission.onboard): `pose_at(t)` is the autopilot's estimate of the
+vehicle's pose at a frame's capture time, and `roi_ned` where the vehicle's gimbal was told to
+look (`point_gimbal`, as acknowledged).
 """
 
 from __future__ import annotations
@@ -18,13 +22,18 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from flight.autopilot_api import Setpoint
+from flight.geo import geodetic_to_ned, ned_to_geodetic
 from flight.lockstep import NS_PER_US, is_mark
 from hil.autopilots import UnknownAutopilot
 from hil.client import Telemetry, reposition_command, update_telemetry
 from hil.link import MavlinkLink
+from perception.camera import UAVPose
 
 M = mavlink2
 COMPANION_COMPONENT = M.MAV_COMP_ID_ONBOARD_COMPUTER  # 191 (CONVENTIONS.md)
+
+
+ATTITUDES_KEPT = 64  # attitude samples kept for pose_at (6.4 s at 10 Hz)
 
 
 class Seen(NamedTuple):
@@ -52,6 +61,9 @@ class VehicleLink:
         self.heartbeat_t: float | None = None  # tick time of the last autopilot heartbeat [s]
         self.telemetry_t: float | None = None  # tick time of the last position sample [s]
         self.positions: list[tuple[float, np.ndarray, np.ndarray, str, bool]] = []
+        self.attitudes: deque[tuple[float, np.ndarray]] = deque(maxlen=ATTITUDES_KEPT)
+        self.roi_ned: np.ndarray | None = None  # gimbal ROI as acknowledged (None: nadir)
+        self._roi_sent: np.ndarray | None = None  # the last ROI sent, until its ack
         self.setpoint: Setpoint | None = None  # streamed every tick while set (offboard)
         self._held: deque = deque()
         self.params: dict[str, float] = {}  # the autopilot's parameters as read (PARAM_VALUE)
@@ -157,8 +169,14 @@ class VehicleLink:
             self.telemetry_t = self.t
             self.positions.append((msg.time_boot_ms / 1000.0, tel.pos_ned, tel.vel_ned,
                                    tel.mode.name if tel.mode else "", tel.armed))  # fmt: skip
+        elif t == "ATTITUDE_QUATERNION" or (t == "ATTITUDE" and not self.tel.quaternion_seen):
+            self.attitudes.append((msg.time_boot_ms / 1000.0, self.tel.quat))
         elif t == "COMMAND_ACK":
             self.acks[msg.command] = msg.result
+            if msg.command == M.MAV_CMD_DO_SET_ROI_LOCATION and self._roi_sent is not None:
+                if msg.result == M.MAV_RESULT_ACCEPTED:
+                    self.roi_ned = self._roi_sent
+                self._roi_sent = None
         elif t == "CAMERA_IMAGE_CAPTURED":  # lockstep: a frame was published for this tick
             self.frame_announced_ms = int(msg.time_boot_ms)
         elif t == "PARAM_VALUE":
@@ -171,6 +189,18 @@ class VehicleLink:
             self.params[name] = float(msg.param_value)
             self.param_count = int(msg.param_count)
             self.param_updates.append((self.t, name, float(msg.param_value)))
+
+    def pose_at(self, t: float) -> UAVPose | None:
+        """The autopilot's estimate of the vehicle's pose at time `t` [s of its clock]: its
+        newest position and attitude samples not after t (sample and hold: at most one
+        telemetry period old; in lockstep the built-in vehicle streams both at each camera
+        instant, before its mark), or the oldest kept when all are after t (the nearest: a
+        frame stamped on a clock behind the autopilot's). None until both have arrived."""
+        pos = _newest_until(self.positions, t)
+        att = _newest_until(self.attitudes, t)
+        if pos is None or att is None:
+            return None
+        return UAVPose(pos[1], att[1])
 
     @property
     def home_amsl_m(self) -> float:
@@ -190,6 +220,21 @@ class VehicleLink:
     def heartbeat(self) -> None:
         self.send(M.MAVLink_heartbeat_message(M.MAV_TYPE_ONBOARD_CONTROLLER,
                                               M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE, 3))  # fmt: skip
+
+    def point_gimbal(self, roi_ned: np.ndarray) -> bool:
+        """MAV_CMD_DO_SET_ROI_LOCATION to the vehicle's gimbal (MAV_COMP_ID_GIMBAL; the autopilot
+        routes it there): look at `roi_ned` (3,) NED about home [m]. It takes effect in `roi_ned`
+        when the gimbal acknowledges it. False while home is unknown (nothing sent)."""
+        if self.tel.home is None:
+            return False
+        lat, lon, alt = ned_to_geodetic(self.tel.home, np.asarray(roi_ned, dtype=float))
+        self.send(M.MAVLink_command_long_message(self.target_system or 1, M.MAV_COMP_ID_GIMBAL,
+                                                 M.MAV_CMD_DO_SET_ROI_LOCATION, 0,
+                                                 0, 0, 0, 0, lat, lon, alt))  # fmt: skip
+        # where the gimbal will look: params 5-7 travel as float32 (~1 m at this latitude)
+        lat, lon, alt = (float(np.float32(x)) for x in (lat, lon, alt))
+        self._roi_sent = geodetic_to_ned(self.tel.home, lat, lon, alt)
+        return True
 
     def command_long(self, command: int, params: tuple[float, ...], confirmation: int) -> None:
         p = list(params) + [0.0] * (7 - len(params))
@@ -231,3 +276,12 @@ class VehicleLink:
         self.send(M.MAVLink_set_position_target_local_ned_message(
             stamp, self.target_system or 1, 1, M.MAV_FRAME_LOCAL_NED, mask, *p, *v,
             0.0, 0.0, 0.0, 0.0 if yaw is None else float(yaw), 0.0))  # fmt: skip
+
+
+def _newest_until(samples, t: float):
+    """The newest sample (a tuple whose first item is its time [s]) not after t; the oldest when
+    all are after t; None when there is none."""
+    for sample in reversed(samples):
+        if sample[0] <= t + 1e-6:
+            return sample
+    return samples[0] if samples else None

@@ -202,8 +202,9 @@ def decode_frame(payload: bytes, t_recv: float | None = None) -> Frame:
     return decode_pixels(decode_header(payload, t_recv), payload)
 
 
-def camera_info(cam: CameraParams, encoding: str) -> dict:
-    """The camera_info record (JSON-able): intrinsics, mounting, pixel convention."""
+def camera_info(cam: CameraParams, encoding: str, mount: str = "body") -> dict:
+    """The camera_info record (JSON-able): intrinsics, mounting (the camera on the body, and how
+    the body carries it: hil.camera_mount's body / level / pointed), pixel convention."""
     return {
         "width_px": cam.width_px,
         "height_px": cam.height_px,
@@ -214,6 +215,7 @@ def camera_info(cam: CameraParams, encoding: str) -> dict:
         "hfov_rad": cam.hfov_rad,
         "mount_pitch_rad": cam.mount_pitch_rad,
         "mount_offset_frd_m": list(cam.mount_offset_frd),
+        "mount": mount,
         "encoding": encoding,
         "pixels": "RGB, row 0 at the top; integer (u, v) is a pixel centre",
     }
@@ -285,12 +287,14 @@ class FramePublisher:
         info_every: int = 30,
         rng: np.random.Generator | None = None,
         shm_frames: int = 8,
+        mount: str = "body",
     ):
         import zenoh
 
         if encoding not in ENCODINGS:
             raise ValueError(f"encoding must be raw or jpeg, got {encoding!r}")
         self.cam, self.encoding, self.jpeg_quality = cam, encoding, jpeg_quality
+        self.mount = mount  # how the vehicle carries the camera (camera_info)
         self.info_every = max(1, info_every)
         self.stream = int((rng or np.random.default_rng()).integers(1, 2**32 - 1))
         self.seq = 0
@@ -374,7 +378,8 @@ class FramePublisher:
         return True
 
     def publish_info(self, t_sim: float) -> None:
-        rec = {**camera_info(self.cam, self.encoding), "t_sim": t_sim, "stream": self.stream}
+        rec = {**camera_info(self.cam, self.encoding, self.mount), "t_sim": t_sim,
+               "stream": self.stream}  # fmt: skip
         self._info.put(json.dumps(rec).encode())
 
     def close(self) -> None:

@@ -20,11 +20,9 @@ import numpy as np
 
 from flight.autopilot_api import Autopilot, FlightMode, Setpoint
 from flight.state import VehicleState
-from safety.authority import Authority
-from safety.consistency import ParamGuard
 from safety.envelope import NZ, EnvelopeSpec, SignedDistance
-from safety.net import apply_decision
-from safety.supervisor import Health, Mode, Supervisor, SupervisorParams
+from safety.net import SafetyNet, apply_decision
+from safety.supervisor import Mode, Supervisor, SupervisorParams
 
 Act = Callable[[float, VehicleState], Setpoint | None]
 
@@ -599,12 +597,12 @@ def run_drill(
         ):
             fly(n_sub)
     worst = -math.inf  # judged from the hand-over on
-    sup = Supervisor((net_spec or spec).envelope(), sp, events)
-    auth = Authority(events)
-    guard = ParamGuard((net_spec or spec), sp.pos_speed_max_mps, events)
+    net = SafetyNet(Supervisor((net_spec or spec).envelope(), sp, events), events,
+                    use_autopilot_hold=p.use_autopilot_hold)  # fmt: skip
+    sup, auth, guard = net.supervisor, net.authority, net.params
     watched = [n for n in WATCHED_PARAMS if ap.get_param(n) is not None]
     seen = {n: ap.get_param(n) for n in watched}
-    guard.load(ap.clock.t, seen)
+    net.load_params(ap.clock.t, seen)
     behave = script.behave or toward(
         script.start_ned if script.behave_target is None else script.behave_target, 3.0, 1.0, p
     )
@@ -612,8 +610,8 @@ def run_drill(
     ap.set_offboard_setpoint(Setpoint(vel_ned=np.zeros(3)))
     ap.set_mode(FlightMode.OFFBOARD)
     own["mode"], own["by_autopilot"] = ap.mode, False
-    auth.start(t0, ap.mode)
-    cam_t = link_t = t0
+    net.handover(t0, ap.mode)
+    net.link(t0, t0)  # the hand-over was accepted over the link: it is alive at t0
     first_fb = ai_back = math.nan
     prev_mode = Mode.AI
     rows = []
@@ -639,20 +637,20 @@ def run_drill(
         link_up = script.link_ok(tr) and not cut
         if not cut:  # telemetry, heartbeat and PARAM_VALUE arrive
             seen_state = ap.state
-            auth.observe(t, ap.mode)
+            net.observe(t, ap.mode)
             for n in watched:
                 v = ap.get_param(n)
                 if v != seen[n]:
                     seen[n] = v
-                    guard.update(t, n, v)
+                    net.param(t, n, v)
         s = seen_state
         if script.camera_ok(tr):
-            cam_t = t
+            net.frame(t)
         if link_up:
-            link_t = t
+            net.link(t, t)
         act = script.attack if script.t_on <= tr < script.t_off else behave
         prop = act(tr, s)
-        d = sup.update(t, s, prop, Health(cam_t, link_t, guard.fault, guard.hold_ok))
+        d = net.step(t, s, prop)
         if d.mode is not Mode.AI:
             if math.isnan(first_fb):
                 first_fb = t
@@ -662,7 +660,7 @@ def run_drill(
         prev_mode = d.mode
         if link_up and auth.has_authority:  # a lost link carries no commands
             before, by_ap = ap.mode, own["by_autopilot"]
-            apply_decision(ap, d, p.use_autopilot_hold, authority=auth)
+            apply_decision(ap, d, net.use_autopilot_hold, authority=auth)
             if ap.mode is not before:
                 if by_ap:
                     overridden += 1  # the net undid a mode the autopilot chose itself

@@ -6,7 +6,7 @@ simulation time of its arrival (the companion's clock, never wall time):
     tracker = HealthTracker()
     tracker.message(t, "HEARTBEAT")            # receive thread, per message
     tracker.frame(t, stamp_t=frame.t)          # per frame taken from the Zenoh stream
-    d = supervisor.update(t, state, proposal, tracker.health())
+    camera_t, link_t = tracker.camera_t, tracker.link_t    # safety.net.SafetyNet builds Health
 
 Link: the link is as fresh as the *older* of the newest heartbeat and the newest position
 telemetry (LOCAL_POSITION_NED or ODOMETRY): heartbeats without telemetry leave the net flying
@@ -25,8 +25,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from safety.supervisor import Health
-
 TELEMETRY = frozenset({"LOCAL_POSITION_NED", "ODOMETRY", "GLOBAL_POSITION_INT"})
 
 
@@ -41,7 +39,8 @@ class HealthParams:
 
 
 class HealthTracker:
-    """Arrival times → `Health(camera_t, link_t)`. One per vehicle; not thread-safe (the
+    """Arrival times → the camera's and the link's freshness (`camera_t`, `link_t`), which
+    safety.net.SafetyNet puts into the supervisor's Health. One per vehicle; not thread-safe (the
     caller serialises, e.g. under the companion's lock)."""
 
     def __init__(self, params: HealthParams = HealthParams(), camera: bool = True):
@@ -51,6 +50,7 @@ class HealthTracker:
         self.telemetry_t: float | None = None
         self.frame_t: float | None = None
         self.first_t: float | None = None
+        self.start_t: float | None = None  # the hand-over: the camera must deliver from here
         self.messages = 0
         self.frames = 0
         self.stale_frames = 0
@@ -83,6 +83,12 @@ class HealthTracker:
             self.first_t = t
         self.messages += 1
 
+    def start(self, t: float) -> None:
+        """The AI takes the vehicle at t [s]: a camera that has not delivered a frame yet counts
+        as lost from here (before, from the first message)."""
+        if self.start_t is None and math.isfinite(t):
+            self.start_t = float(t)
+
     def frame(self, t: float, stamp_t: float | None = None) -> None:
         """A camera frame arrived at t [s]; stamp_t: its capture time [s] (None: = t)."""
         try:
@@ -113,10 +119,13 @@ class HealthTracker:
             return self.first_t
         return min(hb, tel)
 
-    def health(self) -> Health:
-        """The supervisor's input now. camera_t None when the camera is not monitored; before
-        the first frame the camera counts as lost from the first message on."""
-        cam = None
-        if self.camera:
-            cam = self.frame_t if self.frame_t is not None else self.first_t
-        return Health(camera_t=cam, link_t=self.link_t)
+    @property
+    def camera_t(self) -> float | None:
+        """The camera's freshness [s]; None when the camera is not monitored. Before the first
+        frame the camera counts as lost from the hand-over (`start`), or before it from the
+        first message on: a camera that never delivered is lost, not unmonitored."""
+        if not self.camera:
+            return None
+        if self.frame_t is not None:
+            return self.frame_t
+        return self.start_t if self.start_t is not None else self.first_t

@@ -147,11 +147,13 @@ class Decision:
         phi=None,
         autopilot_mode: FlightMode | str | None = None,
         explanation: dict | None = None,
+        action: int | None = None,
     ) -> dict[str, Any]:
-        """The per-decision record of LAYOUT.md (one line of decisions.jsonl), JSON-ready.
+        """The per-decision record of LAYOUT.md (one line of decisions.jsonl), JSON-ready —
+        the one record every writer of decisions uses and every reader reads.
 
-        autopilot_mode: the mode the autopilot reports (heartbeat); default the mode the net
-        wants it in."""
+        autopilot_mode: the mode the autopilot reports (heartbeat) or the net asked for;
+        default the mode the supervisor wants it in. action: a learned policy's discrete action."""
         ap = autopilot_mode if autopilot_mode is not None else self.autopilot_mode
         rec: dict[str, Any] = {
             "t": None if not math.isfinite(self.t) else round(float(self.t), 6),
@@ -165,6 +167,8 @@ class Decision:
             "mode": self.mode.value,
             "autopilot_mode": ap.name if isinstance(ap, FlightMode) else str(ap),
         }
+        if action is not None:
+            rec["action"] = action
         if explanation is not None:
             rec["explanation"] = explanation
         return rec

@@ -112,9 +112,11 @@ def add_arguments(
     )  # fmt: skip
     parser.add_argument(
         "--pilot",
-        choices=["policy", "pid"],
+        type=pilot_choice,
         default="policy",
-        help="groundair pilot: the learned policy or the classic PID follower on φ(s)",
+        help="groundair pilot: policy (the learned one), pid (the classic follower on φ(s)), or "
+        "drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. "
+        "drill:lateral-fence with --envelope safety/envelopes/quadrotor_field.toml",
     )
     parser.add_argument(
         "--policy",
@@ -165,12 +167,14 @@ def build_mission(args, run_dir: Path | None):
             plan = FlightPlan(altitude_m=altitude, duration_s=600.0)
         else:
             plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
-            pilot = (
-                PolicyPilot(_load_policy(args.policy), task)
-                if args.pilot == "policy"
-                else PerceptionFollower(task)
-            )
-            net, events = _load_net(args.envelope, run_dir)
+            net = _load_net(args.envelope, run_dir)
+            if args.pilot == "policy":
+                pilot = PolicyPilot(_load_policy(args.policy), task)
+            elif args.pilot == "pid":
+                pilot = PerceptionFollower(task)
+            else:  # a drill's adversarial AI, deciding every tick as the drills' AI does
+                pilot = drill_pilot(args.pilot, net.spec)
+                plan = FlightPlan(altitude_m=altitude, duration_s=args.duration, decision_s=0.1)
             perception = Perception(task)
     except ValueError as e:
         raise UsageError(str(e)) from None
@@ -178,12 +182,34 @@ def build_mission(args, run_dir: Path | None):
         decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
         track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
     )
-    guard = None
-    if net is not None:
-        from safety.consistency import ParamGuard
+    return SingleVehicleMission(pilot, net, plan, record, perception), plan
 
-        guard = ParamGuard(net.envelope.spec, net.p.pos_speed_max_mps, events=events)
-    return SingleVehicleMission(pilot, net, plan, record, perception, guard), plan
+
+def pilot_choice(value: str) -> str:
+    """--pilot: policy, pid, or drill:NAME (a named drill of safety.drills; - for a space)."""
+    if value in ("policy", "pid") or value.startswith("drill:"):
+        return value
+    raise argparse.ArgumentTypeError(f"{value!r}: use policy, pid or drill:NAME")
+
+
+INPUT_FAULT_DRILLS = ("camera loss", "link loss")
+"""Named drills whose fault is an input, not the AI's action: in a flight those are the
+simulator's --cut-camera / --cut-link, not a pilot."""
+
+
+def drill_pilot(choice: str, spec):
+    """The adversarial pilot of `--pilot drill:NAME` for the flight's envelope (ValueError
+    naming the drills there are)."""
+    from mission.pilots import DrillPilot
+    from safety.drills import DrillParams, scripted_drills
+
+    p = DrillParams()
+    name = choice.split(":", 1)[1].replace("-", " ").strip()
+    scripts = {s.name: s for s in scripted_drills(spec, p) if s.name not in INPUT_FAULT_DRILLS}
+    if name not in scripts:
+        names = ", ".join("drill:" + n.replace(" ", "-") for n in scripts)
+        raise ValueError(f"--pilot {choice}: no such drill for {spec.name}; use one of {names}")
+    return DrillPilot(scripts[name], p, p.duration(spec.airframe), name=f"drill:{name}")
 
 
 def _orbit_mission(args, run_dir: Path | None):
@@ -193,14 +219,14 @@ def _orbit_mission(args, run_dir: Path | None):
     from mission.orbit import OrbitFlight, OrbitMission, briefing_for
     from runio import CsvWriter
     from safety.config import ENVELOPE_DIR, EnvelopeFileError
-    from safety.net import load_net, warm_up
+    from safety.net import SafetyNet, warm_up
 
     events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
     try:
         flight = OrbitFlight(
             duration_s=args.duration, land=not getattr(args, "orbit_no_land", False)
         )
-        net = load_net(
+        net = SafetyNet.load(
             "fixedwing", args.envelope or ENVELOPE_DIR / "fixedwing_field.toml", events=events
         )
     except (EnvelopeFileError, ValueError) as e:
@@ -234,17 +260,18 @@ def _load_policy(path):
 
 
 def _load_net(envelope, run_dir):
+    """The ground-air mission's SafetyNet (the camera is one of its inputs)."""
     from safety.config import ENVELOPE_DIR, EnvelopeFileError
-    from safety.net import load_net, warm_up
+    from safety.net import SafetyNet, warm_up
 
     path = envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
     events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
     try:
-        net = load_net("quadrotor", path, events=events)
+        net = SafetyNet.load("quadrotor", path, events=events, camera=True)
     except (EnvelopeFileError, ValueError) as e:
         raise UsageError(f"{e}; fix the file or pass another --envelope") from None
     warm_up(net.envelope, net.p)  # compile now, not at the first switch in flight
-    return net, events
+    return net
 
 
 def zenoh_endpoint(address: str) -> str:
@@ -476,10 +503,7 @@ def _publish_live(session, mission, vehicle: str = "uav0") -> None:
 
     mission.rec.live = session.declare_publisher(f"skyherd/{vehicle}/decision")
     if mission.net is not None:
-        mission.net.events = Tee(mission.net.events, ZenohEventSink(session, vehicle))
-        if mission.guard is not None:
-            mission.guard.events = mission.net.events
-        mission.authority.rules.events = mission.net.events
+        mission.net.set_events(Tee(mission.net.events, ZenohEventSink(session, vehicle)))
 
 
 def _run_formation(args, run_dir: Path, folder) -> int:

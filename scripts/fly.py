@@ -168,6 +168,15 @@ def _validate(args) -> tuple[list[str], list[str]]:
         from scripts.companion import _load_policy
 
         _load_policy(args.policy)
+    if args.pilot.startswith("drill:"):  # a named drill of the flight's envelope
+        from safety.config import ENVELOPE_DIR, EnvelopeFileError, load_envelope
+        from scripts.companion import drill_pilot
+
+        try:
+            spec, _ = load_envelope(args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe])
+            drill_pilot(args.pilot, spec)
+        except (EnvelopeFileError, ValueError) as e:
+            raise UsageError(str(e)) from None
     orbit = args.airframe == "fixedwing"  # the ground-air task, flown as an orbit
     altitude = args.altitude
     if altitude is None and args.mission == "groundair" and not orbit:

@@ -84,7 +84,9 @@ def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     # flight.mcap, recorded from the Zenoh keys by a third process-side session (record/)
     rec = read_messages(run / "flight.mcap")
     counts = rec.counts()
-    assert rec.complete and counts["/uav0/decision"] == decisions
+    recorded = (run / "decisions.jsonl").read_text().splitlines()  # the landing's descent too
+    assert sum('"pilot": "policy"' in x for x in recorded) == decisions
+    assert rec.complete and counts["/uav0/decision"] == len(recorded)
     frames = sum(1 for _ in open(run / "world.csv")) - 1
     assert counts["/uav0/camera/image"] >= 0.9 * frames and counts["/ugvs"] >= 0.9 * 3 * frames
 

@@ -18,8 +18,9 @@ from hil.orbit import fence_reserve
 from mission.flight import Record
 from mission.orbit import Briefing, OrbitFlight, OrbitMission
 from mission.steps import MissionError
+from mission.vehicle import VehicleLink
 from safety.consistency import agreeing_values, check_params
-from safety.net import load_net
+from safety.net import SafetyNet, load_net
 
 # Tools/autotest/models/plane.parm and AP_TECS's defaults (the parameters the checks read)
 STOCK = {"AIRSPEED_CRUISE": 22.0, "ROLL_LIMIT_DEG": 65.0, "WP_LOITER_RAD": 80.0,
@@ -57,6 +58,7 @@ class FakePlane:
         self.t, self.params, self.param_updates = 0.0, dict(params), []
         self.refuse = set(refuse)
         self.sent, self.acks, self.setpoint, self.heartbeat_t = [], {}, None, 0.0
+        self.telemetry_t = 0.0
         self.tel = FakeTel(np.array([0.0, 93.0, -92.5]), np.array([22.0, 0.0, 0.0]),
                            FlightMode.OFFBOARD)  # fmt: skip
 
@@ -73,10 +75,13 @@ class FakePlane:
     def command_long(self, command, params, confirmation):
         self.sent.append((command, params))
 
+    def point_gimbal(self, roi_ned):
+        return VehicleLink.point_gimbal(self, roi_ned)  # VehicleLink's, through send()
+
 
 def _mission():
     events = Events()
-    net = load_net("fixedwing", events=events)
+    net = SafetyNet.load("fixedwing", events=events)
     lim = net.envelope.spec.limits
     band = (lim.floor_m + lim.margin_m, lim.ceiling_m - lim.margin_m - 15.0)
     m = OrbitMission(net, OrbitFlight(), BRIEF, Record(), fence_reserve(net.envelope.spec), band)
@@ -155,7 +160,7 @@ def test_a_parameter_changed_in_flight_is_a_fallback_with_the_reason():
     m, _ = _mission()
     v = FakePlane({**STOCK, "WP_LOITER_RAD": 93.0})
     m.plan = m._plan(v)
-    m.net.loiter_radius_m = m.plan.radius_m
+    m.net.supervisor.loiter_radius_m = m.plan.radius_m
     _run(m._agree(v), v)
     m._begin_orbit(v)
     m._tick(v)
@@ -176,7 +181,7 @@ def test_the_first_decision_after_the_handover_carries_the_orbits_setpoint():
     m, _ = _mission()
     v = FakePlane({**STOCK, "WP_LOITER_RAD": 93.0})
     m.plan = m._plan(v)
-    m.net.loiter_radius_m = m.plan.radius_m
+    m.net.supervisor.loiter_radius_m = m.plan.radius_m
     _run(m._agree(v), v)
     m._aim(v)  # the climb-out's last aim, a tick before the hand-over
     v.t += 0.1
@@ -256,7 +261,7 @@ def test_the_loiter_radius_is_set_for_the_true_airspeed_and_trimmed_once_per_rev
     m, events = _mission()
     v = FakePlane({**STOCK, "WP_LOITER_RAD": 87.0})
     m.plan = m._plan(v)
-    m.net.loiter_radius_m = m.plan.radius_m
+    m.net.supervisor.loiter_radius_m = m.plan.radius_m
     m.loiter_setting = 87.0
     _run(m._agree(v), v)
     m._begin_orbit(v)
@@ -266,7 +271,8 @@ def test_the_loiter_radius_is_set_for_the_true_airspeed_and_trimmed_once_per_rev
         th = 22.0 * a / 108.0  # at 22 m/s on a 108 m circle
         v.tel.pos_ned = np.array([108.0 * math.cos(th), 108.0 * math.sin(th), -R])
         v.tel.vel_ned = np.array([-22.0 * math.sin(th), 22.0 * math.cos(th), 0.0])
-        v.tel.t = v.heartbeat_t = v.t
+        v.tel.t = v.heartbeat_t = v.telemetry_t = v.t
+        m.net.frame(v.t)  # the camera delivers (a camera that does not is a fallback)
         m._tick(v)
         m._trim_radius(v)
         v.t += 0.2

@@ -129,10 +129,14 @@ def test_safety_net_step_requests_nothing_after_a_yield():
     for k in range(10):
         net.message(k * 0.02, "HEARTBEAT")
         net.message(k * 0.02, "LOCAL_POSITION_NED")
-        d, ask = net.step(k * 0.02, st, Setpoint(vel_ned=np.zeros(3)), FlightMode.OFFBOARD)
-        assert d.mode is Mode.AI and ask is None
-    d, ask = net.step(0.3, st, Setpoint(vel_ned=np.zeros(3)), FlightMode.POSCTL, "RC override")
-    assert ask is None and net.authority.mission == "wait" and "RC override" in net.authority.reason
+        d = net.step(k * 0.02, st, Setpoint(vel_ned=np.zeros(3)), FlightMode.OFFBOARD)
+        assert d.mode is Mode.AI and net.request(d) is None
+    d = net.step(0.3, st, Setpoint(vel_ned=np.zeros(3)), FlightMode.POSCTL, "RC override")
+    assert (
+        net.request(d) is None
+        and net.authority.mission == "wait"
+        and "RC override" in net.authority.reason
+    )
 
 
 def test_request_registered_before_sending_and_undone_when_denied():

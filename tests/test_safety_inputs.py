@@ -87,20 +87,20 @@ def test_decision_record_has_the_layout_fields():
 
 def test_health_tracker_from_arrivals():
     h = HealthTracker()
-    assert h.health() == Health(None, None)
+    assert (h.camera_t, h.link_t) == (None, None)
     h.message(1.0, "HEARTBEAT")
-    assert h.health().link_t == 1.0  # telemetry not yet: as old as the first arrival
+    assert h.link_t == 1.0  # telemetry not yet: as old as the first arrival
     for k in range(20):
         h.message(1.0 + 0.1 * k, "LOCAL_POSITION_NED")
     h.message(2.0, "HEARTBEAT")
-    assert h.health().link_t == 2.0  # the older of heartbeat (2.0) and telemetry (2.9)
+    assert h.link_t == 2.0  # the older of heartbeat (2.0) and telemetry (2.9)
     h.frame(2.5, stamp_t=2.45)
     h.frame(2.6, stamp_t=1.0)  # a frame captured 1.6 s before it arrived: stale
     h.message(float("nan"), "HEARTBEAT")
     h.message(1.5, "HEARTBEAT")  # backwards
-    assert h.health().camera_t == 2.5 and h.stale_frames == 1 and h.rejected == 2
+    assert h.camera_t == 2.5 and h.stale_frames == 1 and h.rejected == 2
     sup = Supervisor(SPEC.envelope())
-    d = sup.update(4.0, st(4.0), Setpoint(vel_ned=np.zeros(3)), h.health())
+    d = sup.update(4.0, st(4.0), Setpoint(vel_ned=np.zeros(3)), Health(h.camera_t, h.link_t))
     assert d.mode is Mode.FALLBACK and d.reason == "MAVLink link lost (2.0 s)"
 
 

@@ -37,6 +37,7 @@ class BridgedWorld:
         self.publisher = self.ugv_pub = None
         if session is not None:
             self.publisher = FramePublisher(session, params.vehicle, self.task.camera,
+                                            mount="level",  # level_camera_mount below
                                             rng=np.random.default_rng(params.seed))  # fmt: skip
             self.ugv_pub = UGVStatePublisher(session, self.task.n_ugvs)
         self.run_dir = Path(run_dir) if run_dir is not None else None

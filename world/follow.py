@@ -27,11 +27,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from flight.autopilot_api import FlightMode
 from groundsim.ugv import UGVModel
 from hil.autopilots import UnknownAutopilot
+from hil.camera_mount import mounted_pose
 from hil.client import Telemetry, update_telemetry
 from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
 from runio import CsvWriter, atomic_write_text
-from world.sim import _during, level_camera_mount
+from world.sim import _during
 from world.team import new_team, team_states, truth_row, ugv_columns
 
 M = mavlink2
@@ -74,7 +75,7 @@ class FollowWorld:
         self.renderer = FastRenderer(self.cam, UGVModel())
         self.publisher = None
         if session is not None:
-            self.publisher = FramePublisher(session, params.vehicle, self.cam,
+            self.publisher = FramePublisher(session, params.vehicle, self.cam, mount=self._mount(),
                                             rng=np.random.default_rng(params.seed))  # fmt: skip
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down", "mode", "armed", "team_t"]
@@ -156,13 +157,12 @@ class FollowWorld:
                             team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
             self.truth.write(row)
 
-    def _camera_mount(self, state):
-        """The level downward mount, or the pan-tilt head pointed at the ROI."""
-        if self.cam is self.task.camera:
-            return level_camera_mount(state)
-        from hil.orbit_gimbal import pointed_pose
+    def _mount(self) -> str:
+        """The level downward mount, or the pan-tilt head pointed at the ROI (hil.camera_mount)."""
+        return "level" if self.cam is self.task.camera else "pointed"
 
-        return pointed_pose(self.cam, state, self.roi_ned)
+    def _camera_mount(self, state):
+        return mounted_pose(self.cam, self._mount(), state.pos_ned, state.quat, self.roi_ned)
 
     def _announce_gimbal(self) -> None:
         """HEARTBEAT as the followed vehicle's gimbal (its system id, MAV_COMP_ID_GIMBAL)."""

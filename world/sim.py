@@ -31,11 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from flight.clock import Pacer
-from flight.frames import euler_to_quat
 from flight.lockstep import LockstepGate, LockstepParams, collect_closes
 from flight.state import VehicleState
 from groundsim.transport import UGVStatePublisher
 from groundsim.ugv import UGVModel
+from hil.camera_mount import level_quat, mounted_pose
 from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
 from runio import CsvWriter, atomic_write_text
@@ -100,8 +100,7 @@ def _during(windows: tuple[tuple[float, float], ...], t: float) -> bool:
 
 def level_camera_mount(state: VehicleState) -> VehicleState:
     """The state as a 2-axis (roll, pitch) stabilised gimbal sees it: heading kept, level."""
-    _, _, yaw = state.euler
-    return dataclasses.replace(state, quat=euler_to_quat(0.0, 0.0, yaw))
+    return dataclasses.replace(state, quat=level_quat(state.quat))
 
 
 @dataclass
@@ -151,6 +150,7 @@ class World:
             from hil.orbit import ORBIT_CAMERA
 
             self.cam = ORBIT_CAMERA
+        self.mount = "pointed" if params.camera == "roi" else "level" if params.gimbal else "body"
         self.renderer = FastRenderer(self.cam, UGVModel())
         self.pacer = Pacer(params.speedup)
         self.lag = Lag()
@@ -162,7 +162,7 @@ class World:
         if session is not None and self.team is not None:
             from perception.transport import FramePublisher
 
-            self.publisher = FramePublisher(session, params.vehicle, self.cam,
+            self.publisher = FramePublisher(session, params.vehicle, self.cam, mount=self.mount,
                                             rng=np.random.default_rng(params.seed))  # fmt: skip
             self._ugv_pub = UGVStatePublisher(session, self.task.n_ugvs)
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
@@ -293,13 +293,10 @@ class World:
             self._write_truth(t, state, ugvs)
 
     def _camera_mount(self, state: VehicleState):
-        """The pose the camera renders from: the level downward gimbal, or the pan-tilt head
-        pointed at the ROI (straight down until a client sets one)."""
-        if self.p.camera == "down":
-            return level_camera_mount(state) if self.p.gimbal else state
-        from hil.orbit_gimbal import pointed_pose
-
-        return pointed_pose(self.cam, state, self.roi_ned)
+        """The pose the camera renders from (hil.camera_mount): the level downward gimbal (or
+        body-fixed without one), or the pan-tilt head pointed at the ROI (straight down until a
+        client sets one)."""
+        return mounted_pose(self.cam, self.mount, state.pos_ned, state.quat, self.roi_ned)
 
     def _gimbal_commands(self, batch: list) -> list:
         """The gimbal manager on the vehicle: MAV_CMD_DO_SET_ROI_LOCATION (COMMAND_LONG, params

@@ -9,7 +9,7 @@ Per `step()` (one control period, default 4 ms = 250 Hz):
 Time comes only from the SimClock. Randomness only from faults (flight/faults.py): a
 `FaultPlan` with a Generator seeded from `seed`. The autopilot flies on its estimate
 (`state`: truth + the GPS error of the fault plan, what LOCAL_POSITION_NED reports);
-`true_state` is the physics. Without GPS faults or noise both are the same object.
+`true_state` is the physics. Without GPS or baro faults or noise both are the same object.
 
 Geofence (flight/geofence.py): an uploaded fence (`set_fence`) and GF_MAX_HOR_DIST /
 GF_MAX_VER_DIST. Targets outside are refused (reposition, offboard positions, mission items
