@@ -103,17 +103,17 @@ class LoggedFrames:
         except Exception:  # noqa: BLE001 - the record never stops the flight
             pass
 
-    def frame_at(self, t: float, patience_s: float):
-        fr, status = self.source.frame_at(t, patience_s)
+    def frame_at(self, t: float, patience_s: float, v: VehicleLink | None = None):
+        fr, status = self.source.frame_at(t, patience_s, v)
         if status != "lost":
             self._write(t, status)
         return fr, status
 
-    def newest(self):
-        fr, status = self.source.newest()
+    def newest(self, v: VehicleLink | None = None):
+        fr, status = self.source.newest(v)
         if fr is not None:
             skipped, self._skipped0 = self._skipped() - self._skipped0, self._skipped()
-            self._write(fr.t_sim, status, 1 + max(skipped, 0))
+            self._write(fr.t, status, 1 + max(skipped, 0))
         return fr, status
 
 
