@@ -211,7 +211,8 @@ class SingleVehicleMission:
             v.param_updates.clear()
             params_fault = self.guard.fault
         d = self.net.update(t, state, None if proposal is None else proposal.setpoint,
-                            Health(camera_t=camera_t, link_t=v.heartbeat_t, params_fault=params_fault))  # fmt: skip
+                            Health(camera_t=camera_t, link_t=v.heartbeat_t, params_fault=params_fault,
+                                   wind_mps=v.wind_speed()))  # fmt: skip
         prof = v.profile
         ai_mode = prof.fallback_mode if d.autopilot_mode is FlightMode.HOLD else prof.ai_mode
         self.authority.want(v, ai_mode)

@@ -10,6 +10,7 @@ up to the frame it was taken on.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 
@@ -24,6 +25,7 @@ from hil.link import MavlinkLink
 
 M = mavlink2
 COMPANION_COMPONENT = M.MAV_COMP_ID_ONBOARD_COMPUTER  # 191 (CONVENTIONS.md)
+WIND_MAX_AGE_S = 5.0  # a wind estimate older than this [s] is no estimate (streams at 1 Hz)
 
 
 class LinkLost(Exception):
@@ -52,6 +54,8 @@ class VehicleLink:
         self.unknown_autopilot = ""  # the reason, if the vehicle's autopilot is not one we fly
         self._reposition_t = -float("inf")  # tick time of the last DO_REPOSITION setpoint [s]
         self._outbox: list | None = None  # lockstep: what this tick sends, sent with its close
+        self.wind_ned: np.ndarray | None = None  # the autopilot's wind estimate [m/s, NED]
+        self.wind_t: float | None = None  # tick time of its last WIND_COV / WIND [s]
 
     # ---- receiving ---------------------------------------------------------------------------
     def _pull(self, timeout_s: float) -> bool:
@@ -144,6 +148,8 @@ class VehicleLink:
                                    tel.mode.name if tel.mode else "", tel.armed))  # fmt: skip
         elif t == "COMMAND_ACK":
             self.acks[msg.command] = msg.result
+        elif t in ("WIND_COV", "WIND"):
+            self._wind(msg)
         elif t == "CAMERA_IMAGE_CAPTURED":  # lockstep: a frame was published for this tick
             self.frame_announced_ms = int(msg.time_boot_ms)
         elif t == "PARAM_VALUE":
@@ -156,6 +162,24 @@ class VehicleLink:
             self.params[name] = float(msg.param_value)
             self.param_count = int(msg.param_count)
             self.param_updates.append((self.t, name, float(msg.param_value)))
+
+    def _wind(self, msg) -> None:
+        """PX4's WIND_COV (wind_x, wind_y: the way the air moves, NED) or ArduPilot's WIND
+        (direction it comes from [deg], speed) → wind_ned; a non-finite estimate is ignored."""
+        if msg.get_type() == "WIND_COV":
+            w = np.array([msg.wind_x, msg.wind_y, msg.wind_z], dtype=float)
+        else:
+            a = math.radians(msg.direction)
+            w = np.array([-msg.speed * math.cos(a), -msg.speed * math.sin(a), msg.speed_z])
+        if np.all(np.isfinite(w[:2])):
+            self.wind_ned, self.wind_t = w, self.t
+
+    def wind_speed(self, max_age_s: float = WIND_MAX_AGE_S) -> float | None:
+        """The autopilot's horizontal wind estimate [m/s], or None: none yet, or older than
+        max_age_s [s] (the supervisor's Health.wind_mps)."""
+        if self.wind_ned is None or self.wind_t is None or self.t - self.wind_t > max_age_s:
+            return None
+        return float(math.hypot(self.wind_ned[0], self.wind_ned[1]))
 
     @property
     def home_amsl_m(self) -> float:

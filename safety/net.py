@@ -98,6 +98,10 @@ class SafetyNet:
     def frame(self, t: float, stamp_t: float | None = None) -> None:
         self.health.frame(t, stamp_t)
 
+    def wind(self, t: float, wind_mps: float) -> None:
+        """The autopilot's horizontal wind estimate [m/s] (MAVLink WIND_COV / WIND) at t."""
+        self.health.wind(t, wind_mps)
+
     def param(self, t: float, name: str, value: float) -> str:
         return self.params.update(t, name, value)
 
@@ -113,8 +117,8 @@ class SafetyNet:
         """One decision at t: (decision, mode to request or None). After a yield the decision
         is still computed (and recorded) but nothing is to be sent."""
         self.authority.observe(t, autopilot_mode, why)
-        h = self.health.health()
-        h = Health(h.camera_t, h.link_t, self.params.fault, self.params.hold_ok)
+        h = self.health.health(t)
+        h = Health(h.camera_t, h.link_t, self.params.fault, self.params.hold_ok, h.wind_mps)
         d = self.supervisor.update(t, state, proposed, h)
         if not self.authority.has_authority:
             return d, None

@@ -11,7 +11,7 @@
   control back when the vehicle is there, its links are healthy, and every AI proposal of the
   last `hysteresis_s` was inside the envelope.
 Faults: non-finite or out-of-range action, missed action deadline, lost camera, lost MAVLink
-link, non-finite state, and any envelope row. Severity is ordered; the most severe wins.
+link, wind above the airframe's limit, a GPS jump, non-finite state, and any envelope row. Severity is ordered; the most severe wins.
 Every switch is written to `events` (anything with `.write(dict)`, e.g. JsonlWriter).
 """
 
@@ -63,8 +63,8 @@ class SupervisorParams:
     )
     hysteresis_s: float = 2.0  # AI proposals must stay inside this long before it flies again [s]
     deadline_s: float = 0.3  # no new AI action for longer = policy stall [s]
-    camera_timeout_s: float = 1.0  # no camera frame for longer = camera lost [s]
-    link_timeout_s: float = 1.5  # no MAVLink heartbeat for longer = link lost [s]
+    camera_timeout_s: float | None = 1.0  # no camera frame for longer = camera lost [s]
+    link_timeout_s: float | None = 1.5  # no MAVLink heartbeat for longer = link lost [s]
     hold_min_s: float = 1.0  # minimum time in FALLBACK before PID [s]
     settle_mps: float = 0.5  # hover fallback counts as settled below this speed [m/s]
     recover_margin_m: float = 6.0  # PID target: this far inside every position row [m]
@@ -81,7 +81,10 @@ class SupervisorParams:
     loiter_radius_m: float = (
         0.0  # fixed-wing loiter radius about a position setpoint (0: turn radius)
     )
-    gps_jump_m: float = 0.0  # position vs dead reckoning beyond this = GPS glitch (0: off) [m]
+    gps_jump_m: float | None = None  # position vs dead reckoning beyond this = GPS glitch [m]
+    wind_limit_mps: float | None = None  # the autopilot's wind estimate above this = FALLBACK,
+    # held while it lasts [m/s]. The four guards (gps_jump_m, wind_limit_mps, link_timeout_s,
+    # camera_timeout_s): None = off; a constraint-set file states each ([guards], safety.config)
     gps_blend_s: float = 5.0  # dead reckoning pulled to the position with this time constant [s]
 
     def __post_init__(self) -> None:
@@ -92,14 +95,16 @@ class SupervisorParams:
         for k in (
             "hysteresis_s",
             "deadline_s",
-            "camera_timeout_s",
-            "link_timeout_s",
             "recover_tol_m",
             "recover_speed_mps",
             "gps_blend_s",
         ):
             if not getattr(self, k) > 0:
                 raise ValueError(f"supervisor.{k} must be > 0, got {getattr(self, k)}")
+        for k in ("camera_timeout_s", "link_timeout_s", "gps_jump_m", "wind_limit_mps"):
+            v = getattr(self, k)
+            if v is not None and not v > 0:
+                raise ValueError(f"supervisor.{k} must be > 0 or None (off), got {v}")
 
 
 @dataclass(frozen=True)
@@ -111,6 +116,8 @@ class Health:
     link_t: float | None = None
     params_fault: str = ""  # the autopilot's parameters disagree with the envelope (ParamGuard)
     hold_ok: bool = True  # the autopilot's own HOLD behaves as the envelope assumes (ParamGuard)
+    wind_mps: float | None = None  # the autopilot's horizontal wind estimate [m/s] (MAVLink
+    # WIND_COV / WIND); None = no estimate
 
 
 @dataclass(frozen=True)
@@ -260,6 +267,7 @@ class Supervisor:
         self._p_dr: np.ndarray | None = None  # dead-reckoned position (GPS glitch guard)
         self._dr_t: float | None = None
         self.position_suspect = False
+        self.wind_high = False  # the wind estimate is above the airframe's limit
         self.last_t: float | None = None
         self.stats = SupervisorStats()
         self._z = np.zeros(NZ)
@@ -286,12 +294,21 @@ class Supervisor:
         z = make_z(state, None, out=self._z)  # state part; z[U] = 0 until the action is known
         if not _finite(z):
             return Severity.FALLBACK, "non-finite vehicle state", None
-        if health.link_t is not None and t - health.link_t > p.link_timeout_s:
+        w = health.wind_mps
+        self.wind_high = p.wind_limit_mps is not None and w is not None and w > p.wind_limit_mps
+        lt, ct = p.link_timeout_s, p.camera_timeout_s
+        if lt is not None and health.link_t is not None and t - health.link_t > lt:
             return Severity.FALLBACK, f"MAVLink link lost ({t - health.link_t:.1f} s)", None
-        if health.camera_t is not None and t - health.camera_t > p.camera_timeout_s:
+        if ct is not None and health.camera_t is not None and t - health.camera_t > ct:
             return Severity.FALLBACK, f"camera lost ({t - health.camera_t:.1f} s)", None
         if health.params_fault:
             return Severity.FALLBACK, f"autopilot parameters: {health.params_fault}", None
+        if self.wind_high:
+            return (
+                Severity.FALLBACK,
+                f"wind {w:.1f} m/s above the airframe's limit {p.wind_limit_mps:g} m/s",
+                None,
+            )
         jump = self._position_check(state)
         if jump:
             return Severity.FALLBACK, jump, None
@@ -364,7 +381,7 @@ class Supervisor:
         glitch; a drift slower than gps_jump_m / gps_blend_s is not seen here (the margin and
         the autopilot's EKF innovation gate must cover it)."""
         p = self.p
-        if p.gps_jump_m <= 0:
+        if p.gps_jump_m is None:
             return ""
         pos, t = state.pos_ned, float(state.t)
         if (
@@ -508,9 +525,11 @@ class Supervisor:
         elif self.clean_since is None and sev <= Severity.NEAR:
             self.clean_since = t
 
-        if self.mode is Mode.PID and (self.position_suspect or health.params_fault):
-            # the recovery flies positions in OFFBOARD: not on a suspect position estimate nor
-            # on parameters that disagree with the envelope
+        if self.mode is Mode.PID and (self.position_suspect or health.params_fault
+                                      or self.wind_high):  # fmt: skip
+            # the recovery flies positions in OFFBOARD: not on a suspect position estimate, on
+            # parameters that disagree with the envelope, nor in a wind beyond what the
+            # envelope's braking assumes
             self._switch(t, Mode.FALLBACK, reason, Severity.FALLBACK, state)
         if self.mode is Mode.FALLBACK:
             if (
@@ -518,6 +537,7 @@ class Supervisor:
                 and self.fallback.settled(state)
                 and not health.params_fault  # only the autopilot's own HOLD is consistent
                 and not self.position_suspect
+                and not self.wind_high
             ):
                 self._switch(
                     t,

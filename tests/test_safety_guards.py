@@ -1,0 +1,143 @@
+"""Every guard stated in every constraint set, and the wind guard judged: refused before the
+flight above the set's limit, the airframe's fallback when the autopilot's estimate rises
+above it in flight (a scripted timeline on the simulation clock)."""
+
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flight.autopilot_api import FlightMode, Setpoint
+from flight.geo import GRAVITY
+from flight.state import VehicleState
+from safety.campaign import wind_limit
+from safety.config import ENVELOPE_DIR, GUARD_KEYS, EnvelopeFileError, load_envelope
+from safety.health import HealthTracker
+from safety.net import load_net
+from safety.supervisor import Health, Mode, Supervisor, SupervisorParams
+
+GROUNDAIR = ENVELOPE_DIR / "quadrotor_groundair.toml"
+
+
+def st(t, p=(0.0, 0.0, -20.0), v=(0.0, 0.0, 0.0)):
+    return VehicleState(t, np.array(p, float), np.array(v, float), np.array([1.0, 0, 0, 0]),
+                        np.zeros(3), np.array([0, 0, -GRAVITY]), False)  # fmt: skip
+
+
+@pytest.mark.parametrize("path", sorted(ENVELOPE_DIR.glob("*.toml")), ids=lambda p: p.name)
+def test_every_shipped_set_states_every_guard(path):
+    """The file itself names each guard (no default fills a gap), and the net runs with them."""
+    raw = tomllib.loads(path.read_text())["guards"]
+    assert set(raw) == set(GUARD_KEYS)
+    spec, table = load_envelope(path)
+    net = load_net(spec.airframe, path)
+    for k in GUARD_KEYS:
+        want = None if raw[k] == "off" else float(raw[k])
+        assert getattr(spec.guards, k) == want == getattr(net.p, k) == table[k]
+    assert spec.guards.gps_jump_m is not None  # the GPS guard is on in every shipped set
+    assert wind_limit(spec) == spec.guards.wind_limit_mps  # the campaign drills this limit
+
+
+def _set(tmp_path, old: str, new: str) -> Path:
+    text = GROUNDAIR.read_text()
+    assert old in text
+    f = tmp_path / "set.toml"
+    f.write_text(text.replace(old, new, 1))
+    return f
+
+
+@pytest.mark.parametrize("key", GUARD_KEYS)
+def test_a_guard_left_out_is_an_error_naming_the_key_and_the_file(tmp_path, key):
+    line = next(ln for ln in GROUNDAIR.read_text().splitlines() if ln.startswith(f"{key} ="))
+    f = _set(tmp_path, line, "")
+    with pytest.raises(EnvelopeFileError) as e:
+        load_envelope(f)
+    msg = str(e.value)
+    assert key in msg and str(f) in msg and "missing" in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize(
+    "old, new, words",
+    [
+        ("[guards]", "[guardz]", "missing [guards] table"),
+        ("gps_jump_m = 3.0", "gps_jump_m = 0", 'or "off"'),  # 0 is not an "off"
+        ("wind_limit_mps = 12.0", "wind_limit_mps = -12.0", "wind_limit_mps must be within"),
+        ("link_timeout_s = 1.5", 'link_timeout_s = "no"', "link_timeout_s must be within"),
+        (
+            "camera_timeout_s = 1.0",
+            "camera_timeout_s = 1.0\nsmoke_m = 3.0",
+            "unknown key 'smoke_m'",
+        ),
+        ("hysteresis_s = 2.0", "hysteresis_s = 2.0\ngps_jump_m = 5.0", "state it in [guards]"),
+    ],
+)
+def test_bad_guards_are_refused_in_one_line(tmp_path, old, new, words):
+    f = _set(tmp_path, old, new)
+    with pytest.raises(EnvelopeFileError) as e:
+        load_envelope(f)
+    assert words in str(e.value) and str(f) in str(e.value)
+
+
+def test_off_is_stated_and_turns_the_guard_off(tmp_path):
+    f = _set(tmp_path, "gps_jump_m = 3.0", 'gps_jump_m = "off"')
+    spec, _ = load_envelope(f)
+    assert spec.guards.gps_jump_m is None and load_net("quadrotor", f).p.gps_jump_m is None
+    with pytest.raises(ValueError, match="gps_jump_m must be > 0 or None"):
+        SupervisorParams(gps_jump_m=0.0)
+
+
+def test_wind_above_the_limit_flies_the_fallback_while_it_lasts():
+    """Scripted on the simulation clock (50 Hz): calm → the autopilot's estimate 14 m/s over
+    the 12 m/s limit for 6 s → 8 m/s. FALLBACK at once with the reason, in the autopilot's own
+    HOLD; no PID recovery while it lasts (the envelope's braking assumes the limit); after it
+    the usual way back: settled → PID → AI after the hysteresis."""
+    sup = load_net("quadrotor", GROUNDAIR)
+    sp = Setpoint(vel_ned=np.array([1.0, 0.0, 0.0]))
+    modes, reasons = [], []
+    for k in range(20 * 50):
+        t = k * 0.02
+        wind = 3.0 if t < 4.0 else (14.0 if t < 10.0 else 8.0)
+        d = sup.update(t, st(t), sp, Health(wind_mps=wind))
+        modes.append(d.mode)
+        reasons.append(d.reason)
+        if t < 4.0:
+            assert d.mode is Mode.AI
+        elif t < 10.0:
+            assert d.mode is Mode.FALLBACK and d.autopilot_mode is FlightMode.HOLD
+    first = next(i for i, m in enumerate(modes) if m is Mode.FALLBACK)
+    assert first * 0.02 == pytest.approx(4.0)
+    assert reasons[first] == "wind 14.0 m/s above the airframe's limit 12 m/s"
+    assert modes[-1] is Mode.AI  # handed back after the wind dropped
+    assert Mode.PID in modes[first:]
+    # the guard off: the same wind is not judged
+    off = Supervisor(sup.envelope, SupervisorParams(wind_limit_mps=None))
+    assert off.update(0.0, st(0.0), sp, Health(wind_mps=40.0)).mode is Mode.AI
+
+
+def test_health_tracker_drops_a_stale_or_bad_wind_estimate():
+    h = HealthTracker()
+    assert h.health(0.0).wind_mps is None
+    h.wind(1.0, 13.5)
+    assert h.health(1.0).wind_mps == 13.5 and h.health(6.0).wind_mps == 13.5
+    assert h.health(6.1).wind_mps is None  # older than max_wind_age_s (5 s)
+    h.wind(0.5, 2.0)  # backwards in time
+    h.wind(2.0, float("nan"))
+    h.wind(2.0, -1.0)
+    assert h.rejected == 3 and h.health(2.0).wind_mps == 13.5
+
+
+def test_fly_refuses_wind_above_the_limit_before_anything_starts(tmp_path):
+    """Exit 2, one line with the reason and what to do; no run folder, no process."""
+    skyherd = str(Path(sys.executable).parent / "skyherd")
+    r = subprocess.run([skyherd, "fly", "--wind", "20,180", "--speedup", "0", "--runs-dir",
+                        str(tmp_path / "runs")], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    assert "20.0 m/s is above the quadrotor's wind limit 12 m/s" in r.stderr
+    assert "--envelope" in r.stderr and not (tmp_path / "runs").exists()
+    r = subprocess.run([skyherd, "fly", "--airframe", "fixedwing", "--wind", "11,0", "--runs-dir",
+                        str(tmp_path / "runs")], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 2 and "fixedwing's wind limit 10 m/s" in r.stderr
