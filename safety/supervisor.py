@@ -82,9 +82,11 @@ class SupervisorParams:
         0.0  # fixed-wing loiter radius about a position setpoint (0: turn radius)
     )
     gps_jump_m: float | None = None  # position vs dead reckoning beyond this = GPS glitch [m]
-    wind_limit_mps: float | None = None  # the autopilot's wind estimate above this = FALLBACK,
-    # held while it lasts [m/s]. The four guards (gps_jump_m, wind_limit_mps, link_timeout_s,
-    # camera_timeout_s): None = off; a constraint-set file states each ([guards], safety.config)
+    wind_limit_mps: float | None = None  # the airframe's mean-wind limit [m/s] (see _wind_check)
+    # The four guards (gps_jump_m, wind_limit_mps, link_timeout_s, camera_timeout_s): None = off;
+    # a constraint-set file states each ([guards], safety.config)
+    wind_mean_s: float = 5.0  # the mean wind: the autopilot's estimate low-passed this long [s]
+    wind_tolerance_mps: float = 1.0  # the mean above the limit by more = FALLBACK [m/s]
     gps_blend_s: float = 5.0  # dead reckoning pulled to the position with this time constant [s]
 
     def __post_init__(self) -> None:
@@ -98,9 +100,14 @@ class SupervisorParams:
             "recover_tol_m",
             "recover_speed_mps",
             "gps_blend_s",
+            "wind_mean_s",
         ):
             if not getattr(self, k) > 0:
                 raise ValueError(f"supervisor.{k} must be > 0, got {getattr(self, k)}")
+        if not self.wind_tolerance_mps >= 0:
+            raise ValueError(
+                f"supervisor.wind_tolerance_mps must be >= 0, got {self.wind_tolerance_mps}"
+            )
         for k in ("camera_timeout_s", "link_timeout_s", "gps_jump_m", "wind_limit_mps"):
             v = getattr(self, k)
             if v is not None and not v > 0:
@@ -267,7 +274,9 @@ class Supervisor:
         self._p_dr: np.ndarray | None = None  # dead-reckoned position (GPS glitch guard)
         self._dr_t: float | None = None
         self.position_suspect = False
-        self.wind_high = False  # the wind estimate is above the airframe's limit
+        self.wind_high = False  # the mean wind is above the airframe's limit (_wind_check)
+        self.wind_mean: float | None = None  # [m/s]
+        self._wind_t: float | None = None
         self.last_t: float | None = None
         self.stats = SupervisorStats()
         self._z = np.zeros(NZ)
@@ -294,8 +303,7 @@ class Supervisor:
         z = make_z(state, None, out=self._z)  # state part; z[U] = 0 until the action is known
         if not _finite(z):
             return Severity.FALLBACK, "non-finite vehicle state", None
-        w = health.wind_mps
-        self.wind_high = p.wind_limit_mps is not None and w is not None and w > p.wind_limit_mps
+        self._wind_check(t, health.wind_mps)
         lt, ct = p.link_timeout_s, p.camera_timeout_s
         if lt is not None and health.link_t is not None and t - health.link_t > lt:
             return Severity.FALLBACK, f"MAVLink link lost ({t - health.link_t:.1f} s)", None
@@ -306,7 +314,8 @@ class Supervisor:
         if self.wind_high:
             return (
                 Severity.FALLBACK,
-                f"wind {w:.1f} m/s above the airframe's limit {p.wind_limit_mps:g} m/s",
+                f"wind {self.wind_mean:.1f} m/s (mean) above the airframe's limit "
+                f"{p.wind_limit_mps:g} m/s",
                 None,
             )
         jump = self._position_check(state)
@@ -369,6 +378,28 @@ class Supervisor:
             np.asarray(b, float).reshape(-1),
             tuple(names),
         )
+
+    def _wind_check(self, t: float, wind_mps: float | None) -> None:
+        """Wind guard: the mean wind w̄ (the autopilot's estimate, Health.wind_mps, low-passed
+        with wind_mean_s: a gust of σ 2 m/s and τ 2 s moves w̄ by σ √(τ/(τ + 5 s)) = 1.1 m/s)
+        against the airframe's limit L, the mean wind its envelope was stated for:
+        w̄ > L + wind_tolerance_mps sets `wind_high` (FALLBACK, held: no PID, no AI), which
+        clears at w̄ <= L. A steady wind at L never trips; one 2 m/s above it trips within
+        wind_mean_s · ln(w/(w − L − tol)) (16 m/s: 8.4 s; 20 m/s: 5.2 s). No estimate (None,
+        non-finite): w̄ kept, not judged further."""
+        p = self.p
+        if wind_mps is None or not math.isfinite(wind_mps) or p.wind_limit_mps is None:
+            return
+        if self.wind_mean is None or self._wind_t is None:
+            self.wind_mean = wind_mps
+        else:
+            k = min(max(t - self._wind_t, 0.0) / p.wind_mean_s, 1.0)
+            self.wind_mean += k * (wind_mps - self.wind_mean)
+        self._wind_t = t
+        if self.wind_mean > p.wind_limit_mps + p.wind_tolerance_mps:
+            self.wind_high = True
+        elif self.wind_mean <= p.wind_limit_mps:
+            self.wind_high = False
 
     def _position_check(self, state: VehicleState) -> str:
         """GPS glitch guard: the position must agree with the dead-reckoned one.
