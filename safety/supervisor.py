@@ -86,7 +86,7 @@ class SupervisorParams:
     # The four guards (gps_jump_m, wind_limit_mps, link_timeout_s, camera_timeout_s): None = off;
     # a constraint-set file states each ([guards], safety.config)
     wind_mean_s: float = 5.0  # the mean wind: the autopilot's estimate low-passed this long [s]
-    wind_tolerance_mps: float = 1.0  # the mean above the limit by more = FALLBACK [m/s]
+    wind_tolerance_mps: float = 3.0  # the mean above the limit by more = FALLBACK [m/s]
     gps_blend_s: float = 5.0  # dead reckoning pulled to the position with this time constant [s]
 
     def __post_init__(self) -> None:
@@ -381,12 +381,15 @@ class Supervisor:
 
     def _wind_check(self, t: float, wind_mps: float | None) -> None:
         """Wind guard: the mean wind w̄ (the autopilot's estimate, Health.wind_mps, low-passed
-        with wind_mean_s: a gust of σ 2 m/s and τ 2 s moves w̄ by σ √(τ/(τ + 5 s)) = 1.1 m/s)
-        against the airframe's limit L, the mean wind its envelope was stated for:
-        w̄ > L + wind_tolerance_mps sets `wind_high` (FALLBACK, held: no PID, no AI), which
-        clears at w̄ <= L. A steady wind at L never trips; one 2 m/s above it trips within
-        wind_mean_s · ln(w/(w − L − tol)) (16 m/s: 8.4 s; 20 m/s: 5.2 s). No estimate (None,
-        non-finite): w̄ kept, not judged further."""
+        with wind_mean_s) against the airframe's limit L, the mean wind its envelope was stated
+        for with gusts of σ <= 2 m/s (τ 2 s) on top: such gusts move w̄ with σ √(2/(2 + 5)) =
+        1.1 m/s, so w̄ > L + wind_tolerance_mps (3 m/s, 3 σ) sets `wind_high` (FALLBACK, held:
+        no PID, no AI), cleared at w̄ <= L. A wind within the statement does not trip it (a
+        12 m/s mean with 2 m/s gusts in `skyherd fly`: no switch); a steady wind w > L + tol
+        trips wind_mean_s · ln((w − w₀)/(w − L − tol)) after it rose from w₀ (12 → 16 m/s:
+        6.9 s, 12 → 20: 2.3 s) plus the estimate's own 1 s. Between L and L + tol in flight it
+        is not caught (before the flight `skyherd fly` refuses a mean above L). No estimate
+        (None, non-finite): w̄ kept, not judged further."""
         p = self.p
         if wind_mps is None or not math.isfinite(wind_mps) or p.wind_limit_mps is None:
             return
