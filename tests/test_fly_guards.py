@@ -73,9 +73,9 @@ def test_wind_rising_to_20ms_in_flight_flies_the_fallback_inside(tmp_path):
     drifts ≤ 5 m from where it was entered; the truth never leaves the fence."""
     env = fence_north(tmp_path, 35.0)
     args = ["fly", "--wind", "12,180", "--fault", "wind@20:8,180", "--duration", "30",
-            "--envelope", str(env), "--runs-dir", str(tmp_path), *COMMON]  # fmt: skip
+            "--envelope", str(env), "--runs-dir", str(tmp_path / "runs"), *COMMON]  # fmt: skip
     assert main(args) == 0
-    (run,) = tmp_path.iterdir()
+    (run,) = (tmp_path / "runs").iterdir()
     sw = switches(run)
     assert (
         sw and sw[0]["to"] == "fallback" and "above the airframe's limit 12 m/s" in sw[0]["reason"]
@@ -104,9 +104,9 @@ def test_gps_glitch_at_the_fence_is_caught_and_the_truth_stays_inside(tmp_path, 
     "completed". Now: caught at once, zero velocity held in OFFBOARD until it ends."""
     env = fence_north(tmp_path, 35.0)
     args = ["fly", "--wind", "12,180", "--fault", f"gps_glitch@56:-{glitch_m:g},0,0:10",
-            "--envelope", str(env), "--runs-dir", str(tmp_path), *COMMON]  # fmt: skip
+            "--envelope", str(env), "--runs-dir", str(tmp_path / "runs"), *COMMON]  # fmt: skip
     assert main(args) == 0
-    (run,) = tmp_path.iterdir()
+    (run,) = (tmp_path / "runs").iterdir()
     caught = [e for e in switches(run) if e["reason"].startswith("position jumped")]
     assert caught and caught[0]["t"] == pytest.approx(56.0, abs=0.11)
     assert abs(float(caught[0]["reason"].split()[2]) - glitch_m) < 1.0  # "position jumped X m"
