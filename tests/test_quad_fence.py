@@ -333,3 +333,36 @@ def test_hold_entered_downwind_in_16ms_wind_drifts_at_most_5m(v_cmd):
     assert drift <= 5.0
     assert abs(p[-1, 0] - (ap._hold_pos - p0)[0]) < 0.05  # held where it captured
     assert np.abs(p[:, 1]).max() < 0.2
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_the_wind_estimate_reaches_the_companion_over_mavlink(personality):
+    """The autopilot's own estimate (not the simulator's truth) on the wire: PX4 sends WIND_COV
+    (the way the air moves, NED), ArduPilot WIND (where it comes from, degrees); the
+    companion's VehicleLink reads either into the same vector and Health.wind_mps."""
+    from flight.mavlink.modes import Personality
+    from mission.vehicle import VehicleLink
+
+    plan = FaultPlan(wind=WindModel(mean_ned=(3.0, 9.0, 0.0)))
+    ap = MultirotorAutopilot(clock=SimClock(), faults=plan)
+    assert ap.arm().ok and ap.takeoff(20.0).ok
+    fly(ap, 12.0)
+    want = "WIND_COV" if personality == "px4" else "WIND"
+    other = "WIND" if personality == "px4" else "WIND_COV"
+    cfg = EndpointConfig(instance=INSTANCE + 1, personality=Personality(personality))
+    with Sitl(ap, cfg, speedup=0) as sitl:
+        gcs = _Gcs(sitl, INSTANCE + 1)
+        try:
+            msg = gcs.pump(want, sim_s=3.0)
+            assert msg is not None and other not in gcs.seen
+            v = VehicleLink(None)
+            v.t = 12.0
+            v._wind(msg)
+            est = ap.wind_estimate_ned
+            assert np.allclose(v.wind_ned[:2], est[:2], atol=1e-3)  # what the autopilot says
+            assert np.allclose(est[:2], [3.0, 9.0], atol=0.02)
+            assert v.wind_speed() == pytest.approx(math.hypot(3.0, 9.0), abs=0.02)
+            v.t = 17.1
+            assert v.wind_speed() is None  # older than 5 s: no estimate
+        finally:
+            gcs.conn.close()
