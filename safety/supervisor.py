@@ -273,6 +273,8 @@ class Supervisor:
         self._dyn_names: tuple[str, ...] = ()
         self._p_dr: np.ndarray | None = None  # dead-reckoned position (GPS glitch guard)
         self._dr_t: float | None = None
+        self._dr_pv: tuple[np.ndarray, np.ndarray] | None = None  # the last sample judged
+        self._dr_why = ""
         self.position_suspect = False
         self.wind_high = False  # the mean wind is above the airframe's limit (_wind_check)
         self.wind_mean: float | None = None  # [m/s]
@@ -419,6 +421,21 @@ class Supervisor:
             return ""
         pos, t = state.pos_ned, float(state.t)
         if (
+            self._dr_pv is not None
+            and np.array_equal(self._dr_pv[0], pos)
+            and np.array_equal(self._dr_pv[1], state.vel_ned)
+        ):
+            # the same sample again (a companion's state keeps the last LOCAL_POSITION_NED
+            # while its clock runs on with other messages, e.g. through a cut link): no news,
+            # the dead reckoning waits for the next sample (a gap > DR_GAP_S restarts it)
+            return self._dr_why
+        self._dr_pv = (np.array(pos, float), np.array(state.vel_ned, float))
+        self._dr_why = self._dr_step(pos, state.vel_ned, t)
+        return self._dr_why
+
+    def _dr_step(self, pos: np.ndarray, vel: np.ndarray, t: float) -> str:
+        p = self.p
+        if (
             self._p_dr is None
             or self._dr_t is None
             or not np.all(np.isfinite(self._p_dr))
@@ -432,7 +449,7 @@ class Supervisor:
             return ""
         dt = max(t - self._dr_t, 0.0)
         self._dr_t = t
-        self._p_dr = self._p_dr + dt * np.asarray(state.vel_ned, float)
+        self._p_dr = self._p_dr + dt * np.asarray(vel, float)
         innov = pos - self._p_dr
         e = float(np.linalg.norm(innov))
         if e > p.gps_jump_m:

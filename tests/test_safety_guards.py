@@ -148,3 +148,26 @@ def test_fly_refuses_wind_above_the_limit_before_anything_starts(tmp_path):
     r = subprocess.run([skyherd, "fly", "--airframe", "fixedwing", "--wind", "11,0", "--runs-dir",
                         str(tmp_path / "runs")], capture_output=True, text=True, timeout=120)  # fmt: skip
     assert r.returncode == 2 and "fixedwing's wind limit 10 m/s" in r.stderr
+
+
+def test_a_repeated_sample_is_no_gps_jump():
+    """Through a cut link the companion's state keeps the last position and velocity while its
+    clock runs on (`skyherd fly --cut-link 22:3` with the guard on tripped "position jumped
+    3.2 m" at 22.8 s: 0.8 s × 4.08 m/s dead-reckoned from a frozen sample). A repeated sample
+    is no news; after the gap the dead reckoning restarts; a real step is still caught."""
+    sup = Supervisor(load_net("quadrotor", GROUNDAIR).envelope, SupervisorParams(gps_jump_m=3.0))
+    v = (0.0, -4.0, 0.0)
+    t, p = 0.0, np.array([10.0, 0.0, -20.0])
+    for _ in range(20):
+        assert sup._position_check(st(t, p, v)) == ""
+        t, p = t + 0.1, p + [0.0, -0.4, 0.0]
+    frozen = st(t, p, v)
+    for k in range(30):  # 3 s of the same sample, the clock running on
+        assert sup._position_check(VehicleState(t + 0.1 * k, frozen.pos_ned, frozen.vel_ned,
+                                                frozen.quat, frozen.omega_frd, frozen.accel_frd,
+                                                False)) == ""  # fmt: skip
+    t += 3.0
+    assert sup._position_check(st(t, p + [0.0, -1.0, 0.0], (0, 0, 0))) == ""  # restarted
+    t += 0.1
+    why = sup._position_check(st(t, p + [20.0, -1.0, 0.0], (0, 0, 0)))
+    assert why.startswith("position jumped 20.0 m")
