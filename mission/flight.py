@@ -230,10 +230,7 @@ class SingleVehicleMission:
                              False, t, sp)  # fmt: skip
                 self._write(d, phi, proposal, v.tel.mode, pilot)
             return
-        net.link(v.heartbeat_t, v.telemetry_t)
-        for t_p, name, value in v.param_updates:  # anyone's PARAM_SET mid-flight is re-checked
-            net.param(t_p, name, value)
-        v.param_updates.clear()
+        v.feed(net)  # link freshness, anyone's PARAM_SET, the wind estimate
         d = net.step(t, state, sp)
         want = net.wanted_mode(d)
         self.authority.want(v, want)

@@ -328,7 +328,7 @@ class FormationMission:
             ref, vel = self._ref(k, v.t)
             target = np.array([ref[0], ref[1], -self.p.altitude(k)])
             net = self.nets[k]
-            net.net.link(v.heartbeat_t, v.telemetry_t)
+            v.feed(net.net)
             d = net.certify(v.t, states[k], rows[k], target, np.array([vel[0], vel[1], 0.0]))
             self.authority[k].want(v, net.net.wanted_mode(d))
             c = d.command

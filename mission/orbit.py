@@ -386,8 +386,7 @@ class OrbitMission:
         if state is None:
             return
         proposal = self._proposal() if self._aim(v) else None
-        self._read_param_updates(v)  # anyone's PARAM_SET mid-flight is re-checked here
-        self.net.link(v.heartbeat_t, v.telemetry_t)
+        v.feed(self.net)  # link, anyone's PARAM_SET mid-flight (re-checked), wind
         d = self.net.step(v.t, state, proposal)
         mode = self.net.wanted_mode(d)
         self.authority.want(v, mode)

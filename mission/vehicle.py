@@ -14,6 +14,7 @@ look (`point_gimbal`, as acknowledged).
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from typing import NamedTuple
@@ -31,6 +32,7 @@ from perception.camera import UAVPose
 
 M = mavlink2
 COMPANION_COMPONENT = M.MAV_COMP_ID_ONBOARD_COMPUTER  # 191 (CONVENTIONS.md)
+WIND_MAX_AGE_S = 5.0  # a wind estimate older than this [s] is no estimate (streams at 1 Hz)
 
 
 ATTITUDES_KEPT = 64  # attitude samples kept for pose_at (6.4 s at 10 Hz)
@@ -74,6 +76,8 @@ class VehicleLink:
         self.unknown_autopilot = ""  # the reason, if the vehicle's autopilot is not one we fly
         self._reposition_t = -float("inf")  # tick time of the last DO_REPOSITION setpoint [s]
         self._outbox: list | None = None  # lockstep: what this tick sends, sent with its close
+        self.wind_ned: np.ndarray | None = None  # the autopilot's wind estimate [m/s, NED]
+        self.wind_t: float | None = None  # tick time of its last WIND_COV / WIND [s]
         self.seen: list[Seen] = []  # every change of (mode, armed), not sampled per tick
 
     # ---- receiving ---------------------------------------------------------------------------
@@ -177,6 +181,8 @@ class VehicleLink:
                 if msg.result == M.MAV_RESULT_ACCEPTED:
                     self.roi_ned = self._roi_sent
                 self._roi_sent = None
+        elif t in ("WIND_COV", "WIND"):
+            self._wind(msg)
         elif t == "CAMERA_IMAGE_CAPTURED":  # lockstep: a frame was published for this tick
             self.frame_announced_ms = int(msg.time_boot_ms)
         elif t == "PARAM_VALUE":
@@ -201,6 +207,36 @@ class VehicleLink:
         if pos is None or att is None:
             return None
         return UAVPose(pos[1], att[1])
+
+    def _wind(self, msg) -> None:
+        """PX4's WIND_COV (wind_x, wind_y: the way the air moves, NED) or ArduPilot's WIND
+        (direction it comes from [deg], speed) → wind_ned; a non-finite estimate is ignored."""
+        if msg.get_type() == "WIND_COV":
+            w = np.array([msg.wind_x, msg.wind_y, msg.wind_z], dtype=float)
+        else:
+            a = math.radians(msg.direction)
+            w = np.array([-msg.speed * math.cos(a), -msg.speed * math.sin(a), msg.speed_z])
+        if np.all(np.isfinite(w[:2])):
+            self.wind_ned, self.wind_t = w, self.t
+
+    def wind_speed(self, max_age_s: float = WIND_MAX_AGE_S) -> float | None:
+        """The autopilot's horizontal wind estimate [m/s], or None: none yet, or older than
+        max_age_s [s] (the supervisor's Health.wind_mps)."""
+        if self.wind_ned is None or self.wind_t is None or self.t - self.wind_t > max_age_s:
+            return None
+        return float(math.hypot(self.wind_ned[0], self.wind_ned[1]))
+
+    def feed(self, net) -> None:
+        """What arrived from this vehicle for its SafetyNet (safety.net), once per tick before
+        its step: the link's freshness, anyone's PARAM_SET seen (PARAM_VALUE) and the
+        autopilot's wind estimate."""
+        net.link(self.heartbeat_t, self.telemetry_t)
+        for t_p, name, value in self.param_updates:
+            net.param(t_p, name, value)
+        self.param_updates.clear()
+        w = self.wind_speed()
+        if w is not None:
+            net.wind(self.wind_t, w)
 
     @property
     def home_amsl_m(self) -> float:

@@ -14,7 +14,7 @@ by (seed, airframe, index), so any drill can be replayed alone):
                    the net must not undo it
   gps_glitch       a 5-30 m step of the position estimate toward the inside (the fence seems
                    farther) while pushing at the fence, 2-10 s
-  wind             mean wind toward the fence up to the airframe's limit (WIND_LIMIT_MPS) with
+  wind             mean wind toward the fence up to the set's wind limit (wind_limit()) with
                    gusts, while pushing at the fence
   battery          (quadrotor) the charge drops below BAT_CRIT_THR or BAT_EMERGEN_THR during the
                    push: the autopilot's RTL / LAND must stand (the fixed-wing model has no
@@ -43,10 +43,20 @@ from safety.envelope import EnvelopeSpec, SignedDistance, Zone
 
 KINDS = ("max_speed", "oscillation", "repeat_offender", "link_loss", "gps_glitch", "wind",
          "battery", "param_sabotage")  # fmt: skip
-WIND_LIMIT_MPS = {"quadrotor": 12.0, "fixedwing": 10.0}
-"""Largest mean wind drilled [m/s] (gusts up to 2 m/s σ on top): the quadrotor holds 12 m/s
-with its 45° tilt limit and keeps >= 2.5 m/s² of braking downwind; the fixed-wing (24 m/s
-trim) keeps a ground speed >= 14 m/s into it."""
+
+
+def wind_limit(spec: EnvelopeSpec) -> float:
+    """Largest mean wind drilled [m/s] (gusts up to 2 m/s σ on top): the constraint set's own
+    guard ([guards] wind_limit_mps; the quadrotor sets: 12 m/s, its 45° tilt limit keeps
+    >= 2.5 m/s² of braking downwind; the fixed-wing: 10 m/s, at 24 m/s trim a ground speed
+    >= 14 m/s into it). The same number `skyherd fly` refuses above."""
+    w = spec.guards.wind_limit_mps
+    if w is None:
+        raise ValueError(f"constraint set {spec.name}: its wind limit is off; the wind drills "
+                         "need one ([guards] wind_limit_mps)")  # fmt: skip
+    return w
+
+
 GUST_STD_H_MPS = 2.0
 """Largest horizontal gust σ drilled [m/s] (above MIL-HDBK-1797's low-altitude 1.5 m/s at 60 m
 for a 10 m/s wind: the drills are harsher than the standard horizontally)."""
@@ -243,7 +253,7 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
         events.append(FaultEvent("gps_glitch", t_g, rng.uniform(2.0, 10.0), vec))
         expect = ("position jumped",)
     elif kind == "wind":
-        w = rng.uniform(0.3, 1.0) * WIND_LIMIT_MPS[spec.airframe]
+        w = rng.uniform(0.3, 1.0) * wind_limit(spec)
         g_h = float(rng.uniform(0.0, GUST_STD_H_MPS))
         wind = WindModel(tuple(float(x) for x in w * d), g_h, GUST_TAU_S, int(rng.integers(1 << 30)),
                          gust_std_down=min(g_h, vertical_gust_std(w)))  # fmt: skip

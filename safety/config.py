@@ -5,7 +5,9 @@ Schema (every number SI; see quadrotor_field.toml for a commented example):
     [envelope]  name, version, airframe ("quadrotor" | "fixedwing")
     [dynamics]  fields of safety.envelope.Dynamics
     [limits]    fields of safety.envelope.Limits
-    [supervisor] fields of safety.supervisor.SupervisorParams (optional)
+    [guards]    every guard, stated: gps_jump_m, wind_limit_mps, link_timeout_s,
+                camera_timeout_s — a number > 0 (on, its threshold) or the string "off"
+    [supervisor] fields of safety.supervisor.SupervisorParams (optional; not the guards)
     [[fence.inclusion]]  name, points_ne = [[n, e], ...]  or  center_ne, radius_m
     [[fence.exclusion]]  the same
 
@@ -24,7 +26,15 @@ from typing import Any
 import numpy as np
 
 from runio.schema import fill_dataclass as _fill_dataclass
-from safety.envelope import Dynamics, EnvelopeSpec, Limits, Zone, circle_zone, polygon_zone
+from safety.envelope import (
+    Dynamics,
+    EnvelopeSpec,
+    Guards,
+    Limits,
+    Zone,
+    circle_zone,
+    polygon_zone,
+)
 
 ENVELOPE_DIR = Path(__file__).parent / "envelopes"
 AIRFRAMES = ("quadrotor", "fixedwing")
@@ -39,7 +49,8 @@ def default_envelope_path(airframe: str) -> Path:
 
 
 def load_envelope(path: Path | str) -> tuple[EnvelopeSpec, dict[str, Any]]:
-    """Read a constraint-set file → (spec, raw [supervisor] table)."""
+    """Read a constraint-set file → (spec, supervisor table): the [supervisor] table with the
+    [guards] added as SupervisorParams fields (None = off)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -50,7 +61,14 @@ def load_envelope(path: Path | str) -> tuple[EnvelopeSpec, dict[str, Any]]:
     except tomllib.TOMLDecodeError as e:
         raise EnvelopeFileError(f"constraint set {path} is not valid TOML: {e}") from e
     try:
-        return parse_envelope(doc, source=str(path)), dict(doc.get("supervisor", {}))
+        spec = parse_envelope(doc, source=str(path))
+        sup = doc.get("supervisor", {})
+        if not isinstance(sup, dict):
+            raise ValueError("[supervisor] must be a table")
+        for k in GUARD_KEYS:
+            if k in sup:
+                raise ValueError(f"[supervisor] {k}: a guard; state it in [guards]")
+        return spec, {**sup, **dataclasses.asdict(spec.guards)}
     except (KeyError, TypeError, ValueError) as e:
         msg = e.args[0] if e.args else str(e)
         raise EnvelopeFileError(f"constraint set {path}: {msg}") from e
@@ -79,9 +97,50 @@ def parse_envelope(doc: dict[str, Any], source: str = "") -> EnvelopeSpec:
     )
     if not inc and lim.home_radius_m <= 0:
         raise ValueError("no inclusion fence and no home radius: the envelope would be unbounded")
-    spec = EnvelopeSpec(head["name"], head["version"], head["airframe"], dyn, lim, inc, exc, source)
+    guards = parse_guards(doc.get("guards"))
+    spec = EnvelopeSpec(head["name"], head["version"], head["airframe"], dyn, lim, inc, exc, source,
+                        guards)  # fmt: skip
     check_spec(spec)
     return spec
+
+
+GUARD_KEYS = tuple(f.name for f in dataclasses.fields(Guards))
+OFF = "off"
+GUARD_RANGES: dict[str, tuple[float, float]] = {  # plausible values when on (SI)
+    "gps_jump_m": (0.5, 500.0),
+    "wind_limit_mps": (1.0, 60.0),
+    "link_timeout_s": (0.1, 60.0),
+    "camera_timeout_s": (0.1, 60.0),
+}
+
+
+def parse_guards(table: Any) -> Guards:
+    """[guards]: every key of Guards stated, each a number in its range (on) or "off".
+
+    A missing key is an error naming it: a guard is never off by default. "off" is a word
+    and not 0, because 0 reads as a threshold (a 0 m jump, a 0 s timeout) and was the silent
+    default that left the GPS guard off in `skyherd fly`."""
+    if not isinstance(table, dict):
+        raise ValueError(
+            f"missing [guards] table: state every guard ({', '.join(GUARD_KEYS)}), "
+            f'each a number or "{OFF}"'
+        )
+    unknown = sorted(set(table) - set(GUARD_KEYS))
+    if unknown:
+        raise ValueError(f"[guards] unknown key {unknown[0]!r}; known: {', '.join(GUARD_KEYS)}")
+    vals: dict[str, float | None] = {}
+    for k in GUARD_KEYS:
+        if k not in table:
+            raise ValueError(f'[guards] {k} is missing: state it, a number or "{OFF}"')
+        v = table[k]
+        if v == OFF:
+            vals[k] = None
+            continue
+        lo, hi = GUARD_RANGES[k]
+        if isinstance(v, bool) or not isinstance(v, int | float) or not lo <= v <= hi:
+            raise ValueError(f'[guards] {k} must be within [{lo:g}, {hi:g}] or "{OFF}", got {v!r}')
+        vals[k] = float(v)
+    return Guards(**vals)
 
 
 def _table(doc: dict, key: str) -> dict:

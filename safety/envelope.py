@@ -124,6 +124,18 @@ class Limits:
 
 
 @dataclass(frozen=True)
+class Guards:
+    """The run-time guards of a constraint set (the file's [guards] table states every one;
+    safety.config). None = stated off. Each is judged by the supervisor (safety.supervisor)."""
+
+    gps_jump_m: float | None = None  # position vs dead reckoning beyond this = GPS glitch [m]
+    wind_limit_mps: float | None = None  # the airframe's mean-wind limit [m/s]: above it
+    # `skyherd fly` refuses to start and, in flight, the net flies the airframe's fallback
+    link_timeout_s: float | None = None  # no MAVLink heartbeat / telemetry longer = lost [s]
+    camera_timeout_s: float | None = None  # no camera frame longer = camera lost [s]
+
+
+@dataclass(frozen=True)
 class Zone:
     """A named polygon (north, east) [m], shape (n, 2)."""
 
@@ -143,6 +155,7 @@ class EnvelopeSpec:
     inclusions: tuple[Zone, ...] = ()
     exclusions: tuple[Zone, ...] = ()
     source: str = ""  # file or "fence items" it came from
+    guards: Guards = Guards()  # a file states every one; built in code: all off
 
     def envelope(self) -> Envelope:
         """The predictive envelope the monitor checks actions against (eq. 3)."""
@@ -169,6 +182,7 @@ class EnvelopeSpec:
             "source": self.source,
             "dynamics": self.dynamics,
             "limits": self.limits,
+            "guards": self.guards,
             "inclusions": {z.name: z.points.tolist() for z in self.inclusions},
             "exclusions": {z.name: z.points.tolist() for z in self.exclusions},
         }

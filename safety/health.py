@@ -6,7 +6,9 @@ simulation time of its arrival (the companion's clock, never wall time):
     tracker = HealthTracker()
     tracker.message(t, "HEARTBEAT")            # receive thread, per message
     tracker.frame(t, stamp_t=frame.t)          # per frame taken from the Zenoh stream
+    tracker.wind(t, wind_mps)                  # per WIND_COV / WIND (the autopilot's estimate)
     camera_t, link_t = tracker.camera_t, tracker.link_t    # safety.net.SafetyNet builds Health
+    wind_mps = tracker.wind_at(t)
 
 Link: the link is as fresh as the *older* of the newest heartbeat and the newest position
 telemetry (LOCAL_POSITION_NED or ODOMETRY): heartbeats without telemetry leave the net flying
@@ -31,6 +33,7 @@ TELEMETRY = frozenset({"LOCAL_POSITION_NED", "ODOMETRY", "GLOBAL_POSITION_INT"})
 @dataclass(frozen=True)
 class HealthParams:
     max_frame_age_s: float = 0.5  # a frame captured longer before its arrival is stale [s]
+    max_wind_age_s: float = 5.0  # a wind estimate older than this is no estimate [s]
     require_telemetry: bool = True  # the link needs position telemetry as well as heartbeats
 
     def __post_init__(self) -> None:
@@ -49,6 +52,8 @@ class HealthTracker:
         self.heartbeat_t: float | None = None
         self.telemetry_t: float | None = None
         self.frame_t: float | None = None
+        self.wind_mps: float | None = None  # the autopilot's horizontal wind estimate [m/s]
+        self.wind_t: float | None = None
         self.first_t: float | None = None
         self.start_t: float | None = None  # the hand-over: the camera must deliver from here
         self.messages = 0
@@ -106,6 +111,18 @@ class HealthTracker:
         self.frame_t = t
         self.frames += 1
 
+    def wind(self, t: float, wind_mps: float) -> None:
+        """The autopilot's horizontal wind estimate [m/s] (WIND_COV / WIND) arrived at t [s]."""
+        try:
+            t, w = float(t), float(wind_mps)
+        except (TypeError, ValueError):
+            self.rejected += 1
+            return
+        if not (self._newer(self.wind_t, t) and math.isfinite(w) and w >= 0):
+            self.rejected += 1
+            return
+        self.wind_t, self.wind_mps = t, w
+
     @property
     def link_t(self) -> float | None:
         """The link's freshness [s]: min(newest heartbeat, newest telemetry); when one of the
@@ -129,3 +146,10 @@ class HealthTracker:
         if self.frame_t is not None:
             return self.frame_t
         return self.start_t if self.start_t is not None else self.first_t
+
+    def wind_at(self, t: float | None = None) -> float | None:
+        """The autopilot's wind estimate [m/s] at t [s]; None: none yet, or older than
+        max_wind_age_s."""
+        if t is not None and self.wind_t is not None and t - self.wind_t > self.p.max_wind_age_s:
+            return None  # stale: no estimate
+        return self.wind_mps

@@ -175,6 +175,10 @@ class SafetyNet:
     def load_params(self, t: float, params: Mapping[str, float]) -> str:
         return self.params.load(t, params)
 
+    def wind(self, t: float, wind_mps: float) -> None:
+        """The autopilot's horizontal wind estimate [m/s] (MAVLink WIND_COV / WIND) at t."""
+        self.tracker.wind(t, wind_mps)
+
     def param(self, t: float, name: str, value: float) -> str:
         return self.params.update(t, name, value)
 
@@ -196,10 +200,10 @@ class SafetyNet:
         self.authority.requested(t, mode, accepted)
 
     # ---- outputs -----------------------------------------------------------------------------
-    def health(self) -> Health:
-        """The supervisor's input now — built here and nowhere else."""
+    def health(self, t: float | None = None) -> Health:
+        """The supervisor's input at t — built here and nowhere else."""
         tr = self.tracker
-        return Health(tr.camera_t, tr.link_t, self.params.fault, self.params.hold_ok)
+        return Health(tr.camera_t, tr.link_t, self.params.fault, self.params.hold_ok, tr.wind_at(t))
 
     def certify_column(self, pos_ned: np.ndarray, altitude_m: float) -> tuple[bool, str]:
         """Before a take-off from `pos_ned` (NED about home) to `altitude_m` above home: the
@@ -224,7 +228,7 @@ class SafetyNet:
         computed (and recorded); `request` then asks for nothing."""
         if autopilot_mode is not None:
             self.authority.observe(t, autopilot_mode, why)
-        return self.supervisor.update(t, state, proposed, self.health())
+        return self.supervisor.update(t, state, proposed, self.health(t))
 
     def wanted_mode(self, d: Decision) -> FlightMode:
         return autopilot_mode_for(d, self.use_autopilot_hold)

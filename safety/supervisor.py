@@ -11,7 +11,7 @@
   control back when the vehicle is there, its links are healthy, and every AI proposal of the
   last `hysteresis_s` was inside the envelope.
 Faults: non-finite or out-of-range action, missed action deadline, lost camera, lost MAVLink
-link, non-finite state, and any envelope row. Severity is ordered; the most severe wins.
+link, wind above the airframe's limit, a GPS jump, non-finite state, and any envelope row. Severity is ordered; the most severe wins.
 Every switch is written to `events` (anything with `.write(dict)`, e.g. JsonlWriter).
 """
 
@@ -63,8 +63,8 @@ class SupervisorParams:
     )
     hysteresis_s: float = 2.0  # AI proposals must stay inside this long before it flies again [s]
     deadline_s: float = 0.3  # no new AI action for longer = policy stall [s]
-    camera_timeout_s: float = 1.0  # no camera frame for longer = camera lost [s]
-    link_timeout_s: float = 1.5  # no MAVLink heartbeat for longer = link lost [s]
+    camera_timeout_s: float | None = 1.0  # no camera frame for longer = camera lost [s]
+    link_timeout_s: float | None = 1.5  # no MAVLink heartbeat for longer = link lost [s]
     hold_min_s: float = 1.0  # minimum time in FALLBACK before PID [s]
     settle_mps: float = 0.5  # hover fallback counts as settled below this speed [m/s]
     recover_margin_m: float = 6.0  # PID target: this far inside every position row [m]
@@ -81,7 +81,12 @@ class SupervisorParams:
     loiter_radius_m: float = (
         0.0  # fixed-wing loiter radius about a position setpoint (0: turn radius)
     )
-    gps_jump_m: float = 0.0  # position vs dead reckoning beyond this = GPS glitch (0: off) [m]
+    gps_jump_m: float | None = None  # position vs dead reckoning beyond this = GPS glitch [m]
+    wind_limit_mps: float | None = None  # the airframe's mean-wind limit [m/s] (see _wind_check)
+    # The four guards (gps_jump_m, wind_limit_mps, link_timeout_s, camera_timeout_s): None = off;
+    # a constraint-set file states each ([guards], safety.config)
+    wind_mean_s: float = 5.0  # the mean wind: the autopilot's estimate low-passed this long [s]
+    wind_tolerance_mps: float = 3.0  # the mean above the limit by more = FALLBACK [m/s]
     gps_blend_s: float = 5.0  # dead reckoning pulled to the position with this time constant [s]
 
     def __post_init__(self) -> None:
@@ -92,14 +97,21 @@ class SupervisorParams:
         for k in (
             "hysteresis_s",
             "deadline_s",
-            "camera_timeout_s",
-            "link_timeout_s",
             "recover_tol_m",
             "recover_speed_mps",
             "gps_blend_s",
+            "wind_mean_s",
         ):
             if not getattr(self, k) > 0:
                 raise ValueError(f"supervisor.{k} must be > 0, got {getattr(self, k)}")
+        if not self.wind_tolerance_mps >= 0:
+            raise ValueError(
+                f"supervisor.wind_tolerance_mps must be >= 0, got {self.wind_tolerance_mps}"
+            )
+        for k in ("camera_timeout_s", "link_timeout_s", "gps_jump_m", "wind_limit_mps"):
+            v = getattr(self, k)
+            if v is not None and not v > 0:
+                raise ValueError(f"supervisor.{k} must be > 0 or None (off), got {v}")
 
 
 @dataclass(frozen=True)
@@ -111,6 +123,8 @@ class Health:
     link_t: float | None = None
     params_fault: str = ""  # the autopilot's parameters disagree with the envelope (ParamGuard)
     hold_ok: bool = True  # the autopilot's own HOLD behaves as the envelope assumes (ParamGuard)
+    wind_mps: float | None = None  # the autopilot's horizontal wind estimate [m/s] (MAVLink
+    # WIND_COV / WIND); None = no estimate
 
 
 @dataclass(frozen=True)
@@ -263,7 +277,12 @@ class Supervisor:
         self._dyn_names: tuple[str, ...] = ()
         self._p_dr: np.ndarray | None = None  # dead-reckoned position (GPS glitch guard)
         self._dr_t: float | None = None
+        self._dr_pv: tuple[np.ndarray, np.ndarray] | None = None  # the last sample judged
+        self._dr_why = ""
         self.position_suspect = False
+        self.wind_high = False  # the mean wind is above the airframe's limit (_wind_check)
+        self.wind_mean: float | None = None  # [m/s]
+        self._wind_t: float | None = None
         self.last_t: float | None = None
         self.stats = SupervisorStats()
         self._z = np.zeros(NZ)
@@ -290,12 +309,21 @@ class Supervisor:
         z = make_z(state, None, out=self._z)  # state part; z[U] = 0 until the action is known
         if not _finite(z):
             return Severity.FALLBACK, "non-finite vehicle state", None
-        if health.link_t is not None and t - health.link_t > p.link_timeout_s:
+        self._wind_check(t, health.wind_mps)
+        lt, ct = p.link_timeout_s, p.camera_timeout_s
+        if lt is not None and health.link_t is not None and t - health.link_t > lt:
             return Severity.FALLBACK, f"MAVLink link lost ({t - health.link_t:.1f} s)", None
-        if health.camera_t is not None and t - health.camera_t > p.camera_timeout_s:
+        if ct is not None and health.camera_t is not None and t - health.camera_t > ct:
             return Severity.FALLBACK, f"camera lost ({t - health.camera_t:.1f} s)", None
         if health.params_fault:
             return Severity.FALLBACK, f"autopilot parameters: {health.params_fault}", None
+        if self.wind_high:
+            return (
+                Severity.FALLBACK,
+                f"wind {self.wind_mean:.1f} m/s (mean) above the airframe's limit "
+                f"{p.wind_limit_mps:g} m/s",
+                None,
+            )
         jump = self._position_check(state)
         if jump:
             return Severity.FALLBACK, jump, None
@@ -357,6 +385,31 @@ class Supervisor:
             tuple(names),
         )
 
+    def _wind_check(self, t: float, wind_mps: float | None) -> None:
+        """Wind guard: the mean wind w̄ (the autopilot's estimate, Health.wind_mps, low-passed
+        with wind_mean_s) against the airframe's limit L, the mean wind its envelope was stated
+        for with gusts of σ <= 2 m/s (τ 2 s) on top: such gusts move w̄ with σ √(2/(2 + 5)) =
+        1.1 m/s, so w̄ > L + wind_tolerance_mps (3 m/s, 3 σ) sets `wind_high` (FALLBACK, held:
+        no PID, no AI), cleared at w̄ <= L. A wind within the statement does not trip it (a
+        12 m/s mean with 2 m/s gusts in `skyherd fly`: no switch); a steady wind w > L + tol
+        trips wind_mean_s · ln((w − w₀)/(w − L − tol)) after it rose from w₀ (12 → 16 m/s:
+        6.9 s, 12 → 20: 2.3 s) plus the estimate's own 1 s. Between L and L + tol in flight it
+        is not caught (before the flight `skyherd fly` refuses a mean above L). No estimate
+        (None, non-finite): w̄ kept, not judged further."""
+        p = self.p
+        if wind_mps is None or not math.isfinite(wind_mps) or p.wind_limit_mps is None:
+            return
+        if self.wind_mean is None or self._wind_t is None:
+            self.wind_mean = wind_mps
+        else:
+            k = min(max(t - self._wind_t, 0.0) / p.wind_mean_s, 1.0)
+            self.wind_mean += k * (wind_mps - self.wind_mean)
+        self._wind_t = t
+        if self.wind_mean > p.wind_limit_mps + p.wind_tolerance_mps:
+            self.wind_high = True
+        elif self.wind_mean <= p.wind_limit_mps:
+            self.wind_high = False
+
     def _position_check(self, state: VehicleState) -> str:
         """GPS glitch guard: the position must agree with the dead-reckoned one.
 
@@ -368,9 +421,24 @@ class Supervisor:
         glitch; a drift slower than gps_jump_m / gps_blend_s is not seen here (the margin and
         the autopilot's EKF innovation gate must cover it)."""
         p = self.p
-        if p.gps_jump_m <= 0:
+        if p.gps_jump_m is None:
             return ""
         pos, t = state.pos_ned, float(state.t)
+        if (
+            self._dr_pv is not None
+            and np.array_equal(self._dr_pv[0], pos)
+            and np.array_equal(self._dr_pv[1], state.vel_ned)
+        ):
+            # the same sample again (a companion's state keeps the last LOCAL_POSITION_NED
+            # while its clock runs on with other messages, e.g. through a cut link): no news,
+            # the dead reckoning waits for the next sample (a gap > DR_GAP_S restarts it)
+            return self._dr_why
+        self._dr_pv = (np.array(pos, float), np.array(state.vel_ned, float))
+        self._dr_why = self._dr_step(pos, state.vel_ned, t)
+        return self._dr_why
+
+    def _dr_step(self, pos: np.ndarray, vel: np.ndarray, t: float) -> str:
+        p = self.p
         if (
             self._p_dr is None
             or self._dr_t is None
@@ -385,7 +453,7 @@ class Supervisor:
             return ""
         dt = max(t - self._dr_t, 0.0)
         self._dr_t = t
-        self._p_dr = self._p_dr + dt * np.asarray(state.vel_ned, float)
+        self._p_dr = self._p_dr + dt * np.asarray(vel, float)
         innov = pos - self._p_dr
         e = float(np.linalg.norm(innov))
         if e > p.gps_jump_m:
@@ -512,9 +580,11 @@ class Supervisor:
         elif self.clean_since is None and sev <= Severity.NEAR:
             self.clean_since = t
 
-        if self.mode is Mode.PID and (self.position_suspect or health.params_fault):
-            # the recovery flies positions in OFFBOARD: not on a suspect position estimate nor
-            # on parameters that disagree with the envelope
+        if self.mode is Mode.PID and (self.position_suspect or health.params_fault
+                                      or self.wind_high):  # fmt: skip
+            # the recovery flies positions in OFFBOARD: not on a suspect position estimate, on
+            # parameters that disagree with the envelope, nor in a wind beyond what the
+            # envelope's braking assumes
             self._switch(t, Mode.FALLBACK, reason, Severity.FALLBACK, state)
         if self.mode is Mode.FALLBACK:
             if (
@@ -522,6 +592,7 @@ class Supervisor:
                 and self.fallback.settled(state)
                 and not health.params_fault  # only the autopilot's own HOLD is consistent
                 and not self.position_suspect
+                and not self.wind_high
             ):
                 self._switch(
                     t,

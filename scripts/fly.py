@@ -164,6 +164,8 @@ def _validate(args) -> tuple[list[str], list[str]]:
         alt = 20.0 if args.altitude is None else args.altitude
         if not (0 < alt <= 120 and 0 < args.side <= 500):
             raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
+    if args.mission == "groundair" and args.connect is None:
+        _refuse_wind_above_limit(args)
     if args.policy is not None:
         from scripts.companion import _load_policy
 
@@ -229,6 +231,29 @@ def _validate(args) -> tuple[list[str], list[str]]:
             sim += ["--follow", world_link(args), "--follow-system", str(args.world_system)]
     comp += ["--zenoh-connect", f"tcp:127.0.0.1:{args.zenoh_port}"]
     return sim, comp
+
+
+def _refuse_wind_above_limit(args) -> None:
+    """UsageError when the mean wind asked for (--wind) is above the constraint set's wind
+    limit ([guards] wind_limit_mps): the net's envelope assumes braking that such a wind takes
+    away. Wind that rises later (--fault wind@T:...) is the net's to judge in flight."""
+    from flight.faults import parse_fault_args
+    from safety.config import ENVELOPE_DIR, load_envelope
+
+    try:
+        plan = parse_fault_args(args.wind, args.gust, args.noise, args.fault, seed=args.seed)
+        spec, _ = load_envelope(args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe])
+    except ValueError as e:
+        raise UsageError(f"{e}; fix it or pass another --envelope") from None
+    w = plan.wind.mean_ned
+    speed = (w[0] ** 2 + w[1] ** 2) ** 0.5
+    limit = spec.guards.wind_limit_mps
+    if limit is not None and speed > limit:
+        raise UsageError(
+            f"--wind {args.wind}: {speed:.1f} m/s is above the {spec.airframe}'s wind limit "
+            f"{limit:g} m/s ({spec.name} {spec.version}, [guards] wind_limit_mps); fly in "
+            f"{limit:g} m/s or less, or with a constraint set stated for this wind (--envelope)"
+        )
 
 
 def world_link(args) -> str:

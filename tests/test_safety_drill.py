@@ -6,7 +6,7 @@ import json
 import pytest
 
 from flight.multirotor.autopilot import MultirotorAutopilot
-from safety.config import default_envelope_path, load_envelope, parse_envelope
+from safety.config import GUARD_KEYS, default_envelope_path, load_envelope, parse_envelope
 from safety.drills import DrillParams, run_drill, scripted_drills
 from safety.supervisor import SupervisorParams
 from scripts.cli import main
@@ -63,6 +63,7 @@ def test_judge_catches_a_breach_when_the_net_is_too_wide():
     """Same attack, but the safety net believes the fence is 400 m out: ground truth breaches."""
     doc = {
         "envelope": {"name": "wide", "version": "wide-1", "airframe": "quadrotor"},
+        "guards": dict.fromkeys(GUARD_KEYS, "off"),
         "fence": {
             "inclusion": [
                 {"name": "far", "points_ne": [[-400, -400], [400, -400], [400, 400], [-400, 400]]}
@@ -141,7 +142,7 @@ def test_notched_fence_drills(tmp_path, capsys):
     )
     out = capsys.readouterr().out
     assert rc == 0, out
-    assert "quadrotor-notched-field 2026.12-r2" in out and "breaches beyond the tolerance: 0" in out
+    assert "quadrotor-notched-field 2026.12-r3" in out and "breaches beyond the tolerance: 0" in out
     rows = list(csv.DictReader(open(next(tmp_path.iterdir()) / "metrics.csv")))
     assert float(rows[0]["excursion_m"]) < -5.0  # exact clearance, not the 0 of a split
 

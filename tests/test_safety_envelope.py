@@ -9,7 +9,13 @@ import numpy as np
 import pytest
 
 from flight.geo import DEFAULT_HOME, ned_to_geodetic
-from safety.config import EnvelopeFileError, default_envelope_path, load_envelope, parse_envelope
+from safety.config import (
+    GUARD_KEYS,
+    EnvelopeFileError,
+    default_envelope_path,
+    load_envelope,
+    parse_envelope,
+)
 from safety.envelope import NZ, P, U, V, build
 from safety.fence import FenceItemsError, envelope_from_fence_items
 from safety.geometry import circle_polygon, convex_pieces, half_planes, is_convex, point_in_polygon
@@ -105,6 +111,7 @@ def test_limits_rows_fire_with_their_names():
 def test_compiled_check_equals_numpy_reference_on_a_union():
     doc = {
         "envelope": {"name": "l", "version": "t1", "airframe": "quadrotor"},
+        "guards": dict.fromkeys(GUARD_KEYS, "off"),
         "fence": {
             "inclusion": [{"name": "L", "points_ne": L_SHAPE.tolist()}],
             "exclusion": [{"name": "c", "center_ne": [10, 10], "radius_m": 3}],

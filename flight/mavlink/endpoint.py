@@ -161,6 +161,9 @@ class MavlinkEndpoint:
         self.last_heard: dict[str, float] = {}  # link name → sim time of the last valid frame
         self.last_setpoint_t: float | None = None  # sim time of the last accepted setpoint [s]
         self.telemetry = TelemetryBuilder(autopilot, self.ident)
+        for sched in self.streams.values():  # streams only what this autopilot provides
+            for msg_id in [m for m in sched.defaults if not self.telemetry.can_build(m)]:
+                sched.drop(msg_id)
         pf = config.param_file(autopilot.airframe)
         self.params = ParamService(
             autopilot, self.mav, ParamFile(pf) if pf else None, self.broadcast, self.statustext,

@@ -28,6 +28,11 @@ DEFAULT_RATES_HZ: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_VFR_HUD: 4.0,
     mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 0.0,
+    # the autopilot's wind estimate (PX4: WIND_COV, ArduPilot: WIND); only the one the
+    # personality sends, and only for an autopilot that estimates wind (the endpoint drops
+    # what its TelemetryBuilder cannot build)
+    mavlink.MAVLINK_MSG_ID_WIND_COV: 1.0,
+    mavlink.MAVLINK_MSG_ID_WIND: 1.0,
 }
 # The ground-station link: PX4's MAVLINK_MODE_NORMAL rates (mavlink_main.cpp,
 # configure_streams_to_default) for the messages above; MISSION_CURRENT as on the API link.
@@ -52,6 +57,13 @@ class StreamScheduler:
         self.rates: dict[int, float] = dict(self.defaults)
         self._next: dict[int, float] = {}
         self.next_due = -1.0  # no message is due before this time [s] (-1: recompute at once)
+
+    def drop(self, msg_id: int) -> None:
+        """This link cannot stream msg_id (its autopilot does not provide it)."""
+        self.defaults.pop(msg_id, None)
+        self.rates.pop(msg_id, None)
+        self._next.pop(msg_id, None)
+        self.next_due = -1.0
 
     def supports(self, msg_id: int) -> bool:
         return msg_id in self.defaults

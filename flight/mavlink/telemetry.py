@@ -117,6 +117,11 @@ class TelemetryBuilder:
             M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self.autopilot_version,
             M.MAVLINK_MSG_ID_SYSTEM_TIME: self.system_time,
         }
+        if getattr(ap, "wind_estimate_ned", None) is not None:  # the autopilot estimates wind
+            if ident.personality is Personality.ARDUPILOT:
+                self._builders[M.MAVLINK_MSG_ID_WIND] = self.wind
+            else:
+                self._builders[M.MAVLINK_MSG_ID_WIND_COV] = self.wind_cov
 
     def can_build(self, msg_id: int) -> bool:
         return msg_id in self._builders
@@ -317,6 +322,20 @@ class TelemetryBuilder:
         return mav.autopilot_version_encode(
             CAPABILITIES, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid
         )
+
+    def wind_cov(self, mav):
+        """PX4's WIND_COV: the autopilot's own wind estimate [m/s NED, the way the air moves];
+        no variance is estimated (NaN, as the message defines for unknown)."""
+        w = self.ap.wind_estimate_ned.tolist()
+        alt = self._geodetic()[2]
+        nan = math.nan
+        return mav.wind_cov_encode(self._us, w[0], w[1], w[2], nan, nan, alt, nan, nan)
+
+    def wind(self, mav):
+        """ArduPilot's WIND: direction the wind comes from [deg, 0..360), speed, vertical."""
+        w = self.ap.wind_estimate_ned.tolist()
+        frm = math.degrees(math.atan2(-w[1], -w[0])) % 360.0
+        return mav.wind_encode(frm, math.hypot(w[0], w[1]), w[2])
 
     def system_time(self, mav):
         return mav.system_time_encode(0, self._ms)  # no real UTC in a simulation

@@ -86,6 +86,8 @@ BRAKE_SPEED = 0.3  # [m/s] braking ends below this ground speed (PX4's hold capt
 BRAKE_MIN_GAIN = 0.05  # [m/s] a new speed minimum must be this much lower ...
 BRAKE_STALL_S = 0.5  # [s] ... within this long, or the brake has done what it can
 BRAKE_MAX_S = 4.0  # [s] braking never lasts longer
+WIND_TAU_S = 1.0  # [s] the wind estimate's low-pass time constant (control.estimate_wind)
+WIND_FF_MIN_MPS = 1.0  # [m/s] the wind estimate is fed forward only beyond this (control.py)
 
 
 def _vec3(v, limit: float) -> np.ndarray | None:
@@ -263,6 +265,13 @@ class MultirotorAutopilot(AutopilotBase):
         return self._aux[A_WIND : A_WIND + 3].copy()
 
     @property
+    def wind_estimate_ned(self) -> np.ndarray:
+        """(3,) the autopilot's own wind estimate [m/s], NED (down 0: not estimated), from its
+        accelerometer and drag model (flight/multirotor/control.py); what WIND_COV reports."""
+        w = self._cs[ctl.CS_WIND : ctl.CS_WIND + 2]
+        return np.array([w[0], w[1], 0.0])
+
+    @property
     def motor_commands(self) -> np.ndarray:
         """(4,) last normalised motor commands."""
         return self._cs[ctl.CS_U : ctl.CS_U + 4].copy()
@@ -435,6 +444,11 @@ class MultirotorAutopilot(AutopilotBase):
             ff * v.drag_quadratic[0],
             ff * v.drag_quadratic[2],
         )
+        # the wind estimator inverts the airframe's body x / y drag (PX4: EKF2_BCOEF_X/Y, MCOEF)
+        c[ctl.C_WDRAG_LIN : ctl.C_WDRAG_LIN + 2] = v.drag_linear[0], v.drag_linear[1]
+        c[ctl.C_WDRAG_QUAD : ctl.C_WDRAG_QUAD + 2] = v.drag_quadratic[0], v.drag_quadratic[1]
+        c[ctl.C_WIND_TAU] = WIND_TAU_S
+        c[ctl.C_WIND_FF_MIN] = WIND_FF_MIN_MPS
         c[ctl.C_KATT : ctl.C_KATT + 3] = (P["MC_ROLL_P"], P["MC_PITCH_P"], P["MC_YAW_P"])
         c[ctl.C_RATE_MAX : ctl.C_RATE_MAX + 3] = (
             d(P["MC_ROLLRATE_MAX"]),

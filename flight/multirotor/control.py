@@ -7,8 +7,15 @@ the physics (flight/quadrotor.py) run in turn. Nothing is allocated per substep.
   position  v_sp = K_p (p_sp − p) + v_ff, limited to |v_xy| ≤ v_xy,max, −v_up ≤ v_z ≤ v_dn
   velocity  a_sp = K_v (v_sp − v) + ∫ K_i (v_sp − v) dt; the integral only while
             |v_sp − v| < MPC_VEL_I_ERR and never further into a limit
-  thrust    f = m (a_sp − g e_z) + c₁ v_sp + c₂ |v_sp| v_sp  [N, NED] (drag feed-forward); f_z ≤ −T_min; tilt |f_xy| ≤ |f_z| tan θ_max;
+  thrust    f = m (a_sp − g e_z) + c₁ a + c₂ |a| a, a = v_sp − ŵ  [N, NED] (drag feed-forward
+            at the air-relative setpoint); f_z ≤ −T_min; tilt |f_xy| ≤ |f_z| tan θ_max;
             |f| ≤ T_max (horizontal gives way first)
+  wind ŵ    the autopilot's own estimate from the accelerometer (PX4 EKF2's multirotor drag
+            fusion): the rotors thrust along −z_b only, so the body x/y specific force is the
+            drag, f_b = −(c₁ v_b + c₂ |v_b| v_b)/m per axis → the air-relative body velocity v_b;
+            with no vertical wind, (v − ŵ) rotated into the body gives v_b: a 2×2 solve for
+            ŵ_n, ŵ_e, low-passed with WIND_TAU_S. Fed forward shrunk by WIND_FF_MIN_MPS
+            (|ŵ| − WIND_FF_MIN_MPS along ŵ, 0 below it: light wind is the integrator's)
   attitude  z_b,sp = −f/|f|, heading ψ_sp → R_sp = [x_b y_b z_b]  (Mellinger & Kumar 2011,
             eq. 6–8); collective T = f · (−z_b) projected on the current body axis
   att. err  q_e = q⁻¹ ⊗ q_sp (shortest way), ω_sp = 2 K_att ⊙ vec(q_e) + ψ̇_ff e_z, clipped
@@ -107,7 +114,11 @@ C_MIX = 29  # (16,) allocation inverse, row-major
 C_VINT_ERR = 45  # [m/s] velocity error the integrators see is clipped to this
 C_DRAG_LIN = 46  # (2,) [N s/m] horizontal, vertical drag estimate (× MPC_DRAG_FF)
 C_DRAG_QUAD = 48  # (2,) [N s^2/m^2]
-N_C = 50
+C_WDRAG_LIN = 50  # (2,) [N s/m] body x, y drag the wind estimator inverts (airframe's)
+C_WDRAG_QUAD = 52  # (2,) [N s^2/m^2]
+C_WIND_TAU = 54  # [s] wind estimate low-pass time constant
+C_WIND_FF_MIN = 55  # [m/s] wind estimate below this is not fed forward
+N_C = 56
 
 # ---- controller memory cs
 CS_VINT = 0  # (3,) [m/s^2]
@@ -121,7 +132,8 @@ CS_SAT = 23  # last mixer flags
 CS_T = 24  # last collective [N]
 CS_TAU = 25  # (3,) last torque setpoint [N m], body FRD
 CS_WORK = 28  # (12,) mixer scratch
-N_CS = 40
+CS_WIND = 40  # (2,) [m/s] the wind estimate ŵ (north, east)
+N_CS = 42
 
 
 @njit(cache=True, fastmath=False)
@@ -195,9 +207,16 @@ def _position_velocity(x, p, c, cs, sp, dt, on_ground):
     fx = m * (c[C_KV_XY] * ex + cs[CS_VINT])
     fy = m * (c[C_KV_XY] * ey + cs[CS_VINT + 1])
     fz = m * (c[C_KV_Z] * ez + cs[CS_VINT + 2] - g)
-    # drag feed-forward at the velocity setpoint: F = c₁ v + c₂ |v| v (airframe estimate)
-    fx += c[C_DRAG_LIN] * vsx + c[C_DRAG_QUAD] * abs(vsx) * vsx
-    fy += c[C_DRAG_LIN] * vsy + c[C_DRAG_QUAD] * abs(vsy) * vsy
+    # drag feed-forward at the air-relative velocity setpoint: F = c₁ a + c₂ |a| a, a = v_sp − ŵ
+    wx, wy = cs[CS_WIND], cs[CS_WIND + 1]
+    wn = math.sqrt(wx * wx + wy * wy)
+    if wn > c[C_WIND_FF_MIN]:
+        k = 1.0 - c[C_WIND_FF_MIN] / wn
+        rx, ry = vsx - k * wx, vsy - k * wy
+    else:
+        rx, ry = vsx, vsy  # bit for bit the calm-air feed-forward
+    fx += c[C_DRAG_LIN] * rx + c[C_DRAG_QUAD] * abs(rx) * rx
+    fy += c[C_DRAG_LIN] * ry + c[C_DRAG_QUAD] * abs(ry) * ry
     fz += c[C_DRAG_LIN + 1] * vsz + c[C_DRAG_QUAD + 1] * abs(vsz) * vsz
     if sp[SP_XY_MODE] == XY_ATT:
         fx = 0.0
@@ -233,6 +252,46 @@ def _position_velocity(x, p, c, cs, sp, dt, on_ground):
             cs[CS_VINT + 1] = _clip(cs[CS_VINT + 1] + c[C_KI_XY] * ey * dt, -lim, lim)
     if not ((fz - fz_s) * ez > 0.0):
         cs[CS_VINT + 2] = _clip(cs[CS_VINT + 2] + c[C_KI_Z] * ez * dt, -lim, lim)
+
+
+@njit(cache=True, fastmath=False)
+def _drag_speed(f, lin, quad, m):
+    """The air-relative body speed [m/s] whose drag gives specific force f [m/s^2] on one axis
+    (signed: opposite to f)."""
+    a = m * abs(f)
+    if quad > 0.0:
+        v = (math.sqrt(lin * lin + 4.0 * quad * a) - lin) / (2.0 * quad)
+    elif lin > 0.0:
+        v = a / lin
+    else:
+        return 0.0
+    return -v if f > 0.0 else v
+
+
+@njit(cache=True, fastmath=False)
+def estimate_wind(x, aux, c, cs, dt):
+    """Update the wind estimate cs[CS_WIND:CS_WIND+2] (module docstring) from the
+    accelerometer aux[A_SPECIFIC] [m/s^2, FRD], the attitude and the velocity in x."""
+    m = c[C_MASS]
+    vbx = _drag_speed(aux[0], c[C_WDRAG_LIN], c[C_WDRAG_QUAD], m)
+    vby = _drag_speed(aux[1], c[C_WDRAG_LIN + 1], c[C_WDRAG_QUAD + 1], m)
+    qw, qx, qy, qz = x[X_QUAT], x[X_QUAT + 1], x[X_QUAT + 2], x[X_QUAT + 3]
+    r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
+    r01 = 2.0 * (qx * qy - qw * qz)
+    r10 = 2.0 * (qx * qy + qw * qz)
+    r11 = 1.0 - 2.0 * (qx * qx + qz * qz)
+    r20 = 2.0 * (qx * qz - qw * qy)
+    r21 = 2.0 * (qy * qz + qw * qx)
+    det = r00 * r11 - r10 * r01
+    if abs(det) < 0.3:  # tilted beyond ~70°: body x/y no longer span the horizontal
+        return
+    vd = x[X_VEL + 2]  # no vertical wind: the air-relative down speed is the vehicle's
+    bx, by = vbx - r20 * vd, vby - r21 * vd
+    an = (r11 * bx - r10 * by) / det  # air-relative north, east: [r00 r10; r01 r11] a = b
+    ae = (r00 * by - r01 * bx) / det
+    k = min(dt / c[C_WIND_TAU], 1.0)
+    cs[CS_WIND] += k * (x[X_VEL] - an - cs[CS_WIND])
+    cs[CS_WIND + 1] += k * (x[X_VEL + 1] - ae - cs[CS_WIND + 1])
 
 
 @njit(cache=True, fastmath=False)
@@ -318,6 +377,8 @@ def control_step(x, aux, p, c, cs, sp, u, dt, n):
         for _ in range(n):
             physics_substep(x, aux, p, u, dt)
         return
+    if not on_ground:
+        estimate_wind(x, aux, c, cs, dt * n)
     _position_velocity(x, p, c, cs, sp, dt * n, on_ground)
     q = cs[CS_QSP : CS_QSP + 4]
     if sp[SP_XY_MODE] == XY_ATT:
