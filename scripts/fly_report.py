@@ -135,7 +135,7 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     autopilot's own track in metrics.csv, said so), the envelope of config.json (a mission
     flown without a net, the square, is judged on the airframe's default fence and ceiling, no
     floor), modes.jsonl, frames.csv and companion.json's hand-over window."""
-    from safety.config import ENVELOPE_DIR, fill_dataclass, load_envelope
+    from safety.config import ENVELOPE_DIR, load_envelope
     from safety.supervisor import SupervisorParams
     from scripts.fly import _ENVELOPE
 
@@ -145,8 +145,9 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     env = (cfg.get("envelope") or {}).get("path") or getattr(args, "envelope", None)
     orbit = getattr(args, "mission", "") == "orbit"  # `skyherd companion --mission orbit`
     airframe = "fixedwing" if orbit else getattr(args, "airframe", "quadrotor")
-    spec, table = load_envelope(env or ENVELOPE_DIR / _ENVELOPE[airframe])
-    params = fill_dataclass(SupervisorParams, table, "supervisor")
+    spec, _ = load_envelope(env or ENVELOPE_DIR / _ENVELOPE[airframe])
+    guards = getattr(spec, "guards", None)  # the camera guard's timeout ("off": the default's)
+    camera_s = getattr(guards, "camera_timeout_s", None) or SupervisorParams().camera_timeout_s
     world = _rows(run_dir / "world.csv")
     rows = world or _rows(run_dir / "metrics.csv")
     truth = Truth.from_rows(rows)
@@ -170,7 +171,7 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     net_modes = [(float(e["t"]), str(e["to"])) for e in _jsonl(run_dir / "events.jsonl")
                  if e.get("event") == "switch" and "to" in e]  # fmt: skip
     checks = judge(truth, spec, changes, window, frames, rendered, ending, net_modes,
-                   JudgeParams(camera_gap_max_s=params.camera_timeout_s,
+                   JudgeParams(camera_gap_max_s=camera_s,
                                floor=bool(cfg.get("envelope"))), received)  # fmt: skip
     if not world:  # no simulator: say whose track the truth checks used
         checks = [dataclasses.replace(c, figure=c.figure + " (autopilot's track: no simulator truth)")

@@ -108,23 +108,26 @@ def test_fly_autopilot_rtl_between_two_ticks_exits_1_wall_time(tmp_path, capsys)
 
 
 def test_fly_truth_beyond_the_fence_exits_1_naming_the_fence(tmp_path, capsys):
-    """Issue 26's case: the north fence edge 35 m out, wind 20 m/s from the south. Today the
-    truth drifts 0.25 m beyond the edge in the landing; the judge must fail it on the fence.
-    Once the net refuses or holds this wind (another part of issue 26), the flight must still
-    be judged on its truth: refused (exit 2), or no crossing and then no fence failure.
+    """Issue 26's fence case with the guards on: the north fence edge 35 m out, a 10 s gust
+    front of 25 m/s from the south from t = 15 s (above what the airframe can hold: `--wind`
+    that strong is refused before take-off, a wind that rises in flight is not). The net flies
+    its fallback; the truth is blown 13.8 m beyond the edge, then the mission lands and ends
+    on its own terms. The judge must fail it on the fence. Should the net one day hold it
+    inside, the flight is still judged on its truth: no crossing, no fence failure.
     tests/test_safety_judge.py covers the crossing geometry without a flight."""
     base = (ENVELOPE_DIR / "quadrotor_groundair.toml").read_text()
     fence = base.split("[[fence.inclusion]]")[0]
     env = tmp_path.parent / f"{tmp_path.name}-north35.toml"
     env.write_text(fence + '[[fence.inclusion]]\nname = "north 35"\n'
                    "points_ne = [[-200.0, -200.0], [35.0, -200.0], [35.0, 200.0], [-200.0, 200.0]]\n")  # fmt: skip
-    rc, run = _fly(tmp_path, 32, "--envelope", str(env), "--wind", "20,180", duration="20")
+    rc, run = _fly(tmp_path, 32, "--envelope", str(env), "--fault", "wind@15:25,180:10",
+                   duration="20")  # fmt: skip
     last = _last_line(capsys)
-    if rc == 2:  # refused before take-off: nothing flew, nothing crossed
-        return
+    comp = json.loads((run / "companion.json").read_text())
     north = max(float(r["north"]) for r in _world(run) if -float(r["down"]) > 0.5)
     if north > 35.0:  # a real crossing by the truth
         assert rc == 1 and "first failed check: fence: closest clearance -" in last, last
         assert f"{35.0 - north:+.2f} m" in last, (north, last)
+        assert comp["outcome"] == "completed"  # what `fly` said before the judge: exit 0
     else:
         assert _summary_checks(run)["fence"] == "pass"
