@@ -458,6 +458,7 @@ def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
         "mode_requests": mission.authority.requests,
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
+        "landing": getattr(mission, "landing_note", "") or "as planned",
     }
     if getattr(mission, "plan", None) is not None and mission.name == "orbit":
         import dataclasses as dc
