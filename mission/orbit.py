@@ -32,7 +32,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from flight.autopilot_api import FlightMode, Setpoint
 from flight.geo import ned_to_geodetic
-from hil.client import reposition_command
 from hil.orbit import (
     ORBIT_CAMERA,
     OrbitParams,
@@ -42,6 +41,7 @@ from hil.orbit import (
     setpoint_certified,
     slide_centre,
 )
+from hil.telemetry import reposition_command
 from mission.authority import ModeAuthority
 from mission.flight import Record, append_track, verdict
 from mission.steps import MissionError, Phase, read_params, recipe, wait_ready

@@ -154,7 +154,7 @@ def test_companion_gives_arduplane_positions_as_do_reposition_and_velocities_as_
 
     from flight.geo import DEFAULT_HOME, geodetic_to_ned
     from hil.autopilots import ARDUPLANE
-    from hil.client import Home, reposition_command
+    from hil.telemetry import Home, reposition_command
     from mission.vehicle import VehicleLink
 
     class Link:
