@@ -31,10 +31,8 @@ from pymavlink.dialects.v20 import ardupilotmega as M
 
 from flight.autopilot_api import FlightMode, Setpoint
 from hil.autopilots import ARDUPLANE
-from hil.link import MavlinkLink
 from hil.telemetry import reposition_command
 from mission.authority import ModeAuthority
-from mission.companion import CompanionParams, run
 from mission.flight import FlightPlan, Record, SingleVehicleMission
 from mission.pilots import WaypointPilot
 from mission.steps import (
@@ -46,7 +44,7 @@ from mission.steps import (
     wait_s,
     wait_until,
 )
-from mission.vehicle import COMPANION_COMPONENT, VehicleLink
+from tests.companion_flights import Steps, fly, watched
 
 RATE = 8.0  # peer seconds per wall second
 DT = 0.02  # peer step [s]
@@ -306,36 +304,6 @@ class ScriptedArduCopter:
                 self.armed = False
 
 
-class _Steps:
-    """A mission for mission.companion.run that is only its generator (no camera)."""
-
-    name = "steps"
-
-    def on_frame(self, t, frame, status) -> None:
-        pass
-
-
-def fly(port: int, mission, gen=None) -> VehicleLink:
-    """Run `gen(v)` (or `mission.run(v)`) as `skyherd companion --free-run` runs a mission: a
-    VehicleLink on udpout to the peer, ticked on the autopilot's clock until it returns."""
-    link = MavlinkLink.open(f"udpout:127.0.0.1:{port}", source_component=COMPANION_COMPONENT)
-    v = VehicleLink(link)
-    try:
-        run(v, mission, (gen or mission.run)(v), None,
-            CompanionParams(lockstep=False, link_patience_s=30.0))  # fmt: skip
-    finally:
-        link.close()
-    return v
-
-
-def watched(v, auth: ModeAuthority, predicate, what: str, timeout_s: float = 5.0):
-    """Wait as a mission's AI phase does: the authority sees every tick's mode."""
-    t0 = v.t
-    while auth.update(v) == "fly" and not predicate():
-        assert v.t - t0 <= timeout_s, f"timed out waiting for {what}"
-        yield
-
-
 @pytest.mark.timeout(240)
 def test_scripted_arducopter_flies_twice_with_guided_takeoff_and_brake_fallback():
     seen: dict = {}
@@ -367,7 +335,7 @@ def test_scripted_arducopter_flies_twice_with_guided_takeoff_and_brake_fallback(
             seen[f"landed_{mission}"] = (v.tel.armed, v.setpoint, peer.setpoints_after_land)
 
     with ScriptedArduCopter(14610) as peer:
-        v = fly(14610, _Steps(), two_missions)
+        v = fly("udpout:127.0.0.1:14610", Steps(), two_missions)
     assert v.profile.name == "ArduCopter"
     assert seen["ready_t"] >= 41.0  # readiness waited for the EKF by condition, past 30 s
     assert v.tel.quat is not None  # ATTITUDE (no ATTITUDE_QUATERNION from ArduPilot)
@@ -413,7 +381,7 @@ def test_scripted_arducopter_failsafe_is_yielded_to_by_the_companions_mission():
 
     with ScriptedArduCopter(14611, ekf_after_s=2.0) as peer:
         peer.t_rtl = None
-        fly(14611, mission)
+        fly("udpout:127.0.0.1:14611", mission)
         n_modes = sum(
             1 for t, c, _ in peer.commands if c == M.MAV_CMD_DO_SET_MODE and t > peer.t_rtl
         )
@@ -438,7 +406,7 @@ def test_refused_command_carries_the_autopilots_reason_sent_after_the_ack():
                 refusals.append(str(e))
 
     with ScriptedArduCopter(14612, ekf_after_s=1.0) as peer:
-        fly(14612, _Steps(), try_commands)
+        fly("udpout:127.0.0.1:14612", Steps(), try_commands)
     arm, takeoff = refusals  # NAV_TAKEOFF before GUIDED + arm: refused too
     assert "COMPONENT_ARM_DISARM failed: MAV_RESULT_FAILED" in arm
     assert "PreArm: Gyros inconsistent (the first attempt" in arm and arm.endswith("settle)")
@@ -463,7 +431,7 @@ def test_scripted_arduplane_modes_decode_with_the_plane_table():
             errors.append(str(e))
 
     with ScriptedArduCopter(14613, ekf_after_s=1.0, mav_type=M.MAV_TYPE_FIXED_WING) as peer:
-        v = fly(14613, _Steps(), modes)
+        v = fly("udpout:127.0.0.1:14613", Steps(), modes)
     assert v.profile.name == "ArduPlane"
     assert decoded == [FlightMode.OFFBOARD, FlightMode.HOLD, FlightMode.RTL,
                        FlightMode.STABILIZED, 12]  # HOLD set as LOITER (12), not the copter's 5  # fmt: skip
@@ -477,7 +445,9 @@ def test_scripted_arduplane_modes_decode_with_the_plane_table():
 @pytest.mark.timeout(120)
 def test_older_firmware_without_set_message_interval_gets_request_data_stream():
     with ScriptedArduCopter(14614, ekf_after_s=1.0, legacy=True) as peer:
-        v = fly(14614, _Steps(), wait_ready)  # home on request (REQUEST_MESSAGE), the rest streamed
+        v = fly(
+            "udpout:127.0.0.1:14614", Steps(), wait_ready
+        )  # home on request (REQUEST_MESSAGE), the rest streamed
     assert peer.rates[M.MAVLINK_MSG_ID_LOCAL_POSITION_NED] >= 10
     assert v.tel.pos_ned is not None and v.tel.quat is not None
 
@@ -606,7 +576,7 @@ def test_scripted_px4_second_mission_arms_because_the_stream_stops_before_the_la
             refusals.append(str(e))
 
     with ScriptedPx4(14610) as peer:
-        v = fly(14610, _Steps(), missions)
+        v = fly("udpout:127.0.0.1:14610", Steps(), missions)
     assert v.profile.name == "PX4"
     for mission in range(2):
         assert 9.4 < seen[f"alt_{mission}"] and seen[f"ai_{mission}"] == "OFFBOARD"
@@ -700,7 +670,7 @@ def test_scripted_arduplane_takes_off_in_takeoff_mode_and_flies_reposition_targe
         yield from wait_s(v, 2.0)
 
     with ScriptedArduPlane(14611) as peer:
-        fly(14611, _Steps(), flight)
+        fly("udpout:127.0.0.1:14611", Steps(), flight)
     alt, mode, attempts = seen["takeoff"]
     assert peer.params["TKOFF_ALT"] == 40.0 and attempts == 2  # retried
     assert alt >= 34.0 and mode == "TAKEOFF"

@@ -23,6 +23,7 @@ from flight.autopilot_api import FlightMode
 from flight.mavlink import Personality
 from hil.telemetry import Telemetry, update_telemetry
 from scripts.cli import main
+from tests.companion_flights import Steps, fly, missions
 from tests.mavlink_support import running_sitl
 
 
@@ -67,12 +68,13 @@ def test_fly_connect_flies_the_builtin_px4_personality_twice_walltime(tmp_path):
         assert {"AUTO.TAKEOFF", "OFFBOARD", "AUTO.LOITER", "AUTO.LAND"} <= set(names), names
         assert tel.mode_name == "AUTO.LOITER"  # PX4's end: Hold, ready to arm again
         assert comp["mode_requests"] >= 2  # the fallback's Hold and OFFBOARD back
-    assert sitl.endpoint.rx_commands[M.MAV_CMD_NAV_TAKEOFF] == 2
+        takeoffs = sitl.endpoint.rx_commands[M.MAV_CMD_NAV_TAKEOFF]
+    assert takeoffs == 2
 
 
 @pytest.mark.timeout(600)
 def test_fly_connect_flies_the_builtin_ardupilot_personality_twice_walltime(tmp_path):
-    for tel, comp, sitl in _fly_twice(tmp_path, 71, Personality.ARDUPILOT, 7464):
+    for tel, _comp, sitl in _fly_twice(tmp_path, 71, Personality.ARDUPILOT, 7464):
         assert tel.profile.name == "ArduCopter"
         names = [n for _, n in tel.modes]
         assert {"GUIDED", "BRAKE", "LAND"} <= set(names) and "LOITER" not in names, names
@@ -98,3 +100,26 @@ def test_update_telemetry_is_a_pure_step():
     with pytest.raises(ValueError, match="not flown"):
         update_telemetry(Telemetry(), M.MAVLink_heartbeat_message(
             M.MAV_TYPE_GROUND_ROVER, M.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0, 3))  # fmt: skip
+
+
+@pytest.mark.timeout(600)
+@pytest.mark.parametrize(
+    ("instance", "personality", "end_mode"),
+    [(72, Personality.PX4, "AUTO.LOITER"), (73, Personality.ARDUPILOT, "LAND")],
+)
+def test_the_real_autopilot_tests_missions_on_the_builtin_stand_ins(
+    instance, personality, end_mode
+):
+    """tests/test_autopilots_real.py's copter missions (two in a row on one running vehicle,
+    the net's fallback and back in each) on the built-in vehicle in the same personality:
+    what `make test-autopilots` flies, checked here where no PX4 / ArduPilot is built."""
+    out: dict = {}
+    with running_sitl(instance, speedup=5.0, personality=personality) as sitl:
+        sitl.autopilot.set_param("COM_OF_LOSS_T", 10.0)  # 2 s of wall: no failsafe from load
+        v = fly(f"udpin:127.0.0.1:{14540 + instance}", Steps(),
+                missions(6.0, [8.0, 4.0, -6.0], 1.0, 2, out))  # fmt: skip
+        assert not sitl.autopilot.armed
+    assert out == {"yielded_0": None, "armed_0": False, "yielded_1": None, "armed_1": False}
+    names = [n for _, n in v.tel.modes]
+    fallback = {Personality.PX4: "AUTO.LOITER", Personality.ARDUPILOT: "BRAKE"}[personality]
+    assert names.count(fallback) >= 2 and v.tel.mode_name == end_mode, names
