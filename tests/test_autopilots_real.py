@@ -27,7 +27,9 @@ from pathlib import Path
 import pytest
 
 from flight.autopilot_api import FlightMode
+from hil.autopilots import Step
 from hil.link import LinkError, MavlinkLink
+from mission.steps import recipe, wait_ready, wait_until
 from mission.vehicle import COMPANION_COMPONENT
 from scripts.cli import main
 from tests.companion_flights import Steps, fly, missions
@@ -149,10 +151,11 @@ def _assert_fly_completed(rc: int, run: Path, autopilot: str) -> None:
 
 def test_real_arducopter_flown_by_skyherd_fly_connect(tmp_path):
     """`skyherd fly --connect`: the ground-air mission behind the net, the world (UGV team,
-    camera) following the autopilot on its SERIAL1, landed and disarmed."""
+    camera) following the autopilot on its SERIAL1, landed and disarmed. With GUID_TIMEOUT
+    0.5 s: the stock 3 s is refused before take-off by the parameter guard (docs/autopilots.md)."""
     binary = _binary("SKYHERD_ARDUCOPTER_BIN")
     port = 5760 + 10 * ARDUPILOT_INSTANCE
-    with ardupilot_listening(binary, "+", "copter.parm", tmp_path):
+    with ardupilot_listening(binary, "+", "copter.parm", tmp_path, "GUID_TIMEOUT 0.5\n"):
         rc, run = _fly_connect(f"tcp:127.0.0.1:{port}", tmp_path, 76, 7472)
     _assert_fly_completed(rc, run, "ArduCopter")
 
@@ -193,22 +196,34 @@ def test_real_px4_sih_flies_twice_and_is_left_disarmed(tmp_path):
 
 def test_real_px4_sih_flown_by_skyherd_fly_connect(tmp_path):
     """`skyherd fly --connect` on PX4's onboard link (14540+N, 14549 for N > 9), the world
-    following it on its ground-station link (14550)."""
+    following it on its ground-station link (14550). COM_OF_LOSS_T set to 0.5 s first, over
+    the same link (the stock 1 s is refused before take-off by the parameter guard)."""
     binary = _binary("SKYHERD_PX4_BIN")
+
+    def offboard_loss_half_a_second(v):
+        yield from wait_ready(v)
+        yield from recipe(v, (Step("set_param", params=(0.5,), what="COM_OF_LOSS_T"),))
+        yield from wait_until(v, lambda: v.params.get("COM_OF_LOSS_T") == 0.5, 10.0, "its echo")
+
+    port = 14540 + PX4_INSTANCE if PX4_INSTANCE <= 9 else 14549
     with px4(binary, tmp_path, open_link=False):
-        port = 14540 + PX4_INSTANCE if PX4_INSTANCE <= 9 else 14549
+        fly(f"udpin:127.0.0.1:{port}", Steps(), offboard_loss_half_a_second, patience_s=60.0)
         rc, run = _fly_connect(f"udpin:127.0.0.1:{port}", tmp_path, 77, 7473)
     _assert_fly_completed(rc, run, "PX4")
 
 
 @contextlib.contextmanager
-def ardupilot_listening(binary: Path, model: str, parm: str, cwd: Path):
-    """The autopilot started, waiting on SERIAL0 for a client that is not ours (`fly`'s)."""
+def ardupilot_listening(binary: Path, model: str, parm: str, cwd: Path, extra: str = ""):
+    """The autopilot started, waiting on SERIAL0 for a client that is not ours (`fly`'s);
+    `extra`: parameter lines added after the defaults file (as an operator's own file)."""
     args = [str(binary), "--model", model, "--speedup", "1", "-I", str(ARDUPILOT_INSTANCE),
             "--home", HOME, "-w"]  # fmt: skip
-    d = _defaults(binary, parm)
-    if d is not None:
-        args += ["--defaults", str(d)]
+    files = [str(d)] if (d := _defaults(binary, parm)) is not None else []
+    if extra:
+        (cwd / "operator.parm").write_text(extra)
+        files.append(str(cwd / "operator.parm"))
+    if files:
+        args += ["--defaults", ",".join(files)]
     log_path = cwd / "autopilot.log"
     log = open(log_path, "wb")
     proc = subprocess.Popen(args, cwd=cwd, stdout=log, stderr=subprocess.STDOUT)
