@@ -1,11 +1,11 @@
 """What differs between the autopilots skyherd's companion flies: PX4, ArduCopter, ArduPlane.
 
 One frozen profile per autopilot, found from the HEARTBEAT (its `autopilot` field and vehicle
-`type`) and refined by AUTOPILOT_VERSION. A profile answers small pure questions — what a
+`type`). A profile answers small pure questions — what a
 `custom_mode` means, which DO_SET_MODE parameters ask for a mode, which messages to request,
 which parameter names hold a setting — and gives the take-off, hand-over, landing and end of a
-mission as declarative recipes (`Step`s) that a client executes: the blocking `VehicleClient`
-(hil/client.py) or the tick-driven companion (mission/).
+mission as declarative recipes (`Step`s) that the companion executes (mission/steps.py
+`recipe`, one tick at a time).
 
 Facts each recipe follows (measured against real SITL builds, ../shared/PROTOCOLS.md):
 - PX4 reads NAV_TAKEOFF param 7 as AMSL; it switches to OFFBOARD only while setpoints are
@@ -238,9 +238,6 @@ MSG = {
 # LOCAL_POSITION_NED and attitude [Hz]: one setpoint per position sample, so >= 10 Hz. PX4 (and
 # the built-in vehicle) keep the interval exactly; ArduPilot is asked for a little more.
 POSITION_RATE_HZ = 10.0
-
-# EKF_STATUS_REPORT flags that mean "a position the autopilot navigates by" (ArduPilot).
-EKF_POSITION_OK = M.EKF_ATTITUDE | M.EKF_VELOCITY_HORIZ | M.EKF_POS_HORIZ_ABS
 
 MULTIROTOR_TYPES = frozenset({
     M.MAV_TYPE_QUADROTOR, M.MAV_TYPE_HEXAROTOR, M.MAV_TYPE_OCTOROTOR, M.MAV_TYPE_TRICOPTER,
@@ -555,32 +552,3 @@ def detect(autopilot: int, mav_type: int) -> AutopilotProfile:
     raise UnknownAutopilot(
         f"autopilot {name.name if name else autopilot} is not one skyherd flies (PX4, ArduPilot)"
     )
-
-
-def with_version(profile: AutopilotProfile, flight_sw_version: int) -> AutopilotProfile:
-    """The profile with the version AUTOPILOT_VERSION reported (major.minor.patch)."""
-    v = int(flight_sw_version)
-    text = f"{(v >> 24) & 0xFF}.{(v >> 16) & 0xFF}.{(v >> 8) & 0xFF}"
-    return replace(profile, version=text)
-
-
-BUILTIN_UID_TAG = 0x5348  # "SH": the top 16 bits of skyherd's built-in vehicle's uid
-
-
-def refine(profile: AutopilotProfile, autopilot_version) -> AutopilotProfile:
-    """The profile after AUTOPILOT_VERSION: its version, and skyherd's built-in vehicle (told by
-    the "SH" tag of its uid) with its own reading of LOITER (`builtin_arducopter`)."""
-    p = with_version(profile, autopilot_version.flight_sw_version)
-    if (int(autopilot_version.uid) >> 48) == BUILTIN_UID_TAG and p.name == "ArduCopter":
-        p = builtin_arducopter(p)
-    return p
-
-
-def builtin_arducopter(profile: AutopilotProfile) -> AutopilotProfile:
-    """skyherd's built-in vehicle with `--personality ardupilot`: ArduCopter's numbers, but
-    it hovers (HOLD) when a ground station asks for LOITER (and then shows LOITER:
-    flight/mavlink/telemetry.py), so LOITER reads as HOLD here — on it alone."""
-    table = tuple(
-        (n, name, FlightMode.HOLD if name == "LOITER" else mode) for n, name, mode in _COPTER_TABLE
-    )
-    return replace(profile, name="ArduCopter (skyherd built-in)", mode_table=table)

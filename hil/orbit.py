@@ -27,15 +27,9 @@ shallower bank than k·φ_max, the one the orbit will command, atan((V + s)² / 
 never beyond `radius_max_m` (the autopilot's hold circle the envelope allows). `plan_orbit`
 raises ValueError when (3) or p ≥ `marker_px_min` still fails, with the numbers.
 
-Companion (`OrbitCompanion.update`, once per telemetry sample, simulation time):
-1. the UGV team moves to time t; its centre of mass c(t) is the orbit centre;
-2. at the camera rate the gimbal points at c(t); the frame is rendered, published, detected;
-3. every decision period the orbit is certified: the circle about c(t) at altitude h must lie
-   inside the fence with `fence_reserve` (else the centre moves toward c(t) only as far as
-   that holds), and the safety net's supervisor judges the state and the velocity the orbit
-   flies (present horizontal velocity, climb toward h). AI → an offboard position setpoint
-   (c, −h) that the autopilot loiters about with radius R (NAV_LOITER_RAD); FALLBACK → the
-   autopilot's own HOLD (a loiter); PID → the supervisor's recovery velocity.
+The companion that flies it is mission/orbit.py (OrbitMission): the centre as the camera sees
+it, moved only as far as `circle_certified` holds (`slide_centre`), certified by the net
+(`setpoint_certified`), the climb-out until it is.
 """
 
 from __future__ import annotations
@@ -45,18 +39,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.frames import quat_to_euler
+from flight.autopilot_api import Setpoint
 from flight.geo import GRAVITY
 from flight.state import VehicleState
-from groundsim.ugv import UGVModel, UGVStates
-from hil.orbit_gimbal import GimbalParams, gimbal_pose
-from perception.camera import CameraParams, camera_pose, in_image, project
-from perception.pipeline import CameraRig, CameraTick
+from groundsim.ugv import UGVModel
+from perception.camera import CameraParams
 from safety.envelope import NZ, P
 from safety.kernels import worst_residual
 from safety.monitor import make_z
-from safety.supervisor import Decision, Health, Supervisor
+from safety.supervisor import Supervisor
 
 # The zoomed gimbal camera: 320×240 like the quadrotor's, 20° horizontal field of view
 # (f = 907 px): a 1 m marker spans ~3 px at ~190 m slant range, a 20 m team fits in 1/3 of H.
@@ -221,169 +212,3 @@ def fence_reserve(spec) -> float:
     lim, dyn = spec.limits, spec.dynamics
     v = lim.speed_h_mps
     return lim.margin_m + 2.0 * dyn.turn_radius(v) + (dyn.dt_s + dyn.react_s) * v
-
-
-@dataclass
-class OrbitSample:
-    """One camera frame of the orbit: what the camera saw and where everything was."""
-
-    t: float
-    pos_ned: np.ndarray  # aircraft (3,) [m]
-    centre_ne: np.ndarray  # UGV centre of mass (2,) [m]
-    orbit_ne: np.ndarray  # the orbit centre commanded (2,) [m] (= centre_ne unless fenced)
-    ugvs_ne: np.ndarray  # (n, 2) [m]
-    detected: int  # UGVs the detector found
-    all_detected: bool  # φ all_in_view
-    all_projected: bool  # every UGV's true position projects inside the image
-    body_fixed: bool  # ... would, for the same camera fixed to the body looking down
-    bank_rad: float
-    tilt_rad: float
-    mode: str  # the safety net's mode at this frame
-
-
-class OrbitCompanion:
-    """Camera on a gimbal → perception; orbit centre → safety net → setpoint (module docstring)."""
-
-    def __init__(self, plan: OrbitPlan, team, supervisor: Supervisor, rig: CameraRig,
-                 reserve_m: float, decision_dt_s: float = 0.2,
-                 gimbal: GimbalParams | None = None, climb_tau_s: float = 5.0,
-                 world=None):  # fmt: skip
-        self.plan, self.team, self.supervisor, self.rig = plan, team, supervisor, rig
-        self.world = world  # a groundsim GroundWorld mirrored for PyBullet pixels, or None
-        self.reserve_m, self.decision_dt_s = reserve_m, decision_dt_s
-        self.margin_v_m = supervisor.envelope.spec.limits.margin_m  # ceiling and floor
-        supervisor.loiter_radius_m = plan.radius_m  # the autopilot's NAV_LOITER_RAD
-        self.gimbal = gimbal if gimbal is not None else GimbalParams()
-        self.climb_tau_s = climb_tau_s
-        lim = supervisor.envelope.spec.limits
-        self.climb_max, self.descent_max = lim.climb_mps, lim.descent_mps
-        self.t0: float | None = None
-        self.t_ground = 0.0
-        self.t_frame: float | None = None
-        self.t_decision: float | None = None
-        self.last_tick: CameraTick | None = None
-        self.centre = self.team_centre()  # certified orbit centre (2,)
-        self.switches_at_est = 0  # supervisor switches when the orbit was established
-        self.limited = 0  # decisions where the fence held the centre short of the com
-        self.decision: Decision | None = None
-        self.samples: list[OrbitSample] = []
-
-    def team_states(self) -> UGVStates:
-        pos = np.array(self.team.positions(), dtype=float)
-        vn, ve = getattr(self.team, "centre_velocity", (0.0, 0.0))
-        n = len(pos)
-        return UGVStates(pos, np.full(n, math.atan2(ve, vn)), np.full(n, math.hypot(vn, ve)),
-                         np.zeros(n, dtype=bool))  # fmt: skip
-
-    def team_centre(self) -> np.ndarray:
-        """The UGVs' centre of mass (2,) NE [m] (equal masses)."""
-        return np.mean(np.array(self.team.positions(), dtype=float), axis=0)
-
-    def _camera(self, t: float, state: VehicleState) -> None:
-        if not self.rig.due(t):
-            return
-        ugvs = self.team_states()
-        com = np.array([*np.mean(ugvs.pos_ne, axis=0), 0.0])
-        roll, _, yaw = quat_to_euler(state.quat)
-        gp = gimbal_pose(self.rig.cam, state.pos_ned, yaw, com, self.gimbal)
-        if self.world is not None:
-            self.world.place(ugvs)  # PyBullet pixels of the same team
-        tick = self.rig.tick(t, gp, ugvs)
-        if tick is None:
-            return
-        self.last_tick, self.t_frame = tick, t
-        pose = camera_pose(self.rig.cam, gp.pos_ned, gp.quat)
-        pts = np.column_stack([ugvs.pos_ne, np.zeros(len(ugvs.pos_ne))])
-        uv, _ = project(self.rig.cam, pose, pts)
-        uv_body, _ = project(
-            self.rig.cam, camera_pose(self.rig.cam, state.pos_ned, state.quat), pts
-        )
-        mode = self.supervisor.mode.value
-        self.samples.append(
-            OrbitSample(t, state.pos_ned.copy(), com[:2], self.centre.copy(), ugvs.pos_ne.copy(),
-                        len(tick.detections.centroids_px),
-                        bool(tick.phi[5] > 0.5), bool(in_image(self.rig.cam, uv).all()),
-                        bool(in_image(self.rig.cam, uv_body).all()),
-                        roll, gp.tilt_rad, mode)
-        )  # fmt: skip
-
-    def proposal(self, state: VehicleState) -> Setpoint:
-        """What the orbit flies: the position setpoint (orbit centre, −h) that the autopilot
-        loiters about with radius R. The safety net certifies the motion it implies (a
-        bank-limited turn onto the loiter circle, the climb toward h: Supervisor.implied_velocity)."""
-        return Setpoint(pos_ned=np.array([self.centre[0], self.centre[1], -self.plan.altitude_m]))
-
-    def certified_now(self, state: VehicleState) -> bool:
-        """Would the net accept the orbit's setpoint at this state? (No supervisor state is
-        changed: the hand-over test of `climb_out`.)"""
-        return self._ok(self.centre) and setpoint_certified(self.supervisor, state,
-                                                             self.proposal(state))  # fmt: skip
-
-    def update(self, t: float, state: VehicleState, link_t: float | None = None) -> Decision:
-        """Vehicle time t [s] and state → the certified decision to fly now. link_t: the
-        link's freshness from safety.health.HealthTracker (what arrived); None = this
-        telemetry sample, which just arrived."""
-        if self.t0 is None:
-            self.t0 = t
-        dt = (t - self.t0) - self.t_ground
-        if dt > 0:
-            self.team.step(dt)
-            self.t_ground += dt
-        self._camera(t, state)
-        proposed = None
-        if self.t_decision is None or t - self.t_decision >= self.decision_dt_s - 1e-9:
-            self.t_decision = t
-            self._move_centre(self.team_centre())
-            proposed = self.proposal(state)
-        health = Health(camera_t=self.t_frame, link_t=t if link_t is None else link_t)
-        self.decision = self.supervisor.update(t, state, proposed, health)
-        return self.decision
-
-    def _ok(self, c: np.ndarray) -> bool:
-        return circle_certified(self.supervisor.geometry, c, self.plan.radius_m,
-                                self.plan.altitude_m, self.reserve_m, self.margin_v_m)  # fmt: skip
-
-    def _move_centre(self, com: np.ndarray) -> None:
-        """The orbit centre follows the centre of mass as far as the fence allows (slide_centre)."""
-        self.centre, held = slide_centre(self._ok, self.centre, com)
-        self.limited += held
-
-    def setpoint(self) -> tuple:
-        """(pos_ned, vel_ned, yaw) for the offboard stream from the last decision."""
-        d = self.decision
-        if d is None:
-            return np.array([self.centre[0], self.centre[1], -self.plan.altitude_m]), None, None
-        return d.command.pos_ned, d.command.vel_ned, d.command.yaw  # AI: the certified setpoint
-
-    @property
-    def wants_hold(self) -> bool:
-        return self.decision is not None and self.decision.autopilot_mode is FlightMode.HOLD
-
-
-def climb_out(client, comp: OrbitCompanion, vehicle_time, hold_s: float = 3.0,
-              timeout_s: float = 300.0, resend_s: float = 5.0) -> float:  # fmt: skip
-    """The climb-out, flown by the autopilot, planned into the envelope: after the take-off
-    (which ends far out on the runway heading, beyond the fixed-wing's certified region — the
-    fence minus the loiter reserve), DO_REPOSITION sends the aircraft's own loiter to the
-    orbit's centre at the orbit's altitude; the AI gets the vehicle only once the net
-    certifies the orbit's setpoint at the present state, continuously for `hold_s` s of
-    vehicle time. Returns the vehicle time of that moment; ClientTimeout after `timeout_s`."""
-    from hil.client import ClientTimeout
-
-    tel = client.telemetry
-    target = np.array([comp.centre[0], comp.centre[1], -comp.plan.altitude_m])
-    t0 = vehicle_time()
-    sent, since = -math.inf, None
-    while True:
-        t = vehicle_time()
-        if t - sent >= resend_s:
-            client.link.send(client.reposition_message(target))
-            sent = t
-        client.wait_message("LOCAL_POSITION_NED", timeout=5.0)
-        vs = tel.vehicle_state()
-        ok = vs is not None and comp.certified_now(vs)
-        since = (since if since is not None else t) if ok else None
-        if since is not None and t - since >= hold_s:
-            return t
-        if t - t0 > timeout_s:
-            raise ClientTimeout(f"climb-out: the orbit was not certified within {timeout_s:.0f} s")

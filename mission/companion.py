@@ -31,7 +31,7 @@ class CompanionParams:
     tick_s: float = 0.1  # free-running tick period [s of the autopilot's clock]
     heartbeat_s: float = 1.0  # our HEARTBEAT period [s of tick time]
     frame_patience_s: float = 10.0  # lockstep: wait this long [wall s] for tick k's frame
-    link_patience_s: float = 60.0  # wall time without any tick mark = the vehicle is gone [s]
+    link_patience_s: float = 60.0  # [wall s] no tick mark (free-running: no message) = gone
 
     def __post_init__(self) -> None:
         if not (self.tick_s > 0 and self.heartbeat_s > 0):
@@ -138,7 +138,7 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
     stats = TickStats(decide_wall_s=[])
     t_heartbeat = -1e9
     t_next = 0.0
-    wall0 = time.monotonic()
+    wall0 = heard = time.monotonic()
     lead = vs[0]
     if p.lockstep:  # hello: each simulator starts its clock when this arrives
         for v in vs:
@@ -159,8 +159,10 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
                 else:
                     mission.on_frame(t, None, "lost")
         else:
-            for v in vs:
-                v.drain(0.02 if v is lead else 0.0)
+            if sum([v.drain(0.02 if v is lead else 0.0) for v in vs]):
+                heard = time.monotonic()
+            elif time.monotonic() - heard > p.link_patience_s:
+                raise LinkLost(f"nothing from the vehicle for {p.link_patience_s:.0f} s")
             if lead.tel.time_boot_ms == 0:  # nothing yet from the autopilot: wall time counts
                 lead.t = time.monotonic() - wall0
             if lead.t < t_next:

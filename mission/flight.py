@@ -41,6 +41,8 @@ class FlightPlan:
     descend_above_floor_m: float = 1.0  # the descent behind the net ends this far above the
     # envelope's floor + margin; the autopilot's LAND flies the column below it [m]
     descend_timeout_s: float = 60.0  # the descent behind the net must end within this [s]
+    descend_held_s: float = 10.0  # the net holding (fallback / PID) this long during the
+    # descent: the autopilot lands from the net's hold instead [s]
     yield_wait_s: float = 60.0  # after the autopilot took over, wait this long for its landing [s]
 
     def __post_init__(self) -> None:
@@ -97,6 +99,7 @@ class SingleVehicleMission:
         self.outcome = "running"
         self.reason = ""
         self.t_decision: float | None = None
+        self.landing_note = ""  # how the landing went, when not as planned
         self.pending: Proposal | None = None
         self._written = 0
         self.name = pilot.name
@@ -177,7 +180,7 @@ class SingleVehicleMission:
         spec = self.net.spec
         pilot = DescentPilot(float(p[0]), float(p[1]), goal, spec.limits, spec.dynamics.tau_s)
         self.phase = pilot.name
-        t0 = v.t
+        t0, held = v.t, None
         while True:
             if self.authority.update(v) != "fly":
                 return
@@ -185,6 +188,13 @@ class SingleVehicleMission:
             p, vel = v.tel.pos_ned, v.tel.vel_ned
             if (abs(p[2] - goal) < 0.5 and float(np.linalg.norm(vel)) < 0.5
                     and self.net.mode is Mode.AI):  # fmt: skip
+                return
+            held = None if self.net.mode is Mode.AI else (v.t if held is None else held)
+            if held is not None and v.t - held >= self.plan.descend_held_s - 1e-9:
+                self.landing_note = (f"the net held the vehicle ({self.net.mode.value}: "
+                                     f"{self.net.supervisor.stats.reasons[-1:] or ['?']}) for "
+                                     f"{self.plan.descend_held_s:.0f} s of the descent: the "
+                                     f"autopilot lands from the net's hold at {-p[2]:.1f} m")  # fmt: skip
                 return
             if v.t - t0 > self.plan.descend_timeout_s:
                 raise MissionError(f"the descent behind the net did not reach {-goal:.1f} m in "

@@ -33,7 +33,6 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from flight.autopilot_api import Setpoint
-from hil.client import reposition_command
 from hil.orbit import (
     ORBIT_CAMERA,
     OrbitParams,
@@ -43,6 +42,7 @@ from hil.orbit import (
     setpoint_certified,
     slide_centre,
 )
+from hil.telemetry import reposition_command
 from mission.authority import ModeAuthority
 from mission.flight import Record, append_track
 from mission.onboard import CameraFrame

@@ -104,28 +104,49 @@ def set_mode(v: VehicleLink, mode: FlightMode, timeout_s: float = 5.0) -> Phase:
 
 
 def wait_ready(v: VehicleLink, timeout_s: float = 60.0) -> Phase:
-    """A heartbeat, home and a local position (asks for HOME_POSITION every 2 s)."""
+    """A heartbeat, home and a local position (asks for HOME_POSITION every 2 s, and for the
+    profile's streams: SET_MESSAGE_INTERVAL, or REQUEST_DATA_STREAM where older firmware
+    answers that it does not support it)."""
     t_ask = -math.inf
     t0 = v.t
     on_wall = v.tel.time_boot_ms == 0  # free-running before any message: wall time counts
-    while not (v.tel.mode is not None and v.tel.home_ok and v.tel.pos_ned is not None
-               and v.tel.quat is not None):  # fmt: skip
+    while missing := not_ready(v):
         if on_wall and v.tel.time_boot_ms > 0:  # the tick clock became the autopilot's: a
             t0, on_wall = v.t, False  # second mission on a running PX4 starts at its uptime
-        if v.t - t0 > timeout_s:
+        # the autopilot's own readiness time where it is longer (ArduCopter's EKF: ~40 s)
+        limit = max(timeout_s, v.profile.ready_timeout_s if v.profile is not None else 0.0)
+        if v.t - t0 > limit:
             raise MissionError(
-                f"timed out after {timeout_s:.0f} s waiting for a heartbeat, home and local "
-                "position: is the vehicle running and its link address right?"
+                f"timed out after {limit:.0f} s waiting for {', '.join(missing)}: is the "
+                "vehicle running and its link address right?"
             )
         if v.target_system is not None and v.t - t_ask >= 2.0:
             v.command_long(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), 0)
             if v.profile is not None:  # ArduPilot streams nothing it is not asked for
                 for msg_id, hz in v.profile.stream_requests():
                     v.command_long(M.MAV_CMD_SET_MESSAGE_INTERVAL, (msg_id, 1e6 / hz), 0)
+            if v.acks.get(M.MAV_CMD_SET_MESSAGE_INTERVAL) == M.MAV_RESULT_UNSUPPORTED:
+                for stream_id, hz in v.profile.data_stream_requests():
+                    v.send(M.MAVLink_request_data_stream_message(
+                        v.target_system, 1, stream_id, round(hz), 1))  # fmt: skip
             t_ask = v.t
         yield
     if v.unknown_autopilot:
         raise MissionError(v.unknown_autopilot)
+
+
+def not_ready(v: VehicleLink) -> list[str]:
+    """What a mission still waits for before it may fly (empty: ready)."""
+    tel, out = v.tel, []
+    if tel.mode is None:
+        out.append("a heartbeat")
+    if not tel.home_ok:
+        out.append("home (HOME_POSITION)")
+    if tel.pos_ned is None:
+        out.append("a local position (LOCAL_POSITION_NED)")
+    if tel.quat is None:
+        out.append("an attitude")
+    return out
 
 
 UNREAD_STREAMS = ("ATTITUDE", "GLOBAL_POSITION_INT", "ALTITUDE", "VFR_HUD", "BATTERY_STATUS")

@@ -26,8 +26,8 @@ from flight.autopilot_api import Setpoint
 from flight.geo import geodetic_to_ned, ned_to_geodetic
 from flight.lockstep import NS_PER_US, is_mark
 from hil.autopilots import UnknownAutopilot
-from hil.client import Telemetry, reposition_command, update_telemetry
 from hil.link import MavlinkLink
+from hil.telemetry import Telemetry, local_setpoint, reposition_command, update_telemetry
 from perception.camera import UAVPose
 
 M = mavlink2
@@ -120,17 +120,20 @@ class VehicleLink:
             self._pull(0.2)
         self.heartbeat()
 
-    def drain(self, timeout_s: float) -> None:
+    def drain(self, timeout_s: float) -> int:
         """Free-running: apply whatever arrives within `timeout_s` [s of wall time]; the tick
-        time follows the autopilot's clock."""
+        time follows the autopilot's clock. Returns how many messages arrived."""
+        n = 0
         if not self._held:
             self._pull(timeout_s)
         while True:
             while self._held:
                 self.apply(self._held.popleft())
+                n += 1
             if not self._pull(0.0):
                 break
         self.t = self.tel.time_boot_ms / 1000.0
+        return n
 
     def flush(self) -> None:
         """Send what this tick queued, without closing it (the mission ended abnormally)."""
@@ -149,7 +152,7 @@ class VehicleLink:
         return self.target_system is None or msg.get_srcSystem() == self.target_system
 
     def apply(self, msg) -> None:
-        """One message from the vehicle → Telemetry (decoded per autopilot: hil.client), plus
+        """One message from the vehicle → Telemetry (decoded per autopilot: hil.telemetry), plus
         what the companion keeps: command acks, heartbeat and position-sample times."""
         src, comp = msg.get_srcSystem(), msg.get_srcComponent()
         t = msg.get_type()
@@ -293,25 +296,9 @@ class VehicleLink:
                 self._reposition_t = self.t
                 self.send(reposition_command(self.tel, prof, self.target_system or 1, pos_ned, yaw))
             return
-        from flight.mavlink.offboard import (
-            IGNORE_ACC,
-            IGNORE_POS,
-            IGNORE_VEL,
-            IGNORE_YAW,
-            IGNORE_YAW_RATE,
-        )
-
-        mask = IGNORE_ACC | IGNORE_YAW_RATE
-        home = self.tel.home_local  # positions are about home; LOCAL_NED is about the EKF origin
-        p = [0.0, 0.0, 0.0] if pos_ned is None else [float(x + h) for x, h in zip(pos_ned, home)]
-        v = [0.0, 0.0, 0.0] if vel_ned is None else [float(x) for x in vel_ned]
-        mask |= IGNORE_POS if pos_ned is None else 0
-        mask |= IGNORE_VEL if vel_ned is None else 0
-        mask |= IGNORE_YAW if yaw is None else 0
         stamp = round(1000 * (self.t if stamp_s is None else stamp_s))
-        self.send(M.MAVLink_set_position_target_local_ned_message(
-            stamp, self.target_system or 1, 1, M.MAV_FRAME_LOCAL_NED, mask, *p, *v,
-            0.0, 0.0, 0.0, 0.0 if yaw is None else float(yaw), 0.0))  # fmt: skip
+        self.send(local_setpoint(self.tel, self.target_system or 1, pos_ned, vel_ned, yaw,
+                                 time_ms=stamp))  # fmt: skip
 
 
 def _newest_until(samples, t: float):

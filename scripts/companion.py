@@ -464,6 +464,7 @@ def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
         "mode_requests": mission.authority.requests,
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
+        "landing": getattr(mission, "landing_note", "") or "as planned",
         "authority": {
             "t_start": mission.authority.t_start,
             "t_end": mission.authority.t_last,

@@ -81,7 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="also fly N campaign drills per airframe (max speed, battery, parameter sabotage "
         "and its restore, link loss: a real cut of the vehicle's API link) through MAVLink: the "
-        "built-in vehicle's endpoint and hil.client (instance --instance)",
+        "built-in vehicle's endpoint and the companion's own code (mission.drill_link; instance --instance)",
     )
     parser.add_argument(
         "--instance", type=int, default=85, help="vehicle instance for --mavlink (default 85)"

@@ -150,7 +150,7 @@ def run_campaign(args) -> int:
                     bar.update(1)
     link_rows = []
     if n_link:
-        from hil.drill_link import MAVLINK_KINDS, LinkDrillResult, run_mavlink_drill
+        from mission.drill_link import MAVLINK_KINDS, LinkDrillResult, run_mavlink_drill
 
         link_jobs = [(a, i) for a in airframes for i in range(n_link)]
         for a, i in tqdm(link_jobs, desc="through MAVLink", unit="drill"):

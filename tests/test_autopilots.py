@@ -4,7 +4,6 @@ parameter names, detection (numbers from px4_custom_mode.h, ArduCopter/ArduPlane
 from __future__ import annotations
 
 import math
-from types import SimpleNamespace
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
@@ -18,7 +17,6 @@ from hil.autopilots import (
     UnknownAutopilot,
     UnsupportedMode,
     detect,
-    refine,
 )
 
 
@@ -123,12 +121,7 @@ def test_detection():
         detect(M.MAV_AUTOPILOT_ARDUPILOTMEGA, M.MAV_TYPE_GROUND_ROVER)
     with pytest.raises(UnknownAutopilot):
         detect(M.MAV_AUTOPILOT_GENERIC, M.MAV_TYPE_QUADROTOR)
-    real = refine(
-        ARDUCOPTER, SimpleNamespace(flight_sw_version=(4 << 24) | (6 << 16) | (2 << 8), uid=7)
-    )
-    assert real.version == "4.6.2" and real.decode_mode(5) is FlightMode.POSCTL
-    builtin = refine(ARDUCOPTER, SimpleNamespace(flight_sw_version=1 << 16, uid=0x5348 << 48 | 1))
-    assert builtin.name.endswith("(skyherd built-in)") and builtin.decode_mode(5) is FlightMode.HOLD
+    assert ARDUCOPTER.decode_mode(5) is FlightMode.POSCTL  # LOITER reads the pilot's sticks
 
 
 def test_param_value_is_in_the_autopilots_unit_and_whole_where_it_stores_integers():
@@ -154,7 +147,7 @@ def test_companion_gives_arduplane_positions_as_do_reposition_and_velocities_as_
 
     from flight.geo import DEFAULT_HOME, geodetic_to_ned
     from hil.autopilots import ARDUPLANE
-    from hil.client import Home, reposition_command
+    from hil.telemetry import Home, reposition_command
     from mission.vehicle import VehicleLink
 
     class Link:

@@ -1,5 +1,7 @@
-"""The companion link against a scripted ArduCopter / ArduPlane / PX4 (SCRIPTED PEERS, not the real
-firmware: ArduPilot is not on a package registry). The peer speaks MAVLink 2 frames built by
+"""The companion's own code (mission.vehicle.VehicleLink ticked by mission.companion.run
+free-running, the phases and recipes of mission.steps, mission.authority, mission.flight) against
+a scripted ArduCopter / ArduPlane / PX4 (SCRIPTED PEERS, not the real firmware: ArduPilot is not
+on a package registry). The peer speaks MAVLink 2 frames built by
 pymavlink over a real UDP socket, byte for byte as the published protocol and as real
 ArduCopter SITL answered when it was measured (../shared/PROTOCOLS.md):
 
@@ -11,9 +13,9 @@ ArduCopter SITL answered when it was measured (../shared/PROTOCOLS.md):
   above home and is refused unless GUIDED and armed; LOITER sinks without a pilot's throttle;
 - its fence refuses targets beyond 50 m (the copter stops at the edge) with a STATUSTEXT.
 
-The peer runs its own clock at `RATE`× wall time; every limit the client waits under counts
-that clock, so the result does not depend on the machine's load (the wall backstops are
-minutes). Ports: those of vehicle instances 70-74 (14610-14614), reused test after test.
+The peer runs its own clock at `RATE`× wall time; the companion ticks on that clock (every
+0.1 s of it) and every limit a phase waits under counts it, so the result does not depend on
+the machine's load (the wall backstop: 30 s without a message). Ports: those of vehicle instances 70-74 (14610-14614), reused test after test.
 """
 
 from __future__ import annotations
@@ -27,10 +29,22 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.autopilot_api import FlightMode
-from hil.autopilots import ARDUCOPTER, ARDUPLANE
-from hil.client import ClientOptions, ClientTimeout, CommandError, VehicleClient, Yielded
-from hil.link import MavlinkLink
+from flight.autopilot_api import FlightMode, Setpoint
+from hil.autopilots import ARDUPLANE
+from hil.telemetry import reposition_command
+from mission.authority import ModeAuthority
+from mission.flight import FlightPlan, Record, SingleVehicleMission
+from mission.pilots import WaypointPilot
+from mission.steps import (
+    CommandRefused,
+    command,
+    recipe,
+    set_mode,
+    wait_ready,
+    wait_s,
+    wait_until,
+)
+from tests.companion_flights import Steps, fly, watched
 
 RATE = 8.0  # peer seconds per wall second
 DT = 0.02  # peer step [s]
@@ -65,6 +79,7 @@ class ScriptedArduCopter:
         self.commands: list[tuple[float, int, tuple]] = []
         self.modes: list[tuple[float, int]] = []
         self.setpoints_after_land = 0
+        self.setpoint_times: list[float] = []  # SET_POSITION_TARGET_LOCAL_NED arrivals [s]
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -209,6 +224,7 @@ class ScriptedArduCopter:
             for msg_id in groups.get(m.req_stream_id, ()):
                 self.rates[msg_id] = float(m.req_message_rate)
         elif t == "SET_POSITION_TARGET_LOCAL_NED":
+            self.setpoint_times.append(self.t)
             if self.mode == LAND and not self.armed:
                 self.setpoints_after_land += 1  # still streaming when the landing ended
             if self.mode == GUIDED and self.armed and self.takeoff_alt is None:
@@ -288,121 +304,152 @@ class ScriptedArduCopter:
                 self.armed = False
 
 
-def _client(port: int) -> VehicleClient:
-    link = MavlinkLink.open(f"udpout:127.0.0.1:{port}")
-    return VehicleClient(link, options=ClientOptions(silence_s=30.0))
-
-
 @pytest.mark.timeout(240)
 def test_scripted_arducopter_flies_twice_with_guided_takeoff_and_brake_fallback():
-    with ScriptedArduCopter(14610) as peer, _client(14610) as c:
-        c.wait_ready(timeout=200)
-        tel = c.telemetry
-        assert c.profile.name == "ArduCopter" and c.profile.version == "4.7.0"
-        assert tel.t >= 41.0  # readiness waited for the EKF by condition, past 30 s
-        assert tel.quat is not None and tel.landed_state == M.MAV_LANDED_STATE_ON_GROUND
-        assert 191 in peer.senders and 190 not in peer.senders
+    seen: dict = {}
+
+    def two_missions(v):
+        yield from wait_ready(v)
+        seen["ready_t"] = v.t
+        prof, auth = v.profile, ModeAuthority()
+        target = Setpoint(pos_ned=np.array([5.0, 0.0, -10.0]))
         for mission in range(2):
-            c.run_steps(c.profile.takeoff_steps(10.0, c.home_amsl()), 200, authority=False)
+            yield from recipe(v, prof.takeoff_steps(10.0, v.home_amsl_m))
             peer.setpoints_after_land = 0  # the stream before GUIDED found it landed: fine
-            if mission == 0:  # the first arm was refused and retried; its reason was read
-                assert peer.arm_attempts == 2
-                assert any("Gyros inconsistent (the first" in x for _, _, x in tel.statustexts)
-            kinds = [cmd for _, cmd, _ in peer.commands]
-            # GUIDED before the arm, the take-off altitude relative to home (not 594 m AMSL)
-            i_mode = max(i for i, k in enumerate(kinds) if k == M.MAV_CMD_DO_SET_MODE)
-            i_arm = max(i for i, k in enumerate(kinds) if k == M.MAV_CMD_COMPONENT_ARM_DISARM)
-            i_to = kinds.index(M.MAV_CMD_NAV_TAKEOFF, i_arm)
-            assert i_mode < i_arm < i_to and peer.commands[i_to][2][2] == 10.0
-            assert 9.4 < -tel.pos_ned[2] and tel.mode is FlightMode.OFFBOARD
-            c.run_steps(c.profile.handover_steps(), 60, hold_ned=np.array([5.0, 0.0, -10.0]))
-            c.wait_until(lambda: np.linalg.norm(tel.pos_ned - [5, 0, -10]) < 0.5, 60, "target",
-                         vehicle_s=30)  # fmt: skip
-            # the safety net's fallback: BRAKE (17), never LOITER (5) — it would sink
-            c.set_mode(ARDUCOPTER.fallback_mode)
-            c.wait_until(lambda: tel.mode_name == "BRAKE", 30, "BRAKE", vehicle_s=5)
-            assert peer.mode == BRAKE
-            c.set_mode(FlightMode.OFFBOARD)
-            c.run_steps(c.profile.land_steps() + c.profile.end_steps(), 120)
-            assert not tel.armed and not c.streaming and peer.setpoints_after_land == 0
-        assert tel.unrequested_mode_change == 0
-        assert [name for _, name, _ in tel.modes].count("GUIDED") >= 2
+            seen.setdefault("arm_attempts", peer.arm_attempts)
+            seen.setdefault("texts", [x for _, _, x in v.tel.statustexts])
+            seen[f"takeoff_{mission}"] = (-v.tel.pos_ned[2], v.tel.mode, list(peer.commands))
+            yield from recipe(v, prof.handover_steps(), hold=lambda: target)
+            yield from wait_until(v, lambda: np.linalg.norm(v.tel.pos_ned - target.pos_ned) < 0.5,
+                                  30.0, "the target")  # fmt: skip
+            # the safety net's fallback through the mapping the missions use: BRAKE, never
+            # LOITER (5) — it would sink without a pilot's throttle
+            auth.adopt(v, prof.ai_mode)
+            auth.want(v, prof.fallback_mode)
+            yield from watched(v, auth, lambda: v.tel.mode_name == "BRAKE", "BRAKE")
+            seen[f"fallback_{mission}"] = peer.mode
+            auth.want(v, prof.ai_mode)
+            yield from watched(v, auth, lambda: v.tel.mode is prof.ai_mode, "GUIDED")
+            seen[f"rule_{mission}"] = (auth.update(v), auth.yielded)
+            yield from recipe(v, prof.land_steps() + prof.end_steps())
+            seen[f"landed_{mission}"] = (v.tel.armed, v.setpoint, peer.setpoints_after_land)
+
+    with ScriptedArduCopter(14610) as peer:
+        v = fly("udpout:127.0.0.1:14610", Steps(), two_missions)
+    assert v.profile.name == "ArduCopter"
+    assert seen["ready_t"] >= 41.0  # readiness waited for the EKF by condition, past 30 s
+    assert v.tel.quat is not None  # ATTITUDE (no ATTITUDE_QUATERNION from ArduPilot)
+    assert 191 in peer.senders and 190 not in peer.senders
+    # the first arm was refused and retried; its reason (two chunks) was read
+    assert seen["arm_attempts"] == 2
+    assert any(
+        "Gyros inconsistent (the first" in x and x.endswith("settle)") for x in seen["texts"]
+    )
+    for mission in range(2):
+        alt, mode, cmds = seen[f"takeoff_{mission}"]
+        assert 9.4 < alt and mode is FlightMode.OFFBOARD
+        kinds = [cmd for _, cmd, _ in cmds]
+        # GUIDED before the arm, the take-off altitude relative to home (not 594 m AMSL)
+        i_mode = max(i for i, k in enumerate(kinds) if k == M.MAV_CMD_DO_SET_MODE)
+        i_arm = max(i for i, k in enumerate(kinds) if k == M.MAV_CMD_COMPONENT_ARM_DISARM)
+        i_to = kinds.index(M.MAV_CMD_NAV_TAKEOFF, i_arm)
+        assert i_mode < i_arm < i_to and cmds[i_to][2][2] == 10.0
+        assert seen[f"fallback_{mission}"] == BRAKE
+        assert seen[f"rule_{mission}"] == ("fly", None)  # every mode change was asked for
+        assert seen[f"landed_{mission}"] == (False, None, 0)  # no setpoint after the landing
+    assert [name for _, name in v.tel.modes].count("GUIDED") >= 2
 
 
 @pytest.mark.timeout(240)
-def test_scripted_arducopter_failsafe_is_yielded_to_and_fence_stall_is_noticed():
-    with ScriptedArduCopter(14611, ekf_after_s=2.0) as peer, _client(14611) as c:
-        c.wait_ready(timeout=100)
-        tel = c.telemetry
-        c.run_steps(c.profile.takeoff_steps(10.0, c.home_amsl()), 200, authority=False)
-        c.run_steps(c.profile.handover_steps(), 60)
-        # a target outside ArduPilot's fence: the copter stops at the edge; the client notices
-        c.start_setpoints(np.array([80.0, 0.0, -10.0]))
-        with pytest.raises(ClientTimeout, match="not approached.*Fence"):
-            c.wait_until(lambda: np.linalg.norm(tel.pos_ned[:2] - [80, 0]) < 1, 120, "corner",
-                         vehicle_s=100)  # fmt: skip
-        assert 45 < tel.pos_ned[0] < 50
-        c.interrupt = ""
-        c.start_setpoints(np.array([10.0, 0.0, -10.0]))
-        # a battery failsafe: ArduCopter goes RTL by itself; the client yields and stops streaming
-        peer.mode = RTL
-        with pytest.raises(Yielded, match="RTL"):
-            c.wait_until(lambda: False, 60, "the mission", vehicle_s=20)
-        assert tel.unrequested_mode_change == 1
-        with pytest.raises(Yielded):
-            c.set_mode(FlightMode.LAND)  # it never takes the vehicle back from the failsafe
-        n = c.setpoints_sent
-        c.wait_vehicle_s(1.0)
-        assert c.setpoints_sent == n and peer.mode == RTL
+def test_scripted_arducopter_failsafe_is_yielded_to_by_the_companions_mission():
+    """SingleVehicleMission (what `skyherd companion --mission square` flies): ArduCopter goes
+    RTL by itself mid-flight (a battery failsafe); the mission yields — no setpoint, no mode
+    request from then on — waits for the autopilot's landing, and ends "yielded"."""
+
+    class FailsafeAfter(WaypointPilot):
+        t_ai: float | None = None  # the pilot's first decision: the AI phase began
+
+        def propose(self, o):
+            self.t_ai = o.t if self.t_ai is None else self.t_ai
+            if o.t - self.t_ai >= 10.0 and peer.mode != RTL:
+                peer.mode, peer.t_rtl = RTL, peer.t  # the autopilot's own decision
+            return super().propose(o)
+
+    pilot = FailsafeAfter([np.array([10.0, 0.0, -10.0])], settle_s=1e9)
+    plan = FlightPlan(altitude_m=10.0, duration_s=60.0, decision_s=0.5, yield_wait_s=10.0)
+    mission = SingleVehicleMission(pilot, None, plan, Record())
+
+    with ScriptedArduCopter(14611, ekf_after_s=2.0) as peer:
+        peer.t_rtl = None
+        fly("udpout:127.0.0.1:14611", mission)
+        n_modes = sum(
+            1 for t, c, _ in peer.commands if c == M.MAV_CMD_DO_SET_MODE and t > peer.t_rtl
+        )
+        # the companion learns of RTL from the next heartbeat (1 Hz) and stops at that tick
+        late = [t for t in peer.setpoint_times if t > peer.t_rtl + 1.3]
+    assert mission.outcome == "yielded" and "RTL" in mission.reason, mission.reason
+    assert "still armed in RTL" in mission.reason  # the scripted copter never lands in RTL
+    assert n_modes == 0 and not late and peer.mode == RTL  # never taken back
 
 
 @pytest.mark.timeout(120)
 def test_refused_command_carries_the_autopilots_reason_sent_after_the_ack():
-    with ScriptedArduCopter(14612, ekf_after_s=1.0) as peer, _client(14612) as c:
-        c.wait_ready(timeout=100)
-        with pytest.raises(CommandError) as e:
-            c.arm()
-        assert "FAILED" in str(e.value) and "PreArm: Gyros inconsistent (the first attempt" in str(
-            e.value
-        )
-        assert e.value.reason.endswith("settle)")  # both chunks joined
-        with pytest.raises(CommandError, match="FAILED"):  # NAV_TAKEOFF before GUIDED + arm
-            c.takeoff(10.0)
-        assert peer.commands[-1][2][2] == 10.0
+    refusals = []
+
+    def try_commands(v):
+        yield from wait_ready(v)
+        for cmd, params in ((M.MAV_CMD_COMPONENT_ARM_DISARM, (1, 0)),
+                            (M.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, 0, 0, 10.0))):  # fmt: skip
+            try:
+                yield from command(v, cmd, *params)
+            except CommandRefused as e:
+                refusals.append(str(e))
+
+    with ScriptedArduCopter(14612, ekf_after_s=1.0) as peer:
+        fly("udpout:127.0.0.1:14612", Steps(), try_commands)
+    arm, takeoff = refusals  # NAV_TAKEOFF before GUIDED + arm: refused too
+    assert "COMPONENT_ARM_DISARM failed: MAV_RESULT_FAILED" in arm
+    assert "PreArm: Gyros inconsistent (the first attempt" in arm and arm.endswith("settle)")
+    assert "NAV_TAKEOFF failed: MAV_RESULT_FAILED" in takeoff and peer.commands[-1][2][2] == 10.0
 
 
 @pytest.mark.timeout(120)
 def test_scripted_arduplane_modes_decode_with_the_plane_table():
-    with ScriptedArduCopter(14613, ekf_after_s=1.0, mav_type=M.MAV_TYPE_FIXED_WING) as peer, \
-            _client(14613) as c:  # fmt: skip
-        c.wait_ready(timeout=100)
-        tel = c.telemetry
-        assert c.profile.name == "ArduPlane"
-        for number, mode, name in (
-            (15, FlightMode.OFFBOARD, "GUIDED"),
-            (12, FlightMode.HOLD, "LOITER"),
-            (11, FlightMode.RTL, "RTL"),
-            (5, FlightMode.STABILIZED, "FBWA"),
-        ):
+    decoded, errors = [], []
+
+    def modes(v):
+        yield from wait_ready(v)
+        for number, name in ((15, "GUIDED"), (12, "LOITER"), (11, "RTL"), (5, "FBWA")):
             peer.mode = number
-            c.wait_until(lambda n=name: tel.mode_name == n, 30, name, vehicle_s=5)
-            assert tel.mode is mode
-        c.set_mode(FlightMode.HOLD)
-        assert peer.mode == 12  # LOITER, not the copter's 5
-        with pytest.raises(ValueError, match="no mode for LAND"):
-            c.set_mode(FlightMode.LAND)
-        steps = ARDUPLANE.takeoff_steps(40.0, 584.0)
-        assert M.MAV_CMD_NAV_TAKEOFF not in [s.command for s in steps]
-        assert [s.mode for s in steps if s.kind == "set_mode"] == [FlightMode.TAKEOFF]
-        assert math.isclose(ARDUPLANE.set_mode_params(FlightMode.TAKEOFF)[1], 13)
+            yield from wait_until(v, lambda n=name: v.tel.mode_name == n, 5.0, name)
+            decoded.append(v.tel.mode)
+        yield from set_mode(v, FlightMode.HOLD)
+        decoded.append(peer.mode)
+        try:
+            yield from set_mode(v, FlightMode.LAND)
+        except ValueError as e:
+            errors.append(str(e))
+
+    with ScriptedArduCopter(14613, ekf_after_s=1.0, mav_type=M.MAV_TYPE_FIXED_WING) as peer:
+        v = fly("udpout:127.0.0.1:14613", Steps(), modes)
+    assert v.profile.name == "ArduPlane"
+    assert decoded == [FlightMode.OFFBOARD, FlightMode.HOLD, FlightMode.RTL,
+                       FlightMode.STABILIZED, 12]  # HOLD set as LOITER (12), not the copter's 5  # fmt: skip
+    assert len(errors) == 1 and "no mode for LAND" in errors[0]
+    steps = ARDUPLANE.takeoff_steps(40.0, 584.0)
+    assert M.MAV_CMD_NAV_TAKEOFF not in [s.command for s in steps]
+    assert [s.mode for s in steps if s.kind == "set_mode"] == [FlightMode.TAKEOFF]
+    assert math.isclose(ARDUPLANE.set_mode_params(FlightMode.TAKEOFF)[1], 13)
 
 
 @pytest.mark.timeout(120)
 def test_older_firmware_without_set_message_interval_gets_request_data_stream():
-    with ScriptedArduCopter(14614, ekf_after_s=1.0, legacy=True) as peer, _client(14614) as c:
-        c.wait_ready(timeout=100)  # home comes on request (REQUEST_MESSAGE), the rest streamed
-        assert peer.rates[M.MAVLINK_MSG_ID_LOCAL_POSITION_NED] >= 10
-        assert c.telemetry.pos_ned is not None and c.telemetry.quat is not None
+    with ScriptedArduCopter(14614, ekf_after_s=1.0, legacy=True) as peer:
+        v = fly(
+            "udpout:127.0.0.1:14614", Steps(), wait_ready
+        )  # home on request (REQUEST_MESSAGE), the rest streamed
+    assert peer.rates[M.MAVLINK_MSG_ID_LOCAL_POSITION_NED] >= 10
+    assert v.tel.pos_ned is not None and v.tel.quat is not None
 
 
 PX4_AUTO, PX4_OFFBOARD = 4, 6
@@ -504,29 +551,40 @@ class ScriptedPx4(ScriptedArduCopter):
 
 @pytest.mark.timeout(240)
 def test_scripted_px4_second_mission_arms_because_the_stream_stops_before_the_landing_ends():
-    with ScriptedPx4(14610) as peer, _client(14610) as c:
-        c.wait_ready(timeout=100)
-        tel = c.telemetry
-        assert c.profile.name == "PX4"
-        for _ in range(2):
-            c.run_steps(c.profile.takeoff_steps(10.0, c.home_amsl()), 200, authority=False)
-            assert 9.4 < -tel.pos_ned[2]  # param 7 was read as AMSL: 594 m
-            c.run_steps(c.profile.handover_steps(), 60)
-            assert tel.mode_name == "OFFBOARD"
-            c.link.send(c.reposition_message(np.array([5.0, 0.0, -10.0])))
-            c.run_steps(c.profile.land_steps() + c.profile.end_steps(), 120)
-            assert not tel.armed and tel.mode_name == "AUTO.LOITER"
-        assert peer.disarmed_in_offboard == 0 and tel.unrequested_mode_change == 0
-        assert peer.reposition_results and set(peer.reposition_results) == {M.MAV_RESULT_ACCEPTED}
+    seen, refusals = {}, []
+
+    def missions(v):
+        yield from wait_ready(v)
+        prof = v.profile
+        for mission in range(2):
+            yield from recipe(v, prof.takeoff_steps(10.0, v.home_amsl_m))
+            seen[f"alt_{mission}"] = -v.tel.pos_ned[2]  # param 7 was read as AMSL: 594 m
+            yield from recipe(v, prof.handover_steps())
+            seen[f"ai_{mission}"] = v.tel.mode_name
+            v.send(reposition_command(v.tel, prof, v.target_system, np.array([5.0, 0.0, -10.0])))
+            yield from recipe(v, prof.land_steps() + prof.end_steps())
+            seen[f"end_{mission}"] = (v.tel.armed, v.tel.mode_name)
         # the failure the issue measured, on purpose: setpoints reaching it landed and disarmed
-        c.set_mode(FlightMode.LAND)  # as it is when a landing has just ended
+        yield from set_mode(v, FlightMode.LAND)  # as it is when a landing has just ended
         for _ in range(3):
-            c.link.send(c.position_target(tel.pos_ned, None, None))
-        c.wait_until(lambda: tel.mode_name == "OFFBOARD", 60, "OFFBOARD", vehicle_s=5,
-                     interruptible=False)  # fmt: skip
-        assert tel.unrequested_mode_change == 1  # and the client saw it was not its request
-        with pytest.raises(CommandError, match="TEMPORARILY_REJECTED.*Resolve system health"):
-            c.arm()
+            v.position_target(v.tel.pos_ned)
+            yield
+        yield from wait_until(v, lambda: v.tel.mode_name == "OFFBOARD", 5.0, "OFFBOARD")
+        try:
+            yield from command(v, M.MAV_CMD_COMPONENT_ARM_DISARM, 1, 0)
+        except CommandRefused as e:
+            refusals.append(str(e))
+
+    with ScriptedPx4(14610) as peer:
+        v = fly("udpout:127.0.0.1:14610", Steps(), missions)
+    assert v.profile.name == "PX4"
+    for mission in range(2):
+        assert 9.4 < seen[f"alt_{mission}"] and seen[f"ai_{mission}"] == "OFFBOARD"
+        assert seen[f"end_{mission}"] == (False, "AUTO.LOITER")
+    assert peer.disarmed_in_offboard == 1  # only the deliberate one, after the two missions
+    assert peer.reposition_results and set(peer.reposition_results) == {M.MAV_RESULT_ACCEPTED}
+    (refused,) = refusals
+    assert "TEMPORARILY_REJECTED" in refused and "Resolve system health" in refused
 
 
 class ScriptedArduPlane(ScriptedArduCopter):
@@ -593,44 +651,33 @@ class ScriptedArduPlane(ScriptedArduCopter):
 
 @pytest.mark.timeout(240)
 def test_scripted_arduplane_takes_off_in_takeoff_mode_and_flies_reposition_targets():
-    with ScriptedArduPlane(14611) as peer, _client(14611) as c:
-        c.wait_ready(timeout=100)
-        tel = c.telemetry
-        c.run_steps(c.profile.takeoff_steps(40.0, c.home_amsl()), 200, authority=False)
-        assert peer.params["TKOFF_ALT"] == 40.0 and peer.arm_attempts == 2  # retried
-        assert -tel.pos_ned[2] >= 34.0 and tel.mode_name == "TAKEOFF"
-        assert M.MAV_CMD_NAV_TAKEOFF not in [cmd for _, cmd, _ in peer.commands]
-        c.run_steps(c.profile.handover_steps(), 60, hold_ned=np.array([200.0, 0.0, -40.0]))
-        assert tel.mode_name == "GUIDED"
-        c.wait_until(lambda: np.linalg.norm(tel.pos_ned[:2] - [200, 0]) < 5, 120, "the target",
-                     vehicle_s=80)  # fmt: skip
-        frames = {f for f, _ in peer.repositions}
-        assert frames == {M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT} and peer.local_setpoints == 0
-        t = [t for _, t in peer.repositions]
-        assert len(t) - 1 <= (t[-1] - t[0]) / 0.95  # ~1 Hz: each one is a new guided waypoint
-        c.set_mode(c.profile.fallback_mode)
-        c.wait_until(lambda: tel.mode_name == "LOITER", 30, "LOITER", vehicle_s=5)
-        c.run_steps(c.profile.land_steps(), 60)
-        assert tel.mode_name == "RTL" and not c.streaming
+    seen = {}
 
+    def flight(v):
+        yield from wait_ready(v)
+        prof = v.profile
+        yield from recipe(v, prof.takeoff_steps(40.0, v.home_amsl_m))
+        seen["takeoff"] = (-v.tel.pos_ned[2], v.tel.mode_name, peer.arm_attempts)
+        target = Setpoint(pos_ned=np.array([200.0, 0.0, -40.0]))
+        yield from recipe(v, prof.handover_steps(), hold=lambda: target)
+        seen["ai"] = v.tel.mode_name
+        yield from wait_until(v, lambda: np.linalg.norm(v.tel.pos_ned[:2] - [200, 0]) < 5, 80.0,
+                              "the target")  # fmt: skip
+        yield from set_mode(v, prof.fallback_mode)
+        seen["fallback"] = v.tel.mode_name
+        yield from recipe(v, prof.land_steps())
+        seen["end"] = (v.tel.mode_name, v.setpoint)
+        yield from wait_s(v, 2.0)
 
-@pytest.mark.timeout(240)
-def test_a_mission_that_ends_in_the_air_is_landed_the_autopilots_way(tmp_path):
-    """FlightSession.close() after an abort in flight: ArduCopter's landing (LAND, not NAV_LAND),
-    left disarmed; autopilot.json records the modes."""
-    import json
-
-    from hil.session import TRACK_COLUMNS, FlightSession
-    from runio import RunFolder
-
-    with ScriptedArduCopter(14612, ekf_after_s=1.0) as peer, _client(14612) as c:
-        run = RunFolder("fly", root=tmp_path)
-        fs = FlightSession(c, run.metrics(TRACK_COLUMNS), ["x"] * 5, timeout=200)
-        fs.connect_arm_takeoff(8.0)
-        fs.offboard(8.0)
-        fs.close()  # as after an exception in the mission
-        assert not c.telemetry.armed and peer.mode == LAND
-        assert M.MAV_CMD_NAV_LAND not in [cmd for _, cmd, _ in peer.commands]
-        log = json.loads((run.path / "autopilot.json").read_text())
-        assert [m["mode"] for m in log["modes"]][-2:] == ["GUIDED", "LAND"]
-        assert log["autopilot"]["name"] == "ArduCopter" and log["unrequested_mode_changes"] == 0
+    with ScriptedArduPlane(14611) as peer:
+        fly("udpout:127.0.0.1:14611", Steps(), flight)
+    alt, mode, attempts = seen["takeoff"]
+    assert peer.params["TKOFF_ALT"] == 40.0 and attempts == 2  # retried
+    assert alt >= 34.0 and mode == "TAKEOFF"
+    assert M.MAV_CMD_NAV_TAKEOFF not in [cmd for _, cmd, _ in peer.commands]
+    assert seen["ai"] == "GUIDED" and seen["fallback"] == "LOITER"
+    frames = {f for f, _ in peer.repositions}
+    assert frames == {M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT} and peer.local_setpoints == 0
+    t = [t for _, t in peer.repositions]
+    assert len(t) - 1 <= (t[-1] - t[0]) / 0.95  # ~1 Hz: each one is a new guided waypoint
+    assert seen["end"] == ("RTL", None)

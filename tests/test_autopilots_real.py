@@ -1,4 +1,8 @@
-"""Opt-in: the companion link against REAL autopilot SITL binaries (`make test-autopilots`).
+"""Opt-in: the production companion against REAL autopilot SITL binaries (`make test-autopilots`):
+`skyherd fly --connect` (the ground-air mission, or the fixed-wing orbit, with the world built
+around the autopilot), and the companion's own phases (mission.steps recipes, mission.authority's
+mode mapping, mission.companion.run free-running; tests/companion_flights.py) twice in a row on
+one running autopilot, the net's fallback and back in each.
 
 Skipped unless the binaries are named by environment variables:
   SKYHERD_ARDUCOPTER_BIN  ArduCopter SITL (build/sitl/bin/arducopter)
@@ -9,7 +13,7 @@ Skipped unless the binaries are named by environment variables:
 They must run in a private network namespace with only loopback up (their sockets are then
 unreachable from anywhere else): run the suite inside `unshare -n sh -c 'ip link set lo up;
 ...'`; outside one these tests skip. ArduPilot instance 7 (TCP 5830), PX4 instance 74.
-Each flies two missions in a row on the same running autopilot and leaves it disarmed.
+The copters fly two missions in a row on the same running autopilot and leave it disarmed.
 """
 
 from __future__ import annotations
@@ -20,14 +24,15 @@ import subprocess
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from flight.autopilot_api import FlightMode
-from hil.client import VehicleClient
+from hil.autopilots import Step
 from hil.link import LinkError, MavlinkLink
-from hil.session import TRACK_COLUMNS, FlightSession
-from runio import RunFolder
+from mission.steps import recipe, wait_ready, wait_until
+from mission.vehicle import COMPANION_COMPONENT
+from scripts.cli import main
+from tests.companion_flights import Steps, fly, missions
 
 pytestmark = pytest.mark.autopilot
 
@@ -86,67 +91,79 @@ def _stop(proc: subprocess.Popen, log) -> None:
 @contextlib.contextmanager
 def ardupilot(binary: Path, model: str, parm: str, cwd: Path):
     with ardupilot_listening(binary, model, parm, cwd) as proc:
-        yield _connect(f"tcp:127.0.0.1:{5760 + 10 * ARDUPILOT_INSTANCE}", proc, cwd)
+        link = _connect(f"tcp:127.0.0.1:{5760 + 10 * ARDUPILOT_INSTANCE}", proc, cwd)
+        try:
+            yield link
+        finally:
+            link.close()
 
 
 def _connect(address: str, proc: subprocess.Popen, cwd: Path) -> MavlinkLink:
     deadline = time.monotonic() + 60
     while True:
         try:
-            return MavlinkLink.open(address, tlog=cwd / "telemetry.tlog")
+            return MavlinkLink.open(address, source_component=COMPANION_COMPONENT,
+                                    tlog=cwd / "telemetry.tlog")  # fmt: skip
         except LinkError:
             if proc.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"no {address}; see {cwd}/autopilot.log") from None
             time.sleep(0.5)
 
 
-def _mission(c: VehicleClient, root: Path, altitude: float, target_ned, land: bool = True):
-    """One mission through the session: take-off, hand-over, a target, the fallback and back,
-    landing (or the profile's return for a plane)."""
-    run = RunFolder("fly", root=root)
-    fs = FlightSession(c, run.metrics(TRACK_COLUMNS), ["x"] * 6, timeout=600)
-    tel = c.telemetry
-    try:
-        fs.connect_arm_takeoff(altitude)
-        fs.offboard(altitude)
-        fs.hold_target = np.asarray(target_ned, dtype=float)
-        radius = (
-            3.0 if c.profile.vehicle == "multirotor" else 110.0
-        )  # circles at WP_LOITER_RAD 80 m
-        c.wait_until(lambda: np.linalg.norm(tel.pos_ned[:2] - fs.hold_target[:2]) < radius,
-                     300, "the target", vehicle_s=120)  # fmt: skip
-        fs.set_mode(c.profile.fallback_mode)
-        fs.set_mode(c.profile.ai_mode)
-        if land:
-            fs.land()
-    finally:
-        fs.close()
-
-
 def test_real_arducopter_flies_twice_and_is_left_disarmed(tmp_path):
     binary = _binary("SKYHERD_ARDUCOPTER_BIN")
-    with ardupilot(binary, "+", "copter.parm", tmp_path) as link, VehicleClient(link) as c:
-        for _ in range(2):
-            _mission(c, tmp_path, 10.0, [15.0, 10.0, -10.0])
-            assert not c.telemetry.armed
-        names = [n for _, n, _ in c.telemetry.modes]
-        assert {"GUIDED", "BRAKE", "LAND"} <= set(names) and "LOITER" not in names
-        assert not c.telemetry.yielded
+    out: dict = {}
+    with ardupilot(binary, "+", "copter.parm", tmp_path) as link:
+        v = fly(link, Steps(), missions(10.0, [15.0, 10.0, -10.0], 3.0, 2, out), patience_s=60.0)
+    assert out == {"yielded_0": None, "armed_0": False, "yielded_1": None, "armed_1": False}
+    names = [n for _, n in v.tel.modes]
+    assert {"GUIDED", "BRAKE", "LAND"} <= set(names) and "LOITER" not in names
 
 
 def test_real_arduplane_takes_off_in_takeoff_mode_and_loiters(tmp_path):
     binary = _binary("SKYHERD_ARDUPLANE_BIN")
-    with ardupilot(binary, "plane", "plane.parm", tmp_path) as link, VehicleClient(link) as c:
-        _mission(c, tmp_path, 40.0, [300.0, 0.0, -50.0], land=False)
-        tel = c.telemetry
-        names = [n for _, n, _ in tel.modes]
-        assert {"TAKEOFF", "GUIDED", "LOITER", "RTL"} <= set(names)
-        assert c.profile.name == "ArduPlane" and tel.mode is FlightMode.RTL
+    out: dict = {}
+    with ardupilot(binary, "plane", "plane.parm", tmp_path) as link:
+        v = fly(link, Steps(), missions(40.0, [300.0, 0.0, -50.0], 110.0, 1, out), patience_s=60.0)
+    names = [n for _, n in v.tel.modes]
+    assert {"TAKEOFF", "GUIDED", "LOITER", "RTL"} <= set(names)
+    assert v.profile.name == "ArduPlane" and v.tel.mode is FlightMode.RTL
+    assert out["yielded_0"] is None
+
+
+def _fly_connect(address: str, tmp_path: Path, instance: int, zenoh_port: int) -> tuple[int, Path]:
+    runs = tmp_path / f"runs-{instance}"
+    rc = main(["fly", "--connect", address, "--duration", "30", "--instance", str(instance),
+               "--zenoh-port", str(zenoh_port), "--timeout", "900", "--runs-dir", str(runs)])  # fmt: skip
+    (run,) = runs.iterdir()
+    return rc, run
+
+
+def _assert_fly_completed(rc: int, run: Path, autopilot: str) -> None:
+    import json
+
+    assert rc == 0, (run / "summary.md").read_text()
+    comp = json.loads((run / "companion.json").read_text())
+    world = json.loads((run / "sim_stats.json").read_text())
+    assert comp["outcome"] == "completed" and comp["yielded"] is None and comp["decisions"] >= 50
+    assert world["followed"] and world["autopilot"] == autopilot and comp["frames"]["ok"] > 200
+
+
+def test_real_arducopter_flown_by_skyherd_fly_connect(tmp_path):
+    """`skyherd fly --connect`: the ground-air mission behind the net, the world (UGV team,
+    camera) following the autopilot on its SERIAL1, landed and disarmed. With GUID_TIMEOUT
+    0.5 s: the stock 3 s is refused before take-off by the parameter guard (docs/autopilots.md)."""
+    binary = _binary("SKYHERD_ARDUCOPTER_BIN")
+    port = 5760 + 10 * ARDUPILOT_INSTANCE
+    with ardupilot_listening(binary, "+", "copter.parm", tmp_path, "GUID_TIMEOUT 0.5\n"):
+        rc, run = _fly_connect(f"tcp:127.0.0.1:{port}", tmp_path, 76, 7472)
+    _assert_fly_completed(rc, run, "ArduCopter")
 
 
 @contextlib.contextmanager
-def px4(binary: Path, cwd: Path):
-    """PX4 SITL with SIH (its own physics), instance PX4_INSTANCE, working files in `cwd`."""
+def px4(binary: Path, cwd: Path, open_link: bool = True):
+    """PX4 SITL with SIH (its own physics), instance PX4_INSTANCE, working files in `cwd`; the
+    companion's link to it (None with `open_link` False: `fly` opens its own)."""
     etc = binary.resolve().parents[1] / "etc"
     env = dict(os.environ, PX4_SYS_AUTOSTART="10040", PX4_SIM_MODEL="sihsim_quadx")
     log = open(cwd / "autopilot.log", "wb")
@@ -154,33 +171,59 @@ def px4(binary: Path, cwd: Path):
                             cwd=cwd, env=env, stdout=log, stderr=subprocess.STDOUT)  # fmt: skip
     # its onboard link sends to 14540+N, to 14549 for N > 9 (px4-rc.mavlink)
     port = 14540 + PX4_INSTANCE if PX4_INSTANCE <= 9 else 14549
+    link = None
     try:
-        yield MavlinkLink.open(f"udpin:127.0.0.1:{port}", tlog=cwd / "telemetry.tlog")
+        if open_link:
+            link = MavlinkLink.open(f"udpin:127.0.0.1:{port}", source_component=COMPANION_COMPONENT,
+                                    tlog=cwd / "telemetry.tlog")  # fmt: skip
+        yield link
     finally:
+        if link is not None:
+            link.close()
         _stop(proc, log)
 
 
 def test_real_px4_sih_flies_twice_and_is_left_disarmed(tmp_path):
     binary = _binary("SKYHERD_PX4_BIN")
-    with px4(binary, tmp_path) as link, VehicleClient(link) as c:
-        for _ in range(2):
-            _mission(c, tmp_path, 10.0, [15.0, 10.0, -10.0])
-            assert not c.telemetry.armed and c.telemetry.mode is FlightMode.HOLD
-        # PX4 1.17 puts itself back in OFFBOARD when it disarms after the landing (measured,
-        # with no setpoint streaming): on the ground, not a take-over; the end sets Hold
-        assert not c.telemetry.yielded
-        names = [n for _, n, _ in c.telemetry.modes]
-        assert names.count("AUTO.TAKEOFF") == 2 and names.count("AUTO.LAND") == 2
+    out: dict = {}
+    with px4(binary, tmp_path) as link:
+        v = fly(link, Steps(), missions(10.0, [15.0, 10.0, -10.0], 3.0, 2, out), patience_s=60.0)
+    assert out == {"yielded_0": None, "armed_0": False, "yielded_1": None, "armed_1": False}
+    assert v.tel.mode is FlightMode.HOLD  # PX4's end: Hold, ready to arm again
+    names = [n for _, n in v.tel.modes]
+    assert names.count("AUTO.TAKEOFF") == 2 and names.count("AUTO.LAND") == 2
+
+
+def test_real_px4_sih_flown_by_skyherd_fly_connect(tmp_path):
+    """`skyherd fly --connect` on PX4's onboard link (14540+N, 14549 for N > 9), the world
+    following it on its ground-station link (14550). COM_OF_LOSS_T set to 0.5 s first, over
+    the same link (the stock 1 s is refused before take-off by the parameter guard)."""
+    binary = _binary("SKYHERD_PX4_BIN")
+
+    def offboard_loss_half_a_second(v):
+        yield from wait_ready(v)
+        yield from recipe(v, (Step("set_param", params=(0.5,), what="COM_OF_LOSS_T"),))
+        yield from wait_until(v, lambda: v.params.get("COM_OF_LOSS_T") == 0.5, 10.0, "its echo")
+
+    port = 14540 + PX4_INSTANCE if PX4_INSTANCE <= 9 else 14549
+    with px4(binary, tmp_path, open_link=False):
+        fly(f"udpin:127.0.0.1:{port}", Steps(), offboard_loss_half_a_second, patience_s=60.0)
+        rc, run = _fly_connect(f"udpin:127.0.0.1:{port}", tmp_path, 77, 7473)
+    _assert_fly_completed(rc, run, "PX4")
 
 
 @contextlib.contextmanager
-def ardupilot_listening(binary: Path, model: str, parm: str, cwd: Path):
-    """The autopilot started, waiting on SERIAL0 for a client that is not ours (`fly`'s)."""
+def ardupilot_listening(binary: Path, model: str, parm: str, cwd: Path, extra: str = ""):
+    """The autopilot started, waiting on SERIAL0 for a client that is not ours (`fly`'s);
+    `extra`: parameter lines added after the defaults file (as an operator's own file)."""
     args = [str(binary), "--model", model, "--speedup", "1", "-I", str(ARDUPILOT_INSTANCE),
             "--home", HOME, "-w"]  # fmt: skip
-    d = _defaults(binary, parm)
-    if d is not None:
-        args += ["--defaults", str(d)]
+    files = [str(d)] if (d := _defaults(binary, parm)) is not None else []
+    if extra:
+        (cwd / "operator.parm").write_text(extra)
+        files.append(str(cwd / "operator.parm"))
+    if files:
+        args += ["--defaults", ",".join(files)]
     log_path = cwd / "autopilot.log"
     log = open(log_path, "wb")
     proc = subprocess.Popen(args, cwd=cwd, stdout=log, stderr=subprocess.STDOUT)

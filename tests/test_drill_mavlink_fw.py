@@ -1,12 +1,13 @@
-"""Fixed-wing campaign drills through MAVLink (hil.drill_link): `skyherd sitl --airframe
-fixedwing`'s vehicle behind its endpoint on loopback UDP, hil.client and the whole safety net on
-the companion side. Paced at 1x wall time (a loaded machine may widen setpoint gaps: the
+"""Fixed-wing campaign drills through MAVLink (mission.drill_link): `skyherd sitl --airframe
+fixedwing`'s vehicle behind its endpoint on loopback UDP; on the companion side the companion's
+own code (VehicleLink, mission.steps, mission.companion.run free-running) and the whole safety
+net. Paced at 1x wall time (a loaded machine may widen setpoint gaps: the
 autopilot's own HOLD then takes over, which the net must not undo; the checks hold either way).
 Instances 65-67 (this helper's range)."""
 
 import pytest
 
-from hil.drill_link import MAVLINK_KINDS, run_mavlink_drill
+from mission.drill_link import MAVLINK_KINDS, run_mavlink_drill
 
 
 @pytest.mark.parametrize(

@@ -75,6 +75,11 @@ class FakePlane:
     def command_long(self, command, params, confirmation):
         self.sent.append((command, params))
 
+    feed = VehicleLink.feed  # what arrived → the net, as the companion's VehicleLink does
+
+    def wind_speed(self):
+        return None  # the fixed-wing autopilot estimates no wind
+
     def point_gimbal(self, roi_ned):
         return VehicleLink.point_gimbal(self, roi_ned)  # VehicleLink's, through send()
 

@@ -1,7 +1,7 @@
 """End to end over real MAVLink and Zenoh, in lockstep (speed-up 0: nothing here depends on the
 machine's load): `skyherd sim --airframe fixedwing` (JSBSim J3Cub, FixedWingAutopilot, the UGV
 team, the zoomed camera on a pan-tilt gimbal) and `skyherd companion --mission orbit`: runway
-take-off, climb-out in the autopilot's loiter, hand-over, an orbit over the moving team's centre
+take-off, climb-out in the autopilot's loiter until the net certifies the orbit, hand-over, an orbit over the moving team's centre
 as the camera sees it (detections back-projected from the received frames; the gimbal pointed
 with DO_SET_ROI_LOCATION), behind the safety net, and the landing."""
 
@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from mission.orbit import OrbitFlight
 from scripts.cli import main
 
 INSTANCE = 73  # ports 14613/14653/18643: clear of the other tests' instances
@@ -100,8 +101,18 @@ def test_orbit_flight_end_to_end(tmp_path):
     orbit_sp = sp[np.isclose(sp[:, 2], -h)]
     assert len(orbit_sp) > 500
     assert np.hypot(*(orbit_sp[-1, :2] - orbit_sp[0, :2])) >= 40.0
-    # and it landed: last position on the ground, and the vehicle's last heartbeat disarmed
+    # the climb-out: the runway take-off ends far north, beyond the certified region (the fence
+    # less the loiter reserve); the autopilot's own loiter brings it back and the AI gets it
+    # only once the orbit certifies (then no switch all flight, above)
     rows = list(csv.DictReader(open(run / "metrics.csv")))
+    first = {}
+    for row in rows:
+        first.setdefault(row["phase"], row)
+    climb, handover = first["climb-out"], first["offboard"]
+    assert float(climb["north"]) > 500.0 and climb["mode"] == "HOLD"
+    assert float(handover["t"]) - float(climb["t"]) >= OrbitFlight.climb_hold_s
+    assert float(handover["north"]) < float(climb["north"]) - 100.0
+    # and it landed: last position on the ground, and the vehicle's last heartbeat disarmed
     assert -float(rows[-1]["down"]) < 2.0
     assert not last_hb.base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 

@@ -1,5 +1,6 @@
 """Campaign drills through MAVLink (issue 11.5): the built-in vehicle's endpoint on loopback
-UDP (instance 86), hil.client on the companion side, the whole safety net in between. Paced
+UDP (instance 86), the companion's own code on the other side (mission.drill_link: VehicleLink,
+mission.steps, mission.companion.run free-running), the whole safety net in between. Paced
 at 1x wall time: a setpoint gap under a loaded machine ends in the autopilot's own HOLD, which
 the net must then not undo (the checks hold either way)."""
 

@@ -28,7 +28,7 @@ from flight.autopilot_api import FlightMode
 from groundsim.ugv import UGVModel
 from hil.autopilots import UnknownAutopilot
 from hil.camera_mount import mounted_pose
-from hil.client import Telemetry, update_telemetry
+from hil.telemetry import Telemetry, update_telemetry
 from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
 from runio import CsvWriter, atomic_write_text
