@@ -20,7 +20,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from runio import RunFolder, args_dict
+from runio import args_dict
 from scripts.cli import UsageError
 
 
@@ -244,14 +244,15 @@ _ENVELOPE = {"quadrotor": "quadrotor_groundair.toml", "fixedwing": "fixedwing_fi
 
 
 def run_two_processes(args: argparse.Namespace) -> int:
-    from scripts import launch
+    from scripts import launch, waysout
 
     sim_args, comp_args = _validate(args)
     envelope = _envelope(args) if args.mission == "groundair" else None
-    folder = RunFolder("fly", root=args.runs_dir)
+    folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
                          "companion": comp_args, "envelope": envelope})  # fmt: skip
+    waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     recorder = None
     why = "interrupted (Ctrl-C)"
@@ -268,15 +269,22 @@ def run_two_processes(args: argparse.Namespace) -> int:
             recorder = _recorder(args, run_dir) if kids.sims else None
             companion.go()
             rc, why = kids.supervise(args.timeout)
-    except KeyboardInterrupt:
-        rc = 130
+    except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
+        rc, why = waysout.interrupted(e)
     finally:
         if recorder is not None:
             recorder.close()
     from scripts.fly_report import report  # after the flight: not on the way to the launch
 
-    ok = report(run_dir, args, rc, why)
-    return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
+    try:
+        ok = report(run_dir, args, rc, why)
+    except OSError as e:  # a read-only or full folder: the ending is still said (below)
+        print(
+            f"skyherd fly: the report was not written ({e.strerror or e}); {why}", file=sys.stderr
+        )
+        ok = False
+    waysout.append_ending(run_dir, waysout.ending_lines(run_dir))
+    return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 
 def _envelope(args) -> dict:

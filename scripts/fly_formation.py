@@ -18,6 +18,7 @@ import csv
 import json
 import math
 import os
+import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -36,7 +37,7 @@ from mission.formation_plan import (
     vehicle_homes,
     vehicle_instances,
 )
-from runio.runfolder import RunFolder, args_dict, atomic_write_text, markdown_table
+from runio.runfolder import args_dict, atomic_write_text, markdown_table
 from scripts.cli import UsageError
 from scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
 from scripts.launch import flight_reason
@@ -112,7 +113,9 @@ def run_formation(args: argparse.Namespace) -> int:
     instances = vehicle_instances(args.instance, K)
     _ports_free(instances)
     homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
-    folder = RunFolder("fly", root=args.runs_dir)
+    from scripts import waysout
+
+    folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
     folder.write_config(
         {"args": args_dict(args), "mission": "formation", "formation": params,
@@ -121,6 +124,7 @@ def run_formation(args: argparse.Namespace) -> int:
                   "east (x-1)*cell_m"}
     )  # fmt: skip
     atomic_write_text(run_dir / "plan.json", _plan_json(plan))
+    waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     skipped = (
         " (10 skipped: its companion port is the ground stations' 14550)"
@@ -147,10 +151,17 @@ def run_formation(args: argparse.Namespace) -> int:
                 "companion", "--mission", "formation", "--plan", str(run_dir / "plan.json"), "--cell-m",
                 repr(params.cell_m), "--instance", str(args.instance), "--run-dir", str(run_dir)))  # fmt: skip
             rc, why = kids.supervise(args.timeout)
-    except KeyboardInterrupt:
-        rc = 130
-    ok = formation_report(run_dir, rc, why)
-    return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
+    except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
+        rc, why = waysout.interrupted(e)
+    try:
+        ok = formation_report(run_dir, rc, why)
+    except OSError as e:  # a read-only or full folder: the ending is still said (below)
+        print(
+            f"skyherd fly: the report was not written ({e.strerror or e}); {why}", file=sys.stderr
+        )
+        ok = False
+    waysout.append_ending(run_dir, waysout.ending_lines(run_dir, [f"uav{k}" for k in range(K)]))
+    return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 
 def sim_groups(K: int, sims: int) -> list[list[int]]:
