@@ -256,8 +256,9 @@ def run_two_processes(args: argparse.Namespace) -> int:
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     recorder = None
     why = "interrupted (Ctrl-C)"
+    kids = launch.Launch()
     try:
-        with launch.Launch() as kids:  # stopped on every way out, the companion first
+        with kids:  # stopped on every way out, the companion first
             if args.connect is None or args.mission == "groundair":
                 kids.start_sim("sim", launch.skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
                          run_dir / "sim.log")  # fmt: skip
@@ -283,7 +284,8 @@ def run_two_processes(args: argparse.Namespace) -> int:
             f"skyherd fly: the report was not written ({e.strerror or e}); {why}", file=sys.stderr
         )
         ok = False
-    waysout.append_ending(run_dir, waysout.ending_lines(run_dir))
+    output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
+    waysout.append_ending(run_dir, waysout.ending_lines(run_dir, output=output))
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 

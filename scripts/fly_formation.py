@@ -137,8 +137,9 @@ def run_formation(args: argparse.Namespace) -> int:
     print(f"skyherd fly: {len(groups)} simulator process{'es' if len(groups) > 1 else ''} "
           f"({', '.join(str(len(g)) for g in groups)} vehicles), logs sim<g>.log", flush=True)  # fmt: skip
     why = "interrupted (Ctrl-C)"
+    kids = launch.Launch()
     try:
-        with launch.Launch() as kids:  # stopped on every way out, the companion first
+        with kids:  # stopped on every way out, the companion first
             for g, group in enumerate(groups):
                 fleet = [{"name": f"uav{k}", "instance": instances[k], "seed": args.seed + k,
                           "home": [homes[k].lat_deg, homes[k].lon_deg, homes[k].alt_m]} for k in group]  # fmt: skip
@@ -160,7 +161,10 @@ def run_formation(args: argparse.Namespace) -> int:
             f"skyherd fly: the report was not written ({e.strerror or e}); {why}", file=sys.stderr
         )
         ok = False
-    waysout.append_ending(run_dir, waysout.ending_lines(run_dir, [f"uav{k}" for k in range(K)]))
+    output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
+    waysout.append_ending(
+        run_dir, waysout.ending_lines(run_dir, [f"uav{k}" for k in range(K)], output)
+    )
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 

@@ -27,12 +27,16 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
 from runio.run import Interrupted
+from runio.space import Appender
 
+KEEP_LINES = 200  # a child's last output lines kept in memory (its log may be cut)
 COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before SIGKILL [s]
 WIND_DOWN_S = 120.0  # wall time for a simulator's span alone with the autopilot before SIGINT [s]
 PARENT_DEATH = {"companion": signal.SIGTERM, "sim": signal.SIGUSR1}  # the child's pdeathsig
@@ -44,6 +48,8 @@ class Child:
     name: str
     proc: subprocess.Popen
     log: Path | None
+    lines: deque | None = None  # its last output lines, kept in memory (`Relay`)
+    relay: threading.Thread | None = None
 
     def go(self) -> None:
         """Let a child started with `wait_go` begin (one line on its standard input)."""
@@ -56,10 +62,23 @@ class Child:
             pass  # it ended already: supervise() reports how
 
     def tail(self, n: int = 5) -> str:
-        if self.log is None or not self.log.exists():
-            return ""
-        lines = self.log.read_text(errors="replace").strip().splitlines()
+        if self.relay is not None:
+            self.relay.join(2.0)  # the child has ended: its last lines are on their way
+        lines = list(self.lines or ())
         return "\n".join("    " + ln for ln in lines[-n:])
+
+
+def relay(pipe, log: Path, lines: deque) -> None:
+    """A child's output, line by line, to its log file (cut with a warning on a full disk or a
+    read-only folder: runio.space) and to `lines` in memory, until the child closes it."""
+    out = Appender(log, binary=True)
+    try:
+        for raw in iter(pipe.readline, b""):
+            out.write(raw)
+            lines.append(raw.decode(errors="replace").rstrip("\n"))
+    finally:
+        out.close()
+        pipe.close()
 
 
 def skyherd_cmd(*args: str) -> list[str]:
@@ -86,19 +105,25 @@ def die_with_parent(sig: int):
 
 def start(name: str, argv: list[str], log: Path | None, wait_go: bool = False,
           parent_death: int | None = None) -> Child:  # fmt: skip
-    """Start a child; its stdout and stderr go to `log` (None: inherited, e.g. a progress bar).
+    """Start a child; its stdout and stderr go to `log` through this process (a pipe and a
+    relay thread; the last lines kept in memory), or with `log` None are inherited (a
+    progress bar).
     `wait_go`: its standard input is a pipe that `go()` writes to (`skyherd companion
     --wait-go`), otherwise empty. `parent_death`: the signal it gets if this process dies.
     It runs in its own process group: a terminal's Ctrl-C reaches only this process."""
-    out = open(log, "ab") if log is not None else None  # noqa: SIM115 - closed with the child
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     pre = die_with_parent(parent_death) if parent_death is not None else None
-    proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT if out else None,
+    piped = subprocess.PIPE if log is not None else None
+    proc = subprocess.Popen(argv, stdout=piped, stderr=subprocess.STDOUT if piped else None,
                             stdin=subprocess.PIPE if wait_go else subprocess.DEVNULL, env=env,
                             process_group=0, preexec_fn=pre)  # fmt: skip
-    if out is not None:
-        out.close()
-    return Child(name, proc, log)
+    child = Child(name, proc, log)
+    if log is not None:  # through this process: kept in memory when the folder fails
+        child.lines = deque(maxlen=KEEP_LINES)
+        child.relay = threading.Thread(target=relay, args=(proc.stdout, log, child.lines),
+                                       name=f"relay-{name}", daemon=True)  # fmt: skip
+        child.relay.start()
+    return child
 
 
 def stop(child: Child, grace_s: float = 10.0) -> int:

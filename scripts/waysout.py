@@ -5,6 +5,7 @@ folder cut. Also the run folder's checks before anything starts (exit 2)."""
 
 from __future__ import annotations
 
+import csv
 import json
 import signal
 import sys
@@ -65,10 +66,22 @@ def _json(path: Path) -> dict:
         return {}
 
 
-def _alone(name: str, a: dict | None) -> str:
+def _last_row(world: Path) -> str:
+    """world.csv's last row in words (where the vehicle was when the simulation ended)."""
+    try:
+        with open(world, newline="") as f:
+            rows = list(csv.DictReader(f))
+        r = rows[-1]
+        return (f"; world.csv ends at t = {float(r['t']):.1f} s: {r['mode']}, "
+                f"{'armed' if r['armed'] == '1' else 'disarmed'}, altitude {-float(r['down']):.1f} m")  # fmt: skip
+    except (OSError, IndexError, KeyError, ValueError):
+        return ""
+
+
+def _alone(name: str, a: dict | None, last: str = "") -> str:
     """One simulator's span without the companion, in words."""
     if not a:
-        return f"{name}: no span alone recorded (the simulator was stopped or killed)"
+        return f"{name}: no span alone recorded (the simulator was stopped or killed){last}"
     alt = abs(a["altitude_m"]) if abs(a["altitude_m"]) < 0.05 else a["altitude_m"]
     if a["span_s"] == 0 and not a["armed"]:
         return (f"{name}: the vehicle was disarmed when the companion ended (t = {a['t_gone_s']:.1f} s): "
@@ -81,9 +94,27 @@ def _alone(name: str, a: dict | None) -> str:
             f"altitude {alt:.1f} m")  # fmt: skip
 
 
-def ending_lines(run_dir: Path, vehicles: list[str] | None = None) -> list[str]:
+def stats_from_output(lines: list[str]) -> dict[str, dict]:
+    """The simulators' final stats from their output (`skyherd sim` prints them last, as
+    `{json}` or, one per vehicle of a fleet, `uav<k> {json}`): the copy `fly` keeps in memory
+    when sim_stats.json could not be written."""
+    out = {}
+    for ln in lines:
+        name, _, rest = ln.partition(" ") if not ln.startswith("{") else ("sim", "", ln)
+        try:
+            stats = json.loads(rest)
+        except ValueError:
+            continue
+        if isinstance(stats, dict) and "after_companion" in stats:
+            out[name] = stats
+    return out
+
+
+def ending_lines(run_dir: Path, vehicles: list[str] | None = None,
+                 output: list[str] | None = None) -> list[str]:  # fmt: skip
     """The "How it ended" lines. `vehicles`: the formation's uav<k> sub-folders (None: one
-    vehicle, its files in run_dir)."""
+    vehicle, its files in run_dir). `output`: the simulators' output lines `fly` kept."""
+    kept = stats_from_output(output or [])
     comp = _json(run_dir / "companion.json")
     lines = []
     if comp:
@@ -95,7 +126,9 @@ def ending_lines(run_dir: Path, vehicles: list[str] | None = None) -> list[str]:
     cut = [dict(c, where="companion") for c in comp.get("records_cut", [])]
     for name in vehicles or ["sim"]:
         stats = _json(run_dir / name / "sim_stats.json" if vehicles else run_dir / "sim_stats.json")
-        lines.append(_alone(name, stats.get("after_companion")))
+        stats = stats or kept.get(name, {})
+        folder = run_dir / name if vehicles else run_dir
+        lines.append(_alone(name, stats.get("after_companion"), _last_row(folder / "world.csv")))
         cut += [dict(c, where=name) for c in stats.get("records_cut", [])]
     for c in cut:
         dropped = "" if c.get("dropped") is None else f", {c['dropped']} records dropped"
@@ -107,7 +140,10 @@ def append_ending(run_dir: Path, lines: list[str]) -> None:
     """The lines under "## How it ended" at the end of summary.md, and on standard output; if
     summary.md cannot be written (a read-only folder), on stderr with the reason."""
     text = "\n".join(f"- {ln}" for ln in lines)
-    print("How it ended:\n" + text, flush=True)
+    try:
+        print("How it ended:\n" + text, flush=True)
+    except (OSError, ValueError):  # a simulator whose `fly` died: nobody reads its output
+        pass
     path = run_dir / "summary.md"
     try:
         old = path.read_text() if path.exists() else "# skyherd fly\n"
@@ -115,4 +151,7 @@ def append_ending(run_dir: Path, lines: list[str]) -> None:
         old = "# skyherd fly\n"
     why = try_write_text(path, old.rstrip() + "\n\n## How it ended\n\n" + text + "\n")
     if why is not None:
-        print(f"skyherd fly: {why}; how the flight ended is above", file=sys.stderr, flush=True)
+        try:
+            print(f"skyherd fly: {why}; how the flight ended is above", file=sys.stderr, flush=True)
+        except (OSError, ValueError):
+            pass

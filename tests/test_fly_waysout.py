@@ -1,0 +1,202 @@
+"""Every way out of `skyherd fly` is safe (issue 26, item 6), through the real programs.
+
+Each scenario runs in its own mount and network namespaces (tests/waysout_rig.py, as root):
+`fly` on the built-in quadrotor, lockstep, as fast as possible; at simulation time t >= 20 s,
+with the vehicle airborne in OFFBOARD (read from world.csv), one thing happens: SIGTERM or
+SIGHUP or kill -9 to `fly`, kill -9 to the companion or the simulator, the runs folder made
+read-only; or the runs folder is a 700 KiB tmpfs from the start. Each test asserts that no
+process of the flight is left (scanned in /proc by the run folder in its argv), where the
+vehicle ended (landed and disarmed, or in the autopilot's failsafe), and the line that says
+why. The trigger is a simulation time; how long after it the action lands does not change
+what is asserted (the hand-over, the failsafe and the landing are all in simulation time).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from scripts.cli import main
+
+RIG = Path(__file__).with_name("waysout_rig.py")
+FLY = ["--duration", "40", "--speedup", "0", "--instance", "23", "--zenoh-port", "7483",
+       "--no-record"]  # fmt: skip
+
+
+def _can_unshare() -> bool:
+    if shutil.which("unshare") is None:
+        return False
+    return subprocess.run(["unshare", "-m", "-n", "true"], capture_output=True).returncode == 0
+
+
+needs_namespaces = pytest.mark.skipif(
+    not _can_unshare(), reason="needs `unshare -m -n` (root): mounts and a private network"
+)
+
+
+def way_out(tmp_path: Path, do: str, mount: str = "", fly: list[str] = FLY) -> dict:
+    spec = {"runs": str(tmp_path / "runs"), "out": str(tmp_path), "fly": fly, "t": 20.0,
+            "do": do, "mount": mount}  # fmt: skip
+    p = subprocess.run(["unshare", "-m", "-n", sys.executable, str(RIG), json.dumps(spec)],
+                       capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert p.returncode == 0, p.stderr[-3000:]
+    res = json.loads(p.stdout)
+    assert res["left"] == [], res["left"]  # no process of the flight is left
+    if do:
+        assert res["trigger_t"] is not None and res["trigger_t"] >= 20.0, res["stderr"][-2000:]
+    return res
+
+
+def landed(res: dict) -> None:
+    """world.csv ends with the vehicle on the ground, disarmed."""
+    row = res["world_last"]
+    assert row["armed"] == "0" and abs(float(row["down"])) < 0.3, row
+
+
+def ending(res: dict) -> str:
+    """The "How it ended" section (in summary.md, or on stdout when it could not be written)."""
+    text = res["summary.md"] or ""
+    assert "## How it ended" in text, text
+    return text.split("## How it ended", 1)[1]
+
+
+@needs_namespaces
+@pytest.mark.slow
+@pytest.mark.parametrize("sig,rc", [("SIGTERM", 143), ("SIGHUP", 129), ("SIGINT", 130)])
+def test_a_signal_to_fly_hands_over_and_lands(tmp_path, sig, rc):
+    """SIGTERM / SIGHUP / SIGINT to `fly` at t >= 20 s in OFFBOARD: the companion hands the
+    vehicle to the autopilot (LAND), the simulator steps on alone until it has disarmed on the
+    ground; fly exits 128 + signum and summary.md says why."""
+    res = way_out(tmp_path, f"fly:{sig}")
+    assert res["rc"] == rc, res["stderr"][-2000:]
+    landed(res)
+    why = "Ctrl-C" if sig == "SIGINT" else sig
+    assert f"**Why it ended:** interrupted ({why})" in res["summary.md"]
+    end = ending(res)
+    assert "handed to the autopilot: LAND" in end
+    stats = json.loads(res["sim_stats.json"])["after_companion"]
+    assert stats["ended"] == "disarmed" and stats["mode"] == "LAND" and not stats["armed"]
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_kill_9_of_fly_leaves_no_process_and_the_vehicle_landed(tmp_path):
+    """kill -9 of `fly`: its children get their parent-death signals (companion SIGTERM: it
+    hands over; simulator SIGUSR1: alone until disarmed) and end; the simulator writes how the
+    flight ended into summary.md. Then the same instance flies again, undisturbed."""
+    res = way_out(tmp_path, "fly:SIGKILL")
+    assert res["rc"] == -9
+    landed(res)
+    end = ending(res)
+    assert "`skyherd fly` died" in end and "its parent died" in end
+    assert "handed to the autopilot: LAND" in end
+    again = way_out(tmp_path / "again", "", fly=[*FLY[:1], "5", *FLY[2:]])
+    assert again["rc"] == 0, again["stderr"][-2000:]
+    assert "completed" in again["summary.md"]
+    landed(again)
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_kill_9_of_the_companion_leaves_the_vehicle_in_its_failsafe(tmp_path):
+    """kill -9 of the companion: `fly` sees it gone and sends the simulator SIGUSR1; the vehicle
+    steps on alone, the autopilot's offboard-loss failsafe (COM_OF_LOSS_T 0.5 s → HOLD) acts,
+    and after alone_s (30 s of simulation time) the simulator stops and reports it."""
+    res = way_out(tmp_path, "companion:SIGKILL")
+    assert res["rc"] == 1
+    a = json.loads(res["sim_stats.json"])["after_companion"]
+    modes = [m["mode"] for m in a["modes"]]
+    assert modes[:2] == ["OFFBOARD", "HOLD"] and a["modes"][1]["t"] - a["t_gone_s"] <= 1.0, a
+    assert a["mode"] == "HOLD" and a["armed"] and a["altitude_m"] > 10 and a["span_s"] == 30.0
+    row = res["world_last"]
+    assert row["mode"] == "HOLD" and row["armed"] == "1"
+    assert abs(float(row["t"]) - (a["t_gone_s"] + a["span_s"])) < 1e-3  # world.csv ends there
+    assert "the companion exited with code -9 (killed by SIGKILL)" in res["summary.md"]
+    assert "at the end HOLD, armed" in ending(res)
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_kill_9_of_the_simulator_ends_the_companion_and_says_where_the_vehicle_was(tmp_path):
+    """kill -9 of the simulator: the vehicle is gone with it. `fly` stops the companion (it
+    finds no tick within 3 s of wall time and exits), and the summary says which process died
+    and where the vehicle was when it did (world.csv's last row)."""
+    res = way_out(tmp_path, "sim:SIGKILL")
+    assert res["rc"] == 1
+    assert "the simulator sim exited with code -9 (killed by SIGKILL)" in res["summary.md"]
+    end = ending(res)
+    assert "world.csv ends at t = " in end and "no tick from the vehicle" in end
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_a_full_disk_cuts_the_records_and_the_vehicle_lands(tmp_path):
+    """A 700 KiB runs folder (tmpfs): the streams stop when 256 KiB are left (kept for the end
+    files), each says so once on stderr; the flight goes on and lands; the summary lists what
+    was cut, with the reason and the records dropped."""
+    res = way_out(tmp_path, "", mount="tmpfs:700k")
+    assert res["rc"] == 0, res["stderr"][-2000:]
+    assert "records cut" in res["stderr"] and "No space left on device" in res["stderr"]
+    a = json.loads(res["sim_stats.json"])["after_companion"]
+    assert not a["armed"] and abs(a["altitude_m"]) < 0.3  # landed (world.csv itself was cut)
+    end = ending(res)
+    cut = [ln for ln in end.splitlines() if ln.startswith("- records cut: ")]
+    assert any("world.csv (sim)" in ln for ln in cut) and any("decisions.jsonl" in ln for ln in cut)
+    assert all("No space left on device" in ln for ln in cut)
+    comp = json.loads(res["companion.json"])
+    assert comp["outcome"] == "completed" and comp["records_cut"]
+    written = res["decisions.jsonl"].splitlines()  # what was written before the cut is whole
+    assert written and all(json.loads(ln)["t"] > 0 for ln in written)
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_a_read_only_folder_mid_flight_cuts_the_records_and_the_vehicle_lands(tmp_path):
+    """The runs folder remounted read-only at t >= 20 s: every stream is cut (EROFS), the
+    flight goes on and lands; summary.md cannot be written, so `fly` says how the flight ended
+    on stdout and why the summary is missing on stderr (the simulator's stats come from its
+    output, which `fly` keeps in memory)."""
+    res = way_out(tmp_path, "readonly", mount="bind")
+    assert res["rc"] == 0, res["stderr"][-2000:]
+    assert "Read-only file system" in res["stderr"]
+    assert "summary.md: not written (Read-only file system)" in res["stderr"]
+    out = res["stdout"].split("How it ended:", 1)[1]
+    assert "companion: wrote no companion.json" in out
+    assert "(disarmed)" in out and "at the end LAND, disarmed, altitude 0.0 m" in out, out
+
+
+def test_a_policy_of_the_wrong_shape_is_refused_before_take_off(tmp_path, capsys):
+    """A policy file whose input or output size does not fit the ground-air task (14 inputs,
+    7 actions): exit 2 with one line saying what to do; no run folder, no child started."""
+    from policy.dqn import MLPPolicy
+    from policy.groundair.env import OBS_DIM
+    from policy.groundair.params import N_ACTIONS
+
+    assert (OBS_DIM, N_ACTIONS) == (14, 7)
+    rng = np.random.default_rng(0)
+    for n_in, n_out in ((10, 7), (14, 5)):
+        path = tmp_path / f"p{n_in}x{n_out}.npz"
+        MLPPolicy([rng.normal(size=(16, n_in)), rng.normal(size=(n_out, 16))],
+                  [np.zeros(16), np.zeros(n_out)], {"format": "skyherd-mlp-policy/1"}).save(path)  # fmt: skip
+        runs = tmp_path / "runs"
+        assert main(["fly", "--policy", str(path), "--runs-dir", str(runs)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1, err
+        assert f"takes {n_in} inputs and gives {n_out} actions" in err[0]
+        assert "14 inputs and 7 actions" in err[0] and "skyherd train ab" in err[0]
+        assert not runs.exists()
+
+
+def test_a_runs_folder_that_cannot_be_written_is_refused_before_take_off(tmp_path, capsys):
+    """A runs folder that is a file (or read-only, or nearly full): exit 2, one line."""
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["fly", "--runs-dir", str(blocker / "runs")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot make the run folder" in err[0] and "--runs-dir" in err[0]
