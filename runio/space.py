@@ -12,6 +12,7 @@ Everything written before the cut stays readable (each record is appended and fl
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import sys
@@ -61,11 +62,12 @@ def cut_records(writers) -> list[dict]:
 
 
 class Appender:
-    """An append-only file (text or bytes), flushed per `write`, that degrades: on a failed
-    open, write or flush, or when the free space falls below the reserve, it closes, sets
-    `error` (why) and warns once, then counts each later `write` in `dropped`."""
+    """An append-only file, written unbuffered per `write` (a str is written as UTF-8), that
+    degrades: on a failed open or write, or when the free space falls below the reserve, it
+    closes, sets `error` (why) and warns once, then counts each later `write` in `dropped`. A
+    write that fails half-way is cut back off the file: it ends on a whole record."""
 
-    def __init__(self, path: Path | str, binary: bool = False, reserve: int = RESERVE_BYTES):
+    def __init__(self, path: Path | str, reserve: int = RESERVE_BYTES):
         self.path = Path(path)
         self.error: str | None = None
         self.dropped = 0  # records not written since the cut
@@ -73,8 +75,8 @@ class Appender:
         self._unchecked = 0  # bytes written since the last free-space look-up
         self._f = None
         try:
-            self._f = (open(self.path, "ab") if binary  # noqa: SIM115 - closed in close()
-                       else open(self.path, "a", newline="", encoding="utf-8"))  # fmt: skip
+            self._f = open(self.path, "ab", buffering=0)  # noqa: SIM115 - closed in close()
+            self._size = os.fstat(self._f.fileno()).st_size  # the whole records so far [bytes]
         except OSError as e:
             self._cut(_why(e))
             return
@@ -99,22 +101,25 @@ class Appender:
                 self._cut(why)
                 self.dropped += 1
                 return False
+        raw = data.encode("utf-8") if isinstance(data, str) else data
+        view = memoryview(raw)
         try:
-            self._f.write(data)
-            self._f.flush()
+            while view:  # a disk that fills mid-write writes part, then fails
+                view = view[self._f.write(view) :]
         except OSError as e:
+            with contextlib.suppress(OSError):  # no torn record: cut back to the last whole one
+                os.ftruncate(self._f.fileno(), self._size)
             self._cut(_why(e))
             self.dropped += 1
             return False
+        self._size += len(raw)
         return True
 
     def _cut(self, why: str) -> None:
         f, self._f = self._f, None
         if f is not None:
-            try:
-                f.close()  # flushes what is buffered: may fail again, nothing more to do
-            except OSError:
-                pass
+            with contextlib.suppress(OSError):
+                f.close()
         if self.error is None:
             self.error = why
             warn(f"{self.path}: records cut ({why}); the flight goes on, later records are dropped")

@@ -277,13 +277,7 @@ def run_two_processes(args: argparse.Namespace) -> int:
             recorder.close()
     from scripts.fly_report import report  # after the flight: not on the way to the launch
 
-    try:
-        ok = report(run_dir, args, rc, why)
-    except OSError as e:  # a read-only or full folder: the ending is still said (below)
-        print(
-            f"skyherd fly: the report was not written ({e.strerror or e}); {why}", file=sys.stderr
-        )
-        ok = False
+    ok = waysout.report_safely(report, run_dir, args, rc, why, why=why)  # never raises
     output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
     waysout.append_ending(run_dir, waysout.ending_lines(run_dir, output=output))
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)

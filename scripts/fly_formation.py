@@ -18,7 +18,6 @@ import csv
 import json
 import math
 import os
-import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -154,13 +153,7 @@ def run_formation(args: argparse.Namespace) -> int:
             rc, why = kids.supervise(args.timeout)
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
         rc, why = waysout.interrupted(e)
-    try:
-        ok = formation_report(run_dir, rc, why)
-    except OSError as e:  # a read-only or full folder: the ending is still said (below)
-        print(
-            f"skyherd fly: the report was not written ({e.strerror or e}); {why}", file=sys.stderr
-        )
-        ok = False
+    ok = waysout.report_safely(formation_report, run_dir, rc, why, why=why)  # never raises
     output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
     waysout.append_ending(
         run_dir, waysout.ending_lines(run_dir, [f"uav{k}" for k in range(K)], output)

@@ -71,7 +71,7 @@ class Child:
 def relay(pipe, log: Path, lines: deque) -> None:
     """A child's output, line by line, to its log file (cut with a warning on a full disk or a
     read-only folder: runio.space) and to `lines` in memory, until the child closes it."""
-    out = Appender(log, binary=True)
+    out = Appender(log)
     try:
         for raw in iter(pipe.readline, b""):
             out.write(raw)

@@ -49,6 +49,17 @@ def parent_died(run_dir: Path, vehicles: list[str] | None = None) -> None:
     append_ending(run_dir, lines + ending_lines(run_dir, vehicles))
 
 
+def report_safely(report, *args, why: str) -> bool:
+    """`report(*args)` (True: the flight completed); a report that fails (a full or read-only
+    folder, records cut mid-line) is said on stderr with `why`, and counts as not completed."""
+    try:
+        return bool(report(*args))
+    except Exception as e:  # noqa: BLE001 - the ending is still said, in append_ending
+        print(f"skyherd fly: the report was not written ({type(e).__name__}: {e}); "
+              f"{why or 'the flight ended'}: see how, below", file=sys.stderr, flush=True)  # fmt: skip
+        return False
+
+
 def interrupted(e: BaseException) -> tuple[int, str]:
     """(exit code, why) of a KeyboardInterrupt / runio.Interrupted: 128 + the signal number."""
     signum = getattr(e, "signum", signal.SIGINT)

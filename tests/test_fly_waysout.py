@@ -3,8 +3,8 @@
 Each scenario runs in its own mount and network namespaces (tests/waysout_rig.py, as root):
 `fly` on the built-in quadrotor, lockstep, as fast as possible; at simulation time t >= 20 s,
 with the vehicle airborne in OFFBOARD (read from world.csv), one thing happens: SIGTERM or
-SIGHUP or kill -9 to `fly`, kill -9 to the companion or the simulator, the runs folder made
-read-only; or the runs folder is a 700 KiB tmpfs from the start. Each test asserts that no
+SIGHUP or kill -9 to `fly`, kill -9 to the companion or the simulator, another process fills
+the runs folder's disk; or the runs folder is a 700 KiB tmpfs, or read-only, from the start. Each test asserts that no
 process of the flight is left (scanned in /proc by the run folder in its argv), where the
 vehicle ended (landed and disarmed, or in the autopilot's failsafe), and the line that says
 why. The trigger is a simulation time; how long after it the action lands does not change
@@ -147,7 +147,7 @@ def test_a_full_disk_cuts_the_records_and_the_vehicle_lands(tmp_path):
     assert not a["armed"] and abs(a["altitude_m"]) < 0.3  # landed (world.csv itself was cut)
     end = ending(res)
     cut = [ln for ln in end.splitlines() if ln.startswith("- records cut: ")]
-    assert any("world.csv (sim)" in ln for ln in cut) and any("decisions.jsonl" in ln for ln in cut)
+    assert any("world.csv (sim)" in ln for ln in cut) and any("metrics.csv" in ln for ln in cut)
     assert all("No space left on device" in ln for ln in cut)
     comp = json.loads(res["companion.json"])
     assert comp["outcome"] == "completed" and comp["records_cut"]
@@ -157,18 +157,37 @@ def test_a_full_disk_cuts_the_records_and_the_vehicle_lands(tmp_path):
 
 @needs_namespaces
 @pytest.mark.slow
-def test_a_read_only_folder_mid_flight_cuts_the_records_and_the_vehicle_lands(tmp_path):
-    """The runs folder remounted read-only at t >= 20 s: every stream is cut (EROFS), the
-    flight goes on and lands; summary.md cannot be written, so `fly` says how the flight ended
-    on stdout and why the summary is missing on stderr (the simulator's stats come from its
-    output, which `fly` keeps in memory)."""
-    res = way_out(tmp_path, "readonly", mount="bind")
-    assert res["rc"] == 0, res["stderr"][-2000:]
-    assert "Read-only file system" in res["stderr"]
-    assert "summary.md: not written (Read-only file system)" in res["stderr"]
+def test_a_disk_filled_by_another_process_mid_flight_cuts_everything_and_the_vehicle_lands(
+    tmp_path,
+):
+    """Another process fills the runs folder's disk at t >= 20 s, the reserve included: every
+    stream is cut (ENOSPC), the flight goes on and lands; summary.md cannot be written, so
+    `fly` says how the flight ended on stdout and why the summary is missing on stderr (the
+    simulator's final stats come from its output, which `fly` keeps in memory), and exits 1:
+    a run whose report is lost is not a passed test."""
+    res = way_out(tmp_path, "fill", mount="tmpfs:4m")
+    assert res["rc"] == 1, res["stderr"][-2000:]  # flown and landed, but its report is lost
+    assert "skyherd fly: the report was not written (OSError" in res["stderr"]
+    assert "records cut" in res["stderr"]
+    assert "summary.md: not written (No space left on device)" in res["stderr"]
     out = res["stdout"].split("How it ended:", 1)[1]
-    assert "companion: wrote no companion.json" in out
-    assert "(disarmed)" in out and "at the end LAND, disarmed, altitude 0.0 m" in out, out
+    assert (
+        "at the end LAND, disarmed, altitude 0.0 m" in out
+        or "disarmed when the companion ended" in out
+    ), out
+    assert "records cut: world.csv (sim)" in out, out
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_a_read_only_runs_folder_is_refused_before_take_off(tmp_path):
+    """A read-only runs folder (a read-only bind mount: root ignores chmod): exit 2 with one
+    line saying what to do; nothing starts, nothing is left."""
+    res = way_out(tmp_path, "", mount="ro")
+    assert res["rc"] == 2
+    err = res["stderr"].strip().splitlines()
+    assert len(err) == 1 and "Read-only file system" in err[0] and "writable --runs-dir" in err[0]
+    assert res["run_dir"] == "None"
 
 
 def test_a_policy_of_the_wrong_shape_is_refused_before_take_off(tmp_path, capsys):

@@ -2,15 +2,15 @@
 network namespaces (`unshare -m -n`, as root): mount the runs folder (a small tmpfs, or a bind
 mount that can be made read-only), start `fly`, wait until world.csv shows the vehicle airborne
 in OFFBOARD at simulation time t >= T, then do one thing (a signal to `fly` or to a child, or
-make the folder read-only), and report as JSON on stdout what is left: fly's exit code and
+fill the disk), and report as JSON on stdout what is left: fly's exit code and
 output, the processes of the flight still running (found by their argv, as `kill -9` of `fly`
 reparents them), world.csv's last row, summary.md, companion.json and sim_stats.json (read
 before the namespace and its tmpfs go).
 
     python tests/waysout_rig.py '{"runs": DIR, "fly": [...], "t": 20, "do": "fly:SIGTERM"}'
 
-`do`: "fly:SIG", "companion:SIG", "sim:SIG", "readonly" or "" (fly to the end); `mount`:
-"" (none), "tmpfs:700k", or "bind" (needed for "readonly").
+`do`: "fly:SIG", "companion:SIG", "sim:SIG", "fill" (another process fills the disk) or ""
+(fly to the end); `mount`: "" (none), "tmpfs:SIZE", or "ro" (a read-only bind mount).
 """
 
 from __future__ import annotations
@@ -45,6 +45,22 @@ def flight_pids(runs: str) -> dict[int, str]:
     return out
 
 
+def fill(path: Path) -> None:
+    """Write zeros to `path` until the file system is full."""
+    block = bytes(64 * 1024)
+    with open(path, "wb", buffering=0) as f:
+        try:
+            while True:
+                f.write(block)
+        except OSError:
+            pass
+        try:
+            while True:
+                f.write(b"\0")
+        except OSError:
+            pass
+
+
 def last_row(path: Path) -> dict | None:
     try:
         with open(path, newline="") as f:
@@ -67,9 +83,12 @@ def main(spec: dict) -> dict:
     subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
     mount = spec.get("mount", "")
     if mount.startswith("tmpfs:"):
-        subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={mount[6:]}", "tmpfs", runs], check=True)
-    elif mount == "bind":
+        subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={mount[6:]}", "tmpfs", runs], check=True
+        )
+    elif mount == "ro":  # a read-only bind mount of the folder on itself
         subprocess.run(["mount", "--bind", runs, runs], check=True)
+        subprocess.run(["mount", "-o", "remount,ro,bind", runs], check=True)
     out_dir = Path(spec["out"])
     fly_out, fly_err = open(out_dir / "fly.out", "wb"), open(out_dir / "fly.err", "wb")
     argv = [sys.executable, "-m", "scripts.cli", "fly", "--runs-dir", runs, *spec["fly"]]
@@ -82,15 +101,20 @@ def main(spec: dict) -> dict:
     while do and fly.poll() is None and time.monotonic() - t0 < WALL_LIMIT_S:
         found = sorted(Path(runs).glob("*/world.csv"))
         row = last_row(found[0]) if found else None
-        if row and float(row["t"]) >= spec["t"] and row["mode"] == "OFFBOARD" and float(row["down"]) < -5:
+        if (
+            row
+            and float(row["t"]) >= spec["t"]
+            and row["mode"] == "OFFBOARD"
+            and float(row["down"]) < -5
+        ):
             run_dir = found[0].parent
             res["trigger_t"] = float(row["t"])
             break
         time.sleep(0.01)
     if res["trigger_t"] is not None:
         target, _, sig = do.partition(":")
-        if target == "readonly":
-            subprocess.run(["mount", "-o", "remount,ro,bind", runs], check=True)
+        if target == "fill":  # another process fills the disk, the reserve included
+            fill(Path(runs) / "filler")
         elif target == "fly":
             os.kill(fly.pid, getattr(signal, sig))
         else:
@@ -121,7 +145,13 @@ def main(spec: dict) -> dict:
     res["run_dir"] = str(run_dir)
     if run_dir is not None:
         res["world_last"] = last_row(run_dir / "world.csv")
-        for name in ("summary.md", "companion.json", "sim_stats.json", "sim.log", "decisions.jsonl"):
+        for name in (
+            "summary.md",
+            "companion.json",
+            "sim_stats.json",
+            "sim.log",
+            "decisions.jsonl",
+        ):
             res[name] = read(run_dir / name)
         res["files"] = sorted(p.name for p in run_dir.iterdir())
     return res
