@@ -176,6 +176,7 @@ class World:
         cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
         cols += ugv_columns(n_ugvs)
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
+        self._truth_t = -math.inf  # simulation time of world.csv's last row [s]
         self.frames = 0
         self.render_failures = 0
         self.cut_dropped = 0  # companion messages lost in link cuts
@@ -299,7 +300,7 @@ class World:
         ap = self.autopilot
         state = ap.true_state if hasattr(ap, "true_state") else ap.state
         t = self.clock.t
-        if self.truth is not None:  # world.csv ends on the vehicle's end state
+        if self.truth is not None and t > self._truth_t:  # world.csv ends on the end state
             self._write_truth(t, state, None if self.team is None else team_states(self.team))
         self.alone = {
             "why": self.alone_why,
@@ -426,6 +427,7 @@ class World:
                         armed=int(self.autopilot.armed),
                         team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
         self.truth.write(row)
+        self._truth_t = t
 
     def _stats(self, sim_s: float, wall_s: float, cpu_s: float = 0.0, span=None,
                process_vehicles: int = 1) -> dict:  # fmt: skip
