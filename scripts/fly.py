@@ -279,7 +279,8 @@ def run_two_processes(args: argparse.Namespace) -> int:
 
     ok = waysout.report_safely(report, run_dir, args, rc, why, why=why)  # never raises
     output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
-    waysout.append_ending(run_dir, waysout.ending_lines(run_dir, output=output))
+    lines = waysout.ending_lines(run_dir, output=output, cut=waysout.recording_cut(recorder))
+    waysout.append_ending(run_dir, lines)
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 

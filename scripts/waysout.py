@@ -121,10 +121,18 @@ def stats_from_output(lines: list[str]) -> dict[str, dict]:
     return out
 
 
+def recording_cut(recorder) -> list[dict]:
+    """flight.mcap's cut (`fly`'s own recorder, scripts.fly._Recording), as `cut_records` says."""
+    log = getattr(getattr(recorder, "recorder", None), "log", None)
+    err = getattr(getattr(log, "file", None), "error", None)
+    return [{"file": "flight.mcap", "error": err, "dropped": log.errors}] if err else []
+
+
 def ending_lines(run_dir: Path, vehicles: list[str] | None = None,
-                 output: list[str] | None = None) -> list[str]:  # fmt: skip
+                 output: list[str] | None = None, cut: list[dict] | None = None) -> list[str]:  # fmt: skip
     """The "How it ended" lines. `vehicles`: the formation's uav<k> sub-folders (None: one
-    vehicle, its files in run_dir). `output`: the simulators' output lines `fly` kept."""
+    vehicle, its files in run_dir). `output`: the simulators' output lines `fly` kept; `cut`:
+    the records `fly` itself cut (its recording)."""
     kept = stats_from_output(output or [])
     comp = _json(run_dir / "companion.json")
     lines = []
@@ -134,7 +142,8 @@ def ending_lines(run_dir: Path, vehicles: list[str] | None = None,
         lines.append(f"companion: {said}")
     else:
         lines.append("companion: wrote no companion.json (killed, or its folder is not writable)")
-    cut = [dict(c, where="companion") for c in comp.get("records_cut", [])]
+    cut = [dict(c, where="fly") for c in cut or []]
+    cut += [dict(c, where="companion") for c in comp.get("records_cut", [])]
     for name in vehicles or ["sim"]:
         stats = _json(run_dir / name / "sim_stats.json" if vehicles else run_dir / "sim_stats.json")
         stats = stats or kept.get(name, {})

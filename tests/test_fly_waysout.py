@@ -140,14 +140,15 @@ def test_a_full_disk_cuts_the_records_and_the_vehicle_lands(tmp_path):
     """A 700 KiB runs folder (tmpfs): the streams stop when 256 KiB are left (kept for the end
     files), each says so once on stderr; the flight goes on and lands; the summary lists what
     was cut, with the reason and the records dropped."""
-    res = way_out(tmp_path, "", mount="tmpfs:700k")
+    res = way_out(tmp_path, "", mount="tmpfs:700k", fly=FLY[:-1])  # with flight.mcap
     assert res["rc"] == 0, res["stderr"][-2000:]
     assert "records cut" in res["stderr"] and "No space left on device" in res["stderr"]
     a = json.loads(res["sim_stats.json"])["after_companion"]
     assert not a["armed"] and abs(a["altitude_m"]) < 0.3  # landed (world.csv itself was cut)
     end = ending(res)
     cut = [ln for ln in end.splitlines() if ln.startswith("- records cut: ")]
-    assert any("world.csv (sim)" in ln for ln in cut) and any("metrics.csv" in ln for ln in cut)
+    for name in ("flight.mcap (fly)", "metrics.csv (companion)", "world.csv (sim)"):
+        assert any(name in ln for ln in cut), (name, cut)
     assert all("No space left on device" in ln for ln in cut)
     comp = json.loads(res["companion.json"])
     assert comp["outcome"] == "completed" and comp["records_cut"]
