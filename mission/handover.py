@@ -41,13 +41,13 @@ class StopRequest:
     def is_set(self) -> bool:
         return self.signum is not None
 
-    def request(self, signum: int) -> None:
+    def request(self, signum: int, again_ends: bool = True) -> None:
         """The signal handler: note the first signal; raise when the loop is waiting, or on a
-        second signal."""
+        second signal unless `again_ends` is False (a parent-death signal can come twice)."""
         first = self.signum is None
         if first:
             self.signum = signum
-        if self.waiting or not first:
+        if (self.waiting and first) or (not first and again_ends):
             raise Interrupted(signum)
 
 
@@ -86,7 +86,9 @@ def hand_over_all(vs: list[VehicleLink]) -> Generator[None, None, list[str]]:
                 except StopIteration as e:
                     done[i] = e.value
         if all(d is not None for d in done):
-            return [d for d in done if d is not None]
+            if len(vs) == 1:
+                return [d for d in done if d is not None]
+            return [f"uav{k}: {d}" for k, d in enumerate(done)]
         yield
 
 

@@ -13,7 +13,6 @@ import contextlib
 import dataclasses
 import json
 import math
-import os
 import shutil
 import signal
 import sys
@@ -26,15 +25,24 @@ from runio import JsonlWriter, RunFolder, args_dict, cut_records, try_write_text
 from scripts.cli import UsageError
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-"""End the flight by handing the vehicles to their autopilots (mission.handover). SIGTERM is
-also the companion's parent-death signal under `skyherd fly` (scripts.launch)."""
+"""End the flight by handing the vehicles to their autopilots (mission.handover); a second one
+ends the companion at once."""
+PARENT_DIED = signal.SIGUSR1
+"""The companion's parent-death signal under `skyherd fly` (scripts.launch): hand over as
+above; the kernel may send it more than once (once per thread of the dying parent), so a
+repeat never counts as a second signal."""
 
 
 @contextlib.contextmanager
 def stop_on_signals(stop):
     """SIGINT, SIGTERM and SIGHUP set `stop` (a second one, or one before the flight, raises
-    runio.Interrupted) while the block runs; the previous handlers afterwards."""
-    old = {sig: signal.signal(sig, lambda signum, _f: stop.request(signum)) for sig in SIGNALS}
+    runio.Interrupted) while the block runs, and so does PARENT_DIED (never a second); the
+    previous handlers afterwards."""
+
+    def on_signal(signum, _frame) -> None:
+        stop.request(signum, again_ends=signum != PARENT_DIED)
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (*SIGNALS, PARENT_DIED)}
     try:
         yield stop
     finally:
@@ -42,15 +50,12 @@ def stop_on_signals(stop):
             signal.signal(sig, h)
 
 
-PARENT = os.getppid()  # the process that started this one (`skyherd fly`, a shell)
-
-
 def _signal_name(x) -> str:
-    """The signal of an Interrupted or a StopRequest by name (a bare Ctrl-C's is SIGINT), and
-    whether it came because the parent died (the parent-death signal of scripts.launch)."""
+    """The signal of an Interrupted or a StopRequest by name (a bare Ctrl-C's is SIGINT; the
+    parent-death signal says so)."""
     signum = getattr(x, "signum", None)
     name = signal.Signals(signum).name if signum else "SIGINT"
-    return name + (", its parent died" if os.getppid() != PARENT else "")
+    return name + (": its parent died" if signum == PARENT_DIED else "")
 
 
 def _interrupt_rc(stop) -> int:

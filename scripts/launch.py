@@ -15,9 +15,10 @@ children in one order:
 
 A second signal to `fly` while this runs skips to stopping the simulators at once. Children
 run in their own process group (a terminal's Ctrl-C reaches `fly` alone, which orders the
-rest) and die with their parent: their parent-death signal is the one `fly` would send
-(the companion: SIGTERM, handled like SIGINT; a simulator: SIGUSR1), so a `kill -9` of `fly`
-still lands the vehicle or leaves it in its failsafe, and leaves no process behind.
+rest) and die with their parent: their parent-death signal is SIGUSR1 (the companion: hand
+over, as on SIGINT; a simulator: its companion is gone, as above; the kernel may send it once
+per thread of the dying parent, a repeat changes nothing), so a `kill -9` of `fly` still lands
+the vehicle or leaves it in its failsafe, and leaves no process behind.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from runio.space import Appender
 KEEP_LINES = 200  # a child's last output lines kept in memory (its log may be cut)
 COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before SIGKILL [s]
 WIND_DOWN_S = 120.0  # wall time for a simulator's span alone with the autopilot before SIGINT [s]
-PARENT_DEATH = {"companion": signal.SIGTERM, "sim": signal.SIGUSR1}  # the child's pdeathsig
+PARENT_DEATH = {"companion": signal.SIGUSR1, "sim": signal.SIGUSR1}  # the child's pdeathsig
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
@@ -240,9 +241,9 @@ class Launch:
                 if s.proc.poll() is not None:
                     why = f"the simulator {s.name} exited with {exit_text(s.proc.returncode)} during the flight"
                     tail = s.tail()
-                    stop(companion)
+                    stop(companion, COMPANION_GRACE_S)
                     return 1, why + (f":\n{tail}" if tail else "")
             if time.monotonic() > deadline:
-                stop(companion)
+                stop(companion, COMPANION_GRACE_S)
                 return 1, f"the flight took longer than --timeout {timeout_s:.0f} s of wall time"
             time.sleep(0.02)  # a child's end is seen within 20 ms (it ends the flight)

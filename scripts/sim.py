@@ -306,10 +306,23 @@ PARENT = os.getppid()  # the process that started this one (`skyherd fly`, a she
 def _if_parent_died(args, run_dir, vehicles: list[str] | None = None) -> None:
     """Under `skyherd fly` (--run-dir) whose process died (kill -9): the simulator, the last
     child to end, says how the flight ended in summary.md."""
-    if args.run_dir is not None and os.getppid() != PARENT:
+    if args.run_dir is not None and _parent_gone():
         from scripts.waysout import parent_died
 
         parent_died(run_dir, vehicles)
+
+
+def _parent_gone() -> bool:
+    """This process's parent has died (or is dying: its main thread a zombie while its other
+    threads end, and this process not yet handed to another parent)."""
+    if os.getppid() != PARENT:
+        return True
+    try:
+        with open(f"/proc/{PARENT}/stat") as f:
+            state = f.read().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return True
+    return state in ("Z", "X")
 
 
 def say(text: str) -> None:

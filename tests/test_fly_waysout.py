@@ -40,16 +40,18 @@ needs_namespaces = pytest.mark.skipif(
 )
 
 
-def way_out(tmp_path: Path, do: str, mount: str = "", fly: list[str] = FLY) -> dict:
-    spec = {"runs": str(tmp_path / "runs"), "out": str(tmp_path), "fly": fly, "t": 20.0,
-            "do": do, "mount": mount}  # fmt: skip
+def way_out(tmp_path: Path, do: str, mount: str = "", fly: list[str] = FLY, t: float = 20.0,
+            **more) -> dict:  # fmt: skip
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    spec = {"runs": str(tmp_path / "runs"), "out": str(tmp_path), "fly": fly, "t": t,
+            "do": do, "mount": mount, **more}  # fmt: skip
     p = subprocess.run(["unshare", "-m", "-n", sys.executable, str(RIG), json.dumps(spec)],
                        capture_output=True, text=True, timeout=600)  # fmt: skip
     assert p.returncode == 0, p.stderr[-3000:]
     res = json.loads(p.stdout)
     assert res["left"] == [], res["left"]  # no process of the flight is left
     if do:
-        assert res["trigger_t"] is not None and res["trigger_t"] >= 20.0, res["stderr"][-2000:]
+        assert res["trigger_t"] is not None and res["trigger_t"] >= t, res["stderr"][-2000:]
     return res
 
 
@@ -82,6 +84,24 @@ def test_a_signal_to_fly_hands_over_and_lands(tmp_path, sig, rc):
     assert "handed to the autopilot: LAND" in end
     stats = json.loads(res["sim_stats.json"])["after_companion"]
     assert stats["ended"] == "disarmed" and stats["mode"] == "LAND" and not stats["armed"]
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_sigterm_to_a_formation_hands_every_vehicle_over(tmp_path):
+    """The formation (K = 4 vehicles in 2 simulator processes, one companion): SIGTERM to `fly`
+    at t >= 15 s in OFFBOARD; the companion hands every vehicle to its autopilot, both
+    simulators step on alone until their vehicles have disarmed."""
+    fly = ["--mission", "formation", "--agents", "4", "--sims", "2", "--speedup", "0",
+           "--instance", "124"]  # fmt: skip
+    spec = {"world": "uav0/world.csv", "read": [f"uav{k}/sim_stats.json" for k in range(4)]}
+    res = way_out(tmp_path, "fly:SIGTERM", fly=fly, t=15.0, **spec)
+    assert res["rc"] == 143, res["stderr"][-2000:]
+    end = ending(res)
+    for k in range(4):
+        assert f"uav{k}: handed to the autopilot: LAND" in end
+        a = json.loads(res[f"uav{k}/sim_stats.json"])["after_companion"]
+        assert a["ended"] == "disarmed" and abs(a["altitude_m"]) < 0.3, a
 
 
 @needs_namespaces

@@ -9,7 +9,8 @@ before the namespace and its tmpfs go).
 
     python tests/waysout_rig.py '{"runs": DIR, "fly": [...], "t": 20, "do": "fly:SIGTERM"}'
 
-`do`: "fly:SIG", "companion:SIG", "sim:SIG", "fill" (another process fills the disk) or ""
+`world`: the world.csv watched (default world.csv; a formation's uav0/world.csv); `read`:
+more files of the run folder to return. `do`: "fly:SIG", "companion:SIG", "sim:SIG", "fill" (another process fills the disk) or ""
 (fly to the end); `mount`: "" (none), "tmpfs:SIZE", or "ro" (a read-only bind mount).
 """
 
@@ -99,7 +100,7 @@ def main(spec: dict) -> dict:
     do = spec.get("do", "")
     run_dir = None
     while do and fly.poll() is None and time.monotonic() - t0 < WALL_LIMIT_S:
-        found = sorted(Path(runs).glob("*/world.csv"))
+        found = sorted(Path(runs).glob(f"*/{spec.get('world', 'world.csv')}"))
         row = last_row(found[0]) if found else None
         if (
             row
@@ -107,7 +108,7 @@ def main(spec: dict) -> dict:
             and row["mode"] == "OFFBOARD"
             and float(row["down"]) < -5
         ):
-            run_dir = found[0].parent
+            run_dir = Path(runs) / found[0].relative_to(runs).parts[0]
             res["trigger_t"] = float(row["t"])
             break
         time.sleep(0.01)
@@ -144,14 +145,9 @@ def main(spec: dict) -> dict:
     run_dir = run_dir or next(iter(sorted(Path(runs).glob("*-fly"))), None)
     res["run_dir"] = str(run_dir)
     if run_dir is not None:
-        res["world_last"] = last_row(run_dir / "world.csv")
-        for name in (
-            "summary.md",
-            "companion.json",
-            "sim_stats.json",
-            "sim.log",
-            "decisions.jsonl",
-        ):
+        res["world_last"] = last_row(run_dir / spec.get("world", "world.csv"))
+        names = ["summary.md", "companion.json", "sim_stats.json", "sim.log", "decisions.jsonl"]
+        for name in names + spec.get("read", []):
             res[name] = read(run_dir / name)
         res["files"] = sorted(p.name for p in run_dir.iterdir())
     return res
