@@ -162,7 +162,7 @@ def stop_all(children: list[Child], grace_s: float = 10.0) -> list[int]:
     return [c.proc.returncode for c in children]
 
 
-COMPANION_EXITED = "the companion exited with code"
+COMPANION_EXITED = "the companion exited with code"  # how supervise() begins that reason
 
 
 def exit_text(rc: int) -> str:
@@ -236,7 +236,7 @@ class Launch:
         while True:
             rc = companion.proc.poll()
             if rc is not None:
-                return rc, "" if rc == 0 else f"{COMPANION_EXITED} {exit_text(rc)[5:]}"
+                return rc, "" if rc == 0 else f"the companion exited with {exit_text(rc)}"
             for s in self.sims:
                 if s.proc.poll() is not None:
                     why = f"the simulator {s.name} exited with {exit_text(s.proc.returncode)} during the flight"

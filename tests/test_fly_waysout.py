@@ -240,3 +240,45 @@ def test_a_runs_folder_that_cannot_be_written_is_refused_before_take_off(tmp_pat
     assert main(["fly", "--runs-dir", str(blocker / "runs")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cannot make the run folder" in err[0] and "--runs-dir" in err[0]
+
+
+_FSIZE_CHILD = """
+import resource, signal, sys
+from runio import JsonlWriter
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead
+resource.setrlimit(resource.RLIMIT_FSIZE, (1000, 1000))
+w = JsonlWriter(sys.argv[1])
+for i in range(20):
+    w.write({"i": i, "pad": "x" * 280})
+print(w.appender.error, w.appender.dropped)
+"""
+
+
+def test_a_record_that_fails_half_way_is_cut_back_off_the_file(tmp_path):
+    """A file that can take 1,000 bytes (RLIMIT_FSIZE, in a child process): the fourth record
+    of ~300 bytes is written in part, then fails; the file is cut back to the three whole
+    records, the stream says why and counts the 17 it dropped."""
+    path = tmp_path / "events.jsonl"
+    r = subprocess.run([sys.executable, "-c", _FSIZE_CHILD, str(path)], capture_output=True,
+                       text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[-1] == "17" and "File too large" in r.stdout
+    assert "records cut (File too large)" in r.stderr
+    lines = path.read_text().splitlines()
+    assert [json.loads(ln)["i"] for ln in lines] == [0, 1, 2]
+    assert path.stat().st_size == sum(len(ln) + 1 for ln in lines) < 1000
+
+
+def test_streams_stop_at_the_reserve_and_end_files_never_raise(tmp_path, capsys):
+    """A stream stops when less than its reserve would be left free (here a reserve larger than
+    any disk); the end files' writer reports a folder it cannot write instead of raising."""
+    from runio import try_write_text
+    from runio.space import Appender
+
+    a = Appender(tmp_path / "x.csv", reserve=1 << 62)
+    assert not a.active and a.error.startswith("No space left on device") and not a.write("t\n")
+    assert a.dropped == 1 and not (tmp_path / "x.csv").read_bytes()
+    assert "x.csv: records cut (No space left on device" in capsys.readouterr().err
+    why = try_write_text(tmp_path / "missing" / "summary.md", "text")
+    assert why is not None and "No such file or directory" in why
+    assert try_write_text(tmp_path / "summary.md", "text") is None

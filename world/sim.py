@@ -412,7 +412,7 @@ class World:
         if not got:
             return
         now = self.clock.t
-        for msg, _ in got:
+        for msg, _ in got if not self.p.lockstep else ():  # (lockstep: read only when alone)
             if msg.get_type().startswith("SET_POSITION_TARGET"):
                 self.lag.samples.append(now - msg.time_boot_ms / 1000.0)
         self.endpoint.dispatch(self.endpoint.api, self._gimbal_commands(got))
