@@ -5,6 +5,9 @@ flushed when it holds `chunk_bytes` or spans `chunk_s` of simulation time (defau
 1 s), so a kill loses at most the open chunk. A file cut anywhere reads back up to its last
 complete chunk with `record.read.read_messages` (it walks the records without needing the
 summary at the end). `close()` writes the summary and footer: a complete, indexed file.
+A full disk (less than runio.space's reserve left after a chunk) or a failed write cuts the
+recording: one warning, `error` says why, later messages raise (the FlightLog counts them), and
+the file ends on its last complete chunk.
 """
 
 from __future__ import annotations
