@@ -42,6 +42,7 @@ def stop_on_signals(stop):
     def on_signal(signum, _frame) -> None:
         stop.request(signum, again_ends=signum != PARENT_DIED)
 
+    stop.waiting = True  # until the loop takes over (mission.companion): nothing flies yet
     old = {sig: signal.signal(sig, on_signal) for sig in (*SIGNALS, PARENT_DIED)}
     try:
         yield stop

@@ -40,7 +40,7 @@ from runio.space import Appender
 KEEP_LINES = 200  # a child's last output lines kept in memory (its log may be cut)
 COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before SIGKILL [s]
 WIND_DOWN_S = 120.0  # wall time for a simulator's span alone with the autopilot before SIGINT [s]
-PARENT_DEATH = {"companion": signal.SIGUSR1, "sim": signal.SIGUSR1}  # the child's pdeathsig
+PARENT_DEATH = signal.SIGUSR1  # every child's parent-death signal (module docstring)
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
@@ -49,7 +49,7 @@ class Child:
     name: str
     proc: subprocess.Popen
     log: Path | None
-    lines: deque | None = None  # its last output lines, kept in memory (`Relay`)
+    lines: deque | None = None  # its last output lines, kept in memory (`relay`)
     relay: threading.Thread | None = None
 
     def go(self) -> None:
@@ -203,13 +203,13 @@ class Launch:
         self._handlers: dict[int, object] = {}
 
     def start_sim(self, name: str, argv: list[str], log: Path | None) -> Child:
-        child = start(name, argv, log, parent_death=PARENT_DEATH["sim"])
+        child = start(name, argv, log, parent_death=PARENT_DEATH)
         self.sims.append(child)
         return child
 
     def start_companion(self, argv: list[str], log: Path | None = None,
                         wait_go: bool = False) -> Child:  # fmt: skip
-        self.companion = start("companion", argv, log, wait_go, PARENT_DEATH["companion"])
+        self.companion = start("companion", argv, log, wait_go, PARENT_DEATH)
         return self.companion
 
     def __enter__(self) -> Launch:
