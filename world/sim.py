@@ -300,7 +300,9 @@ class World:
         ap = self.autopilot
         state = ap.true_state if hasattr(ap, "true_state") else ap.state
         t = self.clock.t
-        if self.truth is not None and t > self._truth_t:  # world.csv ends on the end state
+        # world.csv ends on the end state, if the autopilot flew alone at all (a flight that
+        # ended disarmed keeps the world.csv it always had)
+        if self.truth is not None and t > max(self._truth_t, self._alone_t0):
             self._write_truth(t, state, None if self.team is None else team_states(self.team))
         self.alone = {
             "why": self.alone_why,
