@@ -93,6 +93,21 @@ def run(v: VehicleLink, mission: Mission, gen, frames: FrameSource | None,
     return run_fleet([v], mission, gen, frames, p, on_tick and (lambda vs: on_tick(vs[0])), stop)
 
 
+def _take_marks(vs: list[VehicleLink], taken: list, patience_s: float) -> None:
+    """Each vehicle's next tick mark into `taken`, those already taken kept: a signal may
+    interrupt the wait between two vehicles, and a mark once taken is never asked for again
+    (its simulator waits for that tick's close)."""
+    for i, v in enumerate(vs):
+        if taken[i] is None:
+            t0 = v.t
+            try:
+                taken[i] = v.next_mark(patience_s)
+            except Interrupted:
+                if v.t != t0:  # taken just before the signal
+                    taken[i] = v.t
+                raise
+
+
 def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource | None,
               p: CompanionParams, on_tick=None, stop: StopRequest | None = None) -> TickStats:  # fmt: skip
     """One tick for K vehicles at once: in lockstep it starts when every vehicle has marked
@@ -115,6 +130,7 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
         stop.waiting = False
     cpu0 = time.process_time()
     handing = False
+    taken: list[float | None] = [None] * len(vs)  # this tick's marks, vehicle by vehicle
     while True:
         if stop.is_set() and not handing:
             handing, gen = True, hand_over_all(vs)
@@ -122,20 +138,19 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
         if p.lockstep:
             try:
                 stop.waiting = True
-                marks = [v.next_mark(PATIENCE_S if handing else p.link_patience_s) for v in vs]
+                _take_marks(vs, taken, PATIENCE_S if handing else p.link_patience_s)
             except LinkLost as e:
                 if not handing:
                     raise
                 stats.handover = [f"no tick from the vehicle ({e}): left to its autopilot"]
                 return stats
-            except Interrupted:  # the first signal while waiting: the next tick hands over
+            except Interrupted:  # the first signal while waiting: this tick hands over
                 if handing:
                     raise
-                for v in vs:  # a mark taken just before the signal is closed (else: a stale
-                    v.close_tick()  # close, which the simulator skips)
                 continue
             finally:
                 stop.waiting = False
+            marks, taken = taken, [None] * len(vs)
             if any(abs(m - marks[0]) > 1e-9 for m in marks):
                 raise LinkLost(f"the vehicles marked different instants {sorted(set(marks))}: "
                                "are they simulators of one flight, started together?")  # fmt: skip
