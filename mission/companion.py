@@ -19,8 +19,10 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from flight.autopilot_api import Setpoint
+from mission.handover import PATIENCE_S, StopRequest, hand_over_all
 from mission.onboard import CameraFrame, onboard_frame
 from mission.vehicle import LinkLost, VehicleLink
+from runio.run import Interrupted
 
 
 @dataclass(frozen=True)
@@ -122,38 +124,79 @@ class TickStats:
     ticks: int = 0
     decide_wall_s: list[float] | None = None  # wall time from tick start to close [s]
     cpu_s: float = 0.0  # the loop's CPU time from the first tick on (start-up excluded) [s]
+    handover: list[str] | None = None  # stopped by a signal: what was done to each vehicle
 
 
 def run(v: VehicleLink, mission: Mission, gen, frames: FrameSource | None,
-        p: CompanionParams, on_tick=None) -> TickStats:  # fmt: skip
+        p: CompanionParams, on_tick=None, stop: StopRequest | None = None) -> TickStats:  # fmt: skip
     """Step `gen` (the mission's generator) once per tick until it returns."""
-    return run_fleet([v], mission, gen, frames, p, on_tick and (lambda vs: on_tick(vs[0])))
+    return run_fleet([v], mission, gen, frames, p, on_tick and (lambda vs: on_tick(vs[0])), stop)
+
+
+def _take_marks(vs: list[VehicleLink], taken: list, patience_s: float) -> None:
+    """Each vehicle's next tick mark into `taken`, those already taken kept: a signal may
+    interrupt the wait between two vehicles, and a mark once taken is never asked for again
+    (its simulator waits for that tick's close)."""
+    for i, v in enumerate(vs):
+        if taken[i] is None:
+            t0 = v.t
+            try:
+                taken[i] = v.next_mark(patience_s)
+            except Interrupted:
+                if v.t != t0:  # taken just before the signal
+                    taken[i] = v.t
+                raise
 
 
 def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource | None,
-              p: CompanionParams, on_tick=None) -> TickStats:  # fmt: skip
+              p: CompanionParams, on_tick=None, stop: StopRequest | None = None) -> TickStats:  # fmt: skip
     """One tick for K vehicles at once: in lockstep it starts when every vehicle has marked
     the same instant (their simulations run in parallel between ticks); the frames, if any,
-    are vehicle 0's. Free-running, the tick follows vehicle 0's clock."""
+    are vehicle 0's. Free-running, the tick follows vehicle 0's clock.
+
+    `stop` set (a signal): the mission is left and every vehicle is handed to its autopilot
+    (mission.handover) in the ticks that follow; then this returns with `handover` filled."""
     stats = TickStats(decide_wall_s=[])
     t_heartbeat = -1e9
     t_next = 0.0
     wall0 = heard = time.monotonic()
     lead = vs[0]
+    stop = stop if stop is not None else StopRequest()
     if p.lockstep:  # hello: each simulator starts its clock when this arrives
+        stop.waiting = True  # a signal now ends the companion at once: nothing flies yet
         for v in vs:
             v.link.defer_log = True  # a tick's tlog records are written after its close
             v.hello(p.link_patience_s)
+        stop.waiting = False
     cpu0 = time.process_time()
+    handing = False
+    taken: list[float | None] = [None] * len(vs)  # this tick's marks, vehicle by vehicle
     while True:
+        if stop.is_set() and not handing:
+            handing, gen = True, hand_over_all(vs)
+            mission.phase = "hand-over"
         if p.lockstep:
-            marks = [v.next_mark(p.link_patience_s) for v in vs]
+            try:
+                stop.waiting = True
+                _take_marks(vs, taken, PATIENCE_S if handing else p.link_patience_s)
+            except LinkLost as e:
+                if not handing:
+                    raise
+                stats.handover = [f"no tick from the vehicle ({e}): left to its autopilot"]
+                return stats
+            except Interrupted:  # the first signal while waiting: this tick hands over
+                if handing:
+                    raise
+                continue
+            finally:
+                stop.waiting = False
+            marks, taken = taken, [None] * len(vs)
             if any(abs(m - marks[0]) > 1e-9 for m in marks):
                 raise LinkLost(f"the vehicles marked different instants {sorted(set(marks))}: "
                                "are they simulators of one flight, started together?")  # fmt: skip
             t = marks[0]
             start = time.monotonic()
-            if frames is not None:  # wait only for a frame the vehicle announced for this tick
+            if frames is not None and not handing:  # only a frame announced for this tick
                 if lead.frame_announced_ms == round(t * 1000):
                     mission.on_frame(t, *frames.frame_at(t, p.frame_patience_s, lead))
                 else:
@@ -180,8 +223,10 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
         try:
             next(gen)
             done = False
-        except StopIteration:
+        except StopIteration as e:
             done = True
+            if handing:
+                stats.handover = e.value
         except BaseException:  # what the failing tick queued still goes out (its close not)
             for v in vs:
                 v.flush()

@@ -177,6 +177,8 @@ class SingleVehicleMission:
         lim = self.net.spec.limits
         goal = -(lim.floor_m + lim.margin_m + self.plan.descend_above_floor_m)
         p = v.tel.pos_ned
+        if -p[2] <= -goal + 0.5:
+            return  # at or below the band already: the autopilot's LAND from here
         spec = self.net.spec
         pilot = DescentPilot(float(p[0]), float(p[1]), goal, spec.limits, spec.dynamics.tau_s)
         self.phase = pilot.name

@@ -5,10 +5,14 @@ flushed when it holds `chunk_bytes` or spans `chunk_s` of simulation time (defau
 1 s), so a kill loses at most the open chunk. A file cut anywhere reads back up to its last
 complete chunk with `record.read.read_messages` (it walks the records without needing the
 summary at the end). `close()` writes the summary and footer: a complete, indexed file.
+A full disk (less than runio.space's reserve left after a chunk) or a failed write cuts the
+recording: one warning, `error` says why, later messages raise (the FlightLog counts them), and
+the file ends on its last complete chunk.
 """
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +20,7 @@ from mcap.writer import CompressionType, Writer
 
 from record import messages as m
 from record.flightlog import FlightLog
+from runio.space import RESERVE_BYTES, low_space, warn
 
 PROFILE = ""  # no ROS profile: Foxglove protobuf and JSON channels
 
@@ -44,6 +49,7 @@ class McapFile:
         self.messages = 0  # written so far
         self.flushed_messages = 0  # of those, in closed chunks (what a kill leaves readable)
         self._closed = False
+        self.error: str | None = None  # why the recording was cut (None while it works)
 
     def channel(self, spec: m.ChannelSpec) -> int:
         s = spec.schema
@@ -53,6 +59,8 @@ class McapFile:
         return self._w.register_channel(spec.topic, spec.message_encoding, sid)
 
     def write(self, handle: Any, t_ns: int, data: bytes) -> None:
+        if self.error is not None:  # cut (a full disk): the recorder counts what it drops
+            raise OSError(errno.ENOSPC, self.error)
         self._w.add_message(handle, log_time=t_ns, data=data, publish_time=t_ns)
         self._open_bytes += len(data)
         self.messages += 1
@@ -63,8 +71,19 @@ class McapFile:
 
     def flush(self) -> None:
         """Close the open chunk and push it to the file (readable from here on)."""
-        if self._open_bytes:
-            self._w.flush()
+        if self._open_bytes and self.error is None:
+            # stop before the disk is full (runio.space): the chunk and the reserve must fit
+            why = low_space(self.path.parent, RESERVE_BYTES + self._open_bytes)
+            if why is not None:
+                self.error = why
+                warn(f"{self.path}: recording cut ({why}); the flight goes on")
+                return
+            try:
+                self._w.flush()
+            except OSError as e:  # a read-only folder, a disk filled by someone else
+                self.error = e.strerror or str(e)
+                warn(f"{self.path}: recording cut ({self.error}); the flight goes on")
+                return
             self.chunks += 1
             self.flushed_messages = self.messages
         self._open_bytes, self._open_since = 0, None
@@ -73,9 +92,17 @@ class McapFile:
         if self._closed:
             return
         self._closed = True
-        self.flush()
-        self._w.finish()
-        self._f.close()
+        try:
+            self.flush()
+            if self.error is None:  # cut: readable up to its last chunk, no summary
+                self._w.finish()
+        except OSError as e:
+            self.error = self.error or (e.strerror or str(e))
+        finally:
+            try:
+                self._f.close()
+            except OSError:
+                pass
 
 
 class FlightRecorder(FlightLog):

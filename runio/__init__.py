@@ -6,7 +6,7 @@ every other layer may import it, it imports none of them."""
 from runio.address import Address, AddressError, mavlink_address, parse_address, zenoh_endpoint
 from runio.decisions import DecisionLog, read_decisions
 from runio.provenance import code_version, command_line, envelope_facts, file_facts
-from runio.run import Run, RunAborted, UsageError, open_run
+from runio.run import Interrupted, Run, RunAborted, UsageError, open_run
 from runio.runfolder import (
     MISSING,
     CsvWriter,
@@ -19,9 +19,11 @@ from runio.runfolder import (
     markdown_table,
     strict_json,
     to_jsonable,
+    try_write_text,
     versions,
 )
 from runio.schema import ConfigError, fill_dataclass, validate_mapping
+from runio.space import cut_records
 
 __all__ = [
     "MISSING",
@@ -30,6 +32,7 @@ __all__ = [
     "ConfigError",
     "CsvWriter",
     "DecisionLog",
+    "Interrupted",
     "JsonlWriter",
     "Run",
     "RunAborted",
@@ -51,6 +54,8 @@ __all__ = [
     "read_decisions",
     "strict_json",
     "to_jsonable",
+    "try_write_text",
+    "cut_records",
     "validate_mapping",
     "versions",
     "zenoh_endpoint",

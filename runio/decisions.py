@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from runio.runfolder import strict_json
+from runio.space import Appender
 
 KEYS = ("t", "vehicle", "pilot", "phi", "proposed", "certified", "verdict", "reason", "mode",
         "autopilot_mode")  # fmt: skip
@@ -48,14 +49,13 @@ class DecisionLog:
 
     def __init__(self, path: Path | str):
         self.path = Path(path)
-        self._f = open(self.path, "a", encoding="utf-8")
+        self.appender = Appender(self.path)  # cut by a full disk (runio.space), never raises
         self.counts: dict[str, int] = {}
         self.reasons: dict[str, int] = {}  # reason of non-accepted decisions → count
 
     def write(self, record: dict[str, Any]) -> dict[str, Any]:
         rec = normalise(record)
-        self._f.write(json.dumps(rec, sort_keys=True, allow_nan=False) + "\n")
-        self._f.flush()
+        self.appender.write(json.dumps(rec, sort_keys=True, allow_nan=False) + "\n")
         v = rec["verdict"]
         self.counts[v] = self.counts.get(v, 0) + 1
         if v != "accepted" and rec.get("reason"):
@@ -67,7 +67,7 @@ class DecisionLog:
         return sum(self.counts.values())
 
     def close(self) -> None:
-        self._f.close()
+        self.appender.close()
 
 
 def read_decisions(path: Path | str) -> list[dict[str, Any]]:

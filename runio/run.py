@@ -25,6 +25,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import shutil
+import signal
 import time
 import traceback
 from collections.abc import Callable, Iterator
@@ -46,6 +47,15 @@ from runio.runfolder import (
 
 class UsageError(Exception):
     """Bad usage or configuration: reported on one line, exit code 2, no run folder."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A signal that ends a run as Ctrl-C does (SIGINT, SIGTERM, SIGHUP); exit 128 + signum."""
+
+    def __init__(self, signum: int):
+        self.signum = int(signum)
+        self.name = signal.Signals(signum).name
+        super().__init__(f"interrupted ({self.name})")
 
 
 class RunAborted(Exception):

@@ -6,10 +6,12 @@ whole files by write-to-temp-and-rename, streams by append + flush.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import datetime as dt
 import enum
+import io
 import json
 import os
 import platform
@@ -20,20 +22,40 @@ from typing import Any
 
 import numpy as np
 
+from runio.space import Appender, warn
+
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write a whole file so that readers see the old or the new content, never a part."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):  # a full disk keeps no half-written temporary file
+            tmp.unlink()
+        raise
 
 
 def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def try_write_text(path: Path, text: str) -> str | None:
+    """`atomic_write_text` for a run's end files (summary.md, companion.json, sim_stats.json):
+    None when written; on a full disk or a read-only folder, why not (warned on stderr), never
+    an exception, so that the flight's ending is still reported."""
+    try:
+        atomic_write_text(path, text)
+    except OSError as e:
+        why = f"{path}: not written ({e.strerror or e})"
+        warn(why)
+        return why
+    return None
 
 
 _LEAVES = frozenset({float, int, str, bool, type(None)})  # plain JSON values, kept as they are
@@ -113,36 +135,40 @@ def versions() -> dict[str, str]:
 
 
 class JsonlWriter:
-    """Append-only JSON-lines stream, flushed per record (events.jsonl)."""
+    """Append-only JSON-lines stream, flushed per record (events.jsonl). A full disk or a
+    read-only folder cuts it (runio.space: a warning, `appender.dropped` counts the rest)."""
 
     def __init__(self, path: Path):
         self.path = Path(path)
-        self._f = open(self.path, "a", encoding="utf-8")
+        self.appender = Appender(self.path)
 
     def write(self, record: dict[str, Any]) -> None:
         self.write_many([record])
 
     def write_many(self, records: list[dict[str, Any]]) -> None:
         """Several records, flushed once (a tick's decisions of every vehicle)."""
-        self._f.write("".join(json.dumps(to_jsonable(r), sort_keys=True) + "\n" for r in records))
-        self._f.flush()
+        self.appender.write(
+            "".join(json.dumps(to_jsonable(r), sort_keys=True) + "\n" for r in records)
+        )
 
     def close(self) -> None:
-        self._f.close()
+        self.appender.close()
 
 
 class CsvWriter:
-    """Append-only CSV with a fixed header, flushed per row (metrics.csv)."""
+    """Append-only CSV with a fixed header, flushed per row (metrics.csv). A full disk or a
+    read-only folder cuts it (runio.space: a warning, `appender.dropped` counts the rest)."""
 
     def __init__(self, path: Path, columns: list[str]):
         self.path = Path(path)
         self.columns = list(columns)
         new = not self.path.exists() or self.path.stat().st_size == 0
-        self._f = open(self.path, "a", newline="", encoding="utf-8")
-        self._w = csv.writer(self._f)
+        self.appender = Appender(self.path)
+        self._buf = io.StringIO()
+        self._w = csv.writer(self._buf)
         if new:
             self._w.writerow(self.columns)
-            self._f.flush()
+            self._flush()
 
     def write(self, row: dict[str, Any]) -> None:
         self.write_rows([row])
@@ -151,10 +177,15 @@ class CsvWriter:
         """Several rows, flushed once (a tick's samples of every vehicle)."""
         for row in rows:  # a key outside the header is left out; a missing column is empty
             self._w.writerow([to_jsonable(row.get(k, "")) for k in self.columns])
-        self._f.flush()
+        self._flush()
+
+    def _flush(self) -> None:
+        self.appender.write(self._buf.getvalue())
+        self._buf.seek(0)
+        self._buf.truncate()
 
     def close(self) -> None:
-        self._f.close()
+        self.appender.close()
 
 
 class RunFolder:

@@ -208,18 +208,17 @@ class SafetyNet:
     def certify_column(self, pos_ned: np.ndarray, altitude_m: float) -> tuple[bool, str]:
         """Before a take-off from `pos_ned` (NED about home) to `altitude_m` above home: the
         hand-over point above it must be inside every position row (fence, exclusion zones,
-        floor and ceiling) with the envelope's margin, since the autopilot's own take-off flies
-        the column straight up to it. (ok, reason)."""
+        floor and ceiling), since the autopilot's own take-off flies the column straight up to
+        it and the net takes the vehicle there. (ok, reason)."""
         p = np.array([float(pos_ned[0]), float(pos_ned[1]), -float(altitude_m)])
-        margin = self.spec.limits.margin_m
         if not np.isfinite(p).all():
             return False, f"the take-off position {p.tolist()} is not finite"
-        if inside_with_margin(self.supervisor.geometry, p, margin):
+        if inside_with_margin(self.supervisor.geometry, p, 0.0):
             return True, ""
+        lim = self.spec.limits
         return False, (f"the take-off column at {p[0]:.1f} m N, {p[1]:.1f} m E up to "
-                       f"{altitude_m:.1f} m is not inside the envelope {self.spec.name!r} with "
-                       f"its {margin:.1f} m margin (fence, exclusion zones, floor "
-                       f"{self.spec.limits.floor_m:.0f} m, ceiling {self.spec.limits.ceiling_m:.0f} m)")  # fmt: skip
+                       f"{altitude_m:.1f} m is not inside the envelope {self.spec.name!r} (fence, "
+                       f"exclusion zones, floor {lim.floor_m:.0f} m, ceiling {lim.ceiling_m:.0f} m)")  # fmt: skip
 
     def step(self, t: float, state: VehicleState, proposed: Setpoint | None,
              autopilot_mode: FlightMode | None = None, why: str = "") -> Decision:  # fmt: skip

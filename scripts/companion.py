@@ -9,18 +9,71 @@ marks; `--free-run` ticks on the autopilot's own clock (a real autopilot).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import math
 import shutil
+import signal
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from runio import JsonlWriter, RunFolder, args_dict, atomic_write_text
+from runio import JsonlWriter, RunFolder, args_dict, cut_records, try_write_text
 from scripts.cli import UsageError
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""End the flight by handing the vehicles to their autopilots (mission.handover); a second one
+ends the companion at once."""
+PARENT_DIED = signal.SIGUSR1
+"""The companion's parent-death signal under `skyherd fly` (scripts.launch): hand over as
+above; the kernel may send it more than once (once per thread of the dying parent), so a
+repeat never counts as a second signal."""
+
+
+@contextlib.contextmanager
+def stop_on_signals(stop):
+    """SIGINT, SIGTERM and SIGHUP set `stop` (a second one, or one before the flight, raises
+    runio.Interrupted) while the block runs, and so does PARENT_DIED (never a second); the
+    previous handlers afterwards."""
+
+    def on_signal(signum, _frame) -> None:
+        stop.request(signum, again_ends=signum != PARENT_DIED)
+
+    stop.waiting = True  # until the loop takes over (mission.companion): nothing flies yet
+    old = {sig: signal.signal(sig, on_signal) for sig in (*SIGNALS, PARENT_DIED)}
+    try:
+        yield stop
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def _signal_name(x) -> str:
+    """The signal of an Interrupted or a StopRequest by name (a bare Ctrl-C's is SIGINT; the
+    parent-death signal says so)."""
+    signum = getattr(x, "signum", None)
+    name = signal.Signals(signum).name if signum else "SIGINT"
+    return name + (": its parent died" if signum == PARENT_DIED else "")
+
+
+def _interrupt_rc(stop) -> int:
+    return 128 + (stop.signum or signal.SIGINT)
+
+
+def _say(text: str) -> None:
+    """A line on stderr that never raises (stderr may be a file on a full disk)."""
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+def _tlog_cut(link) -> list[dict]:
+    err = link.tlog_error
+    return [{"file": "telemetry.tlog", "error": err, "dropped": None}] if err else []
 
 
 def add_arguments(
@@ -251,12 +304,20 @@ def _track_columns():
 
 def _load_policy(path):
     from policy.dqn import PolicyFileError, load_policy
+    from policy.groundair.env import OBS_DIM
+    from policy.groundair.params import N_ACTIONS
     from policy.models import DEFAULT_POLICY
 
     try:
-        return load_policy(path or DEFAULT_POLICY)
+        policy = load_policy(path or DEFAULT_POLICY)
     except PolicyFileError as e:
         raise UsageError(f"{e}; train one with `skyherd train ab` or pass --policy") from None
+    shape = (getattr(policy, "obs_dim", None), getattr(policy, "n_actions", None))
+    if shape != (OBS_DIM, N_ACTIONS):
+        raise UsageError(f"{path or DEFAULT_POLICY}: the policy takes {shape[0]} inputs and gives "
+                         f"{shape[1]} actions; the ground-air task has {OBS_DIM} inputs and {N_ACTIONS} "
+                         "actions: pass a policy trained for it (`skyherd train ab`) or drop --policy")  # fmt: skip
+    return policy
 
 
 def _load_net(envelope, run_dir):
@@ -414,14 +475,19 @@ def run(args: argparse.Namespace) -> int:
         bar.set_postfix_str(f"t = {veh.t:.1f} s", refresh=False)
         bar.update()
 
+    from mission.handover import StopRequest
+
+    stop = StopRequest()
+    writers = [mission.rec.decisions, mission.rec.track, getattr(mission.net, "events", None)]
     try:
-        wait_go(args)
-        stats = run_companion(v, mission, mission.run(v), frames, params, on_tick)
+        with stop_on_signals(stop):
+            wait_go(args)
+            stats = run_companion(v, mission, mission.run(v), frames, params, on_tick, stop)
     except Exception as e:  # noqa: BLE001 - the flight ends; say why, keep what was recorded
         error = f"{type(e).__name__}: {e}" if not str(e).startswith(type(e).__name__) else str(e)
         mission.outcome, mission.reason = "aborted", str(e)
-    except KeyboardInterrupt:
-        error, interrupted = "interrupted (Ctrl-C)", True
+    except KeyboardInterrupt as e:
+        error, interrupted = f"interrupted ({_signal_name(e)})", True
         mission.outcome, mission.reason = "interrupted", error
     finally:
         bar.close()
@@ -429,10 +495,17 @@ def run(args: argparse.Namespace) -> int:
         link.close()
         if session is not None:
             session.close()
-    _write_outcome(run_dir, mission, stats, frames)
+    if stats is not None and stats.handover is not None:  # a signal: handed over, then ended
+        error, interrupted = (
+            f"interrupted ({_signal_name(stop)}): {'; '.join(stats.handover)}",
+            True,
+        )
+        mission.outcome, mission.reason = "interrupted", error
+    cut = cut_records(writers) + _tlog_cut(link)
+    _write_outcome(run_dir, mission, stats, frames, cut)
     if error:
-        print(f"skyherd companion: aborted: {error}", file=sys.stderr)
-    rc = 0 if mission.outcome == "completed" else (130 if interrupted else 1)
+        _say(f"skyherd companion: {'' if interrupted else 'aborted: '}{error}")
+    rc = 0 if mission.outcome == "completed" else (_interrupt_rc(stop) if interrupted else 1)
     if folder is not None:  # on its own (not under `skyherd fly`): its own summary and plots
         from scripts.fly_report import report
 
@@ -453,11 +526,14 @@ def _tick_stats(stats) -> dict:
     }
 
 
-def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
-    """companion.json: how the mission ended, its counters, the decision latency."""
+def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = None) -> None:
+    """companion.json: how the mission ended, its counters, the decision latency, the records
+    a full disk or a read-only folder cut (never raises: the ending is still reported)."""
     out = {
         "outcome": mission.outcome,
         "reason": mission.reason,
+        "handover": stats.handover if stats is not None else None,
+        "records_cut": cut or [],
         "phase": mission.phase,
         "decisions": len(mission.rec.rows),
         **_tick_stats(stats),
@@ -488,13 +564,15 @@ def _write_outcome(run_dir: Path, mission, stats, frames) -> None:
         st = mission.net.stats
         out["net"] = {"switches": st.switches, "rejected": st.rejected, "projected": st.projected,
                       "fallback_s": st.fallback_s, "pid_s": st.pid_s}  # fmt: skip
-    atomic_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
+    try_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
     if mission.perception is not None and mission.perception.strip:
         from perception.detector import contact_sheet, write_png
 
-        write_png(
-            run_dir / "frames.png", contact_sheet([f for _, f in mission.perception.strip], cols=4)
-        )
+        try:
+            write_png(run_dir / "frames.png",
+                      contact_sheet([f for _, f in mission.perception.strip], cols=4))  # fmt: skip
+        except OSError as e:
+            _say(f"skyherd companion: frames.png not written ({e.strerror or e})")
 
 
 def _publish_live(session, mission, vehicle: str = "uav0") -> None:
@@ -572,15 +650,19 @@ def _run_formation(args, run_dir: Path, folder) -> int:
         bar.set_postfix_str(f"t = {vs_[0].t:.1f} s", refresh=False)
         bar.update()
 
+    from mission.handover import StopRequest
+
     error, stats, interrupted = "", None, False
+    stop = StopRequest()
     try:
-        wait_go(args)
-        stats = run_fleet(vs, mission, mission.run(vs), None, CompanionParams(), on_tick)
+        with stop_on_signals(stop):
+            wait_go(args)
+            stats = run_fleet(vs, mission, mission.run(vs), None, CompanionParams(), on_tick, stop)
     except Exception as e:  # noqa: BLE001 - the flight ends; say why, keep what was recorded
         error = str(e) or type(e).__name__
         mission.outcome, mission.reason = "aborted", error
-    except KeyboardInterrupt:
-        error, interrupted = "interrupted (Ctrl-C)", True
+    except KeyboardInterrupt as e:
+        error, interrupted = f"interrupted ({_signal_name(e)})", True
         mission.outcome, mission.reason = "interrupted", error
     finally:
         bar.close()
@@ -589,16 +671,24 @@ def _run_formation(args, run_dir: Path, folder) -> int:
             link.close()
         for w in (events, record.decisions, record.track):
             w.close()
+    if stats is not None and stats.handover is not None:  # a signal: handed over, then ended
+        error, interrupted = (
+            f"interrupted ({_signal_name(stop)}): {'; '.join(stats.handover)}",
+            True,
+        )
+        mission.outcome, mission.reason = "interrupted", error
     times = {k: None if math.isnan(t) else t for k, t in mission.times.items()}
     out = {"outcome": mission.outcome, "reason": mission.reason, "phase": mission.phase,
            "decisions": record.rows, "vehicles": K, "times": times,
            "yielded": {f"uav{k}": w for k, w in mission.yielded.items()},
            "mode_requests": sum(a.requests for a in mission.authority),
-           "net": mission.net_counts(), **_tick_stats(stats)}  # fmt: skip
-    atomic_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
+           "net": mission.net_counts(), **_tick_stats(stats),
+           "handover": stats.handover if stats is not None else None,
+           "records_cut": cut_records([events, record.decisions, record.track])}  # fmt: skip
+    try_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
     if error:
-        print(f"skyherd companion: aborted: {error}", file=sys.stderr)
-    rc = 0 if mission.outcome == "completed" else (130 if interrupted else 1)
+        _say(f"skyherd companion: {'' if interrupted else 'aborted: '}{error}")
+    rc = 0 if mission.outcome == "completed" else (_interrupt_rc(stop) if interrupted else 1)
     if folder is not None:
         from scripts.fly_formation import formation_report
 

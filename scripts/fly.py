@@ -20,7 +20,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from runio import RunFolder, args_dict
+from runio import args_dict
 from scripts.cli import UsageError
 
 
@@ -278,19 +278,21 @@ _ENVELOPE = {"quadrotor": "quadrotor_groundair.toml", "fixedwing": "fixedwing_fi
 
 
 def run_two_processes(args: argparse.Namespace) -> int:
-    from scripts import launch
+    from scripts import launch, waysout
 
     sim_args, comp_args = _validate(args)
     envelope = _envelope(args) if args.mission == "groundair" else None
-    folder = RunFolder("fly", root=args.runs_dir)
+    folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
                          "companion": comp_args, "envelope": envelope})  # fmt: skip
+    waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     recorder = None
     why = "interrupted (Ctrl-C)"
+    kids = launch.Launch()
     try:
-        with launch.Launch() as kids:  # stopped on every way out, the companion first
+        with kids:  # stopped on every way out, the companion first
             if args.connect is None or args.mission == "groundair":
                 kids.start_sim("sim", launch.skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
                          run_dir / "sim.log")  # fmt: skip
@@ -302,15 +304,18 @@ def run_two_processes(args: argparse.Namespace) -> int:
             recorder = _recorder(args, run_dir) if kids.sims else None
             companion.go()
             rc, why = kids.supervise(args.timeout)
-    except KeyboardInterrupt:
-        rc = 130
+    except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
+        rc, why = waysout.interrupted(e)
     finally:
         if recorder is not None:
             recorder.close()
     from scripts.fly_report import report  # after the flight: not on the way to the launch
 
-    ok = report(run_dir, args, rc, why)
-    return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
+    ok = waysout.report_safely(report, run_dir, args, rc, why, why=why)  # never raises
+    output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
+    lines = waysout.ending_lines(run_dir, output=output, cut=waysout.recording_cut(recorder))
+    waysout.append_ending(run_dir, lines)
+    return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 
 def _envelope(args) -> dict:

@@ -36,7 +36,7 @@ from mission.formation_plan import (
     vehicle_homes,
     vehicle_instances,
 )
-from runio.runfolder import RunFolder, args_dict, atomic_write_text, markdown_table
+from runio.runfolder import args_dict, atomic_write_text, markdown_table
 from scripts.cli import UsageError
 from scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
 from scripts.launch import flight_reason
@@ -112,7 +112,9 @@ def run_formation(args: argparse.Namespace) -> int:
     instances = vehicle_instances(args.instance, K)
     _ports_free(instances)
     homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
-    folder = RunFolder("fly", root=args.runs_dir)
+    from scripts import waysout
+
+    folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
     folder.write_config(
         {"args": args_dict(args), "mission": "formation", "formation": params,
@@ -121,6 +123,7 @@ def run_formation(args: argparse.Namespace) -> int:
                   "east (x-1)*cell_m"}
     )  # fmt: skip
     atomic_write_text(run_dir / "plan.json", _plan_json(plan))
+    waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     skipped = (
         " (10 skipped: its companion port is the ground stations' 14550)"
@@ -133,8 +136,9 @@ def run_formation(args: argparse.Namespace) -> int:
     print(f"skyherd fly: {len(groups)} simulator process{'es' if len(groups) > 1 else ''} "
           f"({', '.join(str(len(g)) for g in groups)} vehicles), logs sim<g>.log", flush=True)  # fmt: skip
     why = "interrupted (Ctrl-C)"
+    kids = launch.Launch()
     try:
-        with launch.Launch() as kids:  # stopped on every way out, the companion first
+        with kids:  # stopped on every way out, the companion first
             for g, group in enumerate(groups):
                 fleet = [{"name": f"uav{k}", "instance": instances[k], "seed": args.seed + k,
                           "home": [homes[k].lat_deg, homes[k].lon_deg, homes[k].alt_m]} for k in group]  # fmt: skip
@@ -147,10 +151,14 @@ def run_formation(args: argparse.Namespace) -> int:
                 "companion", "--mission", "formation", "--plan", str(run_dir / "plan.json"), "--cell-m",
                 repr(params.cell_m), "--instance", str(args.instance), "--run-dir", str(run_dir)))  # fmt: skip
             rc, why = kids.supervise(args.timeout)
-    except KeyboardInterrupt:
-        rc = 130
-    ok = formation_report(run_dir, rc, why)
-    return 0 if ok and rc == 0 else (130 if rc == 130 else 1)
+    except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
+        rc, why = waysout.interrupted(e)
+    ok = waysout.report_safely(formation_report, run_dir, rc, why, why=why)  # never raises
+    output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
+    waysout.append_ending(
+        run_dir, waysout.ending_lines(run_dir, [f"uav{k}" for k in range(K)], output)
+    )
+    return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 
 def sim_groups(K: int, sims: int) -> list[list[int]]:

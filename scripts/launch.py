@@ -3,19 +3,45 @@ stop them in the right order, and say clearly which one ended the flight and why
 
 Rules: the companion ends the flight (its exit code is the flight's); a simulator that dies
 first ends it too (the companion is stopped, its log tail shown); the wall-clock limit stops
-both. The simulator is stopped after the companion (SIGINT, then SIGKILL after a grace period),
-so the vehicle it simulates lands or disarms before it disappears.
+both. Every way out (the flight's end, an error, SIGINT / SIGTERM / SIGHUP to `fly`) ends the
+children in one order:
+
+1. the companion gets SIGINT: it hands the vehicle to the autopilot (LAND, or the airframe's
+   own landing mode) within a few ticks and exits; SIGKILL after `COMPANION_GRACE_S`;
+2. each simulator gets SIGUSR1, "your companion is gone": it steps on alone, as fast as
+   possible, until the autopilot has disarmed or `WorldParams.alone_s` of simulation time have
+   passed (the autopilot's offboard-loss failsafe gets its simulation time), reports what the
+   autopilot did in sim_stats.json and exits; SIGINT after `WIND_DOWN_S`, then SIGKILL.
+
+A second signal to `fly` while this runs skips to stopping the simulators at once. Children
+run in their own process group (a terminal's Ctrl-C reaches `fly` alone, which orders the
+rest) and die with their parent: their parent-death signal is SIGUSR1 (the companion: hand
+over, as on SIGINT; a simulator: its companion is gone, as above; the kernel may send it once
+per thread of the dying parent, a repeat changes nothing), so a `kill -9` of `fly` still lands
+the vehicle or leaves it in its failsafe, and leaves no process behind.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
+
+from runio.run import Interrupted
+from runio.space import Appender
+
+KEEP_LINES = 200  # a child's last output lines kept in memory (its log may be cut)
+COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before SIGKILL [s]
+WIND_DOWN_S = 120.0  # wall time for a simulator's span alone with the autopilot before SIGINT [s]
+PARENT_DEATH = signal.SIGUSR1  # every child's parent-death signal (module docstring)
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 @dataclass
@@ -23,6 +49,8 @@ class Child:
     name: str
     proc: subprocess.Popen
     log: Path | None
+    lines: deque | None = None  # its last output lines, kept in memory (`relay`)
+    relay: threading.Thread | None = None
 
     def go(self) -> None:
         """Let a child started with `wait_go` begin (one line on its standard input)."""
@@ -35,10 +63,23 @@ class Child:
             pass  # it ended already: supervise() reports how
 
     def tail(self, n: int = 5) -> str:
-        if self.log is None or not self.log.exists():
-            return ""
-        lines = self.log.read_text(errors="replace").strip().splitlines()
+        if self.relay is not None:
+            self.relay.join(2.0)  # the child has ended: its last lines are on their way
+        lines = list(self.lines or ())
         return "\n".join("    " + ln for ln in lines[-n:])
+
+
+def relay(pipe, log: Path, lines: deque) -> None:
+    """A child's output, line by line, to its log file (cut with a warning on a full disk or a
+    read-only folder: runio.space) and to `lines` in memory, until the child closes it."""
+    out = Appender(log)
+    try:
+        for raw in iter(pipe.readline, b""):
+            out.write(raw)
+            lines.append(raw.decode(errors="replace").rstrip("\n"))
+    finally:
+        out.close()
+        pipe.close()
 
 
 def skyherd_cmd(*args: str) -> list[str]:
@@ -46,22 +87,63 @@ def skyherd_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "scripts.cli", *args]
 
 
-def start(name: str, argv: list[str], log: Path | None, wait_go: bool = False) -> Child:
-    """Start a child; its stdout and stderr go to `log` (None: inherited, e.g. a progress bar).
+def die_with_parent(sig: int):
+    """A `preexec_fn` that sets the child's parent-death signal to `sig` (Linux prctl
+    PR_SET_PDEATHSIG) between fork and exec; a child whose parent died before that exits at
+    once (its parent is no longer the one that forked it). None where there is no prctl."""
+    if not sys.platform.startswith("linux"):
+        return None
+    prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up here, not in the forked child
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
+        if os.getppid() != parent:
+            os._exit(128 + int(sig))
+
+    return preexec
+
+
+def start(name: str, argv: list[str], log: Path | None, wait_go: bool = False,
+          parent_death: int | None = None) -> Child:  # fmt: skip
+    """Start a child; its stdout and stderr go to `log` through this process (a pipe and a
+    relay thread; the last lines kept in memory), or with `log` None are inherited (a
+    progress bar).
     `wait_go`: its standard input is a pipe that `go()` writes to (`skyherd companion
-    --wait-go`), otherwise empty."""
-    out = open(log, "ab") if log is not None else None  # noqa: SIM115 - closed with the child
+    --wait-go`), otherwise empty. `parent_death`: the signal it gets if this process dies.
+    It runs in its own process group: a terminal's Ctrl-C reaches only this process."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT if out else None,
-                            stdin=subprocess.PIPE if wait_go else subprocess.DEVNULL, env=env)  # fmt: skip
-    if out is not None:
-        out.close()
-    return Child(name, proc, log)
+    pre = die_with_parent(parent_death) if parent_death is not None else None
+    piped = subprocess.PIPE if log is not None else None
+    proc = subprocess.Popen(argv, stdout=piped, stderr=subprocess.STDOUT if piped else None,
+                            stdin=subprocess.PIPE if wait_go else subprocess.DEVNULL, env=env,
+                            process_group=0, preexec_fn=pre)  # fmt: skip
+    child = Child(name, proc, log)
+    if log is not None:  # through this process: kept in memory when the folder fails
+        child.lines = deque(maxlen=KEEP_LINES)
+        child.relay = threading.Thread(target=relay, args=(proc.stdout, log, child.lines),
+                                       name=f"relay-{name}", daemon=True)  # fmt: skip
+        child.relay.start()
+    return child
 
 
 def stop(child: Child, grace_s: float = 10.0) -> int:
     """SIGINT, then SIGKILL after `grace_s`; returns the exit code."""
     return stop_all([child], grace_s)[0]
+
+
+def wind_down(sims: list[Child], wall_s: float = WIND_DOWN_S) -> None:
+    """SIGUSR1 to every simulator still running ("your companion is gone": it steps on alone
+    until the autopilot disarms or its `alone_s` has passed, then exits); wait up to `wall_s`."""
+    for c in sims:
+        if c.proc.poll() is None:
+            c.proc.send_signal(signal.SIGUSR1)
+    deadline = time.monotonic() + wall_s
+    for c in sims:
+        try:
+            c.proc.wait(max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            pass  # stop_all ends it
 
 
 def stop_all(children: list[Child], grace_s: float = 10.0) -> list[int]:
@@ -80,7 +162,24 @@ def stop_all(children: list[Child], grace_s: float = 10.0) -> list[int]:
     return [c.proc.returncode for c in children]
 
 
-COMPANION_EXITED = "the companion exited with code"
+COMPANION_EXITED = "the companion exited with code"  # how supervise() begins that reason
+
+
+def exit_text(rc: int) -> str:
+    """A child's exit code as words: "code 1", "code -9 (killed by SIGKILL)"."""
+    if rc < 0:
+        try:
+            return f"code {rc} (killed by {signal.Signals(-rc).name})"
+        except ValueError:
+            pass
+    return f"code {rc}"
+
+
+def _raise_interrupted(signum: int, _frame) -> None:
+    raise Interrupted(signum)
+
+
+INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # the ways a user ends `fly`
 
 
 def flight_reason(companion_reason: str | None, why: str) -> str:
@@ -93,32 +192,40 @@ def flight_reason(companion_reason: str | None, why: str) -> str:
 
 class Launch:
     """The children of one flight, stopped on every way out of `with Launch() as kids:` (the
-    flight's end, an error, a Ctrl-C at any moment, the start-up included): the companion first,
-    so that the vehicles it flies land or disarm, then every simulator at once."""
+    flight's end, an error, SIGINT / SIGTERM / SIGHUP at any moment, the start-up included):
+    the companion first, so that it hands the vehicles to their autopilots, then every
+    simulator winds down alone with its autopilot (module docstring). Inside the `with`,
+    SIGTERM and SIGHUP raise `Interrupted` as SIGINT does (a KeyboardInterrupt naming it)."""
 
     def __init__(self) -> None:
         self.companion: Child | None = None
         self.sims: list[Child] = []
+        self._handlers: dict[int, object] = {}
 
     def start_sim(self, name: str, argv: list[str], log: Path | None) -> Child:
-        child = start(name, argv, log)
+        child = start(name, argv, log, parent_death=PARENT_DEATH)
         self.sims.append(child)
         return child
 
     def start_companion(self, argv: list[str], log: Path | None = None,
                         wait_go: bool = False) -> Child:  # fmt: skip
-        self.companion = start("companion", argv, log, wait_go)
+        self.companion = start("companion", argv, log, wait_go, PARENT_DEATH)
         return self.companion
 
     def __enter__(self) -> Launch:
+        for sig in INTERRUPTS:
+            self._handlers[sig] = signal.signal(sig, _raise_interrupted)
         return self
 
     def __exit__(self, *exc) -> None:
-        try:  # a second Ctrl-C while the companion ends still stops the simulators
+        try:  # a second signal while the companion or the simulators end: stop all at once
             if self.companion is not None:
-                stop(self.companion)
+                stop(self.companion, COMPANION_GRACE_S)
+            wind_down(self.sims)
         finally:
-            stop_all(self.sims)
+            stop_all([c for c in (self.companion, *self.sims) if c is not None])
+            for sig, old in self._handlers.items():
+                signal.signal(sig, old)
 
     def supervise(self, timeout_s: float) -> tuple[int, str]:
         """Wait for the flight to end; return (exit code, why it ended). The companion's end
@@ -129,14 +236,14 @@ class Launch:
         while True:
             rc = companion.proc.poll()
             if rc is not None:
-                return rc, "" if rc == 0 else f"{COMPANION_EXITED} {rc}"
+                return rc, "" if rc == 0 else f"the companion exited with {exit_text(rc)}"
             for s in self.sims:
                 if s.proc.poll() is not None:
-                    why = f"the simulator {s.name} exited with code {s.proc.returncode} during the flight"
+                    why = f"the simulator {s.name} exited with {exit_text(s.proc.returncode)} during the flight"
                     tail = s.tail()
-                    stop(companion)
+                    stop(companion, COMPANION_GRACE_S)
                     return 1, why + (f":\n{tail}" if tail else "")
             if time.monotonic() > deadline:
-                stop(companion)
+                stop(companion, COMPANION_GRACE_S)
                 return 1, f"the flight took longer than --timeout {timeout_s:.0f} s of wall time"
             time.sleep(0.02)  # a child's end is seen within 20 ms (it ends the flight)

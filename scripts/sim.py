@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 from dataclasses import dataclass
@@ -273,21 +274,64 @@ def run(args: argparse.Namespace) -> int:
         _set_params(world, args.param, session)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: world.stop())
+    alone = getattr(world, "companion_gone", None)  # the built-in vehicle; others just stop
+    signal.signal(signal.SIGUSR1, lambda *_: alone(COMPANION_GONE) if alone else world.stop())
     mode = "free-running" if args.free_run else f"lockstep (latency {args.latency:g} s)"
     if args.autopilot != "builtin":
         mode = f"{args.autopilot} on skyherd's physics (its own lockstep)"
-    print(f"skyherd sim: instance {args.instance}, {mode}, speed-up {args.speedup:g}; run folder {run_dir}",
-          file=sys.stderr, flush=True)  # fmt: skip
+    say(
+        f"skyherd sim: instance {args.instance}, {mode}, speed-up {args.speedup:g}; run folder {run_dir}"
+    )
     try:
         stats = world.run(args.duration)
     except Exception as e:  # noqa: BLE001 - say what stopped the world, then close its sockets
-        print(f"skyherd sim: stopped: {type(e).__name__}: {e}", file=sys.stderr)
+        say(f"skyherd sim: stopped: {type(e).__name__}: {e}")
         return 1
     finally:
         world.close()
         session.close()
-    print(json.dumps(stats), file=sys.stderr)
+    say(json.dumps(stats))
+    _if_parent_died(args, run_dir)
     return 0
+
+
+COMPANION_GONE = "SIGUSR1: the companion is gone (it exited, or `skyherd fly` died)"
+"""Why the simulator steps on alone (world.sim.World.companion_gone): `skyherd fly` sends
+SIGUSR1 once its companion has exited, and it is the simulator's parent-death signal."""
+
+
+PARENT = os.getppid()  # the process that started this one (`skyherd fly`, a shell)
+
+
+def _if_parent_died(args, run_dir, vehicles: list[str] | None = None) -> None:
+    """Under `skyherd fly` (--run-dir) whose process died (kill -9): the simulator, the last
+    child to end, says how the flight ended in summary.md."""
+    if args.run_dir is not None and _parent_gone():
+        from scripts.waysout import parent_died
+
+        parent_died(run_dir, vehicles)
+
+
+def _parent_gone() -> bool:
+    """This process's parent has died (or is dying: its main thread a zombie while its other
+    threads end, and this process not yet handed to another parent)."""
+    if os.getppid() != PARENT:
+        return True
+    try:
+        with open(f"/proc/{PARENT}/stat") as f:
+            state = f.read().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return True
+    return state in ("Z", "X")
+
+
+def say(text: str) -> None:
+    """A line on stderr (sim.log in a run folder), never raising: a full disk or a read-only
+    folder must not stop the vehicle."""
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 @dataclass(frozen=True)
@@ -370,19 +414,21 @@ def run_fleet(args, params, endpoint, fleet: list[FleetVehicle], run_dir) -> int
     stop = lambda *_: [w.stop() for w in worlds]  # noqa: E731
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, stop)
+    signal.signal(signal.SIGUSR1, lambda *_: worlds[0].companion_gone(COMPANION_GONE))
     names = ", ".join(f"{v.name} (instance {v.instance})" for v in fleet)
-    print(f"skyherd sim: fleet of {len(fleet)}: {names}; lockstep (latency {args.latency:g} s), "
-          f"speed-up {args.speedup:g}; run folder {run_dir}", file=sys.stderr, flush=True)  # fmt: skip
+    say(f"skyherd sim: fleet of {len(fleet)}: {names}; lockstep (latency {args.latency:g} s), "
+        f"speed-up {args.speedup:g}; run folder {run_dir}")  # fmt: skip
     try:
         stats = run_worlds(worlds, Pacer(params.speedup), args.duration)
     except Exception as e:  # noqa: BLE001 - say what stopped the world, then close its sockets
-        print(f"skyherd sim: stopped: {type(e).__name__}: {e}", file=sys.stderr)
+        say(f"skyherd sim: stopped: {type(e).__name__}: {e}")
         return 1
     finally:
         for w in worlds:
             w.close()
     for v, st in zip(fleet, stats):
-        print(v.name, json.dumps(st), file=sys.stderr)
+        say(f"{v.name} {json.dumps(st)}")
+    _if_parent_died(args, run_dir, [v.name for v in fleet])
     return 0
 
 

@@ -142,12 +142,14 @@ def _children_of_instance(n: int) -> list[int]:
 
 _CHILD = """
 import signal, sys, time
-def on_int(*_):
-    open(sys.argv[1], "a").write(f"{sys.argv[2]} sigint {time.monotonic()}\\n")
+def on_int(signum, _):
+    name = signal.Signals(signum).name.lower()
+    open(sys.argv[1], "a").write(f"{sys.argv[2]} {name} {time.monotonic()}\\n")
     time.sleep(float(sys.argv[3]))  # what it takes to land / to close its files
     open(sys.argv[1], "a").write(f"{sys.argv[2]} ended {time.monotonic()}\\n")
     sys.exit(0)
 signal.signal(signal.SIGINT, on_int)
+signal.signal(signal.SIGUSR1, on_int)  # a simulator's "your companion is gone"
 open(sys.argv[1], "a").write(f"{sys.argv[2]} ready {time.monotonic()}\\n")
 while True:
     time.sleep(0.01)
@@ -156,9 +158,10 @@ while True:
 
 def test_a_launch_stops_the_companion_first_then_every_simulator_on_a_ctrl_c(tmp_path):
     """`scripts.launch.Launch` on a KeyboardInterrupt inside its `with` (a Ctrl-C while the
-    children start or fly): the companion gets SIGINT and is waited for (it lands or disarms
-    the vehicles) before the simulators get theirs; none is left running. Ordered by the log
-    the children write, not by a clock's margin."""
+    children start or fly): the companion gets SIGINT and is waited for (it hands the
+    vehicles to their autopilots) before the simulators get SIGUSR1 (they wind down alone with
+    the autopilot); none is left running. Ordered by the log the children write, not by a
+    clock's margin."""
     from scripts import launch
 
     log = tmp_path / "order.log"
@@ -176,8 +179,8 @@ def test_a_launch_stops_the_companion_first_then_every_simulator_on_a_ctrl_c(tmp
     assert all(c.proc.poll() == 0 for c in (kids.companion, *kids.sims))
     lines = [ln.split()[:2] for ln in log.read_text().splitlines() if "ready" not in ln]
     assert lines[:2] == [["companion", "sigint"], ["companion", "ended"]]
-    assert sorted(lines[2:]) == [["sim0", "ended"], ["sim0", "sigint"], ["sim1", "ended"],
-                                 ["sim1", "sigint"]]  # fmt: skip
+    assert sorted(lines[2:]) == [["sim0", "ended"], ["sim0", "sigusr1"], ["sim1", "ended"],
+                                 ["sim1", "sigusr1"]]  # fmt: skip
 
 
 def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):

@@ -10,11 +10,11 @@ from hil.orbit import OrbitParams, circle_certified, fence_reserve, plan_orbit
 from mission.flight import Record
 from mission.orbit import Briefing, OrbitFlight, OrbitMission
 from safety.config import ENVELOPE_DIR
-from safety.net import load_net
+from safety.net import SafetyNet
 
 
 def test_team_driving_out_of_the_field_freezes_the_orbit_inside_the_fence():
-    net = load_net("fixedwing", ENVELOPE_DIR / "fixedwing_field.toml")
+    net = SafetyNet.load("fixedwing", ENVELOPE_DIR / "fixedwing_field.toml")
     spec = net.envelope.spec
     lim = spec.limits
     band = (lim.floor_m + lim.margin_m, lim.ceiling_m - lim.margin_m - 15.0)
@@ -35,7 +35,7 @@ def test_team_driving_out_of_the_field_freezes_the_orbit_inside_the_fence():
     # certifies (R + reserve inside the field edge at 1000 m)
     assert mission.sight.centre[0] > 1150.0
     assert mission.limited > 500
-    assert circle_certified(net.geometry, mission.centre, R, h, reserve, lim.margin_m)
+    assert circle_certified(net.supervisor.geometry, mission.centre, R, h, reserve, lim.margin_m)
     assert 1000.0 - R - reserve - 1.0 < mission.centre[0] <= 1000.0 - R - reserve
     assert np.all(np.diff(norths) >= -1e-9)  # it followed the team up to there, never back
     assert norths[10] == 300.0 + 3.0 * 10 * flight.decision_s  # unhindered before the edge

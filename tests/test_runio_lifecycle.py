@@ -87,7 +87,7 @@ def test_ctrl_c_leaves_a_summary_and_closes_the_streams(tmp_path):
             raise KeyboardInterrupt
     folder = _only_run(tmp_path)
     assert "**Ended: interrupted**: Ctrl-C" in (folder / "summary.md").read_text()
-    assert ev._f.closed and (folder / "events.jsonl").read_text().count("\n") == 1
+    assert not ev.appender.active and (folder / "events.jsonl").read_text().count("\n") == 1
 
 
 def test_usage_error_leaves_no_run_folder(tmp_path):

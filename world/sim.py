@@ -31,14 +31,14 @@ from pathlib import Path
 import numpy as np
 
 from flight.clock import Pacer
-from flight.lockstep import LockstepGate, LockstepParams, collect_closes
+from flight.lockstep import LockstepGate, LockstepParams, LockstepTimeout, collect_closes
 from flight.state import VehicleState
 from groundsim.transport import UGVStatePublisher
 from groundsim.ugv import UGVModel
 from hil.camera_mount import level_quat, mounted_pose
 from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
-from runio import CsvWriter, atomic_write_text
+from runio import CsvWriter, cut_records, try_write_text
 from world.team import new_team, team_states, truth_row, ugv_columns
 
 CLOCK_KEY = "skyherd/sim/clock"
@@ -72,6 +72,7 @@ class WorldParams:
     camera_losses: tuple[
         tuple[float, float], ...
     ] = ()  # (start, duration) [s]: no frames published
+    alone_s: float = 30.0  # the companion gone: simulate the autopilot alone at most this long [s]
 
     def __post_init__(self) -> None:
         if not self.camera_hz > 0:
@@ -81,6 +82,8 @@ class WorldParams:
                 f"the companion's latency {self.lockstep_params.latency_s} s must be shorter "
                 f"than the camera period {1.0 / self.camera_hz} s"
             )
+        if not self.alone_s >= 0.0:
+            raise ValueError(f"alone_s must be >= 0, got {self.alone_s}")
         if self.camera not in ("down", "roi"):
             raise ValueError(f"camera must be 'down' or 'roi', not {self.camera!r}")
         if self.ugv_start != "offboard":
@@ -155,6 +158,9 @@ class World:
         self.pacer = Pacer(params.speedup)
         self.lag = Lag()
         self._stop = threading.Event()
+        self._alone = threading.Event()  # the companion is gone: the autopilot flies alone
+        self.alone_why = ""
+        self.alone: dict | None = None  # what the autopilot did alone (sim_stats.json)
         self._session = session
         self.publisher = None
         self._ugv_pub = None
@@ -170,6 +176,7 @@ class World:
         cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
         cols += ugv_columns(n_ugvs)
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
+        self._truth_t = -math.inf  # simulation time of world.csv's last row [s]
         self.frames = 0
         self.render_failures = 0
         self.cut_dropped = 0  # companion messages lost in link cuts
@@ -179,6 +186,16 @@ class World:
     def stop(self) -> None:
         """Ask `run` to return (safe from a signal handler or another thread)."""
         self._stop.set()
+
+    def companion_gone(self, why: str) -> None:
+        """The companion is gone (`skyherd fly` saw it exit and sent SIGUSR1, or the parent
+        died, or a lockstep tick timed out): from the next step the vehicle steps without
+        waiting for it, as fast as possible, so that the autopilot's own failsafe acts; the run
+        ends once the autopilot disarms or `alone_s` of simulation time have passed (safe from
+        a signal handler)."""
+        if not self._alone.is_set():
+            self.alone_why = why
+        self._alone.set()
 
     def run(self, duration_s: float | None = None) -> dict:
         """Step until `stop()` (or `duration_s` of simulation time); return the run's stats."""
@@ -196,6 +213,7 @@ class World:
         self._t_end_us = None if duration_s is None else clock.time_us + round(duration_s * 1e6)
         self._next_frame_us = clock.time_us
         self._open_tick: int | None = None  # camera instant whose close is awaited [µs]
+        self._alone_t0: float | None = None  # simulation time the companion was found gone [s]
         self._t0 = (time.monotonic(), clock.t, time.process_time())  # wall, sim, CPU
         self._span = None  # (sim, wall, CPU) seconds from the start to the last tick closed
         self._cut = False  # the API link is cut now (link_cuts)
@@ -210,7 +228,8 @@ class World:
     def sockets(self) -> list:
         """The sockets `step` reads: the endpoint's ungated links, and free-running the API link
         (in lockstep the gate reads it, blocking, at each close)."""
-        links = self.endpoint.read_links() + ([] if self.p.lockstep else [self.endpoint.api])
+        gated = self.p.lockstep and self._alone_t0 is None
+        links = self.endpoint.read_links() + ([] if gated else [self.endpoint.api])
         return [link.sock for link in links]
 
     # One step in three parts, so that a fleet marks all its vehicles' camera instants, then
@@ -228,7 +247,7 @@ class World:
         if t_us >= self._next_frame_us:
             self._camera_instant(t_us)
             self._next_frame_us += self._period_us
-            self._open_tick = t_us if p.lockstep else None
+            self._open_tick = t_us if p.lockstep and self._alone_t0 is None else None
         self._cut = bool(p.link_cuts) and _during(p.link_cuts, clock.t)
         self.endpoint.api.muted = self._cut  # a real cut: nothing reaches the companion
         return True
@@ -255,10 +274,46 @@ class World:
     def finish_step(self, ready: set[int] | None = None) -> None:
         """The autopilot's step and the endpoint's. `ready`: the file descriptors of
         `sockets()` that have data (a fleet polls them all at once); None: polled here."""
-        if not self.p.lockstep and (ready is None or self._api_fd in ready):
+        free = not self.p.lockstep or self._alone_t0 is not None
+        if free and (ready is None or self._api_fd in ready):
             self._free_run_receive()
         self.autopilot.step()
         self.endpoint.update(None if ready is None else not ready.isdisjoint(self._read_fds))
+
+    # ---- the autopilot alone, after the companion ----------------------------------------------
+    def go_alone(self) -> None:
+        """Step on without the companion from now (its open tick is dropped)."""
+        self._alone_t0 = self.clock.t
+        self._open_tick = None
+        ap = self.autopilot
+        self._alone_modes = [(self.clock.t, ap.mode.name, bool(ap.armed))]
+
+    def watch_alone(self) -> None:
+        """Note the autopilot's mode and arming changes while it flies alone."""
+        ap = self.autopilot
+        last = self._alone_modes[-1]
+        if ap.mode.name != last[1] or bool(ap.armed) != last[2]:
+            self._alone_modes.append((self.clock.t, ap.mode.name, bool(ap.armed)))
+
+    def end_alone(self) -> None:
+        """What the autopilot did alone: its modes, and where the vehicle is at the end."""
+        ap = self.autopilot
+        state = ap.true_state if hasattr(ap, "true_state") else ap.state
+        t = self.clock.t
+        # world.csv ends on the end state, if the autopilot flew alone at all (a flight that
+        # ended disarmed keeps the world.csv it always had)
+        if self.truth is not None and t > max(self._truth_t, self._alone_t0):
+            self._write_truth(t, state, None if self.team is None else team_states(self.team))
+        self.alone = {
+            "why": self.alone_why,
+            "t_gone_s": round(self._alone_t0, 3),
+            "span_s": round(t - self._alone_t0, 3),
+            "ended": "disarmed" if not ap.armed else f"after alone_s {self.p.alone_s:g} s",
+            "modes": [{"t": round(tm, 3), "mode": m, "armed": a} for tm, m, a in self._alone_modes],
+            "mode": ap.mode.name,
+            "armed": bool(ap.armed),
+            "altitude_m": round(-float(state.pos_ned[2]), 3),
+        }
 
     def finish(self, process_vehicles: int = 1) -> dict:
         """The run's stats (written to sim_stats.json); `process_vehicles` worlds shared the
@@ -356,7 +411,7 @@ class World:
         if not got:
             return
         now = self.clock.t
-        for msg, _ in got:
+        for msg, _ in got if not self.p.lockstep else ():  # (lockstep: read only when alone)
             if msg.get_type().startswith("SET_POSITION_TARGET"):
                 self.lag.samples.append(now - msg.time_boot_ms / 1000.0)
         self.endpoint.dispatch(self.endpoint.api, self._gimbal_commands(got))
@@ -371,6 +426,7 @@ class World:
                         armed=int(self.autopilot.armed),
                         team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
         self.truth.write(row)
+        self._truth_t = t
 
     def _stats(self, sim_s: float, wall_s: float, cpu_s: float = 0.0, span=None,
                process_vehicles: int = 1) -> dict:  # fmt: skip
@@ -399,9 +455,11 @@ class World:
             "link_cut_dropped": self.cut_dropped,
             "link_cut_muted": self.endpoint.api.stats_muted,
             "camera_loss_frames": self.camera_dropped,
+            "after_companion": self.alone,
+            "records_cut": cut_records([self.truth]),
         }
         if self.run_dir is not None:
-            atomic_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")
+            try_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")
         return stats
 
     def close(self) -> None:
@@ -442,23 +500,48 @@ def run_worlds(worlds: list[World], pacer: Pacer, duration_s: float | None = Non
     poller = select.poll() if hasattr(select, "poll") else None
     for sock in (s for w in worlds for s in w.sockets()) if poller is not None else ():
         poller.register(sock.fileno(), select.POLLIN)
-    stopped = lambda: any(w._stop.is_set() for w in worlds)  # noqa: E731
+    stopped = lambda: any(w._stop.is_set() or w._alone.is_set() for w in worlds)  # noqa: E731
+    alone_end_us: int | None = None  # the companion gone: the autopilot alone until then [µs]
     while True:
+        if alone_end_us is None and any(w._alone.is_set() for w in worlds):
+            alone_end_us = first.clock.time_us + round(first.p.alone_s * 1e6)
+            why = next(w.alone_why for w in worlds if w._alone.is_set())
+            for w in worlds:  # one companion flew them all: all are alone now
+                w.companion_gone(why)
+                w.go_alone()
+                if poller is not None and w.p.lockstep:  # its API link is read here now
+                    poller.register(w.endpoint.api.sock.fileno(), select.POLLIN)
+        if alone_end_us is not None:
+            for w in worlds:
+                w.watch_alone()
+            if first.clock.time_us >= alone_end_us or not any(w.autopilot.armed for w in worlds):
+                for w in worlds:
+                    w.end_alone()
+                break
         # one system call per round of steps tells which of the fleet's sockets have data
         ready = {fd for fd, _ in poller.poll(0)} if poller is not None else None
         if not all(w.start_step() for w in worlds):
+            if alone_end_us is not None:
+                for w in worlds:
+                    w.end_alone()
             break
         due = [(w, tick) for w in worlds if (tick := w.close_due()) is not None]
         if due:
-            batches = collect_closes([(w.gate, tick, w._republish) for w, tick in due], stopped)
+            try:
+                batches = collect_closes([(w.gate, tick, w._republish) for w, tick in due], stopped)
+            except LockstepTimeout as e:  # the companion is stuck or gone: the autopilot alone
+                first.companion_gone(f"lockstep: {e}")
+                continue
             if batches is None:
-                break
+                if any(w._stop.is_set() for w in worlds):
+                    break
+                continue  # the companion is gone: the next round steps alone
             for (w, _), batch in zip(due, batches, strict=True):
                 w.take_close(batch)
         for w in worlds:
             w.finish_step(ready)
-        if first.clock.time_us >= next_pace_us:
-            pacer.wait_until(first.clock.t)
+        if alone_end_us is None and first.clock.time_us >= next_pace_us:
+            pacer.wait_until(first.clock.t)  # alone: as fast as possible
             next_pace_us += pace_us
     return [w.finish(len(worlds)) for w in worlds]
 
@@ -470,7 +553,7 @@ def wait_for_peers(worlds: list[World]) -> bool:
     waiting = list(worlds)
     while waiting:
         waiting = [w for w in waiting if not w.gate.poll_peer(w.beacon)]
-        if any(w._stop.is_set() for w in worlds):
+        if any(w._stop.is_set() or w._alone.is_set() for w in worlds):
             return False
         if waiting:
             select.select([w.gate.link.sock for w in waiting], [], [],

@@ -16,6 +16,7 @@ are never written.
 
 from __future__ import annotations
 
+import errno
 import logging
 import struct
 import threading
@@ -24,6 +25,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from flight.clock import SimClock
+from runio.space import CHECK_BYTES, low_space
 
 log = logging.getLogger(__name__)
 SETUP_SIGNING_ID = 256
@@ -49,6 +51,7 @@ class TlogWriter:
         self._last_flush = time.monotonic()
         self._lock = threading.RLock()  # re-entrant: on_error may send (and log) a STATUSTEXT
         self._f = None
+        self._unchecked = 0  # bytes written since the last free-space look-up
         try:
             self._f = open(self.path, "ab")
         except OSError as e:
@@ -102,6 +105,13 @@ class TlogWriter:
         with self._lock:
             if self._f is None:
                 return
+            self._unchecked += len(data)
+            if self._unchecked >= CHECK_BYTES:  # stop before the disk is full (runio.space)
+                self._unchecked = 0
+                why = low_space(self.path.parent)
+                if why is not None:
+                    self._fail("write", OSError(errno.ENOSPC, why))
+                    return
             try:
                 self._f.write(data)
                 if self._flush_interval_s <= 0:
