@@ -173,10 +173,35 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     checks = judge(truth, spec, changes, window, frames, rendered, ending, net_modes,
                    JudgeParams(camera_gap_max_s=camera_s,
                                floor=bool(cfg.get("envelope"))), received)  # fmt: skip
+    cut = _records_cut(run_dir)
+    if cut:  # a full disk or a read-only folder: what was not recorded cannot be judged
+        checks = [Check("records", False, "; ".join(cut), "the judge reads these records: what "
+                        "they lost after the cut is not judged, so the flight cannot pass")] + checks  # fmt: skip
     if not world:  # no simulator: say whose track the truth checks used
         checks = [dataclasses.replace(c, figure=c.figure + " (autopilot's track: no simulator truth)")
                   if c.name in ("fence", "armed", "end") else c for c in checks]  # fmt: skip
     return checks
+
+
+JUDGED_RECORDS = ("world.csv", "metrics.csv", "modes.jsonl", "frames.csv", "events.jsonl")
+
+
+def _records_cut(run_dir: Path) -> list[str]:
+    """The records the judge reads that a full disk or a read-only folder cut (sim_stats.json's
+    and companion.json's records_cut), as "file (who): error, N dropped"."""
+    out = []
+    for name, who in (("sim_stats.json", "sim"), ("companion.json", "companion")):
+        try:
+            doc = json.loads((run_dir / name).read_text())
+        except (OSError, ValueError):
+            continue
+        cuts = doc.get("records_cut") if isinstance(doc, dict) else None
+        for c in cuts or []:
+            if isinstance(c, dict) and c.get("file") in JUDGED_RECORDS:
+                dropped = c.get("dropped")
+                out.append(f"{c['file']} ({who}) cut: {c.get('error')}"
+                           + (f", {dropped} records dropped" if dropped is not None else ""))  # fmt: skip
+    return out
 
 
 def judge_table(checks: list[Check]) -> str:

@@ -1,6 +1,7 @@
 """The judge through the real `skyherd fly` (two programs, lockstep, --speedup 0 unless said):
 each false "completed" of issue 26 now ends with exit 1 and the failed check named on the last
-line (forced disarm, no frames, an autopilot RTL between two ticks, the truth beyond the fence).
+line of the report (forced disarm, no frames, an autopilot RTL between two ticks, the truth
+beyond the fence).
 A normal flight passing every check: tests/test_fly.py::test_fly_groundair_policy_keeps_the_team_in_view."""
 
 import csv
@@ -26,7 +27,9 @@ def _fly(tmp_path, instance: int, *extra: str, duration: str = "15", speedup: st
 
 
 def _last_line(capsys) -> str:
-    return capsys.readouterr().out.strip().splitlines()[-1]
+    """The verdict line (`skyherd fly: <status>...`; "How it ended" follows it: scripts/waysout)."""
+    out = capsys.readouterr().out.splitlines()
+    return [x for x in out if x.startswith("skyherd fly: ") and " run folder " not in x][-1]
 
 
 def _summary_checks(run: Path) -> dict[str, str]:

@@ -159,9 +159,12 @@ def test_kill_9_of_the_simulator_ends_the_companion_and_says_where_the_vehicle_w
 def test_a_full_disk_cuts_the_records_and_the_vehicle_lands(tmp_path):
     """A 700 KiB runs folder (tmpfs): the streams stop when 256 KiB are left (kept for the end
     files), each says so once on stderr; the flight goes on and lands; the summary lists what
-    was cut, with the reason and the records dropped."""
+    was cut, with the reason and the records dropped. The judge cannot see what the cut
+    records lost (world.csv, the truth): the flight cannot pass, exit 1 naming the records."""
     res = way_out(tmp_path, "", mount="tmpfs:700k", fly=FLY[:-1])  # with flight.mcap
-    assert res["rc"] == 0, res["stderr"][-2000:]
+    assert res["rc"] == 1, res["stderr"][-2000:]
+    out = res["stdout"]
+    assert "first failed check: records: " in out and "world.csv (sim) cut" in out
     assert "records cut" in res["stderr"] and "No space left on device" in res["stderr"]
     a = json.loads(res["sim_stats.json"])["after_companion"]
     assert not a["armed"] and abs(a["altitude_m"]) < 0.3  # landed (world.csv itself was cut)
