@@ -9,10 +9,13 @@ passes, and the first that fails is the one named:
             (take-off and landing cross the floor by design). Clearance ≥ 0 m.
   armed     never disarmed in the air (truth samples, and every arming change the companion saw).
   modes     every mode or arming change in the AI phase was one the companion asked for.
-  camera    camera frames arrived through the AI phase: ≥ `frame_fraction_min` of the frames the
-            simulator rendered there, and every gap longer than the net's camera timeout (+ the
-            detection time `camera_catch_s`) caught by the net: a lost camera is a net event and
-            a fallback (the net not in "ai" once the timeout ran out), not a blind flight.
+  camera    camera frames arrived at their rate through the AI phase: every gap longer than the
+            net's camera timeout (+ the detection time `camera_catch_s`) caught by the net (the
+            net not in "ai" once the timeout ran out: a lost camera is a net event and a
+            fallback, not a blind flight); outside those gaps ≥ `frame_fraction_min` of the
+            frames the simulator rendered arrived; and the caught gaps together ≤
+            `lost_fraction_max` of the AI phase (a flight held by the net for want of a camera
+            for most of its AI phase did not do its job, however safely).
   end       landed (truth altitude ≤ `landed_m`) and disarmed; or, for a flight that ends in
             the air by design (the fixed-wing orbit with --orbit-no-land: docs/orbit.md), armed,
             airborne and in one of the net's modes.
@@ -41,6 +44,7 @@ class JudgeParams:
     frame_fraction_min: float = 0.9  # frames received / rendered in the AI phase, at least
     camera_gap_max_s: float = 1.0  # longest gap between good frames (the net's camera timeout) [s]
     camera_catch_s: float = 0.2  # the net's detection time after the timeout (a tick + margin) [s]
+    lost_fraction_max: float = 0.5  # the camera lost (caught gaps) at most this of the AI phase
     floor: bool = True  # judge the floor in the AI phase (False: a mission without a net)
 
 
@@ -274,24 +278,31 @@ def camera_check(frame_t: Sequence[float] | None, ai_window, rendered: int,
     edges = np.concatenate([[t0], got, [t1]])
     gaps = np.diff(edges)
     k = int(np.argmax(gaps))
-    gap, at = float(gaps[k]), float(edges[k])
     n = len(got) if received is None else max(received, len(got))
-    frac = n / rendered if rendered > 0 else (1.0 if n else 0.0)
-    fig = (f"{n} of {rendered} frames ({100 * frac:.0f} %), longest gap {gap:.1f} s "
-           f"from t = {at:.1f} s")  # fmt: skip
-    if frac < p.frame_fraction_min:
-        return Check("camera", False, fig, f"fewer than {100 * p.frame_fraction_min:.0f} % of the "
-                     f"frames arrived in the AI phase ({t0:.1f}-{t1:.1f} s)")  # fmt: skip
     late = p.camera_gap_max_s + p.camera_catch_s
-    for g, a in zip(gaps, edges[:-1]):
-        if g > late + 1e-9 and net_mode_at(net_modes, a + late) == "ai":
-            return Check("camera", False, fig, f"blind: no frame for {g:.1f} s from t = {a:.1f} s "
-                         f"and the net still in ai at {a + late:.1f} s (camera timeout "
-                         f"{p.camera_gap_max_s:g} s)")  # fmt: skip
-    caught = sum(1 for g in gaps if g > late + 1e-9)
+    long = [(float(g), float(a)) for g, a in zip(gaps, edges[:-1]) if g > late + 1e-9]
+    blind = [(g, a) for g, a in long if net_mode_at(net_modes, a + late) == "ai"]
+    lost_s = sum(g for g, _ in long)
+    span = max(t1 - t0, 1e-9)
+    expected = rendered * (1.0 - lost_s / span)  # rendered outside the caught gaps
+    frac = n / expected if expected > 0.5 else 1.0
+    fig = (f"{n} of {rendered} frames, longest gap {gaps[k]:.1f} s from t = {edges[k]:.1f} s, "
+           f"camera lost {100 * lost_s / span:.0f} % of the AI phase")  # fmt: skip
+    if blind:
+        g, a = blind[0]
+        return Check("camera", False, fig, f"blind: no frame for {g:.1f} s from t = {a:.1f} s "
+                     f"and the net still in ai at {a + late:.1f} s (camera timeout "
+                     f"{p.camera_gap_max_s:g} s)")  # fmt: skip
+    if lost_s > p.lost_fraction_max * span:
+        return Check("camera", False, fig, f"the camera lost for more than "
+                     f"{100 * p.lost_fraction_max:.0f} % of the AI phase ({t0:.1f}-{t1:.1f} s): "
+                     "held safely by the net, but not flown with a camera")  # fmt: skip
+    if frac < p.frame_fraction_min:
+        return Check("camera", False, fig, f"{100 * frac:.0f} % of the frames arrived while the "
+                     f"camera counted as working (at least {100 * p.frame_fraction_min:.0f} %)")  # fmt: skip
     why = "the frames arrived at their rate through the AI phase"
-    if caught:
-        why += f"; {caught} gap(s) beyond the camera timeout, each caught by the net"
+    if long:
+        why += f"; {len(long)} gap(s) beyond the camera timeout, each caught by the net"
     return Check("camera", True, fig, why)
 
 
