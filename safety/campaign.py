@@ -113,6 +113,17 @@ def _clear_h(signed: SignedDistance, q_ne: np.ndarray) -> float:
     return float(np.min(np.hypot(*(signed.a + s[:, None] * signed.ab - q_ne).T)))
 
 
+def deepest_point(signed: SignedDistance, n: int = 11) -> np.ndarray:
+    """The point (north, east) [m] of an n x n grid over the inclusion fence farthest from
+    every fence and zone edge (the fixed-wing's well-behaved AI orbits it)."""
+    pts = np.concatenate([z.points for z in signed.spec.inclusions])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    grid = [
+        np.array([a, b]) for a in np.linspace(lo[0], hi[0], n) for b in np.linspace(lo[1], hi[1], n)
+    ]
+    return max(grid, key=lambda q: _clear_h(signed, q))
+
+
 def _push_fw(direction, speed: float, p: DrillParams):
     d = np.asarray(direction, float)
     d = d / np.linalg.norm(d)
@@ -186,9 +197,9 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
         speed = rng.uniform(0.85, 0.99) * vmax * math.cos(math.pi / lim.speed_sides)
         t_arr = (gap + 20.0) / speed
         attack = _push_fw(d, speed, p)
-        # behave: orbit the middle of the field. Home is only 30-250 m inside the certified
-        # boundary, so an orbit about home would cross the fence rows at every turn
-        behave = behave_orbit(alt, p, spec.inclusions[0].points.mean(axis=0))
+        # behave: orbit the point deepest inside the fence and zones. Home is only 30-250 m
+        # inside the certified boundary: an orbit about home crossed the fence rows at every turn
+        behave = behave_orbit(alt, p, deepest_point(SignedDistance(spec)))
         heading = ang + rng.uniform(-0.3, 0.3)
         duration = t_arr + 32.0
     else:
