@@ -199,7 +199,7 @@ def test_random_fixedwing_drill_recovers(seed, k, was):
     the drill's well-behaved AI, each replayed here from its seed:
     - floor: starts were drawn from floor + 25 = 55 m, below the floor row since the set keeps
       the gust sink reserve (floor 30 + margin 10 + 19 m + the stopping term); the AI's orbit
-      flew back into the floor row after every hand-back (2/13: FALLBACK at 0.0, 55.5, 86.1 s);
+      flew back into the floor row after every hand-back (2/13: FALLBACK at 0.0, 42.7, 74.2 s);
     - climb rate: the orbit flew 22 m/s against the net's 24 m/s and slewed its climb demand
       1 m/s from the measured climb; above the recovery's 102 m hand-back altitude, TECS turned
       the deceleration into a 3.5 m/s climb and the AI's next demand crossed the 2.5 m/s row
