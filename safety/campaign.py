@@ -38,7 +38,7 @@ import numpy as np
 
 from flight.faults import FaultEvent, FaultPlan
 from flight.wind import WindModel
-from safety.drills import DrillParams, Script, lead, orbit, slew, toward
+from safety.drills import DrillParams, Script, behave_orbit, lead, slew, toward
 from safety.envelope import EnvelopeSpec, SignedDistance, Zone
 
 KINDS = ("max_speed", "oscillation", "repeat_offender", "link_loss", "gps_glitch", "wind",
@@ -123,6 +123,17 @@ def _clear_h(signed: SignedDistance, q_ne: np.ndarray) -> float:
     return float(np.min(np.hypot(*(signed.a + s[:, None] * signed.ab - q_ne).T)))
 
 
+def deepest_point(signed: SignedDistance, n: int = 11) -> np.ndarray:
+    """The point (north, east) [m] of an n x n grid over the inclusion fence farthest from
+    every fence and zone edge (the fixed-wing's well-behaved AI orbits it)."""
+    pts = np.concatenate([z.points for z in signed.spec.inclusions])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    grid = [
+        np.array([a, b]) for a in np.linspace(lo[0], hi[0], n) for b in np.linspace(lo[1], hi[1], n)
+    ]
+    return max(grid, key=lambda q: _clear_h(signed, q))
+
+
 def _push_fw(direction, speed: float, p: DrillParams):
     d = np.asarray(direction, float)
     d = d / np.linalg.norm(d)
@@ -196,7 +207,9 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
         speed = rng.uniform(0.85, 0.99) * vmax * math.cos(math.pi / lim.speed_sides)
         t_arr = (gap + 20.0) / speed
         attack = _push_fw(d, speed, p)
-        behave = orbit(np.zeros(2), 200.0, p.fixedwing_speed_mps - 2.0, alt, p)
+        # behave: orbit the point deepest inside the fence and zones. Home is only 30-250 m
+        # inside the certified boundary: an orbit about home crossed the fence rows at every turn
+        behave = behave_orbit(alt, p, deepest_point(SignedDistance(spec)))
         heading = ang + rng.uniform(-0.3, 0.3)
         duration = t_arr + 32.0
     else:
@@ -253,6 +266,9 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
         events.append(FaultEvent("gps_glitch", t_g, rng.uniform(2.0, 10.0), vec))
         expect = ("position jumped",)
     elif kind == "wind":
+        # the fixed-wing's wind drills are judged on the fence, not on the AI flying at the end:
+        # in the stated gusts TECS turns a headwind gust into climb beyond the measured climb-
+        # rate row (1.4 x 2.5 m/s), so the net may be in a (safe) fallback when the drill ends
         w = rng.uniform(0.3, 1.0) * wind_limit(spec)
         g_h = float(rng.uniform(0.0, GUST_STD_H_MPS))
         wind = WindModel(tuple(float(x) for x in w * d), g_h, GUST_TAU_S, int(rng.integers(1 << 30)),
@@ -288,7 +304,7 @@ def make_drill(kind: str, index: int, rng: np.random.Generator, spec: EnvelopeSp
         must_trigger=must, start_heading=heading, duration_s=duration, air_start=True,
         handover_s=t_h, link_cut=link_cut, params=params, expect_yield=expect_yield, kind=kind,
         after_yield_s=8.0 if not fw else 25.0,
-        must_recover=recover and kind != "param_sabotage" and not fw,  # fixed-wing: too slow
+        must_recover=recover and kind != "param_sabotage" and not (fw and kind == "wind"),
     )  # fmt: skip
     plan = FaultPlan(wind=wind, events=tuple(events))
     return CampaignDrill(script, plan, spec.airframe, kind, index, spec)

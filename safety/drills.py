@@ -7,7 +7,9 @@ checked against the position-only envelope at every autopilot step.
 
 A drill passes when (1) the vehicle never went beyond the fence by more than the set's
 `breach_tolerance_m`, (2) the supervisor caught the attack it was meant to catch (reason
-containing the drill's keyword), and (3) the AI was flying again at the end.
+containing the drill's keyword), and (3) the AI was flying again at the end. A drill judged
+on (3) runs at least `recovery_allowance_s` after its attack ends (derived from the airframe:
+least fallback, a half turn back for a fixed-wing, the recovery margin, the hysteresis).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flight.autopilot_api import Autopilot, FlightMode, Setpoint
+from flight.geo import GRAVITY
 from flight.state import VehicleState
 from safety.envelope import NZ, EnvelopeSpec, SignedDistance
 from safety.net import SafetyNet, apply_decision
@@ -40,6 +43,11 @@ class DrillParams:
     slew_h_mps: float = 1.2  # a well-behaved AI changes its command at most this per tick [m/s]
     slew_v_mps: float = 1.0
     lead_max_rad: float = 0.35  # a well-behaved fixed-wing AI leads its course by at most this
+    behave_climb_mps: float = 1.0  # ... climbs or sinks toward its altitude at most this [m/s]
+    behave_vz_step_mps: float = 4.0  # ... and its climb demand differs from the measured climb
+    # by at most this [m/s] (the fixed-wing set's vertical accel row: 1.5 m/s2 x tau 3 s = 4.5).
+    # TECS paces the demand itself: slewed 1 m/s from the measured climb (slew_v_mps), a gust
+    # or TECS's speed-to-height exchange made the AI ask for more than the climb/descent row.
     use_autopilot_hold: bool = True  # FALLBACK = the autopilot's own HOLD mode
 
     def duration(self, airframe: str) -> float:
@@ -162,8 +170,10 @@ def push(
     return act
 
 
-def orbit(center_ne: np.ndarray, radius: float, speed: float, alt: float, p: DrillParams) -> Act:
-    """Behave (fixed-wing): circle `center_ne` at `radius` [m], `speed` [m/s], altitude `alt`."""
+def orbit(center_ne: np.ndarray, radius: float, speed: float, alt: float, p: DrillParams,
+          climb_mps: float = 2.0) -> Act:  # fmt: skip
+    """Behave (fixed-wing): circle `center_ne` at `radius` [m], `speed` [m/s], altitude `alt`
+    (climbing or sinking toward it at most `climb_mps`)."""
     c = np.asarray(center_ne, float)
 
     def act(t: float, s: VehicleState) -> Setpoint:
@@ -176,9 +186,11 @@ def orbit(center_ne: np.ndarray, radius: float, speed: float, alt: float, p: Dri
         rad = r / d
         v = np.array([-rad[1], rad[0]]) - 1.5 * (d - radius) / radius * rad
         v = speed * v / np.linalg.norm(v)
-        vd = float(np.clip(0.3 * (-alt - s.pos_ned[2]), -2.0, 2.0))
+        vd = float(np.clip(0.3 * (-alt - s.pos_ned[2]), -climb_mps, climb_mps))
         return Setpoint(
-            vel_ned=lead(np.array([v[0], v[1], vd]), s.vel_ned, p.lead_max_rad, p.slew_v_mps)
+            vel_ned=lead(
+                np.array([v[0], v[1], vd]), s.vel_ned, p.lead_max_rad, p.behave_vz_step_mps
+            )
         )
 
     return act
@@ -282,7 +294,7 @@ def fixedwing_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
         return np.array([0.0, 0.0, -alt])
 
     mid = 0.5 * (lim.floor_m + lim.ceiling_m)
-    orb = lambda alt: orbit(np.zeros(2), 200.0, v - 2.0, alt, p)  # noqa: E731
+    orb = lambda alt: behave_orbit(alt, p)  # noqa: E731
 
     def d(name, alt, attack, t_on, t_off, expect, **kw):
         return Script(name, at(alt), attack, t_on, t_off, expect, behave=orb(alt), **kw)
@@ -331,13 +343,30 @@ def fixedwing_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
     ]
 
 
+def behave_orbit(alt: float, p: DrillParams, center_ne: np.ndarray | None = None) -> Act:
+    """A well-behaved fixed-wing AI: orbit `center_ne` (default home) at 200 m and `alt` at
+    the trim airspeed, the speed the net's loiter and recovery fly (FW_AIRSPD_TRIM). Slower,
+    every hand-back would be a deceleration that TECS turns into height on top of the orbit's
+    climb demand (beyond the climb-rate row: a fallback at every hand-back)."""
+    c = np.zeros(2) if center_ne is None else center_ne
+    return orbit(c, 200.0, p.fixedwing_speed_mps, alt, p, p.behave_climb_mps)
+
+
+def fixedwing_floor_m(spec: EnvelopeSpec) -> float:
+    """Lowest altitude a fixed-wing drill starts and behaves at [m]: 10 m above the floor
+    row's certified height (floor + margin + sink reserve). Below it a well-behaved AI would
+    fly into the floor row at every hand-back."""
+    lim = spec.limits
+    return max(lim.floor_m + 25.0, lim.floor_m + lim.margin_m + spec.dynamics.sink_reserve_m + 10.0)
+
+
 def random_fixedwing_drill(
     k: int, rng: np.random.Generator, spec: EnvelopeSpec, p: DrillParams
 ) -> Script:
     """Random altitude and course over home, then a random attack toward the boundaries."""
     lim = spec.limits
     v = p.fixedwing_speed_mps
-    alt = rng.uniform(lim.floor_m + 25.0, lim.ceiling_m - 25.0)
+    alt = rng.uniform(fixedwing_floor_m(spec), lim.ceiling_m - 25.0)
     heading = rng.uniform(-math.pi, math.pi)
     kind = rng.choice(
         ["push", "push", "push", "climb", "sink", "garbage", "step", "stall", "camera", "link"]
@@ -348,7 +377,7 @@ def random_fixedwing_drill(
     hd = np.array([math.cos(ang), math.sin(ang), 0.0])
     expect: tuple[str, ...] = ("",)
     cam, link = (lambda t: True), (lambda t: True)
-    orb = orbit(np.zeros(2), 200.0, v - 2.0, alt, p)
+    orb = behave_orbit(alt, p)
     if kind == "push":
         atk = push(
             hd + np.array([0, 0, rng.uniform(-0.1, 0.1)]),
@@ -624,6 +653,8 @@ def run_drill(
     seen_state = ap.state
     t_yield = math.nan
     duration = script.duration_s if script.duration_s is not None else p.duration(ap.airframe)
+    if script.must_recover and not script.expect_yield:  # time to recover after the attack
+        duration = max(duration, script.t_off + recovery_allowance_s(spec, sp))
     while ap.clock.t - t0 < duration:
         t = ap.clock.t
         tr = t - t0
@@ -740,6 +771,21 @@ def run_drill(
         str(judge["own_mode"]),
         restored,
     )
+
+
+def recovery_allowance_s(spec: EnvelopeSpec, sp: SupervisorParams) -> float:
+    """Time a drill that must end with the AI flying allows after its attack [s]: the least
+    fallback (hold_min_s), a half turn back inside (a fixed-wing's loiter: pi R / v with
+    R = v^2 / (g tan bank_max); a multirotor stops instead), the recovery margin flown at the
+    recovery speed, and the hysteresis before the hand-back. Fixed-wing field set: 6 + 18.2 +
+    18.8 + 3 = 46 s; quadrotor: 1 + 0 + 2 + 2 = 5 s."""
+    lim, dyn = spec.limits, spec.dynamics
+    v = min(sp.recover_speed_mps, 0.9 * lim.speed_h_mps)  # RecoveryPID's speed
+    turn = 0.0
+    if dyn.decel_h_mps2 <= 0.0 and dyn.bank_max_rad > 0.0:  # cannot stop: turns back
+        v = max(v, sp.fixedwing_min_speed_mps)
+        turn = math.pi * v / (GRAVITY * math.tan(dyn.bank_max_rad))  # pi R / v
+    return sp.hold_min_s + turn + sp.recover_margin_m / v + sp.hysteresis_s
 
 
 RUN_ON_S = 3.0

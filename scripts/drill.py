@@ -56,7 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--duration",
         type=float,
         default=None,
-        help="AI time per drill [s] (default 35 quadrotor, 90 fixed-wing)",
+        help="AI time per drill [s] (default 35 quadrotor, 90 fixed-wing; a drill that must "
+        "end with the AI flying runs at least its attack + the airframe's recovery allowance, "
+        "5 s quadrotor, 46 s fixed-wing)",
     )
     parser.add_argument(
         "--runs-dir", type=Path, default=Path("runs"), help="where run folders go (default runs/)"

@@ -8,7 +8,8 @@ Exit rule (`summarize`): exit 1 when any drill breached the fence beyond the con
 breach tolerance (the net's flight: ground truth up to the stopping time + RUN_ON_S after a
 yield), or the net overrode an autopilot failsafe, or the autopilot's own HOLD after a yield left
 the fence (the built-in vehicle fits its HOLD to the uploaded fence: its own last line), or a
-drill crashed (not judged). The
+drill crashed (not judged), or a drill judged on its recovery ended with the net still flying
+(FALLBACK / PID: "not recovered"). The
 autopilot's own RTL / LAND path after a yield (PX4's RTL flies straight home and does not route
 around a fence; the net must not undo it) is counted and reported in its own column, and does
 not set the exit code: it is the autopilot's failsafe, owned by the autopilot, and the fence and
@@ -29,7 +30,7 @@ from scripts.cli import UsageError
 COLS = ["drill", "airframe", "kind", "passed", "min_clearance_m", "breach", "overridden",
         "yielded", "switches", "fallback_s", "pid_s", "autopilot_excursion_m",
         "autopilot_excursion_mode", "first_reason", "why", "constraint_set_version",
-        "restored"]  # fmt: skip
+        "restored", "end_mode", "not_recovered"]  # fmt: skip
 FAILSAFE_PATH_MODES = ("RTL", "LAND")
 """The autopilot's own failsafe paths (straight line home, descent): reported, not failing."""
 
@@ -73,6 +74,7 @@ def run_one(job: tuple) -> dict:
         return {c: "" for c in COLS} | {
             "drill": f"crashed {index:04d}", "airframe": airframe, "kind": "crash",
             "passed": False, "min_clearance_m": math.nan, "breach": False, "overridden": 0,
+            "not_recovered": False,
             "why": f"{type(e).__name__}: {e}", "_events": [], "_track": [],
         }  # fmt: skip
 
@@ -99,6 +101,8 @@ def _run_one(job: tuple) -> dict:
         else round(r.autopilot_excursion_m, 2),
         "autopilot_excursion_mode": r.autopilot_excursion_mode, "restored": r.restored,
         "first_reason": r.reasons[0] if r.reasons else "", "why": r.why,
+        "end_mode": ("ai", "fallback", "pid")[int(r.track["mode"][-1])],
+        "not_recovered": "not recovered" in r.why,
         "constraint_set_version": spec.version, "_events": sink.records, "_tol": tol,
         "_track": (pos - np.r_[_offset(d.spec, spec), 0.0]).tolist(),
     }  # fmt: skip
@@ -209,12 +213,13 @@ def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
         c = [r["min_clearance_m"] for r in rs if math.isfinite(r["min_clearance_m"])] or [math.nan]
         own = [_own(r) for r in rs if _own(r) is not None]
         out.append([a, k, len(rs), sum(r["passed"] for r in rs), sum(r["breach"] for r in rs),
-                    sum(r["overridden"] for r in rs), sum(bool(r["yielded"]) for r in rs),
+                    sum(r["overridden"] for r in rs), _flag_sum(rs, "not_recovered"),
+                    sum(bool(r["yielded"]) for r in rs),
                     sum(_own_counts(r) for r in rs), sum(_own_path(r) for r in rs),
                     max(x for x, _ in own) if own else "-",
                     min(c), float(np.median(c))])  # fmt: skip
     table = markdown_table(["airframe", "kind", "drills", "passed", "breaches", "overridden failsafes",
-                            "yielded", "own HOLD beyond the fence (fails)",
+                            "not recovered", "yielded", "own HOLD beyond the fence (fails)",
                             "own RTL/LAND path beyond the fence (reported)",
                             "autopilot's own worst m (< 0 inside)", "closest approach m",
                             "median clearance m"], out)  # fmt: skip
@@ -228,16 +233,31 @@ def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
     breaches = sum(r["breach"] for r in rows)
     overrides = sum(r["overridden"] for r in rows)
     failed = sum(not r["passed"] for r in rows)
+    stuck = _flag_sum(rows, "not_recovered")
+    unjudged = sum(r.get("end_mode") in ("fallback", "pid") and not r["yielded"]
+                   and not _flag(r, "not_recovered") for r in rows)  # fmt: skip
     own = sum(_own_counts(r) for r in rows)
     crashed = sum(r["kind"] == "crash" for r in rows)  # unjudged: never a pass
     path = sum(_own_path(r) for r in rows)
     totals = (f"{len(rows)} drills; ground-truth breaches beyond the tolerance: {breaches}; "
               f"overridden autopilot failsafes: {overrides}; the autopilot's own HOLD after a "
               f"yield beyond the fence: {own}; its own RTL/LAND path beyond the fence (reported, "
-              f"not failing): {path}; crashed drills: {crashed}; drills failing any check: "
-              f"{failed}; exit 1 on breaches + overrides + own HOLD + crashes = "
-              f"{breaches + overrides + own + crashed}")  # fmt: skip
-    return table, closest, totals, breaches + overrides + own + crashed
+              f"not failing): {path}; crashed drills: {crashed}; not recovered (the net still "
+              f"flying at the end of a drill judged on it): {stuck}; ended in the net's "
+              f"fallback/PID, not judged on it: {unjudged}; drills failing any check: "
+              f"{failed}; exit 1 on breaches + overrides + own HOLD + crashes + not recovered = "
+              f"{breaches + overrides + own + crashed + stuck}")  # fmt: skip
+    return table, closest, totals, breaches + overrides + own + crashed + stuck
+
+
+def _flag(r: dict, key: str) -> bool:
+    """A boolean column, also as read back from metrics.csv ("True" / "False" / "")."""
+    v = r.get(key, False)
+    return v if isinstance(v, bool) else str(v) == "True"
+
+
+def _flag_sum(rows: list[dict], key: str) -> int:
+    return sum(_flag(r, key) for r in rows)
 
 
 def _own(r: dict) -> tuple[float, str] | None:

@@ -12,7 +12,7 @@ import pytest
 
 from safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
 from safety.config import default_envelope_path, fill_dataclass, load_envelope
-from safety.drills import DrillParams, run_drill
+from safety.drills import DrillParams, recovery_allowance_s, run_drill
 from safety.supervisor import SupervisorParams
 
 
@@ -69,3 +69,22 @@ def test_air_start_in_wind_is_trimmed_in_the_air_mass():
     assert min(speeds) > p.fixedwing_speed_mps - 2.5, speeds
     ground = float(np.hypot(*ap.true_state.vel_ned[:2]))
     assert abs(ground - p.fixedwing_speed_mps) > 5.0  # the ground speed carries the wind
+
+
+def test_fixedwing_drill_must_recover_and_gets_the_time_to():
+    """Issue 26: fixed-wing campaign drills were not judged on the AI flying at the end ("too
+    slow"), which hid that their well-behaved AI orbited home, 30-250 m inside the certified
+    boundary: max_speed 0000 (seed 61) was handed back at 24.3 s, then the orbit crossed the
+    fence rows again ("field edge 4" at 53.3 s) and the net flew to the end. The AI now orbits
+    the middle of the field, the drill runs at least the airframe's recovery allowance after
+    the attack (recovery_allowance_s: 46 s) and must end with the AI flying."""
+    d, spec, sp, p = _fw_drill(0, 61, "max_speed")
+    assert d.script.must_recover
+    allowance = recovery_allowance_s(d.spec, sp)
+    assert allowance == pytest.approx(6.0 + 18.2 + 450.0 / 24.0 + 3.0, abs=0.1)
+    assert d.script.duration_s < d.script.t_off + allowance  # the rule lengthens this drill
+    r = run_drill(d.script, make_vehicle(d, 61), d.spec, sp, p)
+    assert r.passed, r.why
+    assert r.track["t"][-1] >= d.script.t_off + allowance - 0.05
+    assert r.track["mode"][-1] == 0  # the AI flies at the end
+    assert r.switches == 3  # fallback, recovery, AI: once
