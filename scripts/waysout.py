@@ -157,21 +157,19 @@ def ending_lines(run_dir: Path, vehicles: list[str] | None = None,
 
 
 def append_ending(run_dir: Path, lines: list[str]) -> None:
-    """The lines under "## How it ended" at the end of summary.md, and on standard output; if
-    summary.md cannot be written (a read-only folder), on stderr with the reason."""
+    """The lines under "## How it ended" at the end of summary.md, and on standard error (the
+    verdict stays the last line of standard output); if summary.md cannot be written (a
+    read-only folder), on standard output, with the reason on stderr."""
     text = "\n".join(f"- {ln}" for ln in lines)
-    try:
-        print("How it ended:\n" + text, flush=True)
-    except (OSError, ValueError):  # a simulator whose `fly` died: nobody reads its output
-        pass
     path = run_dir / "summary.md"
     try:
         old = path.read_text() if path.exists() else "# skyherd fly\n"
     except OSError:
         old = "# skyherd fly\n"
     why = try_write_text(path, old.rstrip() + "\n\n## How it ended\n\n" + text + "\n")
-    if why is not None:
-        try:
+    try:  # a simulator whose `fly` died: nobody reads its output
+        print("How it ended:\n" + text, file=sys.stderr if why is None else sys.stdout, flush=True)
+        if why is not None:
             print(f"skyherd fly: {why}; how the flight ended is above", file=sys.stderr, flush=True)
-        except (OSError, ValueError):
-            pass
+    except (OSError, ValueError):
+        pass

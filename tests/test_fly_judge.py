@@ -27,9 +27,10 @@ def _fly(tmp_path, instance: int, *extra: str, duration: str = "15", speedup: st
 
 
 def _last_line(capsys) -> str:
-    """The verdict line (`skyherd fly: <status>...`; "How it ended" follows it: scripts/waysout)."""
-    out = capsys.readouterr().out.splitlines()
-    return [x for x in out if x.startswith("skyherd fly: ") and " run folder " not in x][-1]
+    """The verdict line: the last line of standard output ("How it ended" goes to stderr)."""
+    line = capsys.readouterr().out.splitlines()[-1]
+    assert line.startswith("skyherd fly: ") and " run folder " not in line
+    return line
 
 
 def _summary_checks(run: Path) -> dict[str, str]:
