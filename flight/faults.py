@@ -396,3 +396,23 @@ class FaultInjector:
             n6 += self._b6 * self.rng.standard_normal(6)
             pv += n6
         return err
+
+
+def apply_switches(ap, due: list[str]) -> None:
+    """The disarm / rtl faults on an autopilot (`FaultInjector.switches`), as a kill switch or a
+    ground station would: "disarm" forces a disarm, "rtl" switches to RTL remembering the mode
+    (`ap._mode_before_rtl`), anything else ("back") returns to it."""
+    from flight.autopilot_api import FlightMode
+
+    for what in due:
+        if what == "disarm":
+            ap._event("fault: forced disarm")
+            ap.disarm(force=True)
+        elif what == "rtl":
+            ap._mode_before_rtl = ap._mode
+            ap._event("fault: RTL")
+            ap.set_mode(FlightMode.RTL)
+        else:
+            back = ap._mode_before_rtl
+            ap._event(f"fault: back to {back.name}")
+            ap.set_mode(back)

@@ -39,7 +39,7 @@ from flight.autopilot_api import (
     offboard_lost_text,
 )
 from flight.clock import SimClock
-from flight.faults import FaultInjector, FaultPlan
+from flight.faults import FaultInjector, FaultPlan, apply_switches
 from flight.fixedwing import guidance
 from flight.fixedwing.attitude import AttitudeController, InnerGains
 from flight.fixedwing.fw_params import FW_PARAM_SPECS
@@ -284,21 +284,6 @@ class FixedWingAutopilot(AutopilotBase):
             self.land()
             self._event("mode -> land (geofence)")
 
-    def _fault_switches(self, due: list[str]) -> None:
-        """The disarm / rtl faults (flight.faults): as a kill switch or a ground station would."""
-        for what in due:
-            if what == "disarm":
-                self._event("fault: forced disarm")
-                self.disarm(force=True)
-            elif what == "rtl":
-                self._mode_before_rtl = self._mode
-                self._event("fault: RTL")
-                self.set_mode(FlightMode.RTL)
-            else:
-                back = self._mode_before_rtl
-                self._event(f"fault: back to {back.name}")
-                self.set_mode(back)
-
     def _apply_faults(self) -> None:
         """Wind on JSBSim and the estimate's GPS error for the step that starts now."""
         inj, t, dt = self._inj, self.clock.t, self.control_dt
@@ -310,7 +295,7 @@ class FixedWingAutopilot(AutopilotBase):
                 self._battery_drop += self.battery_remaining - drop
                 self._event(f"battery fault: charge {drop:.0%}")
         if inj._switch_events:
-            self._fault_switches(inj.switches(t))
+            apply_switches(self, inj.switches(t))
         if not inj.touches_estimate:
             return
         e = inj.update(t, dt)

@@ -55,7 +55,7 @@ from flight.autopilot_api import (
     offboard_lost_text,
 )
 from flight.clock import SimClock
-from flight.faults import FaultInjector, FaultPlan
+from flight.faults import FaultInjector, FaultPlan, apply_switches
 from flight.frames import wrap_pi
 from flight.geo import DEFAULT_HOME, Home
 from flight.geofence import ACTION_HOLD, ACTION_NAMES, ACTION_NONE, ACTION_RTL, FenceMonitor
@@ -347,21 +347,6 @@ class MultirotorAutopilot(AutopilotBase):
         ex[:] = self._x
         ex[0:6] += self._inj.err.pv
 
-    def _fault_switches(self, due: list[str]) -> None:
-        """The disarm / rtl faults (flight.faults): as a kill switch or a ground station would."""
-        for what in due:
-            if what == "disarm":
-                self._event("fault: forced disarm")
-                self.disarm(force=True)
-            elif what == "rtl":
-                self._mode_before_rtl = self._mode
-                self._event("fault: RTL")
-                self.set_mode(FlightMode.RTL)
-            else:
-                back = self._mode_before_rtl
-                self._event(f"fault: back to {back.name}")
-                self.set_mode(back)
-
     def _apply_faults(self, inj: FaultInjector, t: float) -> None:
         """Wind, GPS error and battery faults for the step that starts at t."""
         dt = self.control_dt
@@ -374,7 +359,7 @@ class MultirotorAutopilot(AutopilotBase):
                 self._event(f"battery fault: charge {drop:.0%}")
             self._extra_j += watts * dt
         if inj._switch_events:
-            self._fault_switches(inj.switches(t))
+            apply_switches(self, inj.switches(t))
 
     def _gps_update(self, inj: FaultInjector, t: float) -> None:
         """The estimate at t (after the physics step) and the GPS-loss rule."""
