@@ -15,8 +15,14 @@ obeyed: the endpoint answers with a PARAM_VALUE broadcast that the guard reads);
 (value None) sends the value read before the sabotage. A link cut is real: during it the
 vehicle's API link sends nothing (`muted`) and is not read, and what the companion sent meanwhile
 is dropped from its socket at the end of the cut; the companion hears nothing, so its clock (the
-autopilot's) stands still and it commands nothing. Ground truth is judged on every simulation
-step (Sitl.run's on_step) as in safety.drills.run_drill.
+autopilot's) stands still and it commands nothing. Ground truth is recorded on every
+simulation step (Sitl.run's on_step) and the drill is judged by safety.judge, as the in-process
+drills (safety.drills.judge_drill): the same checks, names and verdict.
+
+Whose mode change it was, as the vehicle sees it: while the net has authority, a change to the
+mode it last asked for (it marks a request asked before sending it) is the net's, any other the
+autopilot's own; after the yield, a change to OFFBOARD, or out of RTL / LAND into the net's
+modes, can only be the net's (the one other client on the link): an override.
 """
 
 from __future__ import annotations
@@ -24,9 +30,8 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from flight.autopilot_api import FlightMode, Setpoint
@@ -36,9 +41,11 @@ from hil.link import MavlinkLink
 from mission.companion import CompanionParams, run
 from mission.steps import Phase, mode_params, read_params, recipe, wait_ready
 from mission.vehicle import COMPANION_COMPONENT, VehicleLink
+from safety.authority import ENDING_MODES, NET_MODES
 from safety.campaign import drill_rng, make_drill, make_vehicle
 from safety.config import default_envelope_path, fill_dataclass, load_envelope
-from safety.drills import RUN_ON_S, WATCHED_PARAMS, DrillParams
+from safety.drills import RUN_ON_S, WATCHED_PARAMS, DrillParams, DrillRecord, judge_drill
+from safety.judge import NetRecord, first_failed, verdict
 from safety.net import SafetyNet, warm_up
 from safety.supervisor import Mode, Supervisor, SupervisorParams
 
@@ -61,6 +68,7 @@ class LinkDrillResult:
     airframe: str = "quadrotor"
     restored: str = ""  # after a client's restore: "handed back", "waiting (yielded ...)", ...
     cut_dropped: int = 0  # datagrams from the companion dropped by the link cut
+    checks: list = field(default_factory=list)  # safety.judge's, in order
 
 
 class LinkDrill:
@@ -187,11 +195,18 @@ def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
     else:
         ap.arm(force=True)
         ap.set_mode(FlightMode.HOLD)
-    geo = d.spec.geometry()
     run_on = d.spec.stop_times()[0] + RUN_ON_S
-    judge = {"worst": -math.inf, "t_yield": math.nan, "overridden": 0, "mode": ap.mode,
-             "t_handover": math.nan}  # fmt: skip
+    judge = {"t_yield": math.nan, "overridden": 0, "mode": ap.mode, "t_handover": math.nan}
     cut = {"on": False, "dropped": 0}
+    rec = DrillRecord()
+    box: dict = {}  # the net, once built
+
+    def whose(prev: FlightMode, m: FlightMode) -> bool:
+        """The net's change (True) or the autopilot's own (False); module docstring."""
+        auth = box["net"].authority
+        if auth.has_authority:
+            return m is auth.asked
+        return m is FlightMode.OFFBOARD or (prev in ENDING_MODES and m in NET_MODES)
 
     def on_step(sitl: Sitl) -> None:  # simulation thread, every step
         t0 = judge["t_handover"]
@@ -207,18 +222,16 @@ def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
                 sitl.endpoint.gated.discard(api.name)
                 api.muted = False
             cut["on"] = on
-        z = np.zeros(11)
-        z[0:3] = ap.true_state.pos_ned
-        ty = judge["t_yield"]
-        if math.isnan(ty) or ap.clock.t - ty <= run_on:
-            judge["worst"] = max(judge["worst"], geo.worst(z))
-        m = ap.mode
-        if m is not judge["mode"]:
-            prev, judge["mode"] = judge["mode"], m
-            if prev in (FlightMode.RTL, FlightMode.LAND) or (
-                not math.isnan(ty) and m is FlightMode.OFFBOARD
-            ):
-                judge["overridden"] += 1
+        m, prev = ap.mode, judge["mode"]
+        judge["mode"] = m
+        if math.isnan(t0):
+            return
+        if math.isnan(rec.t0):
+            rec.handover(t0, prev, ap.armed)
+        by = whose(prev, m) if m is not prev else False
+        if m is not prev and by and not box["net"].authority.has_authority:
+            judge["overridden"] += 1
+        rec.step(ap.clock.t, ap.true_state.pos_ned, ap.armed, m, by)
 
     sitl = Sitl(ap, EndpointConfig(instance=instance), speedup=speedup)
     link = None
@@ -228,43 +241,35 @@ def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
         link = MavlinkLink.open(f"udpin:127.0.0.1:{14540 + instance}", source_system=1 + instance,
                                 source_component=COMPANION_COMPONENT)  # fmt: skip
         v = VehicleLink(link, target_system=1 + instance)
-        net = SafetyNet(Supervisor(d.spec.envelope(), sp, events), events, camera=False)
+        net = box["net"] = SafetyNet(Supervisor(d.spec.envelope(), sp, events), events,
+                                     camera=False)  # fmt: skip
         warm_up(net.supervisor.envelope, sp)  # as the companion: not at the first switch in flight
         drill = LinkDrill(d, net, judge, ap.clock, timeout_s)
         sim.start()
         run(v, drill, drill.run(v), None, CompanionParams(lockstep=False))
         sup = net.supervisor
-        reasons = sup.stats.reasons + sorted(drill.reasons)
+        reasons = sup.stats.reasons + sup.stats.projected_reasons + sorted(drill.reasons)
         yielded = net.authority.yields[0][1] if net.authority.yields else ""
-        why = []
-        if judge["worst"] > d.spec.limits.breach_tolerance_m:
-            why.append(f"breach {judge['worst']:.2f} m beyond the fence")
-        if judge["overridden"]:
-            why.append(f"the net overrode the autopilot's own mode {judge['overridden']} times")
-        if (
-            s.must_trigger
-            and not any(k in r for r in reasons for k in s.expect)
-            and not (s.expect_yield and yielded)
-        ):
-            why.append(f"expected {s.expect}, got {reasons or 'none'}")
-        if s.expect_yield and not yielded:
-            why.append("the autopilot's failsafe was expected to take over; the net never yielded")
+        ty = judge["t_yield"]
+        record = NetRecord(tuple(reasons), yielded, ty, ty + run_on if yielded else math.inf,
+                           sup.mode.value, drill.ai_after, d.spec.limits.breach_tolerance_m)  # fmt: skip
+        outcome, why = "completed", "the drill ran to its end"
         if drill.t0 is None or time.monotonic() >= drill.wall_end:
-            why.append(f"the drill did not run to its end within {timeout_s:.0f} s of wall time")
-        restored = ""
-        if not math.isnan(drill.t_restore):
-            if yielded:
-                restored = f"waiting (yielded to {yielded})"
-            elif not math.isnan(drill.ai_after):
-                restored = f"handed back {drill.ai_after - drill.t_restore:.1f} s after the restore"
-            else:
-                restored = "not handed back"
-                why.append("a client restored the sabotaged parameter; the net did not hand back")
+            outcome = "aborted"
+            why = f"the drill did not run to its end within {timeout_s:.0f} s of wall time"
+        truth_end = rec.t[-1] if rec.t else ap.clock.t
+        checks = judge_drill(s, d.spec, rec, record, None, ty if yielded else truth_end,
+                             outcome, why)  # fmt: skip
+        failed = first_failed(checks)
+        fence = checks[0]
+        restored = next(c for c in checks if c.name == "recovered").figure
         if net.authority.yields:
             reasons.append(net.authority.reason)
-        return LinkDrillResult(s.name, kind, not why, -judge["worst"], judge["overridden"],
-                               yielded, reasons, "; ".join(why), drill.sent, airframe,
-                               restored, cut["dropped"])  # fmt: skip
+        return LinkDrillResult(s.name, kind, failed is None, fence.value, judge["overridden"],
+                               yielded, reasons, "" if failed is None else verdict(checks),
+                               drill.sent, airframe,
+                               restored if not math.isnan(drill.t_restore) else "",
+                               cut["dropped"], checks)  # fmt: skip
     finally:
         if link is not None:
             link.close()

@@ -344,3 +344,37 @@ def make_vehicle(drill: CampaignDrill, seed: int):
     ap.set_fence(vehicle_fence(drill.spec))  # the vehicle's own last line: its HOLD fits it
     ap.drain_status()
     return ap
+
+
+# ---- what a campaign proves: an upper bound on the breach probability ------------------------
+CONFIDENCE = 0.95
+
+
+def breach_upper_bound(breaches: int, drills: int, confidence: float = CONFIDENCE) -> float:
+    """One-sided Clopper–Pearson upper bound on the breach probability after `breaches` in
+    `drills` independent drills: the p at which seeing <= breaches has probability 1 −
+    confidence. 0 of n: 1 − (1 − confidence)^(1/n) in closed form; otherwise the beta
+    quantile Beta(confidence; k + 1, n − k). No drills: 1 (nothing shown)."""
+    if not (0 <= breaches <= drills) or not 0.0 < confidence < 1.0:
+        raise ValueError(f"need 0 <= breaches <= drills and 0 < confidence < 1, got "
+                         f"{breaches} of {drills} at {confidence}")  # fmt: skip
+    if drills == 0 or breaches == drills:
+        return 1.0
+    if breaches == 0:
+        return 1.0 - (1.0 - confidence) ** (1.0 / drills)
+    from scipy.stats import beta
+
+    return float(beta.ppf(confidence, breaches + 1, drills - breaches))
+
+
+def drills_needed(bound: float, confidence: float = CONFIDENCE) -> int:
+    """The fewest drills that, all without a breach, bound the breach probability at `bound`:
+    the least n with 1 − (1 − confidence)^(1/n) <= bound (2,995 for 1e-3 at 95 %)."""
+    if not 0.0 < bound < 1.0:
+        raise ValueError(f"the target bound must be within (0, 1), got {bound}")
+    n = math.ceil(math.log(1.0 - confidence) / math.log1p(-bound))
+    while n > 1 and breach_upper_bound(0, n - 1, confidence) <= bound:  # rounding
+        n -= 1
+    while breach_upper_bound(0, n, confidence) > bound:
+        n += 1
+    return n

@@ -23,7 +23,21 @@ import numpy as np
 from flight.autopilot_api import Autopilot, FlightMode, Setpoint
 from flight.geo import GRAVITY
 from flight.state import VehicleState
-from safety.envelope import NZ, EnvelopeSpec, SignedDistance
+from safety.envelope import EnvelopeSpec
+from safety.judge import (
+    Check,
+    Ending,
+    Expect,
+    JudgeParams,
+    ModeChange,
+    NetRecord,
+    Truth,
+    clearances,
+    first_failed,
+    judge,
+    own_flight,
+    verdict,
+)
 from safety.net import SafetyNet, apply_decision
 from safety.supervisor import Mode, Supervisor, SupervisorParams
 
@@ -109,6 +123,7 @@ class DrillResult:
     autopilot_excursion_mode: str = ""  # the autopilot's mode at that worst point (HOLD, RTL ...)
     restored: str = ""  # after a client restored a sabotaged parameter: "handed back" (the net
     # re-checked and the AI flew again), "waiting (yielded to X)", "not handed back"; "" = none
+    checks: list[Check] = field(default_factory=list)  # safety.judge's, in order
 
 
 def slew(u_des: np.ndarray, v: np.ndarray, dh: float, dv: float) -> np.ndarray:
@@ -556,6 +571,76 @@ def _half_extent(spec: EnvelopeSpec) -> np.ndarray:
     return np.abs(pts).max(axis=0)
 
 
+class DrillRecord:
+    """What a drill records for the judge (safety.judge), from the hand-over on: the truth at
+    every autopilot step, every change of (mode, armed) and whose it was, the tick times of
+    the good camera frames, the net's switches. Shared by the in-process and MAVLink drills."""
+
+    def __init__(self) -> None:
+        self.t: list[float] = []
+        self.pos: list[np.ndarray] = []
+        self.armed: list[bool] = []
+        self.mode: list[FlightMode] = []
+        self.changes: list[ModeChange] = []
+        self.frames: list[float] = []
+        self.ticks = 0  # decisions in the AI window (frames the camera would have delivered)
+        self.switches: list[tuple[float, str]] = []
+        self.t0 = math.nan  # the hand-over [s]
+        self._last: tuple[FlightMode, bool] | None = None
+
+    def handover(self, t: float, mode: FlightMode, armed: bool) -> None:
+        self.t0, self._last = t, (mode, armed)
+
+    def step(self, t: float, pos_ned: np.ndarray, armed: bool, mode: FlightMode,
+             by_companion: bool | None = False) -> None:  # fmt: skip
+        """One autopilot step's truth; a change of (mode, armed) since the last is recorded
+        as `by_companion`'s (the autopilot's own: False)."""
+        self.t.append(t)
+        self.pos.append(pos_ned.copy())
+        self.armed.append(armed)
+        self.mode.append(mode)
+        self.change(t, mode, armed, by_companion)
+
+    def change(self, t: float, mode: FlightMode, armed: bool, by_companion: bool | None) -> None:
+        if self._last is not None and (mode, armed) != self._last:
+            self._last = (mode, armed)
+            self.changes.append(ModeChange(t, mode.name, armed, by_companion))
+
+    def switch(self, t: float, to: Mode) -> None:
+        self.switches.append((t, to.value))
+
+    def truth(self) -> Truth:
+        """The truth recorded so far (whole samples only: another thread may be appending)."""
+        n = min(len(self.t), len(self.pos), len(self.armed), len(self.mode))
+        pos = np.array(self.pos[:n], dtype=float).reshape(-1, 3)
+        names = {m: m.name for m in set(self.mode[:n])}
+        return Truth(np.array(self.t[:n], float), pos, np.array(self.armed[:n], bool),
+                     tuple(names[m] for m in self.mode[:n]))  # fmt: skip
+
+
+def expect_of(script: Script) -> Expect:
+    """What the drill demands of the net, for the judge."""
+    t_restore = max((t for t, _, v in script.params if v is None), default=math.nan)
+    return Expect(tuple(script.expect), script.must_trigger, script.expect_yield,
+                  script.must_recover, t_restore)  # fmt: skip
+
+
+def judge_drill(script: Script, spec: EnvelopeSpec, rec: DrillRecord, net: NetRecord,
+                camera_timeout_s: float | None, t_authority: float, outcome: str = "completed",
+                reason: str = "the drill ran to its end") -> list[Check]:  # fmt: skip
+    """safety.judge on a drill: its truth from the hand-over, its mode changes, its frames
+    (None: no camera, or the camera guard off), the net's switches and record. The drill ends
+    in the air by design (or where the autopilot's failsafe flies); t_authority: the end of
+    the net's authority (the yield, or the end of the drill)."""
+    truth = rec.truth()
+    window = (rec.t0, max(rec.t0, t_authority))
+    frames = rec.frames if camera_timeout_s is not None else None
+    ending = Ending(outcome, reason, land=False, failsafe=net.yielded)
+    jp = JudgeParams(camera_gap_max_s=camera_timeout_s or 1.0)
+    return judge(truth, spec, rec.changes, window, frames, rec.ticks, ending, rec.switches, jp,
+                 expect=expect_of(script), net=net)  # fmt: skip
+
+
 def run_drill(
     script: Script,
     ap: Autopilot,
@@ -566,7 +651,8 @@ def run_drill(
     net_spec: EnvelopeSpec | None = None,
 ) -> DrillResult:
     """Fly one drill on `ap`: take off and go to the start (or, `air_start`, hold where the
-    vehicle was created until `handover_s`), hand over, play the script and its faults.
+    vehicle was created until `handover_s`), hand over, play the script and its faults; judged
+    by safety.judge (`judge_drill`).
 
     Ground truth (`ap.true_state` when the autopilot flies on an estimate) is judged against
     `spec`; the net sees what the autopilot reports (`ap.state`) and uses `net_spec` (default
@@ -574,32 +660,17 @@ def run_drill(
     requests go through `safety.authority`: a failsafe of the autopilot is never undone, and
     every switch out of a mode the autopilot chose itself is counted as `overridden`."""
     n_sub = max(1, round(p.policy_dt_s / ap.control_dt))
-    geo = spec.geometry()
-    signed = SignedDistance(spec)
-    z = np.zeros(NZ)
-    worst = -math.inf  # rows of the union, every autopilot step (breach detection)
-    clear = -math.inf  # exact signed distance at every policy tick (the excursion reported)
     truth = (lambda: ap.true_state) if hasattr(ap, "true_state") else (lambda: ap.state)
     own = {"mode": ap.mode, "by_autopilot": False}  # the mode now and who chose it
-
-    run_on = spec.stop_times()[0] + RUN_ON_S  # after a yield the net's last command still counts
-    judge = {"t_yield": math.nan, "own_worst": -math.inf, "own_mode": ""}
+    rec = DrillRecord()
+    judging = [False]
 
     def fly(k: int) -> None:
-        """Step the autopilot; ground truth judged every step. After the net yielded, the
-        autopilot's own flight (RTL's straight line home, LAND through the floor, its HOLD
-        loiter) is the autopilot's: it counts against the net only for `run_on` s (the
-        braking from the net's last command), and is reported as autopilot_excursion_m."""
-        nonlocal worst
-        ty = judge["t_yield"]
+        """Step the autopilot; from the hand-over on, the truth recorded at every step."""
         for _ in range(k):
             ap.step()
-            z[0:3] = truth().pos_ned
-            w = geo.worst(z)
-            if math.isnan(ty) or ap.clock.t - ty <= run_on:
-                worst = max(worst, w)
-            elif w > judge["own_worst"]:
-                judge["own_worst"], judge["own_mode"] = w, ap.mode.name
+            if judging[0]:
+                rec.step(ap.clock.t, truth().pos_ned, ap.armed, ap.mode)
         if ap.mode is not own["mode"]:
             own["mode"], own["by_autopilot"] = ap.mode, True
 
@@ -625,7 +696,6 @@ def run_drill(
             or np.linalg.norm(ap.state.vel_ned) > 0.3
         ):
             fly(n_sub)
-    worst = -math.inf  # judged from the hand-over on
     net = SafetyNet(Supervisor((net_spec or spec).envelope(), sp, events), events,
                     use_autopilot_hold=p.use_autopilot_hold)  # fmt: skip
     sup, auth, guard = net.supervisor, net.authority, net.params
@@ -641,6 +711,9 @@ def run_drill(
     own["mode"], own["by_autopilot"] = ap.mode, False
     net.handover(t0, ap.mode)
     net.link(t0, t0)  # the hand-over was accepted over the link: it is alive at t0
+    rec.handover(t0, ap.mode, ap.armed)
+    rec.step(t0, truth().pos_ned, ap.armed, ap.mode)
+    judging[0] = True
     first_fb = ai_back = math.nan
     prev_mode = Mode.AI
     rows = []
@@ -648,7 +721,7 @@ def run_drill(
     pending = sorted(script.params, key=lambda e: e[0])
     pre_set: dict[str, float | None] = {}  # each parameter's value before the first PARAM_SET
     t_restore = max((t for t, _, v in script.params if v is None), default=math.nan)
-    after_restore = {"clear_t": math.nan, "ai_t": math.nan}
+    ai_after_restore = math.nan
     seen_reasons: set[str] = set()  # every reason the net gave while it was not the AI flying
     seen_state = ap.state
     t_yield = math.nan
@@ -675,7 +748,12 @@ def run_drill(
                     seen[n] = v
                     net.param(t, n, v)
         s = seen_state
-        if script.camera_ok(tr):
+        if auth.has_authority:
+            rec.ticks += 1
+            if script.camera_ok(tr):
+                net.frame(t)
+                rec.frames.append(t)
+        elif script.camera_ok(tr):
             net.frame(t)
         if link_up:
             net.link(t, t)
@@ -688,27 +766,25 @@ def run_drill(
             ai_back = math.nan
         elif prev_mode is not Mode.AI:
             ai_back = t
+        if d.mode is not prev_mode:
+            rec.switch(t, d.mode)
         prev_mode = d.mode
         if link_up and auth.has_authority:  # a lost link carries no commands
             before, by_ap = ap.mode, own["by_autopilot"]
             apply_decision(ap, d, net.use_autopilot_hold, authority=auth)
+            rec.change(t, ap.mode, ap.armed, True)  # a switch here is the net's
             if ap.mode is not before:
                 if by_ap:
                     overridden += 1  # the net undid a mode the autopilot chose itself
                 own["mode"], own["by_autopilot"] = ap.mode, False
         if not auth.has_authority and math.isnan(t_yield):
-            t_yield = judge["t_yield"] = t
+            t_yield = t
         if d.mode is not Mode.AI and d.reason:
             seen_reasons.add(d.reason)
-        if tr >= t_restore:  # after the restore: the net's re-check, then the AI again
-            if math.isnan(after_restore["clear_t"]) and not guard.fault:
-                after_restore["clear_t"] = tr
-            if math.isnan(after_restore["ai_t"]) and d.mode is Mode.AI and not guard.fault:
-                after_restore["ai_t"] = tr
+        if tr >= t_restore and math.isnan(ai_after_restore):  # the net's re-check, then the AI
+            if d.mode is Mode.AI and not guard.fault:
+                ai_after_restore = tr
         rows.append((tr, *truth().pos_ned, {Mode.AI: 0, Mode.FALLBACK: 1, Mode.PID: 2}[d.mode]))
-        ty = judge["t_yield"]
-        if math.isnan(ty) or ap.clock.t - ty <= run_on:
-            clear = max(clear, signed(truth().pos_ned))
         fly(n_sub)
         if not math.isnan(t_yield) and ap.clock.t - t_yield > script.after_yield_s:
             break
@@ -716,44 +792,23 @@ def run_drill(
             break
     st = sup.stats
     recover = ai_back - first_fb if not math.isnan(first_fb) else math.nan
-    why = []
-    if worst > spec.limits.breach_tolerance_m:
-        why.append(f"breach {worst:.2f} m beyond the fence")
-    if overridden:
-        why.append(f"the net overrode the autopilot's own mode {overridden} times")
-    judged = st.reasons + st.projected_reasons + sorted(seen_reasons)
-    caught = [r for r in judged if any(k in r for k in script.expect)]
     yielded = auth.yields[0][1] if auth.yields else ""
-    if script.must_trigger and not caught and not (script.expect_yield and yielded):
-        why.append(
-            f"expected a fallback or projection for {script.expect}, got {st.reasons + st.projected_reasons or 'none'}"
-        )
-    if script.expect_yield and not yielded:
-        why.append("the autopilot's failsafe was expected to take over; the net never yielded")
-    if script.must_recover and not script.expect_yield and not yielded and sup.mode is not Mode.AI:
-        why.append(f"not recovered: {sup.mode.value} at the end")
-    restored = ""
-    if not math.isnan(t_restore):
-        if yielded:
-            restored = f"waiting (yielded to {yielded})"
-        elif not math.isnan(after_restore["ai_t"]):
-            restored = f"handed back {after_restore['ai_t'] - t_restore:.1f} s after the restore"
-        else:
-            restored = "not handed back"
-            why.append(
-                "a client restored the sabotaged parameter but the net did not hand back to the AI"
-                + (
-                    ""
-                    if not math.isnan(after_restore["clear_t"])
-                    else " (its re-check still failed)"
-                )
-            )
+    run_on = spec.stop_times()[0] + RUN_ON_S  # after a yield the net's last command still counts
+    record = NetRecord(
+        tuple(st.reasons + st.projected_reasons + sorted(seen_reasons)), yielded, t_yield,
+        t_yield + run_on if yielded else math.inf, sup.mode.value, ai_after_restore,
+        spec.limits.breach_tolerance_m)  # fmt: skip
+    t_auth = t_yield if not math.isnan(t_yield) else ap.clock.t
+    checks = judge_drill(script, spec, rec, record, sp.camera_timeout_s, t_auth)
     tr_arr = np.array(rows)
+    fence = next(c for c in checks if c.name == "fence")
+    clearance = fence.value
+    own_x, own_mode = own_flight_of(rec, spec, record)
     return DrillResult(
         script.name,
         ap.airframe,
-        not why,
-        float(worst if worst > 0 else clear),  # clearance sampled at the policy rate
+        first_failed(checks) is None,
+        -clearance,
         st.fallback_s,
         st.pid_s,
         float(recover),
@@ -761,16 +816,28 @@ def run_drill(
         st.projected,
         st.switches,
         list(st.reasons) + [f"projected: {r}" for r in st.projected_reasons],
-        "; ".join(why),
+        "" if first_failed(checks) is None else verdict(checks),
         {"t": tr_arr[:, 0], "pos": tr_arr[:, 1:4], "mode": tr_arr[:, 4].astype(int)},
         script.kind,
         overridden,
         yielded,
-        float(-max(worst, clear)),
-        float(judge["own_worst"]),
-        str(judge["own_mode"]),
-        restored,
+        clearance,
+        own_x,
+        own_mode,
+        next(c for c in checks if c.name == "recovered").figure
+        if not math.isnan(t_restore)
+        else "",
+        checks,
     )
+
+
+def own_flight_of(rec: DrillRecord, spec: EnvelopeSpec, net: NetRecord) -> tuple[float, str]:
+    """The autopilot's own flight after the net stopped answering (safety.judge.own_flight)."""
+    if not net.yielded:
+        return -math.inf, ""
+    truth = rec.truth()
+    c, _ = clearances(truth, spec, None, net)
+    return own_flight(truth, c, net, JudgeParams())
 
 
 def recovery_allowance_s(spec: EnvelopeSpec, sp: SupervisorParams) -> float:

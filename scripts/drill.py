@@ -77,6 +77,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers", type=int, default=1, help="processes for --campaign (default 1)"
     )
     parser.add_argument(
+        "--target-bound",
+        type=float,
+        default=1e-3,
+        metavar="P",
+        help="--campaign: the breach probability to bound (95 %% one-sided Clopper-Pearson); "
+        "the report says how many breach-free drills that needs (default 1e-3: 2,995)",
+    )
+    parser.add_argument(
         "--mavlink",
         type=int,
         default=0,
@@ -129,6 +137,10 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--random must be >= 0")
     if args.campaign < 0 or not (1 <= args.workers <= 16):
         raise UsageError("--campaign must be >= 0 and --workers within [1, 16]")
+    if not 0.0 < args.target_bound < 1.0:
+        raise UsageError(
+            f"--target-bound must be within (0, 1), e.g. 1e-3; got {args.target_bound:g}"
+        )
     if args.campaign or args.mavlink:
         from scripts.drill_campaign import run_campaign
 
@@ -255,7 +267,7 @@ def run(args: argparse.Namespace) -> int:
         [
             r.name,
             r.airframe,
-            "pass" if r.passed else "FAIL",
+            "pass" if r.passed else f"FAIL ({_first(r)})",
             r.excursion_m,
             r.fallback_s + r.pid_s,
             "-" if math.isnan(r.recover_s) else r.recover_s,
@@ -282,9 +294,11 @@ def run(args: argparse.Namespace) -> int:
         )
     table = markdown_table(headers, rows)
     n_fail = sum(not r.passed for r, _ in results)
-    breaches = sum(r.excursion_m > s.limits.breach_tolerance_m for r, s in results)
+    breaches = sum(_first(r) == "fence" for r, _ in results)
     worst = max(r.excursion_m for r, _ in results) if results else math.nan
-    totals = f"{len(results)} drills, {len(results) - n_fail} passed, {n_fail} failed; ground-truth breaches beyond the tolerance: {breaches}; worst excursion {worst:.2f} m (negative = stayed inside)"
+    totals = (f"{len(results)} drills judged by safety.judge, {len(results) - n_fail} passed, "
+              f"{n_fail} failed a check; ground-truth breaches beyond the tolerance: {breaches}; "
+              f"worst excursion {worst:.2f} m (negative = stayed inside)")  # fmt: skip
     versions = ", ".join(f"{a}: {s.name} {s.version}" for a, s, *_ in plans)
     print(table)
     print(totals)
@@ -297,6 +311,11 @@ def run(args: argparse.Namespace) -> int:
     )
     _mcap(run_dir.path)
     return 1 if n_fail else 0
+
+
+def _first(r) -> str:
+    """The name of a drill's first failed check ("" if it passed)."""
+    return next((c.name for c in r.checks if not c.ok), "")
 
 
 def _mcap(folder) -> None:

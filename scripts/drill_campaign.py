@@ -3,17 +3,23 @@ in-process, seeded, on one or more worker processes.
 
 Writes a run folder: config.json, metrics.csv (one row per drill, flushed as drills finish),
 events.jsonl (every switch, yield and parameter verdict, tagged with the drill), campaign.png
-(closest approach per drill and kind), summary.md (the table and the closest approaches).
-Exit rule (`summarize`): exit 1 when any drill breached the fence beyond the constraint set's
-breach tolerance (the net's flight: ground truth up to the stopping time + RUN_ON_S after a
-yield), or the net overrode an autopilot failsafe, or the autopilot's own HOLD after a yield left
-the fence (the built-in vehicle fits its HOLD to the uploaded fence: its own last line), or a
-drill crashed (not judged), or a drill judged on its recovery ended with the net still flying
-(FALLBACK / PID: "not recovered"). The
-autopilot's own RTL / LAND path after a yield (PX4's RTL flies straight home and does not route
-around a fence; the net must not undo it) is counted and reported in its own column, and does
-not set the exit code: it is the autopilot's failsafe, owned by the autopilot, and the fence and
-home are the mission planner's to choose so that the line home stays inside.
+(closest approach per drill and kind), summary.md (the tables and the closest approaches).
+
+Every drill is judged by safety.judge (safety.drills.judge_drill: the checks of `skyherd fly`
+and a drill's own, `failed_check` names the first that failed). Exit rule (`summarize`): exit 1
+when any drill failed a check or crashed (not judged, never a pass). The table counts the
+checks' terms: breaches (fence: the net's flight, ground truth up to the stopping time +
+RUN_ON_S after a yield), overridden failsafes (modes), the autopilot's own HOLD beyond the fence
+after a yield (failsafe: the built-in vehicle fits its HOLD to the uploaded fence), not recovered
+(recovered). The autopilot's own RTL / LAND path after a yield (PX4's RTL flies straight home
+and does not route around a fence; the net must not undo it) is reported in its own column and
+fails no check: it is the autopilot's failsafe, and the fence and home are the mission
+planner's to choose so that the line home stays inside.
+
+What the campaign proves (`bounds`): per airframe and per kind, the drills, the breaches and
+the one-sided 95 % Clopper–Pearson upper bound on the breach probability (a crash counts as a
+breach: it was not judged), and how many breach-free drills a target bound needs
+(`--target-bound`, default 1e-3: 2,995).
 """
 
 from __future__ import annotations
@@ -25,14 +31,14 @@ from pathlib import Path
 import numpy as np
 
 from runio.runfolder import RunFolder, markdown_table
+from safety.judge import FAILSAFE_PATH_MODES
 from scripts.cli import UsageError
 
-COLS = ["drill", "airframe", "kind", "passed", "min_clearance_m", "breach", "overridden",
+COLS = ["drill", "airframe", "kind", "passed", "failed_check", "min_clearance_m", "breach", "overridden",
         "yielded", "switches", "fallback_s", "pid_s", "autopilot_excursion_m",
         "autopilot_excursion_mode", "first_reason", "why", "constraint_set_version",
         "restored", "end_mode", "not_recovered"]  # fmt: skip
-FAILSAFE_PATH_MODES = ("RTL", "LAND")
-"""The autopilot's own failsafe paths (straight line home, descent): reported, not failing."""
+TARGET_BOUND = 1e-3  # --target-bound's default: the breach probability to bound at 95 %
 
 
 class _Collect:
@@ -73,7 +79,7 @@ def run_one(job: tuple) -> dict:
         airframe, index = job[0], job[1]
         return {c: "" for c in COLS} | {
             "drill": f"crashed {index:04d}", "airframe": airframe, "kind": "crash",
-            "passed": False, "min_clearance_m": math.nan, "breach": False, "overridden": 0,
+            "passed": False, "failed_check": "crash", "min_clearance_m": math.nan, "breach": False, "overridden": 0,
             "not_recovered": False,
             "why": f"{type(e).__name__}: {e}", "_events": [], "_track": [],
         }  # fmt: skip
@@ -82,6 +88,7 @@ def run_one(job: tuple) -> dict:
 def _run_one(job: tuple) -> dict:
     from safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
     from safety.drills import DrillParams, run_drill
+    from safety.judge import first_failed
 
     airframe, index, seed, envelope = job
     spec, sp = _load(airframe, envelope)
@@ -92,9 +99,12 @@ def _run_one(job: tuple) -> dict:
     r = run_drill(d.script, make_vehicle(d, seed), d.spec, sp, p, sink)
     tol = d.spec.limits.breach_tolerance_m
     pos = r.track["pos"][::10]
+    failed = first_failed(r.checks)
+    ok = {c.name: c.ok for c in r.checks}
     return {
-        "drill": r.name, "airframe": airframe, "kind": d.kind, "passed": r.passed,
-        "min_clearance_m": round(r.min_clearance_m, 3), "breach": -r.min_clearance_m > tol,
+        "drill": r.name, "airframe": airframe, "kind": d.kind, "passed": failed is None,
+        "failed_check": "" if failed is None else failed.name,
+        "min_clearance_m": round(r.min_clearance_m, 3), "breach": not ok["fence"],
         "overridden": r.overridden, "yielded": r.yielded, "switches": r.switches,
         "fallback_s": round(r.fallback_s, 2), "pid_s": round(r.pid_s, 2),
         "autopilot_excursion_m": "" if not math.isfinite(r.autopilot_excursion_m)
@@ -102,7 +112,7 @@ def _run_one(job: tuple) -> dict:
         "autopilot_excursion_mode": r.autopilot_excursion_mode, "restored": r.restored,
         "first_reason": r.reasons[0] if r.reasons else "", "why": r.why,
         "end_mode": ("ai", "fallback", "pid")[int(r.track["mode"][-1])],
-        "not_recovered": "not recovered" in r.why,
+        "not_recovered": not ok["recovered"],
         "constraint_set_version": spec.version, "_events": sink.records, "_tol": tol,
         "_track": (pos - np.r_[_offset(d.spec, spec), 0.0]).tolist(),
     }  # fmt: skip
@@ -172,6 +182,8 @@ def run_campaign(args) -> int:
     events.close()
     metrics.close()
     table, closest, totals, bad = summarize(rows) if rows else ("", "", "no in-process drills", 0)
+    target = getattr(args, "target_bound", TARGET_BOUND)
+    proof = bounds(rows, target) if rows else ""
     if link_rows:
         lt = markdown_table(
             ["airframe", "drill (MAVLink)", "passed", "closest approach m", "overridden",
@@ -181,9 +193,9 @@ def run_campaign(args) -> int:
              for r in link_rows],
         )  # fmt: skip
         table = f"{table}\n\n{lt}"
-        bad += sum(not r.min_clearance_m >= 0 or r.overridden > 0 for r in link_rows)  # nan: crash
+        bad += sum(not r.passed for r in link_rows)  # the judge's verdict; a crash never passes
         totals += (f"; through MAVLink: {len(link_rows)} drills, "
-                   f"{sum(r.min_clearance_m < 0 for r in link_rows)} breaches, "
+                   f"{sum(not (r.checks and r.checks[0].ok) for r in link_rows)} breaches, "
                    f"{sum(r.overridden for r in link_rows)} overridden failsafes, "
                    f"{sum(not r.passed for r in link_rows)} failing a check")  # fmt: skip
     if not args.no_plots and rows:
@@ -191,20 +203,25 @@ def run_campaign(args) -> int:
     versions = ", ".join(f"{a}: {s.name} {s.version}" for a, (s, _) in specs.items())
     print(table)
     print(closest)
+    print(proof)
     print(totals)
     print(f"constraint sets: {versions}")
     print(f"run folder: {run_dir.path}")
-    fails = [f"- {r['drill']} ({r['airframe']}): {r['why']}" for r in rows if not r["passed"]]
+    fails = [
+        f"- {r['drill']} ({r['airframe']}): {r['why']}" for r in rows if not _flag(r, "passed")
+    ]
     run_dir.write_summary(
         f"# skyherd drill --campaign {n} (seed {args.seed})\n\nConstraint sets: {versions}\n\n"
-        f"{table}\n\n## Closest approaches\n\n{closest}\n\n{totals}\n"
+        f"{table}\n\n## Closest approaches\n\n{closest}\n\n## What it proves\n\n{proof}\n\n"
+        f"{totals}\n"
         + ("\n## Drills that failed a check\n" + "\n".join(fails[:200]) + "\n" if fails else "")
     )
     return 1 if bad else 0
 
 
 def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
-    """(per airframe × kind table, closest approaches table, totals line, breaches + overrides)."""
+    """(per airframe × kind table, closest approaches table, totals line, drills failing a
+    check or crashed: the exit rule)."""
     keys = sorted({(r["airframe"], r["kind"]) for r in rows})
     keys += [(a, "all") for a in sorted({r["airframe"] for r in rows})]
     out = []
@@ -212,8 +229,8 @@ def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
         rs = [r for r in rows if r["airframe"] == a and k in ("all", r["kind"])]
         c = [r["min_clearance_m"] for r in rs if math.isfinite(r["min_clearance_m"])] or [math.nan]
         own = [_own(r) for r in rs if _own(r) is not None]
-        out.append([a, k, len(rs), sum(r["passed"] for r in rs), sum(r["breach"] for r in rs),
-                    sum(r["overridden"] for r in rs), _flag_sum(rs, "not_recovered"),
+        out.append([a, k, len(rs), _flag_sum(rs, "passed"), _flag_sum(rs, "breach"),
+                    sum(int(r["overridden"]) for r in rs), _flag_sum(rs, "not_recovered"),
                     sum(bool(r["yielded"]) for r in rs),
                     sum(_own_counts(r) for r in rs), sum(_own_path(r) for r in rs),
                     max(x for x, _ in own) if own else "-",
@@ -230,24 +247,67 @@ def summarize(rows: list[dict]) -> tuple[str, str, str, int]:
         [[r["drill"], r["airframe"], r["min_clearance_m"], r["first_reason"][:50] or "-",
           r["yielded"] or "-"] for r in near],
     )  # fmt: skip
-    breaches = sum(r["breach"] for r in rows)
-    overrides = sum(r["overridden"] for r in rows)
-    failed = sum(not r["passed"] for r in rows)
+    breaches = _flag_sum(rows, "breach")
+    overrides = sum(int(r["overridden"]) for r in rows)
+    failed = sum(not _flag(r, "passed") for r in rows)
     stuck = _flag_sum(rows, "not_recovered")
     unjudged = sum(r.get("end_mode") in ("fallback", "pid") and not r["yielded"]
                    and not _flag(r, "not_recovered") for r in rows)  # fmt: skip
     own = sum(_own_counts(r) for r in rows)
     crashed = sum(r["kind"] == "crash" for r in rows)  # unjudged: never a pass
     path = sum(_own_path(r) for r in rows)
-    totals = (f"{len(rows)} drills; ground-truth breaches beyond the tolerance: {breaches}; "
-              f"overridden autopilot failsafes: {overrides}; the autopilot's own HOLD after a "
-              f"yield beyond the fence: {own}; its own RTL/LAND path beyond the fence (reported, "
-              f"not failing): {path}; crashed drills: {crashed}; not recovered (the net still "
-              f"flying at the end of a drill judged on it): {stuck}; ended in the net's "
-              f"fallback/PID, not judged on it: {unjudged}; drills failing any check: "
-              f"{failed}; exit 1 on breaches + overrides + own HOLD + crashes + not recovered = "
-              f"{breaches + overrides + own + crashed + stuck}")  # fmt: skip
-    return table, closest, totals, breaches + overrides + own + crashed + stuck
+    first: dict[str, int] = {}
+    for r in rows:
+        if not _flag(r, "passed"):
+            name = r.get("failed_check") or "?"
+            first[name] = first.get(name, 0) + 1
+    named = ", ".join(f"{k} {v}" for k, v in sorted(first.items())) or "none"
+    totals = (f"{len(rows)} drills judged by safety.judge; ground-truth breaches beyond the "
+              f"tolerance: {breaches}; overridden autopilot failsafes: {overrides}; the "
+              f"autopilot's own HOLD after a yield beyond the fence: {own}; its own RTL/LAND "
+              f"path beyond the fence (reported, not failing): {path}; crashed drills: "
+              f"{crashed}; not recovered (the net still flying at the end of a drill judged on "
+              f"it): {stuck}; ended in the net's fallback/PID, not judged on it: {unjudged}; "
+              f"drills failing a check (first failed: {named}): {failed}; exit 1 on drills "
+              f"failing a check, crashes included = {failed}")  # fmt: skip
+    return table, closest, totals, failed
+
+
+def bounds(rows: list[dict], target: float = TARGET_BOUND) -> str:
+    """Per airframe and per kind: drills, breaches (a crash counts as one: not judged), the
+    one-sided 95 % Clopper–Pearson upper bound on the breach probability, and how many more
+    breach-free drills would bring it to `target`; then the drills `target` needs in all."""
+    from safety.campaign import CONFIDENCE, breach_upper_bound, drills_needed
+
+    need = drills_needed(target)
+    keys = sorted({(r["airframe"], r["kind"]) for r in rows if r["kind"] != "crash"})
+    keys += [(a, "all") for a in sorted({r["airframe"] for r in rows})]
+    out = []
+    for a, k in keys:
+        rs = [r for r in rows if r["airframe"] == a and (k == "all" or r["kind"] in (k, "crash"))]
+        if k != "all":  # a crashed drill counts against its own kind (its index says which)
+            rs = [r for r in rs if r["kind"] == k or _crash_kind(r) == k]
+        n, b = len(rs), sum(_flag(r, "breach") or r["kind"] == "crash" for r in rs)
+        ub = breach_upper_bound(b, n)
+        more = max(0, need - n) if b == 0 else "-"
+        out.append([a, k, n, b, f"{ub:.2e}", more])
+    table = markdown_table(["airframe", "kind", "drills", "breaches",
+                            f"breach probability ≤ ({100 * CONFIDENCE:.0f} %, Clopper–Pearson)",
+                            f"more breach-free drills for ≤ {target:g}"], out)  # fmt: skip
+    return (f"{table}\n\nA breach-free campaign bounds the breach probability at {target:g} "
+            f"({100 * CONFIDENCE:.0f} % one-sided) after {need:,} drills (1 − 0.05^(1/n) ≤ "
+            f"{target:g}); each kind alone needs as many.")  # fmt: skip
+
+
+def _crash_kind(r: dict) -> str:
+    """A crashed drill's kind, from its index (the kinds in turn, safety.campaign)."""
+    from safety.campaign import kinds_for
+
+    try:
+        ks = kinds_for(r["airframe"])
+        return ks[int(str(r["drill"]).split()[-1]) % len(ks)]
+    except (ValueError, IndexError, KeyError):
+        return ""
 
 
 def _flag(r: dict, key: str) -> bool:

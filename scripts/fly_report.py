@@ -14,7 +14,16 @@ import numpy as np
 from mission.metrics import cross_track, groundair_metrics
 from policy.groundair.params import TaskParams
 from runio import atomic_write_text, markdown_table
-from safety.judge import Check, Ending, JudgeParams, ModeChange, Truth, first_failed, judge
+from safety.judge import (
+    Check,
+    Ending,
+    JudgeParams,
+    ModeChange,
+    Truth,
+    failed_text,
+    first_failed,
+    judge,
+)
 from scripts.launch import flight_reason
 
 
@@ -68,7 +77,7 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
         checks = [Check("judge", False, "not judged", f"{type(e).__name__}: {e}")]
     failed = first_failed(checks)
     if failed is not None and outcome == "completed":
-        outcome, reason = "failed", f"{failed.name}: {failed.figure}: {failed.reason}"
+        outcome, reason = "failed", failed_text(failed)
     ok = outcome == "completed" and rc == 0
     decisions = _jsonl(run_dir / "decisions.jsonl")
     track = _track(_rows(run_dir / "metrics.csv"))
@@ -100,9 +109,9 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
         outcome, outcome.upper()
     )
     if failed is not None and outcome != "interrupted":
-        reason = f"{reason}; first failed check: {failed.name}: {failed.figure}: {failed.reason}"
+        reason = f"{reason}; first failed check: {failed_text(failed)}"
         if outcome == "failed":
-            reason = f"first failed check: {failed.name}: {failed.figure}: {failed.reason}"
+            reason = f"first failed check: {failed_text(failed)}"
     lines = [f"# skyherd fly: {status}", "", title + ".", ""]
     if not ok:
         lines += [f"**Why it ended:** {reason or 'see companion.json and sim.log'}", ""]

@@ -24,6 +24,8 @@ def test_battery_0182_rtl_path_is_the_autopilots_and_reported():
     d = make_drill("battery", 182, drill_rng(51, "quadrotor", 182), spec, p)
     r = run_drill(d.script, make_vehicle(d, 51), d.spec, sp, p)
     assert r.passed, r.why
+    by = {c.name: c for c in r.checks}
+    assert "path crossed the fence: reported" in by["failsafe"].reason  # the judge's words
     assert r.overridden == 0 and r.yielded == "RTL"  # the failsafe stood
     assert r.min_clearance_m > 0.0  # the net's own flight stayed inside
     assert r.autopilot_excursion_mode == "RTL"
@@ -32,24 +34,32 @@ def test_battery_0182_rtl_path_is_the_autopilots_and_reported():
 
 def _row(drill, mode, excursion, **kw):
     return {"drill": drill, "airframe": "quadrotor", "kind": "battery", "passed": True,
-            "min_clearance_m": 3.0, "breach": False, "overridden": 0, "yielded": mode,
-            "autopilot_excursion_m": excursion, "autopilot_excursion_mode": mode,
+            "failed_check": "", "min_clearance_m": 3.0, "breach": False, "overridden": 0,
+            "yielded": mode, "autopilot_excursion_m": excursion, "autopilot_excursion_mode": mode,
             "first_reason": "", "_tol": 0.0} | kw  # fmt: skip
 
 
 def test_exit_rule_counts_own_hold_not_rtl_path():
+    """The judge's failsafe check fails an own HOLD beyond the fence and reports an RTL path
+    (tests/test_drill_judge.py); the campaign counts both columns and exits on the verdict."""
     rtl = [_row("a", "RTL", 1.3), _row("b", "LAND", -2.0), _row("c", "RTL", "")]
     table, _, totals, bad = summarize(rtl)
     assert bad == 0, totals
     assert "RTL/LAND path beyond the fence (reported, not failing): 1" in totals
-    hold = rtl + [_row("d", "HOLD", 0.4)]
+    hold = rtl + [_row("d", "HOLD", 0.4, passed=False, failed_check="failsafe")]
     _, _, totals, bad = summarize(hold)
     assert bad == 1, totals
     assert "own HOLD after a yield beyond the fence: 1" in totals
-    _, _, _, bad = summarize(rtl + [_row("e", "", 0.0, breach=True, min_clearance_m=-0.2)])
+    assert "(first failed: failsafe 1)" in totals
+    breach = _row(
+        "e", "", 0.0, breach=True, min_clearance_m=-0.2, passed=False, failed_check="fence"
+    )
+    _, _, _, bad = summarize(rtl + [breach])
     assert bad == 1  # the net's breach
-    _, _, _, bad = summarize(rtl + [_row("f", "RTL", "", overridden=2)])
-    assert bad == 2  # overridden failsafes count one each
-    crash = _row("g", "", "", kind="crash", passed=False, min_clearance_m=float("nan"))
+    over = _row("f", "RTL", "", overridden=2, passed=False, failed_check="modes")
+    _, _, totals, bad = summarize(rtl + [over])
+    assert bad == 1 and "overridden autopilot failsafes: 2" in totals  # one drill failed
+    crash = _row("g", "", "", kind="crash", passed=False, failed_check="crash",
+                 min_clearance_m=float("nan"))  # fmt: skip
     _, _, totals, bad = summarize(rtl + [crash])
     assert bad == 1 and "crashed drills: 1" in totals  # an unjudged drill is never a pass

@@ -91,7 +91,8 @@ def test_judge_catches_a_breach_when_the_net_is_too_wide():
     r = run_drill(
         lateral, MultirotorAutopilot(), SPEC, SupervisorParams(), p, net_spec=parse_envelope(doc)
     )
-    assert not r.passed and r.excursion_m > 5.0 and "breach" in r.why
+    assert not r.passed and r.excursion_m > 5.0 and r.why.startswith("failed: fence: closest")
+    assert [c.name for c in r.checks if not c.ok] == ["fence", "caught"]  # the judge's names
     assert r.switches == 0  # the too-wide net never intervened
 
 
