@@ -79,6 +79,7 @@ class LinkDrill:
     def __init__(self, drill, net: SafetyNet, judge: dict, clock, timeout_s: float):
         self.d, self.s, self.net = drill, drill.script, net
         self.judge, self.clock = judge, clock  # the vehicle's truth: read for the stop only
+        self.p = DrillParams()
         self.wall_end = time.monotonic() + timeout_s
         self.phase = "connect"
         self.t0: float | None = None  # hand-over [s of the autopilot's clock]
@@ -159,8 +160,7 @@ class LinkDrill:
             and not net.params.fault
         ):
             self.ai_after = tr
-        act = s.attack if s.t_on <= tr < s.t_off else s.behave
-        dec = net.step(t, vs, act(tr, vs), v.tel.mode)
+        dec = net.step(t, vs, s.act(tr, vs, self.p), v.tel.mode)
         ask = net.request(dec)
         if dec.mode is not Mode.AI and dec.reason:
             self.reasons.add(dec.reason)

@@ -210,10 +210,4 @@ class DrillPilot:
             if not (there and np.linalg.norm(o.state.vel_ned) < 0.5):
                 return Proposal(toward(s.start_ned, 3.0, 1.0, self.params)(0.0, o.state))
             self.t0 = o.t
-        tr = o.t - self.t0
-        if s.t_on <= tr < s.t_off:
-            act = s.attack
-        else:
-            target = s.start_ned if s.behave_target is None else s.behave_target
-            act = s.behave or toward(target, 3.0, 1.0, self.params)
-        return Proposal(act(tr, o.state))
+        return Proposal(s.act(o.t - self.t0, o.state, self.params))

@@ -99,6 +99,18 @@ class Script:
     after_yield_s: float = 15.0  # keep judging this long after the net yielded, then stop
     must_recover: bool = True  # the AI must be flying again at the end
 
+    def act(self, tr: float, s: VehicleState, p: DrillParams) -> Setpoint | None:
+        """The scripted AI's proposal at tr [s after the hand-over]: `attack` in [t_on, t_off),
+        `behave` otherwise (default: back toward the start point, or `behave_target`). The one
+        rule every drill flies by: in-process, through MAVLink, and as `skyherd fly`'s pilot
+        (mission.pilots.DrillPilot)."""
+        if self.t_on <= tr < self.t_off:
+            return self.attack(tr, s)
+        if self.behave is not None:
+            return self.behave(tr, s)
+        target = self.start_ned if self.behave_target is None else self.behave_target
+        return toward(target, 3.0, 1.0, p)(tr, s)
+
 
 @dataclass
 class DrillResult:
@@ -702,9 +714,6 @@ def run_drill(
     watched = [n for n in WATCHED_PARAMS if ap.get_param(n) is not None]
     seen = {n: ap.get_param(n) for n in watched}
     net.load_params(ap.clock.t, seen)
-    behave = script.behave or toward(
-        script.start_ned if script.behave_target is None else script.behave_target, 3.0, 1.0, p
-    )
     t0 = ap.clock.t
     ap.set_offboard_setpoint(Setpoint(vel_ned=np.zeros(3)))
     ap.set_mode(FlightMode.OFFBOARD)
@@ -757,8 +766,7 @@ def run_drill(
             net.frame(t)
         if link_up:
             net.link(t, t)
-        act = script.attack if script.t_on <= tr < script.t_off else behave
-        prop = act(tr, s)
+        prop = script.act(tr, s, p)
         d = net.step(t, s, prop)
         if d.mode is not Mode.AI:
             if math.isnan(first_fb):

@@ -223,9 +223,53 @@ def _json(path: Path) -> dict:
         return {}
 
 
+def judge_vehicles(run_dir: Path, plan, params: FormationParams, comp: dict) -> list[list]:
+    """safety.judge on each vehicle, as `skyherd fly` judges one: its truth (uav<k>/world.csv,
+    moved from its home into the field frame) against the formation's envelope, the net's
+    switches (events.jsonl), the AI window from its hand-over to the settled formation's
+    landing, no camera, the mission's outcome. The formation writes no modes.jsonl: its modes
+    check sees no changes. One list of checks per vehicle."""
+    from mission.formation_plan import field_offsets, formation_envelope
+    from safety.judge import Ending, Truth, judge
+
+    K = len(plan)
+    paths = plan_ne(plan, params.cell_m)
+    spec = formation_envelope(list(paths), params)
+    homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
+    off = field_offsets(DEFAULT_HOME, homes)
+    events = []
+    try:
+        for line in (run_dir / "events.jsonl").read_text().splitlines():
+            try:
+                events.append(json.loads(line))
+            except ValueError:
+                pass  # a line cut by a kill
+    except OSError:
+        pass
+    t_end = (comp.get("times") or {}).get("all_over_targets")
+    ending = Ending(comp.get("outcome", "aborted"), str(comp.get("reason") or ""))
+    out = []
+    for k in range(K):
+        rows = []
+        try:
+            with open(run_dir / f"uav{k}" / "world.csv", newline="") as f:
+                rows = list(csv.DictReader(f))
+        except OSError:
+            pass
+        truth = Truth.from_rows(rows)
+        truth = Truth(truth.t, truth.pos_ned + np.r_[off[k], 0.0], truth.armed, truth.mode)
+        mine = [e for e in events if e.get("vehicle") == f"uav{k}"]
+        start = next((float(e["t"]) for e in mine if e.get("event") == "handover"), None)
+        last = float(truth.t[-1]) if len(truth.t) else start
+        window = None if start is None else (start, float(t_end) if t_end is not None else last)
+        switches = [(float(e["t"]), str(e["to"])) for e in mine if e.get("event") == "switch"]
+        out.append(judge(truth, spec, [], window, None, 0, ending, switches))
+    return out
+
+
 def formation_report(run_dir: Path, rc: int, why: str) -> bool:
     """summary.md and formation.png from the run folder; True if every vehicle landed on its
-    target cell and the companion completed the mission."""
+    target cell, passed every check of safety.judge, and the companion completed the mission."""
     from policy.sql import GridParams, build_layout
 
     run_dir = Path(run_dir)
@@ -255,8 +299,21 @@ def formation_report(run_dir: Path, rc: int, why: str) -> bool:
         ["instance", "start cell", "target cell", "cruise alt [m]", "moves",
          "tracking error max [m]", "RMS [m]", "landing error [m]", "final alt [m]"], rows)  # fmt: skip
     sep = separation(tracks, params.similar_alt_m)
+    from safety.judge import first_failed, verdict
+
+    try:
+        judged = judge_vehicles(run_dir, plan, params, comp)
+    except (OSError, ValueError, KeyError, TypeError) as e:  # a run folder the judge cannot read
+        judged = []
+        why = f"{why}; not judged ({type(e).__name__}: {e})"
+    verdicts = [verdict(c) for c in judged]
     ok = rc == 0 and comp.get("outcome") == "completed"
     landed = ok and all(e < params.cell_m / 2 for e in land_err)
+    judged_ok = len(judged) == K and all(first_failed(c) is None for c in judged)
+    bad = [f"uav{k}: {v}" for k, v in enumerate(verdicts) if v != "completed"]
+    failed = ok and not judged_ok  # the mission completed, the judge says otherwise
+    if failed:
+        ok = landed = False
     stats = [_json(run_dir / f"uav{k}" / "sim_stats.json") for k in range(K)]
     # the flight: up to each simulator's last tick closed by the companion (world.sim)
     sim_s = min((s.get("flight_sim_s", math.nan) for s in stats), default=math.nan)
@@ -285,6 +342,9 @@ def formation_report(run_dir: Path, rc: int, why: str) -> bool:
          f"{1e3 * (comp.get('decide_wall_p95_s') or math.nan):.2f}"],
     ]  # fmt: skip
     overview = markdown_table(["metric", "value"], summary_rows)
+    judge_rows = [[f"uav{k}", v, next((c.figure for c in judged[k] if c.name == "fence"), "")]
+                  for k, v in enumerate(verdicts)]  # fmt: skip
+    verdict_table = markdown_table(["vehicle", "judge (safety/judge.py)", "fence"], judge_rows)
     try:  # the learned plans' map (map seed 0); not drawn under a plan that ends elsewhere
         layout = build_layout(GridParams(n_agents=K))
         ends = sorted(layout.cell(*p[-1]) for p in plan)
@@ -295,16 +355,19 @@ def formation_report(run_dir: Path, rc: int, why: str) -> bool:
         _plot(run_dir, params, plan, paths_ne, tracks, layout, sep)
     status = "completed" if ok else ("YIELDED" if comp.get("outcome") == "yielded" else "ABORTED")
     reason = flight_reason(comp.get("reason"), why)
+    if failed:
+        status, reason = "FAILED", "first failed check: " + ("; ".join(bad) or "not judged")
     atomic_write_text(run_dir / "summary.md",
         f"# skyherd fly: formation mission {status}\n\n"
         f"K = {K} quadrotors fly the learned lock-step grid plan ({params.cell_m:g} m cells, "
         f"{params.speed_mps:g} m/s, cruise at {params.altitude(0):g} + {params.altitude_step_m:g}·k m)"
         f" and land on their formation targets; {K} simulators and one companion in lockstep.\n"
         + (f"\n{'Ended' if ok else 'Aborted'}: {reason}\n" if reason and not ok else "")
-        + f"\n{table}\n{overview}"
+        + f"\n{table}\n{overview}\n{verdict_table}"
     )  # fmt: skip
     print(table)
     print(overview)
+    print(verdict_table)
     print(f"skyherd fly: formation {status}{': ' + reason if reason and not ok else ''}; "
           f"summary.md, formation.png, metrics.csv, decisions.jsonl in {run_dir}")  # fmt: skip
     return landed
