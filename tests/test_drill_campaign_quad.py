@@ -63,3 +63,20 @@ def test_exit_rule_counts_own_hold_not_rtl_path():
                  min_clearance_m=float("nan"))  # fmt: skip
     _, _, totals, bad = summarize(rtl + [crash])
     assert bad == 1 and "crashed drills: 1" in totals  # an unjudged drill is never a pass
+
+
+def test_wind_0365_seed_97_gets_its_recovery_allowance_after_the_last_fallback():
+    """Campaign seed 97 (issue 26's re-run) found wind 0365: after the attack the behaving AI,
+    in an 11 m/s crosswind, tilted past the 45° roll row at 19.6 s (after the hand-over); the
+    drill ended at 22.3 s, the net in PID 1.5 s into its recovery ("not recovered"; main's code
+    judged it the same). A drill judged on its recovery now runs a recovery allowance past the
+    net's last switch out of AI (at most 3 allowances past its scripted end): the AI flies
+    again at 26.1 s and stays; no breach either way (clearance 4.5 m)."""
+    spec, table = load_envelope(default_envelope_path("quadrotor"))
+    sp = fill_dataclass(SupervisorParams, table, "supervisor")
+    p = DrillParams()
+    d = make_drill("wind", 365, drill_rng(97, "quadrotor", 365), spec, p)
+    r = run_drill(d.script, make_vehicle(d, 97), d.spec, sp, p)
+    assert r.passed, r.why
+    assert r.track["mode"][-1] == 0 and r.track["t"][-1] > d.script.duration_s + 4.0
+    assert any("roll" in x for x in r.reasons) and r.min_clearance_m > 4.0
