@@ -86,6 +86,11 @@ def _track(path: Path) -> np.ndarray:
     return np.array(rows).reshape(-1, 4)
 
 
+def _json(path: Path) -> dict:
+    """A run's JSON record, {} when it was not written."""
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
 def _takeoff_t(track: np.ndarray) -> float:
     """The first time the track is 1 m above its start."""
     up = np.nonzero(-track[:, 3] > -track[0, 3] + 1.0)[0]
@@ -97,9 +102,8 @@ def check_flight(rc: int, verdict: str, run: Path, bridge_run: Path, autopilot: 
     """What the judge and the truth say; each figure printed (the test's record)."""
     summary = (run / "summary.md").read_text()
     checks = judge_checks(summary)
-    comp = json.loads((run / "companion.json").read_text())
-    world = json.loads((run / "sim_stats.json").read_text())
-    bridge = json.loads((bridge_run / "sim_stats.json").read_text())
+    comp, world = _json(run / "companion.json"), _json(run / "sim_stats.json")
+    bridge = _json(bridge_run / "sim_stats.json")  # absent when the bridge ended on an error
     truth, est = _track(bridge_run / "world.csv"), _track(run / "world.csv")
     net = comp.get("net") or {}
     fig = {
@@ -119,6 +123,7 @@ def check_flight(rc: int, verdict: str, run: Path, bridge_run: Path, autopilot: 
     assert world["followed"] and world["autopilot"] == autopilot and comp["frames"]["ok"] > 200
     # the bridge flew the autopilot all along, frame by frame, and its truth agrees with the
     # autopilot's estimate: the same climb, and the landing where the autopilot believes it is
+    assert bridge, (bridge_run / "sim.log").read_text()[-2000:]
     assert bridge["bridged"] and bridge["sim_s"] > DURATION_S
     t0_truth, t0_est = _takeoff_t(truth), _takeoff_t(est)
     top_truth, top_est = -truth[:, 3].min(), -est[:, 3].min()
