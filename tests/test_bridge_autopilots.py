@@ -34,6 +34,8 @@ import numpy as np
 import pytest
 
 from hil import autopilot_sitl
+from safety.config import ENVELOPE_DIR, load_envelope
+from safety.judge import JudgeParams, Truth, fence_check
 from tests.companion_flights import judge_checks
 from tests.test_autopilots_real import _binary, _defaults
 
@@ -127,10 +129,26 @@ def check_flight(rc: int, verdict: str, run: Path, bridge_run: Path, autopilot: 
     assert bridge["bridged"] and bridge["sim_s"] > DURATION_S
     t0_truth, t0_est = _takeoff_t(truth), _takeoff_t(est)
     top_truth, top_est = -truth[:, 3].min(), -est[:, 3].min()
-    landed = np.linalg.norm(truth[-1, 1:3] - est[-1, 1:3])
-    fig["truth"] = {"top_truth_m": top_truth, "top_estimate_m": top_est,
-                    "landing_truth_vs_estimate_m": float(landed), "takeoff_t": (t0_truth, t0_est)}  # fmt: skip
+    # the landing spot: the estimate's last armed sample (PX4 moves its local origin to where
+    # it stands once disarmed) against the truth at that time
+    armed = [
+        float(r["t"]) for r in csv.DictReader(open(run / "world.csv")) if r.get("armed") == "1"
+    ]
+    t_land = armed[-1] if armed else est[-1, 0]
+    at = lambda track: track[np.argmin(abs(track[:, 0] - t_land)), 1:3]  # noqa: E731
+    landed = float(np.linalg.norm(at(truth) - at(est)))
+    spec, _ = load_envelope(ENVELOPE_DIR / "quadrotor_groundair.toml")
+    auth = comp.get("authority") or {}  # the AI phase, on the autopilot's clock = the bridge's
+    window = (auth["t_start"], auth["t_end"]) if auth.get("t_end") is not None else None
+    fence = fence_check(Truth.from_rows(list(csv.DictReader(open(bridge_run / "world.csv")))),
+                        spec, window, JudgeParams())  # fmt: skip
+    fig["truth"] = {"fence_on_the_bridge_truth": f"{'pass' if fence.ok else 'FAIL'}: {fence.figure}",
+                    "top_truth_m": round(float(top_truth), 3), "top_estimate_m": round(float(top_est), 3),
+                    "landing_truth_vs_estimate_m": round(landed, 3), "at_t": t_land,
+                    "truth_end_alt_m": round(float(-truth[-1, 3]), 3),
+                    "takeoff_t": (t0_truth, t0_est)}  # fmt: skip
     print(autopilot, "truth:", fig["truth"])
+    assert fence.ok, fence  # the physics' truth, not only the autopilot's estimate, in the fence
     assert abs(top_truth - top_est) < 1.5
     assert -truth[-1, 3] < 0.3 and landed < 1.5
     return fig
