@@ -34,11 +34,13 @@ test: $(STAMP) $(MAVPROXY_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
 
-# Opt-in: flights against real autopilot builds named by SKYHERD_PX4_BIN, SKYHERD_ARDUCOPTER_BIN,
-# SKYHERD_ARDUPLANE_BIN (built outside this repository; docs/autopilots.md). Tests whose binary
-# is not named are skipped with the reason.
+# Opt-in: the production companion (`skyherd fly --connect`) against real autopilot builds named
+# by SKYHERD_PX4_BIN, SKYHERD_ARDUCOPTER_BIN, SKYHERD_ARDUPLANE_BIN (built outside this repository;
+# docs/autopilots.md), on their own physics and on skyherd's (docs/bridges.md). Run inside
+# `unshare -n sh -c 'ip link set lo up; ...'`; tests whose binary is not named are skipped with the
+# reason. -s prints each flight's verdict, judge checks and figures; --durations its wall time.
 test-autopilots: $(STAMP)
-	$(BIN)/python -m pytest -q -m autopilot -rs
+	$(BIN)/python -m pytest -q -m autopilot -rs -s --durations=0
 
 bench: $(STAMP)
 	for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

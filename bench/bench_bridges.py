@@ -13,7 +13,10 @@ depend on how loaded the machine is; the socket figures are wall-clock and do.
    the actuator frame parsed, physics stepped) vs the same with pymavlink doing the
    MAVLink, and as real-time factors at 250 Hz.
 4. With SKYHERD_PX4_BIN / SKYHERD_ARDUCOPTER_BIN set (and run inside `unshare -n` with lo
-   up): the real autopilot's hover flight and its real-time factor, as fast as possible.
+   up): the real autopilot on the bridge, as fast as possible, for 60 s of simulated time on
+   the ground (booting, its estimator converging; no client flies it): the lockstep's
+   real-time factor and each side's CPU per frame. Flights are the opt-in tests' job
+   (tests/test_bridge_autopilots.py: `skyherd fly --connect` on the bridge).
 
     .venv/bin/python bench/bench_bridges.py [--frames N]
 """
@@ -39,7 +42,7 @@ from tqdm import tqdm
 from flight.quadrotor import QuadrotorParams
 from hil import bridge_mavlink as wire
 from hil.ardupilot_json import ArduPilotJsonBridge
-from hil.bridge_flight import CopterRates
+from hil.autopilot_sitl import CopterRates
 from hil.px4_sim import Px4BridgeConfig, Px4SimBridge
 
 SERVO = struct.Struct("<HHI16H")
@@ -276,39 +279,79 @@ def _cpu_s(who: int) -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _fly_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rates=None) -> dict:
-    """One hover flight as fast as possible: its real-time factor and the CPU seconds of each
-    side (ours: this process; the autopilot's: the reaped child). `fifo`: this process and
-    the autopilot (which inherits it) at SCHED_FIFO priority 1."""
-    from hil.bridge_flight import fly
+def _idle_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rates=None,
+                   sim_s: float = 60.0) -> dict:  # fmt: skip
+    """The autopilot on the bridge as fast as possible for `sim_s` of simulated time: its
+    real-time factor and the CPU seconds of each side (ours: this process; the autopilot's:
+    the reaped child). `fifo`: this process and the autopilot (which inherits it) at
+    SCHED_FIFO priority 1."""
+    import tempfile
 
+    from hil import autopilot_sitl
+    from hil.bridge_select import make_bridge
+
+    instance = 75
+    work = Path(tempfile.mkdtemp(prefix=f"skyherd-bench-{name}-"))
     if fifo:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    log = open(work / "autopilot.log", "wb")
+    proc, link = None, None
     try:
         ours0, theirs0 = _cpu_s(resource.RUSAGE_SELF), _cpu_s(resource.RUSAGE_CHILDREN)
-        r = fly(name, path, 75, 0.0, copter_defaults=defaults, copter_rates=rates or CopterRates())
-        ours, theirs = (
-            _cpu_s(resource.RUSAGE_SELF) - ours0,
-            _cpu_s(resource.RUSAGE_CHILDREN) - theirs0,
-        )
+        bridge = make_bridge("px4" if name == "px4" else "ardupilot", instance=instance).open_port()
+        if name == "px4":
+            proc = autopilot_sitl.start_px4(path, instance, work, log)
+            if not bridge.accept(60.0):
+                raise RuntimeError(f"PX4 did not connect; see {work}/autopilot.log")
+        else:
+            proc = autopilot_sitl.start_arducopter(path, instance, work, log, defaults, speedup=0,
+                                                   rates=rates or CopterRates())  # fmt: skip
+            link = _connect_serial0(5760 + 10 * instance)  # SITL waits for it before it runs
+        wall0 = time.monotonic()
+        while bridge.t < sim_s:
+            if not bridge.step_once(30.0):
+                raise RuntimeError(f"{name} stopped answering at t = {bridge.t:.1f} s; see {work}")
+        wall = time.monotonic() - wall0
+        frames = bridge.stats.frames
+        bridge.close()
+        autopilot_sitl.stop(proc)
+        proc = None
+        ours, theirs = (_cpu_s(resource.RUSAGE_SELF) - ours0,
+                        _cpu_s(resource.RUSAGE_CHILDREN) - theirs0)  # fmt: skip
     finally:
+        if proc is not None:
+            autopilot_sitl.stop(proc)
+        if link is not None:
+            link.close()
+        log.close()
         if fifo:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    return {"autopilot": name, "priority": "fifo" if fifo else "normal", "ok": r.ok,
-            "reason": r.reason, "sim_s": r.sim_s, "wall_s": r.wall_s, "frames": r.frames,
-            "rtf": r.real_time_factor, "flight_rtf": r.flight_real_time_factor,
+    return {"autopilot": name, "priority": "fifo" if fifo else "normal", "sim_s": round(sim_s, 1),
+            "wall_s": round(wall, 2), "frames": frames, "rtf": round(sim_s / wall, 2),
             "rates": "" if rates is None else f" {rates.sim_rate_hz}/{rates.loop_rate_hz} Hz",
-            "hover_max_dev_m": r.hover_max_dev_m,
             "cpu_ours_s": round(ours, 2), "cpu_autopilot_s": round(theirs, 2),
-            "us_per_frame_ours": round(1e6 * ours / max(1, r.frames), 1),
-            "us_per_frame_autopilot": round(1e6 * theirs / max(1, r.frames), 1)}  # fmt: skip
+            "us_per_frame_ours": round(1e6 * ours / max(1, frames), 1),
+            "us_per_frame_autopilot": round(1e6 * theirs / max(1, frames), 1)}  # fmt: skip
+
+
+def _connect_serial0(port: int, timeout_s: float = 60.0) -> socket.socket:
+    """A TCP client on ArduPilot SITL's SERIAL0 (it waits for one before it runs)."""
+    t_end = time.monotonic() + timeout_s
+    while True:
+        try:
+            return socket.create_connection(("127.0.0.1", port), timeout=1.0)
+        except OSError:
+            if time.monotonic() > t_end:
+                raise
+            time.sleep(0.2)
 
 
 def real_autopilots() -> list[dict]:
     """Each real autopilot named by its variable, at normal priority and (when allowed) at
     SCHED_FIFO: the difference is the time both sides wait for the CPU at every handoff."""
     out = []
-    defaults = [Path(p) for p in os.environ.get("SKYHERD_ARDUCOPTER_DEFAULTS", "").split(",") if p]
+    folder = os.environ.get("SKYHERD_ARDUPILOT_DEFAULTS")
+    defaults = [Path(folder) / "copter.parm"] if folder else []
     for name, env in (("px4", "SKYHERD_PX4_BIN"), ("arducopter", "SKYHERD_ARDUCOPTER_BIN")):
         path = os.environ.get(env)
         if not path:
@@ -321,16 +364,15 @@ def real_autopilots() -> list[dict]:
             runs.append((False, CopterRates(200, 100)))
         for fifo, rates in runs:
             try:
-                row = _fly_measured(name, Path(path), defaults, fifo, rates)
+                row = _idle_measured(name, Path(path), defaults, fifo, rates)
             except PermissionError:
                 print(f"  {name}: SCHED_FIFO not permitted, skipped")
                 continue
             out.append(row)
             print(f"  {name}{row['rates']} {row['priority']:>6}: real-time factor {row['rtf']:5.2f}x "
-                  f"(from arming {row['flight_rtf']:5.2f}x) "
-                  f"({row['frames']} frames, {row['wall_s']:.1f} s wall); CPU per frame: ours "
-                  f"{row['us_per_frame_ours']} us, the autopilot's {row['us_per_frame_autopilot']} us; "
-                  f"hover {row['hover_max_dev_m']} m, {row['reason']}")  # fmt: skip
+                  f"({row['frames']} frames in {row['sim_s']} s simulated, {row['wall_s']:.1f} s wall); "
+                  f"CPU per frame: ours {row['us_per_frame_ours']} us, "
+                  f"the autopilot's {row['us_per_frame_autopilot']} us")  # fmt: skip
     return out
 
 
@@ -370,7 +412,7 @@ def main(argv: list[str] | None = None) -> int:
     print("PX4 interface over TCP, PX4-like peer process at 250 Hz:")
     print(f"  skyherd bridge   {tcp:10.0f}  ({tcp / 250:6.1f}x)")
     if not args.no_autopilots:
-        print("Real autopilots on skyherd's physics (as fast as possible):")
+        print("Real autopilots on skyherd's physics (as fast as possible, on the ground):")
         real_autopilots()
     return 0
 

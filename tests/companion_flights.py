@@ -75,3 +75,16 @@ def missions(altitude: float, target_ned, reach_m: float, n: int, out: dict):
             out[f"armed_{k}"] = v.tel.armed
 
     return gen
+
+
+def judge_checks(summary: str) -> dict[str, tuple[str, str]]:
+    """The judge's table in a `skyherd fly` run's summary.md: check → (pass | FAIL, figure)."""
+    out, inside = {}, False
+    for line in summary.splitlines():
+        if line.startswith("## "):
+            inside = line.startswith("## The judge")
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if inside and len(cells) >= 3 and cells[1] in ("pass", "FAIL"):
+            out[cells[0]] = (cells[1], cells[2])
+    return out

@@ -32,7 +32,7 @@ from hil.link import LinkError, MavlinkLink
 from mission.steps import recipe, wait_ready, wait_until
 from mission.vehicle import COMPANION_COMPONENT
 from scripts.cli import main
-from tests.companion_flights import Steps, fly, missions
+from tests.companion_flights import Steps, fly, judge_checks, missions
 
 pytestmark = pytest.mark.autopilot
 
@@ -139,14 +139,34 @@ def _fly_connect(address: str, tmp_path: Path, instance: int, zenoh_port: int) -
     return rc, run
 
 
+def _judged(rc: int, run: Path, autopilot: str) -> dict:
+    """The judge's checks of summary.md, printed with the flight's figures (the test's record);
+    asserts that every check passed."""
+    import json
+
+    summary = (run / "summary.md").read_text()
+    checks = judge_checks(summary)
+    comp = json.loads((run / "companion.json").read_text())
+    modes = [
+        json.loads(line).get("mode") for line in (run / "modes.jsonl").read_text().splitlines()
+    ]
+    print(autopilot, "exit", rc, json.dumps({"checks": {k: f"{r}: {f}" for k, (r, f) in checks.items()},
+          "decisions": comp.get("decisions"), "switches": (comp.get("net") or {}).get("switches"),
+          "modes": modes}, indent=1))  # fmt: skip
+    assert rc == 0, summary
+    assert checks and all(r == "pass" for r, _ in checks.values()), summary
+    return comp
+
+
 def _assert_fly_completed(rc: int, run: Path, autopilot: str) -> None:
     import json
 
-    assert rc == 0, (run / "summary.md").read_text()
-    comp = json.loads((run / "companion.json").read_text())
+    comp = _judged(rc, run, autopilot)
     world = json.loads((run / "sim_stats.json").read_text())
     assert comp["outcome"] == "completed" and comp["yielded"] is None and comp["decisions"] >= 50
     assert world["followed"] and world["autopilot"] == autopilot and comp["frames"]["ok"] > 200
+    for name in ("fence", "armed", "modes", "camera", "end", "mission"):
+        assert name in judge_checks((run / "summary.md").read_text()), name
 
 
 def test_real_arducopter_flown_by_skyherd_fly_connect(tmp_path):
@@ -254,8 +274,7 @@ def test_real_arduplane_flies_the_fixed_wing_orbit_on_stock_parameters(tmp_path)
                    "--orbit-duration", "60", "--instance", "75", "--zenoh-port", "7471",
                    "--timeout", "900", "--runs-dir", str(tmp_path / "runs")])  # fmt: skip
     (run,) = (tmp_path / "runs").iterdir()
-    comp = json.loads((run / "companion.json").read_text())
-    assert rc == 0, (run / "summary.md").read_text()
+    comp = _judged(rc, run, "ArduPlane")
     orbit = comp["orbit"]
     assert orbit["t_established"] is not None and orbit["plan"]["radius_m"] < 100.0
     assert orbit["t_orbit_end"] - orbit["t_established"] >= 60.0 - 0.5
