@@ -254,8 +254,12 @@ def parse_fault_args(
         wm = WindModel(mean_ned=mean, gust_std=g_std, gust_tau=g_tau, seed=seed)
     except ValueError as e:
         raise FaultSpecError(str(e)) from e
+    try:
+        sn = SensorNoise(pn, vn)
+    except FaultSpecError as e:
+        raise FaultSpecError(f"--noise {noise!r}: {e}") from None
     events = tuple(sorted((parse_fault_event(f) for f in faults or ()), key=lambda e: e.t0))
-    return FaultPlan(wind=wm, noise=SensorNoise(pn, vn), events=events)
+    return FaultPlan(wind=wm, noise=sn, events=events)
 
 
 def add_fault_arguments(parser) -> None:

@@ -43,9 +43,10 @@ from flight.quadrotor import QuadrotorParams
 from flight.state import VehicleState
 from hil.bridge_net import bind_socket
 from hil.bridge_physics import PlaneBody, QuadBody, quad_step_pwm
+from runio import ports
 
-JSON_BASE_PORT = 9002
-PORT_STRIDE = 10  # ArduPilot's -I N moves every port by 10 N
+JSON_BASE_PORT = ports.JSON_BASE  # runio.ports: every port an instance owns
+PORT_STRIDE = ports.JSON_STRIDE  # ArduPilot's -I N moves every port by 10 N
 MAGIC_16 = 18458
 MAGIC_32 = 29569
 _HDR = struct.Struct("<HHI")
@@ -62,7 +63,7 @@ REPLY_FMT_AIRSPEED = "\n{" + _FMT_BODY + ',"airspeed":%.9g}\n'
 
 def json_port(instance: int) -> int:
     """UDP port ArduPilot `-I instance` sends its servo packets to."""
-    port = JSON_BASE_PORT + PORT_STRIDE * instance
+    port = ports.json_port(instance)
     if not (0 <= instance and port <= 65535):
         raise ValueError(f"instance {instance} gives no valid UDP port")
     return port

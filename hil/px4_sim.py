@@ -44,14 +44,15 @@ from hil.bridge_sensors import (
     isa_pressure_pa,
     isa_temperature_c,
 )
+from runio import ports
 
-PX4_SIM_BASE_PORT = 4560
+PX4_SIM_BASE_PORT = ports.PX4_SIM_BASE  # runio.ports: every port an instance owns
 UTC_EPOCH_US = 1_767_225_600_000_000  # 2026-01-01T00:00:00Z: HIL_GPS time = this + sim time
 
 
 def px4_sim_port(instance: int) -> int:
     """TCP port PX4 `-i instance` connects its simulator_mavlink to."""
-    port = PX4_SIM_BASE_PORT + instance
+    port = ports.px4_sim_port(instance)
     if not (0 <= instance and port <= 65535):
         raise ValueError(f"instance {instance} gives no valid TCP port")
     return port

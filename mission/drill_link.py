@@ -41,6 +41,7 @@ from hil.link import MavlinkLink
 from mission.companion import CompanionParams, run
 from mission.steps import Phase, mode_params, read_params, recipe, wait_ready
 from mission.vehicle import COMPANION_COMPONENT, VehicleLink
+from runio import ports
 from safety.authority import ENDING_MODES, NET_MODES
 from safety.campaign import drill_rng, make_drill, make_vehicle
 from safety.config import default_envelope_path, fill_dataclass, load_envelope
@@ -238,7 +239,7 @@ def run_mavlink_drill(kind: str, instance: int, seed: int = 0, index: int = 0,
     try:
         sim = threading.Thread(target=sitl.run, kwargs={"duration_s": s.duration_s + 30.0,
                                "on_step": on_step}, name="drill-sitl", daemon=True)  # fmt: skip
-        link = MavlinkLink.open(f"udpin:127.0.0.1:{14540 + instance}", source_system=1 + instance,
+        link = MavlinkLink.open(ports.companion_address(instance), source_system=1 + instance,
                                 source_component=COMPANION_COMPONENT)  # fmt: skip
         v = VehicleLink(link, target_system=1 + instance)
         net = box["net"] = SafetyNet(Supervisor(d.spec.envelope(), sp, events), events,

@@ -41,13 +41,14 @@ import cv2
 import numpy as np
 
 from perception.camera import CameraParams
+from runio.ports import ZENOH_BASE
 
 _HDR = struct.Struct("<4sHBBIQdd3d4dHHII")
 MAGIC = b"SKYF"
 VERSION = 1
 RAW, JPEG = 0, 1
 ENCODINGS = {"raw": RAW, "jpeg": JPEG}
-DEFAULT_PORT = 7447
+DEFAULT_PORT = ZENOH_BASE  # instance 0's; instance N: runio.ports.zenoh_port(N)
 
 
 def frame_key(vehicle: str) -> str:

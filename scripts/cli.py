@@ -92,6 +92,26 @@ class Parser(argparse.ArgumentParser):
         return action
 
 
+class CheckParser(Parser):
+    """A parser that raises UsageError (its one-line message) instead of printing its usage and
+    exiting: how a parent checks a child's argument list with the child's own parser."""
+
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(message)
+
+
+def check_with(prog: str, add_arguments, check, argv: list[str]) -> str | None:
+    """Parse `argv` with the parser `add_arguments` builds and run `check(args)` on it, starting
+    nothing: None if it passes, else the one-line reason (`scripts.sim.check_args`)."""
+    parser = CheckParser(prog=prog)
+    add_arguments(parser)
+    try:
+        check(parser.parse_args(argv))
+    except UsageError as e:
+        return " ".join(str(e).split())  # one line, whatever the check said
+    return None
+
+
 class _Version(argparse.Action):
     """--version: the package version and the code's git commit (looked up only when asked)."""
 

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from runio import JsonlWriter, RunFolder, args_dict, cut_records, try_write_text
-from scripts.cli import UsageError
+from runio import JsonlWriter, RunFolder, args_dict, cut_records, ports, try_write_text
+from scripts.cli import UsageError, check_with
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """End the flight by handing the vehicles to their autopilots (mission.handover); a second one
@@ -92,7 +92,8 @@ def add_arguments(
             "--instance",
             type=int,
             default=0,
-            help="vehicle instance N (system id 1+N, default address)",
+            help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}] (system id 1+N, default "
+            "addresses: MAVLink udpin:127.0.0.1:14540+N, Zenoh tcp:127.0.0.1:7447+N)",
         )
         parser.add_argument(
             "--free-run",
@@ -101,9 +102,10 @@ def add_arguments(
         )
         parser.add_argument(
             "--zenoh-connect",
-            default="tcp:127.0.0.1:7447",
+            default=None,
             metavar="ADDRESS",
-            help="where the camera frames are published (tcp:HOST:PORT)",
+            help="where the camera frames are published (tcp:HOST:PORT; default: "
+            "tcp:127.0.0.1:7447+N for --instance N)",
         )
         parser.add_argument(
             "--zenoh-config",
@@ -196,6 +198,54 @@ def add_arguments(
         action="store_true",
         help="fly without camera frames (square, or no simulator)",
     )
+
+
+def check_args(argv: list[str]) -> str | None:
+    """`skyherd companion`'s own parser and checks on `argv`, starting nothing (no link, no
+    Zenoh session, no file): None if it would start, else the one-line reason. `skyherd fly`
+    calls it before it makes its run folder."""
+    return check_with("skyherd companion", add_arguments, check, argv)
+
+
+def check(args) -> str:
+    """Every check of the arguments that needs nothing started (UsageError, one line); fills
+    the instance's default addresses in. Returns the autopilot's MAVLink address."""
+    from hil.link import parse_address
+
+    try:
+        ports.check_instance(args.instance)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    address = args.connect or ports.companion_address(args.instance)
+    try:
+        parse_address(address)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if args.zenoh_connect is None:
+        args.zenoh_connect = ports.zenoh_address(args.instance)
+    zenoh_endpoint(args.zenoh_connect)
+    if not 0 < args.duration <= 36000:  # NaN fails too
+        raise UsageError("--duration must be in (0, 36000] s")
+    if args.altitude is not None and not 0 < args.altitude <= 120:
+        raise UsageError(f"--altitude {args.altitude:g}: must be in (0, 120] m above home")
+    if not 0 < args.side <= 500:
+        raise UsageError(f"--side {args.side:g}: must be in (0, 500] m")
+    if args.mission == "formation" and args.plan is None:
+        raise UsageError(
+            "--mission formation needs --plan FILE (a plan_K<K>.json from `skyherd train sql`)"
+        )
+    if args.signing_key:
+        from flight.mavlink.signing import load_key
+
+        try:
+            load_key(args.signing_key)
+        except ValueError as e:  # SigningError
+            raise UsageError(f"--signing-key: {e}") from None
+    if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
+        raise UsageError(
+            f"--zenoh-config {args.zenoh_config}: no such file; pass a Zenoh JSON5 file"
+        )
+    return address
 
 
 def build_mission(args, run_dir: Path | None):
@@ -396,25 +446,15 @@ def open_client(p, patience_s: float = 60.0):
 
 
 def run(args: argparse.Namespace) -> int:
-    from hil.link import LinkError, MavlinkLink, parse_address
+    from hil.link import LinkError, MavlinkLink
     from mission.companion import CompanionParams
     from mission.companion import run as run_companion
     from mission.vehicle import COMPANION_COMPONENT, VehicleLink
 
-    address = args.connect or f"udpin:127.0.0.1:{14540 + args.instance}"
-    try:
-        parse_address(address)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
-    if not 0 < args.duration <= 36000:
-        raise UsageError("--duration must be in (0, 36000] s")
+    address = check(args)
     use_camera = args.mission == "groundair" and not args.no_camera
     if args.mission == "orbit":
         use_camera = not args.no_camera
-    if args.mission == "formation" and args.plan is None:
-        raise UsageError(
-            "--mission formation needs --plan FILE (a plan_K<K>.json from `skyherd train sql`)"
-        )
     if args.run_dir is not None:
         run_dir = Path(args.run_dir)
         if not run_dir.is_dir():
@@ -627,7 +667,7 @@ def _run_formation(args, run_dir: Path, folder) -> int:
         for k in range(K):
             inst = instances[k]
             (run_dir / f"uav{k}").mkdir(exist_ok=True)
-            links.append(MavlinkLink.open(f"udpin:127.0.0.1:{14540 + inst}", source_system=1 + inst,
+            links.append(MavlinkLink.open(ports.companion_address(inst), source_system=1 + inst,
                                           source_component=COMPANION_COMPONENT,
                                           tlog=run_dir / f"uav{k}" / "telemetry.tlog"))  # fmt: skip
     except LinkError as e:

@@ -20,7 +20,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from runio import args_dict
+from runio import args_dict, ports
 from scripts.cli import UsageError
 
 
@@ -58,7 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="MAVLink 2 signing key file (32 bytes) for the vehicle and the companion",
     )
-    parser.add_argument("--instance", type=int, default=0, help="built-in vehicle instance N")
+    parser.add_argument("--instance", type=int, default=0,
+                        help=f"built-in vehicle instance N in [0, {ports.MAX_INSTANCE}]: its MAVLink ports "
+                        "(14540+N, 14580+N, 18570+N) and its Zenoh port (7447+N)")  # fmt: skip
     parser.add_argument(
         "--speedup",
         type=float,
@@ -102,11 +104,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-record", action="store_true", help="do not write flight.mcap")
     parser.add_argument("--runs-dir", default="runs", help="where run folders go")
     parser.add_argument(
-        "--timeout", type=float, default=600.0, help="wall-clock limit for the whole flight [s]"
+        "--timeout",
+        type=float,
+        default=600.0,
+        help="wall-clock limit for the whole flight [s] (> 0)",
     )
-    parser.add_argument(
-        "--zenoh-port", type=int, default=7447, help="the simulator's Zenoh port on 127.0.0.1"
-    )
+    parser.add_argument("--zenoh-port", type=int, default=None,
+                        help="the simulator's Zenoh port on 127.0.0.1 (default: 7447+N for --instance N)")  # fmt: skip
     parser.add_argument(
         "--no-zenoh", action="store_true", help=argparse.SUPPRESS
     )  # kept for old scripts
@@ -130,6 +134,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    _check_own(args)
     if args.airframe == "fixedwing" and args.mission != "groundair":
         raise UsageError(f"--mission {args.mission} is for the quadrotor; a fixed-wing flies the ground-air task as an orbit (drop --mission)")  # fmt: skip
     if args.mission == "formation":
@@ -137,6 +142,39 @@ def run(args: argparse.Namespace) -> int:
 
         return run_formation(args)
     return run_two_processes(args)
+
+
+def _check_own(args) -> None:
+    """fly's own options that no child checks (UsageError, one line); the instance's Zenoh
+    port (runio.ports) when --zenoh-port is not given."""
+    import math
+
+    try:
+        ports.check_instance(args.instance)
+        if args.zenoh_port is None:
+            args.zenoh_port = ports.zenoh_port(args.instance)
+        ports.check_port(args.zenoh_port, "--zenoh-port")
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if not (math.isfinite(args.timeout) and args.timeout > 0):
+        raise UsageError(
+            f"--timeout {args.timeout:g}: a wall-clock limit in seconds, > 0 (default 600)"
+        )
+
+
+def check_children(args, sim_args: list[str], comp_args: list[str]) -> None:
+    """Each child's own parser and checks on the arguments fly passes it (scripts.sim and
+    scripts.companion `check_args`), before anything starts or is written: UsageError with the
+    child's one-line reason."""
+    from scripts import companion, sim
+
+    if args.connect is None or args.mission == "groundair":  # the simulator starts
+        why = sim.check_args(sim_args)
+        if why:
+            raise UsageError(why)
+    why = companion.check_args(comp_args)
+    if why:
+        raise UsageError(why)
 
 
 def _validate(args) -> tuple[list[str], list[str]]:
@@ -242,6 +280,9 @@ def _refuse_wind_above_limit(args) -> None:
 
     try:
         plan = parse_fault_args(args.wind, args.gust, args.noise, args.fault, seed=args.seed)
+    except ValueError as e:  # a fault flag: its own message names it and its form
+        raise UsageError(str(e)) from None
+    try:
         spec, _ = load_envelope(args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe])
     except ValueError as e:
         raise UsageError(f"{e}; fix it or pass another --envelope") from None
@@ -281,6 +322,7 @@ def run_two_processes(args: argparse.Namespace) -> int:
     from scripts import launch, waysout
 
     sim_args, comp_args = _validate(args)
+    check_children(args, sim_args, comp_args)
     envelope = _envelope(args) if args.mission == "groundair" else None
     folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path

@@ -17,10 +17,10 @@ import signal
 import sys
 from dataclasses import dataclass
 
-from runio import RunFolder, args_dict
-from scripts.cli import UsageError
+from runio import RunFolder, args_dict, ports
+from scripts.cli import UsageError, check_with
 
-DEFAULT_ZENOH_PORT = 7447
+DEFAULT_ZENOH_PORT = ports.ZENOH_BASE  # instance 0's; instance N listens on 7447+N
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--instance",
         type=int,
         default=0,
-        help="vehicle instance N: MAVLink ports and system id 1+N",
+        help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}]: MAVLink ports (14540+N, 14580+N, "
+        "18570+N), Zenoh port 7447+N and system id 1+N",
     )
     parser.add_argument(
         "--seed",
@@ -94,7 +95,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="stop after this much simulation time [s] (default: until interrupted)",
     )
     parser.add_argument(
-        "--zenoh-port", type=int, default=DEFAULT_ZENOH_PORT, help="Zenoh listen port on 127.0.0.1"
+        "--zenoh-port",
+        type=int,
+        default=None,
+        help="Zenoh listen port on 127.0.0.1 (default: 7447+N for --instance N)",
     )
     parser.add_argument(
         "--zenoh-config",
@@ -174,6 +178,83 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def check_args(argv: list[str]) -> str | None:
+    """`skyherd sim`'s own parser and checks on `argv`, starting nothing (no socket, no Zenoh
+    session, no file): None if it would start, else the one-line reason. `skyherd fly` calls
+    it before it makes its run folder."""
+    return check_with("skyherd sim", add_arguments, check, argv)
+
+
+def check(args) -> tuple:
+    """Every check of the arguments that needs nothing started (UsageError, one line): the
+    instance and its ports, the world's parameters, the faults, the autopilot's parameters,
+    the signing key and the fleet file. Returns (WorldParams, EndpointConfig)."""
+    try:
+        ports.check_instance(args.instance)
+        if args.zenoh_port is None:
+            args.zenoh_port = ports.zenoh_port(args.instance)
+        ports.check_port(args.zenoh_port, "--zenoh-port")
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    for flag, value, low in (("--latency", args.latency, 0.0), ("--camera-hz", args.camera_hz, None),
+                             ("--duration", args.duration, None)):  # fmt: skip
+        if value is not None and not (
+            math.isfinite(value) and (value >= low if low is not None else value > 0)
+        ):
+            raise UsageError(f"{flag} {value:g}: must be a finite number {'>= 0' if low is not None else '> 0'}")  # fmt: skip
+    params, endpoint = build_world(args)
+    _faults(args)  # the fault flags, parsed and range-checked
+    if not args.follow and args.autopilot == "builtin":
+        _check_params(args.airframe, args.param)
+    if args.signing_key:
+        from flight.mavlink.signing import load_key
+
+        try:
+            load_key(args.signing_key)
+        except ValueError as e:  # SigningError
+            raise UsageError(f"--signing-key: {e}") from None
+    if args.zenoh_config is not None and not os.path.isfile(args.zenoh_config):
+        raise UsageError(
+            f"--zenoh-config {args.zenoh_config}: no such file; pass a Zenoh JSON5 file"
+        )
+    if args.fleet:
+        read_fleet(args)
+    return params, endpoint
+
+
+def _check_params(airframe: str, items: list[str]) -> None:
+    """--param NAME=VALUE against the built-in autopilot's parameter table (names, numbers,
+    ranges), before the autopilot exists; UsageError naming the item."""
+    from flight.params import ParamStore
+
+    if airframe == "fixedwing":
+        from flight.fixedwing.fw_params import FW_PARAM_SPECS as specs
+    else:
+        from flight.multirotor.params import MULTIROTOR_PARAMS as specs
+    store = ParamStore(specs)
+    for item in items:
+        name, eq, value = item.partition("=")
+        if not eq:
+            raise UsageError(f"--param {item!r}: expected NAME=VALUE, e.g. COM_OF_LOSS_T=3")
+        res = store.check(name.strip(), value.strip())
+        if not res.ok:
+            raise UsageError(
+                f"--param {item}: {res.reason}{_param_hint(store, name.strip(), airframe)}"
+            )
+
+
+def _param_hint(store, name: str, airframe: str) -> str:
+    """What to do about an unknown parameter name: the close names, or where the table is."""
+    if name in store:
+        return ""
+    import difflib
+
+    close = difflib.get_close_matches(name.upper(), store.names(), n=3)
+    if close:
+        return f"; did you mean {' or '.join(close)}?"
+    return f"; the built-in {airframe}'s {len(store.names())} parameters: `skyherd sitl` and a ground station list them"
+
+
 def build_world(args):
     """Check the arguments and build the world (UsageError on bad usage)."""
     from flight.lockstep import LockstepParams
@@ -229,7 +310,7 @@ def run(args: argparse.Namespace) -> int:
 
     from world.sim import World
 
-    params, endpoint = build_world(args)
+    params, endpoint = check(args)
     fleet = read_fleet(args) if args.fleet else None
     if args.run_dir is not None:
         run_dir = Path(args.run_dir)
@@ -505,7 +586,7 @@ def _windows(items: list[str], flag: str) -> tuple[tuple[float, float], ...]:
             w = (float(t), float(d))
         except ValueError:
             raise UsageError(f"{flag} {item!r}: expected T:D in seconds, e.g. 30:3") from None
-        if not (w[0] >= 0 and w[1] > 0):
+        if not (math.isfinite(w[0]) and math.isfinite(w[1]) and w[0] >= 0 and w[1] > 0):
             raise UsageError(f"{flag} {item!r}: T must be >= 0 and D > 0")
         out.append(w)
     return tuple(out)

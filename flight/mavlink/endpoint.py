@@ -37,13 +37,14 @@ from flight.mavlink.statustext import split_text
 from flight.mavlink.streams import GCS_RATES_HZ, StreamScheduler
 from flight.mavlink.telemetry import Identity, TelemetryBuilder
 from flight.mavlink.tlog import TlogWriter
+from runio import ports
 
 M = mavlink
 log = logging.getLogger(__name__)
 
 # Port layout (CONVENTIONS.md, contract): for instance N.
-API_BIND_PORT, API_REMOTE_PORT = 14580, 14540
-GCS_BIND_PORT, GCS_REMOTE_PORT = 18570, 14550
+API_BIND_PORT, API_REMOTE_PORT = ports.API_BIND_BASE, ports.API_REMOTE_BASE
+GCS_BIND_PORT, GCS_REMOTE_PORT = ports.GCS_BIND_BASE, ports.GCS_REMOTE_PORT
 COMPONENT_ID = M.MAV_COMP_ID_AUTOPILOT1
 MAV_TYPES = {"quadrotor": M.MAV_TYPE_QUADROTOR, "fixedwing": M.MAV_TYPE_FIXED_WING}
 
@@ -72,8 +73,7 @@ class EndpointConfig:
     signing_key: Path | None = None
 
     def __post_init__(self) -> None:
-        if not 0 <= self.instance <= 200:
-            raise ValueError(f"instance must be in [0, 200], got {self.instance}")
+        ports.check_instance(self.instance, "instance")
 
     @property
     def system_id(self) -> int:

@@ -1,0 +1,96 @@
+"""Every port a vehicle instance owns: the one source of truth (CONVENTIONS.md, "MAVLink
+endpoints", **contract**: the PX4 SITL layout; and Zenoh's).
+
+For instance N (0..MAX_INSTANCE):
+
+| what | port |
+| --- | --- |
+| API / offboard link, we bind (UDP) | 14580 + N |
+| ... it sends to the companion / MAVSDK (UDP) | 14540 + N |
+| ground-station link, we bind (UDP) | 18570 + N |
+| ... it sends to the ground station (UDP, every instance) | 14550 |
+| PX4 simulator_mavlink on our physics, we listen (TCP) | 4560 + N |
+| ArduPilot JSON on our physics, we listen (UDP) | 9002 + 10 N |
+| the simulator's Zenoh peer, we listen (TCP on 127.0.0.1) | 7447 + N |
+
+Instance 0 keeps the well-known defaults (14540, 14550, 7447, ...). The ranges of the
+instances 0..200 do not overlap one another's kinds.
+"""
+
+from __future__ import annotations
+
+MAX_INSTANCE = 200  # the highest vehicle instance N (ports, system id 1+N <= 201)
+
+API_BIND_BASE = 14580  # UDP, the vehicle's API / offboard link binds 14580+N
+API_REMOTE_BASE = 14540  # UDP, ... and sends to the companion (MAVSDK) on 14540+N
+GCS_BIND_BASE = 18570  # UDP, the vehicle's ground-station link binds 18570+N
+GCS_REMOTE_PORT = 14550  # UDP, ... and sends to QGroundControl / MAVProxy on 14550 (any N)
+PX4_SIM_BASE = 4560  # TCP, PX4 `-i N` connects its simulator_mavlink to 4560+N
+JSON_BASE = 9002  # UDP, ArduPilot `-I N --model JSON` sends its servos to 9002+10N
+JSON_STRIDE = 10  # ArduPilot's -I N moves every port by 10 N
+ZENOH_BASE = 7447  # TCP, the simulator's Zenoh peer listens on 127.0.0.1:7447+N
+
+
+def check_instance(n: int, flag: str = "--instance") -> None:
+    """ValueError with a one-line reason (and what to do) unless 0 <= n <= MAX_INSTANCE."""
+    if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_INSTANCE:
+        raise ValueError(
+            f"{flag} {n}: a vehicle instance is an integer in [0, {MAX_INSTANCE}] "
+            f"(its ports are 14540+N, 14580+N, 18570+N, 7447+N, ...); pick one in that range"
+        )
+
+
+def check_port(port: int, flag: str) -> None:
+    """ValueError with a one-line reason unless `port` is a TCP/UDP port one may listen on."""
+    if isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535:
+        raise ValueError(f"{flag} {port}: a port is an integer in [1, 65535]")
+
+
+def api_bind_port(n: int) -> int:
+    return API_BIND_BASE + n
+
+
+def api_remote_port(n: int) -> int:
+    """Where the companion (MAVSDK, `skyherd companion`) of instance N listens."""
+    return API_REMOTE_BASE + n
+
+
+def gcs_bind_port(n: int) -> int:
+    return GCS_BIND_BASE + n
+
+
+def px4_sim_port(n: int) -> int:
+    return PX4_SIM_BASE + n
+
+
+def json_port(n: int) -> int:
+    return JSON_BASE + JSON_STRIDE * n
+
+
+def zenoh_port(n: int) -> int:
+    """The simulator's Zenoh port of instance N (`--instance N` moves it with the rest)."""
+    return ZENOH_BASE + n
+
+
+def companion_address(n: int) -> str:
+    """The companion's default MAVLink address for instance N (pymavlink form)."""
+    return f"udpin:127.0.0.1:{api_remote_port(n)}"
+
+
+def zenoh_address(n: int, host: str = "127.0.0.1") -> str:
+    """The simulator's Zenoh address of instance N (`tcp:HOST:PORT`, the one address syntax)."""
+    return f"tcp:{host}:{zenoh_port(n)}"
+
+
+def instance_ports(n: int) -> dict[str, int]:
+    """Every port instance N owns or sends to, by name (for messages and config.json)."""
+    check_instance(n)
+    return {
+        "api_bind_udp": api_bind_port(n),
+        "api_remote_udp": api_remote_port(n),
+        "gcs_bind_udp": gcs_bind_port(n),
+        "gcs_remote_udp": GCS_REMOTE_PORT,
+        "px4_sim_tcp": px4_sim_port(n),
+        "ardupilot_json_udp": json_port(n),
+        "zenoh_tcp": zenoh_port(n),
+    }
