@@ -6,14 +6,28 @@ Exit codes: 0 success, 1 the job ran and failed, 2 bad usage or configuration.
 
 from __future__ import annotations
 
-import argparse
-import atexit
-import importlib
-import os
-import re
-import sys
-import threading
-from typing import NoReturn
+import signal
+
+_EARLY: list[int] = []  # signals that came while this process imported its modules
+_EARLY_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+def _keep_early(signum: int, _frame) -> None:
+    _EARLY.append(signum)
+
+
+if __name__ == "__main__":  # `python -m scripts.cli` (fly's children, the tests): a signal
+    for _sig in _EARLY_SIGNALS:  # during the imports is kept and acted on in `main`
+        signal.signal(_sig, _keep_early)
+
+import argparse  # noqa: E402
+import atexit  # noqa: E402
+import importlib  # noqa: E402
+import os  # noqa: E402
+import re  # noqa: E402
+import sys  # noqa: E402
+import threading  # noqa: E402
+from typing import NoReturn  # noqa: E402
 
 # name → (module, one-line help). Modules are imported only when their command runs,
 # so `skyherd --help` stays fast and one broken sub-command cannot break the others.
@@ -162,6 +176,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     args._argv = list(argv)  # the command line as given (config.json, --quick)
+    signum = _early_signal()
+    if signum is not None:
+        name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+        print(f"skyherd {args.command}: INTERRUPTED: interrupted ({name}) "
+              "before it started; nothing was done", file=sys.stderr)  # fmt: skip
+        return 128 + signum
     try:
         return int(args._module.run(args) or 0)
     except UsageError as e:
@@ -170,9 +190,21 @@ def main(argv: list[str] | None = None) -> int:
     except RunAborted as e:
         print(f"skyherd {args.command}: {e}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"skyherd {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        signum = getattr(e, "signum", signal.SIGINT)
+        name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+        print(f"skyherd {args.command}: INTERRUPTED: interrupted ({name})", file=sys.stderr)
+        return 128 + signum
+
+
+def _early_signal() -> int | None:
+    """The first signal kept while `python -m scripts.cli` imported its modules (None: none);
+    the usual handlers are back from here on (SIGINT: KeyboardInterrupt; others: default)."""
+    if signal.getsignal(signal.SIGINT) is _keep_early:
+        for sig in _EARLY_SIGNALS:
+            h = signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL
+            signal.signal(sig, h)
+    return _EARLY[0] if _EARLY else None
 
 
 def exit_now(rc: int) -> NoReturn:

@@ -427,10 +427,14 @@ def wait_go(args, patience_s: float = GO_PATIENCE_S) -> None:
                        "(did the `skyherd fly` that started this companion stop?)")  # fmt: skip
 
 
-def open_client(p, patience_s: float = 60.0):
+class GaveUp(Exception):
+    """open_client stopped waiting: its `give_up()` said so (the simulator ended, a signal)."""
+
+
+def open_client(p, patience_s: float = 60.0, give_up=None):
     """A Zenoh session that connects to a simulator which may not listen yet (a client's open
     fails at once when nothing answers): retried every 0.05 s of wall time for `patience_s`
-    (a refused open costs about a millisecond)."""
+    (a refused open costs about a millisecond), until `give_up()` is True (GaveUp then)."""
     import time
 
     from perception.transport import open_session
@@ -442,6 +446,8 @@ def open_client(p, patience_s: float = 60.0):
         except ValueError:
             if time.monotonic() > deadline:
                 raise
+            if give_up is not None and give_up():
+                raise GaveUp() from None
             time.sleep(0.05)
 
 

@@ -17,10 +17,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import signal
 import sys
 from pathlib import Path
 
 from runio import args_dict, ports
+from runio.run import Interrupted
 from scripts.cli import UsageError
 
 
@@ -319,20 +321,35 @@ _ENVELOPE = {"quadrotor": "quadrotor_groundair.toml", "fixedwing": "fixedwing_fi
 
 
 def run_two_processes(args: argparse.Namespace) -> int:
+    from scripts import waysout
+
+    # a signal from here on is kept, never raised half-way through making the folder or
+    # starting a child, and acted on at the next safe point (waysout.KeptSignals)
+    with waysout.KeptSignals() as kept:
+        sim_args, comp_args = _validate(args)
+        check_children(args, sim_args, comp_args)
+        envelope = _envelope(args) if args.mission == "groundair" else None
+        if kept.signum is not None:  # nothing made, nothing started
+            rc, why = waysout.interrupted(Interrupted(kept.signum))
+            print(f"skyherd fly: INTERRUPTED: {why} before the flight started; nothing was "
+                  "recorded", flush=True)  # fmt: skip
+            return rc
+        folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
+        return _fly(args, folder.path, folder, sim_args, comp_args, envelope, kept)
+
+
+def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> int:
+    """The flight in its run folder: start, supervise, stop, report; every signal kept by
+    `kept` until the children run, then acted on (Launch.supervise)."""
     from scripts import launch, waysout
 
-    sim_args, comp_args = _validate(args)
-    check_children(args, sim_args, comp_args)
-    envelope = _envelope(args) if args.mission == "groundair" else None
-    folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
-    run_dir = folder.path
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
                          "companion": comp_args, "envelope": envelope})  # fmt: skip
     waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     recorder = None
     why = "interrupted (Ctrl-C)"
-    kids = launch.Launch()
+    kids = launch.Launch(kept)
     try:
         with kids:  # stopped on every way out, the companion first
             if args.connect is None or args.mission == "groundair":
@@ -343,12 +360,15 @@ def run_two_processes(args: argparse.Namespace) -> int:
             # its start
             companion = kids.start_companion(launch.skyherd_cmd(
                 "companion", *comp_args, "--run-dir", str(run_dir), "--wait-go"), wait_go=True)  # fmt: skip
-            recorder = _recorder(args, run_dir) if kids.sims else None
+            if kids.sims:
+                recorder = _recorder(
+                    args, run_dir, give_up=lambda: kept.signum is not None or kids.ended()
+                )
             companion.go()
-            rc, why = kids.supervise(args.timeout)
+            rc, why = kids.supervise(args.timeout)  # acts on a signal kept until now
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
         rc, why = waysout.interrupted(e)
-    finally:
+    finally:  # signals are kept again (Launch.__exit__): the report is written whole
         if recorder is not None:
             recorder.close()
     from scripts.fly_report import report  # after the flight: not on the way to the launch
@@ -357,6 +377,10 @@ def run_two_processes(args: argparse.Namespace) -> int:
     output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
     lines = waysout.ending_lines(run_dir, output=output, cut=waysout.recording_cut(recorder))
     waysout.append_ending(run_dir, lines)
+    if rc <= 128 and kept.signum is not None:  # a signal while the report was written
+        rc = waysout.interrupted(Interrupted(kept.signum))[0]
+        print(f"skyherd fly: interrupted ({signal.Signals(kept.signum).name}) after the flight "
+              "ended; its report above is whole", file=sys.stderr, flush=True)  # fmt: skip
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 
@@ -387,18 +411,22 @@ class _Recording:
         self.session.close()
 
 
-def _recorder(args, run_dir: Path):
+def _recorder(args, run_dir: Path, give_up=None):
     """A ZenohRecorder beside the two programs (None with --no-record and no --foxglove, or
-    when it cannot start: the flight never depends on its recording)."""
+    when it cannot start: the flight never depends on its recording). `give_up()` True: stop
+    waiting for the simulator's Zenoh session (a signal came, or a child ended)."""
     if args.no_record and args.foxglove is None:
         return None
     try:
         from perception.transport import subscriber_params
         from record import LiveServer, ZenohRecorder
-        from scripts.companion import open_client
+        from scripts.companion import GaveUp, open_client
 
         params = subscriber_params(f"tcp/127.0.0.1:{args.zenoh_port}")
-        session = open_client(dataclasses.replace(params, mode="client"))
+        try:
+            session = open_client(dataclasses.replace(params, mode="client"), give_up=give_up)
+        except GaveUp:  # supervise() says why (the signal, the child that ended)
+            return None
         also = [LiveServer(args.foxglove)] if args.foxglove is not None else []
         path = None if args.no_record else run_dir / "flight.mcap"
         if also:

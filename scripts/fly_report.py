@@ -305,7 +305,8 @@ def _plot_groundair(
         ax.set_xlim(0, max(track[-1, 0] if len(track) else 1.0, 1.0))
     axs[0].set(xlabel="east [m]", ylabel="north [m]", title="UAV over the UGV team (NED)")
     axs[0].set_aspect("equal", adjustable="datalim")
-    axs[0].legend(fontsize=8)
+    if axs[0].get_legend_handles_labels()[0]:  # nothing flown, nothing to name
+        axs[0].legend(fontsize=8)
     axs[1].set(xlabel="time [s]", ylabel="altitude above home [m]", title="altitude")
     axs[2].set(xlabel="time [s]", ylabel="feature value [0..1]", title="features and safety net")
     fig.tight_layout()

@@ -34,8 +34,8 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
-from runio.run import Interrupted
 from runio.space import Appender
+from scripts import waysout
 
 KEEP_LINES = 200  # a child's last output lines kept in memory (its log may be cut)
 COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before SIGKILL [s]
@@ -175,11 +175,7 @@ def exit_text(rc: int) -> str:
     return f"code {rc}"
 
 
-def _raise_interrupted(signum: int, _frame) -> None:
-    raise Interrupted(signum)
-
-
-INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # the ways a user ends `fly`
+INTERRUPTS = waysout.INTERRUPTS  # the ways a user ends `fly`
 
 
 def flight_reason(companion_reason: str | None, why: str) -> str:
@@ -194,13 +190,17 @@ class Launch:
     """The children of one flight, stopped on every way out of `with Launch() as kids:` (the
     flight's end, an error, SIGINT / SIGTERM / SIGHUP at any moment, the start-up included):
     the companion first, so that it hands the vehicles to their autopilots, then every
-    simulator winds down alone with its autopilot (module docstring). Inside the `with`,
-    SIGTERM and SIGHUP raise `Interrupted` as SIGINT does (a KeyboardInterrupt naming it)."""
+    simulator winds down alone with its autopilot (module docstring). A signal while the
+    children start is kept (waysout.KeptSignals: never raised half-way through a start) and
+    acted on when `supervise` begins; from then on SIGINT, SIGTERM and SIGHUP raise
+    `Interrupted` (a KeyboardInterrupt naming the signal). `signals`: the caller's
+    KeptSignals (`fly` keeps them from before its run folder is made), else its own."""
 
-    def __init__(self) -> None:
+    def __init__(self, signals: waysout.KeptSignals | None = None) -> None:
         self.companion: Child | None = None
         self.sims: list[Child] = []
-        self._handlers: dict[int, object] = {}
+        self._own = signals is None
+        self.signals = waysout.KeptSignals() if signals is None else signals
 
     def start_sim(self, name: str, argv: list[str], log: Path | None) -> Child:
         child = start(name, argv, log, parent_death=PARENT_DEATH)
@@ -213,24 +213,32 @@ class Launch:
         return self.companion
 
     def __enter__(self) -> Launch:
-        for sig in INTERRUPTS:
-            self._handlers[sig] = signal.signal(sig, _raise_interrupted)
+        if self._own:
+            self.signals.__enter__()
         return self
 
     def __exit__(self, *exc) -> None:
+        self.signals.raising(act=False)
         try:  # a second signal while the companion or the simulators end: stop all at once
             if self.companion is not None:
                 stop(self.companion, COMPANION_GRACE_S)
             wind_down(self.sims)
         finally:
             stop_all([c for c in (self.companion, *self.sims) if c is not None])
-            for sig, old in self._handlers.items():
-                signal.signal(sig, old)
+            if self._own:
+                self.signals.__exit__(None, None, None)
+            else:
+                self.signals.keeping()  # the caller writes its report whole
+
+    def ended(self) -> bool:
+        """Has any child ended (supervise() then says which and why)?"""
+        return any(c.proc.poll() is not None for c in (self.companion, *self.sims) if c is not None)
 
     def supervise(self, timeout_s: float) -> tuple[int, str]:
         """Wait for the flight to end; return (exit code, why it ended). The companion's end
         is the flight's; a simulator that dies first ends it too, and so does the wall-clock
         limit (the companion is stopped then, and its code is not the flight's)."""
+        self.signals.raising()  # a signal kept while the children started: acted on now
         companion = self.companion
         deadline = time.monotonic() + timeout_s
         while True:

@@ -86,6 +86,49 @@ def test_a_signal_to_fly_hands_over_and_lands(tmp_path, sig, rc):
     assert stats["ended"] == "disarmed" and stats["mode"] == "LAND" and not stats["armed"]
 
 
+CTRL_C_AFTER_S = (0.05, 0.2, 0.4, 0.6, 0.8, 1.0, 1.3, 1.6, 2.0, 2.5, 3.0, 4.0, 5.0, 6.5, 8.0)
+"""Moments of wall time after `fly` starts: its interpreter's imports, its checks, the run
+folder, the children's start, the recorder's Zenoh session, the go, the take-off, the flight
+(which of them each one hits depends on the machine's load: all must end the same way)."""
+
+
+@needs_namespaces
+@pytest.mark.slow
+@pytest.mark.parametrize("after_s", CTRL_C_AFTER_S)
+def test_ctrl_c_at_any_moment_is_interrupted_exit_130_and_leaves_nothing(tmp_path, after_s):
+    """SIGINT to `fly`'s process group (a terminal's Ctrl-C) at a moment of wall time: exit
+    130, "INTERRUPTED" said, never "ABORTED" (a child's end is not the flight's reason when
+    the user stopped it); with a run folder, summary.md says INTERRUPTED and how it ended, and
+    the plot is drawn from what was recorded; no process of the flight is left."""
+    fly = ["--duration", "30", "--speedup", "2", "--instance", "61"]
+    spec = {"runs": str(tmp_path / "runs"), "out": str(tmp_path), "fly": fly, "t": 0,
+            "do": "group:SIGINT", "after_s": after_s}  # fmt: skip
+    p = subprocess.run(["unshare", "-m", "-n", sys.executable, str(RIG), json.dumps(spec)],
+                       capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert p.returncode == 0, p.stderr[-3000:]
+    res = json.loads(p.stdout)
+    said = (res["stdout"] or "") + (res["stderr"] or "")
+    assert res["left"] == [], res["left"]
+    assert res["fly_running_at_trigger"], said[-2000:]  # the flight had not ended by itself
+    if res["rc"] == -2 and res["run_dir"] == "None" and "skyherd" not in said:
+        # the interpreter's own start-up, before the first line of scripts/cli.py (Python's
+        # KeyboardInterrupt, then it ends by SIGINT: a shell's $? is 130): nothing began
+        assert "KeyboardInterrupt" in said and "scripts" not in said.replace("scripts.cli", ""), (
+            said
+        )
+        return
+    assert res["rc"] == 130, said[-3000:]
+    assert "INTERRUPTED: interrupted (Ctrl-C)" in said and "ABORTED" not in said, said[-3000:]
+    assert "Traceback" not in said, said[-3000:]
+    if res["run_dir"] != "None":  # the folder was made: it says how the flight ended
+        assert res["summary.md"].startswith("# skyherd fly: INTERRUPTED"), res["summary.md"]
+        assert "**Why it ended:** interrupted (Ctrl-C)" in res["summary.md"]
+        assert "## How it ended" in res["summary.md"]
+        assert "groundair.png" in res["files"], res["files"]
+    else:
+        assert "nothing was" in said, said[-2000:]
+
+
 @needs_namespaces
 @pytest.mark.slow
 def test_sigterm_to_a_formation_hands_every_vehicle_over(tmp_path):

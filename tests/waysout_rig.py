@@ -9,6 +9,9 @@ before the namespace and its tmpfs go).
 
     python tests/waysout_rig.py '{"runs": DIR, "fly": [...], "t": 20, "do": "fly:SIGTERM"}'
 
+`after_s`: instead of waiting for world.csv, act this many seconds of wall time after `fly`
+started, whatever it is doing then (starting its children, flying, ending); "group:SIG" sends
+SIG to `fly`'s process group, as a terminal's Ctrl-C does (`fly` leads its own group here).
 `world`: the world.csv watched (default world.csv; a formation's uav0/world.csv); `read`:
 more files of the run folder to return. `do`: "fly:SIG", "companion:SIG", "sim:SIG", "fill" (another process fills the disk) or ""
 (fly to the end); `mount`: "" (none), "tmpfs:SIZE", or "ro" (a read-only bind mount).
@@ -94,11 +97,18 @@ def main(spec: dict) -> dict:
     fly_out, fly_err = open(out_dir / "fly.out", "wb"), open(out_dir / "fly.err", "wb")
     argv = [sys.executable, "-m", "scripts.cli", "fly", "--runs-dir", runs, *spec["fly"]]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    fly = subprocess.Popen(argv, stdout=fly_out, stderr=fly_err, cwd=ROOT, env=env)
+    fly = subprocess.Popen(argv, stdout=fly_out, stderr=fly_err, cwd=ROOT, env=env,
+                           process_group=0)  # fmt: skip
     t0 = time.monotonic()
     res: dict = {"trigger_t": None}
     do = spec.get("do", "")
     run_dir = None
+    if spec.get("after_s") is not None:  # a wall-clock moment, whatever `fly` is doing
+        time.sleep(spec["after_s"])
+        res["trigger_t"] = -1.0
+        res["fly_running_at_trigger"] = fly.poll() is None
+        do_wall = do
+        do = ""  # skip the wait on world.csv
     while do and fly.poll() is None and time.monotonic() - t0 < WALL_LIMIT_S:
         found = sorted(Path(runs).glob(f"*/{spec.get('world', 'world.csv')}"))
         row = last_row(found[0]) if found else None
@@ -112,9 +122,13 @@ def main(spec: dict) -> dict:
             res["trigger_t"] = float(row["t"])
             break
         time.sleep(0.01)
+    if spec.get("after_s") is not None:
+        do = do_wall
     if res["trigger_t"] is not None:
         target, _, sig = do.partition(":")
-        if target == "fill":  # another process fills the disk, the reserve included
+        if target == "group":
+            os.killpg(fly.pid, getattr(signal, sig))
+        elif target == "fill":  # another process fills the disk, the reserve included
             fill(Path(runs) / "filler")
         elif target == "fly":
             os.kill(fly.pid, getattr(signal, sig))
