@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import struct
 import threading
 import time
@@ -269,7 +270,18 @@ def open_session(p: ZenohParams):
             )
         return zenoh.open(conf)
     except zenoh.ZError as e:
-        raise ValueError(f"cannot open a Zenoh session ({p}): {e}") from e
+        where = p.config_file or ", ".join((*p.listen, *p.connect)) or "no endpoint"
+        raise ValueError(f"cannot open a Zenoh session ({where}): {zenoh_error_text(e)}") from e
+
+
+def zenoh_error_text(e: Exception) -> str:
+    """A Zenoh (Rust) error as one readable line: its message without the Rust source
+    locations ("at /root/.cargo/.../tcp.rs:61.") and without line breaks."""
+    text = str(e)
+    m = re.search(r'msg: "([^"]*)"', text)
+    text = m.group(1) if m else text
+    text = re.sub(r"\s+at\s+/\S+?\.rs:\d+\.?", "", text)
+    return " ".join(text.split()).strip()
 
 
 # -- publisher ---------------------------------------------------------------------------

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import errno
 import json
 import math
 import shutil
@@ -496,9 +497,7 @@ def run(args: argparse.Namespace) -> int:
     except (LinkError, ValueError) as e:  # ValueError: flight.mavlink.signing.SigningError
         if session is not None:
             session.close()
-        raise UsageError(
-            f"{e}; is another companion using that port, is the key file right?"
-        ) from None
+        raise UsageError(link_error_text(e, address, args.instance)) from None
     v = VehicleLink(link)
     params = CompanionParams(lockstep=not args.free_run)
     print(f"skyherd companion: {args.mission} via {address}, "
@@ -557,6 +556,22 @@ def run(args: argparse.Namespace) -> int:
 
         report(run_dir, args, rc, error)
     return rc
+
+
+def link_error_text(e: Exception, address: str, instance: int) -> str:
+    """Why the autopilot's link did not open, in one line with the next step."""
+    cause = e.__cause__
+    if isinstance(cause, ConnectionRefusedError):
+        return (f"nothing is listening at {address} (connection refused): start the autopilot "
+                "first, or check --connect")  # fmt: skip
+    if isinstance(cause, TimeoutError):
+        return f"no answer from {address} (timed out): is the autopilot there? check --connect"
+    if isinstance(cause, OSError) and cause.errno == errno.EADDRINUSE:
+        return (f"{address}: the port is taken (another companion of instance {instance}, or a "
+                "ground station?): stop it, or pick another --instance / --connect")  # fmt: skip
+    if isinstance(e, ValueError):
+        return f"--signing-key: {e}"
+    return f"{e}; check --connect"
 
 
 def _tick_stats(stats) -> dict:

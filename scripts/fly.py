@@ -360,10 +360,10 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
             # its start
             companion = kids.start_companion(launch.skyherd_cmd(
                 "companion", *comp_args, "--run-dir", str(run_dir), "--wait-go"), wait_go=True)  # fmt: skip
-            if kids.sims:
-                recorder = _recorder(
-                    args, run_dir, give_up=lambda: kept.signum is not None or kids.ended()
-                )
+            if kids.sims:  # once the simulator says it runs (its Zenoh session is open)
+                sim_up = lambda: kids.sims[0].said(SIM_STARTED)  # noqa: E731
+                stop_waiting = lambda: kept.signum is not None or kids.ended()  # noqa: E731
+                recorder = _recorder(args, run_dir, give_up=stop_waiting, ready=sim_up)
             companion.go()
             rc, why = kids.supervise(args.timeout)  # acts on a signal kept until now
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
@@ -411,17 +411,30 @@ class _Recording:
         self.session.close()
 
 
-def _recorder(args, run_dir: Path, give_up=None):
+SIM_STARTED = "skyherd sim: instance"  # the simulator's line once its world runs (scripts.sim)
+SIM_START_PATIENCE_S = 120.0  # wall time the recorder waits for that line [s]
+
+
+def _recorder(args, run_dir: Path, give_up=None, ready=None):
     """A ZenohRecorder beside the two programs (None with --no-record and no --foxglove, or
-    when it cannot start: the flight never depends on its recording). `give_up()` True: stop
-    waiting for the simulator's Zenoh session (a signal came, or a child ended)."""
+    when it cannot start: the flight never depends on its recording). It connects once
+    `ready()` is True (the simulator's session listens; never a stranger on its port), and
+    stops waiting when `give_up()` is True (a signal came, or a child ended: supervise()
+    says which at once)."""
     if args.no_record and args.foxglove is None:
         return None
     try:
+        import time
+
         from perception.transport import subscriber_params
         from record import LiveServer, ZenohRecorder
         from scripts.companion import GaveUp, open_client
 
+        deadline = time.monotonic() + SIM_START_PATIENCE_S
+        while ready is not None and not ready() and time.monotonic() < deadline:
+            if give_up is not None and give_up():
+                return None
+            time.sleep(0.02)
         params = subscriber_params(f"tcp/127.0.0.1:{args.zenoh_port}")
         try:
             session = open_client(dataclasses.replace(params, mode="client"), give_up=give_up)

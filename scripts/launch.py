@@ -62,6 +62,10 @@ class Child:
         except (BrokenPipeError, OSError):
             pass  # it ended already: supervise() reports how
 
+    def said(self, prefix: str) -> bool:
+        """Has the child written a line that begins with `prefix` (among its last lines)?"""
+        return any(ln.startswith(prefix) for ln in list(self.lines or ()))
+
     def tail(self, n: int = 5) -> str:
         if self.relay is not None:
             self.relay.join(2.0)  # the child has ended: its last lines are on their way
@@ -186,6 +190,15 @@ def flight_reason(companion_reason: str | None, why: str) -> str:
     return companion_reason or why
 
 
+def say(text: str) -> None:
+    """A line of `fly`'s on stderr at once (a child's end: seen within 20 ms, said now, not
+    after the companion's hand-over and the report)."""
+    try:
+        print(f"skyherd fly: {text}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
 class Launch:
     """The children of one flight, stopped on every way out of `with Launch() as kids:` (the
     flight's end, an error, SIGINT / SIGTERM / SIGHUP at any moment, the start-up included):
@@ -244,11 +257,15 @@ class Launch:
         while True:
             rc = companion.proc.poll()
             if rc is not None:
+                if rc != 0:  # its own last line is above (its output is this terminal's)
+                    say(f"the companion exited with {exit_text(rc)}; stopping the flight")
                 return rc, "" if rc == 0 else f"the companion exited with {exit_text(rc)}"
             for s in self.sims:
                 if s.proc.poll() is not None:
                     why = f"the simulator {s.name} exited with {exit_text(s.proc.returncode)} during the flight"
                     tail = s.tail()
+                    last = tail.splitlines()[-1].strip() if tail else "(no output)"
+                    say(f"{why}: {last}; stopping the companion (log: {s.log})")
                     stop(companion, COMPANION_GRACE_S)
                     return 1, why + (f":\n{tail}" if tail else "")
             if time.monotonic() > deadline:

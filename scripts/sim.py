@@ -300,9 +300,11 @@ def open_zenoh(port: int, config_file: str | None):
     try:
         return open_session(p)
     except ValueError as e:
-        raise UsageError(
-            f"{e}; is another simulator using Zenoh port {port}? use --zenoh-port"
-        ) from None
+        if config_file is None and "in use" in str(e):
+            raise UsageError(f"Zenoh port {port} on 127.0.0.1 is taken (another simulator, or "
+                             "another program, listens there): pick another --instance or "
+                             "--zenoh-port") from None  # fmt: skip
+        raise UsageError(f"{e}; check --zenoh-port / --zenoh-config") from None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import signal
 import time
 
@@ -114,10 +113,9 @@ def _try_show(img: np.ndarray, enabled: bool) -> bool:
 
 def zenoh_reason(e: Exception) -> str:
     """A Zenoh error as one readable line (its message without Rust source locations)."""
-    text = str(e)
-    m = re.search(r'msg: "([^"]*)"', text)
-    text = m.group(1) if m else text
-    return re.sub(r" at /\S+", "", text).split("\n")[0].strip()
+    from perception.transport import zenoh_error_text
+
+    return zenoh_error_text(e)
 
 
 def _session(args: argparse.Namespace):

@@ -328,3 +328,95 @@ def test_streams_stop_at_the_reserve_and_end_files_never_raise(tmp_path, capsys)
     why = try_write_text(tmp_path / "missing" / "summary.md", "text")
     assert why is not None and "No such file or directory" in why
     assert try_write_text(tmp_path / "summary.md", "text") is None
+
+
+_TIMED_FLY = """
+import json, os, socket, subprocess, sys, threading, time
+spec = json.loads(sys.argv[1])
+subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
+if spec.get("listen"):  # another program on the port
+    s = socket.socket()
+    s.bind(("127.0.0.1", spec["listen"]))
+    s.listen()
+argv = [sys.executable, "-m", "scripts.cli", "fly", "--runs-dir", spec["runs"], *spec["fly"]]
+p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+lines = []
+def pump(f, tag):
+    for ln in f:
+        lines.append([time.time(), tag, ln.rstrip("\\n")])
+ts = [threading.Thread(target=pump, args=(p.stdout, "out")),
+      threading.Thread(target=pump, args=(p.stderr, "err"))]
+for t in ts:
+    t.start()
+rc = p.wait(timeout=600)
+for t in ts:
+    t.join()
+def left():
+    out = []
+    for d in os.listdir("/proc"):
+        try:
+            text = open(f"/proc/{d}/cmdline", "rb").read().replace(b"\\0", b" ").decode()
+        except OSError:
+            continue
+        if d.isdigit() and int(d) != os.getpid() and "-m scripts.cli" in text and spec["runs"] in text:
+            out.append(text)
+    return out
+t_end = time.time()
+while left() and time.time() - t_end < 60:
+    time.sleep(0.05)
+logs = {}
+for d in os.listdir(spec["runs"]):
+    for name in ("sim.log",):
+        path = os.path.join(spec["runs"], d, name)
+        if os.path.exists(path):
+            logs[name] = [os.path.getmtime(path), open(path).read()]
+print(json.dumps({"rc": rc, "lines": lines, "logs": logs, "left": left()}))
+"""
+
+
+def _timed_fly(tmp_path: Path, fly: list[str], listen: int | None = None) -> dict:
+    """`fly` in a private network namespace (another program listening on `listen`), each line
+    of its output with the wall time it arrived; sim.log's text and last change."""
+    spec = {"runs": str(tmp_path / "runs"), "fly": fly, "listen": listen}
+    (tmp_path / "runs").mkdir(parents=True)
+    p = subprocess.run(["unshare", "-n", sys.executable, "-c", _TIMED_FLY, json.dumps(spec)],
+                       capture_output=True, text=True, timeout=900,
+                       cwd=Path(__file__).resolve().parents[1])  # fmt: skip
+    assert p.returncode == 0, p.stderr[-3000:]
+    return json.loads(p.stdout)
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_a_simulator_that_dies_is_said_within_a_second_with_its_own_last_line_wallclock(tmp_path):
+    """Another program listens on instance 62's Zenoh port (7447 + 62): the simulator exits 2
+    with one line naming the port and what to do (no Rust source path); `fly` says so on
+    stderr, with that line, within a second of wall time of the simulator's last line in
+    sim.log (its relay writes the line as it comes), stops the companion and ends 1."""
+    res = _timed_fly(tmp_path, ["--instance", "62", "--speedup", "2"], listen=7509)
+    assert res["rc"] == 1 and res["left"] == [], res["left"]
+    said = [ln for ln in res["lines"] if "skyherd fly: the simulator sim exited" in ln[2]]
+    assert said, res["lines"]
+    t_said, _, line = said[0]
+    assert "code 2" in line and "Zenoh port 7509 on 127.0.0.1 is taken" in line, line
+    assert "--instance" in line
+    t_log, log = res["logs"]["sim.log"]
+    assert log.strip().splitlines()[-1] in line
+    assert t_said - t_log < 1.0, (t_said, t_log)
+    text = "\n".join(ln[2] for ln in res["lines"])
+    assert ".rs:" not in text and ".cargo" not in text and "Traceback" not in text, text
+
+
+@needs_namespaces
+@pytest.mark.slow
+def test_nothing_listening_at_the_connect_address_says_so(tmp_path):
+    """`fly --connect tcp:127.0.0.1:1` with nothing listening: the companion says nothing is
+    listening there (not "another companion using that port"), and `fly` says at once that
+    the companion ended, and ends 1 with no process left behind."""
+    res = _timed_fly(tmp_path, ["--connect", "tcp:127.0.0.1:1", "--instance", "62"])
+    assert res["rc"] == 1 and res["left"] == [], res["left"]
+    err = [ln[2] for ln in res["lines"] if ln[1] == "err"]
+    refused = [ln for ln in err if "nothing is listening at tcp:127.0.0.1:1" in ln]
+    assert refused and "start the autopilot first" in refused[0], err
+    assert not any("another companion" in ln for ln in err), err
+    assert any("skyherd fly: the companion exited with code 2" in ln for ln in err), err
