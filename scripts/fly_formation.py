@@ -106,6 +106,7 @@ def run_formation(args: argparse.Namespace) -> int:
     from scripts import launch
 
     _check(args)
+    _check_children(args)
     params = _params(args)
     K = args.agents
     plan, plan_info = obtain_plan(args)
@@ -159,6 +160,19 @@ def run_formation(args: argparse.Namespace) -> int:
         run_dir, waysout.ending_lines(run_dir, [f"uav{k}" for k in range(K)], output)
     )
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
+
+
+def _check_children(args) -> None:
+    """The children's own checks on the options passed on to them (scripts.sim and
+    scripts.companion `check_args`; the fleet and plan files are made later): UsageError."""
+    from scripts import companion, sim
+
+    why = sim.check_args(["--ugvs", "none", "--speedup", repr(args.speedup), "--latency",
+                          repr(args.latency), "--instance", str(args.instance)])  # fmt: skip
+    why = why or companion.check_args(["--mission", "formation", "--plan", "plan.json",
+                                       "--cell-m", repr(args.cell_m), "--instance", str(args.instance)])  # fmt: skip
+    if why:
+        raise UsageError(why)
 
 
 def sim_groups(K: int, sims: int) -> list[list[int]]:
