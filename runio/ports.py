@@ -35,8 +35,8 @@ def check_instance(n: int, flag: str = "--instance") -> None:
     """ValueError with a one-line reason (and what to do) unless 0 <= n <= MAX_INSTANCE."""
     if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_INSTANCE:
         raise ValueError(
-            f"{flag} {n}: a vehicle instance is an integer in [0, {MAX_INSTANCE}] "
-            f"(its ports are 14540+N, 14580+N, 18570+N, 7447+N, ...); pick one in that range"
+            f"{flag} {n}: instance must be in [0, {MAX_INSTANCE}] (an integer N; its ports "
+            "are 14540+N, 14580+N, 18570+N, 7447+N, ...): pick one in that range"
         )
 
 
