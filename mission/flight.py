@@ -100,6 +100,7 @@ class SingleVehicleMission:
         self.reason = ""
         self.t_decision: float | None = None
         self.landing_note = ""  # how the landing went, when not as planned
+        self.end_mode = ""  # the profile's documented end when it does not land ("" = landed)
         self.pending: Proposal | None = None
         self._written = 0
         self.name = pilot.name
@@ -167,6 +168,7 @@ class SingleVehicleMission:
             v.setpoint = Setpoint(pos_ned=v.tel.pos_ned.copy(), yaw=0.0)
             yield from recipe(v, prof.land_steps())
             yield from recipe(v, prof.end_steps())
+            self.end_mode = prof.end_mode.name if prof.end_mode else ""
         self.outcome = "completed"
 
     def _descend(self, v: VehicleLink) -> Phase:

@@ -140,6 +140,7 @@ class OrbitMission:
         self.centre = np.asarray(briefing.rendezvous_ne, float)  # the certified orbit centre
         self.phase = "connect"
         self.outcome, self.reason = "running", ""
+        self.end_mode = ""  # the profile's documented end when it does not land ("" = landed)
         self.t_decision: float | None = None
         self.t_established: float | None = None
         self.t_handover: float | None = None
@@ -217,6 +218,7 @@ class OrbitMission:
             self.phase = "land"
             yield from recipe(v, prof.land_steps())
             yield from recipe(v, prof.end_steps())
+            self.end_mode = prof.end_mode.name if prof.end_mode else ""
         self.outcome = "completed"
 
     def _trim_radius(self, v: VehicleLink) -> None:

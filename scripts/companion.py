@@ -545,6 +545,7 @@ def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = Non
             "t_start": mission.authority.t_start,
             "t_end": mission.authority.t_last,
             "land": bool(getattr(getattr(mission, "f", mission.plan), "land", True)),
+            "end_mode": getattr(mission, "end_mode", ""),  # the profile's end when not landed
         },  # fmt: skip
     }
     if getattr(mission, "plan", None) is not None and mission.name == "orbit":

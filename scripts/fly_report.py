@@ -176,7 +176,9 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
                            if window[0] - 1e-9 <= float(r["t"]) <= window[1] + 1e-9)  # fmt: skip
     if window is not None:
         rendered = int(np.sum((truth.t >= window[0] - 1e-9) & (truth.t <= window[1] + 1e-9)))
-    ending = Ending(outcome, reason, bool(auth.get("land", True)))
+    ending = Ending(
+        outcome, reason, bool(auth.get("land", True)), end_mode=str(auth.get("end_mode") or "")
+    )
     net_modes = [(float(e["t"]), str(e["to"])) for e in _jsonl(run_dir / "events.jsonl")
                  if e.get("event") == "switch" and "to" in e]  # fmt: skip
     checks = judge(truth, spec, changes, window, frames, rendered, ending, net_modes,
