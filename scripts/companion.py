@@ -196,6 +196,14 @@ def add_arguments(
         action="store_true",
         help="fly without camera frames (square, or no simulator)",
     )
+    parser.add_argument(
+        "--configure-autopilot",
+        action="store_true",
+        help="before the take-off, set the autopilot's parameters the safety envelope requires "
+        "(e.g. PX4 COM_OF_LOSS_T, ArduCopter GUID_TIMEOUT), read each back and record the change "
+        "(companion.json, summary.md); nothing is restored afterwards. Default: refuse to take "
+        "off on a mismatch, naming the parameter and the value to set",
+    )
 
 
 def build_mission(args, run_dir: Path | None):
@@ -235,7 +243,8 @@ def build_mission(args, run_dir: Path | None):
         decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
         track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
     )
-    return SingleVehicleMission(pilot, net, plan, record, perception), plan
+    return SingleVehicleMission(pilot, net, plan, record, perception,
+                                getattr(args, "configure_autopilot", False), _say), plan  # fmt: skip
 
 
 def pilot_choice(value: str) -> str:
@@ -541,6 +550,7 @@ def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = Non
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
         "landing": getattr(mission, "landing_note", "") or "as planned",
+        "configured": [c.record() for c in getattr(mission, "configured", [])],
         "authority": {
             "t_start": mission.authority.t_start,
             "t_end": mission.authority.t_last,

@@ -192,6 +192,7 @@ def _validate(args) -> tuple[list[str], list[str]]:
     comp += ["--altitude", repr(altitude)] if altitude is not None else []
     comp += ["--policy", str(Path(args.policy).resolve())] if args.policy else []
     comp += ["--envelope", str(Path(args.envelope).resolve())] if args.envelope else []
+    comp += ["--configure-autopilot"] if args.configure_autopilot else []
     if args.mission == "square" or args.no_camera:
         comp += ["--no-camera"]
     sim = ["--instance", str(args.instance), "--seed", str(args.seed), "--ugvs", args.ugvs,

@@ -118,6 +118,11 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
     lines += [table]
     verdicts = judge_table(checks)
     lines += ["", "## The judge (safety/judge.py: truth and the companion's records)", "", verdicts]
+    if comp.get("configured"):  # --configure-autopilot: what it set, and why
+        rows = [[c["name"], f"{c['before']:g}", f"{c['after']:g}", c["reason"].replace("|", "/")]
+                for c in comp["configured"]]  # fmt: skip
+        lines += ["", "## Autopilot parameters set (--configure-autopilot; nothing restored)", "",
+                  markdown_table(["parameter", "before", "after", "why"], rows)]  # fmt: skip
     if any("explanation" in d for d in decisions):  # a modular policy said why it acted
         from policy.education.timeline import read_decisions, timeline
 
