@@ -158,3 +158,26 @@ def flock_spread(pos: np.ndarray) -> float:
     """Mean distance of the agents from their centre [m]."""
     pos = np.asarray(pos, dtype=float)
     return float(np.linalg.norm(pos - pos.mean(axis=0), axis=1).mean())
+
+
+class FlockTeam:
+    """The flock as a world's UGV team (the Formation interface of policy.groundair.scenarios:
+    `step(dt)`, `positions()`, `detectable()`, `world.states`), plus `set_shepherd(ne)`: the
+    world tells it where the UAV is before each step."""
+
+    def __init__(self, rng: np.random.Generator, params: FlockParams | None = None):
+        self.world = Flock.start(params if params is not None else FlockParams(), rng)
+        self.t = 0.0
+
+    def set_shepherd(self, ne) -> None:
+        self.world.set_shepherd(ne)
+
+    def step(self, dt: float) -> None:
+        self.world.step(self.t, dt)
+        self.t += dt
+
+    def positions(self) -> list[tuple[float, float]]:
+        return [(float(a), float(b)) for a, b in self.world.pos]
+
+    def detectable(self) -> list[bool] | None:
+        return None  # every marker shows
