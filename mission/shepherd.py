@@ -15,6 +15,7 @@ Each decision's explanation names the sub-skill, the selector's P(drive) and the
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -30,11 +31,11 @@ from policy.shepherd.selector import features
 
 @dataclass
 class ShepherdPilot:
-    """Selector → sub-skill → point → velocity. `flock()` returns the UGVs' positions (N, 2)
-    [m] or None until every UGV has reported."""
+    """Selector → sub-skill → point → velocity. `flock(t)` returns the UGVs' positions (N, 2)
+    [m] at tick time t, or None until every UGV has reported."""
 
     selector: object  # policy.shepherd.selector: .choose(pos, goal, flock) -> (skill, p_drive)
-    flock: Callable[[], np.ndarray | None]
+    flock: Callable[[float], np.ndarray | None]
     altitude_m: float
     limits: object  # safety.envelope.Limits of the flight's envelope
     tau_s: float  # the envelope's velocity-loop time constant [s]
@@ -56,7 +57,7 @@ class ShepherdPilot:
         lim, p, v = self.limits, o.state.pos_ned, o.state.vel_ned
         up = float(np.clip(self.k_alt * (-self.altitude_m - p[2]), -0.9 * lim.climb_mps,
                            0.9 * lim.descent_mps))  # fmt: skip
-        pos = self.flock()
+        pos = self.flock(o.t)
         if pos is None:  # no reports yet: hold here
             u = np.array([0.0, 0.0, up])
             return Proposal(
@@ -82,10 +83,22 @@ class ShepherdPilot:
         return Proposal(Setpoint(vel_ned=u, yaw=0.0), -1, why)
 
 
-def flock_reader(subscriber, n: int) -> Callable[[], np.ndarray | None]:
-    """The flock's newest reported positions (N, 2) from a groundsim.transport.UGVStateSubscriber."""
+def flock_reader(
+    subscriber, n: int, patience_s: float = 5.0
+) -> Callable[[float], np.ndarray | None]:
+    """The flock's reported positions (N, 2) at tick time t, from a
+    groundsim.transport.UGVStateSubscriber: the simulator publishes them at each camera instant
+    before it marks the tick, so the reader waits (at most `patience_s` of wall time) until
+    every UGV's report of instant t is in; in lockstep nothing newer can come before the tick
+    closes, so the flight does not depend on Zenoh's delivery time. Free-running, or when
+    reports stop, the newest ones (None before every UGV reported once)."""
 
-    def read():
+    def read(t: float):
+        deadline = time.monotonic() + patience_s
+        while True:
+            if subscriber.oldest_stamp(n) >= t - 1e-6 or time.monotonic() > deadline:
+                break
+            time.sleep(0.001)
         s = subscriber.states(n)
         return None if s is None else s.pos_ne
 

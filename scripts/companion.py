@@ -264,7 +264,7 @@ def _shepherd_mission(args, run_dir: Path | None):
     plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
     net = _load_net(args.envelope, run_dir)
     spec = net.spec
-    pilot = ShepherdPilot(make_selector(args.shepherd_selector), lambda: None, altitude, spec.limits,
+    pilot = ShepherdPilot(make_selector(args.shepherd_selector), lambda t: None, altitude, spec.limits,
                           spec.dynamics.tau_s)  # fmt: skip
     record = Record(
         decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
