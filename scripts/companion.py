@@ -178,6 +178,10 @@ def add_arguments(
         "drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. "
         "drill:lateral-fence with --envelope safety/envelopes/quadrotor_field.toml",
     )
+    parser.add_argument("--lost-ugv-search", action="store_true",
+                        help="groundair: when a UGV leaves the view, search for it (dead reckoning from its last "
+                        "sighting, climbing toward the ceiling, expanding square: mission/search.py) instead of "
+                        "leaving it to the pilot")  # fmt: skip
     parser.add_argument(
         "--policy",
         default=None,
@@ -238,6 +242,12 @@ def build_mission(args, run_dir: Path | None):
                 pilot = drill_pilot(args.pilot, net.spec)
                 plan = FlightPlan(altitude_m=altitude, duration_s=args.duration, decision_s=0.1)
             perception = Perception(task)
+            if getattr(args, "lost_ugv_search", False) and not args.pilot.startswith("drill:"):
+                from mission.search import SearchPilot
+                from policy.search.lost import LostSearch
+
+                pilot = SearchPilot(pilot, perception, LostSearch(None, task), net.spec.limits,
+                                    net.spec.dynamics.tau_s)  # fmt: skip
     except ValueError as e:
         raise UsageError(str(e)) from None
     record = Record(

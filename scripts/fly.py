@@ -202,6 +202,12 @@ def _validate(args) -> tuple[list[str], list[str]]:
             "--side", repr(args.side), "--instance", str(args.instance)]  # fmt: skip
     comp += ["--altitude", repr(altitude)] if altitude is not None else []
     comp += ["--shepherd-selector", args.shepherd_selector] if args.mission == "shepherd" else []
+    if args.lost_ugv_search:
+        if args.mission != "groundair" or orbit or args.pilot.startswith("drill:"):
+            raise UsageError(
+                "--lost-ugv-search is for the ground-air mission's policy or pid pilot (quadrotor)"
+            )
+        comp += ["--lost-ugv-search"]
     comp += ["--policy", str(Path(args.policy).resolve())] if args.policy else []
     comp += ["--envelope", str(Path(args.envelope).resolve())] if args.envelope else []
     if args.mission == "square" or args.no_camera:

@@ -42,7 +42,7 @@ from policy.groundair.params import TaskParams
 class SearchParams:
     """The search's knobs (SI)."""
 
-    ceiling_margin_m: float = 3.0  # climb at most to the ceiling less this [m]
+    ceiling_margin_m: float = 6.0  # climb at most to the ceiling less this: the net brakes a 2.7 m/s climb in 5.2 m [m]
     sigma0_m: float = 2.0  # the prediction's uncertainty when it was lost [m]
     sigma_rate_mps: float = 0.5  # and its growth per second since [m/s]
     frame_fill: float = (
@@ -51,7 +51,7 @@ class SearchParams:
     velocity_gain: float = 0.7  # weight of a new finite difference in the velocity estimate [-]
     arrive_m: float = 4.0  # over the prediction within this distance: start the square [m]
     k_h: float = 1.0  # horizontal gain [1/s]
-    k_v: float = 1.0  # vertical gain [1/s]
+    k_v: float = 0.5  # vertical gain [1/s]
     limit_fraction: float = 0.9  # of the envelope's speed, climb and descent rows [-]
 
 
@@ -151,13 +151,21 @@ class LostSearch:
     def act(self, obs: np.ndarray, t: float, uav_ned: np.ndarray,
             seen: dict[int, np.ndarray]) -> int | np.ndarray:  # fmt: skip
         """The base policy's discrete action, or the search's velocity command (3,) [m/s]."""
+        cmd = self.search_command(t, uav_ned, seen)
+        return int(self.base(obs)) if cmd is None else cmd
+
+    def search_command(
+        self, t: float, uav_ned: np.ndarray, seen: dict[int, np.ndarray]
+    ) -> np.ndarray | None:
+        """The search's velocity command (3,) [m/s], or None while every UGV ever seen is in
+        view (the base pilot flies)."""
         self.tracker.update(t, seen)
         lost = [i for i in self.tracker.tracks if i not in seen]
         if self.quarry in seen:  # found: the search ends (others still lost start a new one)
             self.quarry, self.square = None, None
         if not lost:
             self.mode = "base"
-            return int(self.base(obs))
+            return None
         p, task = self.p, self.task
         ceiling = task.uav.alt_max_m - p.ceiling_margin_m
         if self.quarry not in lost:  # the search is for the first UGV lost, until it is found
