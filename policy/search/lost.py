@@ -42,7 +42,9 @@ from policy.groundair.params import TaskParams
 class SearchParams:
     """The search's knobs (SI)."""
 
-    ceiling_margin_m: float = 6.0  # climb at most to the ceiling less this: the net brakes a 2.7 m/s climb in 5.2 m [m]
+    ceiling_margin_m: float = (
+        6.0  # climb at most to the ceiling less this: the net brakes a 2.7 m/s climb in 5.2 m [m]
+    )
     sigma0_m: float = 2.0  # the prediction's uncertainty when it was lost [m]
     sigma_rate_mps: float = 0.5  # and its growth per second since [m/s]
     frame_fill: float = (
