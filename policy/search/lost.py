@@ -122,11 +122,14 @@ def envelope_speeds(fraction: float) -> tuple[float, float, float]:
 
 
 def velocity_to(uav_ned: np.ndarray, target_ne: np.ndarray, target_alt: float, p: SearchParams,
-                speeds: tuple[float, float, float]) -> np.ndarray:  # fmt: skip
-    """(north, east, down) [m/s] toward the target, within `speeds`."""
+                speeds: tuple[float, float, float], v_ff=(0.0, 0.0)) -> np.ndarray:  # fmt: skip
+    """(north, east, down) [m/s] toward the target (moving at v_ff [m/s]: fed forward, so a
+    moving target is met without a lag), within `speeds`."""
     d = np.asarray(target_ne, dtype=float) - uav_ned[:2]
-    dist = float(np.hypot(*d))
-    vh = d * min(p.k_h, speeds[0] / dist) if dist > 1e-9 else np.zeros(2)
+    vh = np.asarray(v_ff, dtype=float) + p.k_h * d
+    n = float(np.hypot(*vh))
+    if n > speeds[0]:
+        vh *= speeds[0] / n
     vd = float(np.clip(p.k_v * (-target_alt - uav_ned[2]), -speeds[1], speeds[2]))
     return np.array([vh[0], vh[1], vd])
 
@@ -178,9 +181,10 @@ class LostSearch:
         pts = [tuple(x) for x in seen.values()] + [tuple(x) for x in pred.values()]
         cn, ce, r = min_circle(pts)
         alt = altitude_for(r + sigma, task, p.frame_fill)
-        target = np.array([cn, ce])
+        target, v_ff = np.array([cn, ce]), np.zeros(2)
         if alt > ceiling:  # the ceiling cannot hold them all: the lost one alone
             target, alt = pred[i_lost], ceiling
+            v_ff = self.tracker.tracks[i_lost].vel
             self.mode = "go to the lost UGV"
         else:
             self.mode = "go and widen"
@@ -196,6 +200,6 @@ class LostSearch:
                 k += 1
                 corner = origin + expanding_square(k, leg)
             self.square = (origin, leg, k)
-            target, alt = corner, ceiling
+            target, alt, v_ff = corner, ceiling, self.tracker.tracks[i_lost].vel
             self.mode = f"expanding square, corner {k}"
-        return velocity_to(uav_ned, target, alt, p, self.speeds)
+        return velocity_to(uav_ned, target, alt, p, self.speeds, v_ff)
