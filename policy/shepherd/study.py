@@ -56,9 +56,9 @@ def table(rows: dict[str, dict]) -> str:
 
 
 def run(seeds: int = 100, first_seed: int = 0, out: str | Path | None = "runs/shepherd_study",
-        selector_file: str | None = None) -> dict:  # fmt: skip
+        selector_file: str | None = None, flock: FlockParams | None = None) -> dict:  # fmt: skip
     """Both selectors on seeds first_seed .. first_seed+seeds−1; returns {name: summary}."""
-    flock, task = FlockParams(), ShepherdParams()
+    flock, task = flock if flock is not None else FlockParams(), ShepherdParams()
     sels = {"strombom": StrombomSelector(), "learned": make_selector("learned", selector_file)}
     eps = {name: [run_episode(s, sel, flock, task) for s in range(first_seed, first_seed + seeds)]
            for name, sel in sels.items()}  # fmt: skip
@@ -125,15 +125,36 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="the learned selector (default: the kept selector.json)",
     )
+    ap.add_argument(
+        "--agents",
+        type=int,
+        default=FlockParams().n,
+        help="flock size N (the learned selector was fitted on N = 10 only)",
+    )
+    ap.add_argument(
+        "--neighbours",
+        type=int,
+        default=None,
+        help="agents in each one's local centre of mass (default: FlockParams' 6 for N = 10, "
+        "N - 1 for other N: 6 lets a larger flock split)",
+    )
     a = ap.parse_args(argv)
-    if a.seeds < 1:
-        print("--seeds must be >= 1", file=sys.stderr)
+    if a.seeds < 1 or a.agents < 2:
+        print("--seeds must be >= 1 and --agents >= 2", file=sys.stderr)
         return 2
+    d = FlockParams()
+    nb = (
+        a.neighbours
+        if a.neighbours is not None
+        else (d.neighbours if a.agents == d.n else a.agents - 1)
+    )
     try:
-        rows = run(a.seeds, a.first_seed, a.out, a.selector_file)
+        flock = FlockParams(n=a.agents, neighbours=nb)
+        rows = run(a.seeds, a.first_seed, a.out, a.selector_file, flock)
     except ValueError as e:
         print(str(e), file=sys.stderr)
         return 2
+    print(f"flock: N = {flock.n}, {flock.neighbours} neighbours")
     print(table(rows))
     print(f"written: {a.out}/table.md, episodes.csv, shepherd_study.png")
     return 0
