@@ -79,7 +79,7 @@ def _tlog_cut(link) -> list[dict]:
 def add_arguments(
     parser,
     standalone: bool = True,
-    missions: tuple[str, ...] = ("groundair", "square", "formation", "orbit"),
+    missions: tuple[str, ...] = ("groundair", "square", "formation", "orbit", "shepherd"),
 ) -> None:
     if standalone:
         parser.add_argument(
@@ -161,8 +161,15 @@ def add_arguments(
         "--mission", choices=list(missions), default="groundair",
         help="groundair: keep the UGVs in view behind the safety net; square: fly a square"
         + ("; formation: K vehicles fly the SQL-SIE plan to their targets" if "formation" in missions else "")
-        + ("; orbit: a fixed-wing orbits the team, camera on a pointed gimbal" if "orbit" in missions else ""),
+        + ("; orbit: a fixed-wing orbits the team, camera on a pointed gimbal" if "orbit" in missions else "")
+        + ("; shepherd: herd the UGV flock (--ugvs flock) into the goal region (docs/shepherding.md)"
+           if "shepherd" in missions else ""),
     )  # fmt: skip
+    if "shepherd" in missions:
+        parser.add_argument("--shepherd-selector", choices=["learned", "strombom"], default="learned",
+                            help="--mission shepherd: the high-level selector between collect and drive: learned "
+                            "(policy/shepherd/selector.json, fitted to Strömbom's demonstrations) or strombom "
+                            "(the hand-written rule)")  # fmt: skip
     parser.add_argument(
         "--pilot",
         type=pilot_choice,
@@ -171,6 +178,10 @@ def add_arguments(
         "drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. "
         "drill:lateral-fence with --envelope safety/envelopes/quadrotor_field.toml",
     )
+    parser.add_argument("--lost-ugv-search", action="store_true",
+                        help="groundair: when a UGV leaves the view, search for it (dead reckoning from its last "
+                        "sighting, climbing toward the ceiling, expanding square: mission/search.py) instead of "
+                        "leaving it to the pilot")  # fmt: skip
     parser.add_argument(
         "--policy",
         default=None,
@@ -219,6 +230,8 @@ def build_mission(args, run_dir: Path | None):
     if args.mission == "orbit":
         return _orbit_mission(args, run_dir)
     try:
+        if args.mission == "shepherd":
+            return _shepherd_mission(args, run_dir)
         if args.mission == "square":
             if not (0 < altitude <= 120 and 0 < args.side <= 500):
                 raise ValueError("--altitude must be in (0, 120] m and --side in (0, 500] m")
@@ -237,6 +250,12 @@ def build_mission(args, run_dir: Path | None):
                 pilot = drill_pilot(args.pilot, net.spec)
                 plan = FlightPlan(altitude_m=altitude, duration_s=args.duration, decision_s=0.1)
             perception = Perception(task)
+            if getattr(args, "lost_ugv_search", False) and not args.pilot.startswith("drill:"):
+                from mission.search import SearchPilot
+                from policy.search.lost import LostSearch
+
+                pilot = SearchPilot(pilot, perception, LostSearch(None, task), net.spec.limits,
+                                    net.spec.dynamics.tau_s)  # fmt: skip
     except ValueError as e:
         raise UsageError(str(e)) from None
     record = Record(
@@ -245,6 +264,44 @@ def build_mission(args, run_dir: Path | None):
     )
     return SingleVehicleMission(pilot, net, plan, record, perception,
                                 getattr(args, "configure_autopilot", False), _say), plan  # fmt: skip
+
+
+SHEPHERD_ALTITUDE_M = 12.0
+"""--mission shepherd: the default altitude above home [m] (the flock feels the UAV's
+horizontal position only; low enough for the camera to show the flock's part under it)."""
+
+
+def _shepherd_mission(args, run_dir: Path | None):
+    """The shepherd (mission/shepherd.py) behind the ground-air envelope's net; its flock reader
+    is attached once the Zenoh session is open (`attach_flock`)."""
+    from mission.flight import FlightPlan, Record, SingleVehicleMission
+    from mission.shepherd import ShepherdPilot
+    from policy.shepherd.selector import make_selector
+    from runio import CsvWriter
+
+    altitude = SHEPHERD_ALTITUDE_M if args.altitude is None else args.altitude
+    plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
+    net = _load_net(args.envelope, run_dir)
+    spec = net.spec
+    pilot = ShepherdPilot(make_selector(args.shepherd_selector), lambda t: None, altitude, spec.limits,
+                          spec.dynamics.tau_s)  # fmt: skip
+    record = Record(
+        decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
+        track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
+    )
+    return SingleVehicleMission(pilot, net, plan, record, None), plan
+
+
+def attach_flock(session, mission) -> object:
+    """The shepherd reads the flock's reports (skyherd/ugv/<id>/state) on `session`; returns
+    the subscriber (closed with the session)."""
+    from groundsim.flock import FlockParams
+    from groundsim.transport import UGVStateSubscriber
+    from mission.shepherd import flock_reader
+
+    sub = UGVStateSubscriber(session)
+    mission.pilot.flock = flock_reader(sub, FlockParams().n)
+    return sub
 
 
 def pilot_choice(value: str) -> str:
@@ -417,7 +474,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(e)) from None
     if not 0 < args.duration <= 36000:
         raise UsageError("--duration must be in (0, 36000] s")
-    use_camera = args.mission == "groundair" and not args.no_camera
+    if args.mission == "shepherd" and args.no_camera:
+        raise UsageError(
+            "--mission shepherd reads the flock on the simulator's Zenoh session: drop --no-camera"
+        )
+    use_camera = args.mission in ("groundair", "shepherd") and not args.no_camera
     if args.mission == "orbit":
         use_camera = not args.no_camera
     if args.mission == "formation" and args.plan is None:
@@ -448,6 +509,8 @@ def run(args: argparse.Namespace) -> int:
     if use_camera:
         session, frames = open_frames(args)
         _publish_live(session, mission)
+        if args.mission == "shepherd":
+            attach_flock(session, mission)
         from mission.companion import LoggedFrames
         from runio import CsvWriter
 
