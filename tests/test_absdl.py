@@ -68,7 +68,7 @@ def test_shielded_demonstrations_differ_where_the_net_acts():
     assert with_shield.stats.changed >= 5 and with_shield.stats.decisions == 960
     assert without.stats.decisions == 0
     (xs, ys), (xu, yu) = with_shield.arrays(), without.arrays()
-    assert xs.shape == (960, 14) and not np.allclose(ys, yu)
+    assert xs.shape == xu.shape == (960, 14) and not np.allclose(ys, yu)
 
 
 def test_demonstrator_delay_noise_and_axes():
