@@ -12,17 +12,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-
-def build(obs_dim: int, out_dim: int, hidden: tuple[int, ...]):
-    import torch.nn as nn
-
-    layers: list = []
-    d = obs_dim
-    for h in hidden:
-        layers += [nn.Linear(d, h), nn.ReLU()]
-        d = h
-    layers.append(nn.Linear(d, out_dim))
-    return nn.Sequential(*layers)
+from policy.dqn import build_qnet
 
 
 def fit(
@@ -42,7 +32,7 @@ def fit(
 
     torch.set_num_threads(num_threads)
     torch.manual_seed(seed)
-    net = build(x.shape[1], y.shape[1], hidden)
+    net = build_qnet(x.shape[1], y.shape[1], hidden)  # the same MLP as the DQN's
     opt = torch.optim.Adam(net.parameters(), lr=lr, weight_decay=weight_decay)
     xt = torch.from_numpy(np.asarray(x, np.float32))
     yt = torch.from_numpy(np.asarray(y, np.float32))
