@@ -51,6 +51,12 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "abs-dl") -> N
     )  # fmt: skip
     parser.add_argument("--ab-policy", type=Path, default=DEFAULT_POLICY,
                         help="the discrete AB policy to compare with")  # fmt: skip
+    parser.add_argument(
+        "--demos", type=Path, default=None,
+        help="folder of recorded demonstrations <scenario>.npz (lateral, climb, descend, "
+        "composite; e.g. from skyherd teleop, keyboard or MANUAL_CONTROL) used instead of the "
+        "scripted demonstrator for the networks they name (default: none)",
+    )  # fmt: skip
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run folders go")
     parser.add_argument("--save-policy", type=Path, default=None,
                         help="also copy the fused ABS-DL policy to this file")  # fmt: skip
@@ -95,14 +101,50 @@ def run(args: argparse.Namespace) -> int:
         ab = load_policy(args.ab_policy)
     except PolicyFileError as e:
         raise UsageError(f"{e}; pass --ab-policy FILE (a `skyherd train ab` policy)") from None
+    recorded = _recorded(args.demos)
     print(f"skyherd train abs-dl: {p}")
+    if recorded:
+        print(f"recorded demonstrations: {', '.join(sorted(recorded))} from {args.demos}")
     with RunFolder.open("train-abs-dl", args, root=args.runs_dir) as run:
         run.config(params=dataclasses.asdict(p))
         print(f"run folder: {run.path}")
-        return _train(run, args, p, ab)
+        if recorded:
+            from runio import file_facts
+
+            run.config(demo_files={n: file_facts(args.demos / f"{n}.npz") for n in recorded})
+        return _train(run, args, p, ab, recorded)
 
 
-def _train(run, args, p, ab) -> int:
+def _recorded(folder: Path | None) -> dict:
+    """Network name → recorded Demonstration from FOLDER/<name>.npz (UsageError on bad files)."""
+    if folder is None:
+        return {}
+    from policy.absdl.train import NETWORKS
+    from policy.demos import DemoFileError, load_demo
+
+    out = {}
+    for name in NETWORKS:
+        path = folder / f"{name}.npz"
+        if not path.exists():
+            continue
+        try:
+            demo = load_demo(path)
+        except DemoFileError as e:
+            raise UsageError(
+                f"{e}; record it again with `skyherd teleop --scenario {name}`"
+            ) from None
+        if demo.meta["scenario"] != name:
+            raise UsageError(
+                f"{path} records the {demo.meta['scenario']!r} scenario, not {name!r}: rename it"
+            )
+        out[name] = demo
+    if not out:
+        raise UsageError(f"--demos {folder}: no lateral.npz, climb.npz, descend.npz or composite.npz; "
+                         "record one with `skyherd teleop --scenario lateral --out DIR/lateral.npz`")  # fmt: skip
+    return out
+
+
+def _train(run, args, p, ab, recorded) -> int:
     import numpy as np
     from tqdm import tqdm
 
@@ -113,14 +155,14 @@ def _train(run, args, p, ab) -> int:
 
     variants = [p] + ([dataclasses.replace(p, shield=False)] if args.shield_comparison else [])
     n_eval = 4 + (1 if args.shield_comparison else 0)
-    total = sum(work_units(v) for v in variants) + n_eval * p.eval_episodes
+    total = sum(work_units(v, recorded) for v in variants) + n_eval * p.eval_episodes
     bar = run.closing(tqdm(total=total, desc="abs-dl", unit="step", disable=None))
 
     def tick(what: str) -> None:
         bar.set_postfix_str(what, refresh=False)
         bar.update(1)
 
-    results = [train(v, tick) for v in variants]
+    results = [train(v, tick, recorded) for v in variants]
     res = results[0]
     fused_path, base_path = run.file("absdl_fused.npz"), run.file("composite_baseline.npz")
     res.fused.save(fused_path)
@@ -186,6 +228,8 @@ def _train(run, args, p, ab) -> int:
         f"\nSamples per network (demos + DAgger): {res.samples}",
         f"\nParameters: `{p}`",
     ]
+    if recorded:
+        lines.insert(-1, f"\nRecorded demonstrations (no DAgger): {', '.join(sorted(recorded))}")
     text = "\n".join(lines)
     run.summary(text)
     print(text)

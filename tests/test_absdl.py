@@ -160,3 +160,33 @@ def test_wrong_shape_policy_refused_before_take_off(small, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "10 inputs" in err and "skyherd train abs-dl" in err
     assert not runs.exists() or not any(runs.iterdir())
+
+
+def test_recorded_demonstrations_train_their_network(tmp_path, capsys):
+    """A recorded demonstration (the skyherd-demo format `skyherd teleop` writes, keyboard or
+    MANUAL_CONTROL; here the discrete scripted expert records it) replaces the scripted
+    demonstrator for its network: every recorded row becomes one training sample, judged by the
+    net at its recorded state."""
+    from policy.absdl.demos import from_recording
+    from policy.demos import record, scripted_expert
+
+    demo = record("lateral", scripted_expert("lateral"), 2, 500, "scripted")
+    data = from_recording(demo, shield=True)
+    x, y = data.arrays()
+    assert len(x) == len(demo.actions) == data.stats.decisions
+    assert np.allclose(x, demo.obs, atol=1e-6)  # replayed states are the recorded ones
+    rows = np.array([action_velocity_ned(int(a)) for a in demo.actions])
+    changed = np.any(np.abs(y - rows) > 1e-9, axis=1).sum()
+    assert changed == data.stats.changed  # a target differs from its row only where the net acted
+    folder = tmp_path / "demos"
+    folder.mkdir()
+    demo.save(folder / "lateral.npz")
+    args = ["train", "abs-dl", "--demos", str(folder), "--demo-episodes", "2", "--epochs", "2",
+            "--dagger-rounds", "0", "--eval-episodes", "2", "--no-shield-comparison",
+            "--runs-dir", str(tmp_path / "runs")]  # fmt: skip
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "recorded demonstrations: lateral" in out and "'lateral': 240" in out
+    (folder / "climb.npz").write_bytes(b"not a demo")
+    assert main(args) == 2
+    assert "skyherd teleop --scenario climb" in capsys.readouterr().err

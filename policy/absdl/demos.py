@@ -115,3 +115,39 @@ def dagger(
         if on_episode is not None:
             on_episode()
     return data
+
+
+def from_recording(demo, shield: bool, on_episode=None) -> DataSet:
+    """A recorded demonstration (policy.demos format skyherd-demo/1: `skyherd teleop` from the
+    keyboard or MAVLink MANUAL_CONTROL, or any recorder) as continuous training data: each
+    episode is replayed with its seed and recorded actions (the file's states), each action's
+    velocity row (action_velocity_ned) is the command, and with the shield its target is what
+    the net certifies at the recorded state."""
+    from policy.groundair.params import action_velocity_ned
+
+    env = ContinuousGroundAirEnv(demo.meta["scenario"])
+    uav = env.task.uav
+    sh = Shield() if shield else None
+    data = DataSet()
+    dt = env.task.dt_s
+    for k, seed in enumerate(demo.meta["episode_seeds"]):
+        idx = np.flatnonzero(demo.episode == k)
+        if not len(idx):
+            continue
+        o, _ = env.reset(seed=int(seed))
+        if sh is not None:
+            sh.reset()
+        obs, target = [], []
+        for i, j in enumerate(idx):
+            v = np.array(action_velocity_ned(int(demo.actions[j]), uav))
+            c = sh.certify(i * dt, env.uav_state(), v)[0] if sh is not None else v
+            obs.append(o)
+            target.append(c)
+            o, *_ = env.step(v)
+        data.obs.append(np.array(obs))
+        data.target.append(np.array(target))
+        if on_episode is not None:
+            on_episode()
+    if sh is not None:
+        data.stats = sh.stats
+    return data

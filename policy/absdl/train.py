@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from policy.absdl.demonstrator import SUBTASKS, Demonstrator
-from policy.absdl.demos import DataSet, collect, dagger
+from policy.absdl.demos import DataSet, collect, dagger, from_recording
 from policy.absdl.env import velocity_limits
 from policy.absdl.mlp import fit
 from policy.absdl.params import AbsdlParams
@@ -45,14 +45,23 @@ def _seeds(p: AbsdlParams, k: int, n: int, round_: int = -1) -> list[int]:
     return seeds
 
 
-def work_units(p: AbsdlParams) -> int:
+def work_units(p: AbsdlParams, recorded: dict | None = None) -> int:
     """Episodes + fits the progress bar counts."""
+    recorded = recorded or {}
     per_net = p.demo_episodes + p.dagger_rounds * p.dagger_episodes + (1 + p.dagger_rounds)
-    return len(NETWORKS) * per_net
+    own = sum(per_net for n in NETWORKS if n not in recorded)
+    return own + sum(d.n_episodes + 1 for d in recorded.values())
 
 
-def train(p: AbsdlParams, tick: Callable[[str], None] | None = None) -> TrainResult:
-    """Train the four networks; `tick(what)` after each episode and each fit."""
+def train(
+    p: AbsdlParams, tick: Callable[[str], None] | None = None, recorded: dict | None = None
+) -> TrainResult:
+    """Train the four networks; `tick(what)` after each episode and each fit.
+
+    recorded: network name → a recorded demonstration (policy.demos.Demonstration of that
+    scenario, e.g. from `skyherd teleop`) used instead of the scripted demonstrator; a recorded
+    network gets no DAgger rounds (nobody to label the learner's states)."""
+    recorded = recorded or {}
     tick = tick or (lambda what: None)
     np.random.seed(p.seed)
     limits = velocity_limits()
@@ -69,6 +78,14 @@ def train(p: AbsdlParams, tick: Callable[[str], None] | None = None) -> TrainRes
     out = TrainResult(None, None)  # type: ignore[arg-type]
     for k, name in enumerate(NETWORKS):
         demo = Demonstrator(name, p.demonstrator(noisy=True), task, limits)
+        if name in recorded:
+            data = from_recording(recorded[name], p.shield, lambda name=name: tick(name))
+            out.demo_shield[name] = data.stats
+            out.losses[name] = []
+            res_nets[name] = _fit(p, data, scale, k, out.losses[name])
+            out.samples[name] = len(data)
+            tick(name)
+            continue
         data = collect(
             name, demo, _seeds(p, k, p.demo_episodes), p.shield, lambda name=name: tick(name)
         )
