@@ -175,7 +175,9 @@ def add_arguments(
         "--policy",
         default=None,
         metavar="FILE",
-        help="policy file (default: the one the repository keeps)",
+        help="policy file: discrete (skyherd train ab / irl / educate) or the deep continuous "
+        "ABS-DL policy (skyherd train abs-dl, e.g. policy/models/groundair_absdl.npz) "
+        "(default: the discrete AB policy the repository keeps)",
     )
     parser.add_argument(
         "--envelope", default=None, metavar="FILE", help="constraint-set TOML of the safety net"
