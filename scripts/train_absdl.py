@@ -152,9 +152,10 @@ def _train(run, args, p, ab, recorded) -> int:
     from policy.absdl.demonstrator import Demonstrator
     from policy.absdl.evaluate import discrete_actor, evaluate, within
     from policy.absdl.train import train, work_units
+    from policy.demos import scripted_expert
 
     variants = [p] + ([dataclasses.replace(p, shield=False)] if args.shield_comparison else [])
-    n_eval = 4 + (1 if args.shield_comparison else 0)
+    n_eval = 5 + (1 if args.shield_comparison else 0)
     total = sum(work_units(v, recorded) for v in variants) + n_eval * p.eval_episodes
     bar = run.closing(tqdm(total=total, desc="abs-dl", unit="step", disable=None))
 
@@ -177,14 +178,16 @@ def _train(run, args, p, ab, recorded) -> int:
 
     seeds = range(p.eval_seed, p.eval_seed + p.eval_episodes)
     expert = Demonstrator("composite", p.demonstrator(noisy=False))
+    dexp = scripted_expert("composite")  # the discrete AB's demonstrator, without imperfection
     actors = [
         ("expert (PD, noise-free)", expert, lambda s: expert.reset(np.random.default_rng(s))),
         ("ABS-DL (sub-task demos, fused)", res.fused, None),
         ("composite-demo network", res.baseline, None),
         ("discrete AB (kept file)", discrete_actor(ab), None),
+        ("discrete scripted expert", discrete_actor(dexp), None),
     ]
     if args.shield_comparison:
-        actors.append(("ABS-DL trained without shield", results[1].fused, None))
+        actors.insert(4, ("ABS-DL trained without shield", results[1].fused, None))
     scores = [evaluate(n, a, seeds, r, lambda: tick("evaluate")) for n, a, r in actors]
     bar.close()
     report.plot_scores(scores, run.file("scores.png"))
