@@ -190,3 +190,16 @@ def test_recorded_demonstrations_train_their_network(tmp_path, capsys):
     (folder / "climb.npz").write_bytes(b"not a demo")
     assert main(args) == 2
     assert "skyherd teleop --scenario climb" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_kept_policy_is_what_the_defaults_train():
+    """policy/models/groundair_absdl.npz is `skyherd train abs-dl` with the defaults: training
+    again gives the same weights (float32 on disk)."""
+    kept = load_policy(ABSDL_POLICY)
+    assert kept.meta["params"] == json.loads(json.dumps(dataclasses.asdict(AbsdlParams())))
+    again = train(AbsdlParams()).fused
+    for name in ("lateral", "climb", "descend"):
+        for a, b in zip(again.nets[name][0] + again.nets[name][1],
+                        kept.nets[name][0] + kept.nets[name][1]):  # fmt: skip
+            assert np.array_equal(a.astype(np.float32), b.astype(np.float32))
