@@ -186,7 +186,9 @@ def add_arguments(
         "--policy",
         default=None,
         metavar="FILE",
-        help="policy file (default: the one the repository keeps)",
+        help="policy file: discrete (skyherd train ab / irl / educate) or the deep continuous "
+        "ABS-DL policy (skyherd train abs-dl, e.g. policy/models/groundair_absdl.npz) "
+        "(default: the discrete AB policy the repository keeps)",
     )
     parser.add_argument(
         "--envelope", default=None, metavar="FILE", help="constraint-set TOML of the safety net"
@@ -378,6 +380,13 @@ def _load_policy(path):
         policy = load_policy(path or DEFAULT_POLICY)
     except PolicyFileError as e:
         raise UsageError(f"{e}; train one with `skyherd train ab` or pass --policy") from None
+    if getattr(policy, "continuous", False):  # a deep velocity policy (skyherd train abs-dl)
+        shape = (getattr(policy, "obs_dim", None), getattr(policy, "act_dim", None))
+        if shape != (OBS_DIM, 3):
+            raise UsageError(f"{path}: the deep policy takes {shape[0]} inputs and gives {shape[1]} "
+                             f"velocity components; the ground-air task has {OBS_DIM} inputs and a "
+                             "3-component NED velocity: pass a policy from `skyherd train abs-dl`")  # fmt: skip
+        return policy
     shape = (getattr(policy, "obs_dim", None), getattr(policy, "n_actions", None))
     if shape != (OBS_DIM, N_ACTIONS):
         raise UsageError(f"{path or DEFAULT_POLICY}: the policy takes {shape[0]} inputs and gives "

@@ -241,9 +241,10 @@ class GroundAirEnv(gym.Env):
         return self.step_velocity(self._cmds[a])
 
     def step_velocity(self, cmd_ned):
-        """One step with a velocity command (north, east, down) [m/s] instead of a discrete
-        action (a pilot that is not the policy, e.g. policy.search; the caller keeps it within
-        the envelope's limits). Same model and returns as `step`."""
+        """One step with the commanded velocity (north, east, down) [m/s] held for dt: the one
+        way the UAV moves (a discrete action is its row of `action_velocity_ned`; continuous
+        actions, policy.absdl.env, and other pilots, e.g. policy.search, pass their own
+        command). The caller keeps it within the envelope's limits. Same returns as `step`."""
         cn, ce, cd = (float(x) for x in cmd_ned)
         if not all(math.isfinite(x) for x in (cn, ce, cd)):
             raise ValueError(f"velocity command must be finite, got {cmd_ned}")
