@@ -81,6 +81,13 @@ class UGVStateSubscriber:
                 self.latest[i] = rec
             self.received += 1
 
+    def oldest_stamp(self, n_ugv: int) -> float:
+        """The oldest newest-report time [s] among UGVs 0..n−1 (−inf while one never reported)."""
+        with self._lock:
+            return min(
+                (self.latest[i]["t_sim"] if i in self.latest else -math.inf) for i in range(n_ugv)
+            )
+
     def states(self, n_ugv: int) -> UGVStates | None:
         """The newest states of UGVs 0..n−1 as UGVStates, or None until all have reported."""
         with self._lock:

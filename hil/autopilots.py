@@ -259,6 +259,9 @@ class AutopilotProfile:
     params: ParamNames
     ai_mode: FlightMode = FlightMode.OFFBOARD  # the mode the AI flies in
     fallback_mode: FlightMode = FlightMode.HOLD  # position hold with no pilot
+    # the documented end of a mission that lands: None = landed and disarmed; else the vehicle
+    # is left armed in the air in this mode (ArduPlane: RTL, it has no LAND mode)
+    end_mode: FlightMode | None = None
     version: str = ""  # from AUTOPILOT_VERSION, e.g. "4.7.0"
     ready_timeout_s: float = 120.0  # [s autopilot time] for heartbeat, position and home
     position_rate_hz: float = 12.5  # LOCAL_POSITION_NED / attitude stream [Hz]
@@ -490,6 +493,7 @@ class ArduPlaneProfile(AutopilotProfile):
     name: str = "ArduPlane"
     personality: Personality = Personality.ARDUPILOT
     vehicle: str = "fixedwing"
+    end_mode: FlightMode | None = FlightMode.RTL
     params: ParamNames = PLANE_PARAMS
     setpoint_frame: str = "reposition"
     setpoint_min_interval_s: float = 1.0  # each DO_REPOSITION is a new guided waypoint

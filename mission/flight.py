@@ -19,6 +19,7 @@ import numpy as np
 
 from flight.autopilot_api import FlightMode, Setpoint
 from mission.authority import ModeAuthority
+from mission.configure import Change, configure
 from mission.pilots import DescentPilot, Observation, Pilot, Proposal
 from mission.steps import MissionError, Phase, read_params, recipe, wait_ready, wait_until
 from mission.vehicle import VehicleLink
@@ -91,8 +92,13 @@ class SingleVehicleMission:
     """connect → arm → take off → hand over → pilot behind the net → land."""
 
     def __init__(self, pilot: Pilot, net: SafetyNet | None, plan: FlightPlan, record: Record,
-                 perception=None):  # fmt: skip
+                 perception=None, configure_autopilot: bool = False, say=None):  # fmt: skip
         self.pilot, self.net, self.plan, self.rec = pilot, net, plan, record
+        self.configure_autopilot = (
+            configure_autopilot  # set what the envelope requires (mission.configure)
+        )
+        self.configured: list[Change] = []  # ... and what it set
+        self.say = say  # a line for the operator (stderr), or None
         self.perception = perception  # mission.perception.Perception or None (no camera)
         self.authority = ModeAuthority(net.authority if net is not None else Authority())
         self.phase = "connect"
@@ -100,6 +106,7 @@ class SingleVehicleMission:
         self.reason = ""
         self.t_decision: float | None = None
         self.landing_note = ""  # how the landing went, when not as planned
+        self.end_mode = ""  # the profile's documented end when it does not land ("" = landed)
         self.pending: Proposal | None = None
         self._written = 0
         self.name = pilot.name
@@ -125,10 +132,20 @@ class SingleVehicleMission:
             yield from read_params(v)
             self.net.load_params(v.t, v.params)
             v.param_updates.clear()
+            if self.configure_autopilot and not self.net.handover_ok()[0]:
+                self.phase = "configure"
+                yield from configure(v, self.net, self.configured, self.say)
+                self.net.load_params(v.t, v.params)
+                v.param_updates.clear()
             ok, why = self.net.handover_ok()
             if not ok:
+                hint = (
+                    ""
+                    if self.configure_autopilot
+                    else " (or let the companion set them: --configure-autopilot)"
+                )
                 raise MissionError(
-                    f"refusing to take off: the autopilot's parameters disagree with the envelope: {why}"
+                    f"refusing to take off: the autopilot's parameters disagree with the envelope: {why}{hint}"
                 )
         if self.net is not None:  # the take-off column, certified before the take-off
             ok, why = self.net.certify_column(v.tel.pos_ned, plan.altitude_m)
@@ -167,6 +184,7 @@ class SingleVehicleMission:
             v.setpoint = Setpoint(pos_ned=v.tel.pos_ned.copy(), yaw=0.0)
             yield from recipe(v, prof.land_steps())
             yield from recipe(v, prof.end_steps())
+            self.end_mode = prof.end_mode.name if prof.end_mode else ""
         self.outcome = "completed"
 
     def _descend(self, v: VehicleLink) -> Phase:

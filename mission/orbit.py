@@ -46,7 +46,14 @@ from hil.telemetry import reposition_command
 from mission.authority import ModeAuthority
 from mission.flight import Record, append_track
 from mission.onboard import CameraFrame
-from mission.steps import MissionError, Phase, read_params, recipe, wait_ready
+from mission.steps import (
+    MissionError,
+    Phase,
+    read_params,
+    recipe,
+    set_param_checked,
+    wait_ready,
+)
 from mission.vehicle import VehicleLink
 from perception.camera import backproject_to_ground
 from perception.detector import Detector, annotate
@@ -140,6 +147,7 @@ class OrbitMission:
         self.centre = np.asarray(briefing.rendezvous_ne, float)  # the certified orbit centre
         self.phase = "connect"
         self.outcome, self.reason = "running", ""
+        self.end_mode = ""  # the profile's documented end when it does not land ("" = landed)
         self.t_decision: float | None = None
         self.t_established: float | None = None
         self.t_handover: float | None = None
@@ -179,7 +187,7 @@ class OrbitMission:
         self.phase = "loiter radius"
         self.loiter_setting = prof.loiter_radius_setting(self.plan.radius_m,
                                                          v.home_amsl_m + self.plan.altitude_m)  # fmt: skip
-        yield from self._set_param(v, prof.param_name("loiter_radius"), self.loiter_setting)
+        yield from set_param_checked(v, prof.param_name("loiter_radius"), self.loiter_setting)
         self.phase = "takeoff"
         yield from recipe(v, prof.takeoff_steps(f.takeoff_alt_m, v.home_amsl_m))
         self.phase = "climb-out"
@@ -217,6 +225,7 @@ class OrbitMission:
             self.phase = "land"
             yield from recipe(v, prof.land_steps())
             yield from recipe(v, prof.end_steps())
+            self.end_mode = prof.end_mode.name if prof.end_mode else ""
         self.outcome = "completed"
 
     def _trim_radius(self, v: VehicleLink) -> None:
@@ -293,7 +302,7 @@ class OrbitMission:
         self.guard.load(v.t, v.params)
         v.param_updates.clear()  # the list just read, and the loiter radius's echo
         for name, value in agreeing_values(self.guard.spec, self.guard.params).items():
-            yield from self._set_param(v, name, value)
+            yield from set_param_checked(v, name, value)
         self._read_param_updates(v)
         ok, why = self.guard.handover()
         if not ok:
@@ -306,20 +315,6 @@ class OrbitMission:
         for t_p, name, value in v.param_updates:
             self.guard.update(t_p, name, value)
         v.param_updates.clear()
-
-    def _set_param(self, v: VehicleLink, name: str, value: float) -> Phase:
-        """PARAM_SET until the PARAM_VALUE echo shows it (3 tries, 1 s apart)."""
-        for _ in range(3):
-            v.params.pop(name, None)
-            v.send(M.MAVLink_param_set_message(v.target_system or 1, 1, name.encode("ascii"),
-                                               float(value), M.MAV_PARAM_TYPE_REAL32))  # fmt: skip
-            t0 = v.t
-            while v.t - t0 < 1.0:
-                got = v.params.get(name)
-                if got is not None and abs(got - value) <= 1e-3 * max(1.0, abs(value)):
-                    return
-                yield
-        raise MissionError(f"the autopilot did not take {name} = {value:g}")
 
     # ---- the climb-out -------------------------------------------------------------------------
     def _climb_out(self, v: VehicleLink) -> Phase:

@@ -28,12 +28,14 @@ class Perception:
         self.camera_t: float | None = None  # tick time of the last good frame [s]
         self.counts = {"ok": 0, "corrupt": 0, "lost": 0}
         self.strip: list[tuple[float, np.ndarray]] = []
+        self.last = None  # (CameraFrame, Detections) of the last good frame (mission.search)
 
     def on_frame(self, t: float, frame: CameraFrame | None, status: str) -> None:
         self.counts[status] = self.counts.get(status, 0) + 1
         if frame is None:
             return
         det = self.detector.detect(frame.image)
+        self.last = (frame, det)
         self.phi = self.detector.features(det, frame.altitude_m)
         self.camera_t = t
         if not self.strip or t >= self.strip[-1][0] + STRIP_EVERY_S:

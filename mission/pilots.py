@@ -50,7 +50,9 @@ class Pilot(Protocol):
 
 @dataclass
 class PolicyPilot:
-    """A learned policy: observation → discrete action → NED velocity, exactly as in training."""
+    """A learned policy: observation → discrete action → NED velocity, exactly as in training.
+    A continuous policy (`policy.continuous`, policy.absdl) gives the NED velocity [m/s] itself;
+    its explanation names the sub-skill network that decided and its weight."""
 
     policy: Callable[[np.ndarray], int]
     task: TaskParams
@@ -58,6 +60,10 @@ class PolicyPilot:
     name: str = "policy"
 
     def propose(self, o: Observation) -> Proposal:
+        if getattr(self.policy, "continuous", False):
+            why = self.policy.explain(o.obs)
+            vel = np.array(why["command_ned_mps"], dtype=float)
+            return Proposal(Setpoint(vel_ned=vel, yaw=self.yaw), -1, why)
         a = int(self.policy(o.obs))
         explain = getattr(self.policy, "explain", None)
         why = explain(o.obs) if callable(explain) else None

@@ -241,6 +241,22 @@ def _arm(v: VehicleLink) -> Phase:
     yield from wait_until(v, lambda: v.tel.armed, 5.0, "armed")
 
 
+def set_param_checked(v: VehicleLink, name: str, value: float, tries: int = 3,
+                      wait_s: float = 1.0) -> Phase:  # fmt: skip
+    """PARAM_SET until the PARAM_VALUE echo shows it (`tries` times, `wait_s` of the
+    autopilot's time apart); a MissionError when it never does."""
+    for _ in range(tries):
+        v.params.pop(name, None)
+        _set_param(v, name, value)
+        t0 = v.t
+        while v.t - t0 < wait_s:
+            got = v.params.get(name)
+            if got is not None and abs(got - value) <= 1e-3 * max(1.0, abs(value)):
+                return
+            yield
+    raise MissionError(f"the autopilot did not take {name} = {value:g}")
+
+
 def _set_param(v: VehicleLink, name: str, value: float) -> None:
     v.send(M.MAVLink_param_set_message(v.target_system or 1, 1, name.encode("ascii"), float(value),
                                        M.MAV_PARAM_TYPE_REAL32))  # fmt: skip

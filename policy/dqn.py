@@ -321,7 +321,8 @@ def load_policy(path: str | os.PathLike) -> MLPPolicy:
     """Load a `.npz` policy file → callable(obs) → action. Raises PolicyFileError on bad files.
 
     An educated modular policy (policy.education.modular) loads as a ModularPolicy: the same
-    callable, plus `explain(obs)`.
+    callable, plus `explain(obs)`. An ABS-DL policy (policy.absdl.policy) loads as an
+    AbsdlPolicy: callable(obs) → a velocity command (3,), `continuous` True, `explain(obs)`.
     """
     path = Path(path)
     try:
@@ -331,6 +332,10 @@ def load_policy(path: str | os.PathLike) -> MLPPolicy:
                 from policy.education.modular import from_arrays
 
                 return from_arrays(z, meta)
+            if meta.get("format") == "skyherd-absdl-policy/1":  # continuous, explains
+                from policy.absdl.policy import from_arrays as absdl_from_arrays
+
+                return absdl_from_arrays(z, meta)
             n = sum(1 for k in z.files if k.startswith("W"))
             weights = [z[f"W{k}"] for k in range(n)]
             biases = [z[f"b{k}"] for k in range(n)]

@@ -33,4 +33,6 @@ def open_recording(path, foxglove_port: int | None = None, **mcap_options) -> Fl
     if foxglove_port is None:
         return FlightRecorder(path, **mcap_options)
     live = LiveServer(foxglove_port)
-    return FlightRecorder(path, also=[live], **mcap_options)
+    rec = FlightRecorder(path, also=[live], **mcap_options)
+    rec.advertise()  # the live view shows every channel before the first message
+    return rec

@@ -8,6 +8,8 @@
     log.ugvs(t, states)                       UGV states (list of dicts or a UGVStates)
     log.geometry(t, spec_or_polylines)        fence and envelope as lines
     log.clock(t)                              simulation time
+    log.advertise(vehicle)                    open every channel now (a live view shows them all
+                                              before the flight's first message)
 
 Every time t is simulation time [s]. A FlightLog writes to one or more sinks (an MCAP file, a
 Foxglove WebSocket server): anything with `channel(spec) -> handle` and
@@ -64,6 +66,23 @@ class FlightLog:
         self._last_pos: dict[str, np.ndarray] = {}
         self._lock = threading.Lock()  # Zenoh callbacks arrive on several threads
         self.closed = False
+        self._events: dict[str, int] = {}  # vehicle → safety events so far
+
+    def advertise(self, vehicle: str = "uav0") -> None:
+        """Open every channel of `vehicle` and the shared ones now on every sink that serves
+        clients (`advertise_all`: a live view), so a client sees (and can subscribe to) all of
+        them before the flight's first message; a file gets a channel with its first message."""
+        kinds = [(k, vehicle) for k in m.VEHICLE_KINDS] + [(k, "") for k in m.SHARED_KINDS]
+        with self._lock:
+            for kind, v in kinds:
+                spec = m.channel(kind, v or "uav0")
+                for i, s in enumerate(self.sinks):
+                    if (i, spec.topic) in self._handles or not getattr(s, "advertise_all", False):
+                        continue
+                    try:
+                        self._handles[(i, spec.topic)] = s.channel(spec)
+                    except Exception:  # noqa: BLE001 - a recorder never stops a flight
+                        self.errors += 1
 
     # -- plumbing ---------------------------------------------------------------------
     def _emit(self, kind: str, vehicle: str, t: float, data: bytes) -> None:
@@ -129,8 +148,14 @@ class FlightLog:
             self._emit("setpoint_pose", vehicle, t, m.pose_in_frame(t, pos, q).encode())
 
     def event(self, t: float, record: dict[str, Any], *, vehicle: str = "uav0") -> None:
+        """A safety-net event: the event, its log line, and the net's latched state (the
+        newest event, re-sent to a live client that subscribes later)."""
         self._emit("event", vehicle, t, m.json_bytes(record))
         self._emit("log", vehicle, t, m.log_line(t, record, vehicle).encode())
+        n = self._events[vehicle] = self._events.get(vehicle, 0) + 1
+        self._emit(
+            "net_state", vehicle, t, m.json_bytes({"t": t, "events": n, "last_event": record})
+        )
 
     def ugvs(self, t: float, states: Any) -> None:
         self._emit("ugvs", "", t, m.ugv_scene(t, ugv_records(states)).encode())

@@ -58,6 +58,8 @@ class ChannelSpec:
     topic: str
     schema: Schema
     message_encoding: str
+    latched: str = ""  # a live view re-sends to each new subscriber: "all" its messages so
+    # far, "last" the newest, "" nothing (record.live)
 
 
 def _json_schema(name: str, title: str, properties: dict[str, Any]) -> Schema:
@@ -100,7 +102,17 @@ SCHEMAS: dict[str, Schema] = {
     "clock": _json_schema(
         "skyherd.SimClock", "simulation time from the simulator", {"t_sim": {"type": "number"}}
     ),
+    "net_state": _json_schema(
+        "skyherd.NetState",
+        "the safety net's newest event, latched: a live client that joins late gets it",
+        {"t": {"type": "number"}, "events": {"type": "integer"}, "last_event": {"type": "object"}},
+    ),
 }
+
+VEHICLE_KINDS = ("frame", "pose", "setpoint", "setpoint_pose", "log", "phi", "decision", "event",
+                 "net_state")  # fmt: skip
+SHARED_KINDS = ("tf", "ugvs", "geometry", "clock")
+"""Every kind of message: a live view advertises all of them before the flight's first."""
 
 
 def channel(kind: str, vehicle: str = "uav0") -> ChannelSpec:
@@ -117,14 +129,16 @@ def channel(kind: str, vehicle: str = "uav0") -> ChannelSpec:
     }
     if kind in proto:
         topic, cls = proto[kind]
-        return ChannelSpec(topic, cls.get_schema(), "protobuf")
+        latched = "all" if kind == "geometry" else ""  # the fence and the envelope
+        return ChannelSpec(topic, cls.get_schema(), "protobuf", latched)
     topic = {
         "phi": f"/{vehicle}/phi",
         "decision": f"/{vehicle}/decision",
         "event": f"/{vehicle}/safety/event",
+        "net_state": f"/{vehicle}/safety/state",
         "clock": "/sim/clock",
     }[kind]
-    return ChannelSpec(topic, SCHEMAS[kind], "json")
+    return ChannelSpec(topic, SCHEMAS[kind], "json", "last" if kind == "net_state" else "")
 
 
 def json_bytes(record: dict[str, Any]) -> bytes:

@@ -66,6 +66,7 @@ class ZenohRecorder:
             self.log = FlightRecorder(path, also=also, metadata={"vehicle": vehicle},
                                       **mcap_options)  # fmt: skip
             self.path = self.log.path
+        self.log.advertise(vehicle)  # a live view shows every channel before the first message
         self.received: dict[str, int] = {}
         self.corrupt: dict[str, int] = {}
         v = vehicle

@@ -29,7 +29,8 @@ that is true. The rules, each with the parameter names of PX4 and ArduPilot:
      an autopilot allowed to bank further (FW_R_LIM, ROLL_LIMIT_DEG) trips them in its own
      turns (measured: ArduPlane's stock 65° reached 50° returning from a recovery). Its limit
      must keep BANK_OVERSHOOT_DEG below the attitude row.                    (C7)
-     `agreeing_values` gives the values a companion may set to agree (C6, C7).
+     `agreeing_values` gives the values a fixed-wing mission sets by itself to agree (C6, C7);
+     `required_values` every value that agrees (`--configure-autopilot`).
 
 A parameter that is absent is not checked (an autopilot without it); a value that is not
 finite is a mismatch. `ParamGuard` keeps the parameters it has seen and the problems now.
@@ -78,7 +79,7 @@ def check_params(spec: EnvelopeSpec, params: Mapping[str, float],
     if got and not nonfinite(*got):
         n, t_loss = got
         run_on = (t_loss + dyn.dt_s - dyn.react_s) * vmax
-        if run_on > lim.margin_m:
+        if run_on > lim.margin_m + 1e-9:  # (at t_max itself: equal, up to rounding)
             t_max = dyn.react_s - dyn.dt_s + lim.margin_m / vmax
             bad[n] = (
                 f"{n} = {t_loss:g} s: on link loss the vehicle runs on {run_on:.1f} m past the "
@@ -157,24 +158,65 @@ def _bank_ceiling_deg(spec: EnvelopeSpec) -> float:
     return float(math.floor(math.degrees(spec.limits.attitude_max_rad) - BANK_OVERSHOOT_DEG))
 
 
+def required_values(
+    spec: EnvelopeSpec, params: Mapping[str, float], pos_speed_max_mps: float = 12.0
+) -> dict[str, float]:
+    """{name: value} that makes each parameter `check_params` faults agree with the envelope,
+    in the autopilot's own unit, rounded toward the safe side (C1 link-loss time down, C2
+    tilt and braking up, C3 position speed down, C4 loiter radius down and bank up to the
+    loiter bank, C6 climb / sink down, C7 bank down); what `--configure-autopilot` sets.
+    Left out, for the operator: a parameter that is not a number, C1 when no positive time
+    fits, C4 when the bank cannot be both >= the loiter bank and <= the attitude row's less
+    the overshoot, and C5 (COM_OBL_RC_ACT: an INT32 that PARAM_SET's float does not carry)."""
+    dyn, lim = spec.dynamics, spec.limits
+    bad = check_params(spec, params, pos_speed_max_mps)
+    out: dict[str, float] = {}
+    for n in bad:
+        got = _get(params, n)
+        if got is None or not math.isfinite(got[1]):
+            continue
+        if n in ("COM_OF_LOSS_T", "GUID_TIMEOUT"):  # C1
+            t_max = dyn.react_s - dyn.dt_s + lim.margin_m / lim.speed_h_mps
+            if t_max >= 0.01:
+                out[n] = math.floor(t_max * 100.0) / 100.0
+        elif n in ("MPC_TILTMAX_AIR", "ANGLE_MAX"):  # C2: the tilt that brakes at decel
+            deg = math.degrees(math.atan(dyn.decel_h_mps2 / GRAVITY))
+            out[n] = float(math.ceil(deg * 100.0)) if n == "ANGLE_MAX" else math.ceil(deg * 10) / 10
+        elif n in ("MPC_ACC_HOR", "LOIT_BRK_ACCEL"):  # C2: braking
+            a = dyn.decel_h_mps2
+            out[n] = (
+                float(math.ceil(a * 100.0)) if n == "LOIT_BRK_ACCEL" else math.ceil(a * 10) / 10
+            )
+        elif n in ("MPC_XY_VEL_MAX", "WPNAV_SPEED"):  # C3
+            v = pos_speed_max_mps
+            out[n] = float(math.floor(v * 100.0)) if n == "WPNAV_SPEED" else math.floor(v * 10) / 10
+        elif n in ("NAV_LOITER_RAD", "WP_LOITER_RAD"):  # C4: the hold circle
+            out[n] = float(math.floor(dyn.turn_radius(lim.speed_h_mps)))
+        elif n in ("FW_R_LIM", "ROLL_LIMIT_DEG"):  # C4 (raise to the loiter bank) / C7 (lower)
+            low, top = math.degrees(dyn.bank_max_rad), _bank_ceiling_deg(spec)
+            if top >= low:
+                out[n] = top if got[1] > top else float(math.ceil(low))
+        elif n in ("TECS_CLMB_MAX", "FW_T_CLMB_MAX", "TECS_SINK_MAX", "FW_T_SINK_MAX"):  # C6
+            climb = n in ("TECS_CLMB_MAX", "FW_T_CLMB_MAX")
+            out[n] = float(lim.climb_mps if climb else lim.descent_mps)
+    return out
+
+
+AGREEING = ("TECS_CLMB_MAX", "FW_T_CLMB_MAX", "TECS_SINK_MAX", "FW_T_SINK_MAX", "FW_R_LIM",
+            "ROLL_LIMIT_DEG")  # fmt: skip
+"""What a fixed-wing mission sets by itself (C6, C7: limits lowered, never raised)."""
+
+
 def agreeing_values(spec: EnvelopeSpec, params: Mapping[str, float]) -> dict[str, float]:
     """{name: value} a companion may PARAM_SET so that the autopilot agrees with the envelope
-    where it can (C6: a fixed-wing's climb and sink limits, lowered to the envelope's); {} for
-    a multirotor or when nothing needs changing; C7: a bank limit lowered to the attitude row's
-    less the overshoot. Other mismatches are the operator's to fix."""
+    where it can without being asked (a fixed-wing's climb and sink limits lowered to the
+    envelope's, C6; a bank limit lowered to the attitude row's less the overshoot, C7); {} for
+    a multirotor or when nothing needs changing. Everything else is `required_values`, set
+    only when the operator asks (`--configure-autopilot`)."""
     if spec.dynamics.bank_max_rad <= 0:
         return {}
-    out: dict[str, float] = {}
-    for names, (_, limit) in zip(CLIMB_PARAMS, _climb_limits(spec)):
-        got = _get(params, *names)
-        if got and not (math.isfinite(got[1]) and got[1] <= limit + 1e-6):
-            out[got[0]] = float(limit)
-    got = _get(params, "FW_R_LIM", "ROLL_LIMIT_DEG")
-    top = _bank_ceiling_deg(spec)
-    if got and top >= math.degrees(spec.dynamics.bank_max_rad):
-        if not (math.isfinite(got[1]) and got[1] <= top + 1e-6):
-            out[got[0]] = top
-    return out
+    req = required_values(spec, params)
+    return {n: req[n] for n in AGREEING if n in req and req[n] <= float(params[n])}
 
 
 class ParamGuard:

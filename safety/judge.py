@@ -115,6 +115,9 @@ class Ending:
     reason: str = ""
     land: bool = True
     failsafe: str = ""  # a drill: the autopilot mode the net yielded to ("" = none)
+    # the autopilot's documented end of a landing it does not fly to the ground, e.g. "RTL"
+    # (ArduPlane has no LAND mode: hil.autopilots.ArduPlaneProfile.end_mode); "" = landed
+    end_mode: str = ""
 
 
 @dataclass(frozen=True)
@@ -428,6 +431,10 @@ def end_check(truth: Truth, ending: Ending, p: JudgeParams) -> Check:
     fig = f"{alt:.2f} m, {'armed' if armed else 'disarmed'}, {mode} at t = {truth.t[-1]:.1f} s"
     if ending.failsafe:  # a drill the autopilot's failsafe took over: it ends where that flies
         return Check("end", True, fig, f"the autopilot's own {ending.failsafe} has the vehicle")
+    if ending.land and ending.end_mode:
+        ok = armed and alt > p.airborne_m and mode == ending.end_mode
+        why = f"in its documented end: armed in the air in {ending.end_mode} (it does not land)"
+        return Check("end", ok, fig, why if ok else "not " + why.split(": ", 1)[1])
     if ending.land:
         ok = alt <= p.landed_m and not armed
         return Check("end", ok, fig, "landed and disarmed" if ok else "not landed and disarmed")

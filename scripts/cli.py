@@ -43,6 +43,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("scripts.train", "train the learners (sql, irl, ab)"),
     "teleop": ("scripts.teleop", "fly or demonstrate from the keyboard"),
     "watch": ("scripts.watch", "watch a flight's camera frames with detections"),
+    "certs": ("scripts.certs", "certificates and Zenoh configurations of a closed two-host flight"),
     "record": ("scripts.record", "flight.mcap (Foxglove, PlotJuggler) from a run folder"),
     "educate": ("scripts.educate", "teach a curriculum of lessons; a modular policy that explains"),
     "evaluate": (

@@ -80,7 +80,7 @@ def _tlog_cut(link) -> list[dict]:
 def add_arguments(
     parser,
     standalone: bool = True,
-    missions: tuple[str, ...] = ("groundair", "square", "formation", "orbit"),
+    missions: tuple[str, ...] = ("groundair", "square", "formation", "orbit", "shepherd"),
 ) -> None:
     if standalone:
         parser.add_argument(
@@ -164,8 +164,15 @@ def add_arguments(
         "--mission", choices=list(missions), default="groundair",
         help="groundair: keep the UGVs in view behind the safety net; square: fly a square"
         + ("; formation: K vehicles fly the SQL-SIE plan to their targets" if "formation" in missions else "")
-        + ("; orbit: a fixed-wing orbits the team, camera on a pointed gimbal" if "orbit" in missions else ""),
+        + ("; orbit: a fixed-wing orbits the team, camera on a pointed gimbal" if "orbit" in missions else "")
+        + ("; shepherd: herd the UGV flock (--ugvs flock) into the goal region (docs/shepherding.md)"
+           if "shepherd" in missions else ""),
     )  # fmt: skip
+    if "shepherd" in missions:
+        parser.add_argument("--shepherd-selector", choices=["learned", "strombom"], default="learned",
+                            help="--mission shepherd: the high-level selector between collect and drive: learned "
+                            "(policy/shepherd/selector.json, fitted to Strömbom's demonstrations) or strombom "
+                            "(the hand-written rule)")  # fmt: skip
     parser.add_argument(
         "--pilot",
         type=pilot_choice,
@@ -174,11 +181,17 @@ def add_arguments(
         "drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. "
         "drill:lateral-fence with --envelope safety/envelopes/quadrotor_field.toml",
     )
+    parser.add_argument("--lost-ugv-search", action="store_true",
+                        help="groundair: when a UGV leaves the view, search for it (dead reckoning from its last "
+                        "sighting, climbing toward the ceiling, expanding square: mission/search.py) instead of "
+                        "leaving it to the pilot")  # fmt: skip
     parser.add_argument(
         "--policy",
         default=None,
         metavar="FILE",
-        help="policy file (default: the one the repository keeps)",
+        help="policy file: discrete (skyherd train ab / irl / educate) or the deep continuous "
+        "ABS-DL policy (skyherd train abs-dl, e.g. policy/models/groundair_absdl.npz) "
+        "(default: the discrete AB policy the repository keeps)",
     )
     parser.add_argument(
         "--envelope", default=None, metavar="FILE", help="constraint-set TOML of the safety net"
@@ -198,6 +211,14 @@ def add_arguments(
         "--no-camera",
         action="store_true",
         help="fly without camera frames (square, or no simulator)",
+    )
+    parser.add_argument(
+        "--configure-autopilot",
+        action="store_true",
+        help="before the take-off, set the autopilot's parameters the safety envelope requires "
+        "(e.g. PX4 COM_OF_LOSS_T, ArduCopter GUID_TIMEOUT), read each back and record the change "
+        "(companion.json, summary.md); nothing is restored afterwards. Default: refuse to take "
+        "off on a mismatch, naming the parameter and the value to set",
     )
 
 
@@ -235,6 +256,10 @@ def check(args) -> str:
         raise UsageError(
             "--mission formation needs --plan FILE (a plan_K<K>.json from `skyherd train sql`)"
         )
+    if args.mission == "shepherd" and args.no_camera:
+        raise UsageError(
+            "--mission shepherd reads the flock on the simulator's Zenoh session: drop --no-camera"
+        )
     if args.signing_key:
         from flight.mavlink.signing import load_key
 
@@ -262,6 +287,8 @@ def build_mission(args, run_dir: Path | None):
     if args.mission == "orbit":
         return _orbit_mission(args, run_dir)
     try:
+        if args.mission == "shepherd":
+            return _shepherd_mission(args, run_dir)
         if args.mission == "square":
             if not (0 < altitude <= 120 and 0 < args.side <= 500):
                 raise ValueError("--altitude must be in (0, 120] m and --side in (0, 500] m")
@@ -280,13 +307,58 @@ def build_mission(args, run_dir: Path | None):
                 pilot = drill_pilot(args.pilot, net.spec)
                 plan = FlightPlan(altitude_m=altitude, duration_s=args.duration, decision_s=0.1)
             perception = Perception(task)
+            if getattr(args, "lost_ugv_search", False) and not args.pilot.startswith("drill:"):
+                from mission.search import SearchPilot
+                from policy.search.lost import LostSearch
+
+                pilot = SearchPilot(pilot, perception, LostSearch(None, task), net.spec.limits,
+                                    net.spec.dynamics.tau_s)  # fmt: skip
     except ValueError as e:
         raise UsageError(str(e)) from None
     record = Record(
         decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
         track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
     )
-    return SingleVehicleMission(pilot, net, plan, record, perception), plan
+    return SingleVehicleMission(pilot, net, plan, record, perception,
+                                getattr(args, "configure_autopilot", False), _say), plan  # fmt: skip
+
+
+SHEPHERD_ALTITUDE_M = 12.0
+"""--mission shepherd: the default altitude above home [m] (the flock feels the UAV's
+horizontal position only; low enough for the camera to show the flock's part under it)."""
+
+
+def _shepherd_mission(args, run_dir: Path | None):
+    """The shepherd (mission/shepherd.py) behind the ground-air envelope's net; its flock reader
+    is attached once the Zenoh session is open (`attach_flock`)."""
+    from mission.flight import FlightPlan, Record, SingleVehicleMission
+    from mission.shepherd import ShepherdPilot
+    from policy.shepherd.selector import make_selector
+    from runio import CsvWriter
+
+    altitude = SHEPHERD_ALTITUDE_M if args.altitude is None else args.altitude
+    plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
+    net = _load_net(args.envelope, run_dir)
+    spec = net.spec
+    pilot = ShepherdPilot(make_selector(args.shepherd_selector), lambda t: None, altitude, spec.limits,
+                          spec.dynamics.tau_s)  # fmt: skip
+    record = Record(
+        decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
+        track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
+    )
+    return SingleVehicleMission(pilot, net, plan, record, None), plan
+
+
+def attach_flock(session, mission) -> object:
+    """The shepherd reads the flock's reports (skyherd/ugv/<id>/state) on `session`; returns
+    the subscriber (closed with the session)."""
+    from groundsim.flock import FlockParams
+    from groundsim.transport import UGVStateSubscriber
+    from mission.shepherd import flock_reader
+
+    sub = UGVStateSubscriber(session)
+    mission.pilot.flock = flock_reader(sub, FlockParams().n)
+    return sub
 
 
 def pilot_choice(value: str) -> str:
@@ -363,6 +435,13 @@ def _load_policy(path):
         policy = load_policy(path or DEFAULT_POLICY)
     except PolicyFileError as e:
         raise UsageError(f"{e}; train one with `skyherd train ab` or pass --policy") from None
+    if getattr(policy, "continuous", False):  # a deep velocity policy (skyherd train abs-dl)
+        shape = (getattr(policy, "obs_dim", None), getattr(policy, "act_dim", None))
+        if shape != (OBS_DIM, 3):
+            raise UsageError(f"{path}: the deep policy takes {shape[0]} inputs and gives {shape[1]} "
+                             f"velocity components; the ground-air task has {OBS_DIM} inputs and a "
+                             "3-component NED velocity: pass a policy from `skyherd train abs-dl`")  # fmt: skip
+        return policy
     shape = (getattr(policy, "obs_dim", None), getattr(policy, "n_actions", None))
     if shape != (OBS_DIM, N_ACTIONS):
         raise UsageError(f"{path or DEFAULT_POLICY}: the policy takes {shape[0]} inputs and gives "
@@ -459,7 +538,7 @@ def run(args: argparse.Namespace) -> int:
     from mission.vehicle import COMPANION_COMPONENT, VehicleLink
 
     address = check(args)
-    use_camera = args.mission == "groundair" and not args.no_camera
+    use_camera = args.mission in ("groundair", "shepherd") and not args.no_camera
     if args.mission == "orbit":
         use_camera = not args.no_camera
     if args.run_dir is not None:
@@ -486,6 +565,8 @@ def run(args: argparse.Namespace) -> int:
     if use_camera:
         session, frames = open_frames(args)
         _publish_live(session, mission)
+        if args.mission == "shepherd":
+            attach_flock(session, mission)
         from mission.companion import LoggedFrames
         from runio import CsvWriter
 
@@ -602,10 +683,12 @@ def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = Non
         "yielded": mission.authority.yielded,
         "frames": None if mission.perception is None else mission.perception.counts,
         "landing": getattr(mission, "landing_note", "") or "as planned",
+        "configured": [c.record() for c in getattr(mission, "configured", [])],
         "authority": {
             "t_start": mission.authority.t_start,
             "t_end": mission.authority.t_last,
             "land": bool(getattr(getattr(mission, "f", mission.plan), "land", True)),
+            "end_mode": getattr(mission, "end_mode", ""),  # the profile's end when not landed
         },  # fmt: skip
     }
     if getattr(mission, "plan", None) is not None and mission.name == "orbit":

@@ -74,8 +74,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "sabotage) instead of the named drills; --airframe all for both",
     )
     parser.add_argument(
-        "--workers", type=int, default=1, help="processes for --campaign (default 1)"
-    )
+        "--workers", type=int, default=1,
+        help="--campaign: CPUs (a local Ray instance's or the process pool's; default 1: in "
+        "this process)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--backend", choices=("auto", "ray", "process"), default="auto",
+        help="--campaign with --workers > 1 or --ray-address: auto = Ray if installed, else a "
+        "local process pool; a dead worker's drill runs again (default auto)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--ray-address", default=None, metavar="ADDR",
+        help="--campaign: run the drills as tasks on this Ray cluster (default: a local "
+        "instance on loopback, when --workers > 1)",
+    )  # fmt: skip
     parser.add_argument(
         "--target-bound",
         type=float,

@@ -1,5 +1,7 @@
 """`skyherd drill --campaign N`: N randomized adversarial drills per airframe (safety.campaign),
-in-process, seeded, on one or more worker processes.
+in-process, seeded, on this process, a local process pool or Ray tasks (`--workers`,
+`--backend`, `--ray-address`: runio.parallel; a dead worker's drill runs again, each drill's
+row is written as it finishes, and a drill is a pure function of (airframe, index, seed)).
 
 Writes a run folder: config.json, metrics.csv (one row per drill, flushed as drills finish),
 events.jsonl (every switch, yield and parameter verdict, tagged with the drill), campaign.png
@@ -25,7 +27,6 @@ breach: it was not judged), and how many breach-free drills a target bound needs
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -151,17 +152,19 @@ def run_campaign(args) -> int:
         metrics.write(row)
         rows.append(row)
 
+    ray_address = getattr(args, "ray_address", None)
     with tqdm(total=len(jobs), desc="campaign", unit="drill") as bar:
-        if args.workers == 1:
+        if args.workers == 1 and ray_address is None:
             for job in jobs:
                 keep(run_one(job))
                 bar.update(1)
-        else:
-            with ProcessPoolExecutor(max_workers=args.workers) as pool:
-                futs = [pool.submit(run_one, j) for j in jobs]
-                for f in as_completed(futs):
-                    keep(f.result())
-                    bar.update(1)
+        else:  # Ray tasks or a process pool; rows streamed to metrics.csv as drills finish
+            from runio.parallel import map_unordered
+
+            for _, row in map_unordered(run_one, jobs, getattr(args, "backend", "auto"),
+                                        args.workers, ray_address, say=tqdm.write):  # fmt: skip
+                keep(row)
+                bar.update(1)
     link_rows = []
     if n_link:
         from mission.drill_link import MAVLINK_KINDS, LinkDrillResult, run_mavlink_drill

@@ -4,7 +4,9 @@ The main job (`make run`): `skyherd sim` (the built-in quadrotor, the UGV team, 
 Zenoh) and `skyherd companion` (detector → φ(s) → the learned policy → safety net → MAVLink)
 start as two child processes on the embedded defaults (a Zenoh peer on loopback, no router),
 in lockstep on the simulator's clock; `fly` watches them, stops them in order, and writes one
-run folder with the summary and plots. `--mission square` flies a square the same way.
+run folder with the summary and plots. `--mission square` flies a square the same way;
+`--mission shepherd` herds the UGV flock (`--ugvs flock`) into a goal region (mission/shepherd.py,
+docs/shepherding.md).
 
 `--airframe fixedwing` flies the ground-air task as an orbit the same way (`skyherd sim
 --airframe fixedwing`, `skyherd companion --mission orbit`: mission/orbit.py). `--mission
@@ -117,8 +119,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-zenoh", action="store_true", help=argparse.SUPPRESS
     )  # kept for old scripts
     parser.add_argument("--ugvs", default="composite", metavar="SCENARIO",
-                        help="UGV team: lateral, climb, descend, composite (the training scenarios) or "
-                        "groundsim:route|convoy|random|stopgo|speedoff|camouflage")  # fmt: skip
+                        help="UGV team: lateral, climb, descend, composite (the training scenarios), "
+                        "groundsim:route|convoy|random|stopgo|speedoff|camouflage, or flock (--mission shepherd's "
+                        "default: a flock that flees the UAV, groundsim/flock.py)")  # fmt: skip
     parser.add_argument(
         "--renderer", choices=["fast", "bullet"], default="fast", help=argparse.SUPPRESS
     )
@@ -128,7 +131,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from scripts.companion import add_arguments as companion_arguments
 
     companion_arguments(parser.add_argument_group("mission and companion"), standalone=False,
-                        missions=("groundair", "square", "formation"))  # fmt: skip
+                        missions=("groundair", "square", "formation", "shepherd"))  # fmt: skip
     from scripts.fly_options import add_formation_arguments, add_orbit_arguments
 
     add_formation_arguments(parser.add_argument_group("formation mission"))
@@ -182,8 +185,19 @@ def check_children(args, sim_args: list[str], comp_args: list[str]) -> None:
 def _validate(args) -> tuple[list[str], list[str]]:
     """The children's argument lists; UsageError before anything starts or is written."""
     from hil.link import parse_address
-    from policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS
+    from policy.groundair.scenarios import FLOCK, TEAMS
 
+    if args.mission == "shepherd":
+        if args.connect is not None or args.airframe != "quadrotor":
+            raise UsageError(
+                "--mission shepherd flies the built-in quadrotor: drop --connect / --airframe"
+            )
+        if args.ugvs == "composite":  # the default team: the shepherd's is the flock
+            args.ugvs = FLOCK
+        if args.ugvs != FLOCK:
+            raise UsageError(f"--mission shepherd herds --ugvs {FLOCK}, not {args.ugvs!r}")
+    elif args.ugvs == FLOCK:
+        raise UsageError(f"--ugvs {FLOCK} is the shepherding flock: fly it with --mission shepherd")
     if args.connect is not None:
         try:
             parse_address(args.connect)
@@ -193,18 +207,15 @@ def _validate(args) -> tuple[list[str], list[str]]:
         raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
     if args.free_run and args.speedup == 0:
         raise UsageError("--free-run needs a pacer: give --speedup >= 1")
-    if args.ugvs not in SCENARIOS + GROUNDSIM_SCENARIOS:
-        raise UsageError(
-            f"--ugvs {args.ugvs!r} is not a team: use one of "
-            + ", ".join(SCENARIOS + GROUNDSIM_SCENARIOS)
-        )
+    if args.ugvs not in TEAMS:
+        raise UsageError(f"--ugvs {args.ugvs!r} is not a team: use one of " + ", ".join(TEAMS))
     if not 0 < args.duration <= 36000:
         raise UsageError("--duration must be in (0, 36000] s")
     if args.mission == "square":
         alt = 20.0 if args.altitude is None else args.altitude
         if not (0 < alt <= 120 and 0 < args.side <= 500):
             raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
-    if args.mission == "groundair" and args.connect is None:
+    if args.mission in ("groundair", "shepherd") and args.connect is None:
         _refuse_wind_above_limit(args)
     if args.policy is not None:
         from scripts.companion import _load_policy
@@ -230,8 +241,16 @@ def _validate(args) -> tuple[list[str], list[str]]:
     comp = ["--mission", args.mission, "--pilot", args.pilot, "--duration", repr(args.duration),
             "--side", repr(args.side), "--instance", str(args.instance)]  # fmt: skip
     comp += ["--altitude", repr(altitude)] if altitude is not None else []
+    comp += ["--shepherd-selector", args.shepherd_selector] if args.mission == "shepherd" else []
+    if args.lost_ugv_search:
+        if args.mission != "groundair" or orbit or args.pilot.startswith("drill:"):
+            raise UsageError(
+                "--lost-ugv-search is for the ground-air mission's policy or pid pilot (quadrotor)"
+            )
+        comp += ["--lost-ugv-search"]
     comp += ["--policy", str(Path(args.policy).resolve())] if args.policy else []
     comp += ["--envelope", str(Path(args.envelope).resolve())] if args.envelope else []
+    comp += ["--configure-autopilot"] if args.configure_autopilot else []
     if args.mission == "square" or args.no_camera:
         comp += ["--no-camera"]
     sim = ["--instance", str(args.instance), "--seed", str(args.seed), "--ugvs", args.ugvs,
@@ -328,7 +347,7 @@ def run_two_processes(args: argparse.Namespace) -> int:
     with waysout.KeptSignals() as kept:
         sim_args, comp_args = _validate(args)
         check_children(args, sim_args, comp_args)
-        envelope = _envelope(args) if args.mission == "groundair" else None
+        envelope = _envelope(args) if args.mission in ("groundair", "shepherd") else None
         if kept.signum is not None:  # nothing made, nothing started
             rc, why = waysout.interrupted(Interrupted(kept.signum))
             print(f"skyherd fly: INTERRUPTED: {why} before the flight started; nothing was "
@@ -447,7 +466,10 @@ def _recorder(args, run_dir: Path, give_up=None, ready=None):
                 f"skyherd fly: live view on {also[0].url} (Foxglove: open connection)", flush=True
             )
         rec = ZenohRecorder(session, "uav0", path, also=also)
-        if args.mission == "groundair":  # the fence and the envelope's rows as geometry
+        if args.mission in (
+            "groundair",
+            "shepherd",
+        ):  # the fence and the envelope's rows as geometry
             from safety.config import ENVELOPE_DIR, load_envelope
 
             rec.log.geometry(

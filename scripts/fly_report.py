@@ -7,6 +7,7 @@ import csv
 import dataclasses
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +87,8 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
     elif args.mission == "square":
         table, title = _square_table(decisions, track), f"square mission, {args.side:.0f} m side"
         _plot_square(run_dir, track, decisions)
+    elif args.mission == "shepherd":
+        table, title = _shepherd_report(run_dir, args, comp, decisions, track)
     else:
         world = _rows(run_dir / "world.csv")
         m = groundair_metrics(decisions, world, TaskParams())
@@ -118,6 +121,11 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
     lines += [table]
     verdicts = judge_table(checks)
     lines += ["", "## The judge (safety/judge.py: truth and the companion's records)", "", verdicts]
+    if comp.get("configured"):  # --configure-autopilot: what it set, and why
+        rows = [[c["name"], f"{c['before']:g}", f"{c['after']:g}", c["reason"].replace("|", "/")]
+                for c in comp["configured"]]  # fmt: skip
+        lines += ["", "## Autopilot parameters set (--configure-autopilot; nothing restored)", "",
+                  markdown_table(["parameter", "before", "after", "why"], rows)]  # fmt: skip
     if any("explanation" in d for d in decisions):  # a modular policy said why it acted
         from policy.education.timeline import read_decisions, timeline
 
@@ -176,7 +184,9 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
                            if window[0] - 1e-9 <= float(r["t"]) <= window[1] + 1e-9)  # fmt: skip
     if window is not None:
         rendered = int(np.sum((truth.t >= window[0] - 1e-9) & (truth.t <= window[1] + 1e-9)))
-    ending = Ending(outcome, reason, bool(auth.get("land", True)))
+    ending = Ending(
+        outcome, reason, bool(auth.get("land", True)), end_mode=str(auth.get("end_mode") or "")
+    )
     net_modes = [(float(e["t"]), str(e["to"])) for e in _jsonl(run_dir / "events.jsonl")
                  if e.get("event") == "switch" and "to" in e]  # fmt: skip
     checks = judge(truth, spec, changes, window, frames, rendered, ending, net_modes,
@@ -312,6 +322,73 @@ def _plot_groundair(
     fig.tight_layout()
     fig.savefig(run_dir / "groundair.png", dpi=100)
     plt.close(fig)
+
+
+def _shepherd_report(run_dir: Path, args, comp: dict, decisions: list[dict], track: np.ndarray):
+    """Herding metrics from the simulator's truth (policy.shepherd.metrics) into shepherd.json,
+    the flight into shepherd.png; the summary's table and title."""
+    from policy.shepherd.metrics import flock_track, herding_metrics
+
+    world = _rows(run_dir / "world.csv")
+    m = herding_metrics(world)
+    flown = [
+        d for d in decisions if (d.get("explanation") or {}).get("module") in ("collect", "drive")
+    ]
+    changed = sum(d.get("verdict") != "accepted" for d in flown)
+    m.update({"selector": args.shepherd_selector, "decisions": len(flown),
+              "drive_fraction": round(sum(d["explanation"]["module"] == "drive" for d in flown) / max(len(flown), 1), 4),
+              "net_changed_fraction": round(changed / max(len(flown), 1), 4),
+              "net_switches": (comp.get("net") or {}).get("switches")})  # fmt: skip
+    atomic_write_text(run_dir / "shepherd.json", json.dumps(m, indent=1) + "\n")
+    rows = [["flock centre in the goal region", "yes" if m["success"] else "no"],
+            ["time to goal from the hand-over [s]", _fmt(m["time_to_goal_s"])],
+            ["flock spread start → end [m]", f"{_fmt(m.get('spread_start_m'))} → {_fmt(m.get('spread_end_m'))}"],
+            ["centre to goal start → end [m]",
+             f"{_fmt(m.get('goal_distance_start_m'))} → {_fmt(m.get('goal_distance_end_m'))}"],
+            ["shepherd decisions (drive fraction)", f"{m['decisions']} ({_fmt(m['drive_fraction'])})"],
+            ["decisions the net changed [fraction]", _fmt(m["net_changed_fraction"])],
+            ["safety-net switches", m["net_switches"] if m["net_switches"] is not None else "—"],
+            ["autopilot took over", comp.get("yielded") or "no"]]  # fmt: skip
+    try:
+        plt, fig, axs = _figure(2, (12, 4.8))
+        t, uav, flock = flock_track(world)
+        if len(t):
+            for i in range(flock.shape[1]):
+                axs[0].plot(flock[:, i, 1], flock[:, i, 0], lw=0.6, alpha=0.6)
+            c = flock.mean(axis=1)
+            axs[0].plot(c[:, 1], c[:, 0], "r-", lw=2, label="flock centre")
+            axs[0].plot(uav[:, 1], uav[:, 0], "k-", lw=1.2, label="UAV (shepherd)")
+            spread = [float(np.linalg.norm(f - f.mean(axis=0), axis=1).mean()) for f in flock]
+            axs[1].plot(t, spread, "b-", label="spread [m]")
+            axs[1].plot(
+                t,
+                np.linalg.norm(c - np.asarray(m["goal_ne"]), axis=1),
+                "r-",
+                label="centre to goal [m]",
+            )
+        if m.get("goal_ne"):
+            g = m["goal_ne"]
+            axs[0].add_patch(
+                plt.Circle((g[1], g[0]), m["goal_radius_m"], color="g", alpha=0.25, label="goal")
+            )
+            axs[1].axhline(m["goal_radius_m"], color="g", ls=":", label="goal radius")
+        axs[0].set(
+            xlabel="east [m]",
+            ylabel="north [m]",
+            title=f"shepherd ({args.shepherd_selector} selector)",
+        )
+        axs[0].set_aspect("equal", adjustable="datalim")
+        axs[0].legend(fontsize=8)
+        axs[1].set(xlabel="time from the hand-over [s]", ylabel="[m]", title="herding")
+        axs[1].legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(run_dir / "shepherd.png", dpi=100)
+        plt.close(fig)
+    except (ValueError, KeyError, IndexError) as e:  # the table still goes out
+        print(f"skyherd fly: no shepherd.png ({type(e).__name__}: {e})", file=sys.stderr)
+    title = (f"shepherd mission, flock of {m.get('agents', '?')} UGVs, {args.shepherd_selector} selector, "
+             f"up to {args.duration:.0f} s behind the safety net")  # fmt: skip
+    return markdown_table(["metric", "value"], rows), title
 
 
 def _orbit_report(run_dir: Path, comp: dict, track: np.ndarray) -> tuple[str, str]:

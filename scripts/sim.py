@@ -48,7 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ugvs",
         default="composite",
         metavar="SCENARIO",
-        help="UGV team: lateral, climb, descend, composite or groundsim:route|convoy|random|stopgo|speedoff|camouflage; "
+        help="UGV team: lateral, climb, descend, composite, groundsim:route|convoy|random|stopgo|speedoff|camouflage, "
+        "flock (flees the UAV: groundsim/flock.py); "
         "none: the vehicle alone (no team, no camera, no Zenoh session)",
     )
     parser.add_argument(
@@ -259,14 +260,16 @@ def build_world(args):
     """Check the arguments and build the world (UsageError on bad usage)."""
     from flight.lockstep import LockstepParams
     from flight.mavlink import EndpointConfig
-    from policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS
+    from policy.groundair.scenarios import FLOCK, TEAMS
     from world.sim import WorldParams
 
-    if args.ugvs not in SCENARIOS + GROUNDSIM_SCENARIOS + ("none",):
+    if args.ugvs not in TEAMS + ("none",):
         raise UsageError(
-            f"--ugvs {args.ugvs!r} is not a team: use one of "
-            + ", ".join(SCENARIOS + GROUNDSIM_SCENARIOS)
-            + " or none"
+            f"--ugvs {args.ugvs!r} is not a team: use one of " + ", ".join(TEAMS) + " or none"
+        )
+    if args.ugvs == FLOCK and (args.follow or args.autopilot != "builtin" or args.fleet):
+        raise UsageError(
+            "--ugvs flock flees the built-in vehicle only: drop --follow, --autopilot, --fleet"
         )
     if args.ugvs == "none" and (args.follow or args.autopilot != "builtin" or args.cut_camera):
         raise UsageError(

@@ -1,4 +1,4 @@
-"""`skyherd train {sql,irl,ab}`: each learner's command lives in its own module."""
+"""`skyherd train {sql,irl,ab,abs-dl}`: each learner's command lives in its own module."""
 
 from __future__ import annotations
 
@@ -9,6 +9,10 @@ LEARNERS: dict[str, tuple[str, str]] = {
     "sql": ("scripts.train_sql", "Swarm Q-learning / SQL-SIE formation-control experiments"),
     "irl": ("scripts.train_irl", "apprenticeship learning by projection IRL on composite demos"),
     "ab": ("scripts.train_irl", "Apprenticeship Bootstrapping from sub-task demos only"),
+    "abs-dl": (
+        "scripts.train_absdl",
+        "ABS-DL: deep sub-task networks fused, continuous actions, shielded by the safety net",
+    ),
 }
 
 

@@ -180,6 +180,48 @@ def test_real_arducopter_flown_by_skyherd_fly_connect(tmp_path):
     _assert_fly_completed(rc, run, "ArduCopter")
 
 
+def _configured(
+    tmp_path: Path, address: str, instance: int, zenoh_port: int, name: str, autopilot: str
+) -> None:
+    """On an autopilot with its stock parameters: `fly --connect` refuses before take-off naming
+    `name` and the flag; `fly --connect --configure-autopilot` sets it, reads it back, records it
+    and flies to the end."""
+    import json
+
+    runs = tmp_path / "refused"
+    rc = main(["fly", "--connect", address, "--duration", "30", "--instance", str(instance),
+               "--zenoh-port", str(zenoh_port), "--timeout", "900", "--runs-dir", str(runs)])  # fmt: skip
+    (run,) = runs.iterdir()
+    reason = json.loads((run / "companion.json").read_text())["reason"]
+    assert rc == 1 and name in reason and "--configure-autopilot" in reason, reason
+    runs = tmp_path / "configured"
+    rc = main(["fly", "--connect", address, "--duration", "30", "--instance", str(instance),
+               "--zenoh-port", str(zenoh_port), "--timeout", "900", "--runs-dir", str(runs),
+               "--configure-autopilot"])  # fmt: skip
+    (run,) = runs.iterdir()
+    _assert_fly_completed(rc, run, autopilot)
+    changes = {c["name"]: c for c in json.loads((run / "companion.json").read_text())["configured"]}
+    print(autopilot, "configured", json.dumps(changes, indent=1))
+    assert name in changes and changes[name]["after"] < changes[name]["before"]
+    assert name in (run / "summary.md").read_text()
+
+
+def test_real_arducopter_on_stock_parameters_configured_by_fly_connect(tmp_path):
+    """Stock copter.parm (GUID_TIMEOUT 3 s): refused, then set by --configure-autopilot."""
+    binary = _binary("SKYHERD_ARDUCOPTER_BIN")
+    port = 5760 + 10 * ARDUPILOT_INSTANCE
+    with ardupilot_listening(binary, "+", "copter.parm", tmp_path):
+        _configured(tmp_path, f"tcp:127.0.0.1:{port}", 78, 7474, "GUID_TIMEOUT", "ArduCopter")
+
+
+def test_real_px4_sih_on_stock_parameters_configured_by_fly_connect(tmp_path):
+    """Stock PX4 SIH (COM_OF_LOSS_T 1 s): refused, then set by --configure-autopilot."""
+    binary = _binary("SKYHERD_PX4_BIN")
+    port = 14540 + PX4_INSTANCE if PX4_INSTANCE <= 9 else 14549
+    with px4(binary, tmp_path, open_link=False):
+        _configured(tmp_path, f"udpin:127.0.0.1:{port}", 79, 7475, "COM_OF_LOSS_T", "PX4")
+
+
 @contextlib.contextmanager
 def px4(binary: Path, cwd: Path, open_link: bool = True):
     """PX4 SITL with SIH (its own physics), instance PX4_INSTANCE, working files in `cwd`; the

@@ -10,8 +10,8 @@ import pytest
 from scipy.stats import binom
 
 from safety.campaign import breach_upper_bound, drills_needed
-from safety.config import ENVELOPE_DIR, default_envelope_path, load_envelope
-from safety.envelope import NZ, SignedDistance, circle_zone, polygon_zone
+from safety.config import default_envelope_path, load_envelope
+from safety.envelope import NZ, SignedDistance
 from safety.judge import (
     Ending,
     Expect,
@@ -30,11 +30,8 @@ NORTH = 35.0
 
 
 @pytest.fixture(scope="module")
-def spec():
-    base, _ = load_envelope(ENVELOPE_DIR / "quadrotor_groundair.toml")
-    fence = polygon_zone("north 35", [[-200, -200], [NORTH, -200], [NORTH, 200], [-200, 200]])
-    tower = circle_zone("tower", np.array([0.0, 100.0]), 10.0, 16, True)
-    return dataclasses.replace(base, inclusions=(fence,), exclusions=(tower,))
+def spec(north35_spec):
+    return north35_spec
 
 
 def drill_truth(north=(0.0, 20.0, 0.0), alt=20.0, modes=("OFFBOARD",) * 3, t_end=30.0):

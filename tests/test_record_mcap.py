@@ -71,6 +71,7 @@ EXPECTED = {  # topic → (schema, count) for _fly(n=40)
     "/uav0/setpoint/pose": ("foxglove.PoseInFrame", 40),
     "/uav0/safety/event": ("skyherd.SafetyEvent", 2),
     "/uav0/log": ("foxglove.Log", 2),
+    "/uav0/safety/state": ("skyherd.NetState", 2),
     "/sim/clock": ("skyherd.SimClock", 40),
 }
 

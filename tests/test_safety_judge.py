@@ -1,24 +1,17 @@
 """safety/judge.py on hand-made tracks: each check passes on a clean flight and fails, with its
 figure, on the one thing it is there to catch (the through-`fly` cases: test_fly_judge.py)."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
-from safety.config import ENVELOPE_DIR, load_envelope
-from safety.envelope import circle_zone, polygon_zone
 from safety.judge import Ending, JudgeParams, ModeChange, Truth, first_failed, judge
 
 NORTH = 35.0  # the fence's north edge [m]
 
 
 @pytest.fixture(scope="module")
-def spec():
-    base, _ = load_envelope(ENVELOPE_DIR / "quadrotor_groundair.toml")
-    fence = polygon_zone("north 35", [[-200, -200], [NORTH, -200], [NORTH, 200], [-200, 200]])
-    tower = circle_zone("tower", np.array([0.0, 100.0]), 10.0, 16, True)
-    return dataclasses.replace(base, inclusions=(fence,), exclusions=(tower,))
+def spec(north35_spec):
+    return north35_spec
 
 
 def flight(north_max=20.0, east_max=0.0, alt=20.0, dt=0.1, armed_until=None, mode="OFFBOARD"):
@@ -170,6 +163,25 @@ def test_the_end_landed_and_disarmed_or_the_orbits_documented_end(spec):
     no_land = Ending(land=False)  # the fixed-wing orbit with --orbit-no-land (docs/orbit.md)
     assert run(spec, hover, ending=no_land)[0]["end"].ok
     assert not run(spec, flight(), ending=no_land)[0]["end"].ok
+
+
+def test_arduplanes_documented_end_is_rtl_in_the_air(spec):
+    """ArduPlane has no LAND mode: its landing recipe is RTL (hil.autopilots.ArduPlaneProfile),
+    so the end check accepts armed in the air in RTL, and only that (flown against real
+    ArduPlane: make test-autopilots' orbit ended 94.61 m, armed, RTL)."""
+    rtl = Ending(end_mode="RTL")
+    t = flight(mode="RTL")
+    hover = Truth(t.t[:250], t.pos_ned[:250], t.armed[:250], t.mode[:250])  # 20 m, armed, RTL
+    by, _ = run(spec, hover, ending=rtl)
+    assert (
+        by["end"].ok
+        and by["end"].reason == "in its documented end: armed in the air in RTL (it does not land)"
+    )
+    loiter = Truth(hover.t, hover.pos_ned, hover.armed, ("LOITER",) * len(hover.t))
+    assert not run(spec, loiter, ending=rtl)[0]["end"].ok  # any other mode fails
+    assert not run(spec, flight(mode="RTL"), ending=rtl)[0][
+        "end"
+    ].ok  # on the ground: not RTL's end
 
 
 def test_the_missions_own_outcome_is_the_last_check(spec):

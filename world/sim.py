@@ -144,7 +144,7 @@ class World:
         # no team: the vehicle alone (a formation vehicle); its ticks are marked all the same
         self.team = None if params.scenario == "none" else new_team(params.scenario, params.seed,
                                                                     self.task.n_ugvs)  # fmt: skip
-        n_ugvs = 0 if self.team is None else self.task.n_ugvs
+        n_ugvs = 0 if self.team is None else len(self.team.positions())  # a flock: its own size
         self.team_t: float | None = None  # team time [s]; None while parked
         self.cam = self.task.camera
         self.roi_ned: np.ndarray | None = None  # where the pointed gimbal looks (None: nadir)
@@ -170,7 +170,7 @@ class World:
 
             self.publisher = FramePublisher(session, params.vehicle, self.cam, mount=self.mount,
                                             rng=np.random.default_rng(params.seed))  # fmt: skip
-            self._ugv_pub = UGVStatePublisher(session, self.task.n_ugvs)
+            self._ugv_pub = UGVStatePublisher(session, n_ugvs)
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
@@ -399,6 +399,11 @@ class World:
             return
         dt = (t - self._team_t0) - self.team_t
         if dt > 0:
+            if hasattr(self.team, "set_shepherd"):  # a flock feels where the UAV truly is
+                ap = self.autopilot
+                self.team.set_shepherd(
+                    (ap.true_state if hasattr(ap, "true_state") else ap.state).pos_ned[:2]
+                )
             self.team.step(dt)
             self.team_t += dt
 

@@ -238,8 +238,17 @@ class GroundAirEnv(gym.Env):
         a = int(action)
         if not 0 <= a < N_ACTIONS:
             raise ValueError(f"action must be in 0..{N_ACTIONS - 1}, got {action}")
+        return self.step_velocity(self._cmds[a])
+
+    def step_velocity(self, cmd_ned):
+        """One step with the commanded velocity (north, east, down) [m/s] held for dt: the one
+        way the UAV moves (a discrete action is its row of `action_velocity_ned`; continuous
+        actions, policy.absdl.env, and other pilots, e.g. policy.search, pass their own
+        command). The caller keeps it within the envelope's limits. Same returns as `step`."""
+        cn, ce, cd = (float(x) for x in cmd_ned)
+        if not all(math.isfinite(x) for x in (cn, ce, cd)):
+            raise ValueError(f"velocity command must be finite, got {cmd_ned}")
         dt, k, kz = self.task.dt_s, self._decay, self._decay_z
-        cn, ce, cd = self._cmds[a]
         # exact solution of v' = (v_cmd − v)/τ over dt, and of the position it drives
         g = self.task.uav.tau_s * (1.0 - k)
         gz = self.task.uav.tau_z_s * (1.0 - kz)

@@ -33,6 +33,8 @@ SCENARIO_INDEX = {"lateral": 1, "climb": 2, "descend": 3, "composite": 4}
 GROUNDSIM_SCENARIOS: tuple[str, ...] = tuple(
     f"groundsim:{b}" for b in ("route", "convoy", "random", "stopgo", "speedoff", "camouflage")
 )
+FLOCK = "flock"  # groundsim.flock: a flock that flees the UAV (`skyherd fly --mission shepherd`)
+TEAMS: tuple[str, ...] = SCENARIOS + GROUNDSIM_SCENARIOS + (FLOCK,)  # every --ugvs team
 
 
 @dataclass(frozen=True)
@@ -183,7 +185,12 @@ class GroundsimTeam:
 
 
 def make_team(scenario: str, rng: np.random.Generator, n_ugvs: int = 3):
-    """The UGV team of a scenario: a Formation, or a GroundsimTeam for 'groundsim:<behaviour>'."""
+    """The UGV team of a scenario: a Formation, a GroundsimTeam for 'groundsim:<behaviour>', or
+    the shepherding flock for 'flock' (its own size, groundsim.flock.FlockParams.n)."""
+    if scenario == FLOCK:
+        from groundsim.flock import FlockTeam
+
+        return FlockTeam(rng)
     if scenario in GROUNDSIM_SCENARIOS:
         return GroundsimTeam(scenario.split(":", 1)[1], rng, n_ugvs)
     return Formation(draw_plan(scenario, rng, n_ugvs))
