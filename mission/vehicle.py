@@ -204,10 +204,14 @@ class VehicleLink:
         newest position and attitude samples not after t (sample and hold: at most one
         telemetry period old; in lockstep the built-in vehicle streams both at each camera
         instant, before its mark), or the oldest kept when all are after t (the nearest: a
-        frame stamped on a clock behind the autopilot's). None until both have arrived."""
+        frame stamped on a clock behind the autopilot's). None until both have arrived, and
+        while either is not a number (an EKF without its origin yet: real ArduPlane's first
+        LOCAL_POSITION_NED samples; a frame is then used without a camera pose)."""
         pos = _newest_until(self.positions, t)
         att = _newest_until(self.attitudes, t)
         if pos is None or att is None:
+            return None
+        if not (np.all(np.isfinite(pos[1])) and np.all(np.isfinite(att[1]))):
             return None
         return UAVPose(pos[1], att[1])
 

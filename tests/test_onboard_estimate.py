@@ -158,6 +158,14 @@ def test_the_estimate_is_taken_at_the_frames_capture_time():
     assert -v.pose_at(4.95).pos_ned[2] == 10.0
     assert -v.pose_at(4.8).pos_ned[2] == 10.0
     assert VehicleLink(link=None).pose_at(5.0) is None
+    # a position that is not a number (an EKF without its origin: real ArduPlane's first
+    # samples) is no estimate: no pose, never a NaN camera pose that aborts the orbit
+    nan = float("nan")
+    pos = M.MAVLink_local_position_ned_message(5200, nan, nan, nan, 0, 0, 0)
+    att = M.MAVLink_attitude_quaternion_message(5200, 1, 0, 0, 0, 0, 0, 0, [0] * 4)
+    for m in (pos, att):
+        v.apply(dec.parse_char(m.pack(enc)))
+    assert v.pose_at(5.2) is None and -v.pose_at(5.1).pos_ned[2] == 12.0
 
 
 def test_a_gps_offset_moves_what_the_companion_sees_on_the_ground_by_the_offset():

@@ -12,6 +12,12 @@ as in world/sim.py. The world plays that gimbal on the MAVLink network: it annou
 the vehicle's gimbal component (HEARTBEAT from the autopilot's system id, MAV_COMP_ID_GIMBAL),
 so the autopilot routes a MAV_CMD_DO_SET_ROI_LOCATION addressed to its gimbal onto this link
 (ArduPilot's routing table; the companion addresses it so), and points the head there.
+
+When the companion is gone (`skyherd fly` sends SIGUSR1 at the end of every flight) the world
+follows on until the autopilot reports itself disarmed or `alone_s` of its time have passed,
+so world.csv — the judge's truth — ends on what the autopilot did (a landing's disarm reaches
+this link up to a heartbeat after the companion's; measured on real ArduCopter: the world
+stopped on "0.01 m, armed, LAND" and the judge failed a flight that had landed and disarmed).
 """
 
 from __future__ import annotations
@@ -36,6 +42,9 @@ from world.sim import _during
 from world.team import new_team, team_states, truth_row, ugv_columns
 
 M = mavlink2
+ALONE_WALL_SLACK_S = (
+    10.0  # the companion gone and the autopilot silent: end after alone_s + this [s wall]
+)
 
 
 def _is_autopilot_heartbeat(msg) -> bool:
@@ -82,11 +91,23 @@ class FollowWorld:
         cols += ugv_columns(self.task.n_ugvs)
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
         self._stop = threading.Event()
+        self._alone = threading.Event()  # the companion is gone: follow the autopilot alone
+        self.alone_why = ""
+        self.alone: dict | None = None  # what the autopilot did alone (sim_stats.json)
         self.frames = 0
         self.error = ""
 
     def stop(self) -> None:
         self._stop.set()
+
+    def companion_gone(self, why: str) -> None:
+        """The companion is gone (`skyherd fly` saw it exit and sent SIGUSR1): keep following
+        until the autopilot reports itself disarmed or `alone_s` of its own time have passed,
+        so world.csv ends on what the autopilot did (a landing's disarm comes on this link up
+        to a heartbeat later than on the companion's); safe from a signal handler."""
+        if not self._alone.is_set():
+            self.alone_why = why
+        self._alone.set()
 
     def run(self, duration_s: float | None = None) -> dict:
         """Follow until `stop()` (or `duration_s` of the vehicle's time after the first sample)."""
@@ -95,6 +116,9 @@ class FollowWorld:
         next_t: float | None = None
         asked = announced = -1e9
         wall0 = time.monotonic()
+        t_gone: float | None = None  # the autopilot's time when the companion was found gone
+        wall_gone = 0.0
+        modes: list = []
         while not self._stop.is_set():
             for msg in self.link.recv(0.05):
                 if self.cam is not self.task.camera and self._gimbal_command(msg):
@@ -118,6 +142,16 @@ class FollowWorld:
                     self.link.send(M.MAVLink_command_long_message(self.system_id, 1, M.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                                                   msg_id, 1e6 / hz, 0, 0, 0, 0, 0))  # fmt: skip
             state = self.tel.vehicle_state()
+            if self._alone.is_set() and t_gone is None:
+                t_gone, wall_gone = self.tel.t, time.monotonic()
+                modes = [(self.tel.t, self.tel.mode_name, bool(self.tel.armed))]
+            if t_gone is not None:
+                if (self.tel.mode_name, bool(self.tel.armed)) != modes[-1][1:]:
+                    modes.append((self.tel.t, self.tel.mode_name, bool(self.tel.armed)))
+                silent = time.monotonic() - wall_gone > self.p.alone_s + ALONE_WALL_SLACK_S
+                if not self.tel.armed or self.tel.t - t_gone >= self.p.alone_s or silent:
+                    self._end_alone(t_gone, modes, state)
+                    break
             if state is None:
                 continue
             t = self.tel.t
@@ -192,11 +226,24 @@ class FollowWorld:
         self.link.transport.send(ack.pack(enc))
         return True
 
+    def _end_alone(self, t_gone: float, modes: list, state) -> None:
+        """What the autopilot did alone; world.csv ends on its end state."""
+        t = self.tel.t
+        if self.truth is not None and state is not None:
+            self.truth.write(truth_row(round(t, 6), state.pos_ned, team_states(self.team),
+                                       mode=self.tel.mode_name, armed=int(self.tel.armed),
+                                       team_t="" if self.team_t is None else round(self.team_t, 6)))  # fmt: skip
+        self.alone = {
+            "why": self.alone_why, "t_gone_s": round(t_gone, 3), "span_s": round(t - t_gone, 3),
+            "ended": "disarmed" if not self.tel.armed else f"after alone_s {self.p.alone_s:g} s",
+            "modes": [{"t": round(tm, 3), "mode": m, "armed": a} for tm, m, a in modes],
+        }  # fmt: skip
+
     def _stats(self, wall0: float) -> dict:
         stats = {"followed": True, "frames": self.frames, "wall_s": time.monotonic() - wall0,
                  "vehicle_t_s": self.tel.t, "autopilot": self.tel.profile.name if self.tel.profile else None,
                  "roi_commands": self.roi_commands, "system_id": self.system_id,
-                 "error": self.error}  # fmt: skip
+                 "error": self.error, "after_companion": self.alone}  # fmt: skip
         if self.run_dir is not None:
             atomic_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")
         return stats
