@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import signal
 import sys
 from pathlib import Path
@@ -147,7 +148,8 @@ def _alone(name: str, a: dict | None, last: str = "") -> str:
     """One simulator's span without the companion, in words."""
     if not a:
         return f"{name}: no span alone recorded (the simulator was stopped or killed){last}"
-    alt = abs(a["altitude_m"]) if abs(a["altitude_m"]) < 0.05 else a["altitude_m"]
+    alt = a.get("altitude_m", math.nan)
+    alt = abs(alt) if abs(alt) < 0.05 else alt
     if a["span_s"] == 0 and not a["armed"]:
         return (f"{name}: the vehicle was disarmed when the companion ended (t = {a['t_gone_s']:.1f} s): "
                 f"{a['mode']}, altitude {alt:.1f} m")  # fmt: skip

@@ -23,6 +23,7 @@ stopped on "0.01 m, armed, LAND" and the judge failed a flight that had landed a
 from __future__ import annotations
 
 import json
+import math
 import threading
 import time
 from pathlib import Path
@@ -237,6 +238,8 @@ class FollowWorld:
             "why": self.alone_why, "t_gone_s": round(t_gone, 3), "span_s": round(t - t_gone, 3),
             "ended": "disarmed" if not self.tel.armed else f"after alone_s {self.p.alone_s:g} s",
             "modes": [{"t": round(tm, 3), "mode": m, "armed": a} for tm, m, a in modes],
+            "mode": self.tel.mode_name, "armed": bool(self.tel.armed),
+            "altitude_m": math.nan if state is None else round(-float(state.pos_ned[2]), 3),
         }  # fmt: skip
 
     def _stats(self, wall0: float) -> dict:
