@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 from pathlib import Path
 
@@ -56,7 +57,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--signing-key",
         default=None,
         metavar="FILE",
-        help="MAVLink 2 signing key file (32 bytes) for the vehicle and the companion",
+        help="MAVLink 2 signing key file (32 bytes) for the vehicle, the companion and the world's "
+        "link (default with the built-in vehicle: a new key per run, <run>/signing.key)",
+    )
+    parser.add_argument(
+        "--no-signing",
+        action="store_true",
+        help="fly the built-in vehicle unsigned: no per-run key; any local process can then "
+        "command the vehicle and forge frames (recorded in config.json and summary.md)",
     )
     parser.add_argument("--instance", type=int, default=0, help="built-in vehicle instance N")
     parser.add_argument(
@@ -207,7 +215,15 @@ def _validate(args) -> tuple[list[str], list[str]]:
         comp += ["--orbit-no-land"] if args.orbit_no_land else []
         sim[sim.index("--ugvs") + 1] = args.orbit_scenario
         sim += ["--airframe", "fixedwing"]
+    from flight.mavlink.signing import SigningError, load_key
+
+    if args.signing_key and args.no_signing:
+        raise UsageError("--signing-key and --no-signing contradict each other: drop one")
     if args.signing_key:
+        try:
+            load_key(Path(args.signing_key))
+        except SigningError as e:
+            raise UsageError(f"--signing-key: {e}") from None
         key = str(Path(args.signing_key).resolve())
         sim += ["--signing-key", key]
         comp += ["--signing-key", key]
@@ -231,6 +247,31 @@ def _validate(args) -> tuple[list[str], list[str]]:
             sim += ["--follow", world_link(args), "--follow-system", str(args.world_system)]
     comp += ["--zenoh-connect", f"tcp:127.0.0.1:{args.zenoh_port}"]
     return sim, comp
+
+
+def signing_mode(args) -> str:
+    """How this flight is signed, as config.json and summary.md say it."""
+    if args.signing_key:
+        return f"key file {Path(args.signing_key).resolve()}"
+    if args.no_signing:
+        return "off (--no-signing)"
+    if args.connect is not None:
+        return "off (outside autopilot: give --signing-key FILE with the autopilot's key)"
+    return "on (per-run key)"
+
+
+def per_run_key(args, run_dir: Path, sim: list[str], comp: list[str]) -> Path | None:
+    """With the built-in vehicle and neither --signing-key nor --no-signing: a new key
+    `<run>/signing.key` (32 random bytes, mode 0600) handed to both programs."""
+    from flight.mavlink.signing import KEY_LEN, save_key
+
+    if args.signing_key or args.no_signing or args.connect is not None:
+        return None
+    path = run_dir / SIGNING_KEY_FILE
+    save_key(path, os.urandom(KEY_LEN))
+    sim += ["--signing-key", str(path)]
+    comp += ["--signing-key", str(path)]
+    return path
 
 
 def _refuse_wind_above_limit(args) -> None:
@@ -274,6 +315,7 @@ def world_link(args) -> str:
     raise UsageError("the ground-air mission around a serial autopilot needs --world-link ADDRESS")
 
 
+SIGNING_KEY_FILE = "signing.key"  # the per-run key in the run folder
 _ENVELOPE = {"quadrotor": "quadrotor_groundair.toml", "fixedwing": "fixedwing_field.toml"}
 
 
@@ -284,8 +326,10 @@ def run_two_processes(args: argparse.Namespace) -> int:
     envelope = _envelope(args) if args.mission == "groundair" else None
     folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
+    per_run_key(args, run_dir, sim_args, comp_args)
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
-                         "companion": comp_args, "envelope": envelope})  # fmt: skip
+                         "companion": comp_args, "envelope": envelope,
+                         "signing": signing_mode(args)})  # fmt: skip
     waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     recorder = None

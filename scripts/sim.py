@@ -441,7 +441,7 @@ def _follow(args, params, session, run_dir):
         parse_address(args.follow)
         # ArduPilot SITL opens SERIAL1 only once the companion is on SERIAL0: retry 60 s
         link = MavlinkLink.open(args.follow, connect_wait_s=60.0, source_system=255,
-                                source_component=190)  # fmt: skip
+                                source_component=190, signing_key=args.signing_key)  # fmt: skip
     except (ValueError, LinkError) as e:
         session.close()
         raise UsageError(f"--follow: {e}") from None
