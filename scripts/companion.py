@@ -502,7 +502,9 @@ def run(args: argparse.Namespace) -> int:
         )
         mission.outcome, mission.reason = "interrupted", error
     cut = cut_records(writers) + _tlog_cut(link)
-    _write_outcome(run_dir, mission, stats, frames, cut)
+    mavlink = {"signed": link.signing is not None and link.signing.enabled,
+               "rejected": link.rejected_packets}  # fmt: skip
+    _write_outcome(run_dir, mission, stats, frames, cut, mavlink)
     if error:
         _say(f"skyherd companion: {'' if interrupted else 'aborted: '}{error}")
     rc = 0 if mission.outcome == "completed" else (_interrupt_rc(stop) if interrupted else 1)
@@ -526,7 +528,8 @@ def _tick_stats(stats) -> dict:
     }
 
 
-def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = None) -> None:
+def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = None,
+                   mavlink: dict | None = None) -> None:  # fmt: skip
     """companion.json: how the mission ended, its counters, the decision latency, the records
     a full disk or a read-only folder cut (never raises: the ending is still reported)."""
     out = {
@@ -547,6 +550,8 @@ def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = Non
             "land": bool(getattr(getattr(mission, "f", mission.plan), "land", True)),
         },  # fmt: skip
     }
+    if mavlink is not None:  # the link's signing: on or off, frames refused by it
+        out["mavlink"] = mavlink
     if getattr(mission, "plan", None) is not None and mission.name == "orbit":
         import dataclasses as dc
 

@@ -455,6 +455,10 @@ class World:
             "link_cut_dropped": self.cut_dropped,
             "link_cut_muted": self.endpoint.api.stats_muted,
             "camera_loss_frames": self.camera_dropped,
+            "mavlink_signing": {
+                "on": self.endpoint.signing.enabled,
+                **dict(sorted(self.endpoint.signing.stats.items())),
+            },  # fmt: skip
             "after_companion": self.alone,
             "records_cut": cut_records([self.truth]),
         }
