@@ -355,7 +355,16 @@ def open_frames(args, vehicle: str = "uav0"):
         session = open_client(p)
     except ValueError as e:
         raise UsageError(f"{e}; check --zenoh-connect / --zenoh-config") from None
-    return session, FrameInbox(FrameSubscriber(session, vehicle))
+    key = None
+    if getattr(args, "signing_key", None):  # the flight's key authenticates the frames too
+        from flight.mavlink.signing import SigningError, load_key
+
+        try:
+            key = load_key(args.signing_key)
+        except SigningError as e:
+            session.close()
+            raise UsageError(f"--signing-key: {e}") from None
+    return session, FrameInbox(FrameSubscriber(session, vehicle, key=key))
 
 
 GO_PATIENCE_S = 120.0
@@ -493,6 +502,9 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
         mission.write_track(v)
         link.close()
+        sub = getattr(getattr(frames, "source", None), "sub", None)
+        if sub is not None:  # its callbacks end before the session does
+            sub.close()
         if session is not None:
             session.close()
     if stats is not None and stats.handover is not None:  # a signal: handed over, then ended
@@ -552,6 +564,10 @@ def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = Non
     }
     if mavlink is not None:  # the link's signing: on or off, frames refused by it
         out["mavlink"] = mavlink
+    sub = getattr(getattr(frames, "source", frames), "sub", None)
+    if sub is not None:  # the camera link: authenticated or not, frames refused by it
+        out["camera_link"] = {"authenticated": sub.key is not None, "refused": sub.stats.refused,
+                              "out_of_order": sub.stats.out_of_order}  # fmt: skip
     if getattr(mission, "plan", None) is not None and mission.name == "orbit":
         import dataclasses as dc
 

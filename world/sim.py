@@ -33,6 +33,7 @@ import numpy as np
 from flight.clock import Pacer
 from flight.lockstep import LockstepGate, LockstepParams, LockstepTimeout, collect_closes
 from flight.state import VehicleState
+from flight.mavlink.signing import load_key
 from groundsim.transport import UGVStatePublisher
 from groundsim.ugv import UGVModel
 from hil.camera_mount import level_quat, mounted_pose
@@ -168,8 +169,9 @@ class World:
         if session is not None and self.team is not None:
             from perception.transport import FramePublisher
 
+            key = load_key(cfg.signing_key) if cfg.signing_key else None  # frames signed too
             self.publisher = FramePublisher(session, params.vehicle, self.cam, mount=self.mount,
-                                            rng=np.random.default_rng(params.seed))  # fmt: skip
+                                            rng=np.random.default_rng(params.seed), key=key)  # fmt: skip
             self._ugv_pub = UGVStatePublisher(session, self.task.n_ugvs)
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
         self.run_dir = Path(run_dir) if run_dir is not None else None
