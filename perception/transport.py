@@ -56,6 +56,7 @@ import numpy as np
 from perception.camera import CameraParams
 
 _HDR = struct.Struct("<4sHBBIQdd3d4dHHII")
+HEADER_LEN = _HDR.size
 MAGIC = b"SKYF"
 VERSION = 1
 VERSION_SIGNED = 2  # version 1 + the trailer (module docstring)

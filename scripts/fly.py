@@ -249,6 +249,13 @@ def _validate(args) -> tuple[list[str], list[str]]:
     return sim, comp
 
 
+def _key_file(child_args: list[str]) -> str | None:
+    """The signing key file handed to a child (None: unsigned)."""
+    return (
+        child_args[child_args.index("--signing-key") + 1] if "--signing-key" in child_args else None
+    )
+
+
 def signing_mode(args) -> str:
     """How this flight is signed, as config.json and summary.md say it."""
     if args.signing_key:
@@ -345,7 +352,7 @@ def run_two_processes(args: argparse.Namespace) -> int:
             # its start
             companion = kids.start_companion(launch.skyherd_cmd(
                 "companion", *comp_args, "--run-dir", str(run_dir), "--wait-go"), wait_go=True)  # fmt: skip
-            recorder = _recorder(args, run_dir) if kids.sims else None
+            recorder = _recorder(args, run_dir, _key_file(sim_args)) if kids.sims else None
             companion.go()
             rc, why = kids.supervise(args.timeout)
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
@@ -389,12 +396,16 @@ class _Recording:
         self.session.close()
 
 
-def _recorder(args, run_dir: Path):
+def _recorder(args, run_dir: Path, key_file: str | None = None):
     """A ZenohRecorder beside the two programs (None with --no-record and no --foxglove, or
-    when it cannot start: the flight never depends on its recording)."""
+    when it cannot start: the flight never depends on its recording); with the flight's key
+    file it records only authentic frames, UGV states and clock."""
     if args.no_record and args.foxglove is None:
         return None
     try:
+        from flight.mavlink.signing import load_key
+
+        key = load_key(Path(key_file)) if key_file else None
         from perception.transport import subscriber_params
         from record import LiveServer, ZenohRecorder
         from scripts.companion import open_client
@@ -407,7 +418,7 @@ def _recorder(args, run_dir: Path):
             print(
                 f"skyherd fly: live view on {also[0].url} (Foxglove: open connection)", flush=True
             )
-        rec = ZenohRecorder(session, "uav0", path, also=also)
+        rec = ZenohRecorder(session, "uav0", path, also=also, key=key)
         if args.mission == "groundair":  # the fence and the envelope's rows as geometry
             from safety.config import ENVELOPE_DIR, load_envelope
 

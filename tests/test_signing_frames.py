@@ -18,7 +18,6 @@ from test_attack_mavlink import assert_signed_and_untouched, assert_unsigned, at
 
 from perception.transport import (
     RAW,
-    CorruptFrame,
     FramePublisher,
     FrameSubscriber,
     RefusedFrame,
@@ -136,3 +135,49 @@ def test_forged_camera_frames_are_refused_by_a_default_flight_and_taken_without_
     link = json.loads((run / "companion.json").read_text())["camera_link"]
     assert link["authenticated"] is False and link["refused"] == 0
     assert report["sent"] == 10 and link["out_of_order"] > 0, (link, report)  # forgeries taken
+
+
+def test_ugv_states_and_clock_carry_a_mac_and_forged_records_are_refused():
+    import json as js
+
+    from groundsim.transport import (
+        UGVStatePublisher,
+        UGVStateSubscriber,
+        record_mac,
+        record_ok,
+        sign_record,
+    )
+    from groundsim.ugv import UGVStates
+
+    clock = js.loads(sign_record({"t_sim": 1.5}, KEY))
+    assert record_ok(clock, KEY) and not record_ok(clock, OTHER)
+    assert not record_ok({"t_sim": 1.5}, KEY) and js.loads(sign_record({"t_sim": 1.5}, None)) == {
+        "t_sim": 1.5
+    }  # unsigned: today's record
+    port = 7494
+    a = open_session(publisher_params(port))
+    b = open_session(subscriber_params(port=port))
+    try:
+        guarded, naive = UGVStateSubscriber(b, key=KEY), UGVStateSubscriber(b)
+        pub = UGVStatePublisher(a, 1, key=KEY)
+        forger = a.declare_publisher("skyherd/ugv/0/state")
+        deadline = time.monotonic() + 30
+        while not forger.matching_status.matching:
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        st = UGVStates(np.array([[1.0, 2.0]]), np.array([0.1]), np.array([1.0]), np.array([False]))
+        pub.publish(0.1, st)
+        fake = {"id": 0, "seq": 1, "t_sim": 0.2, "pos_ned": [500.0, 0.0, 0.0], "heading_rad": 0.0,
+                "speed_mps": 0.0, "camouflaged": False}  # fmt: skip
+        forger.put(js.dumps(fake).encode())  # no MAC
+        forger.put(js.dumps({**fake, "mac": record_mac(OTHER, fake)}).encode())  # wrong key
+        while guarded.received + guarded.refused < 3 or naive.received < 3:
+            assert time.monotonic() < deadline, (guarded.refused, naive.received)
+            time.sleep(0.02)
+        assert guarded.refused == 2 and guarded.latest[0]["pos_ned"][0] == 1.0
+        assert naive.latest[0]["pos_ned"][0] == 500.0  # without the key the forgery is the state
+        for s in (guarded, naive, pub):
+            s.close()
+    finally:
+        b.close()
+        a.close()
