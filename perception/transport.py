@@ -12,6 +12,17 @@ Frame wire format (little-endian), then the pixel data:
     pos_ned 3×f64 [m] | quat 4×f64 (w, x, y, z body→NED) | width u16 | height u16 |
     data_len u32 | crc32(data) u32
 
+Authenticated frames (a publisher and subscriber given the flight's key, `key`: the 32 bytes
+of the MAVLink signing key, flight.mavlink.signing) have version 2 and a trailer after the
+pixels: SHA-256(pixels) (32 bytes) | BLAKE2b-256 keyed with the flight key over the header as
+sent and that digest (32 bytes). A subscriber with a key refuses (counts as `refused`, never
+hands on) version 1 frames and frames whose MAC fails, on arrival, before their sequence number
+touches the books: a forged "next frame" cannot push the real one out. The pixel digest is
+checked when the frame is taken (as the CRC is). A run of refused frames is a camera that
+went silent: the consumer's camera-loss path. Readers without a key (the recorder, a viewer)
+read both versions and check nothing beyond the CRC. Without a key the format is version 1,
+unchanged.
+
 Sessions: by default a Zenoh peer that listens on tcp/127.0.0.1 only (the publisher, port 7447)
 or connects to it (the subscriber), multicast scouting off: nothing to start by hand, nothing
 leaves the machine. `ZenohParams.config_file` hands the whole configuration to a Zenoh JSON5
@@ -28,6 +39,8 @@ skipped.
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import json
 import math
 import os
@@ -45,8 +58,12 @@ from perception.camera import CameraParams
 from runio.ports import ZENOH_BASE
 
 _HDR = struct.Struct("<4sHBBIQdd3d4dHHII")
+HEADER_LEN = _HDR.size
 MAGIC = b"SKYF"
 VERSION = 1
+VERSION_SIGNED = 2  # version 1 + the trailer (module docstring)
+DIGEST_LEN = MAC_LEN = 32
+TRAILER_LEN = DIGEST_LEN + MAC_LEN
 RAW, JPEG = 0, 1
 ENCODINGS = {"raw": RAW, "jpeg": JPEG}
 DEFAULT_PORT = ZENOH_BASE  # instance 0's; instance N: runio.ports.zenoh_port(N)
@@ -62,6 +79,25 @@ def info_key(vehicle: str) -> str:
 
 class CorruptFrame(ValueError):
     """A payload that is not a valid frame."""
+
+
+class RefusedFrame(CorruptFrame):
+    """A frame that fails authentication (unsigned, or a wrong MAC or pixel digest)."""
+
+
+def frame_mac(key: bytes, header: bytes, digest: bytes) -> bytes:
+    """The MAC of a signed frame: BLAKE2b-256 keyed with the flight key over header + digest."""
+    return hashlib.blake2b(header + digest, key=key, digest_size=MAC_LEN).digest()
+
+
+def sign_trailer(key: bytes, header: bytes, digest: bytes) -> bytes:
+    """The trailer of a signed frame whose header (version 2, as sent) is `header`."""
+    return digest + frame_mac(key, header, digest)
+
+
+def _signed_header(header: bytes) -> bytes:
+    """A version 1 header as version 2 (the same fields)."""
+    return header[:4] + struct.pack("<H", VERSION_SIGNED) + header[6:]
 
 
 @dataclass(frozen=True)
@@ -125,15 +161,21 @@ def encode_frame(
     stream: int = 0,
     jpeg_quality: int = 90,
     t_pub: float | None = None,
+    key: bytes | None = None,
 ) -> bytes:
-    """Frame → bytes (header + pixels). image (H, W, 3) uint8 RGB.
+    """Frame → bytes (header + pixels; with `key`, signed: version 2 + the trailer).
+    image (H, W, 3) uint8 RGB.
 
     The publish time is stamped after the pixels are encoded and checksummed (CRC: ~0.4 ms at
     640×480), so latency measures the link, not the encoder.
     """
     data = encode_pixels(image, encoding, jpeg_quality)
     h, w = np.shape(image)[:2]
-    return encode_header(seq, t_sim, pos_ned, quat, w, h, data, encoding, stream, t_pub) + data
+    header = encode_header(seq, t_sim, pos_ned, quat, w, h, data, encoding, stream, t_pub)
+    if key is None:
+        return header + data
+    header = _signed_header(header)
+    return header + data + sign_trailer(key, header, hashlib.sha256(data).digest())
 
 
 @dataclass(frozen=True)
@@ -152,37 +194,57 @@ class FrameHeader:
     data_len: int
     crc: int
     t_recv: float
+    digest: bytes | None = None  # signed frames: SHA-256 of the pixels, from the trailer
 
     @property
     def latency_s(self) -> float:
         return self.t_recv - self.t_pub
 
 
-def decode_header(payload: bytes, t_recv: float | None = None) -> FrameHeader:
-    """Header fields; a short payload, bad magic/version or non-finite pose raise CorruptFrame."""
+def decode_header(
+    payload: bytes, t_recv: float | None = None, key: bytes | None = None
+) -> FrameHeader:
+    """Header fields; a short payload, bad magic/version or non-finite pose raise CorruptFrame.
+    With `key`: an unsigned frame or a MAC that fails raise RefusedFrame (the pixels are
+    checked against the digest later, in decode_pixels)."""
     if len(payload) < _HDR.size:
         raise CorruptFrame(f"payload of {len(payload)} bytes is shorter than the header")
     f = _HDR.unpack_from(payload)
     magic, version, enc, _, stream, seq, t_sim, t_pub = f[:8]
     pos, quat = np.array(f[8:11]), np.array(f[11:15])
     w, h, n, crc = f[15:19]
-    if magic != MAGIC or version != VERSION:
+    if magic != MAGIC or version not in (VERSION, VERSION_SIGNED):
         raise CorruptFrame(f"bad magic/version {magic!r}/{version}")
-    if len(payload) - _HDR.size != n:
-        raise CorruptFrame(f"data length {len(payload) - _HDR.size} != header's {n}")
+    trailer = TRAILER_LEN if version == VERSION_SIGNED else 0
+    if len(payload) - _HDR.size - trailer != n:
+        raise CorruptFrame(f"data length {len(payload) - _HDR.size - trailer} != header's {n}")
+    digest = None
+    if key is not None:
+        if version != VERSION_SIGNED:
+            raise RefusedFrame("unsigned frame on an authenticated link")
+        end = _HDR.size + n
+        digest = bytes(payload[end : end + DIGEST_LEN])
+        mac = bytes(payload[end + DIGEST_LEN : end + TRAILER_LEN])
+        if not hmac.compare_digest(mac, frame_mac(key, bytes(payload[: _HDR.size]), digest)):
+            raise RefusedFrame("frame MAC does not match the flight key")
     if not (np.isfinite(pos).all() and np.isfinite(quat).all() and math.isfinite(t_sim)):
         raise CorruptFrame("non-finite pose or time")
     if enc not in (RAW, JPEG):
         raise CorruptFrame(f"unknown encoding {enc}")
     t_recv = time.time() if t_recv is None else t_recv
-    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, crc, t_recv)
+    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, crc, t_recv, digest)
 
 
 def decode_pixels(hdr: FrameHeader, payload: bytes) -> Frame:
-    """Check the CRC and decode the image of a payload whose header is `hdr`."""
-    data = memoryview(payload)[_HDR.size :]
+    """Check the CRC (and, for a header whose MAC was checked, the pixel digest: RefusedFrame)
+    and decode the image of a payload whose header is `hdr`."""
+    data = memoryview(payload)[_HDR.size : _HDR.size + hdr.data_len]
     if zlib.crc32(data) != hdr.crc:
         raise CorruptFrame("CRC mismatch")
+    if hdr.digest is not None and not hmac.compare_digest(
+        hashlib.sha256(data).digest(), hdr.digest
+    ):
+        raise RefusedFrame("pixels do not match the signed digest")
     w, h = hdr.width, hdr.height
     if hdr.encoding == RAW:
         if hdr.data_len != w * h * 3:
@@ -199,9 +261,10 @@ def decode_pixels(hdr: FrameHeader, payload: bytes) -> Frame:
     )  # fmt: skip
 
 
-def decode_frame(payload: bytes, t_recv: float | None = None) -> Frame:
-    """bytes → Frame; anything malformed raises CorruptFrame."""
-    return decode_pixels(decode_header(payload, t_recv), payload)
+def decode_frame(payload: bytes, t_recv: float | None = None, key: bytes | None = None) -> Frame:
+    """bytes → Frame; anything malformed raises CorruptFrame (with `key`, anything not
+    authentic RefusedFrame, a CorruptFrame)."""
+    return decode_pixels(decode_header(payload, t_recv, key), payload)
 
 
 def camera_info(cam: CameraParams, encoding: str, mount: str = "body") -> dict:
@@ -301,6 +364,7 @@ class FramePublisher:
         rng: np.random.Generator | None = None,
         shm_frames: int = 8,
         mount: str = "body",
+        key: bytes | None = None,
     ):
         import zenoh
 
@@ -308,6 +372,7 @@ class FramePublisher:
             raise ValueError(f"encoding must be raw or jpeg, got {encoding!r}")
         self.cam, self.encoding, self.jpeg_quality = cam, encoding, jpeg_quality
         self.mount = mount  # how the vehicle carries the camera (camera_info)
+        self.key = key  # the flight key: frames signed (version 2 + trailer), else version 1
         self.info_every = max(1, info_every)
         self.stream = int((rng or np.random.default_rng()).integers(1, 2**32 - 1))
         self.seq = 0
@@ -321,15 +386,16 @@ class FramePublisher:
         self._shm_frames = shm_frames  # shared-memory pool size in frames; 0 = never use it
         self._shm = None  # zenoh.shm.ShmProvider, made at the first frame (its size is known then)
         self.shm_fallbacks = 0  # frames sent by copy because shared memory was not available
-        self._last: tuple[bytes, bytes] | None = None  # (header, pixels) of the last frame
+        self._last: tuple | None = None  # (header, pixels, digest) of the last frame
 
-    def _put(self, header: bytes, data: bytes) -> None:
+    def _put(self, header: bytes, data: bytes, digest: bytes | None = None) -> None:
         """Send one frame through a shared-memory buffer when possible (a subscriber in another
         process on this machine maps it instead of receiving a TCP copy), else by copy. The
-        header (with its publish time) is written last, just before the put."""
+        header (with its publish time; signed: its trailer, `digest` of the pixels) is written
+        last, just before the put."""
         import zenoh
 
-        n = len(header) + len(data)
+        n = len(header) + len(data) + (TRAILER_LEN if digest is not None else 0)
         if self._shm is None and self._shm_frames > 0:
             try:
                 self._shm = zenoh.shm.ShmProvider.default_backend(self._shm_frames * n)
@@ -341,11 +407,17 @@ class FramePublisher:
             except Exception:  # noqa: BLE001 - pool exhausted by slow readers: copy this one
                 self.shm_fallbacks += 1
             else:
-                buf[len(header) : n] = data
-                buf[0 : len(header)] = self._restamp(header)
+                end = len(header) + len(data)
+                buf[len(header) : end] = data
+                header = self._restamp(header)
+                if digest is not None:
+                    buf[end:n] = sign_trailer(self.key, header, digest)
+                buf[0 : len(header)] = header
                 self._pub.put(buf)
                 return
-        self._pub.put(self._restamp(header) + data)
+        header = self._restamp(header)
+        trailer = sign_trailer(self.key, header, digest) if digest is not None else b""
+        self._pub.put(header + data + trailer)
 
     @staticmethod
     def _restamp(header: bytes) -> bytes:
@@ -364,8 +436,11 @@ class FramePublisher:
         data = encode_pixels(image, enc, self.jpeg_quality)
         h, w = np.shape(image)[:2]
         header = encode_header(self.seq, t_sim, uav_pos_ned, uav_quat, w, h, data, enc, self.stream)
-        self._put(header, data)
-        self._last = (header, data)
+        digest = None
+        if self.key is not None:
+            header, digest = _signed_header(header), hashlib.sha256(data).digest()
+        self._put(header, data, digest)
+        self._last = (header, data, digest)
         self.seq += 1
         return self.seq - 1
 
@@ -414,6 +489,7 @@ class LinkStats:
     late: int = 0
     skipped: int = 0
     corrupt: int = 0
+    refused: int = 0  # not authentic (with a key): unsigned, wrong MAC or pixel digest
     info_received: int = 0
     info_corrupt: int = 0
     latencies_s: list[float] = field(default_factory=list, repr=False)
@@ -434,7 +510,9 @@ class FrameSubscriber:
     as corrupt and is dropped (take() then returns None).
     """
 
-    def __init__(self, session, vehicle: str, late_s: float = 0.1, keep_latencies: int = 100000):
+    def __init__(self, session, vehicle: str, late_s: float = 0.1, keep_latencies: int = 100000,
+                 key: bytes | None = None):  # fmt: skip
+        self.key = key  # the flight key: only authentic frames (module docstring)
         self.stats = LinkStats()
         self.late_s = late_s
         self.keep_latencies = keep_latencies
@@ -452,7 +530,11 @@ class FrameSubscriber:
         t_recv = time.time()
         payload = sample.payload.to_bytes()
         try:
-            hdr = decode_header(payload, t_recv)
+            hdr = decode_header(payload, t_recv, self.key)
+        except RefusedFrame:
+            with self._cv:
+                self.stats.refused += 1
+            return
         except (CorruptFrame, struct.error):
             with self._cv:
                 self.stats.corrupt += 1
@@ -511,6 +593,10 @@ class FrameSubscriber:
         self._pending = None
         try:
             self._latest = decode_pixels(hdr, payload)
+        except RefusedFrame:
+            self.stats.refused += 1
+            self.stats.received -= 1
+            return None
         except (CorruptFrame, cv2.error, ValueError):
             self.stats.corrupt += 1
             self.stats.received -= 1

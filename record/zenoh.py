@@ -56,9 +56,12 @@ class ZenohRecorder:
     """Subscribes on `session` (an open zenoh session) and records into `path` until closed."""
 
     def __init__(self, session, vehicle: str, path: Path | str | None, *, also=(),
-                 **mcap_options):  # fmt: skip
-        """path None: no file, only the `also` sinks (e.g. a LiveServer: live view only)."""
+                 key: bytes | None = None, **mcap_options):  # fmt: skip
+        """path None: no file, only the `also` sinks (e.g. a LiveServer: live view only).
+        key: the flight key: camera frames, UGV states and the clock that fail their MAC
+        (perception.transport, groundsim.transport) are not recorded (counted as corrupt)."""
         self.vehicle = vehicle
+        self.key = key
         if path is None:
             self.log = FlightLog(*(getattr(a, "server_sink", a) for a in also))
             self.path = None
@@ -90,11 +93,11 @@ class ZenohRecorder:
         return cb
 
     def _frame(self, payload: bytes) -> None:
-        from perception.transport import JPEG, decode_header, decode_pixels
+        from perception.transport import HEADER_LEN, JPEG, decode_header, decode_pixels
 
-        hdr = decode_header(payload)
+        hdr = decode_header(payload, key=self.key)
         if hdr.encoding == JPEG:
-            data = payload[len(payload) - hdr.data_len :]
+            data = payload[HEADER_LEN : HEADER_LEN + hdr.data_len]  # a signed frame: trailer after
             import zlib
 
             if zlib.crc32(data) != hdr.crc:
@@ -110,8 +113,15 @@ class ZenohRecorder:
             raise ValueError("not a JSON object")
         return rec
 
+    def _authentic(self, rec: dict) -> dict:
+        from groundsim.transport import record_ok
+
+        if self.key is not None and not record_ok(rec, self.key):
+            raise ValueError("record MAC does not match the flight key")
+        return rec
+
     def _ugv(self, payload: bytes) -> None:
-        rec = self._json(payload)
+        rec = self._authentic(self._json(payload))
         self.log.ugvs(_t(rec), [rec])
 
     def _decision(self, payload: bytes) -> None:
@@ -123,6 +133,8 @@ class ZenohRecorder:
         self.log.event(_t(rec), rec, vehicle=self.vehicle)
 
     def _clock(self, payload: bytes) -> None:
+        if self.key is not None:
+            self._authentic(self._json(payload))
         self.log.clock(clock_time(payload))
 
     def close(self) -> None:

@@ -485,7 +485,16 @@ def open_frames(args, vehicle: str = "uav0"):
         session = open_client(p)
     except ValueError as e:
         raise UsageError(f"{e}; check --zenoh-connect / --zenoh-config") from None
-    return session, FrameInbox(FrameSubscriber(session, vehicle))
+    key = None
+    if getattr(args, "signing_key", None):  # the flight's key authenticates the frames too
+        from flight.mavlink.signing import SigningError, load_key
+
+        try:
+            key = load_key(args.signing_key)
+        except SigningError as e:
+            session.close()
+            raise UsageError(f"--signing-key: {e}") from None
+    return session, FrameInbox(FrameSubscriber(session, vehicle, key=key))
 
 
 GO_PATIENCE_S = 120.0
@@ -619,6 +628,9 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
         mission.write_track(v)
         link.close()
+        sub = getattr(getattr(frames, "source", None), "sub", None)
+        if sub is not None:  # its callbacks end before the session does
+            sub.close()
         if session is not None:
             session.close()
     if stats is not None and stats.handover is not None:  # a signal: handed over, then ended
@@ -628,7 +640,9 @@ def run(args: argparse.Namespace) -> int:
         )
         mission.outcome, mission.reason = "interrupted", error
     cut = cut_records(writers) + _tlog_cut(link)
-    _write_outcome(run_dir, mission, stats, frames, cut)
+    mavlink = {"signed": link.signing is not None and link.signing.enabled,
+               "rejected": link.rejected_packets}  # fmt: skip
+    _write_outcome(run_dir, mission, stats, frames, cut, mavlink)
     if error:
         _say(f"skyherd companion: {'' if interrupted else 'aborted: '}{error}")
     rc = 0 if mission.outcome == "completed" else (_interrupt_rc(stop) if interrupted else 1)
@@ -668,7 +682,8 @@ def _tick_stats(stats) -> dict:
     }
 
 
-def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = None) -> None:
+def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = None,
+                   mavlink: dict | None = None) -> None:  # fmt: skip
     """companion.json: how the mission ended, its counters, the decision latency, the records
     a full disk or a read-only folder cut (never raises: the ending is still reported)."""
     out = {
@@ -691,6 +706,12 @@ def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = Non
             "end_mode": getattr(mission, "end_mode", ""),  # the profile's end when not landed
         },  # fmt: skip
     }
+    if mavlink is not None:  # the link's signing: on or off, frames refused by it
+        out["mavlink"] = mavlink
+    sub = getattr(getattr(frames, "source", frames), "sub", None)
+    if sub is not None:  # the camera link: authenticated or not, frames refused by it
+        out["camera_link"] = {"authenticated": sub.key is not None, "refused": sub.stats.refused,
+                              "out_of_order": sub.stats.out_of_order}  # fmt: skip
     if getattr(mission, "plan", None) is not None and mission.name == "orbit":
         import dataclasses as dc
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import signal
 import sys
 from pathlib import Path
@@ -60,7 +61,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--signing-key",
         default=None,
         metavar="FILE",
-        help="MAVLink 2 signing key file (32 bytes) for the vehicle and the companion",
+        help="MAVLink 2 signing key file (32 bytes) for the vehicle, the companion and the world's "
+        "link (default with the built-in vehicle: a new key per run, <run>/signing.key)",
+    )
+    parser.add_argument(
+        "--no-signing",
+        action="store_true",
+        help="fly the built-in vehicle unsigned: no per-run key; any local process can then "
+        "command the vehicle and forge frames (recorded in config.json and summary.md)",
     )
     parser.add_argument("--instance", type=int, default=0,
                         help=f"built-in vehicle instance N in [0, {ports.MAX_INSTANCE}]: its MAVLink ports "
@@ -266,7 +274,15 @@ def _validate(args) -> tuple[list[str], list[str]]:
         comp += ["--orbit-no-land"] if args.orbit_no_land else []
         sim[sim.index("--ugvs") + 1] = args.orbit_scenario
         sim += ["--airframe", "fixedwing"]
+    from flight.mavlink.signing import SigningError, load_key
+
+    if args.signing_key and args.no_signing:
+        raise UsageError("--signing-key and --no-signing contradict each other: drop one")
     if args.signing_key:
+        try:
+            load_key(Path(args.signing_key))
+        except SigningError as e:
+            raise UsageError(f"--signing-key: {e}") from None
         key = str(Path(args.signing_key).resolve())
         sim += ["--signing-key", key]
         comp += ["--signing-key", key]
@@ -290,6 +306,38 @@ def _validate(args) -> tuple[list[str], list[str]]:
             sim += ["--follow", world_link(args), "--follow-system", str(args.world_system)]
     comp += ["--zenoh-connect", f"tcp:127.0.0.1:{args.zenoh_port}"]
     return sim, comp
+
+
+def _key_file(child_args: list[str]) -> str | None:
+    """The signing key file handed to a child (None: unsigned)."""
+    return (
+        child_args[child_args.index("--signing-key") + 1] if "--signing-key" in child_args else None
+    )
+
+
+def signing_mode(args) -> str:
+    """How this flight is signed, as config.json and summary.md say it."""
+    if args.signing_key:
+        return f"key file {Path(args.signing_key).resolve()}"
+    if args.no_signing:
+        return "off (--no-signing)"
+    if args.connect is not None:
+        return "off (outside autopilot: give --signing-key FILE with the autopilot's key)"
+    return "on (per-run key)"
+
+
+def per_run_key(args, run_dir: Path, sim: list[str], comp: list[str]) -> Path | None:
+    """With the built-in vehicle and neither --signing-key nor --no-signing: a new key
+    `<run>/signing.key` (32 random bytes, mode 0600) handed to both programs."""
+    from flight.mavlink.signing import KEY_LEN, save_key
+
+    if args.signing_key or args.no_signing or args.connect is not None:
+        return None
+    path = run_dir / SIGNING_KEY_FILE
+    save_key(path, os.urandom(KEY_LEN))
+    sim += ["--signing-key", str(path)]
+    comp += ["--signing-key", str(path)]
+    return path
 
 
 def _refuse_wind_above_limit(args) -> None:
@@ -336,6 +384,7 @@ def world_link(args) -> str:
     raise UsageError("the ground-air mission around a serial autopilot needs --world-link ADDRESS")
 
 
+SIGNING_KEY_FILE = "signing.key"  # the per-run key in the run folder
 _ENVELOPE = {"quadrotor": "quadrotor_groundair.toml", "fixedwing": "fixedwing_field.toml"}
 
 
@@ -362,8 +411,10 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     `kept` until the children run, then acted on (Launch.supervise)."""
     from scripts import launch, waysout
 
+    per_run_key(args, run_dir, sim_args, comp_args)
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
-                         "companion": comp_args, "envelope": envelope})  # fmt: skip
+                         "companion": comp_args, "envelope": envelope,
+                         "signing": signing_mode(args)})  # fmt: skip
     waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     recorder = None
@@ -382,7 +433,8 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
             if kids.sims:  # once the simulator says it runs (its Zenoh session is open)
                 sim_up = lambda: kids.sims[0].said(SIM_STARTED)  # noqa: E731
                 stop_waiting = lambda: kept.signum is not None or kids.ended()  # noqa: E731
-                recorder = _recorder(args, run_dir, give_up=stop_waiting, ready=sim_up)
+                recorder = _recorder(args, run_dir, _key_file(sim_args), give_up=stop_waiting,
+                                     ready=sim_up)  # fmt: skip
             companion.go()
             rc, why = kids.supervise(args.timeout)  # acts on a signal kept until now
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
@@ -430,21 +482,21 @@ class _Recording:
         self.session.close()
 
 
-SIM_STARTED = "skyherd sim: instance"  # the simulator's line once its world runs (scripts.sim)
-SIM_START_PATIENCE_S = 120.0  # wall time the recorder waits for that line [s]
-
-
-def _recorder(args, run_dir: Path, give_up=None, ready=None):
+def _recorder(args, run_dir: Path, key_file: str | None = None, give_up=None, ready=None):
     """A ZenohRecorder beside the two programs (None with --no-record and no --foxglove, or
-    when it cannot start: the flight never depends on its recording). It connects once
-    `ready()` is True (the simulator's session listens; never a stranger on its port), and
-    stops waiting when `give_up()` is True (a signal came, or a child ended: supervise()
-    says which at once)."""
+    when it cannot start: the flight never depends on its recording); with the flight's key
+    file it records only authentic frames, UGV states and clock. It connects once `ready()`
+    is True (the simulator's session listens; never a stranger on its port), and stops
+    waiting when `give_up()` is True (a signal came, or a child ended: supervise() says which
+    at once)."""
     if args.no_record and args.foxglove is None:
         return None
     try:
         import time
 
+        from flight.mavlink.signing import load_key
+
+        key = load_key(Path(key_file)) if key_file else None
         from perception.transport import subscriber_params
         from record import LiveServer, ZenohRecorder
         from scripts.companion import GaveUp, open_client
@@ -465,11 +517,8 @@ def _recorder(args, run_dir: Path, give_up=None, ready=None):
             print(
                 f"skyherd fly: live view on {also[0].url} (Foxglove: open connection)", flush=True
             )
-        rec = ZenohRecorder(session, "uav0", path, also=also)
-        if args.mission in (
-            "groundair",
-            "shepherd",
-        ):  # the fence and the envelope's rows as geometry
+        rec = ZenohRecorder(session, "uav0", path, also=also, key=key)
+        if args.mission in ("groundair", "shepherd"):  # the fence and the envelope's rows
             from safety.config import ENVELOPE_DIR, load_envelope
 
             rec.log.geometry(

@@ -121,7 +121,8 @@ def run_formation(args: argparse.Namespace) -> int:
         {"args": args_dict(args), "mission": "formation", "formation": params,
          "plan": plan_info, "field_origin": DEFAULT_HOME, "homes": homes, "instances": instances,
          "frame": "field NED about field_origin; cell (x, y) centre at north (y-1)*cell_m, "
-                  "east (x-1)*cell_m"}
+                  "east (x-1)*cell_m",
+         "signing": "off (formation: the fleet's links are not signed yet)"}
     )  # fmt: skip
     atomic_write_text(run_dir / "plan.json", _plan_json(plan))
     waysout.write_running(run_dir)

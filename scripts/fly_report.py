@@ -61,6 +61,15 @@ def _fmt(x, digits: int = 3):
     )
 
 
+def _config(run_dir: Path) -> dict:
+    """config.json ({} if missing or unreadable)."""
+    try:
+        cfg = json.loads((run_dir / "config.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    return cfg if isinstance(cfg, dict) else {}
+
+
 def report(run_dir: Path, args, rc: int, why: str) -> bool:
     """Write summary.md (and plots) from the run folder; print the table; True if completed."""
     comp = {}
@@ -116,6 +125,9 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
         if outcome == "failed":
             reason = f"first failed check: {failed_text(failed)}"
     lines = [f"# skyherd fly: {status}", "", title + ".", ""]
+    signing = _config(run_dir).get("signing")
+    if signing:
+        lines += [f"MAVLink signing: {signing}.", ""]
     if not ok:
         lines += [f"**Why it ended:** {reason or 'see companion.json and sim.log'}", ""]
     lines += [table]

@@ -338,7 +338,8 @@ def run(args: argparse.Namespace) -> int:
             bridge = make_bridge(
                 args.autopilot, args.airframe, args.instance, args.seed, speedup=args.speedup
             )
-            world = BridgedWorld(bridge, params, session=session, run_dir=run_dir)
+            world = BridgedWorld(bridge, params, session=session, run_dir=run_dir,
+                                 key=_frame_key(args))  # fmt: skip
         elif args.follow:
             world = _follow(args, params, session, run_dir)
         else:
@@ -527,11 +528,19 @@ def _follow(args, params, session, run_dir):
         parse_address(args.follow)
         # ArduPilot SITL opens SERIAL1 only once the companion is on SERIAL0: retry 60 s
         link = MavlinkLink.open(args.follow, connect_wait_s=60.0, source_system=255,
-                                source_component=190)  # fmt: skip
+                                source_component=190, signing_key=args.signing_key)  # fmt: skip
     except (ValueError, LinkError) as e:
         session.close()
         raise UsageError(f"--follow: {e}") from None
-    return FollowWorld(link, params, session=session, run_dir=run_dir, system_id=args.follow_system)
+    return FollowWorld(link, params, session=session, run_dir=run_dir, system_id=args.follow_system,
+                       key=_frame_key(args))  # fmt: skip
+
+
+def _frame_key(args) -> bytes | None:
+    """The flight key for the camera frames and UGV states (--signing-key), or None."""
+    from flight.mavlink.signing import load_key
+
+    return load_key(args.signing_key) if args.signing_key else None
 
 
 def _set_params(world, items: list[str], session) -> None:

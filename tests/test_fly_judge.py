@@ -13,6 +13,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
+from flight.mavlink.signing import Signing, load_key
 from safety.config import ENVELOPE_DIR
 from scripts.cli import main
 
@@ -84,6 +85,7 @@ def test_fly_autopilot_rtl_between_two_ticks_exits_1_wall_time(tmp_path, capsys)
                                       M.MAVLINK_MSG_ID_HEARTBEAT, 20000, 0, 0, 0, 0, 0)  # fmt: skip
         buf = msg.pack(mav)
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # unbound: no port taken
+        signing = None
         while not stop.is_set():
             world = list(tmp_path.glob("*/world.csv"))
             rows = world and world[0].read_text().splitlines()
@@ -93,7 +95,9 @@ def test_fly_autopilot_rtl_between_two_ticks_exits_1_wall_time(tmp_path, capsys)
                         break
                 except ValueError:
                     pass
-                sock.sendto(buf, ("127.0.0.1", 14580 + instance))
+                # the flight is signed (a per-run key): a component of the flight holds the key
+                signing = signing or Signing(load_key(world[0].parent / "signing.key"))
+                sock.sendto(signing.sign(buf, link_id=5), ("127.0.0.1", 14580 + instance))
             time.sleep(0.05)
         sock.close()
 

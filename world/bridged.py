@@ -27,7 +27,9 @@ from world.team import new_team, team_states, truth_row, ugv_columns
 class BridgedWorld:
     """UGV team + camera around `bridge` (hil.bridge_select.make_bridge)."""
 
-    def __init__(self, bridge, params, session=None, run_dir: Path | None = None):
+    def __init__(self, bridge, params, session=None, run_dir: Path | None = None,
+                 key: bytes | None = None):  # fmt: skip
+        """key: the flight key: camera frames and UGV states signed (perception, groundsim)."""
         from perception.transport import FramePublisher
 
         self.bridge, self.p = bridge, params
@@ -38,8 +40,8 @@ class BridgedWorld:
         if session is not None:
             self.publisher = FramePublisher(session, params.vehicle, self.task.camera,
                                             mount="level",  # level_camera_mount below
-                                            rng=np.random.default_rng(params.seed))  # fmt: skip
-            self.ugv_pub = UGVStatePublisher(session, self.task.n_ugvs)
+                                            rng=np.random.default_rng(params.seed), key=key)  # fmt: skip
+            self.ugv_pub = UGVStatePublisher(session, self.task.n_ugvs, key=key)
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down"] + ugv_columns(self.task.n_ugvs)
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None

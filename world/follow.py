@@ -65,7 +65,9 @@ class FollowWorld:
         run_dir: Path | None = None,
         task: TaskParams | None = None,
         system_id: int = 1,
+        key: bytes | None = None,
     ):
+        """key: the flight key: camera frames signed (perception.transport)."""
         from perception.transport import FramePublisher
 
         self.link, self.p = link, params
@@ -86,7 +88,7 @@ class FollowWorld:
         self.publisher = None
         if session is not None:
             self.publisher = FramePublisher(session, params.vehicle, self.cam, mount=self._mount(),
-                                            rng=np.random.default_rng(params.seed))  # fmt: skip
+                                            rng=np.random.default_rng(params.seed), key=key)  # fmt: skip
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down", "mode", "armed", "team_t"]
         cols += ugv_columns(self.task.n_ugvs)

@@ -32,8 +32,9 @@ import numpy as np
 
 from flight.clock import Pacer
 from flight.lockstep import LockstepGate, LockstepParams, LockstepTimeout, collect_closes
+from flight.mavlink.signing import load_key
 from flight.state import VehicleState
-from groundsim.transport import UGVStatePublisher
+from groundsim.transport import UGVStatePublisher, sign_record
 from groundsim.ugv import UGVModel
 from hil.camera_mount import level_quat, mounted_pose
 from perception.render_fast import FastRenderer
@@ -165,12 +166,15 @@ class World:
         self.publisher = None
         self._ugv_pub = None
         self._clock_pub = None
+        self._flight_key = None  # signs the UGV states and the clock (groundsim.transport)
         if session is not None and self.team is not None:
             from perception.transport import FramePublisher
 
+            key = load_key(cfg.signing_key) if cfg.signing_key else None  # frames signed too
             self.publisher = FramePublisher(session, params.vehicle, self.cam, mount=self.mount,
-                                            rng=np.random.default_rng(params.seed))  # fmt: skip
-            self._ugv_pub = UGVStatePublisher(session, n_ugvs)
+                                            rng=np.random.default_rng(params.seed), key=key)  # fmt: skip
+            self._ugv_pub = UGVStatePublisher(session, n_ugvs, key=key)
+            self._flight_key = key
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
@@ -423,7 +427,7 @@ class World:
 
     def _publish_truth(self, t: float, ugvs) -> None:
         self._ugv_pub.publish(t, ugvs)
-        self._clock_pub.put(json.dumps({"t_sim": t}).encode())
+        self._clock_pub.put(sign_record({"t_sim": t}, self._flight_key))
 
     def _write_truth(self, t: float, state: VehicleState, ugvs) -> None:
         v = state.vel_ned
@@ -460,6 +464,10 @@ class World:
             "link_cut_dropped": self.cut_dropped,
             "link_cut_muted": self.endpoint.api.stats_muted,
             "camera_loss_frames": self.camera_dropped,
+            "mavlink_signing": {
+                "on": self.endpoint.signing.enabled,
+                **dict(sorted(self.endpoint.signing.stats.items())),
+            },  # fmt: skip
             "after_companion": self.alone,
             "records_cut": cut_records([self.truth]),
         }

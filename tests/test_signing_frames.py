@@ -1,0 +1,183 @@
+"""Issue 27 item 3: camera frames authenticated with the flight's key (perception/transport.py).
+
+The wire format both ways (signed frames verify; unsigned, wrong-key, tampered-header and
+tampered-pixel frames are refused, and a keyless reader still reads a signed frame), a forged
+next frame over real Zenoh that never reaches the subscriber's books, and a real attacker
+process (tests/attacker.py) forging the camera's next frame against a default `skyherd fly`
+(no effect) and a `--no-signing` one (taken as input)."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import numpy as np
+import pytest
+from test_attack_mavlink import assert_signed_and_untouched, assert_unsigned, attacked_flight
+
+from perception.transport import (
+    RAW,
+    FramePublisher,
+    FrameSubscriber,
+    RefusedFrame,
+    decode_frame,
+    decode_header,
+    encode_frame,
+    open_session,
+    publisher_params,
+    subscriber_params,
+)
+
+KEY, OTHER = os.urandom(32), os.urandom(32)
+IMG = (np.arange(48 * 64 * 3) % 251).astype(np.uint8).reshape(48, 64, 3)
+POS, QUAT = np.array([1.0, 2.0, -30.0]), np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def test_signed_frames_verify_and_keyless_readers_still_read_them():
+    signed = encode_frame(7, 1.25, POS, QUAT, IMG, RAW, stream=9, key=KEY)
+    f = decode_frame(signed, key=KEY)
+    assert (f.seq, f.t_sim, f.stream) == (7, 1.25, 9) and np.array_equal(f.image, IMG)
+    g = decode_frame(signed)  # the recorder, a viewer: no key, same frame
+    assert np.array_equal(g.image, IMG)
+    plain = encode_frame(7, 1.25, POS, QUAT, IMG, RAW, stream=9)
+    assert len(signed) == len(plain) + 64 and decode_frame(plain).seq == 7  # today's format
+
+
+@pytest.mark.parametrize(
+    "make,why",
+    [
+        (lambda: encode_frame(8, 1.35, POS, QUAT, IMG, RAW, stream=9), "unsigned"),
+        (lambda: encode_frame(8, 1.35, POS, QUAT, IMG, RAW, stream=9, key=OTHER), "MAC"),
+        (lambda: _flip(encode_frame(8, 1.35, POS, QUAT, IMG, RAW, stream=9, key=KEY), 20), "MAC"),
+    ],
+)
+def test_unsigned_wrong_key_and_tampered_headers_are_refused_on_arrival(make, why):
+    with pytest.raises(RefusedFrame, match=why):
+        decode_header(make(), key=KEY)
+
+
+def test_a_header_that_passes_its_mac_with_pixels_not_its_own_is_refused_at_take():
+    """The CRC is no authentication (anyone can recompute it); the signed digest is: pixels
+    whose SHA-256 differs from the MAC'd digest are refused when the frame is decoded."""
+    import dataclasses
+
+    from perception.transport import decode_pixels
+
+    payload = encode_frame(8, 1.35, POS, QUAT, IMG, RAW, stream=9, key=KEY)
+    hdr = decode_header(payload, key=KEY)
+    assert np.array_equal(decode_pixels(hdr, payload).image, IMG)
+    with pytest.raises(RefusedFrame, match="digest"):
+        decode_pixels(dataclasses.replace(hdr, digest=bytes(32)), payload)
+
+
+def _flip(b: bytes, i: int) -> bytes:
+    return b[:i] + bytes([b[i] ^ 1]) + b[i + 1 :]
+
+
+def test_forged_next_frame_over_zenoh_never_reaches_the_books():
+    """A publisher with the key, a forger without it on the same key expression (same stream
+    id, seq + 1, first): the subscriber with the key takes the real frame and counts one
+    refused; a keyless subscriber takes the forgery and drops the real one as out of order."""
+    port = 7492
+    from perception.camera import CameraParams
+
+    pub_s = open_session(publisher_params(port))
+    sub_s = open_session(subscriber_params(port=port))
+    try:
+        cam = CameraParams(width_px=64, height_px=48)
+        pub = FramePublisher(pub_s, "uav0", cam, key=KEY, shm_frames=0)
+        guarded = FrameSubscriber(sub_s, "uav0", key=KEY)
+        naive = FrameSubscriber(sub_s, "uav0")
+        forger = pub_s.declare_publisher("skyherd/uav0/camera/frame")
+        assert pub.wait_for_subscriber(30.0)
+        pub.publish(0.0, POS, QUAT, IMG)
+        for sub in (guarded, naive):
+            assert sub.wait(30.0).seq == 0
+        forger.put(encode_frame(1, 0.1, POS, QUAT, np.zeros_like(IMG), RAW, stream=pub.stream))
+        deadline = time.monotonic() + 30.0
+        while guarded.stats.refused < 1 or naive.stats.received < 2:
+            assert time.monotonic() < deadline, (guarded.stats, naive.stats)
+            time.sleep(0.01)
+        pub.publish(0.1, POS, QUAT, IMG)
+        real = guarded.wait(30.0)
+        assert real.seq == 1 and np.array_equal(real.image, IMG)
+        assert guarded.stats.refused == 1 and guarded.stats.out_of_order == 0
+        forged = naive.wait(1.0)
+        assert forged is not None and forged.seq == 1 and not forged.image.any()
+        while naive.stats.out_of_order < 1:  # the real frame 1: dropped as old
+            assert time.monotonic() < deadline, naive.stats
+            time.sleep(0.01)
+        assert naive.stats.refused == 0
+        for s in (guarded, naive):
+            s.close()
+        pub.close()
+    finally:
+        sub_s.close()
+        pub_s.close()
+
+
+@pytest.mark.timeout(2400)
+def test_forged_camera_frames_are_refused_by_a_default_flight_and_taken_without_signing(tmp_path):
+    """The attacker answers each real frame with a forged next one (10 of them): with the key
+    the companion refuses them and takes every real frame; without, each forgery that arrives
+    first takes the real frame's place (the real one is then dropped as out of order)."""
+    forge = ("--count", "10")
+    rc, run, report = attacked_flight(tmp_path / "signed", "frame", instance=93, zenoh_port=7493,
+                                      attacker_args=forge)  # fmt: skip
+    assert_signed_and_untouched(rc, run)
+    link = json.loads((run / "companion.json").read_text())["camera_link"]
+    assert link["authenticated"] is True and link["out_of_order"] == 0, link
+    assert link["refused"] == report["sent"] == 10, (link, report)
+    rc, run, report = attacked_flight(tmp_path / "unsigned", "frame", "--no-signing",
+                                      instance=93, zenoh_port=7493, attacker_args=forge)  # fmt: skip
+    assert_unsigned(run)
+    link = json.loads((run / "companion.json").read_text())["camera_link"]
+    assert link["authenticated"] is False and link["refused"] == 0
+    assert report["sent"] == 10 and link["out_of_order"] > 0, (link, report)  # forgeries taken
+
+
+def test_ugv_states_and_clock_carry_a_mac_and_forged_records_are_refused():
+    import json as js
+
+    from groundsim.transport import (
+        UGVStatePublisher,
+        UGVStateSubscriber,
+        record_mac,
+        record_ok,
+        sign_record,
+    )
+    from groundsim.ugv import UGVStates
+
+    clock = js.loads(sign_record({"t_sim": 1.5}, KEY))
+    assert record_ok(clock, KEY) and not record_ok(clock, OTHER)
+    assert not record_ok({"t_sim": 1.5}, KEY) and js.loads(sign_record({"t_sim": 1.5}, None)) == {
+        "t_sim": 1.5
+    }  # unsigned: today's record
+    port = 7494
+    a = open_session(publisher_params(port))
+    b = open_session(subscriber_params(port=port))
+    try:
+        guarded, naive = UGVStateSubscriber(b, key=KEY), UGVStateSubscriber(b)
+        pub = UGVStatePublisher(a, 1, key=KEY)
+        forger = a.declare_publisher("skyherd/ugv/0/state")
+        deadline = time.monotonic() + 30
+        while not forger.matching_status.matching:
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        st = UGVStates(np.array([[1.0, 2.0]]), np.array([0.1]), np.array([1.0]), np.array([False]))
+        pub.publish(0.1, st)
+        fake = {"id": 0, "seq": 1, "t_sim": 0.2, "pos_ned": [500.0, 0.0, 0.0], "heading_rad": 0.0,
+                "speed_mps": 0.0, "camouflaged": False}  # fmt: skip
+        forger.put(js.dumps(fake).encode())  # no MAC
+        forger.put(js.dumps({**fake, "mac": record_mac(OTHER, fake)}).encode())  # wrong key
+        while guarded.received + guarded.refused < 3 or naive.received < 3:
+            assert time.monotonic() < deadline, (guarded.refused, naive.received)
+            time.sleep(0.02)
+        assert guarded.refused == 2 and guarded.latest[0]["pos_ned"][0] == 1.0
+        assert naive.latest[0]["pos_ned"][0] == 500.0  # without the key the forgery is the state
+        for s in (guarded, naive, pub):
+            s.close()
+    finally:
+        b.close()
+        a.close()
