@@ -482,6 +482,10 @@ class _Recording:
         self.session.close()
 
 
+SIM_STARTED = "skyherd sim: instance"  # the simulator's line once its world runs (scripts.sim)
+SIM_START_PATIENCE_S = 120.0  # wall time the recorder waits for that line [s]
+
+
 def _recorder(args, run_dir: Path, key_file: str | None = None, give_up=None, ready=None):
     """A ZenohRecorder beside the two programs (None with --no-record and no --foxglove, or
     when it cannot start: the flight never depends on its recording); with the flight's key
