@@ -20,6 +20,7 @@ describes. `StatustextAssembler` puts chunked STATUSTEXT back together.
 
 from __future__ import annotations
 
+import math
 import select
 import socket
 import threading
@@ -261,6 +262,30 @@ class MavlinkLink:
         self.send(self.mav.setup_signing_encode(
             target_system, target_component, list(self.signing.key), now_units()
         ))  # fmt: skip
+
+    def provision_signing(self, patience_s: float = 30.0, resend_s: float = 1.0) -> int:
+        """`--setup-signing`: send our key (SETUP_SIGNING, to system 0: whoever speaks here)
+        until a frame signed with it comes back; returns how many were sent (0: the vehicle
+        already signs with our key). LinkError after `patience_s` [s, wall: an outside
+        autopilot's own pace] with the reason: nothing heard, or frames still refused (a
+        vehicle that holds another key takes a new one only signed with its current key)."""
+        if self.signing is None or self.signing.key is None:
+            raise LinkError("--setup-signing needs a key: give --signing-key FILE")
+        t_end = time.monotonic() + patience_s
+        sent, t_sent, heard = 0, -math.inf, False
+        while time.monotonic() < t_end:
+            rejected = self.rejected_packets
+            if self.recv(0.1):
+                return sent  # a frame passed our signing: the vehicle signs with our key
+            heard = heard or self.rejected_packets > rejected
+            if heard and time.monotonic() - t_sent >= resend_s:
+                self.setup_signing(0, 0)
+                sent, t_sent = sent + 1, time.monotonic()
+        why = ("nothing was heard on the link" if not heard else
+               f"its frames are still refused after {sent} SETUP_SIGNING (does it hold another "
+               "key? then give that one)")  # fmt: skip
+        raise LinkError(f"--setup-signing: the vehicle did not start signing with our key in "
+                        f"{patience_s:.0f} s: {why}")  # fmt: skip
 
     @staticmethod
     def open(address: str, connect_wait_s: float = 0.0, **kwargs) -> MavlinkLink:

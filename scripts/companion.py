@@ -213,6 +213,14 @@ def add_arguments(
         help="fly without camera frames (square, or no simulator)",
     )
     parser.add_argument(
+        "--setup-signing",
+        action="store_true",
+        help="an outside autopilot: first send it the --signing-key (SETUP_SIGNING) until it "
+        "answers signed, then fly signed. ArduPilot accepts unsigned messages on SERIAL0 (TCP "
+        "5760+10N in SITL) whatever the key: connect to SERIAL1/2 for a protected link "
+        "(docs/mavlink.md)",
+    )
+    parser.add_argument(
         "--configure-autopilot",
         action="store_true",
         help="before the take-off, set the autopilot's parameters the safety envelope requires "
@@ -256,6 +264,9 @@ def check(args) -> str:
         raise UsageError(
             "--mission formation needs --plan FILE (a plan_K<K>.json from `skyherd train sql`)"
         )
+    if getattr(args, "setup_signing", False) and not (args.signing_key and args.free_run):
+        raise UsageError("--setup-signing gives an outside autopilot your key: it needs "
+                         "--signing-key FILE and --free-run")  # fmt: skip
     if args.mission == "shepherd" and args.no_camera:
         raise UsageError(
             "--mission shepherd reads the flock on the simulator's Zenoh session: drop --no-camera"
@@ -588,6 +599,16 @@ def run(args: argparse.Namespace) -> int:
         if session is not None:
             session.close()
         raise UsageError(link_error_text(e, address, args.instance)) from None
+    if getattr(args, "setup_signing", False):
+        try:
+            sent = link.provision_signing()
+        except LinkError as e:
+            link.close()
+            if session is not None:
+                session.close()
+            raise UsageError(str(e)) from None
+        _say(f"skyherd companion: --setup-signing: the vehicle signs with our key "
+             f"({sent} SETUP_SIGNING sent)")  # fmt: skip
     v = VehicleLink(link)
     params = CompanionParams(lockstep=not args.free_run)
     print(f"skyherd companion: {args.mission} via {address}, "

@@ -259,6 +259,7 @@ def _validate(args) -> tuple[list[str], list[str]]:
     comp += ["--policy", str(Path(args.policy).resolve())] if args.policy else []
     comp += ["--envelope", str(Path(args.envelope).resolve())] if args.envelope else []
     comp += ["--configure-autopilot"] if args.configure_autopilot else []
+    comp += ["--setup-signing"] if args.setup_signing else []
     if args.mission == "square" or args.no_camera:
         comp += ["--no-camera"]
     sim = ["--instance", str(args.instance), "--seed", str(args.seed), "--ugvs", args.ugvs,
@@ -278,6 +279,10 @@ def _validate(args) -> tuple[list[str], list[str]]:
 
     if args.signing_key and args.no_signing:
         raise UsageError("--signing-key and --no-signing contradict each other: drop one")
+    if args.setup_signing and (args.connect is None or not args.signing_key):
+        raise UsageError("--setup-signing gives an outside autopilot your key: it needs "
+                         "--connect ADDRESS and --signing-key FILE (the built-in vehicle is "
+                         "signed by default)")  # fmt: skip
     if args.signing_key:
         try:
             load_key(Path(args.signing_key))
