@@ -35,7 +35,7 @@ import pytest
 
 from hil import autopilot_sitl
 from safety.config import ENVELOPE_DIR, load_envelope
-from safety.judge import JudgeParams, Truth, fence_check
+from safety.judge import JudgeParams, Truth, clearances, fence_check
 from tests.companion_flights import judge_checks
 from tests.test_autopilots_real import _binary, _defaults
 
@@ -140,8 +140,9 @@ def check_flight(rc: int, verdict: str, run: Path, bridge_run: Path, autopilot: 
     spec, _ = load_envelope(ENVELOPE_DIR / "quadrotor_groundair.toml")
     auth = comp.get("authority") or {}  # the AI phase, on the autopilot's clock = the bridge's
     window = (auth["t_start"], auth["t_end"]) if auth.get("t_end") is not None else None
-    fence = fence_check(Truth.from_rows(list(csv.DictReader(open(bridge_run / "world.csv")))),
-                        spec, window, JudgeParams())  # fmt: skip
+    bridge_truth = Truth.from_rows(list(csv.DictReader(open(bridge_run / "world.csv"))))
+    jp = JudgeParams()
+    fence = fence_check(bridge_truth, spec, *clearances(bridge_truth, spec, window), jp)
     fig["truth"] = {"fence_on_the_bridge_truth": f"{'pass' if fence.ok else 'FAIL'}: {fence.figure}",
                     "top_truth_m": round(float(top_truth), 3), "top_estimate_m": round(float(top_est), 3),
                     "landing_truth_vs_estimate_m": round(landed, 3), "at_t": t_land,
