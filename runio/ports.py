@@ -72,6 +72,15 @@ def zenoh_port(n: int) -> int:
     return ZENOH_BASE + n
 
 
+def checked_zenoh_port(n: int, given: int | None) -> int:
+    """The instance checked, and its Zenoh port: `given` (`--zenoh-port`) or 7447+N, checked
+    (ValueError, one line): what `skyherd fly` and `skyherd sim` both accept."""
+    check_instance(n)
+    port = zenoh_port(n) if given is None else given
+    check_port(port, "--zenoh-port")
+    return port
+
+
 def companion_address(n: int) -> str:
     """The companion's default MAVLink address for instance N (pymavlink form)."""
     return f"udpin:127.0.0.1:{api_remote_port(n)}"

@@ -163,10 +163,7 @@ def _check_own(args) -> None:
     import math
 
     try:
-        ports.check_instance(args.instance)
-        if args.zenoh_port is None:
-            args.zenoh_port = ports.zenoh_port(args.instance)
-        ports.check_port(args.zenoh_port, "--zenoh-port")
+        args.zenoh_port = ports.checked_zenoh_port(args.instance, args.zenoh_port)
     except ValueError as e:
         raise UsageError(str(e)) from None
     if not (math.isfinite(args.timeout) and args.timeout > 0):

@@ -191,10 +191,7 @@ def check(args) -> tuple:
     instance and its ports, the world's parameters, the faults, the autopilot's parameters,
     the signing key and the fleet file. Returns (WorldParams, EndpointConfig)."""
     try:
-        ports.check_instance(args.instance)
-        if args.zenoh_port is None:
-            args.zenoh_port = ports.zenoh_port(args.instance)
-        ports.check_port(args.zenoh_port, "--zenoh-port")
+        args.zenoh_port = ports.checked_zenoh_port(args.instance, args.zenoh_port)
     except ValueError as e:
         raise UsageError(str(e)) from None
     for flag, value, low in (("--latency", args.latency, 0.0), ("--camera-hz", args.camera_hz, None),
