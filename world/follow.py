@@ -39,7 +39,7 @@ from hil.telemetry import Telemetry, update_telemetry
 from perception.render_fast import FastRenderer
 from policy.groundair.params import TaskParams
 from runio import CsvWriter, atomic_write_text
-from world.sim import _during
+from world.sim import _during, alone_record
 from world.team import new_team, team_states, truth_row, ugv_columns
 
 M = mavlink2
@@ -190,9 +190,7 @@ class FollowWorld:
             self.publisher.publish(t, uav.pos_ned, uav.quat, image)
             self.frames += 1
         if self.truth is not None:
-            row = truth_row(round(t, 6), state.pos_ned, ugvs, mode=self.tel.mode_name, armed=int(self.tel.armed),
-                            team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
-            self.truth.write(row)
+            self._write_truth(t, state, ugvs)
 
     def _mount(self) -> str:
         """The level downward mount, or the pan-tilt head pointed at the ROI (hil.camera_mount)."""
@@ -229,20 +227,28 @@ class FollowWorld:
         self.link.transport.send(ack.pack(enc))
         return True
 
+    def _write_truth(self, t: float, state, ugvs) -> None:
+        """One world.csv row: the vehicle as its autopilot reports it, and the team."""
+        self.truth.write(truth_row(round(t, 6), state.pos_ned, ugvs, mode=self.tel.mode_name,
+                                   armed=int(self.tel.armed),
+                                   team_t="" if self.team_t is None else round(self.team_t, 6)))  # fmt: skip
+
     def _end_alone(self, t_gone: float, modes: list, state) -> None:
         """What the autopilot did alone; world.csv ends on its end state."""
         t = self.tel.t
         if self.truth is not None and state is not None:
-            self.truth.write(truth_row(round(t, 6), state.pos_ned, team_states(self.team),
-                                       mode=self.tel.mode_name, armed=int(self.tel.armed),
-                                       team_t="" if self.team_t is None else round(self.team_t, 6)))  # fmt: skip
-        self.alone = {
-            "why": self.alone_why, "t_gone_s": round(t_gone, 3), "span_s": round(t - t_gone, 3),
-            "ended": "disarmed" if not self.tel.armed else f"after alone_s {self.p.alone_s:g} s",
-            "modes": [{"t": round(tm, 3), "mode": m, "armed": a} for tm, m, a in modes],
-            "mode": self.tel.mode_name, "armed": bool(self.tel.armed),
-            "altitude_m": math.nan if state is None else round(-float(state.pos_ned[2]), 3),
-        }  # fmt: skip
+            self._write_truth(t, state, team_states(self.team))
+        alt = math.nan if state is None else -float(state.pos_ned[2])
+        self.alone = alone_record(
+            self.alone_why,
+            t_gone,
+            t,
+            self.p.alone_s,
+            modes,
+            self.tel.mode_name,
+            bool(self.tel.armed),
+            alt,
+        )
 
     def _stats(self, wall0: float) -> dict:
         stats = {"followed": True, "frames": self.frames, "wall_s": time.monotonic() - wall0,

@@ -98,6 +98,30 @@ class WorldParams:
                 )
 
 
+def alone_record(
+    why: str,
+    t_gone: float,
+    t: float,
+    alone_s: float,
+    modes,
+    mode: str,
+    armed: bool,
+    altitude_m: float,
+) -> dict:
+    """sim_stats.json's `after_companion`: what the autopilot did once the companion was gone
+    (modes: (t, mode, armed) changes), read by scripts.waysout for fly's ending lines."""
+    return {
+        "why": why,
+        "t_gone_s": round(t_gone, 3),
+        "span_s": round(t - t_gone, 3),
+        "ended": "disarmed" if not armed else f"after alone_s {alone_s:g} s",
+        "modes": [{"t": round(tm, 3), "mode": m, "armed": a} for tm, m, a in modes],
+        "mode": mode,
+        "armed": armed,
+        "altitude_m": round(altitude_m, 3) if math.isfinite(altitude_m) else math.nan,
+    }
+
+
 def _during(windows: tuple[tuple[float, float], ...], t: float) -> bool:
     return any(t0 <= t < t0 + d for t0, d in windows)
 
@@ -308,16 +332,9 @@ class World:
         # ended disarmed keeps the world.csv it always had)
         if self.truth is not None and t > max(self._truth_t, self._alone_t0):
             self._write_truth(t, state, None if self.team is None else team_states(self.team))
-        self.alone = {
-            "why": self.alone_why,
-            "t_gone_s": round(self._alone_t0, 3),
-            "span_s": round(t - self._alone_t0, 3),
-            "ended": "disarmed" if not ap.armed else f"after alone_s {self.p.alone_s:g} s",
-            "modes": [{"t": round(tm, 3), "mode": m, "armed": a} for tm, m, a in self._alone_modes],
-            "mode": ap.mode.name,
-            "armed": bool(ap.armed),
-            "altitude_m": round(-float(state.pos_ned[2]), 3),
-        }
+        self.alone = alone_record(self.alone_why, self._alone_t0, t, self.p.alone_s,
+                                  self._alone_modes, ap.mode.name, bool(ap.armed),
+                                  -float(state.pos_ned[2]))  # fmt: skip
 
     def finish(self, process_vehicles: int = 1) -> dict:
         """The run's stats (written to sim_stats.json); `process_vehicles` worlds shared the
