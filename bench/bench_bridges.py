@@ -39,11 +39,11 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 from tqdm import tqdm
 
-from flight.quadrotor import QuadrotorParams
-from hil import bridge_mavlink as wire
-from hil.ardupilot_json import ArduPilotJsonBridge
-from hil.autopilot_sitl import CopterRates
-from hil.px4_sim import Px4BridgeConfig, Px4SimBridge
+from skyherd.flight.quadrotor import QuadrotorParams
+from skyherd.hil import bridge_mavlink as wire
+from skyherd.hil.ardupilot_json import ArduPilotJsonBridge
+from skyherd.hil.autopilot_sitl import CopterRates
+from skyherd.hil.px4_sim import Px4BridgeConfig, Px4SimBridge
 
 SERVO = struct.Struct("<HHI16H")
 
@@ -241,7 +241,7 @@ def bench_px4_inprocess(n: int) -> tuple[float, float]:
 
 _PX4_PEER = r"""
 import socket, sys, time
-from hil import bridge_mavlink as wire
+from skyherd.hil import bridge_mavlink as wire
 port, n = int(sys.argv[1]), int(sys.argv[2])
 for _ in range(500):
     try:
@@ -287,8 +287,8 @@ def _idle_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rate
     SCHED_FIFO priority 1."""
     import tempfile
 
-    from hil import autopilot_sitl
-    from hil.bridge_select import make_bridge
+    from skyherd.hil import autopilot_sitl
+    from skyherd.hil.bridge_select import make_bridge
 
     instance = 75
     work = Path(tempfile.mkdtemp(prefix=f"skyherd-bench-{name}-"))

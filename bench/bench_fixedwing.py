@@ -20,12 +20,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from flight.autopilot_api import FlightMode, MissionCommand, MissionItem  # noqa: E402
-from flight.fixedwing.attitude import InnerGains  # noqa: E402
-from flight.fixedwing.autopilot import FixedWingAutopilot, Phase  # noqa: E402
-from flight.fixedwing.jsbsim_model import JSBSimPlane, ModelParams  # noqa: E402
-from flight.fixedwing.tecs import TecsGains  # noqa: E402
-from runio.runfolder import markdown_table  # noqa: E402
+from skyherd.flight.autopilot_api import FlightMode, MissionCommand, MissionItem  # noqa: E402
+from skyherd.flight.fixedwing.attitude import InnerGains  # noqa: E402
+from skyherd.flight.fixedwing.autopilot import FixedWingAutopilot, Phase  # noqa: E402
+from skyherd.flight.fixedwing.jsbsim_model import JSBSimPlane, ModelParams  # noqa: E402
+from skyherd.flight.fixedwing.tecs import TecsGains  # noqa: E402
+from skyherd.runio.runfolder import markdown_table  # noqa: E402
 
 GOAL = 150.0
 

@@ -29,14 +29,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from policy.sql.layout import STARTS  # noqa: E402
-from runio.runfolder import markdown_table  # noqa: E402
-from scripts.cli import main as skyherd  # noqa: E402
+from skyherd.policy.sql.layout import STARTS  # noqa: E402
+from skyherd.runio.runfolder import markdown_table  # noqa: E402
+from skyherd.scripts.cli import main as skyherd  # noqa: E402
 
 
 def alone(instance: int, sim_s: float = 20.0) -> float:
     """Real-time factor per CPU second of one vehicle with nobody attached (the baseline)."""
-    from world.sim import World, WorldParams
+    from skyherd.world.sim import World, WorldParams
 
     w = World(WorldParams(scenario="none", lockstep=False, speedup=0, instance=instance))
     try:
@@ -54,9 +54,9 @@ def vehicle_costs(instance: int, sim_s: float = 20.0) -> list[tuple[str, float]]
     on both links: where a formation simulator's CPU goes before lockstep and a run folder."""
     from pymavlink.dialects.v20 import ardupilotmega as M
 
-    from flight.mavlink.streams import DEFAULT_RATES_HZ
-    from mission.steps import UNREAD_STREAMS
-    from world.sim import World, WorldParams
+    from skyherd.flight.mavlink.streams import DEFAULT_RATES_HZ
+    from skyherd.mission.steps import UNREAD_STREAMS
+    from skyherd.world.sim import World, WorldParams
 
     unread = {getattr(M, f"MAVLINK_MSG_ID_{n}") for n in UNREAD_STREAMS}
     w = World(WorldParams(scenario="none", lockstep=False, speedup=0, instance=instance))

@@ -29,11 +29,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 
-from flight.airframes_registry import make_autopilot  # noqa: E402
-from flight.clock import SimClock  # noqa: E402
-from flight.mavlink import EndpointConfig  # noqa: E402
-from flight.sitl import Sitl  # noqa: E402
-from runio.runfolder import markdown_table  # noqa: E402
+from skyherd.flight.airframes_registry import make_autopilot  # noqa: E402
+from skyherd.flight.clock import SimClock  # noqa: E402
+from skyherd.flight.mavlink import EndpointConfig  # noqa: E402
+from skyherd.flight.sitl import Sitl  # noqa: E402
+from skyherd.runio.runfolder import markdown_table  # noqa: E402
 
 INSTANCE = 60  # mav helper's instances: 60-64
 SYS = 1 + INSTANCE

@@ -25,10 +25,10 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from runio import markdown_table  # noqa: E402
+from skyherd.runio import markdown_table  # noqa: E402
 
 COMPARED = ("decisions.jsonl", "world.csv", "metrics.csv", "events.jsonl")
-SKYHERD = [sys.executable, "-m", "scripts.cli"]
+SKYHERD = [sys.executable, "-m", "skyherd.scripts.cli"]
 
 
 def fly(args: list[str], busy: bool = False, check: bool = True) -> tuple[Path, float, float]:
@@ -74,7 +74,7 @@ def sim_stats(run: Path) -> dict:
 
 def formation_plan() -> str:
     """K = 9 from the study's start cells, 6 cells north in lock-step (a file for --policy-file)."""
-    from policy.sql.layout import STARTS
+    from skyherd.policy.sql.layout import STARTS
 
     f = Path(tempfile.mkdtemp(prefix="skyherd-bench-")) / "plan_K9.json"
     f.write_text(json.dumps([[[x, y + i] for i in range(7)] for x, y in STARTS[9]]))

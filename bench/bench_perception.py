@@ -30,18 +30,18 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from flight.frames import euler_to_quat  # noqa: E402
-from groundsim.behaviours import DriveParams, make_behaviour, triangle_offsets  # noqa: E402
-from groundsim.kinematic import KinematicWorld  # noqa: E402
-from groundsim.ugv import UGVModel, initial_states  # noqa: E402
-from groundsim.world import GroundWorld, WorldParams  # noqa: E402
-from perception.camera import CameraParams, UAVPose  # noqa: E402
-from perception.detector import Detector  # noqa: E402
-from perception.evaluate import SceneParams, evaluate, random_scene  # noqa: E402
-from perception.render_bullet import BulletRenderer, BulletRenderParams  # noqa: E402
-from perception.render_fast import FastRenderer  # noqa: E402
-from perception.transport import FrameSubscriber, open_session, subscriber_params  # noqa: E402
-from runio.runfolder import markdown_table  # noqa: E402
+from skyherd.flight.frames import euler_to_quat  # noqa: E402
+from skyherd.groundsim.behaviours import DriveParams, make_behaviour, triangle_offsets  # noqa: E402
+from skyherd.groundsim.kinematic import KinematicWorld  # noqa: E402
+from skyherd.groundsim.ugv import UGVModel, initial_states  # noqa: E402
+from skyherd.groundsim.world import GroundWorld, WorldParams  # noqa: E402
+from skyherd.perception.camera import CameraParams, UAVPose  # noqa: E402
+from skyherd.perception.detector import Detector  # noqa: E402
+from skyherd.perception.evaluate import SceneParams, evaluate, random_scene  # noqa: E402
+from skyherd.perception.render_bullet import BulletRenderer, BulletRenderParams  # noqa: E402
+from skyherd.perception.render_fast import FastRenderer  # noqa: E402
+from skyherd.perception.transport import FrameSubscriber, open_session, subscriber_params  # noqa: E402
+from skyherd.runio.runfolder import markdown_table  # noqa: E402
 
 SIZES = ((320, 240), (640, 480))
 MODEL = UGVModel()
@@ -114,7 +114,7 @@ def zenoh_run(size: str, frames: int, rate: float) -> dict:
     session = open_session(subscriber_params(port=port))
     sub = FrameSubscriber(session, "bench")
     src = subprocess.Popen(
-        [sys.executable, "-m", "perception.camstream", "--vehicle", "bench", "--port", str(port),
+        [sys.executable, "-m", "skyherd.perception.camstream", "--vehicle", "bench", "--port", str(port),
          "--frames", str(frames), "--rate", str(rate), "--size", size, "--static",
          "--wait-s", "10"],
         stderr=subprocess.DEVNULL,

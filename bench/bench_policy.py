@@ -24,7 +24,7 @@ def _timed(fn, n):
 
 
 def env_steps_per_s(n: int, scenario: str, act=None, pixels: bool = False) -> float:
-    from policy.groundair.env import GroundAirEnv
+    from skyherd.policy.groundair.env import GroundAirEnv
 
     env = GroundAirEnv(scenario, pixels=pixels)
     rng = np.random.default_rng(0)
@@ -44,7 +44,7 @@ def env_steps_per_s(n: int, scenario: str, act=None, pixels: bool = False) -> fl
 def gym_make_steps_per_s(n: int) -> float:
     import gymnasium as gym
 
-    import policy
+    from skyherd import policy
 
     env = gym.make(policy.ENV_ID)
     env.reset(seed=0)
@@ -61,7 +61,7 @@ def gym_make_steps_per_s(n: int) -> float:
 def dqn_updates_per_s(n: int) -> float:
     import torch
 
-    from policy.dqn import DQNParams, ReplayBuffer, build_qnet, td_update
+    from skyherd.policy.dqn import DQNParams, ReplayBuffer, build_qnet, td_update
 
     p = DQNParams()
     torch.set_num_threads(p.num_threads)
@@ -86,8 +86,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true", help="short run")
     args = ap.parse_args(argv)
-    from policy.dqn import load_policy
-    from runio.runfolder import markdown_table
+    from skyherd.policy.dqn import load_policy
+    from skyherd.runio.runfolder import markdown_table
 
     n = 20_000 if args.quick else 100_000
     rows = []
@@ -100,7 +100,9 @@ def main(argv=None) -> int:
     rows.append(["env steps/s, pixels (OpenCV render + detector)", f(w), f(c), "-", "-"])
     w, c = gym_make_steps_per_s(n // 2)
     rows.append(["env steps/s via gym.make (checker wrappers)", f(w), f(c), "-", "-"])
-    model = Path(__file__).resolve().parents[1] / "policy" / "models" / "groundair_ab.npz"
+    model = (
+        Path(__file__).resolve().parents[1] / "skyherd" / "policy" / "models" / "groundair_ab.npz"
+    )
     if model.exists():
         w, c = env_steps_per_s(n // 4, "composite", load_policy(model))
         rows.append(["env + learned policy (numpy MLP) steps/s", f(w), f(c), "-", "-"])

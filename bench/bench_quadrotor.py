@@ -25,12 +25,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from types import SimpleNamespace  # noqa: E402
 
-from flight.airframes_registry import PX4_STANDIN  # noqa: E402
-from flight.autopilot_api import FlightMode, Setpoint  # noqa: E402
-from flight.faults import parse_fault_args  # noqa: E402
-from flight.multirotor import MultirotorAutopilot  # noqa: E402
-from flight.quadrotor import Quadrotor, QuadrotorParams, WindModel, physics_steps  # noqa: E402
-from runio.runfolder import markdown_table  # noqa: E402
+from skyherd.flight.airframes_registry import PX4_STANDIN  # noqa: E402
+from skyherd.flight.autopilot_api import FlightMode, Setpoint  # noqa: E402
+from skyherd.flight.faults import parse_fault_args  # noqa: E402
+from skyherd.flight.multirotor import MultirotorAutopilot  # noqa: E402
+from skyherd.flight.quadrotor import Quadrotor, QuadrotorParams, WindModel, physics_steps  # noqa: E402
+from skyherd.runio.runfolder import markdown_table  # noqa: E402
 
 
 def bench_kernel(n: int) -> float:

@@ -14,16 +14,16 @@ import time
 
 import numpy as np
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.multirotor.autopilot import MultirotorAutopilot
-from runio.runfolder import markdown_table
-from safety.config import default_envelope_path, load_envelope
-from safety.drills import DrillParams, toward
-from safety.envelope import NZ, U
-from safety.monitor import make_z
-from safety.net import SafetyNet
-from safety.projection import Projector, qp_cvxpy
-from safety.supervisor import Supervisor, SupervisorParams
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.flight.multirotor.autopilot import MultirotorAutopilot
+from skyherd.runio.runfolder import markdown_table
+from skyherd.safety.config import default_envelope_path, load_envelope
+from skyherd.safety.drills import DrillParams, toward
+from skyherd.safety.envelope import NZ, U
+from skyherd.safety.monitor import make_z
+from skyherd.safety.net import SafetyNet
+from skyherd.safety.projection import Projector, qp_cvxpy
+from skyherd.safety.supervisor import Supervisor, SupervisorParams
 
 
 def timed(fn, args_list) -> np.ndarray:
@@ -66,8 +66,8 @@ def main() -> None:
     rows.append(["monitor check (compiled, A z <= b + union)", *pct(t_mon), n])
     t_np = timed(lambda z: env.worst_of(env.A @ z - env.b), [(z,) for z in zs])
     rows.append(["same check in numpy (reference)", *pct(t_np), n])
-    from flight.frames import euler_to_quat
-    from flight.state import VehicleState
+    from skyherd.flight.frames import euler_to_quat
+    from skyherd.flight.state import VehicleState
 
     states = [
         VehicleState(

@@ -20,11 +20,11 @@ import time
 
 import numpy as np
 
-from flight.mavlink.codec import Codec
-from flight.mavlink.signing import Signing
-from perception.camera import CameraParams
-from perception.transport import RAW, decode_header, decode_pixels, encode_frame
-from runio import markdown_table
+from skyherd.flight.mavlink.codec import Codec
+from skyherd.flight.mavlink.signing import Signing
+from skyherd.perception.camera import CameraParams
+from skyherd.perception.transport import RAW, decode_header, decode_pixels, encode_frame
+from skyherd.runio import markdown_table
 
 
 def _cpu(fn, n: int) -> float:

@@ -24,11 +24,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from flight.airframes_registry import make_autopilot  # noqa: E402
-from flight.clock import SimClock  # noqa: E402
-from flight.mavlink import EndpointConfig  # noqa: E402
-from flight.sitl import Sitl  # noqa: E402
-from runio.runfolder import markdown_table  # noqa: E402
+from skyherd.flight.airframes_registry import make_autopilot  # noqa: E402
+from skyherd.flight.clock import SimClock  # noqa: E402
+from skyherd.flight.mavlink import EndpointConfig  # noqa: E402
+from skyherd.flight.sitl import Sitl  # noqa: E402
+from skyherd.runio.runfolder import markdown_table  # noqa: E402
 
 INSTANCE = 21  # API link: 127.0.0.1:14601 → 14561
 

@@ -20,10 +20,10 @@ import time
 
 import numpy as np
 
-from policy.sql import Algorithm, FormationEnv, SQLHyper, train
-from policy.sql.envfile import generate_env
-from policy.sql.params import Rules
-from runio.runfolder import markdown_table
+from skyherd.policy.sql import Algorithm, FormationEnv, SQLHyper, train
+from skyherd.policy.sql.envfile import generate_env
+from skyherd.policy.sql.params import Rules
+from skyherd.runio.runfolder import markdown_table
 
 
 def python_sql_agent_steps_per_s(layout, episodes: int = 3, max_steps: int = 1000) -> float:

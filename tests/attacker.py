@@ -107,7 +107,7 @@ def frame_attack(instance: int, zenoh_port: int, flag: dict, count: int) -> dict
     import zenoh
 
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # skyherd
-    from perception.transport import decode_frame, encode_frame, frame_key
+    from skyherd.perception.transport import decode_frame, encode_frame, frame_key
 
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')

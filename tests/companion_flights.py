@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from flight.autopilot_api import Setpoint
-from hil.link import MavlinkLink
-from mission.authority import ModeAuthority
-from mission.companion import CompanionParams, run
-from mission.steps import recipe, wait_ready, wait_until
-from mission.vehicle import COMPANION_COMPONENT, VehicleLink
+from skyherd.flight.autopilot_api import Setpoint
+from skyherd.hil.link import MavlinkLink
+from skyherd.mission.authority import ModeAuthority
+from skyherd.mission.companion import CompanionParams, run
+from skyherd.mission.steps import recipe, wait_ready, wait_until
+from skyherd.mission.vehicle import COMPANION_COMPONENT, VehicleLink
 
 
 class Steps:

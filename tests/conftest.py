@@ -5,8 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from safety.config import ENVELOPE_DIR, load_envelope
-from safety.envelope import circle_zone, polygon_zone
+from skyherd.safety.config import ENVELOPE_DIR, load_envelope
+from skyherd.safety.envelope import circle_zone, polygon_zone
 
 NORTH_35 = 35.0  # the judge tests' fence: its north edge [m]
 

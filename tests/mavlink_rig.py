@@ -9,10 +9,10 @@ import socket
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.airframes_registry import make_autopilot
-from flight.clock import SimClock
-from flight.mavlink import EndpointConfig
-from flight.sitl import Sitl
+from skyherd.flight.airframes_registry import make_autopilot
+from skyherd.flight.clock import SimClock
+from skyherd.flight.mavlink import EndpointConfig
+from skyherd.flight.sitl import Sitl
 
 
 class Peer:

@@ -11,10 +11,10 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.airframes_registry import make_autopilot
-from flight.clock import SimClock
-from flight.mavlink import EndpointConfig, Personality
-from flight.sitl import Sitl
+from skyherd.flight.airframes_registry import make_autopilot
+from skyherd.flight.clock import SimClock
+from skyherd.flight.mavlink import EndpointConfig, Personality
+from skyherd.flight.sitl import Sitl
 
 
 @contextlib.contextmanager

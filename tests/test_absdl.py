@@ -9,19 +9,19 @@ import json
 import numpy as np
 import pytest
 
-from policy.absdl.demonstrator import Demonstrator
-from policy.absdl.demos import collect
-from policy.absdl.env import ContinuousGroundAirEnv, velocity_limits
-from policy.absdl.evaluate import evaluate, jerk
-from policy.absdl.params import AbsdlParams, DemonstratorParams
-from policy.absdl.policy import FORMAT, AbsdlPolicy
-from policy.absdl.shield import Shield
-from policy.absdl.train import train
-from policy.dqn import load_policy
-from policy.groundair.env import GroundAirEnv
-from policy.groundair.params import N_ACTIONS, action_velocity_ned
-from policy.models import ABSDL_POLICY
-from scripts.cli import main
+from skyherd.policy.absdl.demonstrator import Demonstrator
+from skyherd.policy.absdl.demos import collect
+from skyherd.policy.absdl.env import ContinuousGroundAirEnv, velocity_limits
+from skyherd.policy.absdl.evaluate import evaluate, jerk
+from skyherd.policy.absdl.params import AbsdlParams, DemonstratorParams
+from skyherd.policy.absdl.policy import FORMAT, AbsdlPolicy
+from skyherd.policy.absdl.shield import Shield
+from skyherd.policy.absdl.train import train
+from skyherd.policy.dqn import load_policy
+from skyherd.policy.groundair.env import GroundAirEnv
+from skyherd.policy.groundair.params import N_ACTIONS, action_velocity_ned
+from skyherd.policy.models import ABSDL_POLICY
+from skyherd.scripts.cli import main
 
 
 def test_limits_are_the_tighter_of_autopilot_and_envelope():
@@ -167,8 +167,8 @@ def test_recorded_demonstrations_train_their_network(tmp_path, capsys):
     MANUAL_CONTROL; here the discrete scripted expert records it) replaces the scripted
     demonstrator for its network: every recorded row becomes one training sample, judged by the
     net at its recorded state."""
-    from policy.absdl.demos import from_recording
-    from policy.demos import record, scripted_expert
+    from skyherd.policy.absdl.demos import from_recording
+    from skyherd.policy.demos import record, scripted_expert
 
     demo = record("lateral", scripted_expert("lateral"), 2, 500, "scripted")
     data = from_recording(demo, shield=True)

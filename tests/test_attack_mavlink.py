@@ -36,7 +36,7 @@ def attacked_flight(tmp_path: Path, attack: str, *fly_args: str, instance: int =
     )  # fmt: skip
     try:
         fly = subprocess.run(
-            [sys.executable, "-m", "scripts.cli", "fly", "--duration", "4", "--speedup", "0",
+            [sys.executable, "-m", "skyherd.scripts.cli", "fly", "--duration", "4", "--speedup", "0",
              "--instance", str(instance), "--zenoh-port", str(zenoh_port), "--no-record",
              "--runs-dir", str(runs), "--timeout", "900", *fly_args],
             cwd=ROOT, capture_output=True, text=True, timeout=1200,

@@ -8,8 +8,8 @@ import math
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.autopilot_api import FlightMode
-from hil.autopilots import (
+from skyherd.flight.autopilot_api import FlightMode
+from skyherd.hil.autopilots import (
     ARDUCOPTER,
     ARDUPLANE,
     MSG,
@@ -127,7 +127,7 @@ def test_detection():
 def test_param_value_is_in_the_autopilots_unit_and_whole_where_it_stores_integers():
     """ArduPlane stores WP_LOITER_RAD and TKOFF_ALT as AP_Int16: a set value must read back as
     sent (123.613 would come back as 123 and the set would never be confirmed)."""
-    from hil.autopilots import ARDUCOPTER, ARDUPLANE, PX4
+    from skyherd.hil.autopilots import ARDUCOPTER, ARDUPLANE, PX4
 
     assert ARDUPLANE.param_value("loiter_radius", 123.613) == 124.0
     assert ARDUPLANE.param_value("loiter_radius", 124.0) == 124.0
@@ -145,10 +145,10 @@ def test_companion_gives_arduplane_positions_as_do_reposition_and_velocities_as_
     and turns a velocity command into a target 5 s ahead."""
     import numpy as np
 
-    from flight.geo import DEFAULT_HOME, geodetic_to_ned
-    from hil.autopilots import ARDUPLANE
-    from hil.telemetry import Home, reposition_command
-    from mission.vehicle import VehicleLink
+    from skyherd.flight.geo import DEFAULT_HOME, geodetic_to_ned
+    from skyherd.hil.autopilots import ARDUPLANE
+    from skyherd.hil.telemetry import Home, reposition_command
+    from skyherd.mission.vehicle import VehicleLink
 
     class Link:
         sent: list = []

@@ -29,13 +29,13 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.autopilot_api import FlightMode, Setpoint
-from hil.autopilots import ARDUPLANE
-from hil.telemetry import reposition_command
-from mission.authority import ModeAuthority
-from mission.flight import FlightPlan, Record, SingleVehicleMission
-from mission.pilots import WaypointPilot
-from mission.steps import (
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.hil.autopilots import ARDUPLANE
+from skyherd.hil.telemetry import reposition_command
+from skyherd.mission.authority import ModeAuthority
+from skyherd.mission.flight import FlightPlan, Record, SingleVehicleMission
+from skyherd.mission.pilots import WaypointPilot
+from skyherd.mission.steps import (
     CommandRefused,
     command,
     recipe,

@@ -26,12 +26,12 @@ from pathlib import Path
 
 import pytest
 
-from flight.autopilot_api import FlightMode
-from hil.autopilots import Step
-from hil.link import LinkError, MavlinkLink
-from mission.steps import recipe, wait_ready, wait_until
-from mission.vehicle import COMPANION_COMPONENT
-from scripts.cli import main
+from skyherd.flight.autopilot_api import FlightMode
+from skyherd.hil.autopilots import Step
+from skyherd.hil.link import LinkError, MavlinkLink
+from skyherd.mission.steps import recipe, wait_ready, wait_until
+from skyherd.mission.vehicle import COMPANION_COMPONENT
+from skyherd.scripts.cli import main
 from tests.companion_flights import Steps, fly, judge_checks, missions
 
 pytestmark = pytest.mark.autopilot
@@ -307,7 +307,7 @@ def test_real_arduplane_flies_the_fixed_wing_orbit_on_stock_parameters(tmp_path)
     saw the team (the ROI routed to it as the vehicle's gimbal)."""
     import json
 
-    from scripts.cli import main
+    from skyherd.scripts.cli import main
 
     binary = _binary("SKYHERD_ARDUPLANE_BIN")
     port = 5760 + 10 * ARDUPILOT_INSTANCE

@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hil import autopilot_sitl
-from safety.config import ENVELOPE_DIR, load_envelope
-from safety.judge import JudgeParams, Truth, clearances, fence_check
+from skyherd.hil import autopilot_sitl
+from skyherd.safety.config import ENVELOPE_DIR, load_envelope
+from skyherd.safety.judge import JudgeParams, Truth, clearances, fence_check
 from tests.companion_flights import judge_checks
 from tests.test_autopilots_real import _binary, _defaults
 
@@ -48,7 +48,7 @@ DURATION_S = 30.0  # the AI phase of the ground-air mission [s]
 
 
 def _skyherd(*args: str, log: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "scripts.cli", *args], cwd=ROOT,
+    return subprocess.Popen([sys.executable, "-m", "skyherd.scripts.cli", *args], cwd=ROOT,
                             stdout=open(log, "wb"), stderr=subprocess.STDOUT)  # fmt: skip
 
 
@@ -67,7 +67,7 @@ def _stop_bridge(proc: subprocess.Popen, log: Path) -> None:
 def _fly(address: str, tmp: Path, instance: int, zenoh_port: int) -> tuple[int, str, Path]:
     """`skyherd fly --connect ADDRESS` as a user runs it: (exit code, the verdict line, run folder)."""
     runs = tmp / "runs"
-    cmd = [sys.executable, "-m", "scripts.cli", "fly", "--connect", address,
+    cmd = [sys.executable, "-m", "skyherd.scripts.cli", "fly", "--connect", address,
            "--duration", repr(DURATION_S), "--instance", str(instance),
            "--zenoh-port", str(zenoh_port), "--timeout", "1200", "--runs-dir", str(runs)]  # fmt: skip
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1500)

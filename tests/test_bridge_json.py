@@ -17,8 +17,8 @@ import threading
 import numpy as np
 import pytest
 
-from hil.ardupilot_json import MAGIC_32, ArduPilotJsonBridge, json_port
-from hil.bridge_peers import ArduPilotJsonPeer, RecvFdm, parse_sensors, scan_vector
+from skyherd.hil.ardupilot_json import MAGIC_32, ArduPilotJsonBridge, json_port
+from skyherd.hil.bridge_peers import ArduPilotJsonPeer, RecvFdm, parse_sensors, scan_vector
 
 SERVO16 = struct.Struct("<HHI16H")
 SERVO32 = struct.Struct("<HHI32H")
@@ -194,8 +194,8 @@ def test_lost_reply_is_resent_once_without_a_step_walltime():
 
 
 def test_make_bridge_gives_both_bridges_one_api():
-    from hil.bridge_select import make_bridge
-    from hil.px4_sim import Px4SimBridge
+    from skyherd.hil.bridge_select import make_bridge
+    from skyherd.hil.px4_sim import Px4SimBridge
 
     for autopilot, port in (("px4", 4560 + 75), ("ardupilot", 9002 + 750)):
         b = make_bridge(autopilot, instance=75, seed=3).open_port()

@@ -18,12 +18,12 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from flight.frames import quat_to_dcm
-from flight.geo import DEFAULT_HOME, ned_to_geodetic
-from hil import bridge_mavlink as wire
-from hil.bridge_peers import Px4SimPeer
-from hil.bridge_sensors import MagField, SensorNoise, isa_pressure_pa
-from hil.px4_sim import Px4BridgeConfig, Px4SimBridge, px4_sim_port
+from skyherd.flight.frames import quat_to_dcm
+from skyherd.flight.geo import DEFAULT_HOME, ned_to_geodetic
+from skyherd.hil import bridge_mavlink as wire
+from skyherd.hil.bridge_peers import Px4SimPeer
+from skyherd.hil.bridge_sensors import MagField, SensorNoise, isa_pressure_pa
+from skyherd.hil.px4_sim import Px4BridgeConfig, Px4SimBridge, px4_sim_port
 
 QUIET = Px4BridgeConfig(noise=SensorNoise(0, 0, 0, 0, 0, 0), boot_wait_s=10.0)
 

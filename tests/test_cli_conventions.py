@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from scripts.cli import DefaultsFormatter, build_parser, main
+from skyherd.scripts.cli import DefaultsFormatter, build_parser, main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -115,7 +115,7 @@ def test_watch_bad_addresses_are_one_line(argv, words, tmp_path, capsys):
 
 
 def test_train_quick_sets_the_budget_that_was_not_given_and_warns_on_a_short_one(tmp_path, capsys):
-    from scripts.train_irl import QUICK
+    from skyherd.scripts.train_irl import QUICK
 
     code = main(["train", "irl", "--quick", "--dqn-steps", "300", "--mu-episodes", "2",
                  "--eval-episodes", "1", "--demo-episodes", "1", "--runs-dir", str(tmp_path)])  # fmt: skip

@@ -61,7 +61,14 @@ def _timed(argv: list[str]) -> tuple[subprocess.CompletedProcess, float, float]:
 
 
 def _fly(tmp_path: Path, flags: list[str]) -> tuple[subprocess.CompletedProcess, float, float]:
-    argv = [sys.executable, "-m", "scripts.cli", "fly", "--runs-dir", str(tmp_path / "runs")]
+    argv = [
+        sys.executable,
+        "-m",
+        "skyherd.scripts.cli",
+        "fly",
+        "--runs-dir",
+        str(tmp_path / "runs"),
+    ]
     if "--instance" not in flags:
         argv += ["--instance", INSTANCE]
     return _timed([*argv, *flags])
@@ -93,7 +100,14 @@ def test_a_bad_flag_of_fly_is_one_line_exit_2_no_run_folder_wallclock(tmp_path, 
 def test_a_bad_flag_of_sim_or_companion_alone_is_one_line_exit_2_wallclock(
     tmp_path, command, flags, said
 ):
-    argv = [sys.executable, "-m", "scripts.cli", command, "--runs-dir", str(tmp_path / "runs")]
+    argv = [
+        sys.executable,
+        "-m",
+        "skyherd.scripts.cli",
+        command,
+        "--runs-dir",
+        str(tmp_path / "runs"),
+    ]
     argv += [] if "--instance" in flags else ["--instance", INSTANCE]
     p, wall_s, cpu_s = _timed([*argv, *flags])
     err = p.stderr.strip().splitlines()
@@ -105,7 +119,7 @@ def test_a_bad_flag_of_sim_or_companion_alone_is_one_line_exit_2_wallclock(
 def test_check_args_uses_the_childs_parser_and_starts_nothing():
     """The children's checks, called directly: None for good arguments, one line for bad
     ones, argparse's own errors (a type, an unknown flag) as one line too."""
-    from scripts import companion, sim
+    from skyherd.scripts import companion, sim
 
     assert sim.check_args(["--instance", INSTANCE, "--param", "COM_OF_LOSS_T=3"]) is None
     assert companion.check_args(["--instance", INSTANCE]) is None
@@ -126,10 +140,10 @@ def test_check_args_uses_the_childs_parser_and_starts_nothing():
 
 
 def test_the_instance_moves_every_port_zenohs_included():
-    """runio.ports is the one table: instance 0 keeps the contract's ports, instance N moves
+    """skyherd.runio.ports is the one table: instance 0 keeps the contract's ports, instance N moves
     each by N (ArduPilot's by 10 N), Zenoh's too; the endpoint and the commands use it."""
-    from flight.mavlink import EndpointConfig
-    from runio import ports
+    from skyherd.flight.mavlink import EndpointConfig
+    from skyherd.runio import ports
 
     assert ports.instance_ports(0) == {
         "api_bind_udp": 14580, "api_remote_udp": 14540, "gcs_bind_udp": 18570,
@@ -145,8 +159,8 @@ def test_the_instance_moves_every_port_zenohs_included():
     with pytest.raises(ValueError, match=r"\[0, 200\]"):
         ports.check_instance(ports.MAX_INSTANCE + 1)
     # fly passes the instance's Zenoh port to both children
-    from scripts.cli import build_parser
-    from scripts.fly import _check_own, _validate
+    from skyherd.scripts.cli import build_parser
+    from skyherd.scripts.fly import _check_own, _validate
 
     args = build_parser("fly").parse_args(["fly", "--instance", INSTANCE, "--mission", "square"])
     _check_own(args)
@@ -154,7 +168,7 @@ def test_the_instance_moves_every_port_zenohs_included():
     assert sim_args[sim_args.index("--zenoh-port") + 1] == "7507"
     assert comp_args[comp_args.index("--zenoh-connect") + 1] == "tcp:127.0.0.1:7507"
     # skyherd sim and skyherd companion alone take the same default from --instance
-    from scripts import companion, sim
+    from skyherd.scripts import companion, sim
 
     a = build_parser("sim").parse_args(["sim", "--instance", INSTANCE])
     sim.check(a)

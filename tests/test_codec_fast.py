@@ -1,4 +1,4 @@
-"""flight.mavlink.codec's fast decoder against pymavlink's own parser, over the whole dialect."""
+"""skyherd.flight.mavlink.codec's fast decoder against pymavlink's own parser, over the whole dialect."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.mavlink.codec import Codec, pack_unsigned_v2, parse_unsigned_v2
-from flight.mavlink.signing import Signing
+from skyherd.flight.mavlink.codec import Codec, pack_unsigned_v2, parse_unsigned_v2
+from skyherd.flight.mavlink.signing import Signing
 
 
 def frame(cls, payload: bytes, seq: int, sysid: int, compid: int, compat: int = 0) -> bytes:

@@ -19,10 +19,10 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.autopilot_api import FlightMode
-from flight.mavlink import Personality
-from hil.telemetry import Telemetry, update_telemetry
-from scripts.cli import main
+from skyherd.flight.autopilot_api import FlightMode
+from skyherd.flight.mavlink import Personality
+from skyherd.hil.telemetry import Telemetry, update_telemetry
+from skyherd.scripts.cli import main
 from tests.companion_flights import Steps, fly, missions
 from tests.mavlink_support import running_sitl
 

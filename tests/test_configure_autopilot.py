@@ -7,9 +7,9 @@ import json
 
 import pytest
 
-from safety.consistency import check_params, required_values
-from safety.net import load_net
-from scripts.cli import main
+from skyherd.safety.consistency import check_params, required_values
+from skyherd.safety.net import load_net
+from skyherd.scripts.cli import main
 
 STOCK = {  # the values that break a rule of the ground-air / orbit envelopes
     "px4": {"COM_OF_LOSS_T": 1.0, "MPC_XY_VEL_MAX": 20.0, "MPC_TILTMAX_AIR": 10.0, "MPC_ACC_HOR": 1.0},

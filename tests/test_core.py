@@ -9,8 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from flight.clock import Pacer, SimClock
-from flight.frames import (
+from skyherd.flight.clock import Pacer, SimClock
+from skyherd.flight.frames import (
     enu_to_ned,
     euler_to_quat,
     ned_to_enu,
@@ -20,8 +20,8 @@ from flight.frames import (
     yaw_enu_to_ned,
     yaw_ned_to_enu,
 )
-from flight.geo import DEFAULT_HOME, Home, geodetic_to_ned, ned_to_geodetic
-from runio.runfolder import RunFolder, markdown_table
+from skyherd.flight.geo import DEFAULT_HOME, Home, geodetic_to_ned, ned_to_geodetic
+from skyherd.runio.runfolder import RunFolder, markdown_table
 
 
 def test_ned_enu_both_ways():
@@ -99,7 +99,10 @@ def test_run_folder_files(tmp_path):
 
 def test_cli_help_lists_commands():
     out = subprocess.run(
-        [sys.executable, "-m", "scripts.cli", "--help"], capture_output=True, text=True, check=True
+        [sys.executable, "-m", "skyherd.scripts.cli", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
     ).stdout
     for name in ("sitl", "fly", "drill", "train", "teleop", "watch"):
         assert name in out
@@ -112,7 +115,7 @@ def test_exit_now_runs_atexit_flushes_output_and_waits_for_a_working_thread(tmp_
     code = f"""
 import atexit, sys, threading, time
 from pathlib import Path
-from scripts.cli import exit_now
+from skyherd.scripts.cli import exit_now
 atexit.register(lambda: Path({str(done)!r}).write_text("ran"))
 sys.stdout.write("buffered, no newline")
 def work():
@@ -148,7 +151,7 @@ exit_now(3)
     ],  # fmt: skip
 )
 def test_every_command_has_help(argv, capsys):
-    from scripts.cli import main
+    from skyherd.scripts.cli import main
 
     with pytest.raises(SystemExit) as e:
         main([*argv, "--help"])
@@ -158,7 +161,7 @@ def test_every_command_has_help(argv, capsys):
 
 
 def test_unknown_command_is_bad_usage(capsys):
-    from scripts.cli import main
+    from skyherd.scripts.cli import main
 
     with pytest.raises(SystemExit) as e:
         main(["bogus"])

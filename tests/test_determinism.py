@@ -13,7 +13,7 @@ import subprocess
 
 import pytest
 
-from scripts.cli import main
+from skyherd.scripts.cli import main
 
 COMPARED = ("decisions.jsonl", "world.csv", "metrics.csv", "events.jsonl")
 
@@ -57,7 +57,7 @@ def test_same_seed_same_flight_at_any_speedup_and_load(tmp_path, mission, args, 
     if mission == "formation":  # K = 9 from the study's start cells, 6 cells north in lock-step
         import json
 
-        from policy.sql.layout import STARTS
+        from skyherd.policy.sql.layout import STARTS
 
         plan = tmp_path / "plan_K9.json"
         plan.write_text(json.dumps([[[x, y + i] for i in range(7)] for x, y in STARTS[9]]))

@@ -135,8 +135,8 @@ def check_command(cmd: str) -> None:
     words = shlex.split(cmd)
     prog = _program(words[0])
     if prog == "skyherd":
-        from scripts.cli import COMMANDS as SUB
-        from scripts.cli import build_parser
+        from skyherd.scripts.cli import COMMANDS as SUB
+        from skyherd.scripts.cli import build_parser
 
         args = words[1:]
         sub = next((a for a in args if not a.startswith("-")), None)
@@ -350,10 +350,10 @@ def test_readme_mavsdk_line_works_with_mavsdk_4():
     (flight.sitl.Sitl); MAVSDK-Python 4.1 must find the autopilot."""
     import asyncio
 
-    from flight.airframes_registry import make_autopilot
-    from flight.clock import SimClock
-    from flight.mavlink import EndpointConfig
-    from flight.sitl import Sitl
+    from skyherd.flight.airframes_registry import make_autopilot
+    from skyherd.flight.clock import SimClock
+    from skyherd.flight.mavlink import EndpointConfig
+    from skyherd.flight.sitl import Sitl
 
     code = readme_mavsdk_snippet()
     assert "udpin://127.0.0.1:14540" in code

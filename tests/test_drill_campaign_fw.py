@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
-from safety.config import default_envelope_path, fill_dataclass, load_envelope
-from safety.drills import DrillParams, recovery_allowance_s, run_drill
-from safety.supervisor import SupervisorParams
+from skyherd.safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
+from skyherd.safety.config import default_envelope_path, fill_dataclass, load_envelope
+from skyherd.safety.drills import DrillParams, recovery_allowance_s, run_drill
+from skyherd.safety.supervisor import SupervisorParams
 
 
 @pytest.mark.parametrize("index", [104, 146])

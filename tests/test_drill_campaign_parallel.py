@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from runio.parallel import JobLost, map_unordered, ray_available
+from skyherd.runio.parallel import JobLost, map_unordered, ray_available
 
 ROOT = Path(__file__).resolve().parents[1]
 N = 24
@@ -28,7 +28,7 @@ def _rows(runs: Path) -> list[dict]:
 
 
 def _campaign(runs: Path, *extra: str) -> subprocess.Popen:
-    argv = [sys.executable, "-m", "scripts.cli", "drill", "--airframe", "quadrotor", "--campaign",
+    argv = [sys.executable, "-m", "skyherd.scripts.cli", "drill", "--airframe", "quadrotor", "--campaign",
             str(N), "--seed", "5", "--no-plots", "--runs-dir", str(runs), *extra]  # fmt: skip
     return subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))  # fmt: skip

@@ -8,11 +8,11 @@ the autopilot's own HOLD beyond the fence (which the built-in vehicle fits to th
 
 from __future__ import annotations
 
-from safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
-from safety.config import default_envelope_path, fill_dataclass, load_envelope
-from safety.drills import DrillParams, run_drill
-from safety.supervisor import SupervisorParams
-from scripts.drill_campaign import summarize
+from skyherd.safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
+from skyherd.safety.config import default_envelope_path, fill_dataclass, load_envelope
+from skyherd.safety.drills import DrillParams, run_drill
+from skyherd.safety.supervisor import SupervisorParams
+from skyherd.scripts.drill_campaign import summarize
 
 
 def test_battery_0182_rtl_path_is_the_autopilots_and_reported():

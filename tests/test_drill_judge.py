@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from safety.campaign import breach_upper_bound, drills_needed
-from safety.config import default_envelope_path, load_envelope
-from safety.envelope import NZ, SignedDistance
-from safety.judge import (
+from skyherd.safety.campaign import breach_upper_bound, drills_needed
+from skyherd.safety.config import default_envelope_path, load_envelope
+from skyherd.safety.envelope import NZ, SignedDistance
+from skyherd.safety.judge import (
     Ending,
     Expect,
     ModeChange,
@@ -24,7 +24,7 @@ from safety.judge import (
     verdict,
     worst_rows,
 )
-from scripts.drill_campaign import bounds, summarize
+from skyherd.scripts.drill_campaign import bounds, summarize
 
 NORTH = 35.0
 

@@ -7,7 +7,7 @@ Instances 65-67 (this helper's range)."""
 
 import pytest
 
-from mission.drill_link import MAVLINK_KINDS, run_mavlink_drill
+from skyherd.mission.drill_link import MAVLINK_KINDS, run_mavlink_drill
 
 
 @pytest.mark.parametrize(

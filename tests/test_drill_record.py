@@ -3,8 +3,8 @@ is a message on /uav0/safety/event, as in a flight, so a drill opens in Foxglove
 
 import json
 
-from record import read_messages
-from scripts.cli import main
+from skyherd.record import read_messages
+from skyherd.scripts.cli import main
 
 
 def test_a_drill_run_records_its_events_in_flight_mcap(tmp_path, capsys):

@@ -11,11 +11,11 @@ import dataclasses
 
 import numpy as np
 
-from flight.state import VehicleState
-from safety.campaign import drill_rng, make_drill, make_vehicle
-from safety.config import default_envelope_path, fill_dataclass, load_envelope
-from safety.drills import DrillParams, run_drill
-from safety.supervisor import Supervisor, SupervisorParams
+from skyherd.flight.state import VehicleState
+from skyherd.safety.campaign import drill_rng, make_drill, make_vehicle
+from skyherd.safety.config import default_envelope_path, fill_dataclass, load_envelope
+from skyherd.safety.drills import DrillParams, run_drill
+from skyherd.safety.supervisor import Supervisor, SupervisorParams
 
 
 def _quad(index: int, seed: int = 52):

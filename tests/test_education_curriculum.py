@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from policy.education.concepts import compile_concepts, decode_observation
-from policy.education.curriculum import DEFAULT_CURRICULUM, CurriculumError, load_curriculum
-from scripts.cli import main
+from skyherd.policy.education.concepts import compile_concepts, decode_observation
+from skyherd.policy.education.curriculum import DEFAULT_CURRICULUM, CurriculumError, load_curriculum
+from skyherd.scripts.cli import main
 
 TEXT = DEFAULT_CURRICULUM.read_text()
 
@@ -139,8 +139,8 @@ def _table(f: dict) -> dict[str, int]:
 def test_the_modules_predicates_can_express_the_demonstrator():
     """A module reads predicates only; a table over them flies each skill scenario's test
     episodes as the scripted demonstrator does (what the lessons' modules can learn)."""
-    from policy.demos import ExpertParams, rollout_stats, scripted_expert
-    from policy.education.teach import concept_features
+    from skyherd.policy.demos import ExpertParams, rollout_stats, scripted_expert
+    from skyherd.policy.education.teach import concept_features
 
     cur = load_curriculum(DEFAULT_CURRICULUM)
     feats = concept_features(cur)

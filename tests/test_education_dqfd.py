@@ -8,13 +8,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from policy.demos import rollout_stats
-from policy.dqn import DQNParams
-from policy.education.curriculum import DEFAULT_CURRICULUM, load_curriculum
-from policy.education.dqfd import DQfDParams, behaviour_clone, margin_loss, run_dqn
-from policy.education.modular import Arbiter, ModularPolicy, SkillModule
-from policy.education.monolith import continue_dqn
-from policy.education.teach import (
+from skyherd.policy.demos import rollout_stats
+from skyherd.policy.dqn import DQNParams
+from skyherd.policy.education.curriculum import DEFAULT_CURRICULUM, load_curriculum
+from skyherd.policy.education.dqfd import DQfDParams, behaviour_clone, margin_loss, run_dqn
+from skyherd.policy.education.modular import Arbiter, ModularPolicy, SkillModule
+from skyherd.policy.education.monolith import continue_dqn
+from skyherd.policy.education.teach import (
     QUICK,
     ConceptEnv,
     agreement,

@@ -3,8 +3,8 @@
 
 import json
 
-from policy.education.timeline import describe_velocity, read_decisions, timeline
-from scripts.cli import main
+from skyherd.policy.education.timeline import describe_velocity, read_decisions, timeline
+from skyherd.scripts.cli import main
 
 
 def _rec(t, vel, verdict="accepted", certified=None, explanation=None, pilot="policy", reason="ok"):

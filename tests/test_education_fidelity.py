@@ -3,12 +3,12 @@ crossing a cited concept's threshold changes the decision, crossing an uncited o
 
 import numpy as np
 
-from policy.demos import ExpertParams, scripted_expert
-from policy.dqn import MLPPolicy
-from policy.education.curriculum import DEFAULT_CURRICULUM, load_curriculum
-from policy.education.fidelity import fidelity, roles
-from policy.education.modular import Arbiter, ModularPolicy, SkillModule
-from policy.groundair.env import GroundAirEnv
+from skyherd.policy.demos import ExpertParams, scripted_expert
+from skyherd.policy.dqn import MLPPolicy
+from skyherd.policy.education.curriculum import DEFAULT_CURRICULUM, load_curriculum
+from skyherd.policy.education.fidelity import fidelity, roles
+from skyherd.policy.education.modular import Arbiter, ModularPolicy, SkillModule
+from skyherd.policy.groundair.env import GroundAirEnv
 
 
 def _linear(inputs, actions, q: dict[int, dict[str, float]], bias: dict[int, float]):

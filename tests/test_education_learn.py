@@ -8,12 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from policy.dqn import MLPPolicy, PolicyFileError, load_policy
-from policy.education.curriculum import load_curriculum
-from policy.education.modular import Arbiter, ModularPolicy, SkillModule
-from policy.groundair.env import GroundAirEnv
-from policy.groundair.params import ACTION_NAMES, action_velocity_ned
-from scripts.cli import main
+from skyherd.policy.dqn import MLPPolicy, PolicyFileError, load_policy
+from skyherd.policy.education.curriculum import load_curriculum
+from skyherd.policy.education.modular import Arbiter, ModularPolicy, SkillModule
+from skyherd.policy.groundair.env import GroundAirEnv
+from skyherd.policy.groundair.params import ACTION_NAMES, action_velocity_ned
+from skyherd.scripts.cli import main
 
 TWO = """
 format = "skyherd-curriculum/1"
@@ -168,7 +168,7 @@ def ex_action(rec):
 
 def _tiny_policy(rng) -> ModularPolicy:
     cur = load_curriculum(
-        __import__("policy.education.curriculum", fromlist=["x"]).DEFAULT_CURRICULUM
+        __import__("skyherd.policy.education.curriculum", fromlist=["x"]).DEFAULT_CURRICULUM
     )
     lat = cur.lesson("lateral")
     n_lat, n_up = len(lat.inputs), len(cur.lesson("climb").inputs)
@@ -201,10 +201,10 @@ def test_modular_file_roundtrip_and_the_fly_loader(tmp_path):
     assert "someone_out" not in ex["cited"] and "not decisive" in ex["reason"]
     assert ex["read"] == []
     # `skyherd fly --policy FILE` loads it with the companion's loader; its pilot explains
-    from flight.state import VehicleState
-    from mission.pilots import Observation, PolicyPilot
-    from policy.groundair.params import TaskParams
-    from scripts.companion import _load_policy
+    from skyherd.flight.state import VehicleState
+    from skyherd.mission.pilots import Observation, PolicyPilot
+    from skyherd.policy.groundair.params import TaskParams
+    from skyherd.scripts.companion import _load_policy
 
     flown = _load_policy(str(path))
     assert isinstance(flown, ModularPolicy)

@@ -5,11 +5,11 @@ import math
 
 import pytest
 
-from policy.demos import rollout_stats
-from policy.education.curriculum import DEFAULT_CURRICULUM, CurriculumError, load_curriculum
-from policy.education.dqfd import DQfDParams, behaviour_clone
-from policy.education.modular import Arbiter, ModularPolicy, SkillModule
-from policy.education.teach import (
+from skyherd.policy.demos import rollout_stats
+from skyherd.policy.education.curriculum import DEFAULT_CURRICULUM, CurriculumError, load_curriculum
+from skyherd.policy.education.dqfd import DQfDParams, behaviour_clone
+from skyherd.policy.education.modular import Arbiter, ModularPolicy, SkillModule
+from skyherd.policy.education.teach import (
     QUICK,
     EduParams,
     MeasuresObjective,

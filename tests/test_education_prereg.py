@@ -2,7 +2,7 @@
 
 import math
 
-from policy.education.prereg import summarise, verdicts
+from skyherd.policy.education.prereg import summarise, verdicts
 
 
 def test_verdicts_follow_the_stated_rule():
@@ -35,9 +35,9 @@ def test_skyherd_evaluate_reproduces_the_recorded_ab_and_expert_figures(tmp_path
     import json
     from pathlib import Path
 
-    from scripts.cli import main
+    from skyherd.scripts.cli import main
 
-    ab = Path(__file__).resolve().parents[1] / "policy" / "models" / "groundair_ab.npz"
+    ab = Path(__file__).resolve().parents[1] / "skyherd" / "policy" / "models" / "groundair_ab.npz"
     assert main(["evaluate", str(ab), "--ab", str(ab), "--runs-dir", str(tmp_path)]) == 1
     (run,) = tmp_path.iterdir()
     res = json.loads((run / "results.json").read_text())

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.autopilot_api import FlightMode
-from flight.faults import (
+from skyherd.flight.autopilot_api import FlightMode
+from skyherd.flight.faults import (
     FaultEvent,
     FaultPlan,
     FaultSpecError,
@@ -21,9 +21,9 @@ from flight.faults import (
     parse_fault_event,
     wind_from,
 )
-from flight.mavlink.telemetry import Identity, TelemetryBuilder
-from flight.multirotor import MultirotorAutopilot
-from flight.quadrotor import QuadrotorParams, WindModel
+from skyherd.flight.mavlink.telemetry import Identity, TelemetryBuilder
+from skyherd.flight.multirotor import MultirotorAutopilot
+from skyherd.flight.quadrotor import QuadrotorParams, WindModel
 
 
 def run(ap, seconds: float) -> tuple[np.ndarray, np.ndarray]:
@@ -263,8 +263,8 @@ def test_sitl_command_line_takes_the_fault_flags(tmp_path):
     import json
     import signal
 
-    from scripts import sitl as sitl_cmd
-    from scripts.cli import UsageError
+    from skyherd.scripts import sitl as sitl_cmd
+    from skyherd.scripts.cli import UsageError
 
     parser = argparse.ArgumentParser()
     sitl_cmd.add_arguments(parser)
@@ -295,9 +295,9 @@ def test_faults_over_mavlink_glitch_in_local_position_and_battery_failsafe():
     "critical -> return" STATUSTEXT."""
     from test_quad_fence import _Gcs
 
-    from flight.clock import SimClock
-    from flight.mavlink import EndpointConfig
-    from flight.sitl import Sitl
+    from skyherd.flight.clock import SimClock
+    from skyherd.flight.mavlink import EndpointConfig
+    from skyherd.flight.sitl import Sitl
 
     plan = parse_fault_args(faults=["gps_glitch@16:20,0,0:3", "battery@20:0.065"])
     ap = MultirotorAutopilot(clock=SimClock(), faults=plan)

@@ -5,9 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from flight.autopilot_api import FlightMode, LandedState, MissionCommand, MissionItem, Setpoint
-from flight.fixedwing.autopilot import FixedWingAutopilot, Phase
-from flight.geo import GRAVITY
+from skyherd.flight.autopilot_api import (
+    FlightMode,
+    LandedState,
+    MissionCommand,
+    MissionItem,
+    Setpoint,
+)
+from skyherd.flight.fixedwing.autopilot import FixedWingAutopilot, Phase
+from skyherd.flight.geo import GRAVITY
 
 
 def fly(ap, seconds, each=None):

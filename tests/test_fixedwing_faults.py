@@ -8,9 +8,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from flight.autopilot_api import FlightMode, MissionCommand, MissionItem, Setpoint
-from flight.faults import FaultEvent, FaultPlan, parse_fault_args
-from flight.fixedwing.autopilot import FixedWingAutopilot
+from skyherd.flight.autopilot_api import FlightMode, MissionCommand, MissionItem, Setpoint
+from skyherd.flight.faults import FaultEvent, FaultPlan, parse_fault_args
+from skyherd.flight.fixedwing.autopilot import FixedWingAutopilot
 
 
 def circle(r: float, n: float = 0.0, e: float = 0.0, inclusion: bool = True):
@@ -160,10 +160,10 @@ def test_fixedwing_battery_failsafe_stands_in_a_drill():
     """The fixed-wing's battery (fuel) failsafe, PX4 COM_LOW_BAT_ACT 3 as the multirotor's:
     below BAT_CRIT_THR it returns, below BAT_EMERGEN_THR it lands; the net yields to it and
     never undoes it (safety.campaign battery drills, in-process; seed 7, drills 0 and 1)."""
-    from safety.campaign import drill_rng, make_drill, make_vehicle
-    from safety.config import default_envelope_path, fill_dataclass, load_envelope
-    from safety.drills import DrillParams, run_drill
-    from safety.supervisor import SupervisorParams
+    from skyherd.safety.campaign import drill_rng, make_drill, make_vehicle
+    from skyherd.safety.config import default_envelope_path, fill_dataclass, load_envelope
+    from skyherd.safety.drills import DrillParams, run_drill
+    from skyherd.safety.supervisor import SupervisorParams
 
     spec, table = load_envelope(default_envelope_path("fixedwing"))
     sp = fill_dataclass(SupervisorParams, table, "supervisor")

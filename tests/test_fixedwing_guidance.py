@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from flight.fixedwing.guidance import L1Params, circle_capture, l1_distance, loiter, track
-from flight.fixedwing.tecs import Tecs
-from flight.geo import GRAVITY
+from skyherd.flight.fixedwing.guidance import L1Params, circle_capture, l1_distance, loiter, track
+from skyherd.flight.fixedwing.tecs import Tecs
+from skyherd.flight.geo import GRAVITY
 
 P = L1Params(period=17.0, damping=0.75)
 LIMITS = dict(climb_max=2.5, sink_max=3.0, thr_min=0.0, thr_max=1.0, pitch_min=-0.2, pitch_max=0.26)

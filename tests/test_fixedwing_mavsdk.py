@@ -22,7 +22,7 @@ from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from mavsdk.plugins.telemetry import FlightMode, LandedState
 
-from flight.geo import DEFAULT_HOME, geodetic_to_ned, ned_to_geodetic
+from skyherd.flight.geo import DEFAULT_HOME, geodetic_to_ned, ned_to_geodetic
 
 INSTANCE = 23  # ports 14563 / 14603 / 18593: away from the other suites' instances
 SPEEDUP = 40.0  # the pacer only caps it: a busy machine runs slower, waits are generous

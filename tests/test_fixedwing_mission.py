@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 
-from flight.autopilot_api import FlightMode, LandedState, MissionCommand, MissionItem
-from flight.fixedwing.autopilot import FixedWingAutopilot, Phase
+from skyherd.flight.autopilot_api import FlightMode, LandedState, MissionCommand, MissionItem
+from skyherd.flight.fixedwing.autopilot import FixedWingAutopilot, Phase
 
 WPS = [(500.0, 0.0, -50.0), (500.0, 500.0, -60.0), (0.0, 500.0, -60.0), (-200.0, 250.0, -50.0)]
 

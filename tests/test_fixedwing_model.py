@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from flight.fixedwing.jsbsim_model import JSBSimPlane, ModelParams, Surfaces
-from flight.frames import quat_to_dcm
-from flight.geo import GRAVITY, Home
+from skyherd.flight.fixedwing.jsbsim_model import JSBSimPlane, ModelParams, Surfaces
+from skyherd.flight.frames import quat_to_dcm
+from skyherd.flight.geo import GRAVITY, Home
 
 
 @pytest.fixture(scope="module")

@@ -16,12 +16,18 @@ import pytest
 from mavlink_rig import Peer
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.airframes_registry import make_autopilot
-from flight.autopilot_api import FlightMode
-from flight.clock import SimClock
-from flight.mavlink import EndpointConfig
-from flight.mavlink.offboard import IGNORE_ACC, IGNORE_POS, IGNORE_VEL, IGNORE_YAW, IGNORE_YAW_RATE
-from flight.sitl import Sitl
+from skyherd.flight.airframes_registry import make_autopilot
+from skyherd.flight.autopilot_api import FlightMode
+from skyherd.flight.clock import SimClock
+from skyherd.flight.mavlink import EndpointConfig
+from skyherd.flight.mavlink.offboard import (
+    IGNORE_ACC,
+    IGNORE_POS,
+    IGNORE_VEL,
+    IGNORE_YAW,
+    IGNORE_YAW_RATE,
+)
+from skyherd.flight.sitl import Sitl
 
 INSTANCE = 85  # the fw helper's MAVLink instances: 85-89
 POS_VEL = IGNORE_ACC | IGNORE_YAW | IGNORE_YAW_RATE  # 0xDC0: what the orbit may send

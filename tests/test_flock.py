@@ -1,11 +1,11 @@
-"""groundsim.flock against closed forms: eqs. (1)–(5) of docs/shepherding.md."""
+"""skyherd.groundsim.flock against closed forms: eqs. (1)–(5) of docs/shepherding.md."""
 
 import math
 
 import numpy as np
 import pytest
 
-from groundsim.flock import Flock, FlockParams, flock_spread, new_headings
+from skyherd.groundsim.flock import Flock, FlockParams, flock_spread, new_headings
 
 QUIET = dict(e=0.0, graze_p=0.0)  # no noise, no grazing: the closed forms hold exactly
 

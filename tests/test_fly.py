@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from record import read_messages
-from scripts.cli import main
+from skyherd.record import read_messages
+from skyherd.scripts.cli import main
 
 
 def test_fly_square_end_to_end(tmp_path, capsys):
@@ -94,7 +94,7 @@ def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
 def test_companion_waiting_for_its_go_ends_cleanly_when_standard_input_closes(tmp_path):
     """`skyherd companion --wait-go` (as `fly` starts it) whose parent is gone: it says why and
     writes its run folder, without a word to the vehicle."""
-    r = subprocess.run([sys.executable, "-m", "scripts.cli", "companion", "--mission", "square",
+    r = subprocess.run([sys.executable, "-m", "skyherd.scripts.cli", "companion", "--mission", "square",
                         "--no-camera", "--wait-go", "--instance", "62", "--runs-dir", str(tmp_path)],
                        stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120)  # fmt: skip
     assert r.returncode == 1, r.stderr
@@ -112,7 +112,7 @@ def test_fly_interrupted_while_starting_stops_both_children_wall_time(tmp_path, 
     import signal
     import time
 
-    p = subprocess.Popen([sys.executable, "-m", "scripts.cli", "fly", "--speedup", "0",
+    p = subprocess.Popen([sys.executable, "-m", "skyherd.scripts.cli", "fly", "--speedup", "0",
                           "--instance", "63", "--zenoh-port", "7473", "--runs-dir", str(tmp_path)],
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
@@ -134,7 +134,11 @@ def _children_of_instance(n: int) -> list[int]:
             argv = (d / "cmdline").read_bytes().split(b"\0")
         except OSError:  # not a process, or it ended meanwhile
             continue
-        if b"scripts.cli" in argv and {b"sim", b"companion"} & set(argv) and b"--instance" in argv:
+        if (
+            b"skyherd.scripts.cli" in argv
+            and {b"sim", b"companion"} & set(argv)
+            and b"--instance" in argv
+        ):
             if argv[argv.index(b"--instance") + 1] == str(n).encode():
                 found.append(int(d.name))
     return found
@@ -162,7 +166,7 @@ def test_a_launch_stops_the_companion_first_then_every_simulator_on_a_ctrl_c(tmp
     vehicles to their autopilots) before the simulators get SIGUSR1 (they wind down alone with
     the autopilot); none is left running. Ordered by the log the children write, not by a
     clock's margin."""
-    from scripts import launch
+    from skyherd.scripts import launch
 
     log = tmp_path / "order.log"
     ready = lambda: log.read_text().count("ready") if log.exists() else 0  # noqa: E731

@@ -10,10 +10,10 @@ take-off: tests/test_fly.py)."""
 
 import json
 
-from flight.airframes_registry import make_autopilot
-from flight.mavlink import EndpointConfig
-from flight.sitl import Sitl
-from scripts.cli import main
+from skyherd.flight.airframes_registry import make_autopilot
+from skyherd.flight.mavlink import EndpointConfig
+from skyherd.flight.sitl import Sitl
+from skyherd.scripts.cli import main
 
 INSTANCE = 8  # the outside vehicle: system 9, API 14580+8 → 14548, ground station → 14550
 

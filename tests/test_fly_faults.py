@@ -9,7 +9,7 @@ camera_timeout_s (1.0 s) + one tick (0.1 s)."""
 import csv
 import json
 
-from scripts.cli import main
+from skyherd.scripts.cli import main
 
 
 def test_a_cut_link_and_a_lost_camera_are_seen_within_the_stated_times(tmp_path):

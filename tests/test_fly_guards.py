@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from safety.config import ENVELOPE_DIR, load_envelope
-from scripts.cli import main
+from skyherd.safety.config import ENVELOPE_DIR, load_envelope
+from skyherd.scripts.cli import main
 
 FIELD = "[[-200.0, -200.0], [200.0, -200.0], [200.0, 200.0], [-200.0, 200.0]]"
 COMMON = ["--speedup", "0", "--instance", "23", "--zenoh-port", "7443"]

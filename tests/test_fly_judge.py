@@ -13,9 +13,9 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.mavlink.signing import Signing, load_key
-from safety.config import ENVELOPE_DIR
-from scripts.cli import main
+from skyherd.flight.mavlink.signing import Signing, load_key
+from skyherd.safety.config import ENVELOPE_DIR
+from skyherd.scripts.cli import main
 
 
 def _fly(tmp_path, instance: int, *extra: str, duration: str = "15", speedup: str = "0"):

@@ -15,9 +15,9 @@ import re
 import numpy as np
 import pytest
 
-from safety.config import ENVELOPE_DIR, load_envelope
-from safety.envelope import SignedDistance
-from scripts.cli import main
+from skyherd.safety.config import ENVELOPE_DIR, load_envelope
+from skyherd.safety.envelope import SignedDistance
+from skyherd.scripts.cli import main
 
 
 def _fly(tmp_path, *extra):

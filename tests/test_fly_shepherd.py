@@ -7,9 +7,9 @@ import json
 
 import numpy as np
 
-from policy.shepherd.episode import run_episode
-from policy.shepherd.selector import StrombomSelector
-from scripts.cli import main
+from skyherd.policy.shepherd.episode import run_episode
+from skyherd.policy.shepherd.selector import StrombomSelector
+from skyherd.scripts.cli import main
 
 
 def test_fly_shepherd_brings_the_flock_to_the_goal(tmp_path, capsys):

@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scripts.cli import main
+from skyherd.scripts.cli import main
 
 RIG = Path(__file__).with_name("waysout_rig.py")
-CLI = Path(__file__).resolve().parents[1] / "scripts" / "cli.py"
+CLI = Path(__file__).resolve().parents[1] / "skyherd" / "scripts" / "cli.py"
 FLY = ["--duration", "40", "--speedup", "0", "--instance", "23", "--zenoh-port", "7483",
        "--no-record"]  # fmt: skip
 
@@ -266,9 +266,9 @@ def test_a_read_only_runs_folder_is_refused_before_take_off(tmp_path):
 def test_a_policy_of_the_wrong_shape_is_refused_before_take_off(tmp_path, capsys):
     """A policy file whose input or output size does not fit the ground-air task (14 inputs,
     7 actions): exit 2 with one line saying what to do; no run folder, no child started."""
-    from policy.dqn import MLPPolicy
-    from policy.groundair.env import OBS_DIM
-    from policy.groundair.params import N_ACTIONS
+    from skyherd.policy.dqn import MLPPolicy
+    from skyherd.policy.groundair.env import OBS_DIM
+    from skyherd.policy.groundair.params import N_ACTIONS
 
     assert (OBS_DIM, N_ACTIONS) == (14, 7)
     rng = np.random.default_rng(0)
@@ -296,7 +296,7 @@ def test_a_runs_folder_that_cannot_be_written_is_refused_before_take_off(tmp_pat
 
 _FSIZE_CHILD = """
 import resource, signal, sys
-from runio import JsonlWriter
+from skyherd.runio import JsonlWriter
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead
 resource.setrlimit(resource.RLIMIT_FSIZE, (1000, 1000))
 w = JsonlWriter(sys.argv[1])
@@ -324,8 +324,8 @@ def test_a_record_that_fails_half_way_is_cut_back_off_the_file(tmp_path):
 def test_streams_stop_at_the_reserve_and_end_files_never_raise(tmp_path, capsys):
     """A stream stops when less than its reserve would be left free (here a reserve larger than
     any disk); the end files' writer reports a folder it cannot write instead of raising."""
-    from runio import try_write_text
-    from runio.space import Appender
+    from skyherd.runio import try_write_text
+    from skyherd.runio.space import Appender
 
     a = Appender(tmp_path / "x.csv", reserve=1 << 62)
     assert not a.active and a.error.startswith("No space left on device") and not a.write("t\n")
@@ -344,7 +344,7 @@ if spec.get("listen"):  # another program on the port
     s = socket.socket()
     s.bind(("127.0.0.1", spec["listen"]))
     s.listen()
-argv = [sys.executable, "-m", "scripts.cli", "fly", "--runs-dir", spec["runs"], *spec["fly"]]
+argv = [sys.executable, "-m", "skyherd.scripts.cli", "fly", "--runs-dir", spec["runs"], *spec["fly"]]
 p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 lines = []
 def pump(f, tag):
@@ -364,7 +364,7 @@ def left():
             text = open(f"/proc/{d}/cmdline", "rb").read().replace(b"\\0", b" ").decode()
         except OSError:
             continue
-        if d.isdigit() and int(d) != os.getpid() and "-m scripts.cli" in text and spec["runs"] in text:
+        if d.isdigit() and int(d) != os.getpid() and "-m skyherd.scripts.cli" in text and spec["runs"] in text:
             out.append(text)
     return out
 t_end = time.time()

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from flight.geo import DEFAULT_HOME
-from mission.formation_plan import (
+from skyherd.flight.geo import DEFAULT_HOME
+from skyherd.mission.formation_plan import (
     FormationParams,
     PlanError,
     cell_ne,
@@ -29,9 +29,9 @@ from mission.formation_plan import (
     vehicle_homes,
     vehicle_instances,
 )
-from policy.sql import Algorithm, GridParams, SQLHyper, build_layout, plan_paths, train
-from policy.sql.layout import STARTS, TARGET_LATTICE
-from scripts.cli import main
+from skyherd.policy.sql import Algorithm, GridParams, SQLHyper, build_layout, plan_paths, train
+from skyherd.policy.sql.layout import STARTS, TARGET_LATTICE
+from skyherd.scripts.cli import main
 
 # Instances far from the other tests' (0..10) so parallel runs do not share ports.
 BASE = 120
@@ -264,7 +264,7 @@ def test_the_flight_is_the_same_in_one_simulator_process_or_one_per_vehicle(tmp_
 
 
 def test_sim_groups_share_the_vehicles_in_contiguous_near_equal_groups():
-    from scripts.fly_formation import sim_groups
+    from skyherd.scripts.fly_formation import sim_groups
 
     assert sim_groups(16, 2) == [list(range(8)), list(range(8, 16))]
     assert sim_groups(9, 2) == [list(range(5)), list(range(5, 9))]
@@ -347,7 +347,7 @@ def test_stop_all_signals_every_child_at_once_and_reasons_prefer_the_supervisor_
     import sys
     import time
 
-    from scripts import launch
+    from skyherd.scripts import launch
 
     code = "import signal, time\nsignal.signal(signal.SIGINT, lambda *a: (time.sleep(1.0), exit(3)))\nprint('up', flush=True)\ntime.sleep(60)\n"  # fmt: skip
     kids = [launch.Child(f"k{i}", subprocess.Popen([sys.executable, "-c", code],

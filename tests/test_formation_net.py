@@ -4,10 +4,10 @@ a vehicle behind its reference chases it inside the speed and acceleration rows.
 
 import numpy as np
 
-from flight.state import VehicleState
-from mission.formation import FormationNet
-from mission.formation_plan import FormationParams, formation_envelope
-from safety.supervisor import Mode
+from skyherd.flight.state import VehicleState
+from skyherd.mission.formation import FormationNet
+from skyherd.mission.formation_plan import FormationParams, formation_envelope
+from skyherd.safety.supervisor import Mode
 
 
 def state(pos, vel=(0.0, 0.0, 0.0), t=0.0):
@@ -81,7 +81,7 @@ def test_fleet_separation_rows_are_each_vehicles_own_rows_value_for_value():
     """The formation makes all K vehicles' separation rows in one pass; each vehicle's must be
     exactly (bit for bit: decisions.jsonl is hashed) what separation_rows gives it alone,
     two vehicles on top of each other included."""
-    from safety.separation import fleet_separation_rows, separation_rows
+    from skyherd.safety.separation import fleet_separation_rows, separation_rows
 
     (n0, *_), spec = nets([[(0.0, 0.0), (0.0, 2.0)]] * 3)
     rng = np.random.default_rng(7)

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from groundsim.behaviours import (
+from skyherd.groundsim.behaviours import (
     Camouflage,
     Convoy,
     DriveParams,
@@ -18,8 +18,8 @@ from groundsim.behaviours import (
     triangle_offsets,
     wheel_speeds,
 )
-from groundsim.kinematic import KinematicWorld, unicycle_step
-from groundsim.ugv import UGVModel, UGVStates, initial_states, marker_corners_ned
+from skyherd.groundsim.kinematic import KinematicWorld, unicycle_step
+from skyherd.groundsim.ugv import UGVModel, UGVStates, initial_states, marker_corners_ned
 
 P = DriveParams()
 

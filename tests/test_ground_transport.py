@@ -6,9 +6,9 @@ import time
 import numpy as np
 import pytest
 
-from groundsim.transport import UGVStatePublisher, UGVStateSubscriber
-from groundsim.ugv import UGVStates
-from perception.transport import open_session, publisher_params, subscriber_params
+from skyherd.groundsim.transport import UGVStatePublisher, UGVStateSubscriber
+from skyherd.groundsim.ugv import UGVStates
+from skyherd.perception.transport import open_session, publisher_params, subscriber_params
 
 
 def free_port() -> int:

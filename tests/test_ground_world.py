@@ -8,13 +8,13 @@ import time
 import numpy as np
 import pytest
 
-from flight.frames import euler_to_quat
-from groundsim.behaviours import DriveParams, UGVCommand, make_behaviour, triangle_offsets
-from groundsim.kinematic import KinematicWorld
-from groundsim.ugv import GROUND_RGB, UGVModel, UGVStates, initial_states
-from groundsim.world import GroundWorld, WorldParams
-from perception.camera import CameraParams, UAVPose
-from perception.render_bullet import BulletRenderer
+from skyherd.flight.frames import euler_to_quat
+from skyherd.groundsim.behaviours import DriveParams, UGVCommand, make_behaviour, triangle_offsets
+from skyherd.groundsim.kinematic import KinematicWorld
+from skyherd.groundsim.ugv import GROUND_RGB, UGVModel, UGVStates, initial_states
+from skyherd.groundsim.world import GroundWorld, WorldParams
+from skyherd.perception.camera import CameraParams, UAVPose
+from skyherd.perception.render_bullet import BulletRenderer
 
 P = DriveParams()
 
@@ -161,7 +161,7 @@ def test_bad_configuration_is_refused():
 
 
 def test_pybullet_world_is_deterministic_on_the_sim_clock():
-    from flight.clock import SimClock
+    from skyherd.flight.clock import SimClock
 
     def run(seed):
         clock = SimClock()

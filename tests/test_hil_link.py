@@ -7,7 +7,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from hil.link import Address, LinkError, MavlinkLink, parse_address
+from skyherd.hil.link import Address, LinkError, MavlinkLink, parse_address
 
 
 def _free_udp_port() -> int:
@@ -106,7 +106,7 @@ def test_deferred_tlog_holds_records_until_flush_log_in_order_with_their_stamps(
 def test_tlog_never_records_setup_signing_the_frame_that_carries_the_key(tmp_path):
     """SETUP_SIGNING (MAVLink 2 only, id 256) is dropped from a record batch; MAVLink 1 and 2
     frames around it are kept, in order."""
-    from flight.mavlink.tlog import TlogWriter
+    from skyherd.flight.mavlink.tlog import TlogWriter
 
     mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
     hb = mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3)

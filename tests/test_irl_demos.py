@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from policy.ab import RULES, combine
-from policy.demos import (
+from skyherd.policy.ab import RULES, combine
+from skyherd.policy.demos import (
     DemoFileError,
     ExpertParams,
     demo_feature_expectations,
@@ -22,8 +22,8 @@ from policy.demos import (
     replay,
     scripted_expert,
 )
-from policy.groundair.env import PSI_NAMES
-from policy.groundair.params import TaskParams
+from skyherd.policy.groundair.env import PSI_NAMES
+from skyherd.policy.groundair.params import TaskParams
 
 SHORT = TaskParams(episode_s=10.0)
 
@@ -151,7 +151,7 @@ def test_teleop_without_terminal_is_usage_error(tmp_path):
 
 
 def test_manual_control_mapping():
-    from scripts.teleop import manual_control_action
+    from skyherd.scripts.teleop import manual_control_action
 
     allc = tuple(range(7))
     assert manual_control_action(0, 0, 500, allc) == 0

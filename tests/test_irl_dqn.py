@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from policy.dqn import (
+from skyherd.policy.dqn import (
     DQNParams,
     MLPPolicy,
     PolicyFileError,
@@ -12,7 +12,7 @@ from policy.dqn import (
     load_policy,
     train_dqn,
 )
-from policy.gridworld import GridGoalEnv
+from skyherd.policy.gridworld import GridGoalEnv
 
 TINY = DQNParams(
     total_steps=3000,

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import policy
-from perception.camera import CameraParams, camera_pose
-from perception.features import features_from_truth
-from policy.demos import random_policy, rollout_stats, scripted_expert
-from policy.groundair.env import OBS_DIM, GroundAirEnv, reward_features
-from policy.groundair.fastphi import LevelCamera, min_circle
-from policy.groundair.params import TaskParams
+from skyherd import policy
+from skyherd.perception.camera import CameraParams, camera_pose
+from skyherd.perception.features import features_from_truth
+from skyherd.policy.demos import random_policy, rollout_stats, scripted_expert
+from skyherd.policy.groundair.env import OBS_DIM, GroundAirEnv, reward_features
+from skyherd.policy.groundair.fastphi import LevelCamera, min_circle
+from skyherd.policy.groundair.params import TaskParams
 
 
 def test_registered_on_import_and_passes_env_checker():
@@ -106,7 +106,7 @@ def test_altitude_geofence_and_lost_termination():
 
 
 def test_episode_truncates_at_time_limit_and_metrics():
-    from perception.features import spread_circle
+    from skyherd.perception.features import spread_circle
 
     env = GroundAirEnv("descend", task=TaskParams(episode_s=10.0), start_noise=False)
     env.reset(seed=0)
@@ -145,8 +145,8 @@ def test_scripted_expert_beats_random(scenario):
 
 
 def test_groundsim_behaviours_drive_the_ugvs():
-    from policy.demos import ALLOWED_ACTIONS, ExpertParams, ScriptedExpert
-    from policy.groundair.scenarios import GROUNDSIM_SCENARIOS
+    from skyherd.policy.demos import ALLOWED_ACTIONS, ExpertParams, ScriptedExpert
+    from skyherd.policy.groundair.scenarios import GROUNDSIM_SCENARIOS
 
     check_env(gym.make(policy.ENV_ID, scenario="groundsim:route").unwrapped)
     res = {}
@@ -160,8 +160,8 @@ def test_groundsim_behaviours_drive_the_ugvs():
 
 
 def test_evaluate_cli_on_a_run_folder(tmp_path, capsys):
-    from policy.dqn import MLPPolicy
-    from policy.evaluate import main
+    from skyherd.policy.dqn import MLPPolicy
+    from skyherd.policy.evaluate import main
 
     assert main([str(tmp_path)]) == 2
     (tmp_path / "policies").mkdir()
@@ -198,7 +198,7 @@ def test_pixel_observations_agree_with_the_fast_path():
 
 
 def test_kept_policy_flies_through_pixels():
-    from policy.models import DEFAULT_POLICY
+    from skyherd.policy.models import DEFAULT_POLICY
 
     pol = policy.load_policy(DEFAULT_POLICY)
     _, m = rollout_stats(pol, "composite", 6, 300_000, 0.97, pixels=True)
@@ -206,7 +206,7 @@ def test_kept_policy_flies_through_pixels():
 
 
 def test_uav_commands_inside_the_autopilot_limits():
-    from policy.groundair.params import UAVParams, autopilot_velocity_limits
+    from skyherd.policy.groundair.params import UAVParams, autopilot_velocity_limits
 
     lim = autopilot_velocity_limits()
     assert lim == {"xy": 12.0, "up": 3.0, "down": 1.5}
@@ -217,8 +217,8 @@ def test_uav_commands_inside_the_autopilot_limits():
 
 
 def test_vertical_time_constant_and_sitl_dynamics():
-    from policy.groundair.params import SITL_MEASURED, UAVParams
-    from policy.models import DEFAULT_POLICY
+    from skyherd.policy.groundair.params import SITL_MEASURED, UAVParams
+    from skyherd.policy.models import DEFAULT_POLICY
 
     u = UAVParams(tau_s=0.5, tau_z_s=0.25)
     env = GroundAirEnv("climb", task=TaskParams(uav=u), start_noise=False)
@@ -233,7 +233,7 @@ def test_vertical_time_constant_and_sitl_dynamics():
 
 
 def test_attitude_mode_tilts_the_camera_with_the_acceleration():
-    from flight.frames import quat_to_euler
+    from skyherd.flight.frames import quat_to_euler
 
     lvl, tlt = (
         GroundAirEnv("lateral", start_noise=False),

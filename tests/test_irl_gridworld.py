@@ -3,8 +3,14 @@
 import numpy as np
 import pytest
 
-from policy.gridworld import GridWorld, region_features
-from policy.irl import IRLParams, mixture_weights, projection_irl, projection_step, select_policy
+from skyherd.policy.gridworld import GridWorld, region_features
+from skyherd.policy.irl import (
+    IRLParams,
+    mixture_weights,
+    projection_irl,
+    projection_step,
+    select_policy,
+)
 
 
 def _world(gamma=0.9):

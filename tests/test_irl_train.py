@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from policy import load_policy
-from scripts.cli import main
+from skyherd.policy import load_policy
+from skyherd.scripts.cli import main
 
 
 def test_train_ab_end_to_end_tiny(tmp_path, capsys):
@@ -68,7 +68,7 @@ def test_train_ab_end_to_end_tiny(tmp_path, capsys):
 
 
 def test_train_irl_from_teleop_style_demo_folder(tmp_path):
-    from policy.demos import record, scripted_expert
+    from skyherd.policy.demos import record, scripted_expert
 
     demos = tmp_path / "demos"
     demos.mkdir()
@@ -115,9 +115,11 @@ def test_committed_policy_keeps_the_team_in_view():
     """The policy the repo keeps (AB, trained without composite demos) on fresh composite seeds."""
     from pathlib import Path
 
-    from policy.demos import rollout_stats
+    from skyherd.policy.demos import rollout_stats
 
-    path = Path(__file__).resolve().parents[1] / "policy" / "models" / "groundair_ab.npz"
+    path = (
+        Path(__file__).resolve().parents[1] / "skyherd" / "policy" / "models" / "groundair_ab.npz"
+    )
     assert path.stat().st_size < 2_000_000
     pol = load_policy(path)
     assert pol.meta["learner"].startswith("ab_") and pol.obs_dim == 14 and pol.n_actions == 7

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[1] / "skyherd"
 
 # package → layer; a module may import packages of its own layer or below (peers at one layer
 # may import each other unless listed in SEPARATE).
@@ -27,10 +27,19 @@ def imports_of(path: Path) -> set[str]:
     out = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            out |= {a.name.split(".")[0] for a in node.names}
+            out |= {_package(a.name) for a in node.names}
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            out.add(node.module.split(".")[0])
+            if node.module == "skyherd":  # from skyherd import policy
+                out |= {a.name for a in node.names}
+            else:
+                out.add(_package(node.module))
     return out
+
+
+def _package(module: str) -> str:
+    """skyherd.safety.net → safety (the layer's package)."""
+    parts = module.split(".")
+    return parts[1] if parts[0] == "skyherd" and len(parts) > 1 else parts[0]
 
 
 def violations(package: str) -> list[str]:
@@ -55,6 +64,6 @@ def test_the_contract_catches_a_violation(tmp_path, monkeypatch):
     """The check itself can fail: a module of a low layer that imports the command line."""
     pkg = tmp_path / "runio"
     pkg.mkdir()
-    (pkg / "bad.py").write_text("from scripts.cli import UsageError\nimport mission.flight\n")
+    (pkg / "bad.py").write_text("from skyherd.scripts.cli import UsageError\nimport skyherd.mission.flight\n")
     monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
     assert violations("runio") == ["runio/bad.py imports mission", "runio/bad.py imports scripts"]

@@ -7,13 +7,13 @@ import time
 import numpy as np
 import pytest
 
-from flight.lockstep import LockstepParams, is_mark
-from groundsim.ugv import UGVModel, initial_states
-from mission.companion import FrameInbox
-from mission.perception import Perception
-from mission.vehicle import COMPANION_COMPONENT, VehicleLink
-from perception.render_fast import FastRenderer
-from perception.transport import (
+from skyherd.flight.lockstep import LockstepParams, is_mark
+from skyherd.groundsim.ugv import UGVModel, initial_states
+from skyherd.mission.companion import FrameInbox
+from skyherd.mission.perception import Perception
+from skyherd.mission.vehicle import COMPANION_COMPONENT, VehicleLink
+from skyherd.perception.render_fast import FastRenderer
+from skyherd.perception.transport import (
     FramePublisher,
     FrameSubscriber,
     encode_frame,
@@ -22,8 +22,8 @@ from perception.transport import (
     publisher_params,
     subscriber_params,
 )
-from policy.groundair.params import TaskParams
-from world.sim import World, WorldParams
+from skyherd.policy.groundair.params import TaskParams
+from skyherd.world.sim import World, WorldParams
 
 
 class _Level:
@@ -83,7 +83,7 @@ def test_the_companion_detects_on_the_bytes_it_received(zenoh_pair):
 def test_the_simulation_holds_until_the_companion_closes_each_tick():
     """The world does not step past t_k + L before tick k is closed, however long the companion
     takes; the companion's view is cut exactly at the mark (no telemetry newer than t_k)."""
-    from hil.link import MavlinkLink
+    from skyherd.hil.link import MavlinkLink
 
     latency = 0.02
     world = World(
@@ -119,7 +119,7 @@ def test_the_simulation_holds_until_the_companion_closes_each_tick():
 
 def _udp_pair():
     """A vehicle-side link and a companion-side link joined on loopback (ephemeral ports)."""
-    from flight.mavlink.link import UdpLink
+    from skyherd.flight.mavlink.link import UdpLink
 
     vehicle = UdpLink("api", ("127.0.0.1", 0), ("127.0.0.1", 9), 1, 1)
     companion = UdpLink("c", ("127.0.0.1", 0), vehicle.sock.getsockname(), 255, COMPANION_COMPONENT)
@@ -130,7 +130,7 @@ def _udp_pair():
 def test_collect_closes_waits_for_every_gate_and_keeps_each_ticks_messages_apart():
     """One wait for a fleet's closes: each gate gets what its companion sent before its own
     close, in order, whatever order the gates' closes arrive in; a stale close is dropped."""
-    from flight.lockstep import LockstepGate, collect_closes
+    from skyherd.flight.lockstep import LockstepGate, collect_closes
 
     pairs = [_udp_pair(), _udp_pair()]
     gates = [LockstepGate(v, v.codec.mav, LockstepParams(resend_s=0.05, timeout_s=30.0))
@@ -166,7 +166,7 @@ def test_collect_closes_waits_for_every_gate_and_keeps_each_ticks_messages_apart
 def test_collect_closes_resends_marks_stops_and_times_out_in_wall_time():
     """Waiting (wall time, with margin): the open gates re-send their marks every resend_s;
     stopped() ends the wait with None; a companion that never closes raises LockstepTimeout."""
-    from flight.lockstep import LockstepGate, LockstepTimeout, collect_closes, is_mark
+    from skyherd.flight.lockstep import LockstepGate, LockstepTimeout, collect_closes, is_mark
 
     vehicle, companion = _udp_pair()
     gate = LockstepGate(vehicle, vehicle.codec.mav, LockstepParams(resend_s=0.05, timeout_s=0.6))

@@ -19,7 +19,7 @@ import pytest
 from mavlink_support import Client, running_sitl
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.autopilot_api import FlightMode, MissionCommand
+from skyherd.flight.autopilot_api import FlightMode, MissionCommand
 
 INSTANCE = 12  # (instance 10's API port would be 14550, where every GCS link sends)
 SYS = 1 + INSTANCE

@@ -12,11 +12,11 @@ import sys
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.airframes_registry import make_autopilot
-from flight.clock import SimClock
-from flight.mavlink import EndpointConfig, MavlinkEndpoint
-from flight.mavlink.link import UdpLink
-from flight.mavlink.streams import GCS_RATES_HZ
+from skyherd.flight.airframes_registry import make_autopilot
+from skyherd.flight.clock import SimClock
+from skyherd.flight.mavlink import EndpointConfig, MavlinkEndpoint
+from skyherd.flight.mavlink.link import UdpLink
+from skyherd.flight.mavlink.streams import GCS_RATES_HZ
 
 pytestmark = pytest.mark.skipif(
     not sys.platform.startswith("linux"), reason="IP_RECVERR is Linux's (elsewhere: streams as PX4)"

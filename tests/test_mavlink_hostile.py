@@ -20,11 +20,11 @@ from mavlink_rig import Peer, Rig, texts
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.mavlink import commands as cmds
-from flight.mavlink.mission import MAX_RETRIES, RETRY_S
-from flight.mavlink.params import MAX_LIST_REQUESTERS, ParamFile
-from flight.mavlink.tlog import TlogWriter
-from hil.link import MavlinkLink
+from skyherd.flight.mavlink import commands as cmds
+from skyherd.flight.mavlink.mission import MAX_RETRIES, RETRY_S
+from skyherd.flight.mavlink.params import MAX_LIST_REQUESTERS, ParamFile
+from skyherd.flight.mavlink.tlog import TlogWriter
+from skyherd.hil.link import MavlinkLink
 
 INSTANCE = 60  # mav helper: instances 60-64
 REL = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT

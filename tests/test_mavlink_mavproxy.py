@@ -18,8 +18,8 @@ from pathlib import Path
 
 from mavlink_support import running_sitl
 
-from flight.autopilot_api import FlightMode
-from flight.mavlink import Personality
+from skyherd.flight.autopilot_api import FlightMode
+from skyherd.flight.mavlink import Personality
 
 PROMPT = re.compile(r"^[A-Z_.]+> $")
 MAVPROXY = Path(__file__).resolve().parents[1] / ".venv-mavproxy" / "bin" / "mavproxy.py"

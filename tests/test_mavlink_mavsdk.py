@@ -217,7 +217,7 @@ async def mission_session(log) -> dict:
     )
     from mavsdk.asyncio.plugins.mission import MissionAsync, MissionItem, MissionPlan
 
-    from flight.geo import DEFAULT_HOME, ned_to_geodetic
+    from skyherd.flight.geo import DEFAULT_HOME, ned_to_geodetic
 
     def ll(n: float, e: float) -> tuple[float, float]:
         lat, lon, _ = ned_to_geodetic(DEFAULT_HOME, np.array([n, e, 0.0]))

@@ -14,10 +14,10 @@ import pytest
 from mavlink_support import Client, item_fields, running_sitl, same_items, v2_connection
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.autopilot_api import FlightMode, MissionCommand
-from flight.geo import DEFAULT_HOME, geodetic_to_ned, ned_to_geodetic
-from flight.mavlink import EndpointConfig, Personality
-from flight.mavlink.modes import custom_mode_of
+from skyherd.flight.autopilot_api import FlightMode, MissionCommand
+from skyherd.flight.geo import DEFAULT_HOME, geodetic_to_ned, ned_to_geodetic
+from skyherd.flight.mavlink import EndpointConfig, Personality
+from skyherd.flight.mavlink.modes import custom_mode_of
 
 HOME = DEFAULT_HOME
 PX4_HOLD = (4 << 16) | (3 << 24)
@@ -329,7 +329,7 @@ def test_two_instances_side_by_side_and_reply_to_sender():
             assert c8.recv("COMMAND_ACK", 0.5) is None and not s8.autopilot.armed
         # A second vehicle on the same instance cannot bind: a clear error, no clash.
         with pytest.raises(OSError, match="cannot bind"):
-            from flight.mavlink import MavlinkEndpoint
+            from skyherd.flight.mavlink import MavlinkEndpoint
 
             MavlinkEndpoint(s7.autopilot, EndpointConfig(instance=7))
         # The ground-station socket answers whoever talks to it (here udpout from any port).
@@ -405,10 +405,10 @@ def test_in_progress_then_final_ack_when_the_autopilot_reports_a_running_command
     """An autopilot that reports takeoff as still running (Result.in_progress) gets
     IN_PROGRESS first and ACCEPTED once it hovers at the target (the real multirotor
     autopilot, with only its takeoff answer marked in_progress)."""
-    from flight.autopilot_api import Result
-    from flight.clock import SimClock
-    from flight.multirotor.autopilot import MultirotorAutopilot
-    from flight.sitl import Sitl
+    from skyherd.flight.autopilot_api import Result
+    from skyherd.flight.clock import SimClock
+    from skyherd.flight.multirotor.autopilot import MultirotorAutopilot
+    from skyherd.flight.sitl import Sitl
 
     class SlowAck(MultirotorAutopilot):
         def takeoff(self, altitude=None):

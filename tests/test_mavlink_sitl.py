@@ -16,22 +16,22 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.airframes_registry import AirframeUnavailable, make_autopilot
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.clock import SimClock
-from flight.mavlink import EndpointConfig, Personality
-from flight.mavlink.codec import Codec
-from flight.mavlink.modes import (
+from skyherd.flight.airframes_registry import AirframeUnavailable, make_autopilot
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.flight.clock import SimClock
+from skyherd.flight.mavlink import EndpointConfig, Personality
+from skyherd.flight.mavlink.codec import Codec
+from skyherd.flight.mavlink.modes import (
     base_mode_of,
     custom_mode_of,
     mode_name,
     mode_of_custom,
     mode_of_packed,
 )
-from flight.mavlink.offboard import SetpointError, setpoint_from_local
-from flight.mavlink.params import ParamFile
-from flight.mavlink.streams import StreamScheduler
-from flight.sitl import Sitl
+from skyherd.flight.mavlink.offboard import SetpointError, setpoint_from_local
+from skyherd.flight.mavlink.params import ParamFile
+from skyherd.flight.mavlink.streams import StreamScheduler
+from skyherd.flight.sitl import Sitl
 
 ROOT = Path(__file__).resolve().parents[1]
 SKYHERD = str(Path(sys.executable).parent / "skyherd")  # the installed console script
@@ -77,7 +77,7 @@ def _cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
 
 
 def test_cli_usage_errors_exit_2(tmp_path, capsys):
-    from scripts.cli import main
+    from skyherd.scripts.cli import main
 
     for args, words in (
         (["--speedup", "0.5"], "--speedup"),

@@ -8,8 +8,8 @@ import math
 from mavlink_rig import Rig
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.mavlink.statustext import GAP, MAX_CHUNKS, TEXT_LEN, split_text
-from hil.link import StatustextAssembler
+from skyherd.flight.mavlink.statustext import GAP, MAX_CHUNKS, TEXT_LEN, split_text
+from skyherd.hil.link import StatustextAssembler
 
 INSTANCE = 63  # mav helper: instances 60-64
 

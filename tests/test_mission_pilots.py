@@ -5,13 +5,13 @@ import math
 
 import numpy as np
 
-from flight.frames import euler_to_quat
-from flight.state import VehicleState
-from mission.pilots import Observation, PerceptionFollower, PolicyPilot, WaypointPilot
-from perception.camera import camera_pose, project
-from perception.features import features_from_truth
-from policy.groundair.params import TaskParams, action_velocity_ned
-from world.sim import level_camera_mount
+from skyherd.flight.frames import euler_to_quat
+from skyherd.flight.state import VehicleState
+from skyherd.mission.pilots import Observation, PerceptionFollower, PolicyPilot, WaypointPilot
+from skyherd.perception.camera import camera_pose, project
+from skyherd.perception.features import features_from_truth
+from skyherd.policy.groundair.params import TaskParams, action_velocity_ned
+from skyherd.world.sim import level_camera_mount
 
 
 def _phi(com_u=0.5, com_v=0.5, spread=0.35, seen=1.0):

@@ -11,16 +11,16 @@ import math
 import numpy as np
 import pytest
 
-from flight.autopilot_api import FlightMode
-from flight.state import VehicleState
-from hil.autopilots import ARDUPLANE
-from hil.orbit import fence_reserve
-from mission.flight import Record
-from mission.orbit import Briefing, OrbitFlight, OrbitMission
-from mission.steps import MissionError
-from mission.vehicle import VehicleLink
-from safety.consistency import agreeing_values, check_params
-from safety.net import SafetyNet, load_net
+from skyherd.flight.autopilot_api import FlightMode
+from skyherd.flight.state import VehicleState
+from skyherd.hil.autopilots import ARDUPLANE
+from skyherd.hil.orbit import fence_reserve
+from skyherd.mission.flight import Record
+from skyherd.mission.orbit import Briefing, OrbitFlight, OrbitMission
+from skyherd.mission.steps import MissionError
+from skyherd.mission.vehicle import VehicleLink
+from skyherd.safety.consistency import agreeing_values, check_params
+from skyherd.safety.net import SafetyNet, load_net
 
 # Tools/autotest/models/plane.parm and AP_TECS's defaults (the parameters the checks read)
 STOCK = {"AIRSPEED_CRUISE": 22.0, "ROLL_LIMIT_DEG": 65.0, "WP_LOITER_RAD": 80.0,
@@ -226,11 +226,11 @@ def test_the_followed_world_plays_the_gimbal_the_autopilot_routes_the_roi_to():
     points the head at a DO_SET_ROI_LOCATION addressed to (system, MAV_COMP_ID_GIMBAL)."""
     from pymavlink.dialects.v20 import ardupilotmega as M
 
-    from flight.geo import Home, ned_to_geodetic
-    from hil.orbit import ORBIT_CAMERA
-    from perception.camera import camera_pose, project
-    from world.follow import FollowWorld
-    from world.sim import WorldParams
+    from skyherd.flight.geo import Home, ned_to_geodetic
+    from skyherd.hil.orbit import ORBIT_CAMERA
+    from skyherd.perception.camera import camera_pose, project
+    from skyherd.world.follow import FollowWorld
+    from skyherd.world.sim import WorldParams
 
     link = FakeWorldLink()
     w = FollowWorld(link, WorldParams(airframe="fixedwing", camera="roi", lockstep=False))

@@ -6,11 +6,11 @@ mission moves its orbit centre toward it only as far as the circle still certifi
 
 import numpy as np
 
-from hil.orbit import OrbitParams, circle_certified, fence_reserve, plan_orbit
-from mission.flight import Record
-from mission.orbit import Briefing, OrbitFlight, OrbitMission
-from safety.config import ENVELOPE_DIR
-from safety.net import SafetyNet
+from skyherd.hil.orbit import OrbitParams, circle_certified, fence_reserve, plan_orbit
+from skyherd.mission.flight import Record
+from skyherd.mission.orbit import Briefing, OrbitFlight, OrbitMission
+from skyherd.safety.config import ENVELOPE_DIR
+from skyherd.safety.net import SafetyNet
 
 
 def test_team_driving_out_of_the_field_freezes_the_orbit_inside_the_fence():

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
-from mission.orbit import OrbitFlight
-from scripts.cli import main
+from skyherd.mission.orbit import OrbitFlight
+from skyherd.scripts.cli import main
 
 INSTANCE = 73  # ports 14613/14653/18643: clear of the other tests' instances
 
@@ -118,7 +118,7 @@ def test_orbit_flight_end_to_end(tmp_path):
 
 
 def test_orbit_bad_usage_before_flying(tmp_path, capsys):
-    from safety.config import ENVELOPE_DIR
+    from skyherd.safety.config import ENVELOPE_DIR
 
     base = ["fly", "--airframe", "fixedwing", "--runs-dir", str(tmp_path / "x")]
     assert main([*base, "--orbit-duration", "nan"]) == 2

@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from flight.frames import euler_to_quat, quat_to_dcm
-from flight.geo import GRAVITY
-from groundsim.ugv import UGVStates
-from hil.orbit import (
+from skyherd.flight.frames import euler_to_quat, quat_to_dcm
+from skyherd.flight.geo import GRAVITY
+from skyherd.groundsim.ugv import UGVStates
+from skyherd.hil.orbit import (
     ORBIT_CAMERA,
     OrbitParams,
     camera_radius,
@@ -17,10 +17,10 @@ from hil.orbit import (
     plan_orbit,
     turn_radius,
 )
-from hil.orbit_gimbal import dcm_to_quat, gimbal_pose, look_at
-from perception.camera import CameraParams, camera_pose, in_image, project
-from perception.pipeline import CameraRig
-from safety.config import ENVELOPE_DIR, load_envelope
+from skyherd.hil.orbit_gimbal import dcm_to_quat, gimbal_pose, look_at
+from skyherd.perception.camera import CameraParams, camera_pose, in_image, project
+from skyherd.perception.pipeline import CameraRig
+from skyherd.safety.config import ENVELOPE_DIR, load_envelope
 
 
 def test_turn_radius_matches_the_autopilots_hold_circle():

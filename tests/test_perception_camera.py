@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from flight.frames import euler_to_quat
-from perception.camera import (
+from skyherd.flight.frames import euler_to_quat
+from skyherd.perception.camera import (
     CameraParams,
     backproject_to_ground,
     camera_pose,
@@ -14,7 +14,7 @@ from perception.camera import (
     in_image,
     project,
 )
-from perception.features import (
+from skyherd.perception.features import (
     FEATURE_NAMES,
     FeatureParams,
     features,
@@ -128,9 +128,9 @@ def test_features_from_truth_hidden_and_out_of_view():
 
 
 def test_camera_rig_rate_and_features():
-    from groundsim.ugv import UGVStates
-    from perception.camera import UAVPose
-    from perception.pipeline import CameraRig, CameraRigParams
+    from skyherd.groundsim.ugv import UGVStates
+    from skyherd.perception.camera import UAVPose
+    from skyherd.perception.pipeline import CameraRig, CameraRigParams
 
     rig = CameraRig(CameraParams(), 3, CameraRigParams(rate_hz=10.0))
     uav = UAVPose(np.array([0.0, 0.0, -30.0]), euler_to_quat(0, 0, 0))
@@ -146,10 +146,10 @@ def test_camera_rig_rate_and_features():
 
 
 def test_non_finite_pose_is_refused_and_rig_skips_the_frame():
-    from groundsim.ugv import UGVStates
-    from perception.camera import UAVPose
-    from perception.pipeline import CameraRig
-    from perception.render_fast import FastRenderer
+    from skyherd.groundsim.ugv import UGVStates
+    from skyherd.perception.camera import UAVPose
+    from skyherd.perception.pipeline import CameraRig
+    from skyherd.perception.render_fast import FastRenderer
 
     st = UGVStates(np.zeros((3, 2)), np.zeros(3), np.zeros(3))
     bad = UAVPose(np.array([0.0, np.nan, -30.0]), euler_to_quat(0, 0, 0))

@@ -5,16 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from flight.frames import euler_to_quat
-from groundsim.behaviours import make_behaviour, triangle_offsets
-from groundsim.ugv import UGVModel, UGVStates, initial_states, marker_points_ned
-from groundsim.world import GroundWorld
-from perception.camera import CameraParams, UAVPose, camera_pose
-from perception.detector import BLUE, RED, Detector, annotate
-from perception.evaluate import evaluate
-from perception.features import true_centroids
-from perception.render_bullet import BulletRenderer
-from perception.render_fast import FastRenderer, FastRenderParams
+from skyherd.flight.frames import euler_to_quat
+from skyherd.groundsim.behaviours import make_behaviour, triangle_offsets
+from skyherd.groundsim.ugv import UGVModel, UGVStates, initial_states, marker_points_ned
+from skyherd.groundsim.world import GroundWorld
+from skyherd.perception.camera import CameraParams, UAVPose, camera_pose
+from skyherd.perception.detector import BLUE, RED, Detector, annotate
+from skyherd.perception.evaluate import evaluate
+from skyherd.perception.features import true_centroids
+from skyherd.perception.render_bullet import BulletRenderer
+from skyherd.perception.render_fast import FastRenderer, FastRenderParams
 
 CAM = CameraParams()
 MODEL = UGVModel()
@@ -141,8 +141,8 @@ def test_annotation_draws_figure2_marks():
 
 
 def test_bullet_ground_compositing_is_pixel_identical():
-    from perception.evaluate import SceneParams, random_scene
-    from perception.render_bullet import BulletRenderParams
+    from skyherd.perception.evaluate import SceneParams, random_scene
+    from skyherd.perception.render_bullet import BulletRenderParams
 
     worlds = [
         GroundWorld(
@@ -164,7 +164,7 @@ def test_bullet_ground_compositing_is_pixel_identical():
 
 
 def test_impossible_scene_request_is_a_clear_error():
-    from perception.evaluate import SceneParams, random_scene
+    from skyherd.perception.evaluate import SceneParams, random_scene
 
     with pytest.raises(ValueError, match="no scene fits"):
         random_scene(

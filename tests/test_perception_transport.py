@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from perception.camera import CameraParams
-from perception.transport import (
+from skyherd.perception.camera import CameraParams
+from skyherd.perception.transport import (
     JPEG,
     RAW,
     CorruptFrame,
@@ -101,7 +101,7 @@ def test_two_processes_exchange_frames_over_loopback():
     session = open_session(subscriber_params(port=port))
     sub = FrameSubscriber(session, "uav0")
     pub = subprocess.Popen(
-        [sys.executable, "-m", "perception.camstream", "--port", str(port),
+        [sys.executable, "-m", "skyherd.perception.camstream", "--port", str(port),
          "--frames", "120", "--rate", "60", "--sim-dt", "0.05", "--wait-s", "10"],
         stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
@@ -167,7 +167,7 @@ def test_in_process_pub_sub_and_garbage_on_the_key(tmp_path):
 def test_config_file_client_mode_and_shipped_example(tmp_path):
     import zenoh
 
-    shipped = zenoh.Config.from_file("perception/config/zenoh_router_client.json5")
+    shipped = zenoh.Config.from_file("skyherd/perception/config/zenoh_router_client.json5")
     assert shipped.get_json("mode") == '"client"'
     port = free_port()
     conf = tmp_path / "client.json5"
@@ -208,11 +208,11 @@ def test_corrupt_pixels_found_when_taken_keep_last_good_frame():
 
 
 def test_detection_survives_jpeg():
-    from flight.frames import euler_to_quat
-    from groundsim.ugv import UGVModel, UGVStates
-    from perception.camera import UAVPose
-    from perception.detector import Detector
-    from perception.render_fast import FastRenderer
+    from skyherd.flight.frames import euler_to_quat
+    from skyherd.groundsim.ugv import UGVModel, UGVStates
+    from skyherd.perception.camera import UAVPose
+    from skyherd.perception.detector import Detector
+    from skyherd.perception.render_fast import FastRenderer
 
     cam = CameraParams()
     uav = UAVPose(np.array([0.0, 0.0, -30.0]), euler_to_quat(0.05, -0.05, 0.3))

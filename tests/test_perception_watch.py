@@ -7,7 +7,7 @@ import sys
 
 import cv2
 
-from scripts.cli import main
+from skyherd.scripts.cli import main
 
 
 def free_port() -> int:
@@ -19,7 +19,7 @@ def free_port() -> int:
 def test_watch_saves_annotated_frames_and_counts(tmp_path, capsys):
     port = free_port()
     src = subprocess.Popen(
-        [sys.executable, "-m", "perception.camstream", "--port", str(port),
+        [sys.executable, "-m", "skyherd.perception.camstream", "--port", str(port),
          "--frames", "120", "--rate", "50", "--wait-s", "10"],
         stderr=subprocess.DEVNULL,
     )  # fmt: skip

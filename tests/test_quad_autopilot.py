@@ -5,16 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from flight.autopilot_api import (
+from skyherd.flight.autopilot_api import (
     FlightMode,
     LandedState,
     MissionCommand,
     MissionItem,
     Setpoint,
 )
-from flight.clock import SimClock
-from flight.multirotor import MultirotorAutopilot
-from flight.quadrotor import WindModel
+from skyherd.flight.clock import SimClock
+from skyherd.flight.multirotor import MultirotorAutopilot
+from skyherd.flight.quadrotor import WindModel
 
 
 def fly(ap, seconds, each=None):
@@ -390,7 +390,7 @@ def test_hold_entered_at_speed_brakes_and_holds_where_it_stopped():
 def test_implements_the_autopilot_protocol():
     import inspect
 
-    from flight.autopilot_api import Autopilot
+    from skyherd.flight.autopilot_api import Autopilot
 
     ap = MultirotorAutopilot()
     members = [n for n in dir(Autopilot) if not n.startswith("_")]

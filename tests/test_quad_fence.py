@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.autopilot_api import FlightMode, MissionCommand, MissionItem, Setpoint
-from flight.clock import SimClock
-from flight.faults import FaultEvent, FaultPlan
-from flight.geo import DEFAULT_HOME, ned_to_geodetic
-from flight.mavlink import EndpointConfig
-from flight.multirotor import MultirotorAutopilot
-from flight.quadrotor import QuadrotorParams, WindModel
-from flight.sitl import Sitl
+from skyherd.flight.autopilot_api import FlightMode, MissionCommand, MissionItem, Setpoint
+from skyherd.flight.clock import SimClock
+from skyherd.flight.faults import FaultEvent, FaultPlan
+from skyherd.flight.geo import DEFAULT_HOME, ned_to_geodetic
+from skyherd.flight.mavlink import EndpointConfig
+from skyherd.flight.multirotor import MultirotorAutopilot
+from skyherd.flight.quadrotor import QuadrotorParams, WindModel
+from skyherd.flight.sitl import Sitl
 
 INSTANCE = 65  # this helper's MAVLink instances: 65-69
 
@@ -340,8 +340,8 @@ def test_the_wind_estimate_reaches_the_companion_over_mavlink(personality):
     """The autopilot's own estimate (not the simulator's truth) on the wire: PX4 sends WIND_COV
     (the way the air moves, NED), ArduPilot WIND (where it comes from, degrees); the
     companion's VehicleLink reads either into the same vector and Health.wind_mps."""
-    from flight.mavlink.modes import Personality
-    from mission.vehicle import VehicleLink
+    from skyherd.flight.mavlink.modes import Personality
+    from skyherd.mission.vehicle import VehicleLink
 
     plan = FaultPlan(wind=WindModel(mean_ned=(3.0, 9.0, 0.0)))
     ap = MultirotorAutopilot(clock=SimClock(), faults=plan)

@@ -4,8 +4,8 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from flight.autopilot_api import FlightMode, MissionCommand, MissionItem, Setpoint
-from flight.multirotor import MultirotorAutopilot
+from skyherd.flight.autopilot_api import FlightMode, MissionCommand, MissionItem, Setpoint
+from skyherd.flight.multirotor import MultirotorAutopilot
 
 num = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True, width=64),

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from flight.frames import quat_to_euler
-from flight.quadrotor import DEFAULT_AIRFRAME, Quadrotor, QuadrotorParams
+from skyherd.flight.frames import quat_to_euler
+from skyherd.flight.quadrotor import DEFAULT_AIRFRAME, Quadrotor, QuadrotorParams
 
 P = QuadrotorParams.from_toml()
 NO_DRAG = dataclasses.replace(P, drag_linear=(0.0, 0.0, 0.0), drag_quadratic=(0.0, 0.0, 0.0))
@@ -145,7 +145,7 @@ def test_wind_drag_closed_form_and_drift_to_wind_speed():
 
 
 def test_gust_process_statistics_and_seed():
-    from flight.quadrotor import WindField, WindModel
+    from skyherd.flight.quadrotor import WindField, WindModel
 
     m = WindModel(mean_ned=(2.0, 0.0, 0.0), gust_std=1.5, gust_tau=2.0, seed=7)
     a = np.array([WindField(m).sample(0.01) for _ in range(1)])

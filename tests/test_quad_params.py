@@ -2,9 +2,9 @@
 
 import pytest
 
-from flight.multirotor import MultirotorAutopilot
-from flight.multirotor.params import MULTIROTOR_PARAMS
-from flight.params import ParamSpec, ParamStore
+from skyherd.flight.multirotor import MultirotorAutopilot
+from skyherd.flight.multirotor.params import MULTIROTOR_PARAMS
+from skyherd.flight.params import ParamSpec, ParamStore
 
 
 def test_store_ranges_order_and_revision():

@@ -8,9 +8,9 @@ import tomllib
 import numpy as np
 import pytest
 
-from flight.airframes_registry import PX4_STANDIN, make_autopilot
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.multirotor import MultirotorAutopilot
+from skyherd.flight.airframes_registry import PX4_STANDIN, make_autopilot
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.flight.multirotor import MultirotorAutopilot
 
 PX4_DEFAULTS = {  # PX4 v1.14 parameter reference defaults
     "MPC_TKO_SPEED": 1.5,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from record import FlightRecorder
+from skyherd.record import FlightRecorder
 
 JS = Path(__file__).parent / "js"
 pytestmark = pytest.mark.skipif(
@@ -50,7 +50,7 @@ def test_foxglove_reader_decodes_every_channel(tmp_path):
 def test_foxglove_stream_reader_reads_a_cut_file_up_to_its_last_chunk(tmp_path):
     """Foxglove reads a file without a summary (a killed flight) as a stream: @mcap/core's
     stream reader gets every message of the complete chunks, as record.read_messages does."""
-    from record import read_messages
+    from skyherd.record import read_messages
 
     node = shutil.which("node")
     modules = Path(os.environ.get("SKYHERD_MCAP_NODE_MODULES", JS / "node_modules"))

@@ -10,12 +10,12 @@ import re
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
-from record import read_messages
-from scripts.cli import main
+from skyherd.record import read_messages
+from skyherd.scripts.cli import main
 
 
 def _folder(tmp_path):
-    from safety.config import default_envelope_path
+    from skyherd.safety.config import default_envelope_path
 
     run = tmp_path / "runs" / "20261201T000000Z-companion"
     sim = tmp_path / "runs" / "20261201T000000Z-sim"

@@ -14,8 +14,8 @@ from pathlib import Path
 
 from websockets.sync.client import connect
 
-from record import LiveServer
-from safety.config import ENVELOPE_DIR, load_envelope
+from skyherd.record import LiveServer
+from skyherd.safety.config import ENVELOPE_DIR, load_envelope
 
 ROOT = Path(__file__).resolve().parents[1]
 SUBPROTOCOL = ["foxglove.sdk.v1"]
@@ -106,7 +106,7 @@ def test_fly_foxglove_serves_a_late_client_the_fence_the_events_and_every_decisi
     (during the simulator's start and the take-off), and gets the fence, the net's events and
     every decision decisions.jsonl holds. Lockstep on the simulation clock: load-independent."""
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    argv = [sys.executable, "-m", "scripts.cli", "fly", "--duration", "20", "--cut-camera", "22:2",
+    argv = [sys.executable, "-m", "skyherd.scripts.cli", "fly", "--duration", "20", "--cut-camera", "22:2",
             "--speedup", "0", "--instance", "33", "--zenoh-port", "7433", "--foxglove", "0",
             "--runs-dir", str(tmp_path)]  # fmt: skip
     fly = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

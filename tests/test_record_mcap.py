@@ -18,7 +18,7 @@ import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
-from record import FlightRecorder, read_messages
+from skyherd.record import FlightRecorder, read_messages
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,7 +43,7 @@ def _decision(t: float, verdict: str) -> dict:
 
 def _fly(rec: FlightRecorder, n: int = 40) -> None:
     """A synthetic 10 Hz flight: frames, poses, decisions, UGVs; two events; the fence."""
-    from safety.config import default_envelope_path, load_envelope
+    from skyherd.safety.config import default_envelope_path, load_envelope
 
     spec, _ = load_envelope(default_envelope_path("quadrotor"))
     rng = np.random.default_rng(0)
@@ -169,7 +169,7 @@ def test_truncated_file_reads_up_to_the_last_complete_chunk(tmp_path):
 CHILD = textwrap.dedent(
     """
     import sys
-    from record import FlightRecorder
+    from skyherd.record import FlightRecorder
     rec = FlightRecorder(sys.argv[1], chunk_s=1.0)
     for k in range(35):                      # 3.5 s of sim time: 3 closed chunks + an open one
         rec.pose(0.1 * k, [k, 0, -10])

@@ -6,15 +6,15 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from record import read_messages
-from scripts.cli import main
+from skyherd.record import read_messages
+from skyherd.scripts.cli import main
 
 PORT = 7468
 
 
 def _watch(tmp_path, *extra) -> int:
     src = subprocess.Popen(
-        [sys.executable, "-m", "perception.camstream", "--port", str(PORT), "--frames", "60",
+        [sys.executable, "-m", "skyherd.perception.camstream", "--port", str(PORT), "--frames", "60",
          "--rate", "30", "--wait-s", "60"], stderr=subprocess.DEVNULL,
     )  # fmt: skip
     try:

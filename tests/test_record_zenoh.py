@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-from groundsim.transport import UGVStatePublisher
-from groundsim.ugv import UGVStates
-from perception.camera import CameraParams
-from perception.transport import FramePublisher, ZenohParams, open_session
-from record import LiveServer, ZenohRecorder, read_messages
-from safety.events import ZenohEventSink
+from skyherd.groundsim.transport import UGVStatePublisher
+from skyherd.groundsim.ugv import UGVStates
+from skyherd.perception.camera import CameraParams
+from skyherd.perception.transport import FramePublisher, ZenohParams, open_session
+from skyherd.record import LiveServer, ZenohRecorder, read_messages
+from skyherd.safety.events import ZenohEventSink
 
 ZPORT = 7462
 WSPORT = 0  # any free port (the server says which: live.port); no clash with a parallel run

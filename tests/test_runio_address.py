@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 
-from runio import AddressError, ConfigError, fill_dataclass, parse_address, validate_mapping
+from skyherd.runio import AddressError, ConfigError, fill_dataclass, parse_address, validate_mapping
 
 
 @pytest.mark.parametrize(
@@ -86,8 +86,8 @@ def test_validate_mapping_and_the_files_that_use_it(tmp_path):
     assert validate_mapping({"A": 1}, float, ["A", "B"], "params") == {"A": 1.0}
     with pytest.raises(ConfigError, match=r"\[params\] unknown key 'C'"):
         validate_mapping({"C": 1.0}, float, ["A", "B"], "params")
-    from flight.multirotor.params import MULTIROTOR_PARAMS
-    from flight.params import ParamStore
+    from skyherd.flight.multirotor.params import MULTIROTOR_PARAMS
+    from skyherd.flight.params import ParamStore
 
     f = tmp_path / "p.toml"
     f.write_text('[params]\nMPC_XY_CRUISE = "fast"\n')

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from runio import (
+from skyherd.runio import (
     DecisionLog,
     RunAborted,
     RunFolder,
@@ -107,7 +107,7 @@ def test_usage_error_leaves_no_run_folder(tmp_path):
 
 
 def test_cli_usage_errors_make_no_run_folder(tmp_path):
-    from scripts.cli import main
+    from skyherd.scripts.cli import main
 
     assert main(["watch", "--frames", "0", "--runs-dir", str(tmp_path)]) == 2
     assert main(["watch", "--connect", "tcp:127.0.0.1", "--runs-dir", str(tmp_path)]) == 2
@@ -118,7 +118,7 @@ def test_cli_usage_errors_make_no_run_folder(tmp_path):
 def test_a_killed_run_says_it_was_running(tmp_path):
     code = f"""
 import sys, time
-from runio import RunFolder
+from skyherd.runio import RunFolder
 with RunFolder.open("fly", root={str(tmp_path)!r}) as run:
     run.summary("half way")
     print(run.path, flush=True)
@@ -193,7 +193,7 @@ def test_skyherd_watch_interrupted_during_start_up_walltime(tmp_path, sigint, mo
 
 
 def test_config_records_input_files_and_envelope_hashes(tmp_path):
-    from safety.config import default_envelope_path, load_envelope
+    from skyherd.safety.config import default_envelope_path, load_envelope
 
     pol = tmp_path / "policy.npz"
     pol.write_bytes(b"weights")
@@ -270,7 +270,7 @@ def test_csv_writer_writes_the_header_columns_in_order_and_leaves_out_other_keys
 
     import numpy as np
 
-    from runio import CsvWriter
+    from skyherd.runio import CsvWriter
 
     cols = ["t", "north", "mode", "armed", "ref"]
     rows = [{"t": 0.1, "north": np.float64(1.0) / 3, "mode": "OFFBOARD", "armed": 1},

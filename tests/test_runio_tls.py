@@ -7,7 +7,14 @@ import stat
 from cryptography import x509
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-from runio.tls import COMPANION_KEYS, ROLES, WORLD_KEYS, access_control, make_pki, zenoh_config
+from skyherd.runio.tls import (
+    COMPANION_KEYS,
+    ROLES,
+    WORLD_KEYS,
+    access_control,
+    make_pki,
+    zenoh_config,
+)
 
 
 def test_each_role_has_a_ca_signed_certificate_named_for_it_and_a_private_key_0600(tmp_path):

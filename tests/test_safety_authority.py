@@ -3,11 +3,11 @@ autopilot's battery failsafe behind apply_decision (issue 11 item 2)."""
 
 import numpy as np
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.multirotor.autopilot import MultirotorAutopilot
-from safety.authority import Authority, Phase
-from safety.net import SafetyNet, apply_decision, load_net
-from safety.supervisor import Health, Mode
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.flight.multirotor.autopilot import MultirotorAutopilot
+from skyherd.safety.authority import Authority, Phase
+from skyherd.safety.net import SafetyNet, apply_decision, load_net
+from skyherd.safety.supervisor import Health, Mode
 
 
 class Sink:

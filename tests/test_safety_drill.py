@@ -6,17 +6,17 @@ import json
 import numpy as np
 import pytest
 
-from flight.airframes_registry import make_autopilot
-from flight.multirotor.autopilot import MultirotorAutopilot
-from flight.state import VehicleState
-from safety.config import (
+from skyherd.flight.airframes_registry import make_autopilot
+from skyherd.flight.multirotor.autopilot import MultirotorAutopilot
+from skyherd.flight.state import VehicleState
+from skyherd.safety.config import (
     GUARD_KEYS,
     default_envelope_path,
     fill_dataclass,
     load_envelope,
     parse_envelope,
 )
-from safety.drills import (
+from skyherd.safety.drills import (
     DrillParams,
     behave_orbit,
     fixedwing_floor_m,
@@ -24,8 +24,8 @@ from safety.drills import (
     run_drill,
     scripted_drills,
 )
-from safety.supervisor import SupervisorParams
-from scripts.cli import main
+from skyherd.safety.supervisor import SupervisorParams
+from skyherd.scripts.cli import main
 
 SPEC, _ = load_envelope(default_envelope_path("quadrotor"))
 
@@ -167,7 +167,7 @@ def test_notched_fence_drills(tmp_path, capsys):
 def test_campaign_drills_hold_under_faults(tmp_path, capsys):
     """`skyherd drill --campaign`: one of each adversarial kind per airframe on the fault
     plans, judged on ground truth: no breach, no overridden failsafe, table and PNG."""
-    from safety.campaign import kinds_for
+    from skyherd.safety.campaign import kinds_for
 
     n = len(kinds_for("quadrotor"))
     rc = main(["drill", "--campaign", str(n), "--airframe", "quadrotor", "--seed", "5",

@@ -7,7 +7,7 @@ the net must then not undo (the checks hold either way)."""
 import csv
 import json
 
-from scripts.cli import main
+from skyherd.scripts.cli import main
 
 
 def test_max_speed_and_battery_drills_through_mavlink_walltime(tmp_path, capsys):

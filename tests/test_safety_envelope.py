@@ -8,19 +8,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flight.geo import DEFAULT_HOME, ned_to_geodetic
-from safety.config import (
+from skyherd.flight.geo import DEFAULT_HOME, ned_to_geodetic
+from skyherd.safety.config import (
     GUARD_KEYS,
     EnvelopeFileError,
     default_envelope_path,
     load_envelope,
     parse_envelope,
 )
-from safety.envelope import NZ, P, U, V, build
-from safety.fence import FenceItemsError, envelope_from_fence_items
-from safety.geometry import circle_polygon, convex_pieces, half_planes, is_convex, point_in_polygon
-from safety.monitor import Monitor
-from safety.projection import Projector, qp_cvxpy
+from skyherd.safety.envelope import NZ, P, U, V, build
+from skyherd.safety.fence import FenceItemsError, envelope_from_fence_items
+from skyherd.safety.geometry import (
+    circle_polygon,
+    convex_pieces,
+    half_planes,
+    is_convex,
+    point_in_polygon,
+)
+from skyherd.safety.monitor import Monitor
+from skyherd.safety.projection import Projector, qp_cvxpy
 
 SPEC, _ = load_envelope(default_envelope_path("quadrotor"))
 ENV = SPEC.envelope()
@@ -263,7 +269,7 @@ def test_osqp_projection_matches_cvxpy_and_is_verified_safe():
 
 def test_signed_distance_of_a_notched_fence():
     """North-west corner cut out at (30, -30): splits between convex pieces are not fences."""
-    from safety.envelope import SignedDistance
+    from skyherd.safety.envelope import SignedDistance
 
     spec, _ = load_envelope(default_envelope_path("quadrotor").with_name("quadrotor_notched.toml"))
     sd, geo = SignedDistance(spec), spec.geometry()

@@ -6,13 +6,13 @@ import time
 
 import numpy as np
 
-from flight.autopilot_api import Setpoint
-from flight.state import VehicleState
-from perception.transport import ZenohParams, open_session
-from runio.runfolder import JsonlWriter
-from safety.config import default_envelope_path, load_envelope
-from safety.events import Tee, ZenohEventSink, event_key
-from safety.supervisor import Mode, Supervisor
+from skyherd.flight.autopilot_api import Setpoint
+from skyherd.flight.state import VehicleState
+from skyherd.perception.transport import ZenohParams, open_session
+from skyherd.runio.runfolder import JsonlWriter
+from skyherd.safety.config import default_envelope_path, load_envelope
+from skyherd.safety.events import Tee, ZenohEventSink, event_key
+from skyherd.safety.supervisor import Mode, Supervisor
 
 PORT = 7463  # away from the camera's 7447
 

@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.autopilot_api import Setpoint
-from flight.frames import euler_to_quat
-from flight.geo import ned_to_geodetic
-from flight.state import VehicleState
-from safety.config import default_envelope_path, load_envelope
-from safety.fence import envelope_from_fence_items
-from safety.supervisor import Mode, Supervisor
+from skyherd.flight.autopilot_api import Setpoint
+from skyherd.flight.frames import euler_to_quat
+from skyherd.flight.geo import ned_to_geodetic
+from skyherd.flight.state import VehicleState
+from skyherd.safety.config import default_envelope_path, load_envelope
+from skyherd.safety.fence import envelope_from_fence_items
+from skyherd.safety.supervisor import Mode, Supervisor
 from tests.mavlink_support import Client, running_sitl
 
 BASE, _ = load_envelope(default_envelope_path("quadrotor"))

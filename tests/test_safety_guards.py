@@ -11,14 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.geo import GRAVITY
-from flight.state import VehicleState
-from safety.campaign import wind_limit
-from safety.config import ENVELOPE_DIR, GUARD_KEYS, EnvelopeFileError, load_envelope
-from safety.health import HealthTracker
-from safety.net import load_net
-from safety.supervisor import Health, Mode, Supervisor, SupervisorParams
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.flight.geo import GRAVITY
+from skyherd.flight.state import VehicleState
+from skyherd.safety.campaign import wind_limit
+from skyherd.safety.config import ENVELOPE_DIR, GUARD_KEYS, EnvelopeFileError, load_envelope
+from skyherd.safety.health import HealthTracker
+from skyherd.safety.net import load_net
+from skyherd.safety.supervisor import Health, Mode, Supervisor, SupervisorParams
 
 GROUNDAIR = ENVELOPE_DIR / "quadrotor_groundair.toml"
 

@@ -7,15 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.geo import GRAVITY
-from flight.multirotor.params import MULTIROTOR_PARAMS
-from flight.state import VehicleState
-from safety.config import EnvelopeFileError, default_envelope_path, load_envelope
-from safety.consistency import ParamGuard, check_params
-from safety.health import HealthTracker
-from safety.net import load_net
-from safety.supervisor import Health, Mode, Severity, Supervisor, SupervisorParams
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.flight.geo import GRAVITY
+from skyherd.flight.multirotor.params import MULTIROTOR_PARAMS
+from skyherd.flight.state import VehicleState
+from skyherd.safety.config import EnvelopeFileError, default_envelope_path, load_envelope
+from skyherd.safety.consistency import ParamGuard, check_params
+from skyherd.safety.health import HealthTracker
+from skyherd.safety.net import load_net
+from skyherd.safety.supervisor import Health, Mode, Severity, Supervisor, SupervisorParams
 
 SPEC, _ = load_envelope(default_envelope_path("quadrotor"))
 FW, _ = load_envelope(default_envelope_path("fixedwing"))

@@ -4,7 +4,7 @@ figure, on the one thing it is there to catch (the through-`fly` cases: test_fly
 import numpy as np
 import pytest
 
-from safety.judge import Ending, JudgeParams, ModeChange, Truth, first_failed, judge
+from skyherd.safety.judge import Ending, JudgeParams, ModeChange, Truth, first_failed, judge
 
 NORTH = 35.0  # the fence's north edge [m]
 

@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.multirotor.autopilot import MultirotorAutopilot
-from safety.net import SafetyNet, autopilot_mode_for, load_net
-from safety.supervisor import Decision, Mode, Severity
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.flight.multirotor.autopilot import MultirotorAutopilot
+from skyherd.safety.net import SafetyNet, autopilot_mode_for, load_net
+from skyherd.safety.supervisor import Decision, Mode, Severity
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[1] / "skyherd"
 PACKAGES = ("runio", "flight", "groundsim", "perception", "policy", "safety", "hil", "record",
-            "world", "mission", "scripts", "bench")  # fmt: skip
+            "world", "mission", "scripts", "../bench")  # fmt: skip
 
 
 def _sources():
@@ -67,11 +67,11 @@ def test_decisions_are_mapped_to_modes_in_one_place():
                 assert not ("autopilot_mode" in text and "HOLD" in text), f"{rel}:{node.lineno}"
 
 
-@pytest.mark.parametrize("module,cls", [("mission.flight", "SingleVehicleMission"),
-                                        ("mission.orbit", "OrbitMission"),
-                                        ("mission.formation", "FormationNet")])  # fmt: skip
+@pytest.mark.parametrize("module,cls", [("skyherd.mission.flight", "SingleVehicleMission"),
+                                        ("skyherd.mission.orbit", "OrbitMission"),
+                                        ("skyherd.mission.formation", "FormationNet")])  # fmt: skip
 def test_every_loop_flies_a_safety_net(module, cls):
-    src = (ROOT / (module.replace(".", "/") + ".py")).read_text()
+    src = (ROOT.parent / (module.replace(".", "/") + ".py")).read_text()
     tree = ast.parse(src)
     (node,) = [n for n in ast.walk(tree) if isinstance(n, ast.ClassDef) and n.name == cls]
     body = ast.unparse(node)

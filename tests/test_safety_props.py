@@ -10,14 +10,14 @@ import numpy as np
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.frames import euler_to_quat
-from flight.geo import GRAVITY
-from flight.state import VehicleState
-from safety.config import default_envelope_path, load_envelope
-from safety.envelope import Dynamics
-from safety.monitor import Monitor, make_z
-from safety.supervisor import Mode, Supervisor, SupervisorParams
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.flight.frames import euler_to_quat
+from skyherd.flight.geo import GRAVITY
+from skyherd.flight.state import VehicleState
+from skyherd.safety.config import default_envelope_path, load_envelope
+from skyherd.safety.envelope import Dynamics
+from skyherd.safety.monitor import Monitor, make_z
+from skyherd.safety.supervisor import Mode, Supervisor, SupervisorParams
 
 SPEC, _ = load_envelope(default_envelope_path("quadrotor"))
 ENV, GEO = SPEC.envelope(), SPEC.geometry()

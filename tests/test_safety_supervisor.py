@@ -6,15 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from flight.autopilot_api import FlightMode, Setpoint
-from flight.frames import euler_to_quat
-from flight.geo import GRAVITY
-from flight.state import VehicleState
-from runio.runfolder import JsonlWriter
-from safety.config import default_envelope_path, load_envelope
-from safety.envelope import Dynamics
-from safety.fallback import LoiterFallback, PidGains, RecoveryPID, recovery_target
-from safety.supervisor import Health, Mode, Severity, Supervisor, SupervisorParams
+from skyherd.flight.autopilot_api import FlightMode, Setpoint
+from skyherd.flight.frames import euler_to_quat
+from skyherd.flight.geo import GRAVITY
+from skyherd.flight.state import VehicleState
+from skyherd.runio.runfolder import JsonlWriter
+from skyherd.safety.config import default_envelope_path, load_envelope
+from skyherd.safety.envelope import Dynamics
+from skyherd.safety.fallback import LoiterFallback, PidGains, RecoveryPID, recovery_target
+from skyherd.safety.supervisor import Health, Mode, Severity, Supervisor, SupervisorParams
 
 SPEC, _ = load_envelope(default_envelope_path("quadrotor"))
 DT = 0.02
@@ -170,7 +170,7 @@ def test_project_mode_keeps_the_ai_with_the_closest_safe_command():
     k, a = 0.02 + SPEC.stop_times()[0], 0.02 / SPEC.dynamics.tau_s
     assert u[0] == pytest.approx(((78 - 1e-4 - 72.2) / k - (1 - a) * 3) / a, abs=1e-3)
     assert u[1] == pytest.approx(0.5, abs=1e-4)  # only the offending part changes
-    from safety.monitor import make_z
+    from skyherd.safety.monitor import make_z
 
     assert sup.envelope.worst(make_z(s, u)) <= 0
     d = sup.update(0.02, st(0.02), sp([math.nan, 0, 0]))  # NaN is never projected
@@ -245,8 +245,8 @@ def test_fixedwing_envelope_adds_the_loiter_diameter():
 
 
 def test_load_net_and_apply_decision_on_the_real_autopilot():
-    from flight.multirotor.autopilot import MultirotorAutopilot
-    from safety.net import apply_decision, load_net
+    from skyherd.flight.multirotor.autopilot import MultirotorAutopilot
+    from skyherd.safety.net import apply_decision, load_net
 
     net = load_net("quadrotor", hysteresis_s=1.0)
     assert net.p.hysteresis_s == 1.0 and net.envelope.version == SPEC.version

@@ -1,4 +1,4 @@
-"""policy.search: dead reckoning, the expanding square, the velocity law within the envelope,
+"""skyherd.policy.search: dead reckoning, the expanding square, the velocity law within the envelope,
 and the re-acquisition study on unseen seeds."""
 
 import math
@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from policy.groundair.env import GroundAirEnv
-from policy.groundair.params import TaskParams
-from policy.search import study
-from policy.search.lost import (
+from skyherd.policy.groundair.env import GroundAirEnv
+from skyherd.policy.groundair.params import TaskParams
+from skyherd.policy.search import study
+from skyherd.policy.search.lost import (
     LostSearch,
     SearchParams,
     Tracker,
@@ -89,15 +89,15 @@ def test_the_search_reacquires_the_speed_off_ugv_that_the_policy_loses_for_good(
 
 
 def test_sightings_from_a_rendered_frame_name_each_ugv_and_place_it_on_the_ground():
-    """mission.search: identity from the marker's colour, position by back-projection through
+    """skyherd.mission.search: identity from the marker's colour, position by back-projection through
     the estimated pose: within 0.3 m of the truth for a level camera 20 m up."""
-    from groundsim.ugv import UGVModel, initial_states
-    from hil.camera_mount import mounted_pose
-    from mission.onboard import CameraFrame
-    from mission.search import sightings
-    from perception.camera import UAVPose
-    from perception.detector import Detector
-    from perception.render_fast import FastRenderer
+    from skyherd.groundsim.ugv import UGVModel, initial_states
+    from skyherd.hil.camera_mount import mounted_pose
+    from skyherd.mission.onboard import CameraFrame
+    from skyherd.mission.search import sightings
+    from skyherd.perception.camera import UAVPose
+    from skyherd.perception.detector import Detector
+    from skyherd.perception.render_fast import FastRenderer
 
     task = TaskParams()
     truth = np.array([[3.0, -4.0], [-5.0, 2.0], [6.0, 7.0]])
@@ -121,7 +121,7 @@ def test_fly_with_the_search_finds_the_speed_off_ugv_behind_the_net(tmp_path):
     net never switches out of AI for it."""
     import json
 
-    from scripts.cli import main
+    from skyherd.scripts.cli import main
 
     args = ["fly", "--ugvs", "groundsim:speedoff", "--lost-ugv-search", "--duration", "50", "--speedup", "0",
             "--timeout", "900", "--instance", "71", "--zenoh-port", "7471", "--runs-dir", str(tmp_path)]  # fmt: skip

@@ -6,11 +6,11 @@ wall time by nature (test_fly_connect.py says why)."""
 
 import json
 
-from flight.airframes_registry import make_autopilot
-from flight.mavlink import EndpointConfig
-from flight.mavlink.signing import load_key, save_key
-from flight.sitl import Sitl
-from scripts.cli import main
+from skyherd.flight.airframes_registry import make_autopilot
+from skyherd.flight.mavlink import EndpointConfig
+from skyherd.flight.mavlink.signing import load_key, save_key
+from skyherd.flight.sitl import Sitl
+from skyherd.scripts.cli import main
 
 INSTANCE = 37  # the outside vehicle: API 14580+37 → companion 14577, ground station → 14550
 

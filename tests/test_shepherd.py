@@ -1,4 +1,4 @@
-"""policy.shepherd: Strömbom's sub-skills, the herding episodes, the learned selector."""
+"""skyherd.policy.shepherd: Strömbom's sub-skills, the herding episodes, the learned selector."""
 
 import json
 import math
@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from groundsim.flock import FlockParams
-from policy.shepherd import study
-from policy.shepherd.episode import run_episode
-from policy.shepherd.rules import (
+from skyherd.groundsim.flock import FlockParams
+from skyherd.policy.shepherd import study
+from skyherd.policy.shepherd.episode import run_episode
+from skyherd.policy.shepherd.rules import (
     COLLECT,
     DRIVE,
     ShepherdParams,
@@ -19,7 +19,7 @@ from policy.shepherd.rules import (
     shepherd_velocity,
     strombom_rule,
 )
-from policy.shepherd.selector import (
+from skyherd.policy.shepherd.selector import (
     SELECTOR_FILE,
     LearnedSelector,
     SelectorFitParams,

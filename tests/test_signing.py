@@ -17,8 +17,8 @@ import pytest
 from mavlink_rig import Peer, Rig
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from flight.mavlink import signing as sg
-from hil.link import MavlinkLink
+from skyherd.flight.mavlink import signing as sg
+from skyherd.hil.link import MavlinkLink
 
 INSTANCE = 62  # mav helper: instances 60-64
 KEY = sg.key_from_passphrase("skyherd test key")

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from test_attack_mavlink import assert_signed_and_untouched, assert_unsigned, attacked_flight
 
-from perception.transport import (
+from skyherd.perception.transport import (
     RAW,
     FramePublisher,
     FrameSubscriber,
@@ -62,7 +62,7 @@ def test_a_header_that_passes_its_mac_with_pixels_not_its_own_is_refused_at_take
     whose SHA-256 differs from the MAC'd digest are refused when the frame is decoded."""
     import dataclasses
 
-    from perception.transport import decode_pixels
+    from skyherd.perception.transport import decode_pixels
 
     payload = encode_frame(8, 1.35, POS, QUAT, IMG, RAW, stream=9, key=KEY)
     hdr = decode_header(payload, key=KEY)
@@ -80,7 +80,7 @@ def test_forged_next_frame_over_zenoh_never_reaches_the_books():
     id, seq + 1, first): the subscriber with the key takes the real frame and counts one
     refused; a keyless subscriber takes the forgery and drops the real one as out of order."""
     port = 7492
-    from perception.camera import CameraParams
+    from skyherd.perception.camera import CameraParams
 
     pub_s = open_session(publisher_params(port))
     sub_s = open_session(subscriber_params(port=port))
@@ -140,14 +140,14 @@ def test_forged_camera_frames_are_refused_by_a_default_flight_and_taken_without_
 def test_ugv_states_and_clock_carry_a_mac_and_forged_records_are_refused():
     import json as js
 
-    from groundsim.transport import (
+    from skyherd.groundsim.transport import (
         UGVStatePublisher,
         UGVStateSubscriber,
         record_mac,
         record_ok,
         sign_record,
     )
-    from groundsim.ugv import UGVStates
+    from skyherd.groundsim.ugv import UGVStates
 
     clock = js.loads(sign_record({"t_sim": 1.5}, KEY))
     assert record_ok(clock, KEY) and not record_ok(clock, OTHER)

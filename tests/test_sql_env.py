@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from policy.sql import (
+from skyherd.policy.sql import (
     Algorithm,
     FormationEnv,
     GridParams,
@@ -14,8 +14,8 @@ from policy.sql import (
     plan_paths,
     train,
 )
-from policy.sql.layout import STARTS
-from policy.sql.train import _call
+from skyherd.policy.sql.layout import STARTS
+from skyherd.policy.sql.train import _call
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
 
@@ -153,7 +153,7 @@ def test_sie_phases_claim_nearest_target_and_stay_in_roi():
     q2[0, lay.roi_id[lay.cell(3, 3)], LEFT] = 5.0  # leaving the ROI is a wall: stays
     q2[0, lay.roi_id[lay.cell(3, 3)], UP] = 1.0
     q2[0, lay.roi_id[lay.cell(3, 4)], RIGHT] = 1.0
-    from policy.sql.train import Metrics, TrainResult
+    from skyherd.policy.sql.train import Metrics, TrainResult
 
     z = np.zeros(1)
     res = TrainResult(Algorithm.SQL_D, lay, h, 0, Metrics(z, z, z, z, z), q1, q2)

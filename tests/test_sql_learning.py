@@ -7,10 +7,18 @@ import json
 import numpy as np
 import pytest
 
-from policy.sql import Algorithm, GridParams, SQLHyper, build_layout, make_layout, plan_paths, train
-from policy.sql.kernels import share_max_nonzero
-from policy.sql.metrics import convergence_episode, moving_average
-from scripts.cli import main
+from skyherd.policy.sql import (
+    Algorithm,
+    GridParams,
+    SQLHyper,
+    build_layout,
+    make_layout,
+    plan_paths,
+    train,
+)
+from skyherd.policy.sql.kernels import share_max_nonzero
+from skyherd.policy.sql.metrics import convergence_episode, moving_average
+from skyherd.scripts.cli import main
 
 
 def value_iteration(lay, h, tol=1e-12):

@@ -16,10 +16,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from policy.sql import Algorithm, SQLHyper, make_layout
-from policy.sql import kernels as kn
-from policy.sql.params import RoiPretrain, Rules
-from policy.sql.train import pretrained_roi_tables, rng_state, train
+from skyherd.policy.sql import Algorithm, SQLHyper, make_layout
+from skyherd.policy.sql import kernels as kn
+from skyherd.policy.sql.params import RoiPretrain, Rules
+from skyherd.policy.sql.train import pretrained_roi_tables, rng_state, train
 
 M, ROI = 12, 9
 STARTS = [(1, 5), (1, 2), (2, 1), (5, 1)]

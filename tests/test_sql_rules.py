@@ -6,10 +6,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from policy.sql import Algorithm, SQLHyper, greedy_rollout, make_layout
-from policy.sql.kernels import claim_target
-from policy.sql.params import Rules
-from policy.sql.train import Metrics, TrainResult, _call, pretrained_roi_tables, rng_state
+from skyherd.policy.sql import Algorithm, SQLHyper, greedy_rollout, make_layout
+from skyherd.policy.sql.kernels import claim_target
+from skyherd.policy.sql.params import Rules
+from skyherd.policy.sql.train import Metrics, TrainResult, _call, pretrained_roi_tables, rng_state
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
 GREEDY = dict(eps_start=0.0, eps_min=0.0)
@@ -161,7 +161,7 @@ def test_pretrained_roi_tables_walk_greedily_to_each_target():
     xy = [(6, 8), (8, 8), (6, 6), (8, 6)]
     lay = make_layout(8, [(1, 1), (1, 3), (3, 1), (2, 2)], xy, roi_min=5)
     q2 = pretrained_roi_tables(lay, SQLHyper(), Rules.published(), rng_state(0), _pre())
-    from policy.sql.kernels import greedy_first, roi_step
+    from skyherd.policy.sql.kernels import greedy_first, roi_step
 
     for k, (x, y) in enumerate(xy):
         s, n = lay.cell(5, 5), 0
@@ -172,7 +172,7 @@ def test_pretrained_roi_tables_walk_greedily_to_each_target():
 
 
 def _pre():
-    from policy.sql.params import RoiPretrain
+    from skyherd.policy.sql.params import RoiPretrain
 
     return RoiPretrain(episodes=2000)
 
@@ -193,7 +193,7 @@ def test_q_form_blend_versus_delta_rounding():
     # Q = 1.303, a terminal move with r = 7.887: 0.9·1.303 + 0.1·7.887 = 1.1727 + 0.7887 =
     # 1.9614. blend computes exactly that sum (rounds to the double 1.9614); delta computes
     # 1.303 + 0.1·6.584 and rounds to the next double below: 1.9613999999999998.
-    from policy.sql.kernels import q_update
+    from skyherd.policy.sql.kernels import q_update
 
     for blend, want in ((True, 1.9614), (False, 1.9613999999999998)):
         q = np.array([[1.303, 0.0, 0.0, 0.0]])
@@ -204,7 +204,7 @@ def test_q_form_blend_versus_delta_rounding():
 def test_assign_cell_reads_agent_1_and_2_x():
     # MATLAB's currentState(1), currentState(2) on the K×2 matrix [x y]: column-major
     # elements 1 and 2 = x of agent 1 and x of agent 2; for K = 1: agent 1's x and y
-    from policy.sql.kernels import assign_cell
+    from skyherd.policy.sql.kernels import assign_cell
 
     lay = make_layout(10, [(5, 7), (8, 2), (1, 1)], [(9, 9), (10, 9), (9, 10)], roi_min=9)
     pos = lay.starts.astype(np.int64)

@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from policy.sql.envfile import EnvSpec, generate_env
-from policy.sql.metrics import mean_sd, study_convergence, study_metric, study_summary
-from policy.sql.params import Rules, SQLHyper
-from policy.sql.sweep import RunSpec, ray_available, run_all, run_one
-from scripts.cli import main
+from skyherd.policy.sql.envfile import EnvSpec, generate_env
+from skyherd.policy.sql.metrics import mean_sd, study_convergence, study_metric, study_summary
+from skyherd.policy.sql.params import Rules, SQLHyper
+from skyherd.policy.sql.sweep import RunSpec, ray_available, run_all, run_one
+from skyherd.scripts.cli import main
 
 
 def test_study_metric_and_tail_on_a_hand_made_series():

@@ -63,7 +63,7 @@ def test_sim_and_companion_on_two_hosts_fly_through_a_router(two_hosts, tmp_path
     run.mkdir()
     router = _zenoh_config(tmp_path / "router.json5", "router", "listen")
     client = _zenoh_config(tmp_path / "client.json5", "client", "connect")
-    skyherd = [sys.executable, "-m", "scripts.cli"]
+    skyherd = [sys.executable, "-m", "skyherd.scripts.cli"]
     sim = subprocess.Popen(
         ["ip", "netns", "exec", ns_a, *skyherd, "sim", "--instance", str(INSTANCE), "--speedup", "0",
          "--bind", A_IP, "--remote", B_IP, "--zenoh-config", router, "--run-dir", str(run)],
@@ -102,7 +102,7 @@ def test_a_closed_two_host_flight_mutual_tls_and_access_control_wallclock(two_ho
     another CA are not let in; the viewer watches but its frames never arrive; the companion's
     decisions arrive, its frames do not. Wall time: each peer waits at most its --timeout (the
     denials are read off the router after a later allowed message has come through)."""
-    from scripts.cli import main
+    from skyherd.scripts.cli import main
 
     ns_a, ns_b = two_hosts
     pki, rogue = tmp_path / "pki", tmp_path / "rogue"
@@ -110,7 +110,7 @@ def test_a_closed_two_host_flight_mutual_tls_and_access_control_wallclock(two_ho
     assert main(["certs", "--out", str(rogue), "--router-host", A_IP]) == 0  # another CA
     run = tmp_path / "run"
     run.mkdir()
-    skyherd = [sys.executable, "-m", "scripts.cli"]
+    skyherd = [sys.executable, "-m", "skyherd.scripts.cli"]
     sim = subprocess.Popen(
         ["ip", "netns", "exec", ns_a, *skyherd, "sim", "--instance", str(INSTANCE), "--speedup", "0",
          "--bind", A_IP, "--remote", B_IP, "--zenoh-config", str(pki / "router.json5"),

@@ -8,7 +8,7 @@ import json
 import subprocess
 import sys
 
-from hil.bridge_peers import Px4SimPeer
+from skyherd.hil.bridge_peers import Px4SimPeer
 
 INSTANCE = 76  # TCP 4560+76
 
@@ -17,7 +17,7 @@ def test_sim_with_px4_on_our_physics_renders_the_world_on_its_clock(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     sim = subprocess.Popen(
-        [sys.executable, "-m", "scripts.cli", "sim", "--autopilot", "px4", "--instance", str(INSTANCE),
+        [sys.executable, "-m", "skyherd.scripts.cli", "sim", "--autopilot", "px4", "--instance", str(INSTANCE),
          "--speedup", "0", "--duration", "4", "--zenoh-port", "7483", "--run-dir", str(run)],
         stdout=open(run / "sim.log", "wb"), stderr=subprocess.STDOUT,
     )  # fmt: skip

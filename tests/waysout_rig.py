@@ -44,7 +44,7 @@ def flight_pids(runs: str) -> dict[int, str]:
         except OSError:
             continue
         text = b" ".join(argv).decode(errors="replace")
-        if "scripts.cli" in text and runs in text:
+        if "skyherd.scripts.cli" in text and runs in text:
             out[int(d)] = text
     return out
 
@@ -95,7 +95,7 @@ def main(spec: dict) -> dict:
         subprocess.run(["mount", "-o", "remount,ro,bind", runs], check=True)
     out_dir = Path(spec["out"])
     fly_out, fly_err = open(out_dir / "fly.out", "wb"), open(out_dir / "fly.err", "wb")
-    argv = [sys.executable, "-m", "scripts.cli", "fly", "--runs-dir", runs, *spec["fly"]]
+    argv = [sys.executable, "-m", "skyherd.scripts.cli", "fly", "--runs-dir", runs, *spec["fly"]]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     fly = subprocess.Popen(argv, stdout=fly_out, stderr=fly_err, cwd=ROOT, env=env,
                            process_group=0)  # fmt: skip
@@ -134,7 +134,7 @@ def main(spec: dict) -> dict:
             os.kill(fly.pid, getattr(signal, sig))
         else:
             for pid, text in flight_pids(runs).items():
-                if f"scripts.cli {target} " in text:
+                if f"skyherd.scripts.cli {target} " in text:
                     os.kill(pid, getattr(signal, sig))
     try:
         res["rc"] = fly.wait(max(1.0, WALL_LIMIT_S - (time.monotonic() - t0)))

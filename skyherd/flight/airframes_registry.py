@@ -1,0 +1,78 @@
+"""Which airframes exist, and how to build one with its autopilot.
+
+`make_autopilot("quadrotor" | "fixedwing", ...)` returns an object implementing
+`flight.autopilot_api.Autopilot`. Autopilot modules are imported only when asked for, so a
+missing or broken airframe cannot break the others.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from skyherd.flight.autopilot_api import Autopilot
+from skyherd.flight.clock import SimClock
+from skyherd.flight.geo import DEFAULT_HOME, Home
+
+PX4_STANDIN = Path(__file__).parent / "airframes" / "px4_standin.toml"  # docs/quadrotor.md
+
+# name → (module, class)
+AIRFRAMES: dict[str, tuple[str, str]] = {
+    "quadrotor": ("skyherd.flight.multirotor.autopilot", "MultirotorAutopilot"),
+    "fixedwing": ("skyherd.flight.fixedwing.autopilot", "FixedWingAutopilot"),
+}
+
+
+class AirframeUnavailable(Exception):
+    """The airframe is unknown or its autopilot is not available in this installation."""
+
+
+def airframe_names() -> list[str]:
+    return list(AIRFRAMES)
+
+
+def autopilot_class(airframe: str) -> type:
+    """The autopilot class for `airframe`; AirframeUnavailable if it cannot be imported."""
+    if airframe not in AIRFRAMES:
+        raise AirframeUnavailable(
+            f"unknown airframe {airframe!r}: choose one of {airframe_names()}"
+        )
+    module_name, cls_name = AIRFRAMES[airframe]
+    try:
+        module = importlib.import_module(module_name)
+        return getattr(module, cls_name)
+    except (ImportError, AttributeError) as e:
+        raise AirframeUnavailable(f"airframe {airframe!r} is not available yet ({e})") from e
+
+
+def make_autopilot(
+    airframe: str,
+    clock: SimClock | None = None,
+    home: Home = DEFAULT_HOME,
+    seed: int = 0,
+    instance: int = 0,
+    faults=None,
+    params_file: Path | str | None = None,
+) -> Autopilot:
+    """A ready autopilot for `airframe` on `clock`, at `home`, on the ground, disarmed.
+
+    faults: a flight.faults.FaultPlan played on the simulation clock (None: calm, perfect);
+    its random draws come from a Generator seeded with `seed`. params_file: a TOML file
+    with a `[params]` table of overrides (e.g. flight/airframes/px4_standin.toml);
+    ValueError names a bad file or value.
+    """
+    cls = autopilot_class(airframe)
+    clock = clock if clock is not None else SimClock()
+    if airframe == "quadrotor":
+        return cls(home=home, clock=clock, seed=seed, faults=faults, params_file=params_file)
+    overrides = None
+    if params_file is not None:
+        from skyherd.flight.fixedwing.fw_params import FW_PARAM_SPECS
+        from skyherd.flight.params import ParamStore
+
+        store = ParamStore(FW_PARAM_SPECS)
+        store.load_toml(params_file)
+        overrides = store.as_dict()
+    return cls(
+        clock=clock, home=home, instance=instance, seed=seed, faults=faults, params=overrides
+    )

@@ -1,0 +1,144 @@
+"""UGV states over Zenoh: `skyherd/ugv/<id>/state` (CONVENTIONS.md), one JSON object per UGV.
+
+Payload (UTF-8 JSON): {"id": int, "seq": int, "t_sim": s, "pos_ned": [n, e, d] m,
+"heading_rad": from north clockwise, "speed_mps": m/s, "camouflaged": bool}. JSON keeps the
+records readable by any Zenoh tool (`z_sub -k 'skyherd/ugv/**'`); at a few UGVs × 10–50 Hz
+the size does not matter.
+
+With the flight's key (the 32-byte MAVLink signing key; `skyherd fly` signs by default) every
+record carries "mac": the hex BLAKE2b-256, keyed with the flight key, of the record's JSON
+without "mac" (keys sorted, compact separators). A subscriber given the key refuses (counts
+in `refused`, never keeps) a record without it or whose MAC fails. The simulator's clock
+(`skyherd/sim/clock`) is signed the same way (`sign_record`). Without a key the records are as
+before, with no "mac".
+
+Sessions come from `perception.transport.open_session` (loopback peer by default).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import math
+import threading
+
+import numpy as np
+
+from skyherd.groundsim.ugv import UGVStates
+
+
+def state_key(ugv_id: int | str) -> str:
+    return f"skyherd/ugv/{ugv_id}/state"
+
+
+def record_mac(key: bytes, rec: dict) -> str:
+    """The MAC of a JSON record (module docstring), "mac" itself left out."""
+    body = json.dumps({k: v for k, v in rec.items() if k != "mac"}, sort_keys=True,
+                      separators=(",", ":"))  # fmt: skip
+    return hashlib.blake2b(body.encode(), key=key, digest_size=32).hexdigest()
+
+
+def sign_record(rec: dict, key: bytes | None) -> bytes:
+    """The payload of `rec`: with a key, the record with its "mac"; without, as it is."""
+    if key is not None:
+        rec = {**rec, "mac": record_mac(key, rec)}
+    return json.dumps(rec).encode()
+
+
+def record_ok(rec: dict, key: bytes) -> bool:
+    """Whether a received record carries the right MAC for `key`."""
+    mac = rec.get("mac")
+    return isinstance(mac, str) and hmac.compare_digest(mac, record_mac(key, rec))
+
+
+class UGVStatePublisher:
+    """Publishes every UGV's state on its own key."""
+
+    def __init__(self, session, n_ugv: int, key: bytes | None = None):
+        self._pubs = [session.declare_publisher(state_key(i)) for i in range(n_ugv)]
+        self.seq = 0
+        self.key = key  # the flight key: records carry "mac"
+
+    def publish(self, t_sim: float, states: UGVStates) -> None:
+        for i, pub in enumerate(self._pubs):
+            rec = {
+                "id": i,
+                "seq": self.seq,
+                "t_sim": float(t_sim),
+                "pos_ned": [float(states.pos_ne[i, 0]), float(states.pos_ne[i, 1]), 0.0],
+                "heading_rad": float(states.heading[i]),
+                "speed_mps": float(states.speed[i]),
+                "camouflaged": bool(states.camouflaged[i]),
+            }
+            pub.put(sign_record(rec, self.key))
+        self.seq += 1
+
+    def close(self) -> None:
+        for p in self._pubs:
+            try:
+                p.undeclare()
+            except Exception:  # noqa: BLE001 - already closed with its session
+                pass
+
+
+class UGVStateSubscriber:
+    """Keeps the newest state of each UGV (`skyherd/ugv/*/state`); bad records are counted."""
+
+    def __init__(self, session, key: bytes | None = None):
+        self._lock = threading.Lock()
+        self.latest: dict[int, dict] = {}
+        self.received = 0
+        self.corrupt = 0
+        self.refused = 0  # with a key: records without a valid "mac"
+        self.key = key
+        self._sub = session.declare_subscriber("skyherd/ugv/*/state", self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        try:
+            rec = json.loads(sample.payload.to_bytes().decode())
+            i = int(rec["id"])
+            pos = [float(x) for x in rec["pos_ned"]]
+            ok = len(pos) == 3 and all(math.isfinite(x) for x in pos)
+            ok = ok and math.isfinite(float(rec["t_sim"])) and math.isfinite(rec["heading_rad"])
+            if not ok:
+                raise ValueError("non-finite state")
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+            with self._lock:
+                self.corrupt += 1
+            return
+        if self.key is not None and not record_ok(rec, self.key):
+            with self._lock:
+                self.refused += 1
+            return
+        with self._lock:
+            old = self.latest.get(i)
+            if old is None or rec["t_sim"] >= old["t_sim"]:
+                self.latest[i] = rec
+            self.received += 1
+
+    def oldest_stamp(self, n_ugv: int) -> float:
+        """The oldest newest-report time [s] among UGVs 0..n−1 (−inf while one never reported)."""
+        with self._lock:
+            return min(
+                (self.latest[i]["t_sim"] if i in self.latest else -math.inf) for i in range(n_ugv)
+            )
+
+    def states(self, n_ugv: int) -> UGVStates | None:
+        """The newest states of UGVs 0..n−1 as UGVStates, or None until all have reported."""
+        with self._lock:
+            if any(i not in self.latest for i in range(n_ugv)):
+                return None
+            recs = [self.latest[i] for i in range(n_ugv)]
+        return UGVStates(
+            np.array([r["pos_ned"][:2] for r in recs]),
+            np.array([r["heading_rad"] for r in recs]),
+            np.array([r["speed_mps"] for r in recs]),
+            np.array([bool(r["camouflaged"]) for r in recs]),
+        )
+
+    def close(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:  # noqa: BLE001 - already closed with its session
+            pass

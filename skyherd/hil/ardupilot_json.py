@@ -1,0 +1,327 @@
+"""skyherd's physics as ArduPilot's simulator: the JSON backend (`--model JSON`), over UDP.
+
+ArduPilot (libraries/SITL/SIM_JSON.cpp) sends one binary servo packet per physics frame to
+UDP 9002 (+10 per instance `-I N`), little-endian:
+  uint16 magic (18458: 16 channels, 29569: 32), uint16 frame_rate [Hz], uint32 frame_count,
+  uint16 pwm[16 | 32] [µs]
+and waits for one line of JSON back. We bind 127.0.0.1:9002+10N and answer the sender with
+  \\n{"timestamp":s,"imu":{"gyro":[p,q,r],"accel_body":[x,y,z]},"position":[n,e,d],
+  "quaternion":[w,x,y,z],"velocity":[vn,ve,vd]}\\n            (+ "airspeed" for a plane)
+gyro body FRD [rad/s], accel_body the specific force [m/s²] (ground contact included),
+position NED [m] about home with the ground at down = 0, quaternion body → NED.
+
+How ArduPilot reads it decides the format: it takes the last complete line between two
+'\\n', finds every key by substring search and reads vectors with
+sscanf("[%f, %f, %f]") right after `"key":` — so no space after ':' and no other key
+whose name contains "gyro", "position", "velocity"… The timestamp is printed with 9
+decimals: ArduPilot integrates the differences.
+
+Lockstep on frame_count: each new frame_count steps the physics once by 1/frame_rate of
+that very packet (ArduPilot ramps frame_rate towards SIM_RATE_HZ); a repeated frame_count
+(ArduPilot re-sends its servos after 1 s without an answer) does not step: the cached reply
+is sent again only when it is older than `resend_after_s` of wall time (answering every
+duplicate would shift lockstep by a frame; answering none deadlocks after a lost reply);
+a frame_count going back means ArduPilot restarted: the physics is reset.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import socket
+import struct
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from skyherd.flight.fixedwing.jsbsim_model import Surfaces
+from skyherd.flight.geo import DEFAULT_HOME, Home
+from skyherd.flight.quadrotor import QuadrotorParams
+from skyherd.flight.state import VehicleState
+from skyherd.hil.bridge_net import bind_socket
+from skyherd.hil.bridge_physics import PlaneBody, QuadBody, quad_step_pwm
+from skyherd.runio import ports
+
+JSON_BASE_PORT = ports.JSON_BASE  # runio.ports: every port an instance owns
+PORT_STRIDE = ports.JSON_STRIDE  # ArduPilot's -I N moves every port by 10 N
+MAGIC_16 = 18458
+MAGIC_32 = 29569
+_HDR = struct.Struct("<HHI")
+PACKET_BYTES = {MAGIC_16: 8 + 2 * 16, MAGIC_32: 8 + 2 * 32}
+AIRFRAMES = ("quadrotor", "fixedwing")
+
+_FMT_BODY = (
+    '"timestamp":%.9f,"imu":{"gyro":[%.9g,%.9g,%.9g],"accel_body":[%.9g,%.9g,%.9g]},'
+    '"position":[%.9g,%.9g,%.9g],"quaternion":[%.9g,%.9g,%.9g,%.9g],"velocity":[%.9g,%.9g,%.9g]'
+)
+REPLY_FMT = "\n{" + _FMT_BODY + "}\n"
+REPLY_FMT_AIRSPEED = "\n{" + _FMT_BODY + ',"airspeed":%.9g}\n'
+
+
+def json_port(instance: int) -> int:
+    """UDP port ArduPilot `-I instance` sends its servo packets to."""
+    port = ports.json_port(instance)
+    if not (0 <= instance and port <= 65535):
+        raise ValueError(f"instance {instance} gives no valid UDP port")
+    return port
+
+
+@dataclass(frozen=True)
+class JsonBridgeConfig:
+    """Settings of the ArduPilot JSON bridge (saved with a run).
+
+    pwm_min, pwm_max   [µs] motor PWM for command 0 and 1 (ArduCopter MOT_PWM_MIN/MAX)
+    resend_after_s     [s wall] a duplicate frame gets the cached reply only past this age
+    channels           1-based servo channels of aileron, elevator, throttle, rudder
+                       (ArduPlane's default SERVOn_FUNCTION 4, 19, 70, 21 on 1..4)
+    """
+
+    pwm_min: float = 1000.0
+    pwm_max: float = 2000.0
+    resend_after_s: float = 0.5
+    channels: tuple[int, int, int, int] = (1, 2, 3, 4)
+
+    def __post_init__(self) -> None:
+        if not (self.pwm_max > self.pwm_min > 0):
+            raise ValueError("need 0 < pwm_min < pwm_max")
+        if not self.resend_after_s > 0:
+            raise ValueError("resend_after_s must be > 0")
+        if sorted(self.channels) != sorted(set(self.channels)) or not all(
+            1 <= c <= 16 for c in self.channels
+        ):
+            raise ValueError(f"channels must be 4 distinct numbers in 1..16, got {self.channels}")
+
+
+@dataclass
+class JsonStats:
+    frames: int = 0  # physics steps taken
+    duplicates: int = 0  # repeated frame_count (not stepped)
+    resends: int = 0  # cached replies sent again
+    restarts: int = 0  # frame_count went back: physics reset
+    bad_packets: int = 0  # wrong size or magic, frame_rate 0
+
+
+@dataclass
+class ArduPilotJsonBridge:
+    """skyherd's quadrotor or JSBSim plane as the physics of one ArduPilot SITL instance.
+
+    `open()` binds the socket, `step_once(timeout_s)` handles one packet, `serve()` loops;
+    `state` is the true VehicleState after the last step (for the camera and the world).
+    """
+
+    airframe: str = "quadrotor"
+    instance: int = 0
+    seed: int = 0
+    home: Home = DEFAULT_HOME
+    config: JsonBridgeConfig = field(default_factory=JsonBridgeConfig)
+    quad_params: QuadrotorParams | None = None
+    host: str = "127.0.0.1"
+    stats: JsonStats = field(default_factory=JsonStats, init=False)
+
+    def __post_init__(self) -> None:
+        if self.airframe not in AIRFRAMES:
+            raise ValueError(f"airframe {self.airframe!r}: choose one of {AIRFRAMES}")
+        self.port = json_port(self.instance)
+        # seed: kept for the API and the run record; the JSON physics has no noise of its
+        # own (ArduPilot adds its SIM_*_RND sensor noise itself).
+        if self.airframe == "quadrotor":
+            self.body: QuadBody | PlaneBody = QuadBody(self.quad_params)
+        else:
+            self.body = PlaneBody(self.home)
+        self._rx = np.zeros(256, dtype=np.uint8)
+        self._sock: socket.socket | None = None
+        self._peer = None
+        self._last_fc: int | None = None
+        self._reply = b""
+        self._reply_wall = 0.0
+
+    # ---- socket ---------------------------------------------------------------------------
+    def open(self) -> ArduPilotJsonBridge:
+        if self._sock is None:
+            self._sock = bind_socket(socket.SOCK_DGRAM, self.host, self.port, self.instance)
+        return self
+
+    def open_port(self) -> ArduPilotJsonBridge:
+        """The common bridge API's name for `open` (see hil/bridge_select.py)."""
+        return self.open()
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def __enter__(self) -> ArduPilotJsonBridge:
+        return self.open()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ---- physics --------------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        """Simulation time [s] (sum of the stepped frames' 1/frame_rate)."""
+        return self.body.t
+
+    @property
+    def state(self) -> VehicleState:
+        return self.body.state()
+
+    def reset(self) -> None:
+        self.body.reset()
+        self._last_fc = None
+        self._reply = b""
+
+    def handle(self, nbytes: int, now_wall: float) -> tuple[bool, bytes | None]:
+        """Handle the packet in the receive buffer: (stepped, reply to send or None)."""
+        rx = self._rx
+        if nbytes < 8:
+            self.stats.bad_packets += 1
+            return False, None
+        magic, rate, fc = _HDR.unpack_from(rx)
+        if PACKET_BYTES.get(magic) != nbytes or rate == 0:
+            self.stats.bad_packets += 1
+            return False, None
+        last = self._last_fc
+        if last is not None:
+            if fc == last:
+                self.stats.duplicates += 1
+                if now_wall - self._reply_wall >= self.config.resend_after_s:
+                    self._reply_wall = now_wall
+                    self.stats.resends += 1
+                    return False, self._reply
+                return False, None
+            if fc < last:
+                self.stats.restarts += 1
+                self.body.reset()
+        self._last_fc = fc
+        dt = 1.0 / rate
+        body = self.body
+        if isinstance(body, QuadBody):
+            m = body.model
+            c = self.config
+            quad_step_pwm(
+                rx,
+                c.pwm_min,
+                c.pwm_max,
+                m.x,
+                m.aux,
+                m.p,
+                body.u,
+                dt,
+                body.params.physics_dt,
+                body.out,
+            )
+            body.t += dt
+            reply = (REPLY_FMT % (body.t, *body.out.tolist())).encode()
+        else:
+            body.step(dt, self._surfaces(rx))
+            reply = (REPLY_FMT_AIRSPEED % (body.t, *body.out.tolist(), body.airspeed)).encode()
+        self.stats.frames += 1
+        self._reply = reply
+        self._reply_wall = now_wall
+        return True, reply
+
+    def _surfaces(self, rx: np.ndarray) -> Surfaces:
+        def pwm(ch: int) -> int:
+            return int(rx[6 + 2 * ch]) | (int(rx[7 + 2 * ch]) << 8)  # ch 1-based
+
+        a, e, t, r = (pwm(c) for c in self.config.channels)
+
+        def angle(v: int) -> float:  # ArduPilot: an unset servo (0) reads as 1500
+            return 0.0 if v == 0 else (v - 1500) / 500.0
+
+        return Surfaces(
+            aileron=angle(a),
+            elevator=angle(e),
+            rudder=angle(r),
+            throttle=(t - self.config.pwm_min) / (self.config.pwm_max - self.config.pwm_min),
+        ).clipped()
+
+    # ---- loop -----------------------------------------------------------------------------
+    def step_once(self, timeout_s: float | None = 1.0) -> bool:
+        """Wait up to timeout_s (wall) for one packet and answer it; True if physics stepped."""
+        sock = self.open()._sock
+        sock.settimeout(timeout_s)
+        try:
+            nbytes, addr = sock.recvfrom_into(self._rx)
+        except TimeoutError:
+            return False
+        stepped, reply = self.handle(nbytes, time.monotonic())
+        if reply is not None:
+            self._peer = addr
+            sock.sendto(reply, addr)
+        return stepped
+
+    def serve(
+        self,
+        sim_duration_s: float | None = None,
+        max_frames: int | None = None,
+        idle_timeout_s: float | None = None,
+        on_step: Callable[[ArduPilotJsonBridge], bool | None] | None = None,
+    ) -> JsonStats:
+        """Answer ArduPilot until sim time, frame count or a wall-time idle gap runs out.
+
+        on_step(bridge) runs after each physics step; returning True stops the loop.
+        """
+        sock = self.open()._sock
+        sock.settimeout(idle_timeout_s)
+        rx, handle, sendto = self._rx, self.handle, sock.sendto
+        recv, now = sock.recvfrom_into, time.monotonic
+        t_end = math.inf if sim_duration_s is None else sim_duration_s
+        n_end = math.inf if max_frames is None else max_frames
+        while self.body.t < t_end and self.stats.frames < n_end:
+            try:
+                nbytes, addr = recv(rx)
+            except TimeoutError:
+                break
+            stepped, reply = handle(nbytes, now())
+            if reply is not None:
+                sendto(reply, addr)
+            if stepped and on_step is not None and on_step(self):
+                break
+        return self.stats
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m skyherd.hil.ardupilot_json",
+        description="Be ArduPilot's physics (start it with --model JSON:127.0.0.1 -I N).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    ap.add_argument("--instance", type=int, default=0, help="ArduPilot -I N: UDP 9002+10N")
+    ap.add_argument("--airframe", choices=AIRFRAMES, default="quadrotor")
+    ap.add_argument("--home", default=None, help="LAT,LON,ALT of home (default: the model's)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--duration", type=float, default=None, help="stop after this sim time [s]")
+    ap.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=None,
+        help="stop after this many wall seconds without a packet",
+    )
+    args = ap.parse_args(argv)
+    try:
+        home = Home.parse(args.home) if args.home else DEFAULT_HOME
+        bridge = ArduPilotJsonBridge(args.airframe, args.instance, args.seed, home)
+        bridge.open()
+    except (ValueError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(
+        f"ArduPilot JSON physics ({args.airframe}) on udp {bridge.host}:{bridge.port}", flush=True
+    )
+    try:
+        stats = bridge.serve(sim_duration_s=args.duration, idle_timeout_s=args.idle_timeout)
+    except KeyboardInterrupt:
+        stats = bridge.stats
+    finally:
+        bridge.close()
+    print(f"done: t={bridge.t:.3f} s, {stats}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

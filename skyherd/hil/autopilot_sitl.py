@@ -1,0 +1,87 @@
+"""Start a real autopilot's SITL binary on skyherd's physics (the caller's binary: skyherd
+builds none).
+
+PX4 (`PX4_SIM_MODEL=none_iris`): its simulator_mavlink connects to the bridge on TCP 4560+N
+(hil/px4_sim.py). ArduCopter (`--model JSON:127.0.0.1`): it sends its servo packets to the
+bridge on UDP 9002+10N (hil/ardupilot_json.py) and waits on SERIAL0 (TCP 5760+10N) for a
+client before it flies. Both open UDP/TCP ports: run them in a network namespace with only
+loopback up (`unshare -n sh -c 'ip link set lo up; ...'`).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from skyherd.flight.geo import DEFAULT_HOME, Home
+
+
+@dataclass(frozen=True)
+class CopterRates:
+    """ArduCopter's physics frame rate (SIM_RATE_HZ: one JSON frame each) and its main loop
+    (SCHED_LOOP_RATE) [Hz]. It arms only with the loop at most about 0.55 of the frame rate
+    (400 → 222 seen); fewer frames per simulated second is what the lockstep's speed scales with."""
+
+    sim_rate_hz: int = 400
+    loop_rate_hz: int = 200
+
+
+def copter_json_parm(rates: CopterRates = CopterRates()) -> str:
+    """ArduCopter's parameters for skyherd's quadrotor: an X frame, its hover throttle and PWM
+    range, and the physics / loop rates."""
+    return (
+        f"FRAME_CLASS 1\nFRAME_TYPE 1\nSIM_RATE_HZ {rates.sim_rate_hz}\n"
+        f"SCHED_LOOP_RATE {rates.loop_rate_hz}\n"
+        "MOT_THST_HOVER 0.46\nMOT_PWM_MIN 1000\nMOT_PWM_MAX 2000\n"
+    )
+
+
+def start_px4(
+    binary: Path, instance: int, workdir: Path, log, params: dict[str, float] | None = None
+) -> subprocess.Popen:
+    """PX4 SITL as `none_iris` (airframe 10016), instance N, working files in `workdir`;
+    `params` set at boot (PX4's PX4_PARAM_<NAME> environment variables)."""
+    etc = Path(binary).resolve().parent.parent / "etc"  # .../build/px4_sitl_default/etc
+    env = dict(os.environ, PX4_SIM_MODEL="none_iris", PX4_SYS_AUTOSTART="10016")
+    env.update({f"PX4_PARAM_{k}": repr(float(v)) for k, v in (params or {}).items()})
+    cmd = [str(binary), "-d", "-i", str(instance), "-w", str(workdir), str(etc)]
+    return subprocess.Popen(cmd, cwd=workdir, env=env, stdout=log, stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+
+
+def start_arducopter(
+    binary: Path,
+    instance: int,
+    workdir: Path,
+    log,
+    defaults: Sequence[Path] = (),
+    extra_parm: str = "",
+    speedup: float = 1.0,
+    rates: CopterRates = CopterRates(),
+    home: Home = DEFAULT_HOME,
+) -> subprocess.Popen:
+    """ArduCopter SITL with `--model JSON:127.0.0.1`, `-I instance`, parameters from
+    `defaults` (e.g. ArduPilot's copter.parm), then skyherd's frame (copter_json_parm), then
+    `extra_parm` (an operator's own lines). speedup 0 = as fast as the physics answers."""
+    parm = workdir / "skyherd-json.parm"
+    parm.write_text(copter_json_parm(rates) + extra_parm)
+    cmd = [str(binary), "--model", "JSON:127.0.0.1", "--speedup", str(speedup or 1000),
+           "-I", str(instance), "--home", f"{home.lat_deg},{home.lon_deg},{home.alt_m},0",
+           "--defaults", ",".join(str(p) for p in [*defaults, parm]), "-w"]  # fmt: skip
+    return subprocess.Popen(cmd, cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+
+
+def stop(proc: subprocess.Popen) -> int | None:
+    """Kill the autopilot's process group (ArduCopter ignores SIGTERM once its physics is
+    gone) and reap it; its exit code."""
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+    return proc.wait(10)

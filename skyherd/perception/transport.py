@@ -1,0 +1,636 @@
+"""Camera frames over Zenoh: publisher, subscriber, wire format, link statistics.
+
+Keys (CONVENTIONS.md): `skyherd/<vehicle>/camera/frame` (one frame per sample) and
+`skyherd/<vehicle>/camera/info` (camera intrinsics and mounting, JSON, sent with the first
+frame and every `info_every` frames).
+
+Frame wire format (little-endian), then the pixel data:
+
+    magic "SKYF" | version u16 | encoding u8 (0 raw RGB, 1 JPEG) | reserved u8 |
+    stream u32 (random per publisher: a restart resets the subscriber's bookkeeping) |
+    seq u64 | t_sim f64 [s] (simulation clock) | t_pub f64 [s] (publisher's wall clock) |
+    pos_ned 3×f64 [m] | quat 4×f64 (w, x, y, z body→NED) | width u16 | height u16 |
+    data_len u32 | crc32(data) u32
+
+Authenticated frames (a publisher and subscriber given the flight's key, `key`: the 32 bytes
+of the MAVLink signing key, flight.mavlink.signing) have version 2 and a trailer after the
+pixels: SHA-256(pixels) (32 bytes) | BLAKE2b-256 keyed with the flight key over the header as
+sent and that digest (32 bytes). A subscriber with a key refuses (counts as `refused`, never
+hands on) version 1 frames and frames whose MAC fails, on arrival, before their sequence number
+touches the books: a forged "next frame" cannot push the real one out. The pixel digest is
+checked when the frame is taken (as the CRC is). A run of refused frames is a camera that
+went silent: the consumer's camera-loss path. Readers without a key (the recorder, a viewer)
+read both versions and check nothing beyond the CRC. Without a key the format is version 1,
+unchanged.
+
+Sessions: by default a Zenoh peer that listens on tcp/127.0.0.1 only (the publisher, port 7447)
+or connects to it (the subscriber), multicast scouting off: nothing to start by hand, nothing
+leaves the machine. `ZenohParams.config_file` hands the whole configuration to a Zenoh JSON5
+file instead (e.g. client mode towards a router on another machine; see docs/perception.md).
+
+The subscriber keeps only the newest frame. It counts frames received, lost (gaps in seq),
+out of order (older than the newest, discarded; a lost frame that turns up late moves from
+lost to out-of-order), late (wall-clock age above `late_s` on arrival, same clock only),
+skipped (superseded before the consumer took them) and corrupt (bad magic, length, CRC or
+image: dropped, never raised). Only the header is parsed on arrival; CRC and pixels are checked
+when the consumer takes the frame, so a corrupt frame that is superseded first counts as
+skipped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import math
+import os
+import re
+import struct
+import threading
+import time
+import zlib
+from dataclasses import asdict, dataclass, field
+
+import cv2
+import numpy as np
+
+from skyherd.perception.camera import CameraParams
+from skyherd.runio.ports import ZENOH_BASE
+
+_HDR = struct.Struct("<4sHBBIQdd3d4dHHII")
+HEADER_LEN = _HDR.size
+MAGIC = b"SKYF"
+VERSION = 1
+VERSION_SIGNED = 2  # version 1 + the trailer (module docstring)
+DIGEST_LEN = MAC_LEN = 32
+TRAILER_LEN = DIGEST_LEN + MAC_LEN
+RAW, JPEG = 0, 1
+ENCODINGS = {"raw": RAW, "jpeg": JPEG}
+DEFAULT_PORT = ZENOH_BASE  # instance 0's; instance N: runio.ports.zenoh_port(N)
+
+
+def frame_key(vehicle: str) -> str:
+    return f"skyherd/{vehicle}/camera/frame"
+
+
+def info_key(vehicle: str) -> str:
+    return f"skyherd/{vehicle}/camera/info"
+
+
+class CorruptFrame(ValueError):
+    """A payload that is not a valid frame."""
+
+
+class RefusedFrame(CorruptFrame):
+    """A frame that fails authentication (unsigned, or a wrong MAC or pixel digest)."""
+
+
+def frame_mac(key: bytes, header: bytes, digest: bytes) -> bytes:
+    """The MAC of a signed frame: BLAKE2b-256 keyed with the flight key over header + digest."""
+    return hashlib.blake2b(header + digest, key=key, digest_size=MAC_LEN).digest()
+
+
+def sign_trailer(key: bytes, header: bytes, digest: bytes) -> bytes:
+    """The trailer of a signed frame whose header (version 2, as sent) is `header`."""
+    return digest + frame_mac(key, header, digest)
+
+
+def _signed_header(header: bytes) -> bytes:
+    """A version 1 header as version 2 (the same fields)."""
+    return header[:4] + struct.pack("<H", VERSION_SIGNED) + header[6:]
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One received camera frame. image (H, W, 3) uint8 RGB."""
+
+    stream: int
+    seq: int
+    t_sim: float
+    t_pub: float
+    pos_ned: np.ndarray
+    quat: np.ndarray
+    image: np.ndarray
+    encoding: int
+    t_recv: float = 0.0
+
+    @property
+    def latency_s(self) -> float:
+        """Publish → receive [s] on the wall clock (meaningful on one machine)."""
+        return self.t_recv - self.t_pub
+
+
+def encode_pixels(image: np.ndarray, encoding: int = RAW, jpeg_quality: int = 90) -> bytes:
+    """The pixel part of a frame. image (H, W, 3) uint8 RGB."""
+    img = np.ascontiguousarray(image, dtype=np.uint8)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"expected an (H, W, 3) image, got {img.shape}")
+    if encoding == RAW:
+        return img.tobytes()
+    if encoding == JPEG:
+        ok, buf = cv2.imencode(
+            ".jpg", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
+        )
+        if not ok:
+            raise ValueError("JPEG encoding failed")
+        return buf.tobytes()
+    raise ValueError(f"unknown encoding {encoding}")
+
+
+def encode_header(
+    seq: int, t_sim: float, pos_ned: np.ndarray, quat: np.ndarray, width: int, height: int,
+    data: bytes, encoding: int = RAW, stream: int = 0, t_pub: float | None = None,
+) -> bytes:  # fmt: skip
+    """The header of a frame whose pixel part is `data`; t_pub defaults to now (wall clock)."""
+    p = np.asarray(pos_ned, dtype=float)
+    q = np.asarray(quat, dtype=float)
+    t_pub = time.time() if t_pub is None else t_pub
+    return _HDR.pack(
+        MAGIC, VERSION, encoding, 0, stream & 0xFFFFFFFF, seq, float(t_sim), t_pub,
+        *p[:3], *q[:4], width, height, len(data), zlib.crc32(data),
+    )  # fmt: skip
+
+
+def encode_frame(
+    seq: int,
+    t_sim: float,
+    pos_ned: np.ndarray,
+    quat: np.ndarray,
+    image: np.ndarray,
+    encoding: int = RAW,
+    stream: int = 0,
+    jpeg_quality: int = 90,
+    t_pub: float | None = None,
+    key: bytes | None = None,
+) -> bytes:
+    """Frame → bytes (header + pixels; with `key`, signed: version 2 + the trailer).
+    image (H, W, 3) uint8 RGB.
+
+    The publish time is stamped after the pixels are encoded and checksummed (CRC: ~0.4 ms at
+    640×480), so latency measures the link, not the encoder.
+    """
+    data = encode_pixels(image, encoding, jpeg_quality)
+    h, w = np.shape(image)[:2]
+    header = encode_header(seq, t_sim, pos_ned, quat, w, h, data, encoding, stream, t_pub)
+    if key is None:
+        return header + data
+    header = _signed_header(header)
+    return header + data + sign_trailer(key, header, hashlib.sha256(data).digest())
+
+
+@dataclass(frozen=True)
+class FrameHeader:
+    """A frame's header, parsed without touching the pixels (cheap: done for every arrival)."""
+
+    stream: int
+    seq: int
+    t_sim: float
+    t_pub: float
+    pos_ned: np.ndarray
+    quat: np.ndarray
+    width: int
+    height: int
+    encoding: int
+    data_len: int
+    crc: int
+    t_recv: float
+    digest: bytes | None = None  # signed frames: SHA-256 of the pixels, from the trailer
+
+    @property
+    def latency_s(self) -> float:
+        return self.t_recv - self.t_pub
+
+
+def decode_header(
+    payload: bytes, t_recv: float | None = None, key: bytes | None = None
+) -> FrameHeader:
+    """Header fields; a short payload, bad magic/version or non-finite pose raise CorruptFrame.
+    With `key`: an unsigned frame or a MAC that fails raise RefusedFrame (the pixels are
+    checked against the digest later, in decode_pixels)."""
+    if len(payload) < _HDR.size:
+        raise CorruptFrame(f"payload of {len(payload)} bytes is shorter than the header")
+    f = _HDR.unpack_from(payload)
+    magic, version, enc, _, stream, seq, t_sim, t_pub = f[:8]
+    pos, quat = np.array(f[8:11]), np.array(f[11:15])
+    w, h, n, crc = f[15:19]
+    if magic != MAGIC or version not in (VERSION, VERSION_SIGNED):
+        raise CorruptFrame(f"bad magic/version {magic!r}/{version}")
+    trailer = TRAILER_LEN if version == VERSION_SIGNED else 0
+    if len(payload) - _HDR.size - trailer != n:
+        raise CorruptFrame(f"data length {len(payload) - _HDR.size - trailer} != header's {n}")
+    digest = None
+    if key is not None:
+        if version != VERSION_SIGNED:
+            raise RefusedFrame("unsigned frame on an authenticated link")
+        end = _HDR.size + n
+        digest = bytes(payload[end : end + DIGEST_LEN])
+        mac = bytes(payload[end + DIGEST_LEN : end + TRAILER_LEN])
+        if not hmac.compare_digest(mac, frame_mac(key, bytes(payload[: _HDR.size]), digest)):
+            raise RefusedFrame("frame MAC does not match the flight key")
+    if not (np.isfinite(pos).all() and np.isfinite(quat).all() and math.isfinite(t_sim)):
+        raise CorruptFrame("non-finite pose or time")
+    if enc not in (RAW, JPEG):
+        raise CorruptFrame(f"unknown encoding {enc}")
+    t_recv = time.time() if t_recv is None else t_recv
+    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, crc, t_recv, digest)
+
+
+def decode_pixels(hdr: FrameHeader, payload: bytes) -> Frame:
+    """Check the CRC (and, for a header whose MAC was checked, the pixel digest: RefusedFrame)
+    and decode the image of a payload whose header is `hdr`."""
+    data = memoryview(payload)[_HDR.size : _HDR.size + hdr.data_len]
+    if zlib.crc32(data) != hdr.crc:
+        raise CorruptFrame("CRC mismatch")
+    if hdr.digest is not None and not hmac.compare_digest(
+        hashlib.sha256(data).digest(), hdr.digest
+    ):
+        raise RefusedFrame("pixels do not match the signed digest")
+    w, h = hdr.width, hdr.height
+    if hdr.encoding == RAW:
+        if hdr.data_len != w * h * 3:
+            raise CorruptFrame(f"raw size {hdr.data_len} != {w}x{h}x3")
+        img = np.frombuffer(data, dtype=np.uint8).reshape(h, w, 3)
+    else:
+        bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        if bgr is None or bgr.shape[:2] != (h, w):
+            raise CorruptFrame("JPEG does not decode to the header's size")
+        img = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    return Frame(
+        hdr.stream, hdr.seq, hdr.t_sim, hdr.t_pub, hdr.pos_ned, hdr.quat, img, hdr.encoding,
+        hdr.t_recv,
+    )  # fmt: skip
+
+
+def decode_frame(payload: bytes, t_recv: float | None = None, key: bytes | None = None) -> Frame:
+    """bytes → Frame; anything malformed raises CorruptFrame (with `key`, anything not
+    authentic RefusedFrame, a CorruptFrame)."""
+    return decode_pixels(decode_header(payload, t_recv, key), payload)
+
+
+def camera_info(cam: CameraParams, encoding: str, mount: str = "body") -> dict:
+    """The camera_info record (JSON-able): intrinsics, mounting (the camera on the body, and how
+    the body carries it: hil.camera_mount's body / level / pointed), pixel convention."""
+    return {
+        "width_px": cam.width_px,
+        "height_px": cam.height_px,
+        "fx_px": cam.fx,
+        "fy_px": cam.fx,
+        "cx_px": cam.cx,
+        "cy_px": cam.cy,
+        "hfov_rad": cam.hfov_rad,
+        "mount_pitch_rad": cam.mount_pitch_rad,
+        "mount_offset_frd_m": list(cam.mount_offset_frd),
+        "mount": mount,
+        "encoding": encoding,
+        "pixels": "RGB, row 0 at the top; integer (u, v) is a pixel centre",
+    }
+
+
+# -- sessions ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ZenohParams:
+    """How to open the Zenoh session (see the module docstring)."""
+
+    mode: str = "peer"
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+    shared_memory: bool = True  # frames between processes on this machine skip the TCP copy
+    config_file: str | None = None  # a Zenoh JSON5 config; replaces everything above
+
+
+def publisher_params(port: int = DEFAULT_PORT) -> ZenohParams:
+    """Default for the frame source: a peer listening on loopback only."""
+    return ZenohParams(listen=(f"tcp/127.0.0.1:{port}",))
+
+
+def subscriber_params(connect: str | None = None, port: int = DEFAULT_PORT) -> ZenohParams:
+    """Default for a viewer: a peer that connects to the source on loopback."""
+    return ZenohParams(connect=(connect or f"tcp/127.0.0.1:{port}",))
+
+
+def open_session(p: ZenohParams):
+    """Open a Zenoh session. Bad endpoints or config files raise ValueError with the reason."""
+    import zenoh
+
+    try:
+        if p.config_file:
+            if not os.path.exists(p.config_file):
+                raise ValueError(f"Zenoh config file {p.config_file} does not exist")
+            conf = zenoh.Config.from_file(p.config_file)
+        else:
+            conf = zenoh.Config()
+            conf.insert_json5("mode", json.dumps(p.mode))
+            conf.insert_json5("listen/endpoints", json.dumps(list(p.listen)))
+            conf.insert_json5("connect/endpoints", json.dumps(list(p.connect)))
+            conf.insert_json5(
+                "scouting/multicast/enabled", "true" if p.multicast_scouting else "false"
+            )
+            conf.insert_json5(
+                "transport/shared_memory/enabled", "true" if p.shared_memory else "false"
+            )
+        return zenoh.open(conf)
+    except zenoh.ZError as e:
+        where = p.config_file or ", ".join((*p.listen, *p.connect)) or "no endpoint"
+        raise ValueError(f"cannot open a Zenoh session ({where}): {zenoh_error_text(e)}") from e
+
+
+def zenoh_error_text(e: Exception) -> str:
+    """A Zenoh (Rust) error as one readable line: its message without the Rust source
+    locations ("at /root/.cargo/.../tcp.rs:61.") and without line breaks."""
+    text = str(e)
+    m = re.search(r'msg: "([^"]*)"', text)
+    text = m.group(1) if m else text
+    text = re.sub(r"\s+at\s+/\S+?\.rs:\d+\.?", "", text)
+    return " ".join(text.split()).strip()
+
+
+# -- publisher ---------------------------------------------------------------------------
+
+
+class FramePublisher:
+    """Publishes frames (and camera info) for one vehicle on an open session."""
+
+    def __init__(
+        self,
+        session,
+        vehicle: str,
+        cam: CameraParams,
+        encoding: str = "raw",
+        jpeg_quality: int = 90,
+        info_every: int = 30,
+        rng: np.random.Generator | None = None,
+        shm_frames: int = 8,
+        mount: str = "body",
+        key: bytes | None = None,
+    ):
+        import zenoh
+
+        if encoding not in ENCODINGS:
+            raise ValueError(f"encoding must be raw or jpeg, got {encoding!r}")
+        self.cam, self.encoding, self.jpeg_quality = cam, encoding, jpeg_quality
+        self.mount = mount  # how the vehicle carries the camera (camera_info)
+        self.key = key  # the flight key: frames signed (version 2 + trailer), else version 1
+        self.info_every = max(1, info_every)
+        self.stream = int((rng or np.random.default_rng()).integers(1, 2**32 - 1))
+        self.seq = 0
+        self._pub = session.declare_publisher(
+            frame_key(vehicle),
+            congestion_control=zenoh.CongestionControl.DROP,
+            priority=zenoh.Priority.DATA_HIGH,
+            express=True,
+        )
+        self._info = session.declare_publisher(info_key(vehicle))
+        self._shm_frames = shm_frames  # shared-memory pool size in frames; 0 = never use it
+        self._shm = None  # zenoh.shm.ShmProvider, made at the first frame (its size is known then)
+        self.shm_fallbacks = 0  # frames sent by copy because shared memory was not available
+        self._last: tuple | None = None  # (header, pixels, digest) of the last frame
+
+    def _put(self, header: bytes, data: bytes, digest: bytes | None = None) -> None:
+        """Send one frame through a shared-memory buffer when possible (a subscriber in another
+        process on this machine maps it instead of receiving a TCP copy), else by copy. The
+        header (with its publish time; signed: its trailer, `digest` of the pixels) is written
+        last, just before the put."""
+        import zenoh
+
+        n = len(header) + len(data) + (TRAILER_LEN if digest is not None else 0)
+        if self._shm is None and self._shm_frames > 0:
+            try:
+                self._shm = zenoh.shm.ShmProvider.default_backend(self._shm_frames * n)
+            except Exception:  # noqa: BLE001 - no /dev/shm, too small a limit: copy instead
+                self._shm_frames = 0
+        if self._shm is not None:
+            try:
+                buf = self._shm.alloc(n, policy=zenoh.shm.GarbageCollect())
+            except Exception:  # noqa: BLE001 - pool exhausted by slow readers: copy this one
+                self.shm_fallbacks += 1
+            else:
+                end = len(header) + len(data)
+                buf[len(header) : end] = data
+                header = self._restamp(header)
+                if digest is not None:
+                    buf[end:n] = sign_trailer(self.key, header, digest)
+                buf[0 : len(header)] = header
+                self._pub.put(buf)
+                return
+        header = self._restamp(header)
+        trailer = sign_trailer(self.key, header, digest) if digest is not None else b""
+        self._pub.put(header + data + trailer)
+
+    @staticmethod
+    def _restamp(header: bytes) -> bytes:
+        """The header with the publish time set to now."""
+        f = list(_HDR.unpack(header))
+        f[7] = time.time()
+        return _HDR.pack(*f)
+
+    def publish(
+        self, t_sim: float, uav_pos_ned: np.ndarray, uav_quat: np.ndarray, image: np.ndarray
+    ) -> int:
+        """Send one frame; returns its sequence number."""
+        if self.seq % self.info_every == 0:
+            self.publish_info(t_sim)
+        enc = ENCODINGS[self.encoding]
+        data = encode_pixels(image, enc, self.jpeg_quality)
+        h, w = np.shape(image)[:2]
+        header = encode_header(self.seq, t_sim, uav_pos_ned, uav_quat, w, h, data, enc, self.stream)
+        digest = None
+        if self.key is not None:
+            header, digest = _signed_header(header), hashlib.sha256(data).digest()
+        self._put(header, data, digest)
+        self._last = (header, data, digest)
+        self.seq += 1
+        return self.seq - 1
+
+    def republish(self) -> bool:
+        """Send the last frame again, same sequence number (a subscriber that has it drops the
+        copy as out of order). Lockstep uses it while it waits for a late subscriber."""
+        if self._last is None:
+            return False
+        self._put(*self._last)
+        return True
+
+    def has_subscriber(self) -> bool:
+        """Whether a subscriber to the frame key is reachable (Zenoh matching status)."""
+        return bool(self._pub.matching_status.matching)
+
+    def wait_for_subscriber(self, timeout_s: float) -> bool:
+        """Block up to `timeout_s` [s] until a subscriber matches; returns whether one did."""
+        deadline = time.monotonic() + timeout_s
+        while not self.has_subscriber():
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+    def publish_info(self, t_sim: float) -> None:
+        rec = {**camera_info(self.cam, self.encoding, self.mount), "t_sim": t_sim,
+               "stream": self.stream}  # fmt: skip
+        self._info.put(json.dumps(rec).encode())
+
+    def close(self) -> None:
+        for p in (self._pub, self._info):
+            try:
+                p.undeclare()
+            except Exception:  # noqa: BLE001 - already closed with its session
+                pass
+
+
+# -- subscriber --------------------------------------------------------------------------
+
+
+@dataclass
+class LinkStats:
+    received: int = 0
+    lost: int = 0
+    out_of_order: int = 0
+    late: int = 0
+    skipped: int = 0
+    corrupt: int = 0
+    refused: int = 0  # not authentic (with a key): unsigned, wrong MAC or pixel digest
+    info_received: int = 0
+    info_corrupt: int = 0
+    latencies_s: list[float] = field(default_factory=list, repr=False)
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("latencies_s")
+        return d
+
+
+class FrameSubscriber:
+    """Receives frames for one vehicle; always offers the newest one.
+
+    `take()` returns the newest frame not yet taken (or None); `wait(timeout_s)` blocks for one.
+    On arrival (Zenoh's thread) only the header is parsed and the books kept; the CRC check and
+    the pixel decoding happen when the consumer takes the frame, so only frames that are used
+    cost a decode, and a slow consumer never backs up the link. A frame that fails there counts
+    as corrupt and is dropped (take() then returns None).
+    """
+
+    def __init__(self, session, vehicle: str, late_s: float = 0.1, keep_latencies: int = 100000,
+                 key: bytes | None = None):  # fmt: skip
+        self.key = key  # the flight key: only authentic frames (module docstring)
+        self.stats = LinkStats()
+        self.late_s = late_s
+        self.keep_latencies = keep_latencies
+        self.info: dict | None = None
+        self._cv = threading.Condition()
+        self._latest: Frame | None = None
+        self._pending: tuple[FrameHeader, bytes] | None = None
+        self._taken = True
+        self._stream: int | None = None
+        self._last_seq = -1
+        self._sub = session.declare_subscriber(frame_key(vehicle), self._on_frame)
+        self._sub_info = session.declare_subscriber(info_key(vehicle), self._on_info)
+
+    def _on_frame(self, sample) -> None:
+        t_recv = time.time()
+        payload = sample.payload.to_bytes()
+        try:
+            hdr = decode_header(payload, t_recv, self.key)
+        except RefusedFrame:
+            with self._cv:
+                self.stats.refused += 1
+            return
+        except (CorruptFrame, struct.error):
+            with self._cv:
+                self.stats.corrupt += 1
+            return
+        self._accept(hdr, payload)
+
+    def on_frame(self, fr: Frame) -> None:
+        """Book-keeping for one decoded frame (public so that it can be tested without a link)."""
+        self._accept(fr, fr)
+
+    def _accept(self, hdr, body) -> None:
+        with self._cv:
+            s = self.stats
+            if hdr.stream != self._stream:  # new publisher (or a restart): start afresh
+                self._stream, self._last_seq = hdr.stream, hdr.seq - 1
+            if hdr.seq <= self._last_seq:
+                s.out_of_order += 1
+                if s.lost > 0 and hdr.seq < self._last_seq:
+                    s.lost -= 1
+                return
+            s.received += 1
+            s.lost += hdr.seq - self._last_seq - 1
+            if not self._taken:
+                s.skipped += 1
+            if hdr.latency_s > self.late_s:
+                s.late += 1
+            if len(s.latencies_s) < self.keep_latencies:
+                s.latencies_s.append(hdr.latency_s)
+            self._last_seq = hdr.seq
+            if isinstance(body, Frame):
+                self._latest, self._pending = body, None
+            else:
+                self._pending = (hdr, body)
+            self._taken = False
+            self._cv.notify_all()
+
+    def _on_info(self, sample) -> None:
+        try:
+            info = json.loads(sample.payload.to_bytes().decode())
+            if not isinstance(info, dict) or "width_px" not in info:
+                raise ValueError("not a camera info record")
+        except (ValueError, UnicodeDecodeError):
+            with self._cv:
+                self.stats.info_corrupt += 1
+            return
+        with self._cv:
+            self.info = info
+            self.stats.info_received += 1
+
+    def _resolve(self) -> Frame | None:
+        """Decode the pending payload (lock held): the new frame, or None when it is corrupt
+        (counted; `_latest` keeps the last good frame)."""
+        if self._pending is None:
+            return self._latest
+        hdr, payload = self._pending
+        self._pending = None
+        try:
+            self._latest = decode_pixels(hdr, payload)
+        except RefusedFrame:
+            self.stats.refused += 1
+            self.stats.received -= 1
+            return None
+        except (CorruptFrame, cv2.error, ValueError):
+            self.stats.corrupt += 1
+            self.stats.received -= 1
+            return None
+        return self._latest
+
+    def latest(self) -> Frame | None:
+        """The newest good frame received (taken or not), or None."""
+        with self._cv:
+            self._resolve()
+            return self._latest
+
+    def take(self) -> Frame | None:
+        with self._cv:
+            if self._taken:
+                return None
+            self._taken = True
+            return self._resolve()
+
+    def wait(self, timeout_s: float) -> Frame | None:
+        """The newest untaken frame, waiting up to `timeout_s` [s] for one (None on timeout)."""
+        deadline = time.monotonic() + timeout_s
+        with self._cv:
+            while self._taken:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cv.wait(left)
+            self._taken = True
+            return self._resolve()
+
+    def close(self) -> None:
+        for s in (self._sub, self._sub_info):
+            try:
+                s.undeclare()
+            except Exception:  # noqa: BLE001 - already closed with its session
+                pass

@@ -1,0 +1,306 @@
+"""What a flight looks like as Foxglove messages: topics, schemas and message builders.
+
+One module decides every channel of a recording (the MCAP file and the live view carry the
+same ones). Well-known Foxglove schemas (protobuf, from `foxglove-sdk`) where one fits, JSON
+with a JSON schema for skyherd's own records:
+
+| topic | schema | what |
+| --- | --- | --- |
+| `/<vehicle>/camera/image` | foxglove.CompressedImage (jpeg) | downward camera frames |
+| `/<vehicle>/pose` | foxglove.PoseInFrame, frame `ned` | vehicle position and attitude |
+| `/tf` | foxglove.FrameTransforms | `world` → `ned` (static) and `ned` → `<vehicle>` |
+| `/<vehicle>/setpoint` | foxglove.SceneUpdate | proposed (grey) and certified (green) velocity arrows, position setpoint sphere |
+| `/<vehicle>/setpoint/pose` | foxglove.PoseInFrame | the certified position setpoint (when there is one) |
+| `/ugvs` | foxglove.SceneUpdate | one entity per UGV (cube, heading arrow, id label) |
+| `/<vehicle>/phi` | JSON | φ(s): the named features and their values |
+| `/<vehicle>/decision` | JSON | the per-decision record (LAYOUT.md): proposed, certified, verdict, reason, mode |
+| `/<vehicle>/safety/event` | JSON | safety-net events (switches with their reasons) |
+| `/<vehicle>/log` | foxglove.Log | each safety event as one log line (Foxglove's Log panel) |
+| `/geometry` | foxglove.SceneUpdate | fence and envelope as lines (LinePrimitive) |
+| `/sim/clock` | JSON | simulation time as the simulator published it |
+
+Frames: data stay in local NED (CONVENTIONS.md). `world` is north-west-up, so that Foxglove's
+3D panel (z up) shows the scene upright: `world` → `ned` is a 180° rotation about north.
+Log time of every message is the simulation time [ns]; message timestamps are the same.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from foxglove import Schema
+from foxglove import messages as fm
+
+from skyherd.runio import strict_json
+
+WORLD, NED = "world", "ned"
+
+
+def ns(t_s: float) -> int:
+    """Simulation time [s] → integer nanoseconds (MCAP log time); negative or NaN → 0."""
+    t = float(t_s)
+    return int(round(t * 1e9)) if math.isfinite(t) and t > 0 else 0
+
+
+def stamp(t_s: float) -> fm.Timestamp:
+    n = ns(t_s)
+    return fm.Timestamp(sec=n // 1_000_000_000, nsec=n % 1_000_000_000)
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """A channel: topic, schema and message encoding (protobuf or json)."""
+
+    topic: str
+    schema: Schema
+    message_encoding: str
+    latched: str = ""  # a live view re-sends to each new subscriber: "all" its messages so
+    # far, "last" the newest, "" nothing (record.live)
+
+
+def _json_schema(name: str, title: str, properties: dict[str, Any]) -> Schema:
+    doc = {"title": title, "type": "object", "properties": properties}
+    return Schema(name=name, encoding="jsonschema", data=json.dumps(doc).encode())
+
+
+_VEC = {"type": ["array", "null"], "items": {"type": "number"}}
+_CMD = {
+    "type": ["object", "null"],
+    "properties": {"pos_ned": _VEC, "vel_ned": _VEC, "yaw": {"type": ["number", "null"]}},
+}
+SCHEMAS: dict[str, Schema] = {
+    "phi": _json_schema(
+        "skyherd.Phi",
+        "φ(s): the features the policy sees",
+        {"t": {"type": "number"}, "features": {"type": "object"}, "values": _VEC},
+    ),
+    "decision": _json_schema(
+        "skyherd.Decision",
+        "one pilot decision (LAYOUT.md per-decision record)",
+        {
+            "t": {"type": "number"},
+            "vehicle": {"type": "string"},
+            "pilot": {"type": "string"},
+            "phi": _VEC,
+            "proposed": _CMD,
+            "certified": _CMD,
+            "verdict": {"type": "string"},
+            "reason": {"type": "string"},
+            "mode": {"type": "string"},
+            "autopilot_mode": {"type": "string"},
+        },
+    ),
+    "event": _json_schema(
+        "skyherd.SafetyEvent",
+        "a safety-net event (events.jsonl record)",
+        {"t": {"type": "number"}, "event": {"type": "string"}, "reason": {"type": "string"}},
+    ),
+    "clock": _json_schema(
+        "skyherd.SimClock", "simulation time from the simulator", {"t_sim": {"type": "number"}}
+    ),
+    "net_state": _json_schema(
+        "skyherd.NetState",
+        "the safety net's newest event, latched: a live client that joins late gets it",
+        {"t": {"type": "number"}, "events": {"type": "integer"}, "last_event": {"type": "object"}},
+    ),
+}
+
+VEHICLE_KINDS = ("frame", "pose", "setpoint", "setpoint_pose", "log", "phi", "decision", "event",
+                 "net_state")  # fmt: skip
+SHARED_KINDS = ("tf", "ugvs", "geometry", "clock")
+"""Every kind of message: a live view advertises all of them before the flight's first."""
+
+
+def channel(kind: str, vehicle: str = "uav0") -> ChannelSpec:
+    """The channel of one kind of message (see the table above)."""
+    proto = {
+        "frame": (f"/{vehicle}/camera/image", fm.CompressedImage),
+        "pose": (f"/{vehicle}/pose", fm.PoseInFrame),
+        "tf": ("/tf", fm.FrameTransforms),
+        "setpoint": (f"/{vehicle}/setpoint", fm.SceneUpdate),
+        "setpoint_pose": (f"/{vehicle}/setpoint/pose", fm.PoseInFrame),
+        "ugvs": ("/ugvs", fm.SceneUpdate),
+        "log": (f"/{vehicle}/log", fm.Log),
+        "geometry": ("/geometry", fm.SceneUpdate),
+    }
+    if kind in proto:
+        topic, cls = proto[kind]
+        latched = "all" if kind == "geometry" else ""  # the fence and the envelope
+        return ChannelSpec(topic, cls.get_schema(), "protobuf", latched)
+    topic = {
+        "phi": f"/{vehicle}/phi",
+        "decision": f"/{vehicle}/decision",
+        "event": f"/{vehicle}/safety/event",
+        "net_state": f"/{vehicle}/safety/state",
+        "clock": "/sim/clock",
+    }[kind]
+    return ChannelSpec(topic, SCHEMAS[kind], "json", "last" if kind == "net_state" else "")
+
+
+def json_bytes(record: dict[str, Any]) -> bytes:
+    """A record as strict JSON (NaN and ±inf become null: JSON has no NaN)."""
+    return json.dumps(strict_json(record), sort_keys=True, allow_nan=False).encode()
+
+
+# -- geometry helpers ---------------------------------------------------------------------
+
+
+def _v3(p) -> fm.Vector3:
+    return fm.Vector3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def _p3(p) -> fm.Point3:
+    return fm.Point3(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def _quat(q_wxyz) -> fm.Quaternion:
+    q = np.asarray(q_wxyz, dtype=float)
+    if q.shape != (4,) or not np.all(np.isfinite(q)) or not np.linalg.norm(q) > 0:
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+    return fm.Quaternion(w=float(q[0]), x=float(q[1]), y=float(q[2]), z=float(q[3]))
+
+
+def _yaw_quat(yaw_rad: float) -> fm.Quaternion:
+    """Rotation by yaw about NED's down axis."""
+    return _quat([math.cos(yaw_rad / 2), 0.0, 0.0, math.sin(yaw_rad / 2)])
+
+
+def _pose(pos, q_wxyz=(1.0, 0.0, 0.0, 0.0)) -> fm.Pose:
+    return fm.Pose(position=_v3(pos), orientation=_quat(q_wxyz))
+
+
+def _color(rgba) -> fm.Color:
+    return fm.Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+
+def _arrow_to(origin, vec, rgba, scale_s: float = 1.0) -> fm.ArrowPrimitive | None:
+    """An arrow from `origin` along `vec` × scale_s (a velocity shown as where it goes in 1 s)."""
+    v = np.asarray(vec, dtype=float) * scale_s
+    n = float(np.linalg.norm(v))
+    if not (math.isfinite(n) and n > 1e-6):
+        return None
+    # Foxglove arrows point along the pose's +x: rotate +x onto v (half-way quaternion).
+    x = np.array([1.0, 0.0, 0.0])
+    u = v / n
+    h = x + u
+    if np.linalg.norm(h) < 1e-9:  # pointing backwards: 180° about z
+        q = [0.0, 0.0, 0.0, 1.0]
+    else:
+        h /= np.linalg.norm(h)
+        c = np.cross(x, h)
+        q = [float(np.dot(x, h)), *c]
+    head = min(0.3 * n, 1.0)
+    return fm.ArrowPrimitive(
+        pose=_pose(origin, q), shaft_length=n - head, shaft_diameter=0.1,
+        head_length=head, head_diameter=0.3, color=_color(rgba),
+    )  # fmt: skip
+
+
+GREY, GREEN, RED, BLUE, ORANGE = (
+    (0.6, 0.6, 0.6, 0.8), (0.1, 0.8, 0.2, 1.0), (0.9, 0.1, 0.1, 1.0),
+    (0.2, 0.4, 1.0, 1.0), (1.0, 0.6, 0.0, 1.0),
+)  # fmt: skip
+
+
+# -- message builders ---------------------------------------------------------------------
+
+
+def compressed_image(t: float, jpeg: bytes, vehicle: str) -> fm.CompressedImage:
+    return fm.CompressedImage(timestamp=stamp(t), frame_id=f"{vehicle}/camera", data=jpeg,
+                              format="jpeg")  # fmt: skip
+
+
+def pose_in_frame(t: float, pos_ned, quat_wxyz) -> fm.PoseInFrame:
+    return fm.PoseInFrame(timestamp=stamp(t), frame_id=NED, pose=_pose(pos_ned, quat_wxyz))
+
+
+def transforms(t: float, pos_ned, quat_wxyz, vehicle: str) -> fm.FrameTransforms:
+    """`world` (north-west-up) → `ned` (180° about north), and `ned` → the vehicle's body."""
+    ts = stamp(t)
+    return fm.FrameTransforms(
+        transforms=[
+            fm.FrameTransform(timestamp=ts, parent_frame_id=WORLD, child_frame_id=NED,
+                              translation=_v3((0, 0, 0)), rotation=_quat((0, 1, 0, 0))),
+            fm.FrameTransform(timestamp=ts, parent_frame_id=NED, child_frame_id=vehicle,
+                              translation=_v3(pos_ned), rotation=_quat(quat_wxyz)),
+        ]
+    )  # fmt: skip
+
+
+def setpoint_scene(t: float, origin_ned, proposed: dict | None, certified: dict | None,
+                   vehicle: str) -> fm.SceneUpdate:  # fmt: skip
+    """Proposed (grey) and certified (green) velocity arrows from the vehicle, the certified
+    position setpoint as a green sphere; one entity, replaced at each decision."""
+    arrows, spheres = [], []
+    for cmd, rgba in ((proposed, GREY), (certified, GREEN)):
+        if cmd and cmd.get("vel_ned") is not None and origin_ned is not None:
+            a = _arrow_to(origin_ned, cmd["vel_ned"], rgba)
+            if a is not None:
+                arrows.append(a)
+        if cmd and cmd.get("pos_ned") is not None and np.all(np.isfinite(cmd["pos_ned"])):
+            spheres.append(fm.SpherePrimitive(pose=_pose(cmd["pos_ned"]),
+                                              size=_v3((0.6, 0.6, 0.6)), color=_color(rgba)))  # fmt: skip
+    ent = fm.SceneEntity(timestamp=stamp(t), frame_id=NED, id=f"{vehicle}/setpoint",
+                         arrows=arrows, spheres=spheres)  # fmt: skip
+    return fm.SceneUpdate(entities=[ent])
+
+
+def ugv_scene(t: float, ugvs: list[dict]) -> fm.SceneUpdate:
+    """One entity per UGV: a 1 m cube at pos_ned turned by heading_rad, an arrow, its id."""
+    ents = []
+    for u in ugvs:
+        p = np.asarray(u["pos_ned"], dtype=float)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            continue
+        yaw = float(u.get("heading_rad", 0.0) or 0.0)
+        rgba = ORANGE if u.get("camouflaged") else BLUE
+        q = _yaw_quat(yaw)
+        pose = fm.Pose(position=_v3(p), orientation=q)
+        ents.append(
+            fm.SceneEntity(
+                timestamp=stamp(t), frame_id=NED, id=f"ugv{u.get('id', len(ents))}",
+                cubes=[fm.CubePrimitive(pose=pose, size=_v3((1.2, 0.8, 0.6)), color=_color(rgba))],
+                arrows=[fm.ArrowPrimitive(pose=pose, shaft_length=1.0, shaft_diameter=0.1,
+                                          head_length=0.4, head_diameter=0.3, color=_color(rgba))],
+                texts=[fm.TextPrimitive(pose=_pose(p + np.array([0, 0, -1.5])), billboard=True,
+                                        font_size=14, scale_invariant=True, color=_color(rgba),
+                                        text=f"ugv {u.get('id', len(ents))}")],
+            )
+        )  # fmt: skip
+    return fm.SceneUpdate(entities=ents)
+
+
+def line_scene(t: float, entity: str, polylines: list[np.ndarray], rgba, closed: bool = True,
+               thickness_px: float = 2.0) -> fm.SceneUpdate:  # fmt: skip
+    """Polylines (each (N, 3) NED [m]) as one entity of LinePrimitives."""
+    kind = fm.LinePrimitiveLineType.LineLoop if closed else fm.LinePrimitiveLineType.LineStrip
+    lines = [
+        fm.LinePrimitive(type=kind, thickness=thickness_px, scale_invariant=True,
+                         points=[_p3(p) for p in np.asarray(pl, dtype=float)], color=_color(rgba))
+        for pl in polylines
+    ]  # fmt: skip
+    ent = fm.SceneEntity(timestamp=stamp(t), frame_id=NED, id=entity, lines=lines)
+    return fm.SceneUpdate(entities=[ent])
+
+
+def prism(points_ne: np.ndarray, floor_m: float, ceiling_m: float) -> list[np.ndarray]:
+    """A polygon (n, 2) north-east [m] between two altitudes above home, as polylines (NED):
+    the floor ring, the ceiling ring and the vertical edges."""
+    pts = np.asarray(points_ne, dtype=float).reshape(-1, 2)
+    lo = np.column_stack([pts, np.full(len(pts), -floor_m)])
+    hi = np.column_stack([pts, np.full(len(pts), -ceiling_m)])
+    return [lo, hi] + [np.array([a, b]) for a, b in zip(lo, hi)]
+
+
+def log_line(t: float, record: dict, vehicle: str) -> fm.Log:
+    """A safety event as one Foxglove log line (warning; error for a PID recovery)."""
+    what = record.get("event", "event")
+    frm, to = record.get("from"), record.get("to")
+    text = f"{what} {frm} → {to}: " if frm or to else f"{what}: "
+    text += str(record.get("reason", ""))
+    level = fm.LogLevel.Error if str(to).lower() == "pid" else fm.LogLevel.Warning
+    return fm.Log(timestamp=stamp(t), level=level, message=text, name=f"{vehicle}/safety")

@@ -1,0 +1,509 @@
+"""`skyherd educate CURRICULUM`: teach a curriculum lesson by lesson; a modular policy that explains.
+
+For each seed: every skill lesson trains its module (projection IRL on its demonstrations, or DQN
+on its reward; warm-started from the demonstrations by DQfD where the lesson says so), freezes it, and re-tests every earlier lesson; the composite lesson learns the
+arbiter (policy/education/teach.py). A monolithic DQN is taught the same lessons in the same
+order (unless --no-monolith) so retention can be compared. Then, on test episodes never used in
+training: the educated policies beside the scripted expert and, with --baselines RUN, the
+policies of a `skyherd train ab` run (AB, IRL); explanation fidelity; one test episode's
+decisions with their explanations (decisions.jsonl, `skyherd explain RUN`).
+
+Run folder: config.json (curriculum name/version/sha256, hyper-parameters), lessons.csv (every
+lesson's re-test after every lesson, per learner and seed), events.jsonl, policies/*.npz,
+decisions.jsonl, lessons.png, compare.png, results.json, summary.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import math
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from skyherd.runio.runfolder import (
+    CsvWriter,
+    RunFolder,
+    args_dict,
+    atomic_write_text,
+    markdown_table,
+)
+from skyherd.scripts.cli import UsageError
+
+EVAL_SCENARIOS = ("composite", "groundsim:route", "groundsim:speedoff", "groundsim:camouflage")
+EVAL_SEED = {"composite": 300_000}  # others: 200_000 (policy.evaluate's transfer seeds)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("curriculum", type=Path, nargs="?", default=None,
+                        help="curriculum TOML (default policy/education/curricula/groundair.toml)")  # fmt: skip
+    parser.add_argument("--seeds", type=int, default=5, help="training seeds (default 5)")
+    parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    parser.add_argument("--quick", action="store_true", help="a tiny budget (tests, smoke runs)")
+    parser.add_argument(
+        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (default 6000)"
+    )
+    parser.add_argument(
+        "--irl-iters", type=int, default=None, help="IRL iterations per lesson (default 1)"
+    )
+    parser.add_argument(
+        "--test-episodes", type=int, default=None, help="episodes per lesson re-test (default 10)"
+    )
+    parser.add_argument("--eval-episodes", type=int, default=10,
+                        help="unseen episodes per scenario in the comparison (default 10)")  # fmt: skip
+    parser.add_argument("--baselines", type=Path, action="append", default=[],
+                        help="a `skyherd train ab|irl` run folder whose policies to compare, repeatable (default none)")  # fmt: skip
+    parser.add_argument("--no-monolith", action="store_true", help="skip the monolithic DQN")
+    parser.add_argument("--monolith-seeds", type=int, default=None,
+                        help="teach the monolithic DQN on the first N seeds only (default all)")  # fmt: skip
+    parser.add_argument("--workers", type=int, default=1, help="parallel seeds (default 1)")
+    parser.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run folders go")
+    parser.add_argument("--from-run", type=Path, action="append", default=None,
+                        help="skip teaching: report on an earlier educate run's lessons.csv and "
+                        "policies (e.g. with --baselines that finished later); repeatable: runs "
+                        "of the same curriculum and hyper-parameters on different seeds are "
+                        "reported together (default none)")  # fmt: skip
+    parser.add_argument("--save-policy", type=Path, default=None,
+                        help="also copy the best educated policy (composite test) to this file")  # fmt: skip
+
+
+def _params(args):
+    from skyherd.policy.education.teach import QUICK, EduParams
+
+    p = QUICK if args.quick else EduParams()
+    over = {}
+    if args.dqn_steps is not None:
+        if args.dqn_steps < 100:
+            raise UsageError("--dqn-steps must be >= 100")
+        over["dqn"] = dataclasses.replace(p.dqn, total_steps=args.dqn_steps)
+    if args.irl_iters is not None:
+        if args.irl_iters < 1:
+            raise UsageError("--irl-iters must be >= 1")
+        over["irl_iters"] = args.irl_iters
+    if args.test_episodes is not None:
+        if args.test_episodes < 1:
+            raise UsageError("--test-episodes must be >= 1")
+        over["test_episodes"] = args.test_episodes
+    return dataclasses.replace(p, monolith=not args.no_monolith, **over)
+
+
+# --------------------------------------------------------------------------- one seed (worker)
+def _job(spec: dict) -> dict:
+    import torch
+
+    torch.set_num_threads(1)
+    from skyherd.policy.education.curriculum import load_curriculum
+    from skyherd.policy.education.monolith import teach_monolith
+    from skyherd.policy.education.teach import teach
+
+    cur = load_curriculum(spec["curriculum"])
+    p = dataclasses.replace(spec["params"], seed=spec["seed"])
+    pol, res = teach(cur, p)
+    out = {"seed": spec["seed"], "educated": [dataclasses.asdict(r) for r in res]}
+    pol.save(Path(spec["policy_dir"]) / f"educated_seed{spec['seed']}.npz")
+    if p.monolith and spec.get("monolith", True):
+        tgt = pol.meta.get("composite_target")
+        target = (tgt["kind"], np.asarray(tgt["vector"])) if tgt else ("w", np.zeros(9))
+        net, mres = teach_monolith(cur, p, res, target)
+        net.meta.update({"seed": spec["seed"], "curriculum": pol.meta["curriculum"]})
+        net.save(Path(spec["policy_dir"]) / f"monolith_seed{spec['seed']}.npz")
+        out["monolith"] = [dataclasses.asdict(r) for r in mres]
+    return out
+
+
+# --------------------------------------------------------------------------- the command
+def run(args: argparse.Namespace) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from tqdm import tqdm
+
+    from skyherd.policy.education.curriculum import (
+        DEFAULT_CURRICULUM,
+        CurriculumError,
+        load_curriculum,
+    )
+
+    path = args.curriculum or DEFAULT_CURRICULUM
+    try:
+        cur = load_curriculum(path)
+    except CurriculumError as e:
+        raise UsageError(f"{e}; fix the curriculum file") from None
+    if args.seeds < 1 or args.workers < 1 or args.eval_episodes < 1:
+        raise UsageError("need --seeds >= 1, --workers >= 1, --eval-episodes >= 1")
+    for b in args.baselines:
+        if not (b / "policies").is_dir():
+            raise UsageError(f"--baselines {b}: no policies/ folder (a `skyherd train ab` run)")
+    if args.from_run is not None:
+        return _report_only(args, cur)
+    p = _params(args)
+    rf = RunFolder("educate", root=args.runs_dir)
+    print(f"skyherd educate: run folder {rf.path}")
+    if cur.composite is not None and cur.composite.method == "measures":
+        print(f"skyherd educate: arbiter objective {p.measures.describe()}")
+    from skyherd.policy.education.teach import curriculum_meta
+
+    rf.write_config(
+        {"curriculum": curriculum_meta(cur), "hyper_parameters": p, "args": args_dict(args)}
+    )
+    pol_dir = rf.path / "policies"
+    pol_dir.mkdir()
+    n_mono = args.seeds if args.monolith_seeds is None else args.monolith_seeds
+    specs = [{"curriculum": str(path), "params": p, "seed": args.seed + s, "policy_dir": str(pol_dir),
+              "monolith": s < n_mono} for s in range(args.seeds)]  # fmt: skip
+    events = rf.events()
+    lessons = CsvWriter(rf.file("lessons.csv"), ["learner", "seed", "after_lesson", "tested_lesson", "all_in_view_frac",
+                          "footprint_ratio", "ugv_losses", "passed", "cpu_s"])  # fmt: skip
+    results = []
+    bar = tqdm(total=len(specs), desc="educate", unit="seed")
+    if args.workers > 1:
+        with ProcessPoolExecutor(max_workers=args.workers) as pool:
+            for out in pool.map(_job, specs):
+                results.append(out)
+                _log(out, events, lessons, bar)
+    else:
+        for spec in specs:
+            out = _job(spec)
+            results.append(out)
+            _log(out, events, lessons, bar)
+    bar.close()
+    lessons.close()
+    atomic_write_text(rf.file("lessons.json"), json.dumps(results, indent=1, default=float))
+    return _report(cur, p, args, results, pol_dir, rf)
+
+
+def _report_only(args, cur) -> int:
+    """--from-run: the evaluation part of `run` on earlier runs' policies and lessons.csv."""
+    from skyherd.policy.dqn import DQNParams
+    from skyherd.policy.education.dqfd import DQfDParams
+    from skyherd.policy.education.teach import EduParams, MeasuresObjective
+
+    p, cfg0, results, pol_dirs = None, None, [], {}
+    for src in args.from_run:
+        try:
+            cfg = json.loads((src / "config.json").read_text())
+            hp = dict(cfg["hyper_parameters"])
+            seed0 = hp.pop("seed", 0)
+            d = hp.pop("dqn")
+            dqn = dict(d, hidden=tuple(d["hidden"]), seed=0)
+            if "dqfd" in hp:  # runs before DQfD have the default
+                hp["dqfd"] = DQfDParams(**hp["dqfd"])
+            if "measures" in hp:  # runs before the measures objective have the default
+                hp["measures"] = MeasuresObjective(**hp["measures"])
+            q = EduParams(dqn=DQNParams(**dqn), seed=seed0, **hp)
+            rows = list(csv.DictReader(open(src / "lessons.csv")))
+        except (OSError, KeyError, TypeError, ValueError) as e:
+            raise UsageError(f"--from-run {src}: not a finished educate run ({e})") from None
+        if cfg["curriculum"]["sha256"] != cur.sha256:
+            raise UsageError(f"--from-run {src} was taught another curriculum (sha256 differs)")
+        same = {"seed": 0, "monolith": True}  # a run without the monolith still compares
+        if p is not None and dataclasses.replace(q, **same) != dataclasses.replace(p, **same):
+            raise UsageError(f"--from-run {src}: other hyper-parameters than {args.from_run[0]}")
+        p, cfg0 = p or q, cfg0 or cfg
+        for r in _results_from_rows(rows):
+            if r["seed"] in pol_dirs:
+                raise UsageError(f"--from-run {src}: seed {r['seed']} is also in another run")
+            pol_dirs[r["seed"]] = src / "policies"
+            results.append(r)
+    if not results:
+        raise UsageError(f"--from-run {args.from_run[0]}: lessons.csv has no finished seed")
+    results.sort(key=lambda r: r["seed"])
+    rf = RunFolder("educate", root=args.runs_dir)
+    srcs = [str(x) for x in args.from_run]
+    print(f"skyherd educate: run folder {rf.path} (report on {', '.join(srcs)})")
+    rf.write_config({"curriculum": cfg0["curriculum"], "hyper_parameters": p,
+                     "args": args_dict(args), "from_run": srcs[0] if len(srcs) == 1 else srcs})  # fmt: skip
+    return _report(cur, p, args, results, pol_dirs, rf)
+
+
+def _results_from_rows(rows: list[dict]) -> list[dict]:
+    """lessons.csv rows → the per-seed lesson results `run` builds (seeds with all lessons)."""
+    by: dict[int, dict[str, list]] = {}
+    for r in rows:
+        seq = by.setdefault(int(r["seed"]), {}).setdefault(r["learner"], [])
+        if not seq or seq[-1]["lesson"] != r["after_lesson"]:
+            seq.append({"lesson": r["after_lesson"], "retention": {}, "passed": {},
+                        "seconds": float(r["cpu_s"]), "detail": {}})  # fmt: skip
+        m = {k: float(r[k]) for k in ("all_in_view_frac", "footprint_ratio", "ugv_losses")}
+        seq[-1]["retention"][r["tested_lesson"]] = m
+        seq[-1]["passed"][r["tested_lesson"]] = r["passed"] == "True"
+    n = max((len(v.get("educated", [])) for v in by.values()), default=0)
+    return [{"seed": s, **v} for s, v in sorted(by.items()) if len(v.get("educated", [])) == n]
+
+
+def _report(cur, p, args, results, pol_dir: Path | dict[int, Path], rf) -> int:
+    """pol_dir: the policies/ folder, or one per seed (--from-run of several runs)."""
+    from skyherd.policy.dqn import load_policy
+
+    where = pol_dir if isinstance(pol_dir, dict) else {r["seed"]: pol_dir for r in results}
+    educated = {
+        r["seed"]: load_policy(where[r["seed"]] / f"educated_seed{r['seed']}.npz") for r in results
+    }
+    for r in results:  # the arbiter each seed learnt (also when read back from lessons.csv)
+        r["educated"][-1]["detail"]["arbiter"] = educated[r["seed"]].arbiter.describe()
+    print("evaluating on unseen episodes …")
+    comparison = _compare(educated, args, p)
+    fid = _fidelity(educated, args)
+    best_seed = max(comparison["educated"]["composite"], key=lambda kv: kv[1]["all_in_view_frac"])[
+        0
+    ]
+    _decisions(educated[best_seed], rf, EVAL_SEED["composite"])
+    summary = _summary(cur, p, args, results, comparison, fid, rf)
+    rf.write_summary(summary)
+    atomic_write_text(rf.file("results.json"), json.dumps(
+        {"lessons": results, "comparison": comparison, "fidelity": fid}, indent=1, default=float))  # fmt: skip
+    _plots(rf, results, comparison)
+    if args.save_policy is not None:
+        args.save_policy.parent.mkdir(parents=True, exist_ok=True)
+        educated[best_seed].save(args.save_policy)
+        print(f"saved educated seed {best_seed} policy → {args.save_policy}")
+    print(summary)
+    return 0
+
+
+def _log(out: dict, events, lessons, bar) -> None:
+    for learner in ("educated", "monolith"):
+        for r in out.get(learner, []):
+            for tested, m in r["retention"].items():
+                lessons.write({"learner": learner, "seed": out["seed"], "after_lesson": r["lesson"],
+                               "tested_lesson": tested, "all_in_view_frac": m["all_in_view_frac"],
+                               "footprint_ratio": m["footprint_ratio"], "ugv_losses": m["ugv_losses"],
+                               "passed": r["passed"][tested], "cpu_s": r["seconds"]})  # fmt: skip
+            events.write({"event": "lesson", "learner": learner, "seed": out["seed"],
+                          "lesson": r["lesson"], "cpu_s": r["seconds"], "passed": r["passed"]})  # fmt: skip
+    arb = out["educated"][-1]["detail"].get("arbiter", "")
+    bar.update(1)
+    bar.set_postfix_str(f"seed {out['seed']}: {arb}"[:60])
+
+
+def _policies_of(folder: Path) -> dict[str, list]:
+    from skyherd.policy.dqn import load_policy
+
+    out: dict[str, list] = {}
+    for f in sorted((folder / "policies").glob("*.npz")):
+        pol = load_policy(f)
+        out.setdefault(str(pol.meta.get("learner", f.stem)), []).append((f.stem, pol))
+    return out
+
+
+def _compare(educated: dict, args, p) -> dict:
+    """{learner: {scenario: [(seed or name, metrics)]}} on the unseen evaluation episodes."""
+    from skyherd.policy.demos import ExpertParams, rollout_stats, scripted_expert
+
+    learners: dict[str, list] = {"educated": list(educated.items())}
+    for b in args.baselines:
+        for k, v in _policies_of(b).items():
+            label = f"{k} [{b.name}]" if len(args.baselines) > 1 else k
+            learners.setdefault(label, []).extend(v)
+    out: dict = {}
+    for name, pols in learners.items():
+        out[name] = {sc: [(s, rollout_stats(pol, sc, args.eval_episodes, EVAL_SEED.get(sc, 200_000),
+                                             p.dqn.gamma)[1]) for s, pol in pols]
+                     for sc in EVAL_SCENARIOS}  # fmt: skip
+    out["expert (ideal)"] = {sc: [("ideal", rollout_stats(scripted_expert("composite", ExpertParams(), 0), sc,
+                                                          args.eval_episodes, EVAL_SEED.get(sc, 200_000),
+                                                          p.dqn.gamma)[1])] for sc in EVAL_SCENARIOS}  # fmt: skip
+    return out
+
+
+def _fidelity(educated: dict, args) -> dict:
+    from skyherd.policy.education.fidelity import decision_observations, fidelity
+
+    total: dict = {}
+    for pol in educated.values():
+        obs = decision_observations(pol, "composite", args.eval_episodes, EVAL_SEED["composite"])
+        for role, r in fidelity(pol, obs).items():
+            keys = ("n", "action_changed", "module_changed", "action_changed_far")
+            t = total.setdefault(role, dict.fromkeys(keys, 0) | {"per_seed": []})
+            for k in keys:
+                t[k] += r[k]
+            t["per_seed"].append(r["action_rate"] if r["n"] else math.nan)
+    for t in total.values():
+        t["action_rate"] = t["action_changed"] / max(t["n"], 1)
+        t["module_rate"] = t["module_changed"] / max(t["n"], 1)
+        t["action_rate_far"] = t["action_changed_far"] / max(t["n"], 1)
+    return total
+
+
+def _decisions(pol, rf: RunFolder, seed: int) -> None:
+    """One composite test episode of `pol`, one record per decision (the companion's format)."""
+    from skyherd.policy.groundair.env import GroundAirEnv
+    from skyherd.policy.groundair.params import action_velocity_ned
+    from skyherd.runio.runfolder import JsonlWriter
+
+    env = GroundAirEnv("composite")
+    obs, info = env.reset(seed=seed)
+    w = JsonlWriter(rf.file("decisions.jsonl"))
+    done = False
+    while not done:
+        ex = pol.explain(obs)
+        a = pol(obs)
+        v = list(action_velocity_ned(a, env.task.uav))
+        sp = {"pos_ned": None, "vel_ned": v, "yaw": 0.0}
+        w.write({"t": env.steps * env.task.dt_s, "vehicle": "uav0", "pilot": "policy",
+                 "phi": [float(x) for x in info["phi"]], "proposed": sp, "certified": sp,
+                 "verdict": "none", "reason": "gymnasium evaluation: no safety net",
+                 "mode": "ai", "autopilot_mode": "-", "action": a,
+                 "explanation": {k: ex[k] for k in ("module", "reason", "concepts")}})  # fmt: skip
+        obs, _, term, trunc, info = env.step(a)
+        done = term or trunc
+    w.close()
+
+
+def _ms(vals) -> str:
+    v = [x for x in vals if not (isinstance(x, float) and math.isnan(x))]
+    return f"{np.mean(v):.3f} ± {np.std(v):.3f}" if v else "n/a"
+
+
+def _retention_rows(results: list[dict], learner: str) -> list[list]:
+    """Per skill lesson: score after its own lesson, just before the composite, after it."""
+    rows = []
+    results = [r for r in results if learner in r]  # the monolith may be on fewer seeds
+    if not results:
+        return rows
+    names = [r["lesson"] for r in results[0][learner]]
+    skills, comp = names[:-1], names[-1]
+    for le in skills:
+        own = [
+            next(r for r in res[learner] if r["lesson"] == le)["retention"][le] for res in results
+        ]
+        before = [res[learner][-2]["retention"][le] for res in results]
+        after = [res[learner][-1]["retention"][le] for res in results]
+        passed = sum(res[learner][-1]["passed"][le] for res in results)
+        rows.append([learner, le,
+                     _ms([m["all_in_view_frac"] for m in own]), _ms([m["all_in_view_frac"] for m in before]),
+                     _ms([m["all_in_view_frac"] for m in after]),
+                     _ms([m["footprint_ratio"] for m in before]), _ms([m["footprint_ratio"] for m in after]),
+                     f"{passed}/{len(results)}"])  # fmt: skip
+    _ = comp
+    return rows
+
+
+def _summary(cur, p, args, results, comparison, fid, rf) -> str:
+    from skyherd.policy.education.timeline import read_decisions, timeline
+
+    md = [f"# skyherd educate {cur.name} {cur.version}\n",
+          f"Curriculum `{cur.path}` (sha256 {cur.sha256[:16]}…), {len(results)} seeds "
+          f"(monolithic DQN on {sum('monolith' in r for r in results)}), "
+          f"DQN {p.dqn.total_steps} steps per solve, {p.irl_iters} IRL iterations per lesson, "
+          f"lesson re-tests on {p.test_episodes} episodes (seeds {p.test_seed}+).\n"]  # fmt: skip
+    # lesson by lesson (seed means)
+    rows = []
+    for learner in ("educated", "monolith"):
+        rs = [r for r in results if learner in r]
+        if not rs:
+            continue
+        for k, r0 in enumerate(rs[0][learner]):
+            for tested in r0["retention"]:
+                ms = [res[learner][k]["retention"][tested] for res in rs]
+                ok = sum(res[learner][k]["passed"][tested] for res in rs)
+                rows.append([learner, r0["lesson"], tested, _ms([m["all_in_view_frac"] for m in ms]),
+                             _ms([m["footprint_ratio"] for m in ms]), f"{ok}/{len(rs)}",
+                             _ms([res[learner][k]["seconds"] for res in rs])])  # fmt: skip
+    md.append("## Lesson by lesson\n\nAfter each lesson every lesson taught so far is re-tested on "
+              "its own scenario (mean ± std over seeds; lessons.png).\n")  # fmt: skip
+    md.append(markdown_table(["learner", "after lesson", "tested lesson", "all-in-view frac",
+                              "footprint/circle", "passed", "lesson CPU [s]"], rows))  # fmt: skip
+    md.append("\n## Retention of the skill lessons\n\n'own' = right after the lesson; 'before' = "
+              "just before the composite lesson; 'after' = after it (educated: the whole modular "
+              "policy; monolith: the one network).\n")  # fmt: skip
+    rrows = _retention_rows(results, "educated") + _retention_rows(results, "monolith")
+    md.append(markdown_table(["learner", "lesson", "all-in-view own", "all-in-view before",
+                              "all-in-view after", "footprint before", "footprint after",
+                              "passes after"], rrows))  # fmt: skip
+    arbs = [
+        f"- seed {res['seed']}: `{res['educated'][-1]['detail'].get('arbiter', '-')}`"
+        for res in results
+    ]
+    md.append("\n## Arbiters learnt\n\n" + "\n".join(arbs) + "\n")
+    crow = []
+    for name, by in comparison.items():
+        for sc, lst in by.items():
+            crow.append([name, sc, len(lst), _ms([m["all_in_view_frac"] for _, m in lst]),
+                         _ms([m["footprint_ratio"] for _, m in lst]), _ms([m["ugv_losses"] for _, m in lst])])  # fmt: skip
+    md.append(f"\n## Unseen test episodes\n\n{args.eval_episodes} episodes per scenario (composite "
+              "seeds 300000+, groundsim 200000+), mean ± std over policies (seeds).\n")  # fmt: skip
+    md.append(markdown_table(["policy", "scenario", "policies", "all-in-view frac", "footprint/circle",
+                              "UGV losses / ep"], crow))  # fmt: skip
+    frow = [[role, r["n"], f"{r['action_rate']:.3f}", f"{r['action_rate_far']:.3f}",
+             f"{r['module_rate']:.3f}"] for role, r in fid.items()]  # fmt: skip
+    md.append("\n## Explanation fidelity\n\nEvery decision of the educated policies on the composite "
+              "test episodes; one concept moved across a predicate's threshold (near: by "
+              "0.1·max(|θ|, 0.01); far: by a random 0.02–0.5 of that scale), all others held "
+              "(policy/education/fidelity.py).\n")  # fmt: skip
+    md.append(markdown_table(["concept role", "interventions", "action changed (near)",
+                              "action changed (far)", "module changed (near)"], frow))  # fmt: skip
+    dec, _ = read_decisions(rf.file("decisions.jsonl"))
+    md.append(
+        "\n## Timeline of one test episode (decisions.jsonl)\n\n```\n"
+        + "\n".join(timeline(dec)[:20])
+        + "\n```\n"
+    )
+    return "\n".join(md)
+
+
+def _plots(rf, results, comparison) -> None:
+    import matplotlib.pyplot as plt
+
+    learners = [k for k in ("educated", "monolith") if any(k in r for r in results)]
+    every = results
+    fig, axes = plt.subplots(2, len(learners), figsize=(5.5 * len(learners), 7.5), squeeze=False,
+                             sharey="row")  # fmt: skip
+    for j, learner in enumerate(learners):
+        results = [r for r in every if learner in r]  # the monolith may be on fewer seeds
+        after = [r["lesson"] for r in results[0][learner]]
+        tested_all = list(results[0][learner][-1]["retention"])
+        for i, (key, lab) in enumerate((("all_in_view_frac", "all-in-view fraction"),
+                                        ("footprint_ratio", "footprint / smallest circle"))):  # fmt: skip
+            ax = axes[i][j]
+            for tested in tested_all:
+                xs, ms, ss = [], [], []
+                for k, _ in enumerate(after):
+                    vals = [
+                        res[learner][k]["retention"].get(tested, {}).get(key) for res in results
+                    ]
+                    vals = [v for v in vals if v is not None and not math.isnan(v)]
+                    if vals:
+                        xs.append(k)
+                        ms.append(np.mean(vals))
+                        ss.append(np.std(vals))
+                ax.errorbar(xs, ms, yerr=ss, marker="o", capsize=3, label=f"test: {tested}")
+            ax.set_xticks(range(len(after)), [f"after\n{a}" for a in after])
+            ax.set_ylabel(lab)
+            ax.set_title(f"{learner}: {lab}")
+            ax.grid(alpha=0.3)
+            if i == 0:
+                ax.set_ylim(-0.02, 1.05)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9)
+    fig.suptitle(
+        "lesson by lesson: every lesson re-tested after each lesson (mean ± std over seeds)"
+    )
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    fig.savefig(rf.file("lessons.png"), dpi=100)
+    plt.close(fig)
+
+    names = list(comparison)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    scen = list(next(iter(comparison.values())))
+    width = 0.8 / max(len(names), 1)
+    for ax, key, lab in zip(axes, ("all_in_view_frac", "footprint_ratio"),
+                            ("all-in-view fraction", "footprint / smallest circle (lower = tighter)")):  # fmt: skip
+        for n, name in enumerate(names):
+            m = [np.nanmean([x[key] for _, x in comparison[name][sc]]) for sc in scen]
+            s = [np.nanstd([x[key] for _, x in comparison[name][sc]]) for sc in scen]
+            ax.bar(np.arange(len(scen)) + n * width, m, width, yerr=s, capsize=2, label=name)
+        ax.set_xticks(
+            np.arange(len(scen)) + 0.4 - width / 2, [s.replace("groundsim:", "gs:") for s in scen]
+        )
+        ax.set_title(lab)
+        if key == "footprint_ratio":
+            ax.set_yscale("log")  # ratios of 5 to 100 side by side
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(rf.file("compare.png"), dpi=100)
+    plt.close(fig)

@@ -1,0 +1,168 @@
+"""`skyherd sitl`: run one simulated vehicle with its MAVLink endpoints until interrupted.
+
+Ports for instance N (CONVENTIONS.md): API/offboard UDP 14580+N → 127.0.0.1:14540+N (MAVSDK:
+`udpin://127.0.0.1:14540`), ground station UDP 18570+N → 127.0.0.1:14550 (QGroundControl,
+MAVProxy). System id 1+N. Parameters set over MAVLink persist per airframe and instance.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+from pathlib import Path
+
+from skyherd.flight.geo import DEFAULT_HOME, Home
+
+
+def default_state_dir() -> Path:
+    """Where parameters persist: $XDG_STATE_HOME/skyherd/sitl (or ~/.local/state/...)."""
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(base) / "skyherd" / "sitl"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--airframe", choices=["quadrotor", "fixedwing"], default="quadrotor")
+    parser.add_argument(
+        "--instance", type=int, default=0, help="vehicle instance N: system id 1+N, ports +N"
+    )
+    parser.add_argument(
+        "--speedup",
+        type=float,
+        default=1.0,
+        help="simulation speed over wall time (>= 1, or 0 = as fast as possible)",
+    )
+    parser.add_argument(
+        "--home",
+        default=f"{DEFAULT_HOME.lat_deg},{DEFAULT_HOME.lon_deg},{DEFAULT_HOME.alt_m}",
+        help="home LAT,LON,ALT (degrees, degrees, metres AMSL)",
+    )
+    parser.add_argument("--personality", choices=["px4", "ardupilot"], default="px4",
+                        help="present PX4 custom modes (default) or ArduCopter mode numbers")  # fmt: skip
+    parser.add_argument(
+        "--bind", default="127.0.0.1", help="address the sockets bind to (default 127.0.0.1)"
+    )
+    parser.add_argument("--state-dir", type=Path, default=None,
+                        help=f"parameter persistence root (default {default_state_dir()})")  # fmt: skip
+    parser.add_argument(
+        "--duration", type=float, default=None, help="stop after this many simulated seconds"
+    )
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--runs-dir", "--runs", dest="runs_dir", type=Path, default=Path("runs"),
+        help="where run folders go (runs); --runs is the older name",
+    )  # fmt: skip
+    parser.add_argument("--no-tlog", action="store_true", help="do not write telemetry.tlog")
+    parser.add_argument("--params", type=Path, default=None, metavar="FILE",
+                        help="TOML [params] overrides at start, e.g. flight/airframes/px4_standin.toml "
+                        "(the PX4 stand-in set); default none")  # fmt: skip
+    parser.add_argument("--signing-key", type=Path, default=None, help="MAVLink 2 signing key file (32 bytes): signing on (default: none, or the key a SETUP_SIGNING saved in --state-dir)")  # fmt: skip
+    from skyherd.flight.faults import add_fault_arguments
+
+    add_fault_arguments(parser)  # --wind --gust --noise --fault (docs/quadrotor.md, faults)
+
+
+def run(args: argparse.Namespace) -> int:
+    from skyherd.flight.airframes_registry import AirframeUnavailable, make_autopilot
+    from skyherd.flight.clock import SimClock
+    from skyherd.flight.mavlink import EndpointConfig, Personality
+    from skyherd.flight.sitl import Sitl
+    from skyherd.runio.runfolder import RunFolder, markdown_table
+    from skyherd.scripts.cli import UsageError
+
+    if not (args.speedup == 0 or args.speedup >= 1):
+        raise UsageError(f"--speedup must be 0 (as fast as possible) or >= 1, got {args.speedup}")
+    if not 0 <= args.instance <= 200:
+        raise UsageError(f"--instance must be in [0, 200], got {args.instance}")
+    if args.duration is not None and not args.duration > 0:
+        raise UsageError("--duration must be a positive number of simulated seconds")
+    try:
+        home = Home.parse(args.home)
+    except ValueError as e:
+        raise UsageError(f"--home: {e}; give LAT,LON,ALT like -35.36,149.16,584") from e
+    from skyherd.flight.faults import FaultSpecError, plan_from_args
+
+    try:
+        plan = plan_from_args(args, seed=args.seed)
+    except FaultSpecError as e:
+        raise UsageError(str(e)) from e
+    clock = SimClock()
+    try:
+        ap = make_autopilot(
+            args.airframe, clock=clock, home=home, seed=args.seed, instance=args.instance,
+            faults=plan, params_file=args.params,
+        )  # fmt: skip
+    except AirframeUnavailable as e:
+        raise UsageError(f"{e}; use --airframe quadrotor") from e
+    except ValueError as e:
+        raise UsageError(f"--params: {e}") from e
+
+    try:
+        folder = RunFolder("sitl", root=args.runs_dir)
+    except OSError as e:  # a read-only or missing runs dir: say so, no traceback
+        raise UsageError(f"cannot create a run folder in {args.runs_dir}: {e.strerror or e}; choose another --runs-dir") from e  # fmt: skip
+    state_dir = args.state_dir if args.state_dir is not None else default_state_dir()
+    config = EndpointConfig(
+        instance=args.instance,
+        personality=Personality(args.personality),
+        bind_host=args.bind,
+        state_dir=state_dir,
+        tlog=None if args.no_tlog else folder.file("telemetry.tlog"),
+        signing_key=args.signing_key,
+    )
+    folder.write_config({"airframe": args.airframe, "speedup": args.speedup, "home": home,
+                         "seed": args.seed, "endpoint": config, "control_dt": ap.control_dt,
+                         "faults": plan, "fault_args": plan.to_args(),
+                         "params_file": args.params})  # fmt: skip
+    try:
+        sitl = Sitl(ap, config, speedup=args.speedup)
+    except OSError as e:
+        raise UsageError(
+            f"{e}; is another instance running? try --instance {args.instance + 1}"
+        ) from e
+    except ValueError as e:  # flight.mavlink.signing.SigningError: a bad key file
+        raise UsageError(str(e)) from e
+    rows = [
+        ["api / offboard", f"udp {config.api_bind[0]}:{config.api_bind[1]}", f"{config.api_remote[0]}:{config.api_remote[1]}"],
+        ["ground station", f"udp {config.gcs_bind[0]}:{config.gcs_bind[1]}", f"{config.gcs_remote[0]}:{config.gcs_remote[1]}"],
+    ]  # fmt: skip
+    print(f"skyherd sitl: {args.airframe}, system id {config.system_id}, {args.personality} personality, "
+          f"speed-up {args.speedup:g}, run folder {folder.path}")  # fmt: skip
+    print(markdown_table(["link", "bound to", "sends to"], rows), flush=True)
+    stats = None
+    # SIGTERM (and SIGINT, even when a shell started us in the background) end the run cleanly.
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: sitl.request_stop())
+    # A bounded run shows its progress in simulated seconds (on a terminal only).
+    bar = None
+    if args.duration is not None:
+        from tqdm import tqdm
+
+        bar = tqdm(total=round(args.duration), unit="sim s", disable=not sys.stderr.isatty())
+
+    def progress(s: Sitl) -> None:
+        if bar is not None and s.clock.t - bar.n >= 1.0:
+            bar.update(int(s.clock.t - bar.n))
+
+    with sitl:
+        stats = sitl.run(duration_s=args.duration, on_step=progress if bar is not None else None)
+    if bar is not None:
+        bar.close()
+    sim_s = clock.t
+    ep = sitl.endpoint
+    summary = {
+        "sim_s": sim_s,
+        "steps": sitl.steps,
+        "stats": dict(ep.stats),
+        "received": dict(ep.rx_types),
+        "commands": {str(k): v for k, v in ep.rx_commands.items()},
+    }
+    if stats is not None:
+        summary["real_time_factor"] = stats.real_time_factor
+    table = markdown_table(["quantity", "value"], [[k, json.dumps(v)] for k, v in summary.items()])
+    folder.write_summary("# skyherd sitl\n\n" + table)
+    print(table)
+    print(f"skyherd sitl: stopped at t = {sim_s:.1f} s simulated", file=sys.stderr)
+    return 0

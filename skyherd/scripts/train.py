@@ -1,0 +1,35 @@
+"""`skyherd train {sql,irl,ab,abs-dl}`: each learner's command lives in its own module."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+LEARNERS: dict[str, tuple[str, str]] = {
+    "sql": (
+        "skyherd.scripts.train_sql",
+        "Swarm Q-learning / SQL-SIE formation-control experiments",
+    ),
+    "irl": (
+        "skyherd.scripts.train_irl",
+        "apprenticeship learning by projection IRL on composite demos",
+    ),
+    "ab": ("skyherd.scripts.train_irl", "Apprenticeship Bootstrapping from sub-task demos only"),
+    "abs-dl": (
+        "skyherd.scripts.train_absdl",
+        "ABS-DL: deep sub-task networks fused, continuous actions, shielded by the safety net",
+    ),
+}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="learner", metavar="LEARNER", required=True)
+    for name, (module_name, help_text) in LEARNERS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        module = importlib.import_module(module_name)
+        module.add_arguments(p, learner=name)
+        p.set_defaults(_learner_module=module)
+
+
+def run(args: argparse.Namespace) -> int:
+    return int(args._learner_module.run(args) or 0)

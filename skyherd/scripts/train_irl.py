@@ -1,0 +1,594 @@
+"""`skyherd train irl` / `skyherd train ab`: apprenticeship learning on the GroundAir composite task.
+
+irl  μ_E from composite demonstrations (scenario 4), projection IRL with DQN.
+ab   Apprenticeship Bootstrapping: μ_E from sub-task demonstrations (1)–(3) only, one run per
+     combination rule (policy.ab.RULES); IRL on composite demonstrations is trained beside it
+     (unless --no-irl) so the report compares AB, IRL, the scripted expert and a random policy.
+
+The run folder gets config.json, demos/ (the demonstrations used), metrics.csv (per learner,
+seed and IRL iteration), events.jsonl, eval.csv, summary.md (tables), PNG plots and the learned
+policies (policies/*.npz, loadable with policy.dqn.load_policy).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from skyherd.runio import RunFolder, atomic_write_text, file_facts, markdown_table
+from skyherd.scripts.cli import UsageError
+
+# --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
+# learning_starts, so something is learnt); any option given on the command line wins.
+QUICK = {
+    "seeds": 1, "dqn_steps": 3000, "irl_iters": 2, "demo_episodes": 4, "mu_episodes": 4,
+    "eval_episodes": 5, "transfer_episodes": 0,
+}  # fmt: skip
+
+
+def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
+    parser.add_argument("--seeds", type=int, default=5, help="training seeds")
+    parser.add_argument("--seed", type=int, default=0, help="first seed")
+    parser.add_argument("--dqn-steps", type=int, default=15_000, help="env steps per DQN solve")
+    parser.add_argument("--irl-iters", type=int, default=6, help="max projection-IRL iterations")
+    parser.add_argument("--epsilon", type=float, default=0.01, help="IRL stop: t <= epsilon")
+    parser.add_argument("--gamma", type=float, default=0.97, help="discount of μ and DQN")
+    parser.add_argument("--demo-episodes", type=int, default=20, help="demo episodes per scenario")
+    parser.add_argument(
+        "--demo-epsilon", type=float, default=0.05, help="expert random-action prob"
+    )
+    parser.add_argument("--demo-lag", type=float, default=0.05, help="expert repeat-action prob")
+    parser.add_argument(
+        "--demos",
+        type=Path,
+        default=None,
+        help="folder of recorded demos "
+        "(<scenario>.npz, e.g. from skyherd teleop) instead of the scripted expert",
+    )
+    parser.add_argument("--mu-episodes", type=int, default=20, help="Monte-Carlo episodes per μ(π)")
+    parser.add_argument("--eval-episodes", type=int, default=30, help="test episodes per policy")
+    parser.add_argument(
+        "--transfer-episodes",
+        type=int,
+        default=10,
+        help="episodes per groundsim behaviour for the transfer table (0: skip)",
+    )
+    parser.add_argument("--workers", type=int, default=1, help="parallel training processes")
+    parser.add_argument(
+        "--runs-dir", "--out", dest="runs_dir", type=Path, default=Path("runs"),
+        help="where run folders go; --out is the older name",
+    )  # fmt: skip
+    parser.add_argument(
+        "--save-policy",
+        type=Path,
+        default=None,
+        help="also copy the best learned policy of this learner to this file",
+    )
+    quick = ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in QUICK.items())
+    parser.add_argument(
+        "--quick", action="store_true",
+        help=f"a small budget (about 45 s of CPU for ab): {quick}; options given win",
+    )  # fmt: skip
+    if learner == "ab":
+        from skyherd.policy.ab import RULES
+
+        parser.add_argument("--rules", default=",".join(RULES), help="AB combination rules")
+        parser.add_argument("--no-irl", action="store_true", help="skip the IRL comparison runs")
+    parser.set_defaults(learner_name=learner)
+
+
+def apply_quick(args: argparse.Namespace, argv: list[str] | None = None) -> list[str]:
+    """With --quick, the QUICK budget for every option not given on the command line;
+    returns the options it set."""
+    if not getattr(args, "quick", False):
+        return []
+    import sys
+
+    given = set(sys.argv[1:] if argv is None else argv)
+    changed = []
+    for k, v in QUICK.items():
+        flag = f"--{k.replace('_', '-')}"
+        if not any(a == flag or a.startswith(flag + "=") for a in given):
+            setattr(args, k, v)
+            changed.append(f"{flag} {v}")
+    return changed
+
+
+def budget_warnings(args: argparse.Namespace) -> list[str]:
+    """Budgets too short to learn anything, said out loud (printed and in summary.md)."""
+    from skyherd.policy.dqn import DQNParams
+
+    starts = DQNParams().learning_starts
+    out = []
+    if args.dqn_steps <= starts:
+        out.append(
+            f"--dqn-steps {args.dqn_steps} is not more than the DQN's learning_starts ({starts}): "
+            f"the network is never trained and every learned policy is the untrained one; "
+            f"give --dqn-steps > {starts} (e.g. --quick uses {QUICK['dqn_steps']})"
+        )
+    return out
+
+
+# --------------------------------------------------------------------------- one training job
+def _job(spec: dict) -> dict:
+    """Train one learner for one seed (runs in a worker process)."""
+    import torch
+
+    torch.set_num_threads(1)
+    from skyherd.policy.apprentice import run_apprenticeship
+    from skyherd.policy.demos import rollout_stats
+
+    p = dataclasses.replace(spec["params"], seed=spec["seed"])
+    cpu0 = time.process_time()
+    on_iteration = spec.get("on_iteration")
+    if spec.get("ticks") is not None:  # a worker process: tell the parent's progress bar
+        q, key = spec["ticks"], (spec["learner"], spec["seed"])
+        on_iteration = lambda it: q.put((*key, float(it.t)))  # noqa: E731
+    res = run_apprenticeship(
+        np.asarray(spec["mu_expert"]), p, on_iteration=on_iteration,
+        progress=spec.get("progress", False),
+    )  # fmt: skip
+    cpu_s = time.process_time() - cpu0
+    _, m = rollout_stats(
+        res.policy, "composite", spec["eval_episodes"], spec["eval_seed"], spec["gamma"]
+    )
+    hist = [
+        {
+            "i": h.i,
+            "t": h.t,
+            "dist": h.dist,
+            "seconds": h.seconds,
+            "w": h.w.tolist(),
+            "mu": h.mu.tolist(),
+        }
+        for h in res.irl.history
+    ]
+    return {
+        "learner": spec["learner"],
+        "seed": spec["seed"],
+        "metrics": m,
+        "train_s": res.seconds,
+        "train_cpu_s": cpu_s,
+        "chosen": res.chosen,
+        "converged": res.irl.converged,
+        "t0": float(np.linalg.norm(res.irl.mu_expert - res.irl.mu0)),
+        "history": hist,
+        "mixture": res.mixture.tolist(),
+        "weights": [w.tolist() for w in res.policy.weights],
+        "biases": [b.tolist() for b in res.policy.biases],
+        "meta": res.policy.meta,
+        "params": dataclasses.asdict(p),
+    }
+
+
+# --------------------------------------------------------------------------- the command
+def run(args: argparse.Namespace) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from skyherd.policy.ab import SUBTASKS
+    from skyherd.policy.demos import DemoFileError, ExpertParams, load_demo
+
+    quick = apply_quick(args, getattr(args, "_argv", None))
+    learner = args.learner_name
+    if (
+        args.seeds < 1
+        or args.dqn_steps < 100
+        or args.irl_iters < 1
+        or args.eval_episodes < 1
+        or args.mu_episodes < 1
+    ):
+        raise UsageError(
+            "need --seeds >= 1, --dqn-steps >= 100, --irl-iters >= 1, --eval-episodes >= 1"
+        )
+    if not (0 <= args.demo_epsilon <= 1 and 0 <= args.demo_lag <= 1 and 0 < args.gamma < 1):
+        raise UsageError("--demo-epsilon/--demo-lag must be in [0, 1] and --gamma in (0, 1)")
+    rules = [r for r in getattr(args, "rules", "").split(",") if r] if learner == "ab" else []
+    from skyherd.policy.ab import RULES
+
+    bad = [r for r in rules if r not in RULES]
+    if bad:
+        raise UsageError(f"unknown AB rule(s) {', '.join(bad)}; choose from {', '.join(RULES)}")
+
+    warnings = budget_warnings(args)
+    for w in warnings:
+        print(f"skyherd train {learner}: warning: {w}", file=sys.stderr)
+    expert_p = ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag)
+    needed = (
+        ["composite"]
+        if learner == "irl"
+        else list(SUBTASKS) + ([] if args.no_irl else ["composite"])
+    )
+    demos, demo_files = {}, {}
+    for sc in needed:  # before the run folder: a missing demo file is bad usage
+        if args.demos is not None:
+            try:
+                demos[sc] = load_demo(args.demos / f"{sc}.npz")
+            except DemoFileError as e:
+                raise UsageError(f"{e}; record it with `skyherd teleop --scenario {sc}`") from e
+            demo_files[sc] = file_facts(args.demos / f"{sc}.npz")
+    with RunFolder.open(f"train-{learner}", args, root=args.runs_dir) as run:
+        print(f"run folder: {run.path}")
+        return _train(run, args, learner, rules, expert_p, needed, demos, demo_files, quick,
+                      warnings)  # fmt: skip
+
+
+def _train(run, args, learner, rules, expert_p, needed, demos, demo_files, quick, warnings):
+    from tqdm import tqdm
+
+    from skyherd.policy.ab import combine
+    from skyherd.policy.demos import (
+        ExpertParams,
+        demo_feature_expectations,
+        random_policy,
+        record,
+        rollout_stats,
+        scripted_expert,
+    )
+    from skyherd.policy.dqn import MLPPolicy
+    from skyherd.policy.groundair.env import PSI_NAMES
+
+    rf = run
+    (rf.path / "demos").mkdir()
+    for sc in tqdm(needed, desc="demonstrations", unit="scenario", disable=None):
+        if sc not in demos:
+            ex = scripted_expert(sc, expert_p, seed=7)
+            demos[sc] = record(
+                sc,
+                ex,
+                args.demo_episodes,
+                1000,
+                "scripted",
+                {"expert": dataclasses.asdict(expert_p)},
+            )
+        demos[sc].save(rf.path / "demos" / f"{sc}.npz")
+    mu_e = {}
+    if "composite" in demos:
+        mu_e["irl"] = demo_feature_expectations(demos["composite"], args.gamma)
+    for r in rules:
+        mu_e[f"ab_{r}"] = combine(demos, r, args.gamma)
+    from skyherd.policy.apprentice import ApprenticeParams
+    from skyherd.policy.dqn import DQNParams
+    from skyherd.policy.irl import IRLParams
+
+    hyper = ApprenticeParams(
+        dqn=DQNParams(total_steps=args.dqn_steps, gamma=args.gamma),
+        irl=IRLParams(epsilon=args.epsilon, max_iters=args.irl_iters),
+        mu_episodes=args.mu_episodes,
+    )
+    print(f"hyper-parameters (seed field varies per run): {hyper}")
+    config = {
+        "learner": learner,
+        "hyper_parameters": hyper,
+        "args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
+        "expert": expert_p,
+        "mu_expert": {k: v.tolist() for k, v in mu_e.items()},
+        "psi_names": PSI_NAMES,
+        "demos": {sc: d.meta["demonstrator"] for sc, d in demos.items()},
+        "demo_files": demo_files,
+        "quick": quick,
+        "warnings": warnings,
+    }
+    run.config(**config)
+
+    eval_seed = 100_000
+    specs = [
+        {
+            "learner": name,
+            "seed": args.seed + s,
+            "mu_expert": mu.tolist(),
+            "params": hyper,
+            "gamma": args.gamma,
+            "eval_episodes": args.eval_episodes,
+            "eval_seed": eval_seed,
+        }
+        for s in range(args.seeds)
+        for name, mu in mu_e.items()
+    ]
+    events = rf.events()
+    metrics = rf.metrics(
+        ["learner", "seed", "iter", "t", "dist", "seconds"] + [f"mu_{n}" for n in PSI_NAMES]
+    )
+    results = []
+    # the bar counts IRL iterations (each a DQN solve), so it moves during a run of a learner
+    bar = run.closing(tqdm(total=len(specs) * args.irl_iters, desc=f"train {learner}",
+                           unit="iter", disable=None))  # fmt: skip
+
+    def progress_note() -> None:
+        run.summary(f"{len(results)} of {len(specs)} training runs finished "
+                    f"(learner × seed); results so far in metrics.csv and events.jsonl.\n")  # fmt: skip
+
+    progress_note()
+    if args.workers > 1:
+        _run_pool(specs, args.workers, results, events, metrics, bar, args.irl_iters, progress_note)
+    else:
+        for spec in specs:
+            done = {"n": 0}
+
+            def tick(it, spec=spec, done=done) -> None:
+                done["n"] += 1
+                bar.update(1)
+                bar.set_postfix(run=f"{spec['learner']}/{spec['seed']}", t=f"{it.t:.3g}")
+
+            out = _job({**spec, "on_iteration": tick, "progress": bar.disable is False})
+            results.append(out)
+            _log(out, events, metrics, bar, args.irl_iters - done["n"])
+            progress_note()
+    bar.close()
+
+    # baselines on the same test seeds: the demonstrator, the ideal expert, random
+    base = {}
+    for name, mk in tqdm(
+        (
+            ("expert (demonstrator)", lambda s: scripted_expert("composite", expert_p, seed=s)),
+            ("expert (ideal)", lambda s: scripted_expert("composite", ExpertParams(), seed=s)),
+            ("random", lambda s: random_policy(seed=s)),
+        ),
+        desc="baselines",
+        unit="policy",
+        disable=None,
+    ):
+        base[name] = [
+            rollout_stats(
+                mk(args.seed + s), "composite", args.eval_episodes, eval_seed, args.gamma
+            )[1]
+            for s in range(args.seeds)
+        ]
+
+    # policies
+    pol_dir = rf.path / "policies"
+    pol_dir.mkdir()
+    best = {}
+    for out in results:
+        pol = MLPPolicy(
+            [np.array(w) for w in out["weights"]], [np.array(b) for b in out["biases"]], out["meta"]
+        )
+        pol.meta.update({"learner": out["learner"], "seed": out["seed"], "eval": out["metrics"]})
+        pol.save(pol_dir / f"{out['learner']}_seed{out['seed']}.npz")
+        key = out["learner"]
+        if (
+            key not in best
+            or out["metrics"]["all_in_view_frac"] > best[key][0]["metrics"]["all_in_view_frac"]
+        ):
+            best[key] = (out, pol)
+
+    summary, table = _summary(results, base, learner, args)
+    if warnings:
+        summary += "\n## Warnings\n\n" + "\n".join(f"- {w}" for w in warnings) + "\n"
+    if quick:
+        summary += f"\n--quick budget: {', '.join(quick)}.\n"
+    if args.transfer_episodes > 0:
+        from skyherd.policy.evaluate import baseline_factories, transfer_table
+        from skyherd.policy.groundair.scenarios import GROUNDSIM_SCENARIOS
+
+        pols = {f"{k} (seed {o['seed']})": (lambda s, p=p: p) for k, (o, p) in best.items()}
+        rows = transfer_table(
+            pols | baseline_factories(), GROUNDSIM_SCENARIOS, args.transfer_episodes, 200_000
+        )
+        ttable = markdown_table(
+            ["policy", "scenario", "all-in-view frac", "footprint/circle", "UGV losses / ep"], rows
+        )
+        summary += (
+            "\n## Transfer: best seed of each learner on groundsim UGV behaviours\n\n"
+            f"{args.transfer_episodes} episodes each (not trained on these).\n\n{ttable}"
+        )
+    run.summary(summary)
+    atomic_write_text(
+        rf.file("results.json"),
+        json.dumps(
+            {
+                "learned": [
+                    {k: v for k, v in r.items() if k not in ("weights", "biases")} for r in results
+                ],
+                "baselines": base,
+            },
+            indent=1,
+            default=float,
+        ),
+    )
+    _plots(rf, results, base)
+    print(table)
+    if args.save_policy is not None:
+        key = "irl" if learner == "irl" else f"ab_{rules[0]}"
+        out, pol = best[key]
+        args.save_policy.parent.mkdir(parents=True, exist_ok=True)
+        pol.save(args.save_policy)
+        print(f"saved {key} seed {out['seed']} policy → {args.save_policy}")
+    print(f"summary: {rf.path / 'summary.md'}")
+    return 0
+
+
+def _run_pool(specs, workers, results, events, metrics, bar, irl_iters, note) -> None:
+    """The jobs on `workers` processes; each IRL iteration in a worker moves the bar (through
+    a queue), so it never sits still for a whole job. Results keep the order of `specs`."""
+    import multiprocessing as mp
+    import queue
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    with mp.Manager() as mgr, ProcessPoolExecutor(max_workers=workers) as pool:
+        q = mgr.Queue()
+        futs = {pool.submit(_job, {**spec, "ticks": q}): i for i, spec in enumerate(specs)}
+        ticks: dict[tuple, int] = {}
+        done_by_index: dict[int, dict] = {}
+        pending = set(futs)
+
+        def drain() -> None:
+            while True:
+                try:
+                    learner, seed, t = q.get_nowait()
+                except queue.Empty:
+                    return
+                ticks[(learner, seed)] = ticks.get((learner, seed), 0) + 1
+                bar.update(1)
+                bar.set_postfix(run=f"{learner}/{seed}", t=f"{t:.3g}")
+
+        while pending:
+            finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+            drain()
+            for f in finished:
+                out = f.result()
+                done_by_index[futs[f]] = out
+                seen = ticks.get((out["learner"], out["seed"]), 0)
+                _log(out, events, metrics, bar, irl_iters - seen)
+                results[:] = [done_by_index[i] for i in sorted(done_by_index)]
+                note()
+
+
+def _log(out: dict, events, metrics, bar, iters_left: int = 0) -> None:
+    from skyherd.policy.groundair.env import PSI_NAMES
+
+    for h in out["history"]:
+        row = {
+            "learner": out["learner"],
+            "seed": out["seed"],
+            "iter": h["i"],
+            "t": h["t"],
+            "dist": h["dist"],
+            "seconds": h["seconds"],
+        }
+        row.update({f"mu_{n}": v for n, v in zip(PSI_NAMES, h["mu"])})
+        metrics.write(row)
+    events.write(
+        {
+            "event": "trained",
+            "learner": out["learner"],
+            "seed": out["seed"],
+            "train_s": out["train_s"],
+            "metrics": out["metrics"],
+            "chosen": out["chosen"],
+        }
+    )
+    bar.update(max(0, iters_left))  # IRL may stop before --irl-iters: count the rest as done
+    bar.set_postfix(
+        last=f"{out['learner']}/{out['seed']} view={out['metrics']['all_in_view_frac']:.3f}"
+    )
+
+
+def _ms(vals) -> str | None:
+    v = [x for x in vals if not (isinstance(x, float) and math.isnan(x))]
+    return f"{np.mean(v):.3f} ± {np.std(v):.3f}" if v else None  # shown as — by the table
+
+
+def _summary(results, base, learner, args) -> tuple[str, str]:
+    learners = sorted({r["learner"] for r in results}, key=lambda s: (s != "irl", s))
+    rows = []
+    by = {k: [r for r in results if r["learner"] == k] for k in learners}
+    for k in learners:
+        rs = by[k]
+        rows.append(
+            [
+                k,
+                _ms([r["metrics"]["all_in_view_frac"] for r in rs]),
+                _ms([r["metrics"]["footprint_ratio"] for r in rs]),
+                _ms([r["metrics"]["ugv_losses"] for r in rs]),
+                _ms([r["train_s"] for r in rs]),
+                _ms([r.get("train_cpu_s", math.nan) for r in rs]),
+                _ms([r["history"][-1]["t"] for r in rs]),
+            ]
+        )
+    for k, ms in base.items():
+        rows.append(
+            [
+                k,
+                _ms([m["all_in_view_frac"] for m in ms]),
+                _ms([m["footprint_ratio"] for m in ms]),
+                _ms([m["ugv_losses"] for m in ms]),
+                "-",
+                "-",
+                "-",
+            ]
+        )
+    table = markdown_table(
+        [
+            "policy",
+            "all-in-view frac",
+            "footprint/circle",
+            "UGV losses / ep",
+            "train wall [s]",
+            "train CPU [s]",
+            "final t",
+        ],
+        rows,
+    )
+    view = lambda k: np.mean([r["metrics"]["all_in_view_frac"] for r in by[k]])  # noqa: E731
+    exp_d = np.mean([m["all_in_view_frac"] for m in base["expert (demonstrator)"]])
+    exp_i = np.mean([m["all_in_view_frac"] for m in base["expert (ideal)"]])
+    ratios = []
+    for k in learners:
+        row = [k, f"{view(k) / exp_d:.3f}", f"{view(k) / exp_i:.3f}"]
+        row.append(f"{view(k) / view('irl'):.3f}" if "irl" in by and k != "irl" else "-")
+        ratios.append(row)
+    rtable = markdown_table(["learner", "÷ demonstrator", "÷ ideal expert", "÷ IRL"], ratios)
+    md = (
+        f"# skyherd train {learner}\n\nComposite task (scenario 4), {args.seeds} seeds, "
+        f"{args.eval_episodes} test episodes per policy (seeds 100000+), mean ± std over seeds.\n"
+        f"DQN {args.dqn_steps} steps per IRL iteration, at most {args.irl_iters} iterations, ε = {args.epsilon}.\n\n"
+        f"{table}\nAll-in-view fraction relative to the references:\n\n{rtable}\n"
+        "Plots: irl_t.png (t per iteration), compare.png (metrics per policy).\n"
+    )
+    return md, table + "\n" + rtable
+
+
+def _plots(rf, results, base) -> None:
+    """irl_t.png (the IRL margin per iteration, one line per learner and seed) and compare.png
+    (each metric per policy, mean ± std over seeds; learned and reference policies coloured
+    apart)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    learners = sorted({r["learner"] for r in results}, key=lambda s: (s != "irl", s))
+    colors = dict(zip(learners, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    first_seed = min(x["seed"] for x in results)
+    for r in results:
+        its = [0] + [h["i"] for h in r["history"]]
+        ts = [r["t0"]] + [h["t"] for h in r["history"]]
+        ax.plot(its, ts, "-o", ms=3, color=colors[r["learner"]], alpha=0.7,
+                label=r["learner"] if r["seed"] == first_seed else None)  # fmt: skip
+    ax.set_xlabel("IRL iteration i (0 = the random start policy)")
+    ax.set_ylabel("margin t = ‖μ_E − μ̄‖₂ (no unit)")
+    ax.set_yscale("log")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.grid(True, which="both", alpha=0.3)
+    n_seeds = len({r["seed"] for r in results})
+    ax.set_title(f"projection IRL margin per iteration ({n_seeds} seed(s), one line each)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0, title="learner")
+    fig.tight_layout()
+    fig.savefig(rf.file("irl_t.png"), dpi=100)
+    plt.close(fig)
+
+    names = learners + list(base)
+    vals = {k: [r["metrics"] for r in results if r["learner"] == k] for k in learners} | base
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.4))
+    for ax, key, lab, unit in zip(
+        axes,
+        ("all_in_view_frac", "footprint_ratio", "ugv_losses"),
+        ("all-in-view fraction", "footprint / smallest circle", "UGV losses per episode"),
+        ("fraction of steps", "ratio (1 = tightest)", "losses / episode"),
+    ):
+        m = [np.nanmean([x[key] for x in vals[k]]) for k in names]
+        s = [np.nanstd([x[key] for x in vals[k]]) for k in names]
+        col = ["tab:blue" if k in learners else "tab:gray" for k in names]
+        ax.bar(range(len(names)), m, yerr=s, capsize=3, color=col)
+        ax.set_xticks(range(len(names)), names, rotation=35, ha="right", fontsize=8)
+        ax.set_title(lab)
+        ax.set_ylabel(unit)
+    from matplotlib.patches import Patch
+
+    fig.legend(handles=[Patch(color="tab:blue", label="learned"),
+                        Patch(color="tab:gray", label="reference (expert, random)")],
+               loc="upper right", ncol=2, fontsize=8)  # fmt: skip
+    fig.suptitle(
+        f"composite task, mean ± std over {n_seeds} seed(s)", x=0.01, ha="left", fontsize=10
+    )
+    fig.tight_layout(rect=(0, 0, 1, 0.94))
+    fig.savefig(rf.file("compare.png"), dpi=100)
+    plt.close(fig)

@@ -1,0 +1,591 @@
+"""`skyherd sim`'s world: the vehicle, the UGV team and the downward camera on one clock.
+
+Per autopilot step (4 ms for the quadrotor) the autopilot and its physics step and the MAVLink
+endpoint answers and streams. At every camera instant t_k (10 Hz of simulation time):
+
+1. the UGV team moves to t_k (it stays parked until `ugv_start`: at once, at a time, or when the
+   vehicle is first handed to the companion, i.e. enters OFFBOARD);
+2. lockstep: the endpoint marks t_k on the API link (flight.lockstep);
+3. the camera renders the team from the vehicle's true pose (through a roll/pitch gimbal) and
+   publishes the frame on Zenoh `skyherd/<vehicle>/camera/frame`, with t_k and the camera pose
+   in its header; the UGVs' truth goes to `skyherd/ugv/<id>/state`, the clock to
+   `skyherd/sim/clock`, and one row to world.csv;
+4. lockstep: at t_k + L the world waits for the companion's close of tick k and hands the
+   messages it sent to the endpoint, in order. Free-running: the API link is read every step
+   and each setpoint's lag (now − the frame time it is stamped with) is measured.
+
+Pacing (`speedup`) sleeps once per `pace_s` of simulation time, not once per step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import select
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from skyherd.flight.clock import Pacer
+from skyherd.flight.lockstep import LockstepGate, LockstepParams, LockstepTimeout, collect_closes
+from skyherd.flight.mavlink.signing import load_key
+from skyherd.flight.state import VehicleState
+from skyherd.groundsim.transport import UGVStatePublisher, sign_record
+from skyherd.groundsim.ugv import UGVModel
+from skyherd.hil.camera_mount import level_quat, mounted_pose
+from skyherd.perception.render_fast import FastRenderer
+from skyherd.policy.groundair.params import TaskParams
+from skyherd.runio import CsvWriter, cut_records, try_write_text
+from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
+
+CLOCK_KEY = "skyherd/sim/clock"
+HEARTBEAT = 0  # MAVLINK_MSG_ID_HEARTBEAT
+
+
+@dataclass(frozen=True)
+class WorldParams:
+    """What `skyherd sim` simulates (saved in config.json)."""
+
+    airframe: str = "quadrotor"
+    instance: int = 0  # MAVLink vehicle instance N (ports, system id 1+N)
+    seed: int = 0  # one seed for the vehicle, the UGV team and every other random source
+    scenario: str = "composite"  # UGV team: a training scenario, groundsim:<behaviour>, "none"
+    home: tuple[float, float, float] | None = (
+        None  # lat [deg], lon [deg], alt AMSL [m]; None: default
+    )
+    vehicle: str = "uav0"  # Zenoh key prefix
+    camera_hz: float = 10.0  # camera frames per simulated second (the companion's tick)
+    ugv_start: str = "offboard"  # "offboard" | "0" | seconds: when the team starts to drive
+    lockstep: bool = True  # hold the simulation for the companion's decisions
+    lockstep_params: LockstepParams = field(default_factory=LockstepParams)
+    speedup: float = 10.0  # simulation seconds per wall second; 0 = as fast as possible
+    pace_s: float = 0.02  # the pacer sleeps once per this much simulation time [s]
+    gimbal: bool = True  # roll/pitch-stabilised camera (the policy was trained with one)
+    camera: str = "down"  # "down": the quadrotor's downward camera; "roi": a zoomed camera on a
+    # pan-tilt gimbal pointed at the region of interest a client sets (DO_SET_ROI_LOCATION)
+    link_cuts: tuple[
+        tuple[float, float], ...
+    ] = ()  # (start, duration) [s]: the API link cut both ways
+    camera_losses: tuple[
+        tuple[float, float], ...
+    ] = ()  # (start, duration) [s]: no frames published
+    alone_s: float = 30.0  # the companion gone: simulate the autopilot alone at most this long [s]
+
+    def __post_init__(self) -> None:
+        if not self.camera_hz > 0:
+            raise ValueError(f"camera_hz must be > 0, got {self.camera_hz}")
+        if self.lockstep and self.lockstep_params.latency_s >= 1.0 / self.camera_hz:
+            raise ValueError(
+                f"the companion's latency {self.lockstep_params.latency_s} s must be shorter "
+                f"than the camera period {1.0 / self.camera_hz} s"
+            )
+        if not self.alone_s >= 0.0:
+            raise ValueError(f"alone_s must be >= 0, got {self.alone_s}")
+        if self.camera not in ("down", "roi"):
+            raise ValueError(f"camera must be 'down' or 'roi', not {self.camera!r}")
+        if self.ugv_start != "offboard":
+            try:
+                ok = float(self.ugv_start) >= 0
+            except ValueError:
+                ok = False
+            if not ok:
+                raise ValueError(
+                    f"ugv_start must be 'offboard' or seconds >= 0, not {self.ugv_start!r}"
+                )
+
+
+def alone_record(
+    why: str,
+    t_gone: float,
+    t: float,
+    alone_s: float,
+    modes,
+    mode: str,
+    armed: bool,
+    altitude_m: float,
+) -> dict:
+    """sim_stats.json's `after_companion`: what the autopilot did once the companion was gone
+    (modes: (t, mode, armed) changes), read by scripts.waysout for fly's ending lines."""
+    return {
+        "why": why,
+        "t_gone_s": round(t_gone, 3),
+        "span_s": round(t - t_gone, 3),
+        "ended": "disarmed" if not armed else f"after alone_s {alone_s:g} s",
+        "modes": [{"t": round(tm, 3), "mode": m, "armed": a} for tm, m, a in modes],
+        "mode": mode,
+        "armed": armed,
+        "altitude_m": round(altitude_m, 3) if math.isfinite(altitude_m) else math.nan,
+    }
+
+
+def _during(windows: tuple[tuple[float, float], ...], t: float) -> bool:
+    return any(t0 <= t < t0 + d for t0, d in windows)
+
+
+def level_camera_mount(state: VehicleState) -> VehicleState:
+    """The state as a 2-axis (roll, pitch) stabilised gimbal sees it: heading kept, level."""
+    return dataclasses.replace(state, quat=level_quat(state.quat))
+
+
+@dataclass
+class Lag:
+    """Free-running: how late each setpoint acted, now − its stamp [s of simulation time]."""
+
+    samples: list[float] = field(default_factory=list)
+
+    def summary(self) -> dict[str, float]:
+        if not self.samples:
+            return {"setpoints": 0}
+        a = np.array(self.samples)
+        return {"setpoints": len(a), "p50_s": float(np.percentile(a, 50)),
+                "p95_s": float(np.percentile(a, 95)), "max_s": float(a.max())}  # fmt: skip
+
+
+class World:
+    """One vehicle with its endpoints, the UGV team and the camera. `run()` until `stop()`."""
+
+    def __init__(self, params: WorldParams, session=None, run_dir: Path | None = None,
+                 task: TaskParams | None = None, endpoint_config=None, faults=None):  # fmt: skip
+        from skyherd.flight.airframes_registry import make_autopilot
+        from skyherd.flight.mavlink import EndpointConfig, MavlinkEndpoint
+
+        self.p = params
+        self.task = task if task is not None else TaskParams()
+        from skyherd.flight.geo import DEFAULT_HOME, Home
+
+        home = DEFAULT_HOME if params.home is None else Home(*params.home, DEFAULT_HOME.heading_rad)
+        self.autopilot = make_autopilot(params.airframe, seed=params.seed, instance=params.instance,
+                                        faults=faults, home=home)  # fmt: skip
+        self.clock = self.autopilot.clock
+        cfg = endpoint_config or EndpointConfig(instance=params.instance)
+        self.endpoint = MavlinkEndpoint(self.autopilot, cfg)
+        self.endpoint.gated.add("api")  # read by the gate (lockstep) or by this loop (free-run)
+        self.gate = LockstepGate(self.endpoint.api, self.endpoint.mav, params.lockstep_params)
+        self.endpoint.api.coalesce = params.lockstep  # what a tick sends leaves with its mark
+        # no team: the vehicle alone (a formation vehicle); its ticks are marked all the same
+        self.team = None if params.scenario == "none" else new_team(params.scenario, params.seed,
+                                                                    self.task.n_ugvs)  # fmt: skip
+        n_ugvs = 0 if self.team is None else len(self.team.positions())  # a flock: its own size
+        self.team_t: float | None = None  # team time [s]; None while parked
+        self.cam = self.task.camera
+        self.roi_ned: np.ndarray | None = None  # where the pointed gimbal looks (None: nadir)
+        self.roi_commands = 0
+        if params.camera == "roi":
+            from skyherd.hil.orbit import ORBIT_CAMERA
+
+            self.cam = ORBIT_CAMERA
+        self.mount = "pointed" if params.camera == "roi" else "level" if params.gimbal else "body"
+        self.renderer = FastRenderer(self.cam, UGVModel())
+        self.pacer = Pacer(params.speedup)
+        self.lag = Lag()
+        self._stop = threading.Event()
+        self._alone = threading.Event()  # the companion is gone: the autopilot flies alone
+        self.alone_why = ""
+        self.alone: dict | None = None  # what the autopilot did alone (sim_stats.json)
+        self._session = session
+        self.publisher = None
+        self._ugv_pub = None
+        self._clock_pub = None
+        self._flight_key = None  # signs the UGV states and the clock (groundsim.transport)
+        if session is not None and self.team is not None:
+            from skyherd.perception.transport import FramePublisher
+
+            key = load_key(cfg.signing_key) if cfg.signing_key else None  # frames signed too
+            self.publisher = FramePublisher(session, params.vehicle, self.cam, mount=self.mount,
+                                            rng=np.random.default_rng(params.seed), key=key)  # fmt: skip
+            self._ugv_pub = UGVStatePublisher(session, n_ugvs, key=key)
+            self._flight_key = key
+            self._clock_pub = session.declare_publisher(CLOCK_KEY)
+        self.run_dir = Path(run_dir) if run_dir is not None else None
+        cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
+        cols += ugv_columns(n_ugvs)
+        self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
+        self._truth_t = -math.inf  # simulation time of world.csv's last row [s]
+        self.frames = 0
+        self.render_failures = 0
+        self.cut_dropped = 0  # companion messages lost in link cuts
+        self.camera_dropped = 0  # frames not sent while the camera was lost
+
+    # ---- the loop ------------------------------------------------------------------------------
+    def stop(self) -> None:
+        """Ask `run` to return (safe from a signal handler or another thread)."""
+        self._stop.set()
+
+    def companion_gone(self, why: str) -> None:
+        """The companion is gone (`skyherd fly` saw it exit and sent SIGUSR1, or the parent
+        died, or a lockstep tick timed out): from the next step the vehicle steps without
+        waiting for it, as fast as possible, so that the autopilot's own failsafe acts; the run
+        ends once the autopilot disarms or `alone_s` of simulation time have passed (safe from
+        a signal handler)."""
+        if not self._alone.is_set():
+            self.alone_why = why
+        self._alone.set()
+
+    def run(self, duration_s: float | None = None) -> dict:
+        """Step until `stop()` (or `duration_s` of simulation time); return the run's stats."""
+        return run_worlds([self], self.pacer, duration_s)[0]
+
+    # One world's loop in three parts, so that several worlds (a fleet: `skyherd sim --fleet`) can
+    # share one process and one pacer: `begin`, then steps (`start_step`, `close_due` /
+    # `take_close`, `finish_step`) until `start_step` returns False, then `finish`.
+    def begin(self, duration_s: float | None = None) -> None:
+        """Start the run's counters (after the companion's hello, in lockstep)."""
+        p, clock = self.p, self.clock
+        self._step_us = round(self.autopilot.control_dt * 1e6)
+        self._period_us = round(1e6 / p.camera_hz)
+        self._latency_us = round(p.lockstep_params.latency_s * 1e6 / self._step_us) * self._step_us
+        self._t_end_us = None if duration_s is None else clock.time_us + round(duration_s * 1e6)
+        self._next_frame_us = clock.time_us
+        self._open_tick: int | None = None  # camera instant whose close is awaited [µs]
+        self._alone_t0: float | None = None  # simulation time the companion was found gone [s]
+        self._t0 = (time.monotonic(), clock.t, time.process_time())  # wall, sim, CPU
+        self._span = None  # (sim, wall, CPU) seconds from the start to the last tick closed
+        self._cut = False  # the API link is cut now (link_cuts)
+        self._read_fds = frozenset(link.sock.fileno() for link in self.endpoint.read_links())
+        self._api_fd = self.endpoint.api.sock.fileno()
+        self.endpoint.update()
+
+    def beacon(self) -> None:
+        """The vehicle's heartbeat on the API link, while it waits for the companion's hello."""
+        self.endpoint.api.send(self.endpoint._build(HEARTBEAT))
+
+    def sockets(self) -> list:
+        """The sockets `step` reads: the endpoint's ungated links, and free-running the API link
+        (in lockstep the gate reads it, blocking, at each close)."""
+        gated = self.p.lockstep and self._alone_t0 is None
+        links = self.endpoint.read_links() + ([] if gated else [self.endpoint.api])
+        return [link.sock for link in links]
+
+    # One step in three parts, so that a fleet marks all its vehicles' camera instants, then
+    # waits for all their closes at once, then steps them (`run_worlds`): the companion's burst
+    # of closes wakes the process once, not once per vehicle.
+    def start_step(self) -> bool:
+        """What falls due before the step: the camera instant (rendered, published, marked).
+        False when the run is over (stopped, or out of time)."""
+        p, clock = self.p, self.clock
+        if self._stop.is_set():
+            return False
+        t_us = clock.time_us
+        if self._t_end_us is not None and t_us >= self._t_end_us:
+            return False
+        if t_us >= self._next_frame_us:
+            self._camera_instant(t_us)
+            self._next_frame_us += self._period_us
+            self._open_tick = t_us if p.lockstep and self._alone_t0 is None else None
+        self._cut = bool(p.link_cuts) and _during(p.link_cuts, clock.t)
+        self.endpoint.api.muted = self._cut  # a real cut: nothing reaches the companion
+        return True
+
+    def close_due(self) -> int | None:
+        """Lockstep: the tick [µs] whose close the companion must have sent before this step
+        (at t_k + L), else None."""
+        tick = self._open_tick
+        if tick is not None and self.clock.time_us >= tick + self._latency_us:
+            return tick
+        return None
+
+    def take_close(self, batch: list) -> None:
+        """The companion's messages of the tick just closed, handed to the vehicle in order."""
+        clock, ep = self.clock, self.endpoint
+        wall0, sim0, cpu0 = self._t0
+        self._span = (clock.t - sim0, time.monotonic() - wall0, time.process_time() - cpu0)
+        if not self._cut:  # ... and nothing from the companion reaches the vehicle
+            ep.dispatch(ep.api, self._gimbal_commands(batch))
+        else:
+            self.cut_dropped += len(batch)
+        self._open_tick = None
+
+    def finish_step(self, ready: set[int] | None = None) -> None:
+        """The autopilot's step and the endpoint's. `ready`: the file descriptors of
+        `sockets()` that have data (a fleet polls them all at once); None: polled here."""
+        free = not self.p.lockstep or self._alone_t0 is not None
+        if free and (ready is None or self._api_fd in ready):
+            self._free_run_receive()
+        self.autopilot.step()
+        self.endpoint.update(None if ready is None else not ready.isdisjoint(self._read_fds))
+
+    # ---- the autopilot alone, after the companion ----------------------------------------------
+    def go_alone(self) -> None:
+        """Step on without the companion from now (its open tick is dropped)."""
+        self._alone_t0 = self.clock.t
+        self._open_tick = None
+        ap = self.autopilot
+        self._alone_modes = [(self.clock.t, ap.mode.name, bool(ap.armed))]
+
+    def watch_alone(self) -> None:
+        """Note the autopilot's mode and arming changes while it flies alone."""
+        ap = self.autopilot
+        last = self._alone_modes[-1]
+        if ap.mode.name != last[1] or bool(ap.armed) != last[2]:
+            self._alone_modes.append((self.clock.t, ap.mode.name, bool(ap.armed)))
+
+    def end_alone(self) -> None:
+        """What the autopilot did alone: its modes, and where the vehicle is at the end."""
+        ap = self.autopilot
+        state = ap.true_state if hasattr(ap, "true_state") else ap.state
+        t = self.clock.t
+        # world.csv ends on the end state, if the autopilot flew alone at all (a flight that
+        # ended disarmed keeps the world.csv it always had)
+        if self.truth is not None and t > max(self._truth_t, self._alone_t0):
+            self._write_truth(t, state, None if self.team is None else team_states(self.team))
+        self.alone = alone_record(self.alone_why, self._alone_t0, t, self.p.alone_s,
+                                  self._alone_modes, ap.mode.name, bool(ap.armed),
+                                  -float(state.pos_ned[2]))  # fmt: skip
+
+    def finish(self, process_vehicles: int = 1) -> dict:
+        """The run's stats (written to sim_stats.json); `process_vehicles` worlds shared the
+        process, its CPU time and its wall time."""
+        wall0, sim0, cpu0 = self._t0
+        return self._stats(self.clock.t - sim0, time.monotonic() - wall0, time.process_time() - cpu0,
+                           self._span, process_vehicles)  # fmt: skip
+
+    def _camera_instant(self, t_us: int) -> None:
+        t = t_us / 1e6
+        self._move_team(t)
+        ap = self.autopilot  # the physics, not the estimate, where the two differ
+        state = ap.true_state if hasattr(ap, "true_state") else ap.state
+        ugvs = None if self.team is None else team_states(self.team)
+        seq = None
+        if self.publisher is not None:
+            uav = self._camera_mount(state)
+            if _during(self.p.camera_losses, t):
+                self.camera_dropped += 1  # the camera is lost: no frame leaves
+            else:
+                try:
+                    image = self.renderer.render(uav, ugvs)
+                except ValueError:  # a non-finite pose: no frame, as a real camera link would give
+                    self.render_failures += 1
+                else:
+                    seq = self.publisher.publish(t, uav.pos_ned, uav.quat, image)
+                    self.frames += 1
+            self._publish_truth(t, ugvs)
+        if self.p.lockstep:
+            self.gate.mark(t_us, seq)
+        if self.truth is not None:
+            self._write_truth(t, state, ugvs)
+
+    def _camera_mount(self, state: VehicleState):
+        """The pose the camera renders from (hil.camera_mount): the level downward gimbal (or
+        body-fixed without one), or the pan-tilt head pointed at the ROI (straight down until a
+        client sets one)."""
+        return mounted_pose(self.cam, self.mount, state.pos_ned, state.quat, self.roi_ned)
+
+    def _gimbal_commands(self, batch: list) -> list:
+        """The gimbal manager on the vehicle: MAV_CMD_DO_SET_ROI_LOCATION (COMMAND_LONG, params
+        5–7 = lat [deg], lon [deg], alt AMSL [m]) points the pointed camera there and is
+        acknowledged here; every other message goes on to the autopilot, in order."""
+        if self.p.camera != "roi":
+            return batch
+        from pymavlink.dialects.v20 import ardupilotmega as M
+
+        from skyherd.hil.orbit_gimbal import roi_ned
+
+        rest = []
+        for msg, src in batch:
+            if msg.get_type() == "COMMAND_LONG" and msg.command == M.MAV_CMD_DO_SET_ROI_LOCATION:
+                target = roi_ned(self.autopilot.home, msg.param5, msg.param6, msg.param7)
+                ok = target is not None
+                if ok:
+                    self.roi_ned = target
+                    self.roi_commands += 1
+                res = M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED
+                ep = self.endpoint
+                ack = ep.mav.command_ack_encode(msg.command, res, 0, 0, msg.get_srcSystem(),
+                                                msg.get_srcComponent())  # fmt: skip
+                ep.api.send(ack, to=src)
+            else:
+                rest.append((msg, src))
+        return rest
+
+    def _move_team(self, t: float) -> None:
+        if self.team is None:
+            return
+        if self.team_t is None:
+            start = self.p.ugv_start
+            from skyherd.flight.autopilot_api import FlightMode
+
+            go = (
+                (self.autopilot.mode is FlightMode.OFFBOARD)
+                if start == "offboard"
+                else t >= float(start)
+            )
+            if not go:
+                return
+            self.team_t = 0.0
+            self._team_t0 = t
+            return
+        dt = (t - self._team_t0) - self.team_t
+        if dt > 0:
+            if hasattr(self.team, "set_shepherd"):  # a flock feels where the UAV truly is
+                ap = self.autopilot
+                self.team.set_shepherd(
+                    (ap.true_state if hasattr(ap, "true_state") else ap.state).pos_ned[:2]
+                )
+            self.team.step(dt)
+            self.team_t += dt
+
+    def _republish(self) -> None:
+        if self.publisher is not None:
+            self.publisher.republish()
+
+    def _free_run_receive(self) -> None:
+        got = self.endpoint.api.receive()
+        if not got:
+            return
+        now = self.clock.t
+        for msg, _ in got if not self.p.lockstep else ():  # (lockstep: read only when alone)
+            if msg.get_type().startswith("SET_POSITION_TARGET"):
+                self.lag.samples.append(now - msg.time_boot_ms / 1000.0)
+        self.endpoint.dispatch(self.endpoint.api, self._gimbal_commands(got))
+
+    def _publish_truth(self, t: float, ugvs) -> None:
+        self._ugv_pub.publish(t, ugvs)
+        self._clock_pub.put(sign_record({"t_sim": t}, self._flight_key))
+
+    def _write_truth(self, t: float, state: VehicleState, ugvs) -> None:
+        v = state.vel_ned
+        row = truth_row(t, state.pos_ned, ugvs, vn=v[0], ve=v[1], vd=v[2], mode=self.autopilot.mode.name,
+                        armed=int(self.autopilot.armed),
+                        team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
+        self.truth.write(row)
+        self._truth_t = t
+
+    def _stats(self, sim_s: float, wall_s: float, cpu_s: float = 0.0, span=None,
+               process_vehicles: int = 1) -> dict:  # fmt: skip
+        """The run's figures. In lockstep the flight is the span up to the last tick the
+        companion closed: after it the simulator only waits (for a companion that ended, until
+        `skyherd fly` stops it), which is not simulation, so the real-time factor and the CPU
+        per simulated second are taken over that span."""
+        g = self.gate.stats
+        f_sim, f_wall, f_cpu = span if span is not None else (sim_s, wall_s, cpu_s)
+        stats = {
+            "sim_s": sim_s,
+            "wall_s": wall_s,
+            "cpu_s": cpu_s,  # this process's CPU time while it ran (load-independent cost)
+            "process_vehicles": process_vehicles,  # worlds sharing that CPU time (a fleet: > 1)
+            "flight_sim_s": f_sim,  # lockstep: up to the last closed tick (else the whole run)
+            "flight_wall_s": f_wall,
+            "flight_cpu_s": f_cpu,
+            "real_time_factor": f_sim / f_wall if f_wall > 0 else math.inf,
+            "frames": self.frames,
+            "render_failures": self.render_failures,
+            "lockstep": self.p.lockstep,
+            "ticks_closed": g.ticks,
+            "mark_resends": g.resends,
+            "wait_for_companion_wall_s": g.wait_wall_s,
+            "free_run_lag": self.lag.summary(),
+            "link_cut_dropped": self.cut_dropped,
+            "link_cut_muted": self.endpoint.api.stats_muted,
+            "camera_loss_frames": self.camera_dropped,
+            "mavlink_signing": {
+                "on": self.endpoint.signing.enabled,
+                **dict(sorted(self.endpoint.signing.stats.items())),
+            },  # fmt: skip
+            "after_companion": self.alone,
+            "records_cut": cut_records([self.truth]),
+        }
+        if self.run_dir is not None:
+            try_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")
+        return stats
+
+    def close(self) -> None:
+        if self.truth is not None:
+            self.truth.close()
+        if self.publisher is not None:
+            self.publisher.close()
+        if self._ugv_pub is not None:
+            self._ugv_pub.close()
+        for pub in [self._clock_pub]:
+            if pub is not None:
+                try:
+                    pub.undeclare()
+                except Exception:  # noqa: BLE001 - already closed with its session
+                    pass
+        self.endpoint.close()
+
+
+def run_worlds(worlds: list[World], pacer: Pacer, duration_s: float | None = None) -> list[dict]:
+    """Run worlds that share one process and one clock rate, one step of each in turn, until
+    any of them ends (stopped, out of time, its companion gone); their stats, in order.
+
+    Each world keeps its own lockstep with its companion: at a camera instant every world marks
+    it, at t + L the process waits for all their closes at once (`collect_closes`), so a fleet
+    flies exactly as the same vehicles in one process each. Pacing sleeps once per `pace_s` of simulation time for all of them."""
+    steps = {round(w.autopilot.control_dt * 1e6) for w in worlds}
+    if len(steps) != 1:
+        raise ValueError(
+            f"worlds of one process must share the control step, not {sorted(steps)} us"
+        )
+    first = worlds[0]
+    if first.p.lockstep and not wait_for_peers(worlds):
+        return [w._stats(0.0, 0.0, process_vehicles=len(worlds)) for w in worlds]
+    for w in worlds:
+        w.begin(duration_s)
+    pace_us = max(first._step_us, round(first.p.pace_s * 1e6))
+    next_pace_us = first.clock.time_us
+    poller = select.poll() if hasattr(select, "poll") else None
+    for sock in (s for w in worlds for s in w.sockets()) if poller is not None else ():
+        poller.register(sock.fileno(), select.POLLIN)
+    stopped = lambda: any(w._stop.is_set() or w._alone.is_set() for w in worlds)  # noqa: E731
+    alone_end_us: int | None = None  # the companion gone: the autopilot alone until then [µs]
+    while True:
+        if alone_end_us is None and any(w._alone.is_set() for w in worlds):
+            alone_end_us = first.clock.time_us + round(first.p.alone_s * 1e6)
+            why = next(w.alone_why for w in worlds if w._alone.is_set())
+            for w in worlds:  # one companion flew them all: all are alone now
+                w.companion_gone(why)
+                w.go_alone()
+                if poller is not None and w.p.lockstep:  # its API link is read here now
+                    poller.register(w.endpoint.api.sock.fileno(), select.POLLIN)
+        if alone_end_us is not None:
+            for w in worlds:
+                w.watch_alone()
+            if first.clock.time_us >= alone_end_us or not any(w.autopilot.armed for w in worlds):
+                for w in worlds:
+                    w.end_alone()
+                break
+        # one system call per round of steps tells which of the fleet's sockets have data
+        ready = {fd for fd, _ in poller.poll(0)} if poller is not None else None
+        if not all(w.start_step() for w in worlds):
+            if alone_end_us is not None:
+                for w in worlds:
+                    w.end_alone()
+            break
+        due = [(w, tick) for w in worlds if (tick := w.close_due()) is not None]
+        if due:
+            try:
+                batches = collect_closes([(w.gate, tick, w._republish) for w, tick in due], stopped)
+            except LockstepTimeout as e:  # the companion is stuck or gone: the autopilot alone
+                first.companion_gone(f"lockstep: {e}")
+                continue
+            if batches is None:
+                if any(w._stop.is_set() for w in worlds):
+                    break
+                continue  # the companion is gone: the next round steps alone
+            for (w, _), batch in zip(due, batches, strict=True):
+                w.take_close(batch)
+        for w in worlds:
+            w.finish_step(ready)
+        if alone_end_us is None and first.clock.time_us >= next_pace_us:
+            pacer.wait_until(first.clock.t)  # alone: as fast as possible
+            next_pace_us += pace_us
+    return [w.finish(len(worlds)) for w in worlds]
+
+
+def wait_for_peers(worlds: list[World]) -> bool:
+    """Lockstep: block until every world's companion has said hello, beaconing each world's
+    heartbeat while it waits (a companion may wait for all its vehicles before it speaks).
+    False when any world is stopped first."""
+    waiting = list(worlds)
+    while waiting:
+        waiting = [w for w in waiting if not w.gate.poll_peer(w.beacon)]
+        if any(w._stop.is_set() or w._alone.is_set() for w in worlds):
+            return False
+        if waiting:
+            select.select([w.gate.link.sock for w in waiting], [], [],
+                          min(w.gate.p.beacon_s for w in waiting))  # fmt: skip
+    return True
