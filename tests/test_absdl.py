@@ -19,9 +19,9 @@ from skyherd.policy.absdl.shield import Shield
 from skyherd.policy.absdl.train import train
 from skyherd.policy.dqn import load_policy
 from skyherd.policy.groundair.env import GroundAirEnv
-from skyherd.policy.groundair.params import N_ACTIONS, action_velocity_ned
 from skyherd.policy.models import ABSDL_POLICY
 from skyherd.scripts.cli import main
+from skyherd.task.params import N_ACTIONS, action_velocity_ned
 
 
 def test_limits_are_the_tighter_of_autopilot_and_envelope():

@@ -9,9 +9,9 @@ import re
 
 import numpy as np
 
-from skyherd.policy.groundair.params import N_ACTIONS, action_velocity_ned
 from skyherd.policy.models import ABSDL_POLICY
 from skyherd.scripts.cli import main
+from skyherd.task.params import N_ACTIONS, action_velocity_ned
 
 
 def test_fly_the_deep_policy(tmp_path, capsys):

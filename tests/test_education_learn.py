@@ -12,8 +12,8 @@ from skyherd.policy.dqn import MLPPolicy, PolicyFileError, load_policy
 from skyherd.policy.education.curriculum import load_curriculum
 from skyherd.policy.education.modular import Arbiter, ModularPolicy, SkillModule
 from skyherd.policy.groundair.env import GroundAirEnv
-from skyherd.policy.groundair.params import ACTION_NAMES, action_velocity_ned
 from skyherd.scripts.cli import main
+from skyherd.task.params import ACTION_NAMES, action_velocity_ned
 
 TWO = """
 format = "skyherd-curriculum/1"
@@ -203,8 +203,8 @@ def test_modular_file_roundtrip_and_the_fly_loader(tmp_path):
     # `skyherd fly --policy FILE` loads it with the companion's loader; its pilot explains
     from skyherd.flight.state import VehicleState
     from skyherd.mission.pilots import Observation, PolicyPilot
-    from skyherd.policy.groundair.params import TaskParams
     from skyherd.scripts.companion import _load_policy
+    from skyherd.task.params import TaskParams
 
     flown = _load_policy(str(path))
     assert isinstance(flown, ModularPolicy)

@@ -267,8 +267,8 @@ def test_a_policy_of_the_wrong_shape_is_refused_before_take_off(tmp_path, capsys
     """A policy file whose input or output size does not fit the ground-air task (14 inputs,
     7 actions): exit 2 with one line saying what to do; no run folder, no child started."""
     from skyherd.policy.dqn import MLPPolicy
-    from skyherd.policy.groundair.env import OBS_DIM
-    from skyherd.policy.groundair.params import N_ACTIONS
+    from skyherd.task.observation import OBS_DIM
+    from skyherd.task.params import N_ACTIONS
 
     assert (OBS_DIM, N_ACTIONS) == (14, 7)
     rng = np.random.default_rng(0)

@@ -23,7 +23,7 @@ from skyherd.policy.demos import (
     scripted_expert,
 )
 from skyherd.policy.groundair.env import PSI_NAMES
-from skyherd.policy.groundair.params import TaskParams
+from skyherd.task.params import TaskParams
 
 SHORT = TaskParams(episode_s=10.0)
 

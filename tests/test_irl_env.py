@@ -11,9 +11,10 @@ from skyherd import policy
 from skyherd.perception.camera import CameraParams, camera_pose
 from skyherd.perception.features import features_from_truth
 from skyherd.policy.demos import random_policy, rollout_stats, scripted_expert
-from skyherd.policy.groundair.env import OBS_DIM, GroundAirEnv, reward_features
-from skyherd.policy.groundair.fastphi import LevelCamera, min_circle
-from skyherd.policy.groundair.params import TaskParams
+from skyherd.policy.groundair.env import GroundAirEnv, reward_features
+from skyherd.task.fastphi import LevelCamera, min_circle
+from skyherd.task.observation import OBS_DIM
+from skyherd.task.params import TaskParams
 
 
 def test_registered_on_import_and_passes_env_checker():
@@ -33,9 +34,22 @@ def test_policy_import_is_light():
     import subprocess
     import sys
 
-    code = "import sys, policy; print('torch' in sys.modules)"
+    code = "import sys, skyherd.policy; print([m in sys.modules for m in ('torch', 'gymnasium')])"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"
+    assert out.stdout.strip() == "[False, False]"
+
+
+def test_gym_make_with_the_module_prefix_in_a_fresh_interpreter():
+    """gymnasium's `module:id` form: the task registers itself on that import."""
+    import subprocess
+    import sys
+
+    code = (
+        "import gymnasium as gym; env = gym.make('skyherd.policy:skyherd/GroundAir-v0', "
+        "scenario='lateral'); print(env.observation_space.shape)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "(14,)"
 
 
 def test_fast_phi_equals_perception_features():
@@ -146,7 +160,7 @@ def test_scripted_expert_beats_random(scenario):
 
 def test_groundsim_behaviours_drive_the_ugvs():
     from skyherd.policy.demos import ALLOWED_ACTIONS, ExpertParams, ScriptedExpert
-    from skyherd.policy.groundair.scenarios import GROUNDSIM_SCENARIOS
+    from skyherd.task.scenarios import GROUNDSIM_SCENARIOS
 
     check_env(gym.make(policy.ENV_ID, scenario="groundsim:route").unwrapped)
     res = {}
@@ -206,7 +220,7 @@ def test_kept_policy_flies_through_pixels():
 
 
 def test_uav_commands_inside_the_autopilot_limits():
-    from skyherd.policy.groundair.params import UAVParams, autopilot_velocity_limits
+    from skyherd.task.params import UAVParams, autopilot_velocity_limits
 
     lim = autopilot_velocity_limits()
     assert lim == {"xy": 12.0, "up": 3.0, "down": 1.5}
@@ -217,8 +231,8 @@ def test_uav_commands_inside_the_autopilot_limits():
 
 
 def test_vertical_time_constant_and_sitl_dynamics():
-    from skyherd.policy.groundair.params import SITL_MEASURED, UAVParams
     from skyherd.policy.models import DEFAULT_POLICY
+    from skyherd.task.params import SITL_MEASURED, UAVParams
 
     u = UAVParams(tau_s=0.5, tau_z_s=0.25)
     env = GroundAirEnv("climb", task=TaskParams(uav=u), start_noise=False)

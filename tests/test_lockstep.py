@@ -22,7 +22,7 @@ from skyherd.perception.transport import (
     publisher_params,
     subscriber_params,
 )
-from skyherd.policy.groundair.params import TaskParams
+from skyherd.task.params import TaskParams
 from skyherd.world.sim import World, WorldParams
 
 

@@ -10,7 +10,7 @@ from skyherd.flight.state import VehicleState
 from skyherd.mission.pilots import Observation, PerceptionFollower, PolicyPilot, WaypointPilot
 from skyherd.perception.camera import camera_pose, project
 from skyherd.perception.features import features_from_truth
-from skyherd.policy.groundair.params import TaskParams, action_velocity_ned
+from skyherd.task.params import TaskParams, action_velocity_ned
 from skyherd.world.sim import level_camera_mount
 
 

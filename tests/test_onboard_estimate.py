@@ -22,17 +22,17 @@ from pymavlink.dialects.v20 import ardupilotmega as M
 from skyherd.flight.frames import euler_to_quat
 from skyherd.flight.geo import DEFAULT_HOME, ned_to_geodetic
 from skyherd.groundsim.ugv import UGVModel, initial_states
-from skyherd.hil.camera_mount import MOUNTS, mounted_camera_pose
-from skyherd.hil.orbit import ORBIT_CAMERA
 from skyherd.mission.onboard import CameraFrame, onboard_frame
 from skyherd.mission.perception import Perception
 from skyherd.mission.vehicle import VehicleLink
 from skyherd.perception.camera import CameraParams, backproject_to_ground, project
 from skyherd.perception.features import FeatureParams
+from skyherd.perception.gimbal import ORBIT_CAMERA
+from skyherd.perception.mount import MOUNTS, mounted_camera_pose
 from skyherd.perception.render_fast import FastRenderer
 from skyherd.perception.transport import camera_info, decode_frame, encode_frame
-from skyherd.policy.groundair.params import TaskParams
 from skyherd.scripts.cli import main
+from skyherd.task.params import TaskParams
 
 CAM = CameraParams()
 ALT_MAX = FeatureParams().altitude_max_m

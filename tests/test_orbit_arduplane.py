@@ -14,9 +14,9 @@ import pytest
 from skyherd.flight.autopilot_api import FlightMode
 from skyherd.flight.state import VehicleState
 from skyherd.hil.autopilots import ARDUPLANE
-from skyherd.hil.orbit import fence_reserve
 from skyherd.mission.flight import Record
 from skyherd.mission.orbit import Briefing, OrbitFlight, OrbitMission
+from skyherd.mission.orbit_plan import fence_reserve
 from skyherd.mission.steps import MissionError
 from skyherd.mission.vehicle import VehicleLink
 from skyherd.safety.consistency import agreeing_values, check_params
@@ -227,8 +227,8 @@ def test_the_followed_world_plays_the_gimbal_the_autopilot_routes_the_roi_to():
     from pymavlink.dialects.v20 import ardupilotmega as M
 
     from skyherd.flight.geo import Home, ned_to_geodetic
-    from skyherd.hil.orbit import ORBIT_CAMERA
     from skyherd.perception.camera import camera_pose, project
+    from skyherd.perception.gimbal import ORBIT_CAMERA
     from skyherd.world.follow import FollowWorld
     from skyherd.world.sim import WorldParams
 

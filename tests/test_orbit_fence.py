@@ -6,9 +6,9 @@ mission moves its orbit centre toward it only as far as the circle still certifi
 
 import numpy as np
 
-from skyherd.hil.orbit import OrbitParams, circle_certified, fence_reserve, plan_orbit
 from skyherd.mission.flight import Record
 from skyherd.mission.orbit import Briefing, OrbitFlight, OrbitMission
+from skyherd.mission.orbit_plan import OrbitParams, circle_certified, fence_reserve, plan_orbit
 from skyherd.safety.config import ENVELOPE_DIR
 from skyherd.safety.net import SafetyNet
 

@@ -9,7 +9,7 @@ import pytest
 from skyherd.flight.frames import euler_to_quat, quat_to_dcm
 from skyherd.flight.geo import GRAVITY
 from skyherd.groundsim.ugv import UGVStates
-from skyherd.hil.orbit import (
+from skyherd.mission.orbit_plan import (
     ORBIT_CAMERA,
     OrbitParams,
     camera_radius,
@@ -17,8 +17,8 @@ from skyherd.hil.orbit import (
     plan_orbit,
     turn_radius,
 )
-from skyherd.hil.orbit_gimbal import dcm_to_quat, gimbal_pose, look_at
 from skyherd.perception.camera import CameraParams, camera_pose, in_image, project
+from skyherd.perception.gimbal import dcm_to_quat, gimbal_pose, look_at
 from skyherd.perception.pipeline import CameraRig
 from skyherd.safety.config import ENVELOPE_DIR, load_envelope
 

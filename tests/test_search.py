@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from skyherd.policy.groundair.env import GroundAirEnv
-from skyherd.policy.groundair.params import TaskParams
 from skyherd.policy.search import study
 from skyherd.policy.search.lost import (
     LostSearch,
@@ -19,6 +18,7 @@ from skyherd.policy.search.lost import (
     footprint_half_m,
     velocity_to,
 )
+from skyherd.task.params import TaskParams
 
 
 def test_dead_reckoning_of_a_ugv_at_constant_velocity_is_exact():
@@ -92,11 +92,11 @@ def test_sightings_from_a_rendered_frame_name_each_ugv_and_place_it_on_the_groun
     """skyherd.mission.search: identity from the marker's colour, position by back-projection through
     the estimated pose: within 0.3 m of the truth for a level camera 20 m up."""
     from skyherd.groundsim.ugv import UGVModel, initial_states
-    from skyherd.hil.camera_mount import mounted_pose
     from skyherd.mission.onboard import CameraFrame
     from skyherd.mission.search import sightings
     from skyherd.perception.camera import UAVPose
     from skyherd.perception.detector import Detector
+    from skyherd.perception.mount import mounted_pose
     from skyherd.perception.render_fast import FastRenderer
 
     task = TaskParams()

@@ -9,8 +9,8 @@ import math
 import numpy as np
 
 from skyherd.mission.pilots import DESCENT_PILOT
-from skyherd.policy.groundair.fastphi import min_circle
-from skyherd.policy.groundair.params import TaskParams
+from skyherd.task.fastphi import min_circle
+from skyherd.task.params import TaskParams
 
 
 def groundair_metrics(decisions: list[dict], world: list[dict], task: TaskParams) -> dict:

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skyherd.hil.camera_mount import mounted_camera_pose
 from skyherd.mission.vehicle import VehicleLink
 from skyherd.perception.camera import CameraParams, CameraPose, UAVPose
+from skyherd.perception.mount import mounted_camera_pose
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The fixed-wing orbit as a companion mission: orbit over the UGV team's centre, seen through
 the camera, behind the safety net, in lockstep with `skyherd sim --airframe fixedwing`.
 
-The geometry is hil/orbit.py's (radius and altitude from the airframe's airspeed and bank
+The geometry is mission/orbit_plan.py's (radius and altitude from the airframe's airspeed and bank
 limit, the camera's field of view and the team's extent; the certified circle inside the
 fence). What is new here is where the centre comes from and who renders: the simulator's
 camera sits on a pan-tilt gimbal pointed where the companion sets the region of interest
@@ -33,7 +33,11 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from skyherd.flight.autopilot_api import Setpoint
-from skyherd.hil.orbit import (
+from skyherd.hil.telemetry import reposition_command
+from skyherd.mission.authority import ModeAuthority
+from skyherd.mission.flight import Record, append_track
+from skyherd.mission.onboard import CameraFrame
+from skyherd.mission.orbit_plan import (
     ORBIT_CAMERA,
     OrbitParams,
     OrbitPlan,
@@ -42,10 +46,6 @@ from skyherd.hil.orbit import (
     setpoint_certified,
     slide_centre,
 )
-from skyherd.hil.telemetry import reposition_command
-from skyherd.mission.authority import ModeAuthority
-from skyherd.mission.flight import Record, append_track
-from skyherd.mission.onboard import CameraFrame
 from skyherd.mission.steps import (
     MissionError,
     Phase,
@@ -405,7 +405,7 @@ class OrbitMission:
 def briefing_for(scenario: str, seed: int, duration_s: float, establish_s: float) -> Briefing:
     """The team's briefing from its scenario (policy.groundair.scenarios): where it starts,
     its speed, and the widest it gets over the flight."""
-    from skyherd.policy.groundair.scenarios import Formation, draw_plan
+    from skyherd.task.scenarios import Formation, draw_plan
 
     team = Formation(draw_plan(scenario, np.random.default_rng(seed), 3))
     p = team.plan

@@ -13,8 +13,8 @@ import numpy as np
 
 from skyherd.mission.onboard import CameraFrame
 from skyherd.perception.detector import Detector, annotate
-from skyherd.policy.groundair.env import make_observation
-from skyherd.policy.groundair.params import TaskParams
+from skyherd.task.observation import make_observation
+from skyherd.task.params import TaskParams
 
 STRIP_EVERY_S = 6.0  # one annotated frame in the strip per this much tick time [s]
 

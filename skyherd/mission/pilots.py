@@ -19,7 +19,7 @@ import numpy as np
 
 from skyherd.flight.autopilot_api import Setpoint
 from skyherd.flight.state import VehicleState
-from skyherd.policy.groundair.params import TaskParams, action_velocity_ned
+from skyherd.task.params import TaskParams, action_velocity_ned
 
 
 @dataclass(frozen=True)

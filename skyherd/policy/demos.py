@@ -36,15 +36,15 @@ from typing import Any
 import numpy as np
 
 from skyherd.policy.groundair.env import N_PSI, GroundAirEnv
-from skyherd.policy.groundair.params import (
+from skyherd.runio.runfolder import atomic_write_bytes, to_jsonable
+from skyherd.task.params import (
     ALL_ACTIONS,
     CLIMB_ACTIONS,
     DESCEND_ACTIONS,
     LATERAL_ACTIONS,
     TaskParams,
 )
-from skyherd.policy.groundair.scenarios import SCENARIOS
-from skyherd.runio.runfolder import atomic_write_bytes, to_jsonable
+from skyherd.task.scenarios import SCENARIOS
 
 FORMAT = "skyherd-demo/1"
 ALLOWED_ACTIONS: dict[str, tuple[int, ...]] = {

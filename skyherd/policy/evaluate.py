@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from skyherd.policy.demos import ExpertParams, random_policy, rollout_stats, scripted_expert
-from skyherd.policy.groundair.scenarios import GROUNDSIM_SCENARIOS
+from skyherd.task.scenarios import GROUNDSIM_SCENARIOS
 
 Factory = Callable[[int], Callable[[np.ndarray], int]]  # seed → policy
 

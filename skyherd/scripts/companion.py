@@ -290,8 +290,8 @@ def build_mission(args, run_dir: Path | None):
     from skyherd.mission.flight import FlightPlan, Record, SingleVehicleMission
     from skyherd.mission.perception import Perception
     from skyherd.mission.pilots import PerceptionFollower, PolicyPilot, WaypointPilot
-    from skyherd.policy.groundair.params import TaskParams
     from skyherd.runio import CsvWriter
+    from skyherd.task.params import TaskParams
 
     task = TaskParams()
     altitude = 20.0 if args.altitude is None else args.altitude
@@ -401,9 +401,9 @@ def drill_pilot(choice: str, spec):
 
 def _orbit_mission(args, run_dir: Path | None):
     """The fixed-wing orbit (mission/orbit.py) behind the fixed-wing envelope's net."""
-    from skyherd.hil.orbit import fence_reserve
     from skyherd.mission.flight import Record
     from skyherd.mission.orbit import OrbitFlight, OrbitMission, briefing_for
+    from skyherd.mission.orbit_plan import fence_reserve
     from skyherd.runio import CsvWriter
     from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError
     from skyherd.safety.net import SafetyNet, warm_up
@@ -438,9 +438,9 @@ def _track_columns():
 
 def _load_policy(path):
     from skyherd.policy.dqn import PolicyFileError, load_policy
-    from skyherd.policy.groundair.env import OBS_DIM
-    from skyherd.policy.groundair.params import N_ACTIONS
     from skyherd.policy.models import DEFAULT_POLICY
+    from skyherd.task.observation import OBS_DIM
+    from skyherd.task.params import N_ACTIONS
 
     try:
         policy = load_policy(path or DEFAULT_POLICY)

@@ -332,8 +332,8 @@ def _fidelity(educated: dict, args) -> dict:
 def _decisions(pol, rf: RunFolder, seed: int) -> None:
     """One composite test episode of `pol`, one record per decision (the companion's format)."""
     from skyherd.policy.groundair.env import GroundAirEnv
-    from skyherd.policy.groundair.params import action_velocity_ned
     from skyherd.runio.runfolder import JsonlWriter
+    from skyherd.task.params import action_velocity_ned
 
     env = GroundAirEnv("composite")
     obs, info = env.reset(seed=seed)

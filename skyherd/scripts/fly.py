@@ -190,7 +190,7 @@ def check_children(args, sim_args: list[str], comp_args: list[str]) -> None:
 def _validate(args) -> tuple[list[str], list[str]]:
     """The children's argument lists; UsageError before anything starts or is written."""
     from skyherd.hil.link import parse_address
-    from skyherd.policy.groundair.scenarios import FLOCK, TEAMS
+    from skyherd.task.scenarios import FLOCK, TEAMS
 
     if args.mission == "shepherd":
         if args.connect is not None or args.airframe != "quadrotor":
@@ -238,7 +238,7 @@ def _validate(args) -> tuple[list[str], list[str]]:
     orbit = args.airframe == "fixedwing"  # the ground-air task, flown as an orbit
     altitude = args.altitude
     if altitude is None and args.mission == "groundair" and not orbit:
-        from skyherd.policy.groundair.params import TaskParams
+        from skyherd.task.params import TaskParams
         from skyherd.world.team import new_team, start_altitude
 
         task = TaskParams()

@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 
 from skyherd.mission.metrics import cross_track, groundair_metrics
-from skyherd.policy.groundair.params import TaskParams
 from skyherd.runio import atomic_write_text, markdown_table
 from skyherd.safety.judge import (
     Check,
@@ -26,6 +25,7 @@ from skyherd.safety.judge import (
     judge,
 )
 from skyherd.scripts.launch import flight_reason
+from skyherd.task.params import TaskParams
 
 
 def _rows(path: Path) -> list[dict]:

@@ -257,7 +257,7 @@ def build_world(args):
     """Check the arguments and build the world (UsageError on bad usage)."""
     from skyherd.flight.lockstep import LockstepParams
     from skyherd.flight.mavlink import EndpointConfig
-    from skyherd.policy.groundair.scenarios import FLOCK, TEAMS
+    from skyherd.task.scenarios import FLOCK, TEAMS
     from skyherd.world.sim import WorldParams
 
     if args.ugvs not in TEAMS + ("none",):

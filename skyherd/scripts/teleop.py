@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_keyboard(args: argparse.Namespace, run, fd: int) -> int:
     from skyherd.policy.demos import ALLOWED_ACTIONS, record
-    from skyherd.policy.groundair.params import ACTION_NAMES, TaskParams
+    from skyherd.task.params import ACTION_NAMES, TaskParams
 
     allowed = ALLOWED_ACTIONS[args.scenario]
     task = TaskParams(episode_s=args.episode_s)
@@ -231,7 +231,7 @@ def _run_mavlink(args: argparse.Namespace) -> int:
 
 def _run_link(args: argparse.Namespace, run, link) -> int:
     from skyherd.policy.demos import ALLOWED_ACTIONS, record
-    from skyherd.policy.groundair.params import TaskParams
+    from skyherd.task.params import TaskParams
 
     allowed = ALLOWED_ACTIONS[args.scenario]
     task = TaskParams(episode_s=args.episode_s)

@@ -367,7 +367,7 @@ def _train(run, args, learner, rules, expert_p, needed, demos, demo_files, quick
         summary += f"\n--quick budget: {', '.join(quick)}.\n"
     if args.transfer_episodes > 0:
         from skyherd.policy.evaluate import baseline_factories, transfer_table
-        from skyherd.policy.groundair.scenarios import GROUNDSIM_SCENARIOS
+        from skyherd.task.scenarios import GROUNDSIM_SCENARIOS
 
         pols = {f"{k} (seed {o['seed']})": (lambda s, p=p: p) for k, (o, p) in best.items()}
         rows = transfer_table(

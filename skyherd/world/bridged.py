@@ -18,8 +18,8 @@ import numpy as np
 from skyherd.groundsim.transport import UGVStatePublisher
 from skyherd.groundsim.ugv import UGVModel
 from skyherd.perception.render_fast import FastRenderer
-from skyherd.policy.groundair.params import TaskParams
 from skyherd.runio import CsvWriter, atomic_write_text
+from skyherd.task.params import TaskParams
 from skyherd.world.sim import level_camera_mount
 from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
 

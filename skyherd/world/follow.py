@@ -34,11 +34,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from skyherd.flight.autopilot_api import FlightMode
 from skyherd.groundsim.ugv import UGVModel
 from skyherd.hil.autopilots import UnknownAutopilot
-from skyherd.hil.camera_mount import mounted_pose
 from skyherd.hil.telemetry import Telemetry, update_telemetry
+from skyherd.perception.mount import mounted_pose
 from skyherd.perception.render_fast import FastRenderer
-from skyherd.policy.groundair.params import TaskParams
 from skyherd.runio import CsvWriter, atomic_write_text
+from skyherd.task.params import TaskParams
 from skyherd.world.sim import _during, alone_record
 from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
 
@@ -81,7 +81,7 @@ class FollowWorld:
         self.roi_ned: np.ndarray | None = None  # where the pointed head looks (None: nadir)
         self.roi_commands = 0
         if getattr(params, "camera", "down") == "roi":
-            from skyherd.hil.orbit import ORBIT_CAMERA
+            from skyherd.perception.gimbal import ORBIT_CAMERA
 
             self.cam = ORBIT_CAMERA
         self.renderer = FastRenderer(self.cam, UGVModel())
@@ -213,7 +213,7 @@ class FollowWorld:
             return False
         if (msg.target_system, msg.target_component) != (self.system_id, M.MAV_COMP_ID_GIMBAL):
             return False
-        from skyherd.hil.orbit_gimbal import roi_ned
+        from skyherd.perception.gimbal import roi_ned
 
         target = roi_ned(self.tel.home, msg.param5, msg.param6, msg.param7)
         ok = target is not None

@@ -36,10 +36,10 @@ from skyherd.flight.mavlink.signing import load_key
 from skyherd.flight.state import VehicleState
 from skyherd.groundsim.transport import UGVStatePublisher, sign_record
 from skyherd.groundsim.ugv import UGVModel
-from skyherd.hil.camera_mount import level_quat, mounted_pose
+from skyherd.perception.mount import level_quat, mounted_pose
 from skyherd.perception.render_fast import FastRenderer
-from skyherd.policy.groundair.params import TaskParams
 from skyherd.runio import CsvWriter, cut_records, try_write_text
+from skyherd.task.params import TaskParams
 from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
 
 CLOCK_KEY = "skyherd/sim/clock"
@@ -175,7 +175,7 @@ class World:
         self.roi_ned: np.ndarray | None = None  # where the pointed gimbal looks (None: nadir)
         self.roi_commands = 0
         if params.camera == "roi":
-            from skyherd.hil.orbit import ORBIT_CAMERA
+            from skyherd.perception.gimbal import ORBIT_CAMERA
 
             self.cam = ORBIT_CAMERA
         self.mount = "pointed" if params.camera == "roi" else "level" if params.gimbal else "body"
@@ -382,7 +382,7 @@ class World:
             return batch
         from pymavlink.dialects.v20 import ardupilotmega as M
 
-        from skyherd.hil.orbit_gimbal import roi_ned
+        from skyherd.perception.gimbal import roi_ned
 
         rest = []
         for msg, src in batch:

@@ -8,9 +8,9 @@ import math
 import numpy as np
 
 from skyherd.groundsim.ugv import UGVStates
-from skyherd.policy.groundair.fastphi import min_circle
-from skyherd.policy.groundair.params import TaskParams
-from skyherd.policy.groundair.scenarios import make_team
+from skyherd.task.fastphi import min_circle
+from skyherd.task.params import TaskParams
+from skyherd.task.scenarios import make_team
 
 
 def new_team(scenario: str, seed: int, n_ugvs: int):

@@ -26,7 +26,7 @@ import numpy as np
 
 from skyherd.policy.absdl.env import VelocityLimits, velocity_limits
 from skyherd.policy.absdl.params import DemonstratorParams
-from skyherd.policy.groundair.params import TaskParams
+from skyherd.task.params import TaskParams
 
 SUBTASKS: tuple[str, ...] = ("lateral", "climb", "descend")
 AXES: dict[str, tuple[bool, bool, bool]] = {

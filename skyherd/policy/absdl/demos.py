@@ -123,7 +123,7 @@ def from_recording(demo, shield: bool, on_episode=None) -> DataSet:
     episode is replayed with its seed and recorded actions (the file's states), each action's
     velocity row (action_velocity_ned) is the command, and with the shield its target is what
     the net certifies at the recorded state."""
-    from skyherd.policy.groundair.params import action_velocity_ned
+    from skyherd.task.params import action_velocity_ned
 
     env = ContinuousGroundAirEnv(demo.meta["scenario"])
     uav = env.task.uav

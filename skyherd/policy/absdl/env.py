@@ -18,7 +18,7 @@ import gymnasium as gym
 import numpy as np
 
 from skyherd.policy.groundair.env import GroundAirEnv
-from skyherd.policy.groundair.params import TaskParams, autopilot_velocity_limits
+from skyherd.task.params import TaskParams, autopilot_velocity_limits
 
 ENVELOPE_FILE = "quadrotor_groundair.toml"
 """The constraint set `skyherd fly` flies the ground-air mission in (safety/envelopes/)."""

@@ -24,7 +24,7 @@ import numpy as np
 from skyherd.policy.absdl.demos import rollout
 from skyherd.policy.absdl.env import ContinuousGroundAirEnv
 from skyherd.policy.absdl.shield import Shield
-from skyherd.policy.groundair.params import TaskParams, action_velocity_ned
+from skyherd.task.params import TaskParams, action_velocity_ned
 
 METRICS = ("all_in_view_frac", "footprint_ratio", "changed", "jerk_proposed", "jerk_flown")
 

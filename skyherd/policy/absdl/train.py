@@ -22,8 +22,8 @@ from skyherd.policy.absdl.mlp import fit
 from skyherd.policy.absdl.params import AbsdlParams
 from skyherd.policy.absdl.policy import FUSED, SINGLE, AbsdlPolicy
 from skyherd.policy.absdl.shield import ShieldStats
-from skyherd.policy.groundair.env import OBS_DIM
-from skyherd.policy.groundair.params import TaskParams
+from skyherd.task.observation import OBS_DIM
+from skyherd.task.params import TaskParams
 
 NETWORKS: tuple[str, ...] = (*SUBTASKS, "composite")
 

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyherd.perception.features import FeatureParams
-from skyherd.policy.groundair.params import TaskParams
+from skyherd.task.params import TaskParams
 
 VARIABLES: tuple[str, ...] = (
     "com_u",
@@ -80,7 +80,7 @@ def constants(task: TaskParams | None = None) -> dict[str, float]:
 
 
 def decode_observation(obs, task: TaskParams | None = None) -> dict[str, float]:
-    """The variables (table above) of one observation (14,) (inverse of env.make_observation)."""
+    """The variables (table above) of one observation (14,) (inverse of task.observation.make_observation)."""
     task = task or TaskParams()
     u = task.uav
     o = [float(x) for x in obs]

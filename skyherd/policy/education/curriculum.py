@@ -55,8 +55,8 @@ from pathlib import Path
 
 from skyherd.policy.education.concepts import Concept, ConceptError, parse_concept
 from skyherd.policy.groundair.env import PSI_NAMES
-from skyherd.policy.groundair.params import ACTION_NAMES
-from skyherd.policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS
+from skyherd.task.params import ACTION_NAMES
+from skyherd.task.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS
 
 FORMAT = "skyherd-curriculum/1"
 DEFAULT_CURRICULUM = Path(__file__).with_name("curricula") / "groundair.toml"

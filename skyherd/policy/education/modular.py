@@ -46,8 +46,8 @@ import numpy as np
 
 from skyherd.policy.dqn import MLPPolicy
 from skyherd.policy.education.concepts import Concept, ConceptError, compile_concepts, parse_concept
-from skyherd.policy.groundair.params import ACTION_NAMES, TaskParams, action_velocity_ned
 from skyherd.runio.runfolder import atomic_write_bytes, to_jsonable
+from skyherd.task.params import ACTION_NAMES, TaskParams, action_velocity_ned
 
 FORMAT = "skyherd-modular-policy/1"
 

@@ -35,11 +35,12 @@ import gymnasium as gym
 import numpy as np
 
 from skyherd.perception.features import FeatureParams
-from skyherd.policy.groundair.fastphi import LevelCamera, min_circle
-from skyherd.policy.groundair.params import N_ACTIONS, TaskParams, action_velocity_ned
-from skyherd.policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS, Formation, make_team
+from skyherd.policy import register
+from skyherd.task.fastphi import LevelCamera, min_circle
+from skyherd.task.observation import OBS_DIM, make_observation
+from skyherd.task.params import N_ACTIONS, TaskParams, action_velocity_ned
+from skyherd.task.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS, Formation, make_team
 
-OBS_DIM = 14
 PSI_NAMES: tuple[str, ...] = (
     "all_in_view",
     "centred_u",
@@ -68,22 +69,6 @@ def reward_features(phi) -> list[float]:
             b += 1
         psi[4 + b] = 1.0
     return psi
-
-
-def make_observation(phi, phi_prev, vel_ned, task: TaskParams) -> np.ndarray:
-    """Observation (14,) float32 from φ (8,) now, φ at the previous step (None at the start) and
-    the UAV velocity (north, east, down) [m/s]. The one definition used in training and in flight.
-    """
-    prev = phi_prev if phi_prev is not None else phi
-    both = phi[4] > 0 and prev[4] > 0
-    u = task.uav
-    vm = (u.v_xy_mps, u.v_xy_mps, max(u.v_up_mps, u.v_down_mps))
-    o = [float(x) for x in phi[:8]]
-    o += [min(max(0.5 + float(v) / (2 * m), 0.0), 1.0) for v, m in zip(vel_ned, vm)]
-    for j in (0, 1, 2):
-        d = (phi[j] - prev[j]) if both else 0.0
-        o.append(min(max(0.5 + 5.0 * d, 0.0), 1.0))
-    return np.array(o, dtype=np.float32)
 
 
 class _LevelPose:
@@ -312,3 +297,6 @@ class GroundAirEnv(gym.Env):
                 cv2.circle(img, (int(round(u)), int(round(v))), 4, (255, 40, 40), -1)
         cv2.circle(img, (int(self.cam.cx), int(self.cam.cy)), 2, (255, 0, 0), -1)
         return img
+
+
+register()  # gym.make("skyherd/GroundAir-v0") works once this module is imported

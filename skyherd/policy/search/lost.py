@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from skyherd.policy.groundair.fastphi import min_circle
-from skyherd.policy.groundair.params import TaskParams
+from skyherd.task.fastphi import min_circle
+from skyherd.task.params import TaskParams
 
 
 @dataclass(frozen=True)

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from skyherd.policy.groundair.env import GroundAirEnv
-from skyherd.policy.groundair.params import TaskParams
 from skyherd.policy.search.lost import LostSearch
+from skyherd.task.params import TaskParams
 
 SCENARIOS = ("groundsim:speedoff", "groundsim:camouflage")
 FIRST_SEED = 400_000

@@ -44,14 +44,11 @@ from skyherd.flight.geo import GRAVITY
 from skyherd.flight.state import VehicleState
 from skyherd.groundsim.ugv import UGVModel
 from skyherd.perception.camera import CameraParams
+from skyherd.perception.gimbal import ORBIT_CAMERA
 from skyherd.safety.envelope import NZ, P
 from skyherd.safety.kernels import worst_residual
 from skyherd.safety.monitor import make_z
 from skyherd.safety.supervisor import Supervisor
-
-# The zoomed gimbal camera: 320×240 like the quadrotor's, 20° horizontal field of view
-# (f = 907 px): a 1 m marker spans ~3 px at ~190 m slant range, a 20 m team fits in 1/3 of H.
-ORBIT_CAMERA = CameraParams(hfov_rad=math.radians(20.0), mount_offset_frd=(0.0, 0.0, 0.0))
 
 
 @dataclass(frozen=True)

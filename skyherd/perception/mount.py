@@ -21,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from skyherd.flight.frames import euler_to_quat, quat_to_euler
-from skyherd.hil.orbit_gimbal import gimbal_pose
 from skyherd.perception.camera import CameraParams, CameraPose, UAVPose, camera_pose
+from skyherd.perception.gimbal import gimbal_pose
 
 MOUNTS = ("body", "level", "pointed")
 

@@ -29,6 +29,10 @@ from skyherd.perception.camera import CameraParams
 
 _DOWN = np.array([0.0, 0.0, 1.0])
 
+# The zoomed gimbal camera: 320×240 like the quadrotor's, 20° horizontal field of view
+# (f = 907 px): a 1 m marker spans ~3 px at ~190 m slant range, a 20 m team fits in 1/3 of H.
+ORBIT_CAMERA = CameraParams(hfov_rad=math.radians(20.0), mount_offset_frd=(0.0, 0.0, 0.0))
+
 
 @dataclass(frozen=True)
 class GimbalParams:
