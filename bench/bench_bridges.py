@@ -16,7 +16,7 @@ depend on how loaded the machine is; the socket figures are wall-clock and do.
    up): the real autopilot on the bridge, as fast as possible, for 60 s of simulated time on
    the ground (booting, its estimator converging; no client flies it): the lockstep's
    real-time factor and each side's CPU per frame. Flights are the opt-in tests' job
-   (tests/test_bridge_autopilots.py: `skyherd fly --connect` on the bridge).
+   (tests/e2e/test_bridge_autopilots.py: `skyherd fly --connect` on the bridge).
 
     .venv/bin/python bench/bench_bridges.py [--frames N]
 """

@@ -162,7 +162,7 @@ def main() -> int:
     print(
         "\nsimulator processes: K = one per vehicle (the layout before fleets), 2 = `fly`'s "
         "default here (one per core, each stepping its vehicles in turn); the flight is the "
-        "same in both (tests/test_formation_flight.py)\n"
+        "same in both (tests/e2e/test_formation_flight.py)\n"
         "projected = 1 / (companion + simulators / min(2, processes)) CPU s per simulated s: "
         "what the same flight would sustain on 2 idle cores (CPU time does not depend on the load)"
     )

@@ -1,12 +1,58 @@
-"""Fixtures shared by more than one test file."""
+"""The suite's isolation and the fixtures shared by more than one test file.
 
+Isolation: every vehicle sends to UDP 14550 and instance 0 owns 14540/14580/7447, so a test must
+not hear another skyherd on the machine (or be heard by it). Where the kernel lets us (root, or
+CAP_SYS_ADMIN), the test session enters its own network namespace before any test runs: only
+loopback, up, and every process the tests start inherits it. SKYHERD_TEST_NETNS=0 keeps the
+machine's namespace (the header says which one the session runs in).
+"""
+
+import ctypes
 import dataclasses
+import fcntl
+import os
+import socket
+import struct
 
 import numpy as np
 import pytest
 
 from skyherd.safety.config import ENVELOPE_DIR, load_envelope
 from skyherd.safety.envelope import circle_zone, polygon_zone
+
+CLONE_NEWNET = 0x40000000  # <sched.h>
+SIOCGIFFLAGS, SIOCSIFFLAGS, IFF_UP = 0x8913, 0x8914, 0x1  # <linux/sockios.h>, <net/if.h>
+
+
+def _own_network_namespace() -> str:
+    """Unshare the network namespace and bring loopback up; what happened, for the header."""
+    if os.environ.get("SKYHERD_TEST_NETNS", "1") == "0":
+        return "the machine's (SKYHERD_TEST_NETNS=0)"
+    global MACHINE_NETNS_FD
+    libc = ctypes.CDLL(None, use_errno=True)
+    machine = os.open("/proc/self/ns/net", os.O_RDONLY)
+    if libc.unshare(CLONE_NEWNET) != 0:
+        os.close(machine)
+        err = os.strerror(ctypes.get_errno())
+        return f"the machine's (unshare: {err}; tests may meet other vehicles on 14550)"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        ifreq = struct.pack("16sH22x", b"lo", 0)
+        flags = struct.unpack("16sH22x", fcntl.ioctl(s, SIOCGIFFLAGS, ifreq))[1]
+        fcntl.ioctl(s, SIOCSIFFLAGS, struct.pack("16sH22x", b"lo", flags | IFF_UP))
+    os.environ["SKYHERD_TEST_NETNS"] = "0"  # a nested pytest (a test that runs pytest) stays here
+    MACHINE_NETNS_FD = machine  # the machine's namespace, for tests/test_isolation.py
+    return "its own (loopback only)"
+
+
+MACHINE_NETNS_FD: int | None = None
+
+
+NETWORK = _own_network_namespace()
+
+
+def pytest_report_header(config):
+    return f"skyherd: network namespace: {NETWORK}"
+
 
 NORTH_35 = 35.0  # the judge tests' fence: its north edge [m]
 

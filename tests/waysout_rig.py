@@ -1,4 +1,4 @@
-"""One way out of `skyherd fly`, run for tests/test_fly_waysout.py inside its own mount and
+"""One way out of `skyherd fly`, run for tests/e2e/test_fly_waysout.py inside its own mount and
 network namespaces (`unshare -m -n`, as root): mount the runs folder (a small tmpfs, or a bind
 mount that can be made read-only), start `fly`, wait until world.csv shows the vehicle airborne
 in OFFBOARD at simulation time t >= T, then do one thing (a signal to `fly` or to a child, or
