@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.test_autopilots_real import _binary, _defaults
+from tests.e2e.test_autopilots_real import _binary, _defaults
 
 from skyherd.hil import autopilot_sitl
 from skyherd.safety.config import ENVELOPE_DIR, load_envelope
