@@ -32,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.e2e.test_autopilots_real import _binary, _defaults
 
 from skyherd.hil import autopilot_sitl
 from skyherd.safety.config import ENVELOPE_DIR, load_envelope
 from skyherd.safety.judge import JudgeParams, Truth, clearances, fence_check
 from tests.companion_flights import judge_checks
+from tests.e2e.test_autopilots_real import _binary, _defaults
 
 pytestmark = pytest.mark.autopilot
 
