@@ -26,11 +26,9 @@ a frame_count going back means ArduPilot restarted: the physics is reset.
 
 from __future__ import annotations
 
-import argparse
 import math
 import socket
 import struct
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -283,45 +281,3 @@ class ArduPilotJsonBridge:
             if stepped and on_step is not None and on_step(self):
                 break
         return self.stats
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m skyherd.hil.ardupilot_json",
-        description="Be ArduPilot's physics (start it with --model JSON:127.0.0.1 -I N).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    ap.add_argument("--instance", type=int, default=0, help="ArduPilot -I N: UDP 9002+10N")
-    ap.add_argument("--airframe", choices=AIRFRAMES, default="quadrotor")
-    ap.add_argument("--home", default=None, help="LAT,LON,ALT of home (default: the model's)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--duration", type=float, default=None, help="stop after this sim time [s]")
-    ap.add_argument(
-        "--idle-timeout",
-        type=float,
-        default=None,
-        help="stop after this many wall seconds without a packet",
-    )
-    args = ap.parse_args(argv)
-    try:
-        home = Home.parse(args.home) if args.home else DEFAULT_HOME
-        bridge = ArduPilotJsonBridge(args.airframe, args.instance, args.seed, home)
-        bridge.open()
-    except (ValueError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(
-        f"ArduPilot JSON physics ({args.airframe}) on udp {bridge.host}:{bridge.port}", flush=True
-    )
-    try:
-        stats = bridge.serve(sim_duration_s=args.duration, idle_timeout_s=args.idle_timeout)
-    except KeyboardInterrupt:
-        stats = bridge.stats
-    finally:
-        bridge.close()
-    print(f"done: t={bridge.t:.3f} s, {stats}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -20,11 +20,9 @@ mavlink_interface does. From the first answer on, no answer means no step.
 
 from __future__ import annotations
 
-import argparse
 import math
 import select
 import socket
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -401,50 +399,3 @@ class Px4SimBridge:
 
 def _i16(v: float) -> int:
     return max(-32768, min(32767, round(v)))
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m skyherd.hil.px4_sim",
-        description="Be PX4's simulator (start PX4 with PX4_SIM_MODEL=none_iris, -i N).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    ap.add_argument("--instance", type=int, default=0, help="PX4 -i N: TCP 4560+N")
-    ap.add_argument(
-        "--home", default=None, help="LAT,LON,ALT of home (PX4's own home comes from GPS)"
-    )
-    ap.add_argument("--seed", type=int, default=0, help="sensor-noise seed")
-    ap.add_argument("--speedup", type=float, default=1.0, help="0 = as fast as PX4 answers")
-    ap.add_argument("--duration", type=float, default=None, help="stop after this sim time [s]")
-    ap.add_argument(
-        "--connect-timeout", type=float, default=None, help="wall seconds to wait for PX4"
-    )
-    args = ap.parse_args(argv)
-    try:
-        home = Home.parse(args.home) if args.home else DEFAULT_HOME
-        bridge = Px4SimBridge(
-            instance=args.instance, seed=args.seed, home=home, speedup=args.speedup
-        )
-        bridge.listen()
-    except (ValueError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(
-        f"PX4 simulator (quadrotor, none_iris) listening on tcp {bridge.host}:{bridge.port}",
-        flush=True,
-    )
-    try:
-        stats = bridge.serve(args.duration, connect_timeout_s=args.connect_timeout)
-    except KeyboardInterrupt:
-        stats = bridge.stats
-    except (TimeoutError, ConnectionError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    finally:
-        bridge.close()
-    print(f"done: t={bridge.t:.3f} s, {stats}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
