@@ -11,7 +11,8 @@ from skyherd.hil.link import MavlinkLink
 from skyherd.mission.authority import ModeAuthority
 from skyherd.mission.companion import CompanionParams, run
 from skyherd.mission.steps import recipe, wait_ready, wait_until
-from skyherd.mission.vehicle import COMPANION_COMPONENT, VehicleLink
+from skyherd.mission.vehicle import VehicleLink
+from skyherd.runio.constants import COMPANION_COMPONENT
 
 
 class Steps:

@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from skyherd.flight.mavlink.link import Address, UdpLink
+from skyherd.runio.constants import LOCKSTEP_LATENCY_S
 
 NS_PER_US = 1000
 
@@ -37,7 +38,9 @@ class LockstepTimeout(Exception):
 
 @dataclass(frozen=True)
 class LockstepParams:
-    latency_s: float = 0.02  # the companion's declared compute latency L [s of simulation time]
+    latency_s: float = (
+        LOCKSTEP_LATENCY_S  # the companion's declared compute latency L [s of simulation time]
+    )
     resend_s: float = 0.25  # re-send the mark / frame while waiting, every [s of wall time]
     beacon_s: float = 0.05  # before the hello: the vehicle's heartbeat, every [s of wall time]
     timeout_s: float = 60.0  # give up on a tick after [s of wall time]

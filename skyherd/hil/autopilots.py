@@ -40,7 +40,6 @@ M = mavlink2
 NAN = math.nan
 
 # MAVLink component id of skyherd's companion beside an autopilot (CONVENTIONS.md).
-COMPANION_COMPONENT = M.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
 
 
 class UnsupportedMode(ValueError):

@@ -40,8 +40,9 @@ from skyherd.flight.sitl import Sitl
 from skyherd.hil.link import MavlinkLink
 from skyherd.mission.companion import CompanionParams, run
 from skyherd.mission.steps import Phase, mode_params, read_params, recipe, wait_ready
-from skyherd.mission.vehicle import COMPANION_COMPONENT, VehicleLink
+from skyherd.mission.vehicle import VehicleLink
 from skyherd.runio import ports
+from skyherd.runio.constants import COMPANION_COMPONENT
 from skyherd.safety.authority import ENDING_MODES, NET_MODES
 from skyherd.safety.campaign import drill_rng, make_drill, make_vehicle
 from skyherd.safety.config import default_envelope_path, fill_dataclass, load_envelope

@@ -31,7 +31,6 @@ from skyherd.hil.telemetry import Telemetry, local_setpoint, reposition_command,
 from skyherd.perception.camera import UAVPose
 
 M = mavlink2
-COMPANION_COMPONENT = M.MAV_COMP_ID_ONBOARD_COMPUTER  # 191 (CONVENTIONS.md)
 WIND_MAX_AGE_S = 5.0  # a wind estimate older than this [s] is no estimate (streams at 1 Hz)
 
 

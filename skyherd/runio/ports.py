@@ -19,16 +19,18 @@ instances 0..200 do not overlap one another's kinds.
 
 from __future__ import annotations
 
-MAX_INSTANCE = 200  # the highest vehicle instance N (ports, system id 1+N <= 201)
-
-API_BIND_BASE = 14580  # UDP, the vehicle's API / offboard link binds 14580+N
-API_REMOTE_BASE = 14540  # UDP, ... and sends to the companion (MAVSDK) on 14540+N
-GCS_BIND_BASE = 18570  # UDP, the vehicle's ground-station link binds 18570+N
-GCS_REMOTE_PORT = 14550  # UDP, ... and sends to QGroundControl / MAVProxy on 14550 (any N)
-PX4_SIM_BASE = 4560  # TCP, PX4 `-i N` connects its simulator_mavlink to 4560+N
-JSON_BASE = 9002  # UDP, ArduPilot `-I N --model JSON` sends its servos to 9002+10N
-JSON_STRIDE = 10  # ArduPilot's -I N moves every port by 10 N
-ZENOH_BASE = 7447  # TCP, the simulator's Zenoh peer listens on 127.0.0.1:7447+N
+from skyherd.runio.constants import (  # noqa: F401  (the bases are part of this module's API)
+    API_BIND_BASE,
+    API_REMOTE_BASE,
+    GCS_BIND_BASE,
+    GCS_REMOTE_PORT,
+    JSON_BASE,
+    JSON_STRIDE,
+    LOOPBACK,
+    MAX_INSTANCE,
+    PX4_SIM_BASE,
+    ZENOH_BASE,
+)
 
 
 def check_instance(n: int, flag: str = "--instance") -> None:
@@ -36,7 +38,8 @@ def check_instance(n: int, flag: str = "--instance") -> None:
     if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_INSTANCE:
         raise ValueError(
             f"{flag} {n}: instance must be in [0, {MAX_INSTANCE}] (an integer N; its ports "
-            "are 14540+N, 14580+N, 18570+N, 7447+N, ...): pick one in that range"
+            f"are {API_REMOTE_BASE}+N, {API_BIND_BASE}+N, {GCS_BIND_BASE}+N, {ZENOH_BASE}+N, ...): "
+            "pick one in that range"
         )
 
 
@@ -73,7 +76,7 @@ def zenoh_port(n: int) -> int:
 
 
 def checked_zenoh_port(n: int, given: int | None) -> int:
-    """The instance checked, and its Zenoh port: `given` (`--zenoh-port`) or 7447+N, checked
+    """The instance checked, and its Zenoh port: `given` (`--zenoh-port`) or ZENOH_BASE+N, checked
     (ValueError, one line): what `skyherd fly` and `skyherd sim` both accept."""
     check_instance(n)
     port = zenoh_port(n) if given is None else given
@@ -83,10 +86,10 @@ def checked_zenoh_port(n: int, given: int | None) -> int:
 
 def companion_address(n: int) -> str:
     """The companion's default MAVLink address for instance N (pymavlink form)."""
-    return f"udpin:127.0.0.1:{api_remote_port(n)}"
+    return f"udpin:{LOOPBACK}:{api_remote_port(n)}"
 
 
-def zenoh_address(n: int, host: str = "127.0.0.1") -> str:
+def zenoh_address(n: int, host: str = LOOPBACK) -> str:
     """The simulator's Zenoh address of instance N (`tcp:HOST:PORT`, the one address syntax)."""
     return f"tcp:{host}:{zenoh_port(n)}"
 

@@ -21,6 +21,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from skyherd.runio.constants import ZENOH_BASE
+
 ROLES = ("sim", "companion", "viewer")
 """The identities of a flight: the simulator (the Zenoh router), the onboard computer, and a
 watcher (a recorder or `skyherd watch`) that may subscribe and nothing else."""
@@ -145,7 +147,7 @@ def access_control() -> dict:
     }  # fmt: skip
 
 
-def zenoh_config(pki: Pki, role: str, router_host: str, port: int = 7447) -> dict:
+def zenoh_config(pki: Pki, role: str, router_host: str, port: int = ZENOH_BASE) -> dict:
     """One side's Zenoh configuration: the sim listens as the router (mutual TLS, access
     control), every other role connects to it as a client with its own certificate."""
     endpoint = f"tls/{router_host}:{port}"
@@ -162,7 +164,7 @@ def zenoh_config(pki: Pki, role: str, router_host: str, port: int = 7447) -> dic
             "scouting": {"multicast": {"enabled": False}}, "transport": {"link": {"tls": tls}}}  # fmt: skip
 
 
-def write_zenoh_configs(pki: Pki, router_host: str, port: int = 7447) -> dict[str, Path]:
+def write_zenoh_configs(pki: Pki, router_host: str, port: int = ZENOH_BASE) -> dict[str, Path]:
     """router.json5 (the sim's), companion.json5 and viewer.json5 beside the certificates."""
     out = {}
     for role, fname in (("sim", "router.json5"), ("companion", "companion.json5"),

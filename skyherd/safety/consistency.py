@@ -43,6 +43,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from skyherd.flight.geo import GRAVITY
+from skyherd.runio.constants import POS_SPEED_MAX_MPS
 from skyherd.safety.envelope import EnvelopeSpec
 
 PX4_OBL_OK = {0: "position", 3: "return", 4: "land", 5: "hold"}
@@ -63,7 +64,7 @@ def _get(params: Mapping[str, float], *names: str) -> tuple[str, float] | None:
 
 
 def check_params(spec: EnvelopeSpec, params: Mapping[str, float],
-                 pos_speed_max_mps: float = 12.0) -> dict[str, str]:  # fmt: skip
+                 pos_speed_max_mps: float = POS_SPEED_MAX_MPS) -> dict[str, str]:  # fmt: skip
     """{parameter name: one-line reason} for every rule the parameters break ({} = consistent)."""
     dyn, lim = spec.dynamics, spec.limits
     bad: dict[str, str] = {}
@@ -159,7 +160,7 @@ def _bank_ceiling_deg(spec: EnvelopeSpec) -> float:
 
 
 def required_values(
-    spec: EnvelopeSpec, params: Mapping[str, float], pos_speed_max_mps: float = 12.0
+    spec: EnvelopeSpec, params: Mapping[str, float], pos_speed_max_mps: float = POS_SPEED_MAX_MPS
 ) -> dict[str, float]:
     """{name: value} that makes each parameter `check_params` faults agree with the envelope,
     in the autopilot's own unit, rounded toward the safe side (C1 link-loss time down, C2
@@ -223,7 +224,7 @@ class ParamGuard:
     """The autopilot's parameters as they arrive (PARAM_VALUE) → the supervisor's
     `Health.params_fault` and a hand-over verdict; each change of verdict is an event."""
 
-    def __init__(self, spec: EnvelopeSpec, pos_speed_max_mps: float = 12.0, events=None,
+    def __init__(self, spec: EnvelopeSpec, pos_speed_max_mps: float = POS_SPEED_MAX_MPS, events=None,
                  vehicle: str = "uav0"):  # fmt: skip
         self.spec = spec
         self.pos_speed_max = pos_speed_max_mps

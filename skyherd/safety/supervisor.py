@@ -28,6 +28,7 @@ import numpy as np
 from skyherd.flight.autopilot_api import FlightMode, Setpoint
 from skyherd.flight.geo import GRAVITY
 from skyherd.flight.state import VehicleState
+from skyherd.runio.constants import POS_SPEED_MAX_MPS
 from skyherd.safety.envelope import NZ, Envelope
 from skyherd.safety.fallback import (
     HoverFallback,
@@ -83,7 +84,9 @@ class SupervisorParams:
     fixedwing_min_speed_mps: float = 12.0  # loiter speed floor for the fixed-wing fallback
     pos_gain_xy: float = 0.95  # the autopilot's MPC_XY_P: position setpoint → velocity [1/s]
     pos_gain_z: float = 1.0  # the autopilot's MPC_Z_P [1/s]
-    pos_speed_max_mps: float = 12.0  # the autopilot's MPC_XY_VEL_MAX: position-mode speed [m/s]
+    pos_speed_max_mps: float = (
+        POS_SPEED_MAX_MPS  # the autopilot's MPC_XY_VEL_MAX: position-mode speed [m/s]
+    )
     loiter_radius_m: float = (
         0.0  # fixed-wing loiter radius about a position setpoint (0: turn radius)
     )

@@ -555,7 +555,8 @@ def run(args: argparse.Namespace) -> int:
     from skyherd.hil.link import LinkError, MavlinkLink
     from skyherd.mission.companion import CompanionParams
     from skyherd.mission.companion import run as run_companion
-    from skyherd.mission.vehicle import COMPANION_COMPONENT, VehicleLink
+    from skyherd.mission.vehicle import VehicleLink
+    from skyherd.runio.constants import COMPANION_COMPONENT
 
     address = check(args)
     use_camera = args.mission in ("groundair", "shepherd") and not args.no_camera
@@ -787,8 +788,9 @@ def _run_formation(args, run_dir: Path, folder) -> int:
         vehicle_homes,
         vehicle_instances,
     )
-    from skyherd.mission.vehicle import COMPANION_COMPONENT, VehicleLink
+    from skyherd.mission.vehicle import VehicleLink
     from skyherd.runio import CsvWriter
+    from skyherd.runio.constants import COMPANION_COMPONENT
 
     try:
         K = len(json.loads(Path(args.plan).read_text(encoding="utf-8")))

@@ -39,6 +39,7 @@ from skyherd.groundsim.ugv import UGVModel
 from skyherd.perception.mount import level_quat, mounted_pose
 from skyherd.perception.render_fast import FastRenderer
 from skyherd.runio import CsvWriter, cut_records, try_write_text
+from skyherd.runio.constants import CAMERA_HZ
 from skyherd.task.params import TaskParams
 from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
 
@@ -58,7 +59,7 @@ class WorldParams:
         None  # lat [deg], lon [deg], alt AMSL [m]; None: default
     )
     vehicle: str = "uav0"  # Zenoh key prefix
-    camera_hz: float = 10.0  # camera frames per simulated second (the companion's tick)
+    camera_hz: float = CAMERA_HZ  # camera frames per simulated second (the companion's tick)
     ugv_start: str = "offboard"  # "offboard" | "0" | seconds: when the team starts to drive
     lockstep: bool = True  # hold the simulation for the companion's decisions
     lockstep_params: LockstepParams = field(default_factory=LockstepParams)

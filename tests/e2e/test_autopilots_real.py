@@ -30,7 +30,7 @@ from skyherd.flight.autopilot_api import FlightMode
 from skyherd.hil.autopilots import Step
 from skyherd.hil.link import LinkError, MavlinkLink
 from skyherd.mission.steps import recipe, wait_ready, wait_until
-from skyherd.mission.vehicle import COMPANION_COMPONENT
+from skyherd.runio.constants import COMPANION_COMPONENT
 from skyherd.scripts.cli import main
 from tests.companion_flights import Steps, fly, judge_checks, missions
 

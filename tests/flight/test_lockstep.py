@@ -11,7 +11,7 @@ from skyherd.flight.lockstep import LockstepParams, is_mark
 from skyherd.groundsim.ugv import UGVModel, initial_states
 from skyherd.mission.companion import FrameInbox
 from skyherd.mission.perception import Perception
-from skyherd.mission.vehicle import COMPANION_COMPONENT, VehicleLink
+from skyherd.mission.vehicle import VehicleLink
 from skyherd.perception.render_fast import FastRenderer
 from skyherd.perception.transport import (
     FramePublisher,
@@ -22,6 +22,7 @@ from skyherd.perception.transport import (
     publisher_params,
     subscriber_params,
 )
+from skyherd.runio.constants import COMPANION_COMPONENT
 from skyherd.task.params import TaskParams
 from skyherd.world.sim import World, WorldParams
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from skyherd.flight.geofence import GEOFENCE_PARAMS
 from skyherd.flight.params import ParamSpec
+from skyherd.runio.constants import POS_SPEED_MAX_MPS
 
 MULTIROTOR_PARAMS: tuple[ParamSpec, ...] = (
     # --- position / velocity loops
@@ -21,7 +22,9 @@ MULTIROTOR_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_VEL_I_LIM", 3.0, 0.0, 10.0, "velocity integrator limit", "m/s^2"),
     ParamSpec("MPC_DRAG_FF", 1.0, 0.0, 2.0, "drag feed-forward (× airframe drag)", "-"),
     ParamSpec("MPC_VEL_I_ERR", 1.0, 0.01, 20.0, "integrate only velocity errors below", "m/s"),
-    ParamSpec("MPC_XY_VEL_MAX", 12.0, 0.0, 20.0, "horizontal speed limit (offboard)", "m/s"),
+    ParamSpec(
+        "MPC_XY_VEL_MAX", POS_SPEED_MAX_MPS, 0.0, 20.0, "horizontal speed limit (offboard)", "m/s"
+    ),
     ParamSpec("MPC_XY_CRUISE", 5.0, 0.0, 20.0, "horizontal speed in auto modes", "m/s"),
     ParamSpec("MPC_VEL_MANUAL", 10.0, 0.0, 20.0, "horizontal speed at full stick", "m/s"),
     ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, 0.5, 8.0, "climb rate limit", "m/s"),
