@@ -61,6 +61,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "a run's decisions as a readable timeline (module, reason, net)",
     ),
     "reproduce": ("skyherd.scripts.reproduce", "reproduce a published study in one command (sql)"),
+    "study": (
+        "skyherd.scripts.study",
+        "skyherd's own studies: the lost-UGV search, aerial shepherding",
+    ),
 }
 
 

@@ -133,7 +133,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--renderer", choices=["fast", "bullet"], default="fast", help=argparse.SUPPRESS
     )
-    from skyherd.flight.faults import add_fault_arguments
+    from skyherd.scripts.fault_options import add_fault_arguments
 
     add_fault_arguments(parser.add_argument_group("faults in the simulation (flight/faults.py)"))
     from skyherd.scripts.companion import add_arguments as companion_arguments

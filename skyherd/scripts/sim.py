@@ -140,7 +140,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME=VALUE",
         help="set a parameter of the built-in autopilot at start (repeatable), e.g. COM_OF_LOSS_T=3",
     )
-    from skyherd.flight.faults import add_fault_arguments
+    from skyherd.scripts.fault_options import add_fault_arguments
 
     add_fault_arguments(parser)
     parser.add_argument(
@@ -578,7 +578,7 @@ def _home(text: str | None) -> tuple[float, float, float] | None:
 
 def _faults(args, seed: int | None = None):
     """The fault plan of --wind/--gust/--noise/--fault (None: calm air, perfect state)."""
-    from skyherd.flight.faults import plan_from_args
+    from skyherd.scripts.fault_options import plan_from_args
 
     if not (args.wind or args.gust or args.noise or args.fault):
         return None

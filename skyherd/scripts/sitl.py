@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="TOML [params] overrides at start, e.g. flight/airframes/px4_standin.toml "
                         "(the PX4 stand-in set); default none")  # fmt: skip
     parser.add_argument("--signing-key", type=Path, default=None, help="MAVLink 2 signing key file (32 bytes): signing on (default: none, or the key a SETUP_SIGNING saved in --state-dir)")  # fmt: skip
-    from skyherd.flight.faults import add_fault_arguments
+    from skyherd.scripts.fault_options import add_fault_arguments
 
     add_fault_arguments(parser)  # --wind --gust --noise --fault (docs/quadrotor.md, faults)
 
@@ -82,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
         home = Home.parse(args.home)
     except ValueError as e:
         raise UsageError(f"--home: {e}; give LAT,LON,ALT like -35.36,149.16,584") from e
-    from skyherd.flight.faults import FaultSpecError, plan_from_args
+    from skyherd.flight.faults import FaultSpecError
+    from skyherd.scripts.fault_options import plan_from_args
 
     try:
         plan = plan_from_args(args, seed=args.seed)

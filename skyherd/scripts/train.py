@@ -1,4 +1,4 @@
-"""`skyherd train {sql,irl,ab,abs-dl}`: each learner's command lives in its own module."""
+"""`skyherd train {sql,irl,ab,abs-dl,shepherd}`: each learner's command lives in its own module."""
 
 from __future__ import annotations
 
@@ -18,6 +18,10 @@ LEARNERS: dict[str, tuple[str, str]] = {
     "abs-dl": (
         "skyherd.scripts.train_absdl",
         "ABS-DL: deep sub-task networks fused, continuous actions, shielded by the safety net",
+    ),
+    "shepherd": (
+        "skyherd.scripts.train_shepherd",
+        "the shepherd's learned selector (collect / drive) from Strömbom's demonstrations",
     ),
 }
 

@@ -70,8 +70,9 @@ def test_the_learned_selector_reproduces_from_its_demonstrations():
     kept = json.loads(SELECTOR_FILE.read_text())
     fit = SelectorFitParams(seeds=tuple(kept["fit"]["seeds"]))
     sel, rec = train_selector(fit)
-    np.testing.assert_allclose(sel.w, kept["w"], rtol=1e-9)
-    assert sel.b == pytest.approx(kept["b"], rel=1e-9)
+    # 1e-6: the fit is deterministic; BLAS kernels of other CPUs round at ~1e-8 (seen: 5e-8)
+    np.testing.assert_allclose(sel.w, kept["w"], rtol=1e-6)
+    assert sel.b == pytest.approx(kept["b"], rel=1e-6)
     assert rec["train_accuracy"] >= 0.99 and rec["demonstrations"] == kept["demonstrations"]
 
 
@@ -80,5 +81,26 @@ def test_the_study_prints_a_table_and_writes_its_files(tmp_path):
     for name in ("strombom", "learned"):
         assert rows[name]["success"] == 4 and 0 < rows[name]["median_s"] < 400
     assert (tmp_path / "table.md").read_text().count("| 4/4 |") == 2
-    assert (tmp_path / "shepherd_study.png").stat().st_size > 10_000
     assert len((tmp_path / "episodes.csv").read_text().splitlines()) == 1 + 8
+
+
+def test_skyherd_study_shepherd_writes_a_run_folder_with_the_figure(tmp_path, capsys):
+    from skyherd.scripts.cli import main
+
+    assert main(["study", "shepherd", "--seeds", "2", "--runs-dir", str(tmp_path)]) == 0
+    (run,) = tmp_path.iterdir()
+    assert (run / "shepherd_study.png").stat().st_size > 10_000
+    assert (run / "summary.md").read_text().count("| 2/2 |") == 2
+    assert json.loads((run / "config.json").read_text())["seeds"] == 2
+    assert main(["study", "shepherd", "--agents", "1", "--runs-dir", str(tmp_path)]) == 2
+    assert "a flock has at least 2 agents" in capsys.readouterr().err
+
+
+def test_skyherd_train_shepherd_writes_the_selector_it_reports(tmp_path, capsys):
+    from skyherd.scripts.cli import main
+
+    out = tmp_path / "selector.json"
+    assert main(["train", "shepherd", "--episodes", "2", "--out", str(out)]) == 0
+    kept = json.loads(out.read_text())
+    assert kept["fit"]["seeds"] == [1000, 1001]
+    assert f"{out}: {kept['demonstrations']} decisions" in capsys.readouterr().out

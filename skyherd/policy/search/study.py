@@ -1,4 +1,4 @@
-"""`python -m skyherd.policy.search.study`: re-acquiring a lost UGV on the speed-off and camouflage
+"""The search study (`skyherd study search`): re-acquiring a lost UGV on the speed-off and camouflage
 scenarios (GroundAir env, groundsim:speedoff / groundsim:camouflage), 50 unseen episodes each
 (seeds 400000+), for the scripted expert and today's policy (policy/models/groundair_ab.npz),
 each without and with the search (policy.search.lost).
@@ -9,14 +9,12 @@ re-acquired when it is in view again before the episode's end (60 s; every pilot
 whole episode: SEARCH_TASK). Printed per (pilot, scenario): the episodes it was lost in, the
 fraction of those where it was re-acquired, the median and 90th-percentile time to re-acquire,
 the fraction of the time after its loss it was in view, and the fraction of the episode with
-every UGV in view. Writes table.md and episodes.csv into --out.
+every UGV in view. `run` writes table.md and episodes.csv into `out`.
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -129,26 +127,3 @@ def table(rows: list[dict]) -> str:
         out.append(f"| {r['pilot']} | {r['scenario']} | {r['lost']}/{r['episodes']} | {r['reacquired']:.2f} "
                    f"| {r['median_s']:.1f} | {r['p90_s']:.1f} | {r['in_view_after']:.3f} | {r['all_in_view']:.3f} |")  # fmt: skip
     return "\n".join(out)
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m skyherd.policy.search.study", description=__doc__,
-                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)  # fmt: skip
-    ap.add_argument("--episodes", type=int, default=50, help="episodes per (pilot, scenario)")
-    ap.add_argument(
-        "--first-seed", type=int, default=FIRST_SEED, help="first episode seed (unseen in training)"
-    )
-    ap.add_argument(
-        "--out", default="runs/search_study", help="folder for table.md and episodes.csv"
-    )
-    a = ap.parse_args(argv)
-    if a.episodes < 1:
-        print("--episodes must be >= 1", file=sys.stderr)
-        return 2
-    print(table(run(a.episodes, a.first_seed, a.out)))
-    print(f"written: {a.out}/table.md, episodes.csv")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
