@@ -7,7 +7,7 @@ STAMP := $(VENV)/.skyherd-installed
 MAVPROXY_VENV := .venv-mavproxy
 MAVPROXY_STAMP := $(MAVPROXY_VENV)/.installed
 
-.PHONY: run test test-autopilots bench lint venv mavproxy clean
+.PHONY: run test test-fast test-autopilots bench lint venv mavproxy clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -33,6 +33,12 @@ run: $(STAMP)
 test: $(STAMP) $(MAVPROXY_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
+
+# The suite without the tests marked slow (each over 10 s on 2 cores): every package's unit
+# tests and the quick end-to-end ones, in a few minutes (the time is in the README).
+test-fast: $(STAMP) $(MAVPROXY_STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -q -m "not slow and not autopilot"
 
 # Opt-in: the production companion (`skyherd fly --connect`) against real autopilot builds named
 # by SKYHERD_PX4_BIN, SKYHERD_ARDUCOPTER_BIN, SKYHERD_ARDUPLANE_BIN (built outside this repository;
