@@ -20,6 +20,8 @@ import argparse
 import ipaddress
 from pathlib import Path
 
+from skyherd.runio.constants import ZENOH_BASE
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("flight-tls"),
@@ -27,7 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--router-host", required=True, metavar="ADDRESS",
                         help="the simulator's address on the link to the companion (an IP or a "
                              "host name): the router listens there, the clients verify it")  # fmt: skip
-    parser.add_argument("--port", type=int, default=7447, help="the router's TLS port")
+    parser.add_argument("--port", type=int, default=ZENOH_BASE,
+                        help=f"the router's TLS port (default {ZENOH_BASE})")  # fmt: skip
     parser.add_argument("--days", type=int, default=365, help="validity of every certificate")
 
 
