@@ -11,7 +11,8 @@ Keys → channels (record.messages):
     skyherd/<vehicle>/safety/event   → /<vehicle>/safety/event and /<vehicle>/log
     skyherd/sim/clock                → /sim/clock
 
-A payload that does not parse is counted in `corrupt[key kind]` and skipped.
+A payload that does not parse (or, with the flight's key, is not authentic) is counted in
+`corrupt[key kind]` and skipped.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from typing import Any
 
 from skyherd.record.flightlog import FlightLog
 from skyherd.record.mcap_file import FlightRecorder
+from skyherd.runio.mac import record_ok
 
 CLOCK_KEY = "skyherd/sim/clock"
 
@@ -58,8 +60,9 @@ class ZenohRecorder:
     def __init__(self, session, vehicle: str, path: Path | str | None, *, also=(),
                  key: bytes | None = None, **mcap_options):  # fmt: skip
         """path None: no file, only the `also` sinks (e.g. a LiveServer: live view only).
-        key: the flight key: camera frames, UGV states and the clock that fail their MAC
-        (perception.transport, groundsim.transport) are not recorded (counted as corrupt)."""
+        key: the flight key: camera frames, UGV states, the clock, the companion's decisions
+        and its net's events that fail their MAC (perception.transport, runio.mac) are not
+        recorded (counted in `corrupt`)."""
         self.vehicle = vehicle
         self.key = key
         if path is None:
@@ -114,8 +117,6 @@ class ZenohRecorder:
         return rec
 
     def _authentic(self, rec: dict) -> dict:
-        from skyherd.groundsim.transport import record_ok
-
         if self.key is not None and not record_ok(rec, self.key):
             raise ValueError("record MAC does not match the flight key")
         return rec
@@ -125,11 +126,11 @@ class ZenohRecorder:
         self.log.ugvs(_t(rec), [rec])
 
     def _decision(self, payload: bytes) -> None:
-        rec = self._json(payload)
+        rec = self._authentic(self._json(payload))
         self.log.decision(_t(rec), rec, vehicle=self.vehicle)
 
     def _event(self, payload: bytes) -> None:
-        rec = self._json(payload)
+        rec = self._authentic(self._json(payload))
         self.log.event(_t(rec), rec, vehicle=self.vehicle)
 
     def _clock(self, payload: bytes) -> None:

@@ -34,12 +34,13 @@ from skyherd.flight.clock import Pacer
 from skyherd.flight.lockstep import LockstepGate, LockstepParams, LockstepTimeout, collect_closes
 from skyherd.flight.mavlink.signing import load_key
 from skyherd.flight.state import VehicleState
-from skyherd.groundsim.transport import UGVStatePublisher, sign_record
+from skyherd.groundsim.transport import UGVStatePublisher
 from skyherd.groundsim.ugv import UGVModel
 from skyherd.hil.camera_mount import level_quat, mounted_pose
 from skyherd.perception.render_fast import FastRenderer
 from skyherd.policy.groundair.params import TaskParams
 from skyherd.runio import CsvWriter, cut_records, try_write_text
+from skyherd.runio.mac import sign_record
 from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
 
 CLOCK_KEY = "skyherd/sim/clock"

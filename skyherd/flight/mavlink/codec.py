@@ -15,7 +15,7 @@ from operator import attrgetter, itemgetter
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from skyherd.flight.mavlink.signing import Signing
+from skyherd.flight.mavlink.signing import Signing, is_signed
 from skyherd.flight.mavlink.wire import CRC, HDR_V2, STX_V2
 
 MAVLinkMessage = mavlink.MAVLink_message
@@ -234,6 +234,14 @@ class Codec:
             self.stats.rx_bad += 1
         self.stats.rx_frames += len(out)
         return out
+
+    def authentic(self, msgs: list[MAVLinkMessage]) -> bool:
+        """Whether accepted frames may decide whom a `udpin` link answers: always without
+        signing; with it only if one of them is signed (a frame accepted unsigned, RADIO_STATUS,
+        never moves the replies to its sender)."""
+        if self.signing is None or self.signing.key is None:
+            return True
+        return any(is_signed(m.get_msgbuf()) for m in msgs)
 
     def accept(self, msg: MAVLinkMessage) -> bool:
         """False (counted) if signing is on and the frame is not acceptably signed."""
