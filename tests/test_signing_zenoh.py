@@ -115,3 +115,33 @@ def test_forged_records_from_an_attacker_reach_only_an_unsigned_flight(tmp_path)
     got = read_messages(run / "flight.mcap")
     taken = {m.topic for m in got.messages if m.t >= FORGED_T_SIM}
     assert {"/uav0/decision", "/uav0/safety/event", "/ugvs", "/sim/clock"} <= taken, taken
+
+
+def _furthest(run) -> float:
+    """The largest furthest-UGV feature the shepherd decided on (its distance over the flock's
+    radius f, mission.shepherd): a UGV reported 500 m away makes it jump."""
+    rows = [json.loads(x) for x in (run / "decisions.jsonl").read_text().splitlines()]
+    return max(
+        (r.get("explanation") or {}).get("concepts", {}).get("furthest_over_f", 0.0) for r in rows
+    )
+
+
+@pytest.mark.timeout(2400)
+def test_a_forged_ugv_state_reaches_only_an_unsigned_shepherd(tmp_path):
+    """The shepherd reads the flock's states from Zenoh: signed, the attacker's UGV 0 (500 m
+    north) is refused and counted (companion.json `ugv_link`); unsigned, the shepherd decides
+    on it (its furthest-UGV feature jumps)."""
+    shepherd = ("--mission", "shepherd", "--shepherd-selector", "strombom", "--duration", "15")
+    forge = ("--count", "6")
+    rc, run, report = attacked_flight(tmp_path / "signed", "records", *shepherd, instance=102,
+                                      zenoh_port=PORT + 1, attacker_args=forge)  # fmt: skip
+    assert rc == 0, (run / "summary.md").read_text()
+    link = json.loads((run / "companion.json").read_text())["ugv_link"]
+    assert link["authenticated"] is True and link["received"] > 100, link
+    assert 1 <= link["refused"] <= report["sent"], (link, report)
+    signed = _furthest(run)
+    rc, run, report = attacked_flight(tmp_path / "unsigned", "records", "--no-signing", *shepherd,
+                                      instance=102, zenoh_port=PORT + 1, attacker_args=forge)  # fmt: skip
+    link = json.loads((run / "companion.json").read_text())["ugv_link"]
+    assert link["authenticated"] is False and link["refused"] == 0, link
+    assert _furthest(run) > 10 * signed, (signed, _furthest(run))
