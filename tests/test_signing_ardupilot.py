@@ -72,6 +72,8 @@ def test_a_signed_flight_on_the_ardupilot_personality_refuses_unsigned_commands_
     assert comp["outcome"] == "completed" and comp["yielded"] is None
     assert comp["mavlink"]["signed"] is True
     assert comp["frames"]["ok"] > 50  # the world's link (--follow) is signed too: it renders
+    world = json.loads((run / "sim_stats.json").read_text())
+    assert world["followed"] and world["mavlink_signing"]["on"] is True, world
     assert end_mode is FlightMode.LAND  # ArduCopter's end: the companion's LAND, disarmed
     assert reports["ap-land"]["sent"] > 100 and reports["radio-status"]["sent"] > 100, reports
     assert not any(k.startswith("COMMAND_ACK") for k in reports["ap-land"]["replies"]), reports

@@ -61,8 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--signing-key",
         default=None,
         metavar="FILE",
-        help="MAVLink 2 signing key file (32 bytes) for the vehicle, the companion and the world's "
-        "link (default with the built-in vehicle: a new key per run, <run>/signing.key)",
+        help="MAVLink 2 signing key file (32 bytes) for the vehicle (every vehicle of a formation), "
+        "the companion, the world's link and the Zenoh records' MACs (default with the built-in "
+        "vehicle: a new key per run, <run>/signing.key)",
     )
     parser.add_argument(
         "--no-signing",
