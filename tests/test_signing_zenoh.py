@@ -32,6 +32,15 @@ KEY, OTHER = bytes(range(32)), os.urandom(32)
 PORT = 7548  # instance 101's Zenoh port (this helper's instances 100-105)
 
 
+def zenoh_counts(path) -> dict:
+    """The recorder's counts in flight.mcap (the "skyherd zenoh" metadata record)."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        (meta,) = [m for m in make_reader(f).iter_metadata() if m.name == "skyherd zenoh"]
+    return {k: json.loads(v) for k, v in meta.metadata.items()}
+
+
 def _until(cond, what: str, patience_s: float = 30.0) -> None:
     deadline = time.monotonic() + patience_s
     while not cond():
@@ -87,6 +96,8 @@ def test_forged_camera_info_decisions_and_events_from_another_session_are_refuse
     got = read_messages(path)
     assert got.counts()["/uav0/decision"] == 1 and got.counts()["/uav0/safety/event"] == 1
     assert max(m.t for m in got.messages) == 0.5
+    assert zenoh_counts(path) == {"authenticated": True, "received": {"decision": 1, "event": 1},
+                                  "corrupt": {"decision": 2, "event": 2}}  # fmt: skip
 
 
 @pytest.mark.timeout(2400)
@@ -105,6 +116,8 @@ def test_forged_records_from_an_attacker_reach_only_an_unsigned_flight(tmp_path)
     got = read_messages(run / "flight.mcap")
     assert got.complete and got.counts()["/uav0/decision"] > 0
     assert max(m.t for m in got.messages) < FORGED_T_SIM, "a forged record was recorded"
+    refused = zenoh_counts(run / "flight.mcap")["corrupt"]  # counted by the recorder
+    assert {"decision", "event", "ugv", "clock"} <= set(refused), refused
     rc, run, report = attacked_flight(tmp_path / "unsigned", "records", "--no-signing",
                                       instance=101, zenoh_port=PORT, attacker_args=forge,
                                       record=True)  # fmt: skip
@@ -115,6 +128,7 @@ def test_forged_records_from_an_attacker_reach_only_an_unsigned_flight(tmp_path)
     got = read_messages(run / "flight.mcap")
     taken = {m.topic for m in got.messages if m.t >= FORGED_T_SIM}
     assert {"/uav0/decision", "/uav0/safety/event", "/ugvs", "/sim/clock"} <= taken, taken
+    assert zenoh_counts(run / "flight.mcap")["authenticated"] is False
 
 
 def _furthest(run) -> float:

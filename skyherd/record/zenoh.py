@@ -12,7 +12,8 @@ Keys → channels (record.messages):
     skyherd/sim/clock                → /sim/clock
 
 A payload that does not parse (or, with the flight's key, is not authentic) is counted in
-`corrupt[key kind]` and skipped.
+`corrupt[key kind]` and skipped; at close the counts go into the file as the MCAP metadata
+record "skyherd zenoh" (authenticated, received, corrupt: JSON strings).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from skyherd.record.mcap_file import FlightRecorder
 from skyherd.runio.mac import record_ok
 
 CLOCK_KEY = "skyherd/sim/clock"
+ZENOH_METADATA = "skyherd zenoh"  # the MCAP metadata record of the counts, written at close
 
 
 def clock_time(payload: bytes) -> float:
@@ -144,6 +146,11 @@ class ZenohRecorder:
                 s.undeclare()
             except Exception:  # noqa: BLE001 - already closed with its session
                 pass
+        file = getattr(self.log, "file", None)
+        if file is not None:  # what came and what was refused, in the file itself
+            file.metadata(ZENOH_METADATA, {"authenticated": json.dumps(self.key is not None),
+                                           "received": json.dumps(self.received, sort_keys=True),
+                                           "corrupt": json.dumps(self.corrupt, sort_keys=True)})  # fmt: skip
         self.log.close()
 
     def __enter__(self):
