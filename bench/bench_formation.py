@@ -14,6 +14,7 @@ streams (the ones a formation companion reads, then every default stream on both
 nobody at the ground stations' port 14550 and with a listener there).
 
     .venv/bin/python bench/bench_formation.py [--quick] [--instance N]
+    .venv/bin/python bench/bench_formation.py --ab-signing ROUNDS   # signed vs --no-signing, K = 16
 """
 
 from __future__ import annotations
@@ -103,15 +104,15 @@ def vehicle_costs(instance: int, sim_s: float = 20.0) -> list[tuple[str, float]]
         w.close()
 
 
-def fly(k: int, sims: int, instance: int, root: Path) -> list:
+def fly(k: int, sims: int, instance: int, root: Path, *extra: str, tag: str = "") -> list:
     plan = [[[x, y + i] for i in range(11)] for x, y in STARTS.get(k, ((1, 1),))]
     f = root / f"plan_K{k}.json"
     f.write_text(json.dumps(plan))
-    runs = root / f"K{k}-sims{sims}"
+    runs = root / f"K{k}-sims{sims}{tag}"
     w0 = time.monotonic()
     code = skyherd(["fly", "--mission", "formation", "--agents", str(k), "--policy-file", str(f),
                     "--speedup", "0", "--instance", str(instance), "--timeout", "1800",
-                    "--sims", str(sims), "--runs-dir", str(runs)])  # fmt: skip
+                    "--sims", str(sims), "--runs-dir", str(runs), *extra])  # fmt: skip
     wall = time.monotonic() - w0
     (run,) = runs.iterdir()
     stats = [json.loads((run / f"uav{i}" / "sim_stats.json").read_text()) for i in range(k)]
@@ -131,13 +132,41 @@ def fly(k: int, sims: int, instance: int, root: Path) -> list:
             f"{wall:.0f}", "yes" if code == 0 else f"NO ({comp.get('reason', '')[:60]})"]  # fmt: skip
 
 
+def ab_signing(k: int, rounds: int, instance: int) -> None:
+    """The cost of signing the formation's links: the same flight signed (the default, a
+    per-run key) and `--no-signing`, alternated A/B in this run, `rounds` each; CPU s per
+    simulated s of the simulators (per vehicle) and of the companion, medians, and the ratios."""
+    import statistics
+
+    got: dict[str, list[list]] = {"signed": [], "unsigned": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(rounds):
+            for name, extra in (("signed", ()), ("unsigned", ("--no-signing",))):
+                got[name].append(fly(k, 2, instance, Path(tmp), *extra, tag=f"-{name}{r}"))
+    med = {n: [statistics.median(float(row[i]) for row in rows) for i in (3, 4)]
+           for n, rows in got.items()}  # fmt: skip
+    rows = [[n, f"{m[0]:.4f}", f"{m[1]:.4f}", ", ".join(row[2] for row in got[n]),
+             ", ".join(row[-1] for row in got[n])] for n, m in med.items()]  # fmt: skip
+    print(markdown_table([f"formation K = {k}, 2 simulator processes",
+                          "CPU s per sim s per vehicle (median)", "companion CPU s per sim s (median)",
+                          "real-time factors (this machine now)", "all landed"], rows))  # fmt: skip
+    s, u = med["signed"], med["unsigned"]
+    print(f"\nsigned / unsigned: simulators {s[0] / u[0]:.3f}, companion {s[1] / u[1]:.3f} "
+          f"({rounds} alternated rounds each)")  # fmt: skip
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="K = 1 and 4 only")
     ap.add_argument(
         "--instance", type=int, default=150, help="first vehicle instance (default 150)"
     )
+    ap.add_argument("--ab-signing", type=int, default=0, metavar="ROUNDS",
+                    help="only the cost of signing: K = 16 signed and --no-signing, alternated")  # fmt: skip
     args = ap.parse_args()
+    if args.ab_signing:
+        ab_signing(16, args.ab_signing, args.instance)
+        return 0
     ks = (1, 4) if args.quick else (1, 4, 9, 16)
     load = os.getloadavg()[0]
     print(f"formation benchmark: K simulators + 1 companion in lockstep, speed-up 0 (unpaced); "

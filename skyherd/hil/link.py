@@ -315,7 +315,7 @@ class MavlinkLink:
             return []
         if self.datagrams:  # a UDP datagram carries whole frames: parse each on its own
             msgs = self.codec.parse(data)
-            if msgs:
+            if msgs and self.codec.authentic(msgs):
                 self.transport.accept_sender()
         else:  # a byte stream: frames may span reads
             msgs = [m for m in (self._stream.parse_buffer(data) or [])

@@ -12,7 +12,6 @@ reason, mode.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +23,7 @@ from skyherd.mission.pilots import DescentPilot, Observation, Pilot, Proposal
 from skyherd.mission.steps import MissionError, Phase, read_params, recipe, wait_ready, wait_until
 from skyherd.mission.vehicle import VehicleLink
 from skyherd.runio import CsvWriter, JsonlWriter
+from skyherd.runio.mac import sign_record
 from skyherd.safety.authority import Authority
 from skyherd.safety.net import SafetyNet
 from skyherd.safety.supervisor import Decision, Mode, Severity
@@ -76,6 +76,7 @@ class Record:
     rows: list[dict] = field(default_factory=list)  # the decisions, for the report
 
     live: object | None = None  # a Zenoh publisher of skyherd/<vehicle>/decision (or None)
+    live_key: bytes | None = None  # the flight's key: each live decision carries "mac" (runio.mac)
 
     def decision(self, row: dict) -> None:
         self.rows.append(row)
@@ -83,7 +84,7 @@ class Record:
             self.decisions.write(row)
         if self.live is not None:
             try:
-                self.live.put(json.dumps(row).encode())
+                self.live.put(sign_record(row, self.live_key))
             except Exception:  # noqa: BLE001 - a dead session never stops the flight
                 self.live = None
 

@@ -2,7 +2,8 @@
 
 Keys (CONVENTIONS.md): `skyherd/<vehicle>/camera/frame` (one frame per sample) and
 `skyherd/<vehicle>/camera/info` (camera intrinsics and mounting, JSON, sent with the first
-frame and every `info_every` frames).
+frame and every `info_every` frames; with the flight's key it carries "mac", runio.mac, and a
+subscriber with the key keeps only authentic info, counting the rest in `info_refused`).
 
 Frame wire format (little-endian), then the pixel data:
 
@@ -55,6 +56,7 @@ import cv2
 import numpy as np
 
 from skyherd.perception.camera import CameraParams
+from skyherd.runio.mac import record_ok, sign_record
 from skyherd.runio.ports import ZENOH_BASE
 
 _HDR = struct.Struct("<4sHBBIQdd3d4dHHII")
@@ -468,7 +470,7 @@ class FramePublisher:
     def publish_info(self, t_sim: float) -> None:
         rec = {**camera_info(self.cam, self.encoding, self.mount), "t_sim": t_sim,
                "stream": self.stream}  # fmt: skip
-        self._info.put(json.dumps(rec).encode())
+        self._info.put(sign_record(rec, self.key))  # with the key: its "mac" (runio.mac)
 
     def close(self) -> None:
         for p in (self._pub, self._info):
@@ -492,6 +494,7 @@ class LinkStats:
     refused: int = 0  # not authentic (with a key): unsigned, wrong MAC or pixel digest
     info_received: int = 0
     info_corrupt: int = 0
+    info_refused: int = 0  # camera info without a valid "mac" (with a key)
     latencies_s: list[float] = field(default_factory=list, repr=False)
 
     def as_dict(self) -> dict:
@@ -579,6 +582,10 @@ class FrameSubscriber:
         except (ValueError, UnicodeDecodeError):
             with self._cv:
                 self.stats.info_corrupt += 1
+            return
+        if self.key is not None and not record_ok(info, self.key):
+            with self._cv:
+                self.stats.info_refused += 1
             return
         with self._cv:
             self.info = info

@@ -69,6 +69,11 @@ class McapFile:
         if self._open_bytes >= self.chunk_bytes or abs(t_ns - self._open_since) >= self.chunk_ns:
             self.flush()
 
+    def metadata(self, name: str, values: dict[str, str]) -> None:
+        """A metadata record (`name`, string → string) at this point of the file."""
+        if self.error is None and not self._closed:
+            self._w.add_metadata(name, {str(k): str(v) for k, v in values.items()})
+
     def flush(self) -> None:
         """Close the open chunk and push it to the file (readable from here on)."""
         if self._open_bytes and self.error is None:

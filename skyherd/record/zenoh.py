@@ -11,7 +11,9 @@ Keys → channels (record.messages):
     skyherd/<vehicle>/safety/event   → /<vehicle>/safety/event and /<vehicle>/log
     skyherd/sim/clock                → /sim/clock
 
-A payload that does not parse is counted in `corrupt[key kind]` and skipped.
+A payload that does not parse (or, with the flight's key, is not authentic) is counted in
+`corrupt[key kind]` and skipped; at close the counts go into the file as the MCAP metadata
+record "skyherd zenoh" (authenticated, received, corrupt: JSON strings).
 """
 
 from __future__ import annotations
@@ -24,8 +26,10 @@ from typing import Any
 
 from skyherd.record.flightlog import FlightLog
 from skyherd.record.mcap_file import FlightRecorder
+from skyherd.runio.mac import record_ok
 
 CLOCK_KEY = "skyherd/sim/clock"
+ZENOH_METADATA = "skyherd zenoh"  # the MCAP metadata record of the counts, written at close
 
 
 def clock_time(payload: bytes) -> float:
@@ -58,8 +62,9 @@ class ZenohRecorder:
     def __init__(self, session, vehicle: str, path: Path | str | None, *, also=(),
                  key: bytes | None = None, **mcap_options):  # fmt: skip
         """path None: no file, only the `also` sinks (e.g. a LiveServer: live view only).
-        key: the flight key: camera frames, UGV states and the clock that fail their MAC
-        (perception.transport, groundsim.transport) are not recorded (counted as corrupt)."""
+        key: the flight key: camera frames, UGV states, the clock, the companion's decisions
+        and its net's events that fail their MAC (perception.transport, runio.mac) are not
+        recorded (counted in `corrupt`)."""
         self.vehicle = vehicle
         self.key = key
         if path is None:
@@ -114,8 +119,6 @@ class ZenohRecorder:
         return rec
 
     def _authentic(self, rec: dict) -> dict:
-        from skyherd.groundsim.transport import record_ok
-
         if self.key is not None and not record_ok(rec, self.key):
             raise ValueError("record MAC does not match the flight key")
         return rec
@@ -125,11 +128,11 @@ class ZenohRecorder:
         self.log.ugvs(_t(rec), [rec])
 
     def _decision(self, payload: bytes) -> None:
-        rec = self._json(payload)
+        rec = self._authentic(self._json(payload))
         self.log.decision(_t(rec), rec, vehicle=self.vehicle)
 
     def _event(self, payload: bytes) -> None:
-        rec = self._json(payload)
+        rec = self._authentic(self._json(payload))
         self.log.event(_t(rec), rec, vehicle=self.vehicle)
 
     def _clock(self, payload: bytes) -> None:
@@ -143,6 +146,11 @@ class ZenohRecorder:
                 s.undeclare()
             except Exception:  # noqa: BLE001 - already closed with its session
                 pass
+        file = getattr(self.log, "file", None)
+        if file is not None:  # what came and what was refused, in the file itself
+            file.metadata(ZENOH_METADATA, {"authenticated": json.dumps(self.key is not None),
+                                           "received": json.dumps(self.received, sort_keys=True),
+                                           "corrupt": json.dumps(self.corrupt, sort_keys=True)})  # fmt: skip
         self.log.close()
 
     def __enter__(self):

@@ -8,9 +8,9 @@ still get the record, and the safety net never stops because of logging.
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
+from skyherd.runio.mac import sign_record
 from skyherd.runio.runfolder import to_jsonable
 
 
@@ -19,17 +19,19 @@ def event_key(vehicle: str) -> str:
 
 
 class ZenohEventSink:
-    """Publishes each record as JSON (UTF-8) on `skyherd/<vehicle>/safety/event`."""
+    """Publishes each record as JSON (UTF-8) on `skyherd/<vehicle>/safety/event`; with the
+    flight's key `mac_key` each carries "mac" (runio.mac)."""
 
-    def __init__(self, session, vehicle: str):
+    def __init__(self, session, vehicle: str, mac_key: bytes | None = None):
         self.key = event_key(vehicle)
+        self.mac_key = mac_key
         self._pub = session.declare_publisher(self.key)
         self.sent = 0
         self.failed = 0
 
     def write(self, record: dict[str, Any]) -> None:
         try:
-            self._pub.put(json.dumps(to_jsonable(record), sort_keys=True).encode("utf-8"))
+            self._pub.put(sign_record(to_jsonable(record), self.mac_key, sort_keys=True))
             self.sent += 1
         except Exception:  # noqa: BLE001  a dead session must not stop the safety net
             self.failed += 1

@@ -360,14 +360,15 @@ def _shepherd_mission(args, run_dir: Path | None):
     return SingleVehicleMission(pilot, net, plan, record, None), plan
 
 
-def attach_flock(session, mission) -> object:
-    """The shepherd reads the flock's reports (skyherd/ugv/<id>/state) on `session`; returns
-    the subscriber (closed with the session)."""
+def attach_flock(session, mission, key: bytes | None = None) -> object:
+    """The shepherd reads the flock's reports (skyherd/ugv/<id>/state) on `session` (with the
+    flight's key only authentic ones); returns the subscriber (closed with the session), kept
+    as `mission.flock_sub` for companion.json."""
     from skyherd.groundsim.flock import FlockParams
     from skyherd.groundsim.transport import UGVStateSubscriber
     from skyherd.mission.shepherd import flock_reader
 
-    sub = UGVStateSubscriber(session)
+    sub = mission.flock_sub = UGVStateSubscriber(session, key=key)
     mission.pilot.flock = flock_reader(sub, FlockParams().n)
     return sub
 
@@ -585,9 +586,9 @@ def run(args: argparse.Namespace) -> int:
     session = frames = None
     if use_camera:
         session, frames = open_frames(args)
-        _publish_live(session, mission)
+        _publish_live(session, mission, key=frames.sub.key)
         if args.mission == "shepherd":
-            attach_flock(session, mission)
+            attach_flock(session, mission, key=frames.sub.key)
         from skyherd.mission.companion import LoggedFrames
         from skyherd.runio import CsvWriter
 
@@ -733,7 +734,12 @@ def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = Non
     sub = getattr(getattr(frames, "source", frames), "sub", None)
     if sub is not None:  # the camera link: authenticated or not, frames refused by it
         out["camera_link"] = {"authenticated": sub.key is not None, "refused": sub.stats.refused,
-                              "out_of_order": sub.stats.out_of_order}  # fmt: skip
+                              "out_of_order": sub.stats.out_of_order,
+                              "info_refused": sub.stats.info_refused}  # fmt: skip
+    flock = getattr(mission, "flock_sub", None)
+    if flock is not None:  # the shepherd's UGV states: authenticated or not, refused
+        out["ugv_link"] = {"authenticated": flock.key is not None, "received": flock.received,
+                           "refused": flock.refused}  # fmt: skip
     if getattr(mission, "plan", None) is not None and mission.name == "orbit":
         import dataclasses as dc
 
@@ -762,14 +768,16 @@ def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = Non
             _say(f"skyherd companion: frames.png not written ({e.strerror or e})")
 
 
-def _publish_live(session, mission, vehicle: str = "uav0") -> None:
+def _publish_live(session, mission, vehicle: str = "uav0", key: bytes | None = None) -> None:
     """Decisions on skyherd/<vehicle>/decision and the net's events on .../safety/event, so a
-    recorder or a live view in another process sees them (record.ZenohRecorder)."""
+    recorder or a live view in another process sees them (record.ZenohRecorder); with the
+    flight's key each carries its MAC (runio.mac)."""
     from skyherd.safety.events import Tee, ZenohEventSink
 
     mission.rec.live = session.declare_publisher(f"skyherd/{vehicle}/decision")
+    mission.rec.live_key = key
     if mission.net is not None:
-        mission.net.set_events(Tee(mission.net.events, ZenohEventSink(session, vehicle)))
+        mission.net.set_events(Tee(mission.net.events, ZenohEventSink(session, vehicle, key)))
 
 
 def _run_formation(args, run_dir: Path, folder) -> int:
@@ -817,7 +825,8 @@ def _run_formation(args, run_dir: Path, folder) -> int:
             (run_dir / f"uav{k}").mkdir(exist_ok=True)
             links.append(MavlinkLink.open(ports.companion_address(inst), source_system=1 + inst,
                                           source_component=COMPANION_COMPONENT,
-                                          tlog=run_dir / f"uav{k}" / "telemetry.tlog"))  # fmt: skip
+                                          tlog=run_dir / f"uav{k}" / "telemetry.tlog",
+                                          signing_key=args.signing_key))  # fmt: skip
     except LinkError as e:
         for link in links:
             link.close()
@@ -872,7 +881,9 @@ def _run_formation(args, run_dir: Path, folder) -> int:
            "mode_requests": sum(a.requests for a in mission.authority),
            "net": mission.net_counts(), **_tick_stats(stats),
            "handover": stats.handover if stats is not None else None,
-           "records_cut": cut_records([events, record.decisions, record.track])}  # fmt: skip
+           "records_cut": cut_records([events, record.decisions, record.track]),
+           "mavlink": {"signed": all(link.signing is not None and link.signing.enabled for link in links),
+                       "rejected": {f"uav{k}": link.rejected_packets for k, link in enumerate(links)}}}  # fmt: skip
     try_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
     if error:
         _say(f"skyherd companion: {'' if interrupted else 'aborted: '}{error}")

@@ -61,8 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--signing-key",
         default=None,
         metavar="FILE",
-        help="MAVLink 2 signing key file (32 bytes) for the vehicle, the companion and the world's "
-        "link (default with the built-in vehicle: a new key per run, <run>/signing.key)",
+        help="MAVLink 2 signing key file (32 bytes) for the vehicle (every vehicle of a formation), "
+        "the companion, the world's link and the Zenoh records' MACs (default with the built-in "
+        "vehicle: a new key per run, <run>/signing.key)",
     )
     parser.add_argument(
         "--no-signing",
@@ -272,20 +273,8 @@ def _validate(args) -> tuple[list[str], list[str]]:
         comp += ["--orbit-no-land"] if args.orbit_no_land else []
         sim[sim.index("--ugvs") + 1] = args.orbit_scenario
         sim += ["--airframe", "fixedwing"]
-    from skyherd.flight.mavlink.signing import SigningError, load_key
-
-    if args.signing_key and args.no_signing:
-        raise UsageError("--signing-key and --no-signing contradict each other: drop one")
-    if args.setup_signing and (args.connect is None or not args.signing_key):
-        raise UsageError("--setup-signing gives an outside autopilot your key: it needs "
-                         "--connect ADDRESS and --signing-key FILE (the built-in vehicle is "
-                         "signed by default)")  # fmt: skip
-    if args.signing_key:
-        try:
-            load_key(Path(args.signing_key))
-        except SigningError as e:
-            raise UsageError(f"--signing-key: {e}") from None
-        key = str(Path(args.signing_key).resolve())
+    key = check_signing(args)
+    if key is not None:
         sim += ["--signing-key", key]
         comp += ["--signing-key", key]
     for item in args.param:
@@ -310,6 +299,26 @@ def _validate(args) -> tuple[list[str], list[str]]:
     return sim, comp
 
 
+def check_signing(args) -> str | None:
+    """The signing options checked (UsageError, one line): the absolute path of the
+    --signing-key file, or None (a per-run key, or --no-signing)."""
+    from skyherd.flight.mavlink.signing import SigningError, load_key
+
+    if args.signing_key and args.no_signing:
+        raise UsageError("--signing-key and --no-signing contradict each other: drop one")
+    if args.setup_signing and (args.connect is None or not args.signing_key):
+        raise UsageError("--setup-signing gives an outside autopilot your key: it needs "
+                         "--connect ADDRESS and --signing-key FILE (the built-in vehicle is "
+                         "signed by default)")  # fmt: skip
+    if not args.signing_key:
+        return None
+    try:
+        load_key(Path(args.signing_key))
+    except SigningError as e:
+        raise UsageError(f"--signing-key: {e}") from None
+    return str(Path(args.signing_key).resolve())
+
+
 def _key_file(child_args: list[str]) -> str | None:
     """The signing key file handed to a child (None: unsigned)."""
     return (
@@ -328,17 +337,15 @@ def signing_mode(args) -> str:
     return "on (per-run key)"
 
 
-def per_run_key(args, run_dir: Path, sim: list[str], comp: list[str]) -> Path | None:
-    """With the built-in vehicle and neither --signing-key nor --no-signing: a new key
-    `<run>/signing.key` (32 random bytes, mode 0600) handed to both programs."""
+def per_run_key(args, run_dir: Path) -> Path | None:
+    """With the built-in vehicle(s) and neither --signing-key nor --no-signing: a new key
+    `<run>/signing.key` (32 random bytes, mode 0600) for every program of the flight."""
     from skyherd.flight.mavlink.signing import KEY_LEN, save_key
 
     if args.signing_key or args.no_signing or args.connect is not None:
         return None
     path = run_dir / SIGNING_KEY_FILE
     save_key(path, os.urandom(KEY_LEN))
-    sim += ["--signing-key", str(path)]
-    comp += ["--signing-key", str(path)]
     return path
 
 
@@ -413,7 +420,10 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     `kept` until the children run, then acted on (Launch.supervise)."""
     from skyherd.scripts import launch, waysout
 
-    per_run_key(args, run_dir, sim_args, comp_args)
+    key = per_run_key(args, run_dir)
+    if key is not None:  # handed to both programs
+        sim_args += ["--signing-key", str(key)]
+        comp_args += ["--signing-key", str(key)]
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
                          "companion": comp_args, "envelope": envelope,
                          "signing": signing_mode(args)})  # fmt: skip

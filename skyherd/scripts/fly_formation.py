@@ -104,9 +104,11 @@ def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
 def run_formation(args: argparse.Namespace) -> int:
     """Fly the formation as K simulators + one companion; 0 if every vehicle landed on its target."""
     from skyherd.scripts import launch
+    from skyherd.scripts.fly import check_signing, per_run_key, signing_mode
 
     _check(args)
     _check_children(args)
+    key = check_signing(args)
     params = _params(args)
     K = args.agents
     plan, plan_info = obtain_plan(args)
@@ -117,12 +119,14 @@ def run_formation(args: argparse.Namespace) -> int:
 
     folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
+    key = key or per_run_key(args, run_dir)  # one key for every vehicle's two links
+    signing = ["--signing-key", str(key)] if key is not None else []
     folder.write_config(
         {"args": args_dict(args), "mission": "formation", "formation": params,
          "plan": plan_info, "field_origin": DEFAULT_HOME, "homes": homes, "instances": instances,
          "frame": "field NED about field_origin; cell (x, y) centre at north (y-1)*cell_m, "
                   "east (x-1)*cell_m",
-         "signing": "off (formation: the fleet's links are not signed yet)"}
+         "signing": signing_mode(args)}
     )  # fmt: skip
     atomic_write_text(run_dir / "plan.json", _plan_json(plan))
     waysout.write_running(run_dir)
@@ -148,10 +152,11 @@ def run_formation(args: argparse.Namespace) -> int:
                 atomic_write_text(fleet_file, json.dumps(fleet, indent=1) + "\n")
                 kids.start_sim(f"sim{g}", launch.skyherd_cmd(
                     "sim", "--fleet", str(fleet_file), "--ugvs", "none", "--speedup", repr(args.speedup),
-                    "--latency", repr(args.latency), "--run-dir", str(run_dir)), run_dir / f"sim{g}.log")  # fmt: skip
+                    "--latency", repr(args.latency), "--run-dir", str(run_dir), *signing), run_dir / f"sim{g}.log")  # fmt: skip
             kids.start_companion(launch.skyherd_cmd(
                 "companion", "--mission", "formation", "--plan", str(run_dir / "plan.json"), "--cell-m",
-                repr(params.cell_m), "--instance", str(args.instance), "--run-dir", str(run_dir)))  # fmt: skip
+                repr(params.cell_m), "--instance", str(args.instance), "--run-dir", str(run_dir),
+                *signing))  # fmt: skip
             rc, why = kids.supervise(args.timeout)
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
         rc, why = waysout.interrupted(e)
@@ -378,6 +383,7 @@ def formation_report(run_dir: Path, rc: int, why: str) -> bool:
         f"{params.speed_mps:g} m/s, cruise at {params.altitude(0):g} + {params.altitude_step_m:g}·k m)"
         f" and land on their formation targets; {K} simulators and one companion in lockstep.\n"
         + (f"\n{'Ended' if ok else 'Aborted'}: {reason}\n" if reason and not ok else "")
+        + (f"\nMAVLink signing: {cfg['signing']}.\n" if cfg.get("signing") else "")
         + f"\n{table}\n{overview}\n{verdict_table}"
     )  # fmt: skip
     print(table)

@@ -439,11 +439,10 @@ def read_fleet(args) -> list[FleetVehicle]:
         or args.autopilot != "builtin"
         or args.airframe != "quadrotor"
         or args.param
-        or args.signing_key
         or args.cut_link
     ):
         raise UsageError("--fleet: built-in quadrotors only; drop --follow, --autopilot, --airframe, "
-                         "--param, --signing-key, --cut-link (or run one `skyherd sim` per vehicle)")  # fmt: skip
+                         "--param, --cut-link (or run one `skyherd sim` per vehicle)")  # fmt: skip
     path = Path(args.fleet)
     try:
         entries = json.loads(path.read_text())

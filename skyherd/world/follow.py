@@ -254,7 +254,9 @@ class FollowWorld:
         stats = {"followed": True, "frames": self.frames, "wall_s": time.monotonic() - wall0,
                  "vehicle_t_s": self.tel.t, "autopilot": self.tel.profile.name if self.tel.profile else None,
                  "roi_commands": self.roi_commands, "system_id": self.system_id,
-                 "error": self.error, "after_companion": self.alone}  # fmt: skip
+                 "error": self.error, "after_companion": self.alone,
+                 "mavlink_signing": {"on": self.link.signing is not None and self.link.signing.enabled,
+                                     "rejected": self.link.rejected_packets}}  # fmt: skip
         if self.run_dir is not None:
             atomic_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")
         return stats

@@ -34,12 +34,13 @@ from skyherd.flight.clock import Pacer
 from skyherd.flight.lockstep import LockstepGate, LockstepParams, LockstepTimeout, collect_closes
 from skyherd.flight.mavlink.signing import load_key
 from skyherd.flight.state import VehicleState
-from skyherd.groundsim.transport import UGVStatePublisher, sign_record
+from skyherd.groundsim.transport import UGVStatePublisher
 from skyherd.groundsim.ugv import UGVModel
 from skyherd.perception.mount import level_quat, mounted_pose
 from skyherd.perception.render_fast import FastRenderer
 from skyherd.runio import CsvWriter, cut_records, try_write_text
 from skyherd.runio.constants import CAMERA_HZ
+from skyherd.runio.mac import sign_record
 from skyherd.task.params import TaskParams
 from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
 

@@ -26,19 +26,23 @@ INSTANCE, ZENOH_PORT = 91, 7491  # signing helper: instances 91-95, ports 7491-7
 
 
 def attacked_flight(tmp_path: Path, attack: str, *fly_args: str, instance: int = INSTANCE,
-                    zenoh_port: int = ZENOH_PORT, attacker_args=()) -> tuple[int, Path, dict]:  # fmt: skip
-    """(exit code of `skyherd fly`, its run folder, the attacker's report)."""
+                    zenoh_port: int = ZENOH_PORT, attacker_args=(),
+                    target: int | None = None, record: bool = False) -> tuple[int, Path, dict]:  # fmt: skip
+    """(exit code of `skyherd fly`, its run folder, the attacker's report). The attacker aims
+    at vehicle instance `target` (default: the flight's `instance`); `record`: flight.mcap too."""
     runs = tmp_path / "runs"
+    target = instance if target is None else target
     attacker = subprocess.Popen(
-        [sys.executable, str(HERE / "attacker.py"), attack, "--instance", str(instance),
+        [sys.executable, str(HERE / "attacker.py"), attack, "--instance", str(target),
          "--zenoh-port", str(zenoh_port), *attacker_args],
         stdout=subprocess.PIPE, text=True, cwd=ROOT,
     )  # fmt: skip
     try:
         fly = subprocess.run(
             [sys.executable, "-m", "skyherd.scripts.cli", "fly", "--duration", "4", "--speedup", "0",
-             "--instance", str(instance), "--zenoh-port", str(zenoh_port), "--no-record",
-             "--runs-dir", str(runs), "--timeout", "900", *fly_args],
+             "--instance", str(instance), "--zenoh-port", str(zenoh_port),
+             *(() if record else ("--no-record",)), "--runs-dir", str(runs), "--timeout", "900",
+             *fly_args],
             cwd=ROOT, capture_output=True, text=True, timeout=1200,
         )  # fmt: skip
     finally:
@@ -64,14 +68,20 @@ def judged_all_pass(run: Path) -> bool:
     return bool(judged) and {r for _, r in judged} == {"pass"}
 
 
-def assert_signed_and_untouched(rc: int, run: Path) -> None:
-    """The default flight: signed with its per-run key, completed, every judge's check passed."""
+def assert_per_run_key(rc: int, run: Path) -> str:
+    """Exit 0, and the run's own key, said in config.json and summary.md; the summary."""
     summary = (run / "summary.md").read_text()
     assert rc == 0, summary
     assert "MAVLink signing: on (per-run key)." in summary
     assert _json(run / "config.json")["signing"] == "on (per-run key)"
     key = run / "signing.key"
     assert key.stat().st_size == 32 and key.stat().st_mode & 0o777 == 0o600
+    return summary
+
+
+def assert_signed_and_untouched(rc: int, run: Path) -> None:
+    """The default flight: signed with its per-run key, completed, every judge's check passed."""
+    summary = assert_per_run_key(rc, run)
     assert judged_all_pass(run), summary
     comp = _json(run / "companion.json")
     assert comp["outcome"] == "completed" and comp["yielded"] is None

@@ -140,14 +140,9 @@ def test_forged_camera_frames_are_refused_by_a_default_flight_and_taken_without_
 def test_ugv_states_and_clock_carry_a_mac_and_forged_records_are_refused():
     import json as js
 
-    from skyherd.groundsim.transport import (
-        UGVStatePublisher,
-        UGVStateSubscriber,
-        record_mac,
-        record_ok,
-        sign_record,
-    )
+    from skyherd.groundsim.transport import UGVStatePublisher, UGVStateSubscriber
     from skyherd.groundsim.ugv import UGVStates
+    from skyherd.runio.mac import record_mac, record_ok, sign_record
 
     clock = js.loads(sign_record({"t_sim": 1.5}, KEY))
     assert record_ok(clock, KEY) and not record_ok(clock, OTHER)

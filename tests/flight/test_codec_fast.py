@@ -9,7 +9,12 @@ import pytest
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from skyherd.flight.mavlink.codec import Codec, pack_unsigned_v2, parse_unsigned_v2
+from skyherd.flight.mavlink.codec import (
+    Codec,
+    pack_unsigned_v2,
+    parse_signed_v2,
+    parse_unsigned_v2,
+)
 from skyherd.flight.mavlink.signing import Signing
 
 
@@ -87,6 +92,47 @@ def test_anything_unusual_goes_the_slow_counting_way():
     assert [m.get_type() for m in c.parse(good + bad_crc)] == ["HEARTBEAT"]
     assert c.stats.rx_bad == 1 and c.stats.rx_frames == 1
     assert len(c.parse(good)) == 1 and c.stats.rx_frames == 2
+
+
+KEY = bytes(range(1, 33))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_every_signed_message_of_the_dialect_decodes_as_pymavlink_does(seed):
+    """Signed frames (the signature after the checksum) decode as pymavlink's parser without a
+    key gives them, the signature kept in the frame bytes; a datagram of many too."""
+    rng = random.Random(seed)
+    signer = Signing(KEY)
+    frames = []
+    for cls in M.mavlink_map.values():
+        payload = bytearray(rng.randbytes(cls.unpacker.size))
+        if rng.random() < 0.5:
+            payload[cls.unpacker.size // 2 :] = bytes(cls.unpacker.size - cls.unpacker.size // 2)
+        f = signer.sign(frame(cls, bytes(payload), rng.randrange(256), rng.randrange(1, 256),
+                              rng.randrange(256), compat=rng.choice((0, 1))), link_id=3)  # fmt: skip
+        fast, ref = parse_signed_v2(f), slow(f)
+        assert fast is not None and len(fast) == len(ref) == 1, cls.msgname
+        assert same(fast[0], ref[0]) and len(fast[0].get_msgbuf()) == len(f), cls.msgname
+        assert parse_unsigned_v2(f) is None
+        frames.append(f)
+    dg = b"".join(frames[:40])
+    fast, ref = parse_signed_v2(dg), slow(dg)
+    assert len(fast) == len(ref) == 40 and all(same(a, b) for a, b in zip(fast, ref))
+    unsigned = frame(M.MAVLink_heartbeat_message, bytes(9), 0, 1, 1)
+    assert parse_signed_v2(unsigned) is None and parse_signed_v2(dg + unsigned) is None
+    assert parse_signed_v2(dg[:-1]) is None  # a signature cut short
+
+
+def test_a_signing_codec_takes_signed_datagrams_the_fast_way_and_checks_each_frame():
+    hb = M.MAVLink(None, srcSystem=1, srcComponent=1)
+    sender = Codec(1, 1, signing=Signing(KEY))
+    dg = b"".join(sender.pack(hb.heartbeat_encode(2, 12, 0, 0, 3)) for _ in range(3))
+    c = Codec(255, 190, signing=Signing(KEY))
+    assert [m.get_type() for m in c.parse(dg)] == ["HEARTBEAT"] * 3 and c.stats.rx_frames == 3
+    assert c.parse(dg) == [] and c.stats.rx_rejected == 3  # replayed: each frame refused
+    forger = Codec(1, 1, signing=Signing(bytes(32 * [7])))
+    assert c.parse(forger.pack(hb.heartbeat_encode(2, 12, 0, 0, 3))) == []
+    assert c.stats.rx_rejected == 4 and c.signing.stats["rejected_bad"] == 1
 
 
 def test_with_signing_on_unsigned_frames_never_take_the_fast_path():

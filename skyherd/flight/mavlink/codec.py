@@ -12,14 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from operator import attrgetter, itemgetter
 
-from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from skyherd.flight.mavlink.signing import Signing
-from skyherd.flight.mavlink.wire import CRC, HDR_V2, STX_V2
+from skyherd.flight.mavlink.signing import IFLAG_SIGNED, SIGNATURE_LEN, Signing, is_signed
+from skyherd.flight.mavlink.wire import CRC, HDR_V2, STX_V2, X25
 
 MAVLinkMessage = mavlink.MAVLink_message
-_X25 = crc16.mcrf4xx  # MAVLink's X.25 checksum (CRC-16/MCRF4XX), as pymavlink uses it
 
 
 class _Layout:
@@ -104,7 +102,7 @@ def frame_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int
         STX_V2, len(body), 0, 0, seq, src_sys, src_comp, msg_id & 0xFFFF, msg_id >> 16
     )
     frame += body
-    return frame + CRC.pack(_X25(lay.extra, _X25(frame[1:])))
+    return frame + CRC.pack(X25(lay.extra, X25(frame[1:])))
 
 
 def pack_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int) -> bytes | None:
@@ -130,13 +128,28 @@ def parse_unsigned_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
 
     A datagram of telemetry decoded here costs a few µs a frame; pymavlink's byte-wise
     parser, tens: with K vehicles' streams that parser was the companion's largest cost."""
+    return parse_v2(datagram, 0)
+
+
+def parse_signed_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
+    """`parse_unsigned_v2` for a datagram made only of signed frames (incompat flags exactly
+    IFLAG_SIGNED, the 13-byte signature after the checksum), decoded as pymavlink's parser
+    without a key gives them (`_signed` False, the signature in `get_msgbuf()`); None for
+    anything else. The signature is not checked here: `Codec.accept` checks each frame."""
+    return parse_v2(datagram, IFLAG_SIGNED)
+
+
+def parse_v2(datagram: bytes, flags: int) -> list[MAVLinkMessage] | None:
+    """Every frame of the datagram if each is a whole MAVLink 2 frame with incompat flags
+    `flags` (0, or IFLAG_SIGNED: a signature follows), a known id and a good checksum; else None."""
+    sig = SIGNATURE_LEN if flags & IFLAG_SIGNED else 0
     out = []
     i, n = 0, len(datagram)
     while i < n:
-        if n - i < 12 or datagram[i] != STX_V2 or datagram[i + 2] != 0:
-            return None  # not MAVLink 2, or incompat flags (signed, or unknown: slow path)
+        if n - i < 12 + sig or datagram[i] != STX_V2 or datagram[i + 2] != flags:
+            return None  # not MAVLink 2, or other incompat flags: slow path
         plen = datagram[i + 1]
-        end = i + 12 + plen
+        end = i + 12 + plen + sig
         if end > n:
             return None
         _, _, _, compat, seq, src_sys, src_comp, lo, hi = HDR_V2.unpack_from(datagram, i)
@@ -144,21 +157,22 @@ def parse_unsigned_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
         lay = _LAYOUTS.get(msg_id)
         if lay is None:
             return None
-        crc = datagram[end - 2] | datagram[end - 1] << 8
-        if _X25(lay.extra, _X25(datagram[i + 1 : end - 2])) != crc:
+        c = end - sig - 2  # where the checksum starts
+        crc = datagram[c] | datagram[c + 1] << 8
+        if X25(lay.extra, X25(datagram[i + 1 : c])) != crc:
             return None
-        payload = datagram[i + 10 : end - 2]
+        payload = datagram[i + 10 : c]
         if plen < lay.size:
             payload += bytes(lay.size - plen)  # MAVLink 2 trailing-zero truncation
         elif plen > lay.size:
             payload = payload[: lay.size]
         m = lay.message(payload)
         buf = bytearray(datagram[i:end])
-        m._signed = False
+        m._signed = False  # as pymavlink's parser without a key leaves it
         m._msgbuf = buf
-        m._payload = buf[6:-2]  # as pymavlink's decode sets it
+        m._payload = buf[6 : c - i]  # as pymavlink's decode sets it
         m._crc = crc
-        m._header = mavlink.MAVLink_header(msg_id, 0, compat, plen, seq, src_sys, src_comp)
+        m._header = mavlink.MAVLink_header(msg_id, flags, compat, plen, seq, src_sys, src_comp)
         out.append(m)
         i = end
     return out
@@ -208,11 +222,13 @@ class Codec:
 
     def parse(self, datagram: bytes) -> list[MAVLinkMessage]:
         """Decode every valid frame in one datagram; malformed bytes are counted and dropped."""
-        if self.signing is None or self.signing.key is None:
-            fast = parse_unsigned_v2(bytes(datagram))
-            if fast is not None:
-                self.stats.rx_frames += len(fast)
-                return fast
+        signed = self.signing is not None and self.signing.key is not None
+        fast = (parse_signed_v2 if signed else parse_unsigned_v2)(bytes(datagram))
+        if fast is not None:
+            if signed:  # each frame's signature and timestamp (flight.mavlink.signing)
+                fast = [m for m in fast if self.accept(m)]
+            self.stats.rx_frames += len(fast)
+            return fast
         rx = self.rx
         rx.buf = bytearray()
         rx.buf_index = 0
@@ -234,6 +250,14 @@ class Codec:
             self.stats.rx_bad += 1
         self.stats.rx_frames += len(out)
         return out
+
+    def authentic(self, msgs: list[MAVLinkMessage]) -> bool:
+        """Whether accepted frames may decide whom a `udpin` link answers: always without
+        signing; with it only if one of them is signed (a frame accepted unsigned, RADIO_STATUS,
+        never moves the replies to its sender)."""
+        if self.signing is None or self.signing.key is None:
+            return True
+        return any(is_signed(m.get_msgbuf()) for m in msgs)
 
     def accept(self, msg: MAVLinkMessage) -> bool:
         """False (counted) if signing is on and the frame is not acceptably signed."""

@@ -87,11 +87,12 @@ class UdpLink:
             self.rx_datagrams += 1
             msgs = self.codec.parse(data)
             if msgs:
-                self.peer = (addr[0], addr[1])
+                if self.codec.authentic(msgs):  # never an unsigned sender on a signed link
+                    self.peer = (addr[0], addr[1])
                 if self._on_frame is not None:  # each parsed frame, never the raw datagram
                     for m in msgs:
                         self._on_frame("in", bytes(m.get_msgbuf()))
-            out.extend((m, self.peer) for m in msgs)
+            out.extend((m, (addr[0], addr[1])) for m in msgs)
         return out
 
     def send(self, msg: MAVLinkMessage, to: Address | None = None, force: bool = False) -> None:

@@ -33,6 +33,8 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from skyherd.flight.mavlink.wire import X25
+
 KEY_LEN = 32
 SIGNATURE_LEN = 13
 IFLAG_SIGNED = 0x01
@@ -133,9 +135,7 @@ class Signing:
             return frame
         buf = bytearray(frame)
         buf[2] |= IFLAG_SIGNED  # the flag is inside the CRC: recompute it
-        crc = mavlink.x25crc(buf[1:-2])
-        crc.accumulate(struct.pack("B", msg_type.crc_extra))
-        buf[-2:] = struct.pack("<H", crc.crc)
+        buf[-2:] = struct.pack("<H", X25(bytes((msg_type.crc_extra,)), X25(bytes(buf[1:-2]))))
         buf += struct.pack("<BQ", link_id & 0xFF, self._next_timestamp())[:7]
         buf += hashlib.sha256(self.key + buf).digest()[:6]
         return bytes(buf)
