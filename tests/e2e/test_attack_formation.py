@@ -11,9 +11,8 @@ import json
 import re
 from pathlib import Path
 
-from tests.test_attack_mavlink import assert_per_run_key, attacked_flight
-
 from skyherd.scripts.cli import main
+from tests.e2e.test_attack_mavlink import assert_per_run_key, attacked_flight
 
 INSTANCE, ZENOH_PORT = 100, 7547  # vehicles 100..103
 PLAN = [[[1, 5], [2, 5], [2, 6]], [[1, 2], [2, 2], [2, 3]], [[2, 1], [3, 1], [4, 1]],

@@ -22,15 +22,14 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from tests.test_attack_mavlink import judged_all_pass
-
 from skyherd.flight.autopilot_api import FlightMode
 from skyherd.flight.mavlink import Personality
 from skyherd.flight.mavlink.signing import save_key
 from skyherd.scripts.cli import main
+from tests.e2e.test_attack_mavlink import judged_all_pass
 from tests.mavlink_support import running_sitl
 
-HERE = Path(__file__).parent
+HERE = Path(__file__).resolve().parents[1]  # tests/: attacker.py
 INSTANCE = 105  # the vehicle: API 14580+105 → companion 14645, ground station 18675 → 14550
 DO_SET_MODE = 176
 
