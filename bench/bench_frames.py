@@ -3,27 +3,33 @@
     .venv/bin/python bench/bench_frames.py [--frames 150] [--rounds 4] [--size 640x480] [--rate 30]
 
 Run it inside `unshare -n` (a private loopback). A subscriber process (this file with
-`--subscriber PORT`) connects to this process's Zenoh peer (tcp/127.0.0.1, shared memory on,
-the defaults of perception.transport) and counts what arrives. This process publishes the same
-pre-rendered frames (FastRenderer, a moving UGV team) at `--rate` frames per second in
-alternated blocks of `--frames`:
+`--subscriber PORT`) listens as a Zenoh peer (tcp/127.0.0.1, shared memory on: the defaults of
+perception.transport) and counts what arrives. Blocks of `--frames` of the same rendered
+frames (FastRenderer, a moving UGV team) are published at `--rate` frames per second, each block
+by a fresh process (this file with `--block KIND`) so that no kind's allocator state shapes
+another's, the kinds alternated (A B C, C B A, ...):
 
 - raw: a plain eclipse-zenoh publisher with the frame publisher's QoS, `put(image.tobytes())`
   (what a user of zenoh-python writes; Zenoh's transport optimisation moves it through shared
   memory);
-- skyherd: `FramePublisher.publish` unsigned (version 1) — the image copied into the buffer that
-  is published, as the simulator's camera does (`frame_buffer()`);
-- skyherd signed: the same with the flight key (SHA-256 of the pixels once, MAC over the header).
+- skyherd: `FramePublisher.publish`, plain frames (version 3), the image copied into the payload
+  that is published (`frame_buffer()`; the simulator's renderer draws there instead);
+- skyherd signed: the same with a flight key (version 4: a Poly1305 pass over the pixels under
+  a one-time key, BLAKE2b MAC over the header).
 
-CPU per frame is this process's CPU time (`time.process_time`: every thread, Zenoh's included)
-over a block, divided by its frames; the block's copy of the image into the published buffer is
-counted on both sides. Prints each block, the medians and the ratios skyherd / raw.
+CPU per frame is the block process's CPU time (`time.process_time`: every thread, Zenoh's
+included) over the block, divided by its frames; the copy of the image into the published
+buffer (raw: `tobytes`) is counted on both sides. Prints each block (with its minor page faults
+per frame), the medians and the ratios to raw.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -39,9 +45,9 @@ VEHICLE = "bench"
 
 
 def subscriber(port: int) -> int:
-    from skyherd.perception.transport import open_session, subscriber_params
+    from skyherd.perception.transport import open_session, publisher_params
 
-    session = open_session(subscriber_params(port=port))
+    session = open_session(publisher_params(port))  # listens; each block's process connects
     n = {"raw": 0, "frames": 0}
 
     def raw(sample) -> None:
@@ -76,6 +82,66 @@ def frames_of(w: int, h: int, n: int) -> list[np.ndarray]:
     return [r.render(uav, world.step(0.1 * k, 0.1)) for k in range(n)]
 
 
+def block(kind: str, port: int, w: int, h: int, n: int, rate: float) -> dict:
+    """One block in this process (a fresh one per block: the allocator's state of one kind
+    never shapes another's): connect to the subscriber, warm up, publish `n` frames of `kind`
+    at `rate`; CPU ms and minor page faults per frame."""
+    import zenoh
+
+    from skyherd.perception.camera import CameraParams
+    from skyherd.perception.transport import FramePublisher, open_session, subscriber_params
+
+    images = frames_of(w, h, n)
+    session = open_session(subscriber_params(port=port))
+    cam = CameraParams(width_px=w, height_px=h)
+    pos, quat = np.array([0.0, 0.0, -25.0]), np.array([1.0, 0.0, 0.0, 0.0])
+    pub = None
+    if kind == "raw":
+        raw = session.declare_publisher(RAW_KEY, congestion_control=zenoh.CongestionControl.DROP,
+                                        priority=zenoh.Priority.DATA_HIGH, express=True)  # fmt: skip
+        matched = lambda: raw.matching_status.matching  # noqa: E731
+
+        def put(k: int, img: np.ndarray) -> None:
+            raw.put(img.tobytes())
+
+    else:
+        key = os.urandom(32) if kind == "skyherd signed" else None
+        pub = FramePublisher(session, VEHICLE, cam, rng=np.random.default_rng(0), key=key)
+        matched = pub.has_subscriber
+
+        def put(k: int, img: np.ndarray) -> None:
+            if not hasattr(pub, "frame_buffer"):  # an older tree
+                pub.publish(0.1 * k, pos, quat, img)
+                return
+            buf = pub.frame_buffer()
+            buf[...] = img  # the renderer's output lands in the published buffer
+            pub.publish(0.1 * k, pos, quat, buf)
+
+    deadline = time.monotonic() + 30
+    while not matched():
+        if time.monotonic() > deadline:
+            raise SystemExit("no subscriber within 30 s")
+        time.sleep(0.01)
+    for k, img in enumerate(images[:30]):  # warm-up: pools allocated, pages touched
+        put(k, img)
+    time.sleep(0.2)
+    period = 1.0 / rate if rate > 0 else 0.0
+    t0, c0 = time.monotonic(), time.process_time()
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    nxt = t0
+    for k, img in enumerate(images):
+        put(k, img)
+        if period:
+            nxt += period
+            time.sleep(max(0.0, nxt - time.monotonic()))
+    out = {"cpu_ms": (time.process_time() - c0) / n * 1e3, "wall_s": time.monotonic() - t0,
+           "faults": (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0) / n,
+           "fallbacks": pub.shm_fallbacks if pub is not None else 0}  # fmt: skip
+    time.sleep(0.2)  # the last frames leave before the session closes
+    session.close()
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--frames", type=int, default=150, help="frames per block")
@@ -83,88 +149,45 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", default="640x480")
     ap.add_argument("--rate", type=float, default=30.0, help="frames per second (0: flat out)")
     ap.add_argument("--port", type=int, default=7471)
+    ap.add_argument("--kinds", default="raw,skyherd,skyherd signed", help="comma-separated")
     ap.add_argument("--subscriber", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--block", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.subscriber is not None:
         return subscriber(a.subscriber)
-    import zenoh
-
-    from skyherd.perception.camera import CameraParams
-    from skyherd.perception.transport import FramePublisher, open_session, publisher_params
-
     w, h = (int(x) for x in a.size.lower().split("x"))
-    images = frames_of(w, h, a.frames)
-    session = open_session(publisher_params(a.port))
+    if a.block is not None:
+        print(json.dumps(block(a.block, a.port, w, h, a.frames, a.rate)))
+        return 0
     sub = subprocess.Popen([sys.executable, __file__, "--subscriber", str(a.port)],
                            stdin=subprocess.PIPE)  # fmt: skip
-    cam = CameraParams(width_px=w, height_px=h)
-    rng = np.random.default_rng(0)
-    plain = FramePublisher(session, VEHICLE, cam, rng=rng)
-    signed = FramePublisher(session, VEHICLE, cam, rng=rng, key=os.urandom(32))
-    raw = session.declare_publisher(RAW_KEY, congestion_control=zenoh.CongestionControl.DROP,
-                                    priority=zenoh.Priority.DATA_HIGH, express=True)  # fmt: skip
-    deadline = time.monotonic() + 30
-    while not (raw.matching_status.matching and plain.has_subscriber()):
-        if time.monotonic() > deadline:
-            raise SystemExit("no subscriber within 30 s")
-        time.sleep(0.01)
-    pos, quat = np.array([0.0, 0.0, -25.0]), np.array([1.0, 0.0, 0.0, 0.0])
-
-    def put_raw(k: int, img: np.ndarray) -> None:
-        raw.put(img.tobytes())
-
-    def put_with(pub: FramePublisher):
-        def put(k: int, img: np.ndarray) -> None:
-            if not hasattr(pub, "frame_buffer"):  # an older tree (--baseline)
-                pub.publish(0.1 * k, pos, quat, img)
-                return
-            buf = pub.frame_buffer()
-            buf[...] = img  # the renderer's output lands in the published buffer
-            pub.publish(0.1 * k, pos, quat, buf)
-
-        return put
-
-    kinds = {"raw": put_raw, "skyherd": put_with(plain), "skyherd signed": put_with(signed)}
-    for _ in range(2):  # warm-up: pools allocated, pages touched
-        for put in kinds.values():
-            for k, img in enumerate(images[:20]):
-                put(k, img)
-    per: dict[str, list[float]] = {k: [] for k in kinds}
-    order = list(kinds)
-    print(
-        f"## Frame publisher CPU per frame, {a.size} at {a.rate:g} frames/s, {a.frames} frames a block\n"
-    )
-    print("| round | kind | CPU ms per frame | wall s |")
-    print("|---|---|---|---|")
-    for r in range(a.rounds):
-        for kind in order if r % 2 == 0 else order[::-1]:
-            put = kinds[kind]
-            period = 1.0 / a.rate if a.rate > 0 else 0.0
-            t0, c0 = time.monotonic(), time.process_time()
-            nxt = t0
-            for k, img in enumerate(images):
-                put(k, img)
-                if period:
-                    nxt += period
-                    time.sleep(max(0.0, nxt - time.monotonic()))
-            c = (time.process_time() - c0) / len(images)
-            per[kind].append(c)
-            print(f"| {r} | {kind} | {c * 1e3:.3f} | {time.monotonic() - t0:.2f} |", flush=True)
+    order = a.kinds.split(",")
+    per: dict[str, list[float]] = {k: [] for k in order}
+    print(f"## Frame publisher CPU per frame, {a.size} at {a.rate:g} frames/s, "
+          f"{a.frames} frames a block, one process per block\n")  # fmt: skip
+    print("| round | kind | CPU ms per frame | page faults per frame | shm fallbacks | wall s |")
+    print("|---|---|---|---|---|---|")
+    try:
+        for r in range(a.rounds):
+            for kind in order if r % 2 == 0 else order[::-1]:
+                out = subprocess.run(
+                    [sys.executable, __file__, "--block", kind, "--port", str(a.port),
+                     "--frames", str(a.frames), "--size", a.size, "--rate", str(a.rate)],
+                    check=True, capture_output=True, text=True,
+                )  # fmt: skip
+                b = json.loads(out.stdout.strip().splitlines()[-1])
+                per[kind].append(b["cpu_ms"])
+                print(f"| {r} | {kind} | {b['cpu_ms']:.3f} | {b['faults']:.0f} | "
+                      f"{b['fallbacks']} | {b['wall_s']:.2f} |", flush=True)  # fmt: skip
+    finally:
+        sub.stdin.close()
+        sub.wait(timeout=30)
     med = {k: statistics.median(v) for k, v in per.items()}
     print("\n| kind | CPU ms per frame (median) | ratio to raw |")
     print("|---|---|---|")
     for k, v in med.items():
-        print(f"| {k} | {v * 1e3:.3f} | {v / med['raw']:.2f} |")
-    print(
-        f"\nshared-memory fallbacks: unsigned {plain.shm_fallbacks}, signed {signed.shm_fallbacks}"
-    )
-    print(f"load average at the end: {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
-    sub.stdin.close()
-    sub.wait(timeout=30)
-    for p in (plain, signed):
-        p.close()
-    raw.undeclare()
-    session.close()
+        print(f"| {k} | {v:.3f} | {v / med.get('raw', math.nan):.2f} |")
+    print(f"\nload average at the end: {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     return 0
 
 
