@@ -12,7 +12,8 @@ another's, the kinds alternated (A B C, C B A, ...):
 - raw: a plain eclipse-zenoh publisher with the frame publisher's QoS, `put(image.tobytes())`
   (what a user of zenoh-python writes; Zenoh's transport optimisation moves it through shared
   memory);
-- skyherd: `FramePublisher.publish`, plain frames (version 3), the image copied into the payload
+- skyherd: `FramePublisher.publish`, plain frames (version 3: a checksum pass over the pixels,
+  a CRC of the header), the image copied into the payload
   that is published (`frame_buffer()`; the simulator's renderer draws there instead);
 - skyherd signed: the same with a flight key (version 4: a Poly1305 pass over the pixels under
   a one-time key, BLAKE2b MAC over the header).
@@ -82,7 +83,7 @@ def frames_of(w: int, h: int, n: int) -> list[np.ndarray]:
     return [r.render(uav, world.step(0.1 * k, 0.1)) for k in range(n)]
 
 
-def block(kind: str, port: int, w: int, h: int, n: int, rate: float) -> dict:
+def block(kind: str, port: int, w: int, h: int, n: int, rate: float, shm_frames: int) -> dict:
     """One block in this process (a fresh one per block: the allocator's state of one kind
     never shapes another's): connect to the subscriber, warm up, publish `n` frames of `kind`
     at `rate`; CPU ms and minor page faults per frame."""
@@ -106,7 +107,8 @@ def block(kind: str, port: int, w: int, h: int, n: int, rate: float) -> dict:
 
     else:
         key = os.urandom(32) if kind == "skyherd signed" else None
-        pub = FramePublisher(session, VEHICLE, cam, rng=np.random.default_rng(0), key=key)
+        pub = FramePublisher(session, VEHICLE, cam, rng=np.random.default_rng(0), key=key,
+                             **({} if shm_frames < 0 else {"shm_frames": shm_frames}))  # fmt: skip
         matched = pub.has_subscriber
 
         def put(k: int, img: np.ndarray) -> None:
@@ -150,6 +152,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate", type=float, default=30.0, help="frames per second (0: flat out)")
     ap.add_argument("--port", type=int, default=7471)
     ap.add_argument("--kinds", default="raw,skyherd,skyherd signed", help="comma-separated")
+    ap.add_argument(
+        "--shm-frames",
+        type=int,
+        default=-1,
+        help="FramePublisher's shm_frames (default: its default, 8; 0: Zenoh's pool)",
+    )
     ap.add_argument("--subscriber", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--block", default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -157,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         return subscriber(a.subscriber)
     w, h = (int(x) for x in a.size.lower().split("x"))
     if a.block is not None:
-        print(json.dumps(block(a.block, a.port, w, h, a.frames, a.rate)))
+        print(json.dumps(block(a.block, a.port, w, h, a.frames, a.rate, a.shm_frames)))
         return 0
     sub = subprocess.Popen([sys.executable, __file__, "--subscriber", str(a.port)],
                            stdin=subprocess.PIPE)  # fmt: skip
@@ -172,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
             for kind in order if r % 2 == 0 else order[::-1]:
                 out = subprocess.run(
                     [sys.executable, __file__, "--block", kind, "--port", str(a.port),
-                     "--frames", str(a.frames), "--size", a.size, "--rate", str(a.rate)],
+                     "--frames", str(a.frames), "--size", a.size, "--rate", str(a.rate),
+                     "--shm-frames", str(a.shm_frames)],
                     check=True, capture_output=True, text=True,
                 )  # fmt: skip
                 b = json.loads(out.stdout.strip().splitlines()[-1])

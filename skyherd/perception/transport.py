@@ -13,16 +13,17 @@ Frame wire format (little-endian), then the pixel data:
     data_len u32 | nonce 16 bytes | digest 16 bytes | header_crc u32 (CRC-32 of the header
     before it)
 
-Integrity is one pass over the pixels on each side plus a check of the header: `digest` is
-Poly1305 of the pixels (OpenSSL's, about 14 GB/s: a tenth of a pixel copy's cost). A plain
-frame (version 3) keys it with a fixed public key (a checksum: transport damage is caught,
-forgery is not) and its header carries its CRC. A signed frame (version 4; publisher and
-subscriber given the flight's key, `key`: the 32 bytes of the MAVLink signing key,
-flight.mavlink.signing) keys the digest with a one-time key, BLAKE2b-256 of the frame's random
-`nonce` keyed with the flight key (fresh for every frame: Poly1305's one-time-key rule), and has
-a trailer after the pixels: BLAKE2b-256 keyed with the flight key over the header as sent
-(32 bytes). Altering the header fails the MAC; altering a pixel fails the digest, which no one
-without the flight key can compute for other pixels.
+Integrity is one pass over the pixels on each side plus a check of the header. A plain frame
+(version 3) carries a checksum of the pixels as its `digest` (the sum of their little-endian
+64-bit words mod 2^64, and their length: one pass at memory speed; any one altered byte, or
+any alteration within one 8-byte word, changes it; it catches damage, not forgery) and its
+header carries its CRC. A signed frame (version 4; publisher and subscriber given the flight's
+key, `key`: the 32 bytes of the MAVLink signing key, flight.mavlink.signing) carries Poly1305
+of the pixels (OpenSSL's, about 14 GB/s) under a one-time key, BLAKE2b-256 of the frame's
+random `nonce` keyed with the flight key (fresh for every frame: Poly1305's one-time-key
+rule), and a trailer after the pixels: BLAKE2b-256 keyed with the flight key over the header as
+sent (32 bytes). Altering the header fails the MAC; altering a pixel fails the digest, which
+no one without the flight key can compute for other pixels.
 
 A subscriber with a key refuses (counts as `refused`, never hands on) plain frames and frames
 whose MAC or pixel digest fails, on arrival, before their sequence number touches the books: a
@@ -49,8 +50,11 @@ first counts as skipped.
 The publisher writes each frame once: `frame_buffer()` hands out the (H, W, 3) pixel region of
 the payload that will be sent (the renderer draws into it: `FastRenderer.render(..., out=)`),
 `publish` computes the digest, writes the header (stamped once, at the put) and copies the
-payload into a Zenoh shared-memory buffer (zenoh-python 1.10's `ZShmMut` takes bytes or a
-bytearray, not a writable view, so one copy remains) or sends it by copy.
+payload into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
+`ZShmMut` takes bytes or a bytearray, not a writable view, so this one copy remains). With
+`shm_frames=0` the payload is put as is and Zenoh's transport optimisation copies it into its
+own pool: less CPU per frame, but frames dropped under DROP congestion control (seen in
+tests/test_perception_transport.py's two-process test, 2 runs in 15), so it is not the default.
 """
 
 from __future__ import annotations
@@ -78,7 +82,7 @@ _HDR = struct.Struct("<4sHBBIQdd3d4dHHI16s16sI")
 HEADER_LEN = _HDR.size
 _CRC_AT = HEADER_LEN - 4  # the header CRC covers the header before it
 MAGIC = b"SKYF"
-VERSION = 3  # plain: pixel digest under the public key, header CRC
+VERSION = 3  # plain: pixel checksum, header CRC
 VERSION_SIGNED = 4  # + digest under a one-time key from the flight key, MAC trailer
 NONCE_LEN = DIGEST_LEN = 16
 MAC_LEN = 32
@@ -86,8 +90,8 @@ TRAILER_LEN = MAC_LEN  # signed frames only
 RAW, JPEG = 0, 1
 ENCODINGS = {"raw": RAW, "jpeg": JPEG}
 DEFAULT_PORT = ZENOH_BASE  # instance 0's; instance N: runio.ports.zenoh_port(N)
-# the pixel checksum's key for plain frames: public, fixed, non-degenerate (Poly1305's r, s != 0)
-PUBLIC_DIGEST_KEY = hashlib.blake2b(b"skyherd camera frame pixel checksum", digest_size=32).digest()
+CHECKSUM = b""  # the "digest key" of a plain frame: the unkeyed checksum (pixel_digest)
+_MASK64 = (1 << 64) - 1
 _NO_NONCE = bytes(NONCE_LEN)
 
 
@@ -113,15 +117,25 @@ def frame_mac(key: bytes, header: bytes) -> bytes:
 
 
 def digest_key(key: bytes | None, nonce: bytes) -> bytes:
-    """The Poly1305 key of a frame's pixel digest: the public key for a plain frame (`key`
-    None), else BLAKE2b-256 of the frame's nonce keyed with the flight key (one per frame)."""
+    """The key of a frame's pixel digest: CHECKSUM for a plain frame (`key` None), else the
+    Poly1305 key BLAKE2b-256 of the frame's nonce keyed with the flight key (one per frame)."""
     if key is None:
-        return PUBLIC_DIGEST_KEY
+        return CHECKSUM
     return hashlib.blake2b(nonce, key=key, digest_size=32, person=b"skyherd-pixels").digest()
 
 
 def pixel_digest(dkey: bytes, data) -> bytes:
-    """Poly1305 tag (16 bytes) of the pixel bytes `data` (any buffer) under `dkey`."""
+    """The 16-byte digest of the pixel bytes `data` (any buffer): with `dkey` CHECKSUM, the sum
+    of their little-endian 64-bit words (the last one zero-padded) mod 2^64 and their length;
+    else the Poly1305 tag under `dkey`."""
+    if dkey == CHECKSUM:
+        view = memoryview(data).cast("B")
+        n = len(view)
+        whole = n - n % 8
+        total = int(np.add.reduce(np.frombuffer(view, "<u8", whole // 8))) if whole else 0
+        if n % 8:
+            total = (total + int.from_bytes(view[whole:], "little")) & _MASK64
+        return struct.pack("<QQ", total, n)
     from cryptography.hazmat.primitives.poly1305 import Poly1305
 
     return Poly1305.generate_tag(dkey, data)
@@ -242,9 +256,9 @@ class FrameHeader:
     height: int
     encoding: int
     data_len: int
-    digest: bytes  # Poly1305 of the pixels
+    digest: bytes  # of the pixels: a checksum (plain) or Poly1305 (signed)
     t_recv: float
-    digest_key: bytes | None = None  # the key to check the digest with (None: cannot)
+    digest_key: bytes | None = None  # to check the digest with (CHECKSUM: plain; None: cannot)
     signed: bool = False  # the digest was keyed from the flight key and the MAC checked
 
     @property
@@ -284,7 +298,7 @@ def decode_header(
     if enc not in (RAW, JPEG):
         raise CorruptFrame(f"unknown encoding {enc}")
     t_recv = time.time() if t_recv is None else t_recv
-    dkey = digest_key(key, nonce) if key is not None else None if signed else PUBLIC_DIGEST_KEY
+    dkey = digest_key(key, nonce) if key is not None or not signed else None
     return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, digest, t_recv, dkey,
                        key is not None)  # fmt: skip
 
@@ -445,7 +459,10 @@ class FramePublisher:
             express=True,
         )
         self._info = session.declare_publisher(info_key(vehicle))
-        self._shm_frames = shm_frames  # shared-memory pool size in frames; 0 = never use it
+        # a shared-memory pool of its own, in frames (0: none; Zenoh's transport optimisation
+        # then carries each frame through its own pool: less CPU, but under DROP congestion
+        # control more frames dropped, bench_frames.py / docs/perception.md)
+        self._shm_frames = shm_frames
         self._shm = None  # zenoh.shm.ShmProvider, made at the first frame (its size is known then)
         self.shm_fallbacks = 0  # frames sent by copy because shared memory was not available
         self._last: bytearray | None = None  # the last payload sent (republish)
