@@ -35,9 +35,12 @@ import gymnasium as gym
 import numpy as np
 
 from skyherd.perception.features import FeatureParams
+from skyherd.policy import register
 from skyherd.policy.groundair.fastphi import LevelCamera, min_circle
 from skyherd.policy.groundair.params import N_ACTIONS, TaskParams, action_velocity_ned
 from skyherd.policy.groundair.scenarios import GROUNDSIM_SCENARIOS, SCENARIOS, Formation, make_team
+
+register()  # skyherd/GroundAir-v0, wherever the environment's module is imported
 
 OBS_DIM = 14
 PSI_NAMES: tuple[str, ...] = (
