@@ -69,12 +69,20 @@ class FastRenderer:
         out[:, 4:, 2] = -m.height_m
         return out
 
-    def render(self, uav, ugv_states: UGVStates) -> np.ndarray:
-        """Frame (H, W, 3) uint8 RGB. A non-finite UAV pose raises ValueError."""
+    def render(self, uav, ugv_states: UGVStates, out: np.ndarray | None = None) -> np.ndarray:
+        """Frame (H, W, 3) uint8 RGB, drawn into `out` when given (e.g. the frame publisher's
+        buffer: perception.transport.FramePublisher.frame_buffer) and returned. A non-finite UAV
+        pose raises ValueError (before `out` is touched)."""
         cam = self.cam
         check_pose(uav.pos_ned, uav.quat)
         pose = camera_pose(cam, uav.pos_ned, uav.quat)
-        img = self._bg.copy()
+        if out is None:
+            img = self._bg.copy()
+        else:
+            if out.shape != self._bg.shape or out.dtype != np.uint8:
+                raise ValueError(f"out must be {self._bg.shape} uint8, got {out.shape} {out.dtype}")
+            img = out
+            img[...] = self._bg
         hull_uv, hz = project(cam, pose, self._hull_corners(ugv_states))
         mark_uv, mz = project(cam, pose, marker_corners_ned(ugv_states, self.model))
         lim = 4.0 * (cam.width_px + cam.height_px)  # keep fixed-point coordinates in range
@@ -93,5 +101,5 @@ class FastRenderer:
                 cv2.fillConvexPoly(img, pts, colour, cv2.LINE_AA, _SHIFT)
         if self.params.noise_std > 0:
             noise = self.rng.normal(0.0, self.params.noise_std, img.shape)
-            img = np.clip(img + noise, 0, 255).astype(np.uint8)
+            img[...] = np.clip(img + noise, 0, 255).astype(np.uint8)
         return img

@@ -7,22 +7,33 @@ subscriber with the key keeps only authentic info, counting the rest in `info_re
 
 Frame wire format (little-endian), then the pixel data:
 
-    magic "SKYF" | version u16 | encoding u8 (0 raw RGB, 1 JPEG) | reserved u8 |
-    stream u32 (random per publisher: a restart resets the subscriber's bookkeeping) |
-    seq u64 | t_sim f64 [s] (simulation clock) | t_pub f64 [s] (publisher's wall clock) |
-    pos_ned 3×f64 [m] | quat 4×f64 (w, x, y, z body→NED) | width u16 | height u16 |
-    data_len u32 | crc32(data) u32
+    magic "SKYF" | version u16 (3 plain, 4 signed) | encoding u8 (0 raw RGB, 1 JPEG) |
+    reserved u8 | stream u32 (random per publisher: a restart resets the subscriber's
+    bookkeeping) | seq u64 | t_sim f64 [s] (simulation clock) | t_pub f64 [s] (publisher's wall
+    clock) | pos_ned 3×f64 [m] | quat 4×f64 (w, x, y, z body→NED) | width u16 | height u16 |
+    data_len u32 | nonce 16 bytes | digest 16 bytes | header_crc u32 (CRC-32 of the header
+    before it)
 
-Authenticated frames (a publisher and subscriber given the flight's key, `key`: the 32 bytes
-of the MAVLink signing key, flight.mavlink.signing) have version 2 and a trailer after the
-pixels: SHA-256(pixels) (32 bytes) | BLAKE2b-256 keyed with the flight key over the header as
-sent and that digest (32 bytes). A subscriber with a key refuses (counts as `refused`, never
-hands on) version 1 frames and frames whose MAC fails, on arrival, before their sequence number
-touches the books: a forged "next frame" cannot push the real one out. The pixel digest is
-checked when the frame is taken (as the CRC is). A run of refused frames is a camera that
-went silent: the consumer's camera-loss path. Readers without a key (the recorder, a viewer)
-read both versions and check nothing beyond the CRC. Without a key the format is version 1,
-unchanged.
+Integrity is one pass over the pixels on each side plus a check of the header. A plain frame
+(version 3) carries a checksum of the pixels as its `digest` (the sum of their little-endian
+64-bit words mod 2^64, and their length: one pass at memory speed; any one altered byte, or
+any alteration within one 8-byte word, changes it; it catches damage, not forgery) and its
+header carries its CRC. A signed frame (version 4; publisher and subscriber given the flight's
+key, `key`: the 32 bytes of the MAVLink signing key, flight.mavlink.signing) carries Poly1305
+of the pixels (OpenSSL's, about 14 GB/s) under a one-time key, BLAKE2b-256 of the frame's
+random `nonce` keyed with the flight key (fresh for every frame: Poly1305's one-time-key
+rule), and a trailer after the pixels: BLAKE2b-256 keyed with the flight key over the header as
+sent (32 bytes). Altering the header fails the MAC; altering a pixel fails the digest, which
+no one without the flight key can compute for other pixels.
+
+A subscriber with a key refuses (counts as `refused`, never hands on) plain frames and frames
+whose MAC or pixel digest fails, on arrival, before their sequence number touches the books: a
+forged "next frame", or a real one with pixels altered, cannot push the real one out. Plain
+frames' pixels are checked when the frame is taken (`decode_pixels`: CorruptFrame; a signed
+frame decoded that way gives RefusedFrame). A run of refused frames is a
+camera that went silent: the consumer's camera-loss path. Readers without a key (the recorder
+without one, a viewer) read both versions; they check the header CRC, and the pixels of plain
+frames only (a signed frame's digest needs the key).
 
 Sessions: by default a Zenoh peer that listens on tcp/127.0.0.1 only (the publisher, port 7447)
 or connects to it (the subscriber), multicast scouting off: nothing to start by hand, nothing
@@ -32,14 +43,24 @@ file instead (e.g. client mode towards a router on another machine; see docs/per
 The subscriber keeps only the newest frame. It counts frames received, lost (gaps in seq),
 out of order (older than the newest, discarded; a lost frame that turns up late moves from
 lost to out-of-order), late (wall-clock age above `late_s` on arrival, same clock only),
-skipped (superseded before the consumer took them) and corrupt (bad magic, length, CRC or
-image: dropped, never raised). Only the header is parsed on arrival; CRC and pixels are checked
-when the consumer takes the frame, so a corrupt frame that is superseded first counts as
-skipped.
+skipped (superseded before the consumer took them) and corrupt (bad magic, length, header CRC,
+pixel digest or image: dropped, never raised). Only the header is checked on arrival; the
+pixels are checked when the consumer takes the frame, so a corrupt frame that is superseded
+first counts as skipped.
+
+The publisher writes each frame once: `frame_buffer()` hands out the (H, W, 3) pixel region of
+the payload that will be sent (the renderer draws into it: `FastRenderer.render(..., out=)`),
+`publish` computes the digest, writes the header (stamped once, at the put) and copies the
+payload into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
+`ZShmMut` takes bytes or a bytearray, not a writable view, so this one copy remains). With
+`shm_frames=0` the payload is put as is and Zenoh's transport optimisation copies it into its
+own pool: less CPU per frame, but frames dropped under DROP congestion control (seen in
+tests/perception/test_perception_transport.py's two-process test, 2 runs in 15), so it is not the default.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import hmac
 import json
@@ -59,16 +80,21 @@ from skyherd.perception.camera import CameraParams
 from skyherd.runio.mac import record_ok, sign_record
 from skyherd.runio.ports import ZENOH_BASE
 
-_HDR = struct.Struct("<4sHBBIQdd3d4dHHII")
+_HDR = struct.Struct("<4sHBBIQdd3d4dHHI16s16sI")
 HEADER_LEN = _HDR.size
+_CRC_AT = HEADER_LEN - 4  # the header CRC covers the header before it
 MAGIC = b"SKYF"
-VERSION = 1
-VERSION_SIGNED = 2  # version 1 + the trailer (module docstring)
-DIGEST_LEN = MAC_LEN = 32
-TRAILER_LEN = DIGEST_LEN + MAC_LEN
+VERSION = 3  # plain: pixel checksum, header CRC
+VERSION_SIGNED = 4  # + digest under a one-time key from the flight key, MAC trailer
+NONCE_LEN = DIGEST_LEN = 16
+MAC_LEN = 32
+TRAILER_LEN = MAC_LEN  # signed frames only
 RAW, JPEG = 0, 1
 ENCODINGS = {"raw": RAW, "jpeg": JPEG}
 DEFAULT_PORT = ZENOH_BASE  # instance 0's; instance N: runio.ports.zenoh_port(N)
+CHECKSUM = b""  # the "digest key" of a plain frame: the unkeyed checksum (pixel_digest)
+_MASK64 = (1 << 64) - 1
+_NO_NONCE = bytes(NONCE_LEN)
 
 
 def frame_key(vehicle: str) -> str:
@@ -87,19 +113,47 @@ class RefusedFrame(CorruptFrame):
     """A frame that fails authentication (unsigned, or a wrong MAC or pixel digest)."""
 
 
-def frame_mac(key: bytes, header: bytes, digest: bytes) -> bytes:
-    """The MAC of a signed frame: BLAKE2b-256 keyed with the flight key over header + digest."""
-    return hashlib.blake2b(header + digest, key=key, digest_size=MAC_LEN).digest()
+def frame_mac(key: bytes, header: bytes) -> bytes:
+    """The MAC of a signed frame: BLAKE2b-256 keyed with the flight key over its header."""
+    return hashlib.blake2b(header, key=key, digest_size=MAC_LEN).digest()
 
 
-def sign_trailer(key: bytes, header: bytes, digest: bytes) -> bytes:
-    """The trailer of a signed frame whose header (version 2, as sent) is `header`."""
-    return digest + frame_mac(key, header, digest)
+def digest_key(key: bytes | None, nonce: bytes) -> bytes:
+    """The key of a frame's pixel digest: CHECKSUM for a plain frame (`key` None), else the
+    Poly1305 key BLAKE2b-256 of the frame's nonce keyed with the flight key (one per frame)."""
+    if key is None:
+        return CHECKSUM
+    return hashlib.blake2b(nonce, key=key, digest_size=32, person=b"skyherd-pixels").digest()
 
 
-def _signed_header(header: bytes) -> bytes:
-    """A version 1 header as version 2 (the same fields)."""
-    return header[:4] + struct.pack("<H", VERSION_SIGNED) + header[6:]
+def pixel_digest(dkey: bytes, data) -> bytes:
+    """The 16-byte digest of the pixel bytes `data` (any buffer): with `dkey` CHECKSUM, the sum
+    of their little-endian 64-bit words (the last one zero-padded) mod 2^64 and their length;
+    else the Poly1305 tag under `dkey`."""
+    if dkey == CHECKSUM:
+        view = memoryview(data).cast("B")
+        n = len(view)
+        whole = n - n % 8
+        total = int(np.add.reduce(np.frombuffer(view, "<u8", whole // 8))) if whole else 0
+        if n % 8:
+            total = (total + int.from_bytes(view[whole:], "little")) & _MASK64
+        return struct.pack("<QQ", total, n)
+    from cryptography.hazmat.primitives.poly1305 import Poly1305
+
+    return Poly1305.generate_tag(dkey, data)
+
+
+def _pack_header(seq, t_sim, pos_ned, quat, width, height, n, encoding, stream, t_pub, nonce,
+                 digest, signed) -> bytes:  # fmt: skip
+    """The header with its CRC; t_pub None: now (wall clock)."""
+    p, q = pos_ned, quat
+    head = _HDR.pack(
+        MAGIC, VERSION_SIGNED if signed else VERSION, encoding, 0, stream & 0xFFFFFFFF, seq,
+        float(t_sim), time.time() if t_pub is None else t_pub, float(p[0]), float(p[1]),
+        float(p[2]), float(q[0]), float(q[1]), float(q[2]), float(q[3]), width, height, n, nonce,
+        digest, 0,
+    )  # fmt: skip
+    return head[:_CRC_AT] + struct.pack("<I", zlib.crc32(memoryview(head)[:_CRC_AT]))
 
 
 @dataclass(frozen=True)
@@ -139,18 +193,33 @@ def encode_pixels(image: np.ndarray, encoding: int = RAW, jpeg_quality: int = 90
     raise ValueError(f"unknown encoding {encoding}")
 
 
-def encode_header(
-    seq: int, t_sim: float, pos_ned: np.ndarray, quat: np.ndarray, width: int, height: int,
-    data: bytes, encoding: int = RAW, stream: int = 0, t_pub: float | None = None,
-) -> bytes:  # fmt: skip
-    """The header of a frame whose pixel part is `data`; t_pub defaults to now (wall clock)."""
-    p = np.asarray(pos_ned, dtype=float)
-    q = np.asarray(quat, dtype=float)
-    t_pub = time.time() if t_pub is None else t_pub
-    return _HDR.pack(
-        MAGIC, VERSION, encoding, 0, stream & 0xFFFFFFFF, seq, float(t_sim), t_pub,
-        *p[:3], *q[:4], width, height, len(data), zlib.crc32(data),
-    )  # fmt: skip
+def seal(payload: bytearray, seq: int, t_sim: float, pos_ned, quat, width: int, height: int,
+         encoding: int = RAW, stream: int = 0, t_pub: float | None = None,
+         key: bytes | None = None) -> bytearray:  # fmt: skip
+    """Finish a frame in place: `payload` is HEADER_LEN bytes of room, the pixel data, and with
+    `key` TRAILER_LEN bytes of room. Computes the pixel digest (one pass), then writes the
+    header (publish time: now, unless `t_pub`) and, signed, the MAC trailer. Returns payload."""
+    n = len(payload) - HEADER_LEN - (TRAILER_LEN if key is not None else 0)
+    nonce = _NO_NONCE if key is None else os.urandom(NONCE_LEN)
+    view = memoryview(payload)
+    digest = pixel_digest(digest_key(key, nonce), view[HEADER_LEN : HEADER_LEN + n])
+    header = _pack_header(seq, t_sim, pos_ned, quat, width, height, n, encoding, stream, t_pub,
+                          nonce, digest, key is not None)  # fmt: skip
+    payload[:HEADER_LEN] = header
+    if key is not None:
+        payload[HEADER_LEN + n :] = frame_mac(key, header)
+    return payload
+
+
+def restamp(payload: bytearray, key: bytes | None = None) -> None:
+    """Set a sealed payload's publish time to now: its header CRC and (signed, `key`) its MAC
+    again; the pixels and their digest are unchanged."""
+    f = list(_HDR.unpack_from(payload))
+    f[7] = time.time()
+    head = _HDR.pack(*f)
+    payload[:HEADER_LEN] = head[:_CRC_AT] + struct.pack("<I", zlib.crc32(head[:_CRC_AT]))
+    if key is not None:
+        payload[len(payload) - MAC_LEN :] = frame_mac(key, bytes(payload[:HEADER_LEN]))
 
 
 def encode_frame(
@@ -165,24 +234,19 @@ def encode_frame(
     t_pub: float | None = None,
     key: bytes | None = None,
 ) -> bytes:
-    """Frame → bytes (header + pixels; with `key`, signed: version 2 + the trailer).
-    image (H, W, 3) uint8 RGB.
-
-    The publish time is stamped after the pixels are encoded and checksummed (CRC: ~0.4 ms at
-    640×480), so latency measures the link, not the encoder.
-    """
+    """Frame → bytes (header + pixels; with `key`, signed: version 4 + the trailer).
+    image (H, W, 3) uint8 RGB. The publish time is stamped after the pixels are encoded and
+    digested, so latency measures the link, not the encoder."""
     data = encode_pixels(image, encoding, jpeg_quality)
     h, w = np.shape(image)[:2]
-    header = encode_header(seq, t_sim, pos_ned, quat, w, h, data, encoding, stream, t_pub)
-    if key is None:
-        return header + data
-    header = _signed_header(header)
-    return header + data + sign_trailer(key, header, hashlib.sha256(data).digest())
+    payload = bytearray(HEADER_LEN) + data + bytearray(TRAILER_LEN if key is not None else 0)
+    return bytes(seal(payload, seq, t_sim, pos_ned, quat, w, h, encoding, stream, t_pub, key))
 
 
 @dataclass(frozen=True)
 class FrameHeader:
-    """A frame's header, parsed without touching the pixels (cheap: done for every arrival)."""
+    """A frame's header, parsed and checked without touching the pixels (done for every
+    arrival)."""
 
     stream: int
     seq: int
@@ -194,9 +258,10 @@ class FrameHeader:
     height: int
     encoding: int
     data_len: int
-    crc: int
+    digest: bytes  # of the pixels: a checksum (plain) or Poly1305 (signed)
     t_recv: float
-    digest: bytes | None = None  # signed frames: SHA-256 of the pixels, from the trailer
+    digest_key: bytes | None = None  # to check the digest with (CHECKSUM: plain; None: cannot)
+    signed: bool = False  # the digest was keyed from the flight key and the MAC checked
 
     @property
     def latency_s(self) -> float:
@@ -206,47 +271,58 @@ class FrameHeader:
 def decode_header(
     payload: bytes, t_recv: float | None = None, key: bytes | None = None
 ) -> FrameHeader:
-    """Header fields; a short payload, bad magic/version or non-finite pose raise CorruptFrame.
-    With `key`: an unsigned frame or a MAC that fails raise RefusedFrame (the pixels are
-    checked against the digest later, in decode_pixels)."""
-    if len(payload) < _HDR.size:
+    """Header fields; a short payload, bad magic/version/length/header CRC or non-finite pose
+    raise CorruptFrame. With `key`: a plain frame or a MAC that fails raise RefusedFrame (the
+    pixels are checked against the digest later, in decode_pixels)."""
+    if len(payload) < HEADER_LEN:
         raise CorruptFrame(f"payload of {len(payload)} bytes is shorter than the header")
     f = _HDR.unpack_from(payload)
     magic, version, enc, _, stream, seq, t_sim, t_pub = f[:8]
     pos, quat = np.array(f[8:11]), np.array(f[11:15])
-    w, h, n, crc = f[15:19]
+    w, h, n, nonce, digest, crc = f[15:21]
     if magic != MAGIC or version not in (VERSION, VERSION_SIGNED):
         raise CorruptFrame(f"bad magic/version {magic!r}/{version}")
-    trailer = TRAILER_LEN if version == VERSION_SIGNED else 0
-    if len(payload) - _HDR.size - trailer != n:
-        raise CorruptFrame(f"data length {len(payload) - _HDR.size - trailer} != header's {n}")
-    digest = None
+    signed = version == VERSION_SIGNED
+    if key is not None and not signed:
+        raise RefusedFrame("unsigned frame on an authenticated link")
+    trailer = TRAILER_LEN if signed else 0
+    if len(payload) - HEADER_LEN - trailer != n:
+        raise CorruptFrame(f"data length {len(payload) - HEADER_LEN - trailer} != header's {n}")
+    head = memoryview(payload)[:HEADER_LEN]
     if key is not None:
-        if version != VERSION_SIGNED:
-            raise RefusedFrame("unsigned frame on an authenticated link")
-        end = _HDR.size + n
-        digest = bytes(payload[end : end + DIGEST_LEN])
-        mac = bytes(payload[end + DIGEST_LEN : end + TRAILER_LEN])
-        if not hmac.compare_digest(mac, frame_mac(key, bytes(payload[: _HDR.size]), digest)):
+        mac = bytes(payload[HEADER_LEN + n : HEADER_LEN + n + MAC_LEN])
+        if not hmac.compare_digest(mac, frame_mac(key, head)):
             raise RefusedFrame("frame MAC does not match the flight key")
+    elif zlib.crc32(head[:_CRC_AT]) != crc:
+        raise CorruptFrame("header CRC mismatch")
     if not (np.isfinite(pos).all() and np.isfinite(quat).all() and math.isfinite(t_sim)):
         raise CorruptFrame("non-finite pose or time")
     if enc not in (RAW, JPEG):
         raise CorruptFrame(f"unknown encoding {enc}")
     t_recv = time.time() if t_recv is None else t_recv
-    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, crc, t_recv, digest)
+    dkey = digest_key(key, nonce) if key is not None or not signed else None
+    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, digest, t_recv, dkey,
+                       key is not None)  # fmt: skip
+
+
+def pixel_data(hdr: FrameHeader, payload: bytes) -> memoryview:
+    """The pixel bytes of a payload whose header is `hdr`, checked against its digest
+    (RefusedFrame for a signed frame, CorruptFrame for a plain one); a signed frame read
+    without the key is not checked (its digest needs the key)."""
+    data = memoryview(payload)[HEADER_LEN : HEADER_LEN + hdr.data_len]
+    if hdr.digest_key is not None and not hmac.compare_digest(
+        pixel_digest(hdr.digest_key, data), hdr.digest
+    ):
+        if hdr.signed:
+            raise RefusedFrame("pixels do not match the signed digest")
+        raise CorruptFrame("pixel digest mismatch")
+    return data
 
 
 def decode_pixels(hdr: FrameHeader, payload: bytes) -> Frame:
-    """Check the CRC (and, for a header whose MAC was checked, the pixel digest: RefusedFrame)
-    and decode the image of a payload whose header is `hdr`."""
-    data = memoryview(payload)[_HDR.size : _HDR.size + hdr.data_len]
-    if zlib.crc32(data) != hdr.crc:
-        raise CorruptFrame("CRC mismatch")
-    if hdr.digest is not None and not hmac.compare_digest(
-        hashlib.sha256(data).digest(), hdr.digest
-    ):
-        raise RefusedFrame("pixels do not match the signed digest")
+    """Check the pixels against the digest (pixel_data) and decode the image of a payload
+    whose header is `hdr`."""
+    data = pixel_data(hdr, payload)
     w, h = hdr.width, hdr.height
     if hdr.encoding == RAW:
         if hdr.data_len != w * h * 3:
@@ -374,7 +450,7 @@ class FramePublisher:
             raise ValueError(f"encoding must be raw or jpeg, got {encoding!r}")
         self.cam, self.encoding, self.jpeg_quality = cam, encoding, jpeg_quality
         self.mount = mount  # how the vehicle carries the camera (camera_info)
-        self.key = key  # the flight key: frames signed (version 2 + trailer), else version 1
+        self.key = key  # the flight key: frames signed (version 4 + trailer), else version 3
         self.info_every = max(1, info_every)
         self.stream = int((rng or np.random.default_rng()).integers(1, 2**32 - 1))
         self.seq = 0
@@ -385,19 +461,51 @@ class FramePublisher:
             express=True,
         )
         self._info = session.declare_publisher(info_key(vehicle))
-        self._shm_frames = shm_frames  # shared-memory pool size in frames; 0 = never use it
+        # a shared-memory pool of its own, in frames (0: none; Zenoh's transport optimisation
+        # then carries each frame through its own pool: less CPU, but under DROP congestion
+        # control more frames dropped, bench_frames.py / docs/perception.md)
+        self._shm_frames = shm_frames
         self._shm = None  # zenoh.shm.ShmProvider, made at the first frame (its size is known then)
         self.shm_fallbacks = 0  # frames sent by copy because shared memory was not available
-        self._last: tuple | None = None  # (header, pixels, digest) of the last frame
+        self._last: bytearray | None = None  # the last payload sent (republish)
+        # raw frames: two payloads, alternately filled (the last one stays whole for republish);
+        # each with its (H, W, 3) pixel view
+        self._payloads: list[tuple[bytearray, np.ndarray]] = []
+        self._k = 0  # the payload the next raw frame is written into
 
-    def _put(self, header: bytes, data: bytes, digest: bytes | None = None) -> None:
-        """Send one frame through a shared-memory buffer when possible (a subscriber in another
-        process on this machine maps it instead of receiving a TCP copy), else by copy. The
-        header (with its publish time; signed: its trailer, `digest` of the pixels) is written
-        last, just before the put."""
+    def frame_buffer(self, height: int | None = None, width: int | None = None) -> np.ndarray:
+        """The (H, W, 3) uint8 pixels of the payload the next raw frame is sent in (default:
+        the camera's size). Render into it and pass it to `publish`: no copy is made."""
+        h = self.cam.height_px if height is None else height
+        w = self.cam.width_px if width is None else width
+        if not self._payloads or self._payloads[0][1].shape[:2] != (h, w):
+            trailer = TRAILER_LEN if self.key is not None else 0
+            self._payloads = []
+            for _ in range(2):
+                payload = bytearray(HEADER_LEN + h * w * 3 + trailer)
+                view = np.frombuffer(payload, np.uint8, h * w * 3, HEADER_LEN).reshape(h, w, 3)
+                self._payloads.append((payload, view))
+        return self._payloads[self._k][1]
+
+    def _raw_payload(self, image: np.ndarray) -> bytearray:
+        """The next raw payload with `image` as its pixels (copied unless it is frame_buffer())."""
+        img = np.asarray(image)
+        if img.ndim != 3 or img.shape[2] != 3:
+            raise ValueError(f"expected an (H, W, 3) image, got {img.shape}")
+        view = self.frame_buffer(*img.shape[:2])
+        if not (img.dtype == np.uint8 and np.shares_memory(img, view) and img.shape == view.shape):
+            view[...] = img
+        payload = self._payloads[self._k][0]
+        self._k ^= 1
+        return payload
+
+    def _put(self, payload: bytearray) -> None:
+        """Send one payload through a shared-memory buffer when possible (a subscriber in
+        another process on this machine maps it instead of receiving a TCP copy), else by
+        copy."""
         import zenoh
 
-        n = len(header) + len(data) + (TRAILER_LEN if digest is not None else 0)
+        n = len(payload)
         if self._shm is None and self._shm_frames > 0:
             try:
                 self._shm = zenoh.shm.ShmProvider.default_backend(self._shm_frames * n)
@@ -409,49 +517,41 @@ class FramePublisher:
             except Exception:  # noqa: BLE001 - pool exhausted by slow readers: copy this one
                 self.shm_fallbacks += 1
             else:
-                end = len(header) + len(data)
-                buf[len(header) : end] = data
-                header = self._restamp(header)
-                if digest is not None:
-                    buf[end:n] = sign_trailer(self.key, header, digest)
-                buf[0 : len(header)] = header
+                buf[0:n] = payload
                 self._pub.put(buf)
                 return
-        header = self._restamp(header)
-        trailer = sign_trailer(self.key, header, digest) if digest is not None else b""
-        self._pub.put(header + data + trailer)
-
-    @staticmethod
-    def _restamp(header: bytes) -> bytes:
-        """The header with the publish time set to now."""
-        f = list(_HDR.unpack(header))
-        f[7] = time.time()
-        return _HDR.pack(*f)
+        self._pub.put(payload)
 
     def publish(
         self, t_sim: float, uav_pos_ned: np.ndarray, uav_quat: np.ndarray, image: np.ndarray
     ) -> int:
-        """Send one frame; returns its sequence number."""
+        """Send one frame; returns its sequence number. `image` (H, W, 3) uint8 RGB: ideally
+        `frame_buffer()` rendered into (raw encoding: then nothing is copied before the put)."""
         if self.seq % self.info_every == 0:
             self.publish_info(t_sim)
         enc = ENCODINGS[self.encoding]
-        data = encode_pixels(image, enc, self.jpeg_quality)
         h, w = np.shape(image)[:2]
-        header = encode_header(self.seq, t_sim, uav_pos_ned, uav_quat, w, h, data, enc, self.stream)
-        digest = None
-        if self.key is not None:
-            header, digest = _signed_header(header), hashlib.sha256(data).digest()
-        self._put(header, data, digest)
-        self._last = (header, data, digest)
+        if enc == RAW:
+            payload = self._raw_payload(image)
+        else:
+            data = encode_pixels(image, enc, self.jpeg_quality)
+            payload = bytearray(HEADER_LEN) + data
+            payload += bytes(TRAILER_LEN if self.key is not None else 0)
+        seal(payload, self.seq, t_sim, uav_pos_ned, uav_quat, w, h, enc, self.stream,
+             key=self.key)  # fmt: skip
+        self._put(payload)
+        self._last = payload
         self.seq += 1
         return self.seq - 1
 
     def republish(self) -> bool:
-        """Send the last frame again, same sequence number (a subscriber that has it drops the
-        copy as out of order). Lockstep uses it while it waits for a late subscriber."""
+        """Send the last frame again, same sequence number and pixels, stamped now (a
+        subscriber that has it drops the copy as out of order). Lockstep uses it while it waits
+        for a late subscriber."""
         if self._last is None:
             return False
-        self._put(*self._last)
+        restamp(self._last, self.key)
+        self._put(self._last)
         return True
 
     def has_subscriber(self) -> bool:
@@ -534,6 +634,9 @@ class FrameSubscriber:
         payload = sample.payload.to_bytes()
         try:
             hdr = decode_header(payload, t_recv, self.key)
+            if hdr.signed:  # authentic before the books: the pixels too (one cheap pass)
+                pixel_data(hdr, payload)
+                hdr = dataclasses.replace(hdr, digest_key=None)  # checked: not again at take
         except RefusedFrame:
             with self._cv:
                 self.stats.refused += 1

@@ -1,8 +1,8 @@
 """`FlightRecorder`: a flight as an MCAP file (Foxglove, PlotJuggler open it as is).
 
 Append-safe: the `mcap` writer gathers messages into a chunk; the chunk is closed and the file
-flushed when it holds `chunk_bytes` or spans `chunk_s` of simulation time (default 256 KiB /
-1 s), so a kill loses at most the open chunk. A file cut anywhere reads back up to its last
+flushed when it holds `chunk_bytes` or the newest message time has moved `chunk_s` of
+simulation time since it opened (default 256 KiB / 1 s), so a kill loses at most the open chunk. A file cut anywhere reads back up to its last
 complete chunk with `record.read.read_messages` (it walks the records without needing the
 summary at the end). `close()` writes the summary and footer: a complete, indexed file.
 A full disk (less than runio.space's reserve left after a chunk) or a failed write cuts the
@@ -44,7 +44,8 @@ class McapFile:
         self.chunk_bytes, self.chunk_ns = chunk_bytes, m.ns(chunk_s)
         self._schemas: dict[str, int] = {}
         self._open_bytes = 0
-        self._open_since: int | None = None
+        self._open_since: int | None = None  # the newest log time when the chunk opened [ns]
+        self._newest = -(2**63)  # the newest log time written [ns]
         self.chunks = 0
         self.messages = 0  # written so far
         self.flushed_messages = 0  # of those, in closed chunks (what a kill leaves readable)
@@ -64,9 +65,12 @@ class McapFile:
         self._w.add_message(handle, log_time=t_ns, data=data, publish_time=t_ns)
         self._open_bytes += len(data)
         self.messages += 1
+        # the span counts the newest time: streams on clocks a little apart (the UGVs' team
+        # time trails the simulation's) must not close a chunk at every message
+        self._newest = max(self._newest, t_ns)
         if self._open_since is None:
-            self._open_since = t_ns
-        if self._open_bytes >= self.chunk_bytes or abs(t_ns - self._open_since) >= self.chunk_ns:
+            self._open_since = self._newest
+        if self._open_bytes >= self.chunk_bytes or self._newest - self._open_since >= self.chunk_ns:
             self.flush()
 
     def metadata(self, name: str, values: dict[str, str]) -> None:

@@ -59,6 +59,7 @@ def _kernels():
     return kernels
 
 
+CAMERA_TIMEOUT_S = 1.0  # the camera guard's default: no frame for longer = camera lost [s]
 NZ = 11
 P, V, ATT, U = slice(0, 3), slice(3, 6), slice(6, 8), slice(8, 11)
 

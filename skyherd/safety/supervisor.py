@@ -29,7 +29,7 @@ from skyherd.flight.autopilot_api import FlightMode, Setpoint
 from skyherd.flight.geo import GRAVITY
 from skyherd.flight.state import VehicleState
 from skyherd.runio.constants import POS_SPEED_MAX_MPS
-from skyherd.safety.envelope import NZ, Envelope
+from skyherd.safety.envelope import CAMERA_TIMEOUT_S, NZ, Envelope
 from skyherd.safety.fallback import (
     HoverFallback,
     LoiterFallback,
@@ -70,7 +70,7 @@ class SupervisorParams:
     )
     hysteresis_s: float = 2.0  # AI proposals must stay inside this long before it flies again [s]
     deadline_s: float = 0.3  # no new AI action for longer = policy stall [s]
-    camera_timeout_s: float | None = 1.0  # no camera frame for longer = camera lost [s]
+    camera_timeout_s: float | None = CAMERA_TIMEOUT_S  # no camera frame for longer = lost [s]
     link_timeout_s: float | None = 1.5  # no MAVLink heartbeat for longer = link lost [s]
     hold_min_s: float = 1.0  # minimum time in FALLBACK before PID [s]
     settle_mps: float = 0.5  # hover fallback counts as settled below this speed [m/s]

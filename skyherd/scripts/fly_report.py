@@ -70,8 +70,10 @@ def _config(run_dir: Path) -> dict:
     return cfg if isinstance(cfg, dict) else {}
 
 
-def report(run_dir: Path, args, rc: int, why: str) -> bool:
-    """Write summary.md (and plots) from the run folder; print the table; True if completed."""
+def report(run_dir: Path, args, rc: int, why: str, later: list | None = None) -> bool:
+    """Write summary.md (and plots) from the run folder; print the table; True if completed.
+    With a list `later` (`skyherd fly`) the ground-air and square plots are appended to it as
+    (file name, call) to be made once the verdict is printed (scripts.fly.make_plots)."""
     comp = {}
     if (run_dir / "companion.json").exists():
         comp = json.loads((run_dir / "companion.json").read_text())
@@ -95,7 +97,7 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
         table, title = _orbit_report(run_dir, comp, track)
     elif args.mission == "square":
         table, title = _square_table(decisions, track), f"square mission, {args.side:.0f} m side"
-        _plot_square(run_dir, track, decisions)
+        _plot(later, "track.png", _plot_square, run_dir, track, decisions)
     elif args.mission == "shepherd":
         table, title = _shepherd_report(run_dir, args, comp, decisions, track)
     else:
@@ -116,7 +118,7 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
         table = markdown_table(["metric", "value"], rows)
         team = getattr(args, "ugvs", "as the simulator drives it")
         title = f"ground–air mission, UGV team `{team}`, pilot `{args.pilot}`, {args.duration:.0f} s behind the safety net"
-        _plot_groundair(run_dir, decisions, track, world)
+        _plot(later, "groundair.png", _plot_groundair, run_dir, decisions, track, world)
     status = {"completed": "completed", "yielded": "ended: the autopilot took over"}.get(
         outcome, outcome.upper()
     )
@@ -152,7 +154,7 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
     print(table)
     if not ok:
         print(verdicts)
-    files = sorted(p.name for p in run_dir.iterdir())
+    files = sorted({p.name for p in run_dir.iterdir()} | {name for name, _ in later or ()})
     print(
         f"skyherd fly: {status}{'' if ok else ': ' + (reason or '')}; {', '.join(files)} in {run_dir}"
     )
@@ -165,7 +167,7 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     flown without a net, the square, is judged on the airframe's default fence and ceiling, no
     floor), modes.jsonl, frames.csv and companion.json's hand-over window."""
     from skyherd.safety.config import ENVELOPE_DIR, load_envelope
-    from skyherd.safety.supervisor import SupervisorParams
+    from skyherd.safety.envelope import CAMERA_TIMEOUT_S  # not the supervisor: no numba, no QP
     from skyherd.scripts.fly import _ENVELOPE
 
     cfg = {}
@@ -176,7 +178,7 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     airframe = "fixedwing" if orbit else getattr(args, "airframe", "quadrotor")
     spec, _ = load_envelope(env or ENVELOPE_DIR / _ENVELOPE[airframe])
     guards = getattr(spec, "guards", None)  # the camera guard's timeout ("off": the default's)
-    camera_s = getattr(guards, "camera_timeout_s", None) or SupervisorParams().camera_timeout_s
+    camera_s = getattr(guards, "camera_timeout_s", None) or CAMERA_TIMEOUT_S
     world = _rows(run_dir / "world.csv")
     rows = world or _rows(run_dir / "metrics.csv")
     truth = Truth.from_rows(rows)
@@ -273,6 +275,14 @@ def _square_table(decisions: list[dict], track: np.ndarray) -> str:
         )
         start = target
     return markdown_table(["leg", "to", "time [s]", "max cross-track [m]"], rows)
+
+
+def _plot(later: list | None, name: str, plot, *args) -> None:
+    """`plot(*args)` now, or appended to `later` as (name, call)."""
+    if later is None:
+        plot(*args)
+    else:
+        later.append((name, lambda: plot(*args)))
 
 
 def _figure(ncols: int, size):

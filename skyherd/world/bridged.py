@@ -87,7 +87,7 @@ class BridgedWorld:
         if self.publisher is not None:
             uav = level_camera_mount(state)
             try:
-                image = self.renderer.render(uav, ugvs)
+                image = self.renderer.render(uav, ugvs, self.publisher.frame_buffer())
             except ValueError:
                 return
             self.publisher.publish(t, uav.pos_ned, uav.quat, image)

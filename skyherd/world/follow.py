@@ -184,7 +184,7 @@ class FollowWorld:
         if self.publisher is not None and not _during(self.p.camera_losses, t):
             try:  # a position not yet known (NaN before the EKF's) renders nothing
                 uav = self._camera_mount(state)
-                image = self.renderer.render(uav, ugvs)
+                image = self.renderer.render(uav, ugvs, self.publisher.frame_buffer())
             except ValueError:
                 return
             self.publisher.publish(t, uav.pos_ned, uav.quat, image)

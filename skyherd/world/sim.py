@@ -358,7 +358,8 @@ class World:
                 self.camera_dropped += 1  # the camera is lost: no frame leaves
             else:
                 try:
-                    image = self.renderer.render(uav, ugvs)
+                    # drawn straight into the payload that is published (no copy)
+                    image = self.renderer.render(uav, ugvs, self.publisher.frame_buffer())
                 except ValueError:  # a non-finite pose: no frame, as a real camera link would give
                     self.render_failures += 1
                 else:

@@ -41,7 +41,7 @@ def test_signed_frames_verify_and_keyless_readers_still_read_them():
     g = decode_frame(signed)  # the recorder, a viewer: no key, same frame
     assert np.array_equal(g.image, IMG)
     plain = encode_frame(7, 1.25, POS, QUAT, IMG, RAW, stream=9)
-    assert len(signed) == len(plain) + 64 and decode_frame(plain).seq == 7  # today's format
+    assert len(signed) == len(plain) + 32 and decode_frame(plain).seq == 7  # + the MAC trailer
 
 
 @pytest.mark.parametrize(
@@ -69,6 +69,64 @@ def test_a_header_that_passes_its_mac_with_pixels_not_its_own_is_refused_at_take
     assert np.array_equal(decode_pixels(hdr, payload).image, IMG)
     with pytest.raises(RefusedFrame, match="digest"):
         decode_pixels(dataclasses.replace(hdr, digest=bytes(32)), payload)
+
+
+@pytest.mark.parametrize("where", ["first", "middle", "last"])
+def test_a_flipped_pixel_byte_is_refused(where):
+    """One pixel byte altered on the way (the header and its MAC untouched): the header passes
+    on arrival, the frame is refused when taken (signed), or found corrupt (plain)."""
+    from skyherd.perception.transport import HEADER_LEN, CorruptFrame, decode_pixels
+
+    n = IMG.size
+    i = HEADER_LEN + {"first": 0, "middle": n // 2, "last": n - 1}[where]
+    signed = _flip(encode_frame(8, 1.35, POS, QUAT, IMG, RAW, stream=9, key=KEY), i)
+    hdr = decode_header(signed, key=KEY)  # the header and its MAC are the sender's
+    with pytest.raises(RefusedFrame, match="digest"):
+        decode_pixels(hdr, signed)
+    with pytest.raises(RefusedFrame):
+        decode_frame(signed, key=KEY)
+    plain = _flip(encode_frame(8, 1.35, POS, QUAT, IMG, RAW, stream=9), i)
+    with pytest.raises(CorruptFrame, match="digest") as e:
+        decode_frame(plain)
+    assert not isinstance(e.value, RefusedFrame)
+
+
+def test_a_flipped_pixel_byte_over_zenoh_is_refused_and_the_good_frame_kept():
+    """A forger without the key sends a real signed frame with one pixel byte altered first
+    (same header, same MAC): the subscriber with the key refuses it on arrival, keeps the last
+    good frame, and takes the real frame of that number when it comes."""
+    port = 7495
+    from skyherd.perception.camera import CameraParams
+
+    pub_s = open_session(publisher_params(port))
+    sub_s = open_session(subscriber_params(port=port))
+    try:
+        cam = CameraParams(width_px=64, height_px=48)
+        pub = FramePublisher(pub_s, "uav0", cam, key=KEY)
+        guarded = FrameSubscriber(sub_s, "uav0", key=KEY)
+        forger = pub_s.declare_publisher("skyherd/uav0/camera/frame")
+        assert pub.wait_for_subscriber(30.0)
+        buf = pub.frame_buffer()
+        buf[...] = IMG  # rendered into the published buffer
+        pub.publish(0.0, POS, QUAT, buf)
+        assert np.array_equal(guarded.wait(30.0).image, IMG)
+        real = encode_frame(1, 0.1, POS, QUAT, IMG, RAW, stream=pub.stream, key=KEY)
+        from skyherd.perception.transport import HEADER_LEN
+
+        forger.put(_flip(real, HEADER_LEN + 100))
+        deadline = time.monotonic() + 30.0
+        while guarded.stats.refused < 1:  # refused on arrival: never in the books
+            assert time.monotonic() < deadline, guarded.stats
+            time.sleep(0.01)
+        assert guarded.take() is None and guarded.latest().seq == 0
+        forger.put(real)  # the same frame, unaltered, after it: taken (not out of order)
+        f = guarded.wait(30.0)
+        assert f is not None and f.seq == 1 and np.array_equal(f.image, IMG)
+        for s in (guarded, pub):
+            s.close()
+    finally:
+        sub_s.close()
+        pub_s.close()
 
 
 def _flip(b: bytes, i: int) -> bytes:

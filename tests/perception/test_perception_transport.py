@@ -250,3 +250,20 @@ def test_frames_arrive_with_and_without_shared_memory(pub_shm, sub_shm):
     finally:
         b.close()
         a.close()
+
+
+def test_the_plain_checksum_changes_with_any_one_byte_and_reads_any_length():
+    """The plain frame's pixel digest (a 64-bit word sum and the length): every single-byte
+    change of a buffer whose length is not a multiple of 8 (a JPEG's) changes it, the zero-padded
+    tail included, and so does a length change."""
+    from skyherd.perception.transport import CHECKSUM, pixel_digest
+
+    data = bytes(range(1, 22))  # 21 bytes: two words and a 5-byte tail
+    base = pixel_digest(CHECKSUM, data)
+    assert len(base) == 16 and pixel_digest(CHECKSUM, data + b"\0") != base
+    for i in range(len(data)):
+        for bit in (0x01, 0x80):
+            bad = bytearray(data)
+            bad[i] ^= bit
+            assert pixel_digest(CHECKSUM, bytes(bad)) != base, (i, bit)
+    assert pixel_digest(CHECKSUM, b"") == bytes(16)

@@ -1,0 +1,137 @@
+"""`make run`'s job (`skyherd fly --speedup 0`) in CPU time, per process, A/B alternated.
+
+    .venv/bin/python bench/bench_run.py [--runs 3] [--baseline DIR] [--instance 70]
+
+Runs the real command (`python -m skyherd.scripts.cli fly --speedup 0`) `--runs` times from
+this tree and, with `--baseline DIR` (another skyherd source tree, e.g. `git archive` of an
+older commit unpacked in /tmp), as many times from that tree, alternated (A B A B ...), so both
+see the same machine load. For each run: the CPU time of the whole job (this process's
+RUSAGE_CHILDREN after the parent `fly` is reaped: fly + sim + companion, exact) and of each of
+the three processes (user + system time read from /proc/PID/stat every 20 ms while it runs: the
+last reading before the process ends, so each may be up to ~20 ms short; the total is exact),
+and the wall time. Prints a table per run and the medians, and the ratio this / baseline.
+Run it inside `unshare -n` (the flight's ports are the instance's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parents[1]
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def _cpu_s(pid: int) -> tuple[float, str] | None:
+    """(user + system CPU [s], argv) of a live process, None when it is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return None
+    f = stat[stat.rindex(")") + 2 :].split()
+    return (int(f[11]) + int(f[12])) / CLK_TCK, " ".join(a.decode() for a in argv)
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        text = Path(f"/proc/{pid}/task/{pid}/children").read_text()
+    except OSError:
+        return []
+    return [int(x) for x in text.split()]
+
+
+def _role(argv: str) -> str:
+    for role in ("companion", "sim", "fly"):
+        if f"skyherd.scripts.cli {role}" in argv:
+            return role
+    return "other"
+
+
+def fly_once(tree: Path, instance: int, extra: list[str] = ()) -> dict[str, float]:
+    """One `skyherd fly --speedup 0` from source tree `tree`: CPU [s] of fly, sim, companion,
+    the job (exact) and wall [s]."""
+    root = Path(tempfile.mkdtemp(prefix="skyherd-benchrun-"))
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    cmd = [sys.executable, "-m", "skyherd.scripts.cli", "fly", "--speedup", "0",
+           "--instance", str(instance), "--runs-dir", str(root), *extra]  # fmt: skip
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.monotonic()
+    proc = subprocess.Popen(cmd, cwd=tree, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)  # fmt: skip
+    seen: dict[int, tuple[float, str]] = {}
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.is_set():
+            for pid in [proc.pid, *_children(proc.pid)]:
+                got = _cpu_s(pid)
+                if got is not None:  # a zombie still has its CPU, no longer its argv
+                    seen[pid] = (got[0], got[1] or seen.get(pid, (0.0, ""))[1])
+            time.sleep(0.02)
+
+    t = threading.Thread(target=watch, daemon=True)
+    t.start()
+    rc = proc.wait()
+    done.set()
+    t.join()
+    wall = time.monotonic() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    job = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    out = {"fly": 0.0, "sim": 0.0, "companion": 0.0, "job": job, "wall": wall, "rc": rc}
+    for cpu, argv in seen.values():
+        role = _role(argv)
+        if role in out:
+            out[role] += cpu
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--runs", type=int, default=3, help="runs per tree")
+    ap.add_argument("--baseline", type=Path, default=None, help="a baseline source tree")
+    ap.add_argument("--instance", type=int, default=70)
+    ap.add_argument("--fly-args", default="", help="more arguments for fly (one string)")
+    a = ap.parse_args(argv)
+    trees = [("this", HERE)] + ([("baseline", a.baseline.resolve())] if a.baseline else [])
+    res: dict[str, list[dict]] = {name: [] for name, _ in trees}
+    print(
+        "| tree | run | fly CPU s | sim CPU s | companion CPU s | job CPU s (exact) | wall s | exit |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for k in range(a.runs):
+        for name, tree in trees if k % 2 == 0 else trees[::-1]:
+            r = fly_once(tree, a.instance, a.fly_args.split())
+            res[name].append(r)
+            print(f"| {name} | {k} | {r['fly']:.2f} | {r['sim']:.2f} | {r['companion']:.2f} | "
+                  f"{r['job']:.2f} | {r['wall']:.1f} | {r['rc']} |", flush=True)  # fmt: skip
+    print("\nmedians:\n")
+    print("| tree | fly CPU s | sim CPU s | companion CPU s | job CPU s | wall s |")
+    print("|---|---|---|---|---|---|")
+    med = {}
+    for name, rs in res.items():
+        med[name] = {
+            k: statistics.median(r[k] for r in rs)
+            for k in ("fly", "sim", "companion", "job", "wall")
+        }
+        m = med[name]
+        print(
+            f"| {name} | {m['fly']:.2f} | {m['sim']:.2f} | {m['companion']:.2f} | {m['job']:.2f} | {m['wall']:.1f} |"
+        )
+    if "baseline" in med:
+        ratio = med["this"]["job"] / med["baseline"]["job"]
+        print(f"\njob CPU this / baseline: {ratio:.2f} (medians)")
+    print(f"load average at the end: {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    return 0 if all(r["rc"] == 0 for rs in res.values() for r in rs) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
