@@ -194,7 +194,9 @@ class DrillPilot:
 
     It first flies to the script's start point (the drills' behave law), then runs the script on
     its own clock from there: `attack` in [t_on, t_off), `behave` otherwise, for the script's
-    duration; `done` after it. A stall proposes no action (the net sees the deadline pass)."""
+    duration; `done` after it. A stall proposes no action (the net sees the deadline pass).
+    `air_start`: the vehicle was started at the script's start point (a moving fixed-wing
+    never stops there): the script's clock starts at the first decision."""
 
     script: object  # safety.drills.Script
     params: object  # safety.drills.DrillParams
@@ -202,6 +204,7 @@ class DrillPilot:
     name: str = "drill"
     t0: float | None = None  # the script's clock starts at the start point [s]
     t: float = 0.0
+    air_start: bool = False
 
     @property
     def done(self) -> bool:
@@ -211,6 +214,8 @@ class DrillPilot:
         from skyherd.safety.drills import toward
 
         s, self.t = self.script, o.t
+        if self.t0 is None and self.air_start:
+            self.t0 = o.t
         if self.t0 is None:
             there = np.linalg.norm(o.state.pos_ned - s.start_ned) < 1.0
             if not (there and np.linalg.norm(o.state.vel_ned) < 0.5):
