@@ -10,7 +10,13 @@ Whether the companion may ask at all is decided by `safety.authority.Authority` 
 time-passed-in machine; its rules in its docstring): a mode the net did not ask for (a battery
 or link-loss failsafe, a fence action, a ground station, an RC pilot) ends the AI's authority;
 the mission ends on RTL / LAND and waits on any other mode until someone gives OFFBOARD back.
-A request counts as asked for when it is sent, and is withdrawn if the autopilot refuses it.
+A request counts as asked for when it is sent, and is withdrawn if the autopilot refuses it —
+unless it was sent blind (no telemetry for longer than `blind_s`: a lost link): it is sent all
+the same, but never counts as asked, so a mode shown after the link is back that only such a
+request could explain (the autopilot's own offboard-loss HOLD during a cut, which the net's
+dropped HOLD request would otherwise claim) is the autopilot's, and the net yields to it
+instead of handing the vehicle back to the AI over the failsafe (found by the campaign
+through the mission code: `skyherd drill --campaign`, link_loss drills).
 
 Every change of (mode, armed) the vehicle's heartbeats show (`VehicleLink.seen`, in arrival
 order, not sampled per tick) is fed to the rules, so an RTL that comes and goes between two
@@ -45,6 +51,8 @@ class ModeAuthority:
     airborne_m: float = 0.5  # a disarm above this altitude [m] is a disarm in the air
     t_start: float | None = None  # tick time of the hand-over [s]
     t_last: float | None = None  # tick time of the last update under the rules [s]
+    blind_s: float = 0.5  # a request sent with no telemetry for longer than this is blind [s]
+    blind: bool = False  # the pending request was sent blind (never counted as asked)
     _read: int = 0  # how many of VehicleLink.seen are taken
 
     def adopt(self, v: VehicleLink, mode: FlightMode) -> None:
@@ -90,7 +98,7 @@ class ModeAuthority:
             result = v.acks.get(M.MAV_CMD_DO_SET_MODE, M.MAV_RESULT_IN_PROGRESS)
             if result != M.MAV_RESULT_IN_PROGRESS:
                 v.acks.pop(M.MAV_CMD_DO_SET_MODE, None)
-                if result != M.MAV_RESULT_ACCEPTED:
+                if result != M.MAV_RESULT_ACCEPTED and not self.blind:
                     self.rules.requested(v.t, self.pending, accepted=False)
                 self.pending = None
         if self.t_start is None:  # the first tick under the rules: the hand-over's (a net's
@@ -110,7 +118,9 @@ class ModeAuthority:
         ask = self.rules.request(mode)
         if ask is None or (ask is self.pending and v.t - self.t_sent < self.retry_s):
             return
-        self.rules.requested(v.t, ask, accepted=True)  # the switch may show before the ACK
+        self.blind = v.telemetry_t is None or v.t - v.telemetry_t > self.blind_s
+        if not self.blind:
+            self.rules.requested(v.t, ask, accepted=True)  # the switch may show before the ACK
         v.acks.pop(M.MAV_CMD_DO_SET_MODE, None)
         v.command_long(M.MAV_CMD_DO_SET_MODE, mode_params(v, ask), 0)
         self.pending, self.t_sent = ask, v.t
