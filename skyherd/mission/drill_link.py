@@ -54,7 +54,14 @@ from skyherd.runio import ports
 from skyherd.safety.authority import ENDING_MODES, NET_MODES, Phase
 from skyherd.safety.campaign import KINDS, drill_rng, make_drill, make_vehicle
 from skyherd.safety.config import default_envelope_path, fill_dataclass, load_envelope
-from skyherd.safety.drills import RUN_ON_S, DrillParams, DrillRecord, judge_drill, own_flight_of
+from skyherd.safety.drills import (
+    RUN_ON_S,
+    DrillParams,
+    DrillRecord,
+    judge_drill,
+    own_flight_of,
+    recovery_allowance_s,
+)
 from skyherd.safety.judge import NetRecord, first_failed, verdict
 from skyherd.safety.net import SafetyNet, warm_up
 from skyherd.safety.supervisor import Mode, Supervisor, SupervisorParams
@@ -199,8 +206,11 @@ def run_mission_drill(kind: str, airframe: str = "quadrotor", index: int = 0, se
         ap.set_mode(FlightMode.HOLD)
     net = SafetyNet(Supervisor(d.spec.envelope(), sp, events), events, camera=False)
     warm_up(net.supervisor.envelope, sp)  # as the companion: not at the first switch in flight
-    pilot = DrillPilot(s, p, s.duration_s, name=f"drill:{s.name}", air_start=True)
-    plan = FlightPlan(altitude_m=-float(s.start_ned[2]), duration_s=s.duration_s + TICK_S,
+    judged = s.must_recover and not s.expect_yield  # on its recovery: runs long enough for it
+    pilot = DrillPilot(s, p, s.duration_s, name=f"drill:{s.name}", air_start=True,
+                       recovery_s=recovery_allowance_s(d.spec, sp) if judged else 0.0,
+                       net_mode=lambda: net.mode)  # fmt: skip
+    plan = FlightPlan(altitude_m=-float(s.start_ned[2]), duration_s=pilot.last_call_s + TICK_S,
                       decision_s=TICK_S, land=False, yield_wait_s=s.after_yield_s,
                       air_start=True)  # fmt: skip
     record = Record()

@@ -21,7 +21,15 @@ from skyherd.flight.autopilot_api import FlightMode, Setpoint
 from skyherd.mission.authority import ModeAuthority
 from skyherd.mission.configure import Change, configure
 from skyherd.mission.pilots import DescentPilot, Observation, Pilot, Proposal
-from skyherd.mission.steps import MissionError, Phase, read_params, recipe, wait_ready, wait_until
+from skyherd.mission.steps import (
+    MissionError,
+    Phase,
+    read_params,
+    recipe,
+    report_modes,
+    wait_ready,
+    wait_until,
+)
 from skyherd.mission.vehicle import VehicleLink
 from skyherd.runio import CsvWriter, JsonlWriter
 from skyherd.safety.authority import Authority
@@ -128,6 +136,7 @@ class SingleVehicleMission:
         plan = self.plan
         self.phase = "connect"
         yield from wait_ready(v)
+        report_modes(v)  # every mode change seen within a tick (steps.MODE_REPORT_HZ)
         prof = v.profile
         if self.net is not None:  # envelope ↔ autopilot: refuse to fly on a mismatch
             self.phase = "parameters"

@@ -164,6 +164,20 @@ def quiet_streams(v: VehicleLink, names: tuple[str, ...] = UNREAD_STREAMS) -> No
         )
 
 
+MODE_REPORT_HZ = 20.0
+"""The HEARTBEAT rate the companion asks for [Hz]: it is the one message that carries the
+autopilot's mode, and at its default 1 Hz a mode the autopilot chose by itself (a battery RTL)
+went unseen for up to a second, while the net asked for its own over it (found by the campaign
+through the mission code, `skyherd drill --campaign`: battery drills). Twice the 10 Hz tick:
+every tick's telemetry shows the mode of that instant. PX4 and ArduPilot honour
+SET_MESSAGE_INTERVAL for HEARTBEAT; an autopilot that refuses leaves it at 1 Hz."""
+
+
+def report_modes(v: VehicleLink, hz: float = MODE_REPORT_HZ) -> None:
+    """SET_MESSAGE_INTERVAL(HEARTBEAT) at `hz` on the companion's link (MODE_REPORT_HZ)."""
+    v.command_long(M.MAV_CMD_SET_MESSAGE_INTERVAL, (M.MAVLINK_MSG_ID_HEARTBEAT, 1e6 / hz), 0)
+
+
 def arm(v: VehicleLink, timeout_s: float = 30.0) -> Phase:
     yield from wait_until(v, lambda: v.tel.landed_state == M.MAV_LANDED_STATE_ON_GROUND,
                           timeout_s, "the vehicle on the ground")  # fmt: skip
