@@ -143,3 +143,13 @@ def test_a_busy_instance_is_skipped():
     finally:
         a[1].close()
         a[0].close()
+
+
+def test_the_in_process_loop_is_still_there(tmp_path, capsys):
+    """`--through process`: the in-process drill loop (safety.drills.run_drill), no mission."""
+    rc = main(["drill", "--campaign", "2", "--through", "process", "--seed", str(SEED),
+               "--runs-dir", str(tmp_path), "--no-plots"])  # fmt: skip
+    assert rc == 0, capsys.readouterr().out
+    rows = list(csv.DictReader(open(next(tmp_path.iterdir()) / "metrics.csv")))
+    assert [(r["through"], r["kind"], r["decisions"]) for r in rows] == [
+        ("process", "max_speed", ""), ("process", "oscillation", "")]  # fmt: skip

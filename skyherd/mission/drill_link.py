@@ -107,8 +107,8 @@ class LinkDrillResult:
 class Adversary:
     """What the attacker does, on the simulation thread after every step (module docstring)."""
 
-    def __init__(self, sitl: Sitl, script, pilot: DrillPilot, handover_s: float):
-        self.sitl, self.s, self.pilot, self.handover_s = sitl, script, pilot, handover_s
+    def __init__(self, sitl: Sitl, script, handover_s: float):
+        self.sitl, self.s, self.handover_s = sitl, script, handover_s
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.mav = M.MAVLink(None, 255, 190)  # another client: a ground station's ids
@@ -118,8 +118,8 @@ class Adversary:
         self.dropped = 0
         self.t0: float | None = None  # the script's clock origin [s of simulation time]
 
-    def on_step(self) -> None:
-        t0 = self.pilot.t0
+    def on_step(self, t0: float | None) -> None:
+        """After every step; t0: the script's clock origin as of the last closed tick."""
         if t0 is None:
             return
         ap = self.sitl.autopilot
@@ -216,46 +216,58 @@ def run_mission_drill(kind: str, airframe: str = "quadrotor", index: int = 0, se
     record = Record()
     mission = SingleVehicleMission(pilot, net, plan, record)
     sitl, link, n = open_sitl(ap, instance, LockstepParams())
-    adv = Adversary(sitl, s, pilot, s.handover_s)
+    adv = Adversary(sitl, s, s.handover_s)
     rec = DrillRecord()
     auth = net.authority
+    # What the companion's side is, read only when its tick has closed (the vehicle is then
+    # at the mark + L, the companion waiting for the next mark): read while the vehicle steps
+    # between the mark and the close, it would depend on the threads' timing.
+    now = {"handed": False, "authority": False, "asked": None, "asked_t": math.nan,
+           "ai": False, "t0": None}  # fmt: skip
+
+    def on_close(batch: list) -> list:  # the simulation thread, at each tick's close
+        now.update(handed=auth.phase is not Phase.BEFORE, authority=auth.has_authority,
+                   asked=auth.asked, asked_t=auth.asked_t, t0=pilot.t0,
+                   ai=net.mode is Mode.AI and not net.params.fault)  # fmt: skip
+        return adv.admit(batch)
+
     j = {"mode": ap.mode, "overridden": 0, "t_yield": math.nan, "ai_after": math.nan}
     t_restore = max((t for t, _, v in s.params if v is None), default=math.nan)
     track: list = []
 
     def whose(prev: FlightMode, m: FlightMode) -> bool:
         """The net's change (True) or the autopilot's own (False); module docstring."""
-        if auth.has_authority:
-            return m is auth.asked
+        if now["authority"]:
+            return m is now["asked"]
         return m is FlightMode.OFFBOARD or (prev in ENDING_MODES and m in NET_MODES)
 
     def on_step(_sitl: Sitl) -> None:  # the simulation thread, every step
-        adv.on_step()
+        adv.on_step(now["t0"])
         m, prev = ap.mode, j["mode"]
         j["mode"] = m
         if math.isnan(rec.t0):
-            if auth.phase is Phase.BEFORE:
+            if not now["handed"]:
                 return
-            rec.handover(auth.asked_t, prev, ap.armed)
+            rec.handover(now["asked_t"], prev, ap.armed)
         by = whose(prev, m) if m is not prev else False
-        if m is not prev and by and not auth.has_authority:
+        if m is not prev and by and not now["authority"]:
             j["overridden"] += 1
         t = ap.clock.t
         pos = ap.true_state.pos_ned
         rec.step(t, pos, ap.armed, m, by)
         if not track or t - track[-1][0] >= 0.1 - 1e-9:
             track.append((t, *map(float, pos)))
-        if not auth.has_authority and math.isnan(j["t_yield"]):
+        if not now["authority"] and math.isnan(j["t_yield"]):
             j["t_yield"] = t
         if (adv.t0 is not None and t - adv.t0 >= t_restore and math.isnan(j["ai_after"])
-                and net.mode is Mode.AI and not net.params.fault):  # fmt: skip
+                and now["ai"]):  # fmt: skip
             j["ai_after"] = t - adv.t0
 
     failure: list[BaseException] = []
 
     def fly_vehicle() -> None:
         try:
-            sitl.run(on_step=on_step, on_close=adv.admit)
+            sitl.run(on_step=on_step, on_close=on_close)
         except BaseException as e:  # noqa: BLE001 - reported by the drill
             failure.append(e)
 

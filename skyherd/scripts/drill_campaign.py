@@ -91,7 +91,7 @@ def run_one(job: tuple) -> dict:
     cpu0 = time.process_time()
     try:
         through = job[4] if len(job) > 4 else "process"
-        row = _run_mission(job) if through == "mission" else _run_one(job)
+        row = _run_mission(job) if through == "mission" else _run_one(job[:4])
         return row | {"through": through, "cpu_s": round(time.process_time() - cpu0, 3)}
     except Exception as e:  # noqa: BLE001  one broken drill must not lose the campaign
         airframe, index = job[0], job[1]
