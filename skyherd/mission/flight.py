@@ -136,7 +136,7 @@ class SingleVehicleMission:
         plan = self.plan
         self.phase = "connect"
         yield from wait_ready(v)
-        report_modes(v)  # every mode change seen within a tick (steps.MODE_REPORT_HZ)
+        report_modes(v)  # every mode change seen within a tick (hil.autopilots.MODE_REPORT_HZ)
         prof = v.profile
         if self.net is not None:  # envelope ↔ autopilot: refuse to fly on a mismatch
             self.phase = "parameters"

@@ -21,6 +21,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from skyherd.flight.autopilot_api import FlightMode
 from skyherd.flight.mavlink.modes import Personality, custom_mode_of
+from skyherd.hil.autopilots import MODE_REPORT_HZ
 from skyherd.mission.vehicle import VehicleLink
 
 M = mavlink2
@@ -164,17 +165,9 @@ def quiet_streams(v: VehicleLink, names: tuple[str, ...] = UNREAD_STREAMS) -> No
         )
 
 
-MODE_REPORT_HZ = 20.0
-"""The HEARTBEAT rate the companion asks for [Hz]: it is the one message that carries the
-autopilot's mode, and at its default 1 Hz a mode the autopilot chose by itself (a battery RTL)
-went unseen for up to a second, while the net asked for its own over it (found by the campaign
-through the mission code, `skyherd drill --campaign`: battery drills). Twice the 10 Hz tick:
-every tick's telemetry shows the mode of that instant. PX4 and ArduPilot honour
-SET_MESSAGE_INTERVAL for HEARTBEAT; an autopilot that refuses leaves it at 1 Hz."""
-
-
 def report_modes(v: VehicleLink, hz: float = MODE_REPORT_HZ) -> None:
-    """SET_MESSAGE_INTERVAL(HEARTBEAT) at `hz` on the companion's link (MODE_REPORT_HZ)."""
+    """SET_MESSAGE_INTERVAL(HEARTBEAT) at `hz` on the companion's link (hil.autopilots.
+    MODE_REPORT_HZ: every mode change seen within a tick)."""
     v.command_long(M.MAV_CMD_SET_MESSAGE_INTERVAL, (M.MAVLINK_MSG_ID_HEARTBEAT, 1e6 / hz), 0)
 
 
