@@ -114,24 +114,33 @@ def _run_one(job: tuple) -> dict:
     d = make_drill(ks[index % len(ks)], index, drill_rng(seed, airframe, index), spec, p)
     sink = _Collect()
     r = run_drill(d.script, make_vehicle(d, seed), d.spec, sp, p, sink)
-    tol = d.spec.limits.breach_tolerance_m
-    pos = r.track["pos"][::10]
+    end_mode = ("ai", "fallback", "pid")[int(r.track["mode"][-1])]
+    return _row(r, airframe, d.kind, spec, d.spec, sink, end_mode, r.track["pos"][::10])
+
+
+def _row(r, airframe: str, kind: str, spec, moved, sink: _Collect, end_mode: str, pos) -> dict:
+    """A drill's metrics.csv row from its result (safety.drills.DrillResult or
+    mission.drill_link.LinkDrillResult): the judge's verdict and figures. `moved`: the drill's
+    constraint set (the fixed-wing's fence moved); `pos`: its track, NED [m]. Overridden
+    failsafes: the drill's count, at least 1 when the judge's modes check failed (a request
+    that crossed a failsafe is counted by the judge from the truth, not by the drill)."""
     failed = first_failed(r.checks)
     ok = {c.name: c.ok for c in r.checks}
+    pos = np.asarray(pos, float).reshape(-1, 3)
     return {
-        "drill": r.name, "airframe": airframe, "kind": d.kind, "passed": failed is None,
+        "drill": r.name, "airframe": airframe, "kind": kind, "passed": failed is None,
         "failed_check": "" if failed is None else failed.name,
         "min_clearance_m": round(r.min_clearance_m, 3), "breach": not ok["fence"],
-        "overridden": r.overridden, "yielded": r.yielded, "switches": r.switches,
-        "fallback_s": round(r.fallback_s, 2), "pid_s": round(r.pid_s, 2),
+        "overridden": max(r.overridden, int(not ok["modes"])), "yielded": r.yielded,
+        "switches": r.switches, "fallback_s": round(r.fallback_s, 2), "pid_s": round(r.pid_s, 2),
         "autopilot_excursion_m": "" if not math.isfinite(r.autopilot_excursion_m)
         else round(r.autopilot_excursion_m, 2),
         "autopilot_excursion_mode": r.autopilot_excursion_mode, "restored": r.restored,
         "first_reason": r.reasons[0] if r.reasons else "", "why": r.why,
-        "end_mode": ("ai", "fallback", "pid")[int(r.track["mode"][-1])],
-        "not_recovered": not ok["recovered"],
-        "constraint_set_version": spec.version, "_events": sink.records, "_tol": tol,
-        "_track": (pos - np.r_[_offset(d.spec, spec), 0.0]).tolist(),
+        "end_mode": end_mode, "not_recovered": not ok["recovered"],
+        "constraint_set_version": spec.version, "_events": sink.records,
+        "_tol": moved.limits.breach_tolerance_m,
+        "_track": (pos - np.r_[_offset(moved, spec), 0.0]).tolist(),
     }  # fmt: skip
 
 
@@ -148,25 +157,11 @@ def _run_mission(job: tuple) -> dict:
     sink = _Collect()
     r = run_mission_drill(kind, airframe, index, seed, instance, sink, envelope)
     moved = make_drill(kind, index, drill_rng(seed, airframe, index), spec, DrillParams()).spec
-    failed = first_failed(r.checks)
-    ok = {c.name: c.ok for c in r.checks}
-    pos = np.array([row[1:] for row in r.track]).reshape(-1, 3)
-    return {
-        "drill": r.name, "airframe": airframe, "kind": kind, "passed": failed is None,
-        "failed_check": "" if failed is None else failed.name,
-        "min_clearance_m": round(r.min_clearance_m, 3), "breach": not ok["fence"],
-        "overridden": r.overridden, "yielded": r.yielded, "switches": r.switches,
-        "fallback_s": round(r.fallback_s, 2), "pid_s": round(r.pid_s, 2),
-        "autopilot_excursion_m": "" if not math.isfinite(r.autopilot_excursion_m)
-        else round(r.autopilot_excursion_m, 2),
-        "autopilot_excursion_mode": r.autopilot_excursion_mode, "restored": r.restored,
-        "first_reason": r.reasons[0] if r.reasons else "", "why": r.why,
-        "end_mode": r.end_mode, "not_recovered": not ok["recovered"],
-        "constraint_set_version": spec.version, "decisions": r.setpoints,
-        "sim_s": round(r.sim_s, 2), "_events": sink.records,
-        "_tol": moved.limits.breach_tolerance_m,
-        "_track": (pos - np.r_[_offset(moved, spec), 0.0]).tolist(),
-    }  # fmt: skip
+    track = [row[1:] for row in r.track]
+    return _row(r, airframe, kind, spec, moved, sink, r.end_mode, track) | {
+        "decisions": r.setpoints,
+        "sim_s": round(r.sim_s, 2),
+    }
 
 
 def _offset(moved, base) -> np.ndarray:
