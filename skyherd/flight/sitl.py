@@ -91,7 +91,9 @@ class Sitl:
             0 if self.gate is None else round(self.gate.p.latency_s * 1e6 / step_us) * step_us
         )
         next_tick, open_tick = self.clock.time_us, None
-        while not self._stop.is_set():
+        # lockstep: a stop ends the run at the next barrier only (a stop between two would end
+        # it after as many steps as the threads' timing allowed)
+        while self.gate is not None or not self._stop.is_set():
             if t_end is not None and self.clock.t >= t_end - 1e-9:
                 break
             if self.gate is not None:  # the tick's mark, and at mark + L its close
