@@ -46,6 +46,7 @@ Command line (`parse_fault_args`, the same flags for `skyherd sitl` and `skyherd
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -295,15 +296,28 @@ class FaultInjector:
         self._bias = np.zeros(3)
         self._dr_p = np.zeros(3)  # error when the fix was lost
         self._fired: set[int] = set()
-        self._wind_events = tuple(e for e in plan.events if e.kind == "wind")
-        self._gps_events = tuple(
-            (e, np.asarray(e.vec, dtype=float)) for e in plan.events if e.kind in ESTIMATE_KINDS
-        )
-        self._battery_events = tuple(e for e in plan.events if e.kind in ("battery", "drain"))
-        self._switch_events = tuple(e for e in plan.events if e.kind in SWITCH_KINDS)
         self._switched: set[tuple[int, int]] = set()
+        self._set_events(plan.events)
         self.touches_estimate = plan.touches_estimate
         self.calm = self.wind.calm and not self._wind_events
+
+    def _set_events(self, events: Sequence[FaultEvent]) -> None:
+        self._wind_events = tuple(e for e in events if e.kind == "wind")
+        self._gps_events = tuple(
+            (e, np.asarray(e.vec, dtype=float)) for e in events if e.kind in ESTIMATE_KINDS
+        )
+        self._battery_events = tuple(e for e in events if e.kind in ("battery", "drain"))
+        self._switch_events = tuple(e for e in events if e.kind in SWITCH_KINDS)
+
+    def shift(self, dt: float, t_now: float) -> None:
+        """Move every timed event by dt [s]: a plan written relative to a hand-over whose
+        time is known only in flight (the drills through the mission code, whose hand-over
+        is when the companion's mission makes it). ValueError if an event already began."""
+        if any(e.t0 <= t_now for e in self.plan.events):
+            raise ValueError(f"a fault event began before t = {t_now:.3f} s: too late to move it")
+        events = tuple(dataclasses.replace(e, t0=e.t0 + dt) for e in self.plan.events)
+        self.plan = dataclasses.replace(self.plan, events=events)
+        self._set_events(events)
 
     def wind_ned(self, t: float, dt: float) -> np.ndarray:
         """(3,) wind [m/s] NED acting over the next dt."""

@@ -220,6 +220,15 @@ _PX4_AUTO_NAMES = {v: k for k, v in PX4_AUTO_SUB.items()} | {7: "RTGS", 8: "FOLL
                                                               9: "PRECLAND", 10: "VTOL_TAKEOFF"}  # fmt: skip
 _PX4_MAIN_NAMES = {v: k for k, v in PX4_MAIN.items()} | {8: "RATTITUDE", 9: "TERMINATION"}
 
+MODE_REPORT_HZ = 20.0
+"""The HEARTBEAT rate asked of an autopilot [Hz] (the companion: mission.steps.report_modes;
+the followed world: world.follow): it is the one message that carries the mode and the arming,
+and at its default 1 Hz a mode the autopilot chose by itself (a battery RTL) went unseen for up
+to a second while the net asked for its own over it (found by the campaign through the mission
+code, `skyherd drill --campaign`: battery drills). Twice the 10 Hz tick: every tick's telemetry
+shows the mode of that instant. PX4 and ArduPilot honour SET_MESSAGE_INTERVAL for HEARTBEAT; an
+autopilot that refuses leaves it at 1 Hz."""
+
 MSG = {
     "HEARTBEAT": M.MAVLINK_MSG_ID_HEARTBEAT,
     "SYS_STATUS": M.MAVLINK_MSG_ID_SYS_STATUS,
@@ -305,8 +314,10 @@ class AutopilotProfile:
 
     # ---- telemetry -------------------------------------------------------------------------
     def stream_requests(self) -> tuple[tuple[int, float], ...]:
-        """(message id, rate [Hz]) to ask for with SET_MESSAGE_INTERVAL."""
+        """(message id, rate [Hz]) to ask for with SET_MESSAGE_INTERVAL; the HEARTBEAT (the
+        one message that carries the mode and the arming) at MODE_REPORT_HZ."""
         return (
+            (MSG["HEARTBEAT"], MODE_REPORT_HZ),
             (MSG["LOCAL_POSITION_NED"], self.position_rate_hz),
             (MSG[self.attitude_message], self.position_rate_hz),
             (MSG["GLOBAL_POSITION_INT"], 5.0),

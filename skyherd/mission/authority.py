@@ -11,6 +11,15 @@ time-passed-in machine; its rules in its docstring): a mode the net did not ask 
 or link-loss failsafe, a fence action, a ground station, an RC pilot) ends the AI's authority;
 the mission ends on RTL / LAND and waits on any other mode until someone gives OFFBOARD back.
 A request counts as asked for when it is sent, and is withdrawn if the autopilot refuses it.
+Blind — no telemetry for longer than `blind_s` or no heartbeat for longer than
+`heartbeat_blind_s` (a lost link), and then until a heartbeat newer than the gap's start has
+come — nothing is asked: the companion does not know the mode the autopilot chose meanwhile
+(its offboard-loss HOLD, a battery RTL), and a request sent into the cut would arrive when the
+link is back and undo that failsafe before its heartbeat told of it. That first heartbeat is
+judged as a change (`Authority.resync`): a mode other than the one asked for is the
+autopilot's, even if the last heartbeat before the gap showed it too (found by the campaign
+through the mission code, `skyherd drill --campaign`: link_loss and param_sabotage drills,
+whose cut is real).
 
 Every change of (mode, armed) the vehicle's heartbeats show (`VehicleLink.seen`, in arrival
 order, not sampled per tick) is fed to the rules, so an RTL that comes and goes between two
@@ -45,6 +54,9 @@ class ModeAuthority:
     airborne_m: float = 0.5  # a disarm above this altitude [m] is a disarm in the air
     t_start: float | None = None  # tick time of the hand-over [s]
     t_last: float | None = None  # tick time of the last update under the rules [s]
+    blind_s: float = 0.5  # no telemetry for longer than this: blind [s] (it streams >= 10 Hz)
+    heartbeat_blind_s: float = 1.5  # no heartbeat for longer than this: blind [s] (1 Hz + margin)
+    blind_since: float | None = None  # tick time the gap was found; None: not blind [s]
     _read: int = 0  # how many of VehicleLink.seen are taken
 
     def adopt(self, v: VehicleLink, mode: FlightMode) -> None:
@@ -97,6 +109,12 @@ class ModeAuthority:
             self.record(v)  # `handover` started the rules); what came before it is the phases'
             self.t_start = v.t
         self._take(v, feed=True)  # every change in arrival order, not the tick's last
+        if self.gap(v):
+            if self.blind_since is None:
+                self.blind_since = v.t
+        elif self.blind_since is not None and (v.heartbeat_t or -1.0) > self.blind_since:
+            self.blind_since = None  # a heartbeat after the gap: its mode, judged anew
+            self.rules.resync(v.t, v.tel.mode, v.tel.statustext)
         self.t_last = v.t
         return self.rules.mission
 
@@ -105,11 +123,18 @@ class ModeAuthority:
         """Why the autopilot has the vehicle (None while the net has it)."""
         return None if self.rules.has_authority or not self.rules.reason else self.rules.reason
 
+    def gap(self, v: VehicleLink) -> bool:
+        """Telemetry or heartbeats missing for longer than they may be (or none yet)."""
+        return (v.telemetry_t is None or v.t - v.telemetry_t > self.blind_s
+                or v.heartbeat_t is None or v.t - v.heartbeat_t > self.heartbeat_blind_s)  # fmt: skip
+
     def want(self, v: VehicleLink, mode: FlightMode) -> None:
         """Request `mode` unless the rules forbid it, it is shown, or it was sent recently."""
         ask = self.rules.request(mode)
         if ask is None or (ask is self.pending and v.t - self.t_sent < self.retry_s):
             return
+        if self.blind_since is not None or self.gap(v):
+            return  # blind: the autopilot may have chosen a mode we have not seen (docstring)
         self.rules.requested(v.t, ask, accepted=True)  # the switch may show before the ACK
         v.acks.pop(M.MAV_CMD_DO_SET_MODE, None)
         v.command_long(M.MAV_CMD_DO_SET_MODE, mode_params(v, ask), 0)

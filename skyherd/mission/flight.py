@@ -20,7 +20,15 @@ from skyherd.flight.autopilot_api import FlightMode, Setpoint
 from skyherd.mission.authority import ModeAuthority
 from skyherd.mission.configure import Change, configure
 from skyherd.mission.pilots import DescentPilot, Observation, Pilot, Proposal
-from skyherd.mission.steps import MissionError, Phase, read_params, recipe, wait_ready, wait_until
+from skyherd.mission.steps import (
+    MissionError,
+    Phase,
+    read_params,
+    recipe,
+    report_modes,
+    wait_ready,
+    wait_until,
+)
 from skyherd.mission.vehicle import VehicleLink
 from skyherd.runio import CsvWriter, JsonlWriter
 from skyherd.runio.mac import sign_record
@@ -45,6 +53,8 @@ class FlightPlan:
     descend_held_s: float = 10.0  # the net holding (fallback / PID) this long during the
     # descent: the autopilot lands from the net's hold instead [s]
     yield_wait_s: float = 60.0  # after the autopilot took over, wait this long for its landing [s]
+    air_start: bool = False  # the vehicle is already armed in the air (a drill's start point):
+    # no take-off; the hand-over holds where it is (the drills through the mission code)
 
     def __post_init__(self) -> None:
         if not 0 < self.altitude_m <= 500:
@@ -127,6 +137,7 @@ class SingleVehicleMission:
         plan = self.plan
         self.phase = "connect"
         yield from wait_ready(v)
+        report_modes(v)  # every mode change seen within a tick (hil.autopilots.MODE_REPORT_HZ)
         prof = v.profile
         if self.net is not None:  # envelope ↔ autopilot: refuse to fly on a mismatch
             self.phase = "parameters"
@@ -148,14 +159,20 @@ class SingleVehicleMission:
                 raise MissionError(
                     f"refusing to take off: the autopilot's parameters disagree with the envelope: {why}{hint}"
                 )
-        if self.net is not None:  # the take-off column, certified before the take-off
-            ok, why = self.net.certify_column(v.tel.pos_ned, plan.altitude_m)
-            if not ok:
-                raise MissionError(f"refusing to take off: {why}")
-        self.phase = "takeoff"
-        yield from recipe(v, prof.takeoff_steps(plan.altitude_m, v.home_amsl_m))
+        if plan.air_start:  # in the air already: the hand-over holds where the vehicle is
+            if not v.tel.armed:
+                raise MissionError("air start: the vehicle is not armed in the air")
+            hold = lambda: Setpoint(pos_ned=v.tel.pos_ned.copy(), yaw=0.0)  # noqa: E731
+        else:
+            if self.net is not None:  # the take-off column, certified before the take-off
+                ok, why = self.net.certify_column(v.tel.pos_ned, plan.altitude_m)
+                if not ok:
+                    raise MissionError(f"refusing to take off: {why}")
+            self.phase = "takeoff"
+            yield from recipe(v, prof.takeoff_steps(plan.altitude_m, v.home_amsl_m))
+            hold = lambda: self._hold(v)  # noqa: E731
         self.phase = "offboard"
-        yield from recipe(v, prof.handover_steps(), hold=lambda: self._hold(v))
+        yield from recipe(v, prof.handover_steps(), hold=hold)
         if self.net is not None:
             self.net.handover(v.t, v.tel.mode, prof.ai_mode)
         else:

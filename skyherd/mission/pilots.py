@@ -194,7 +194,14 @@ class DrillPilot:
 
     It first flies to the script's start point (the drills' behave law), then runs the script on
     its own clock from there: `attack` in [t_on, t_off), `behave` otherwise, for the script's
-    duration; `done` after it. A stall proposes no action (the net sees the deadline pass)."""
+    duration; `done` after it. A stall proposes no action (the net sees the deadline pass).
+    `air_start`: the vehicle was started at the script's start point (a moving fixed-wing
+    never stops there): the script's clock starts at the first decision.
+
+    A drill judged on its recovery (`recovery_s` > 0: the airframe's recovery allowance,
+    safety.drills.recovery_allowance_s) runs at least its attack + the allowance, and each time
+    the net (`net_mode()`) leaves the AI it runs one allowance more, up to RECOVERY_ROUNDS
+    allowances past that: the rule of the in-process drills (safety.drills.run_drill)."""
 
     script: object  # safety.drills.Script
     params: object  # safety.drills.DrillParams
@@ -202,6 +209,17 @@ class DrillPilot:
     name: str = "drill"
     t0: float | None = None  # the script's clock starts at the start point [s]
     t: float = 0.0
+    air_start: bool = False
+    recovery_s: float = 0.0  # 0: not judged on its recovery (the script's duration only)
+    net_mode: Callable[[], object] | None = None  # the net's mode now (safety.supervisor.Mode)
+    _ai: bool = True
+
+    def __post_init__(self) -> None:
+        from skyherd.safety.drills import RECOVERY_ROUNDS
+
+        if self.recovery_s > 0:
+            self.duration_s = max(self.duration_s, self.script.t_off + self.recovery_s)
+        self.last_call_s = self.duration_s + RECOVERY_ROUNDS * self.recovery_s
 
     @property
     def done(self) -> bool:
@@ -211,9 +229,17 @@ class DrillPilot:
         from skyherd.safety.drills import toward
 
         s, self.t = self.script, o.t
+        if self.t0 is None and self.air_start:
+            self.t0 = o.t
         if self.t0 is None:
             there = np.linalg.norm(o.state.pos_ned - s.start_ned) < 1.0
             if not (there and np.linalg.norm(o.state.vel_ned) < 0.5):
                 return Proposal(toward(s.start_ned, 3.0, 1.0, self.params)(0.0, o.state))
             self.t0 = o.t
-        return Proposal(s.act(o.t - self.t0, o.state, self.params))
+        tr = o.t - self.t0
+        if self.recovery_s > 0 and self.net_mode is not None:
+            ai = getattr(self.net_mode(), "value", None) == "ai"
+            if self._ai and not ai:  # the net left the AI: time to recover
+                self.duration_s = min(self.last_call_s, max(self.duration_s, tr + self.recovery_s))
+            self._ai = ai
+        return Proposal(s.act(tr, o.state, self.params))

@@ -21,6 +21,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from skyherd.flight.autopilot_api import FlightMode
 from skyherd.flight.mavlink.modes import Personality, custom_mode_of
+from skyherd.hil.autopilots import MODE_REPORT_HZ
 from skyherd.mission.vehicle import VehicleLink
 
 M = mavlink2
@@ -162,6 +163,12 @@ def quiet_streams(v: VehicleLink, names: tuple[str, ...] = UNREAD_STREAMS) -> No
         v.command_long(
             M.MAV_CMD_SET_MESSAGE_INTERVAL, (getattr(M, f"MAVLINK_MSG_ID_{name}"), -1), 0
         )
+
+
+def report_modes(v: VehicleLink, hz: float = MODE_REPORT_HZ) -> None:
+    """SET_MESSAGE_INTERVAL(HEARTBEAT) at `hz` on the companion's link (hil.autopilots.
+    MODE_REPORT_HZ: every mode change seen within a tick)."""
+    v.command_long(M.MAV_CMD_SET_MESSAGE_INTERVAL, (M.MAVLINK_MSG_ID_HEARTBEAT, 1e6 / hz), 0)
 
 
 def arm(v: VehicleLink, timeout_s: float = 30.0) -> Phase:

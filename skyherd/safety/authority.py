@@ -108,6 +108,13 @@ class Authority:
             self._event(t, "end", mode, f"{mode.name} while waiting: mission ends")
         return ""
 
+    def resync(self, t: float, mode: FlightMode | None, why: str = "") -> str:
+        """After a gap in the heartbeats (a lost link): the mode shown now is judged as if it
+        had just changed — a change during the gap was not seen, and a mode other than the
+        one asked for is the autopilot's (observe's rules). Returns what `observe` returns."""
+        self.observed = None
+        return self.observe(t, mode, why)
+
     # ---- outputs -----------------------------------------------------------------------
     @property
     def has_authority(self) -> bool:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skyherd.runio import ports
 from skyherd.runio.runfolder import RunFolder, markdown_table
 from skyherd.scripts.cli import UsageError
 
@@ -97,17 +98,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the report says how many breach-free drills that needs (default 1e-3: 2,995)",
     )
     parser.add_argument(
-        "--mavlink",
-        type=int,
-        default=0,
-        metavar="N",
-        help="also fly N campaign drills per airframe (max speed, battery, parameter sabotage "
-        "and its restore, link loss: a real cut of the vehicle's API link) through MAVLink: the "
-        "built-in vehicle's endpoint and the companion's own code (mission.drill_link; instance --instance)",
-    )
+        "--through", choices=("mission", "process"), default="mission",
+        help="--campaign: how each drill flies. mission: `skyherd fly`'s mission code "
+        "(SingleVehicleMission with the drill's adversarial pilot, the same SafetyNet and "
+        "judge) over real loopback MAVLink to the built-in vehicle, in lockstep on the "
+        "simulation clock (mission.drill_link); process: the in-process drill loop "
+        "(safety.drills.run_drill) (default mission)",
+    )  # fmt: skip
     parser.add_argument(
-        "--instance", type=int, default=85, help="vehicle instance for --mavlink (default 85)"
-    )
+        "--instance", type=int, default=85,
+        help="--through mission: the first vehicle instance (MAVLink ports 14540+N, 14580+N, "
+        "18570+N); each drill running at once takes the next free one, up to N+31 (default 85)",
+    )  # fmt: skip
 
 
 def _airframes(choice: str) -> list[str]:
@@ -153,7 +155,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(
             f"--target-bound must be within (0, 1), e.g. 1e-3; got {args.target_bound:g}"
         )
-    if args.campaign or args.mavlink:
+    try:
+        ports.check_instance(args.instance)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if args.campaign:
         from skyherd.scripts.drill_campaign import run_campaign
 
         return run_campaign(args)

@@ -1,7 +1,13 @@
 """`skyherd drill --campaign N`: N randomized adversarial drills per airframe (safety.campaign),
-in-process, seeded, on this process, a local process pool or Ray tasks (`--workers`,
-`--backend`, `--ray-address`: runio.parallel; a dead worker's drill runs again, each drill's
-row is written as it finishes, and a drill is a pure function of (airframe, index, seed)).
+seeded, on this process, a local process pool or Ray tasks (`--workers`, `--backend`,
+`--ray-address`: runio.parallel; a dead worker's drill runs again, each drill's row is written
+as it finishes, and a drill is a pure function of (airframe, index, seed)).
+
+`--through mission` (the default): each drill is `skyherd fly`'s mission code — the companion's
+SingleVehicleMission with the drill's adversarial pilot, the same SafetyNet, authority and
+decision records — over real loopback MAVLink to the built-in vehicle in lockstep on the
+simulation clock (mission.drill_link; each drill running at once on its own vehicle instance
+from `--instance`); `--through process`: the in-process drill loop (safety.drills.run_drill).
 
 Writes a run folder: config.json, metrics.csv (one row per drill, flushed as drills finish),
 events.jsonl (every switch, yield and parameter verdict, tagged with the drill), campaign.png
@@ -27,18 +33,25 @@ breach: it was not judged), and how many breach-free drills a target bound needs
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
 
 from skyherd.runio.runfolder import RunFolder, markdown_table
-from skyherd.safety.judge import FAILSAFE_PATH_MODES
+from skyherd.safety.judge import FAILSAFE_PATH_MODES, first_failed
 from skyherd.scripts.cli import UsageError
 
 COLS = ["drill", "airframe", "kind", "passed", "failed_check", "min_clearance_m", "breach", "overridden",
         "yielded", "switches", "fallback_s", "pid_s", "autopilot_excursion_m",
         "autopilot_excursion_mode", "first_reason", "why", "constraint_set_version",
-        "restored", "end_mode", "not_recovered"]  # fmt: skip
+        "restored", "end_mode", "not_recovered", "through", "decisions", "sim_s",
+        "cpu_s"]  # fmt: skip
+THROUGH_TEXT = {
+    "mission": "the companion's mission code (mission.flight.SingleVehicleMission, DrillPilot) "
+    "over loopback MAVLink to the built-in vehicle, lockstep on the simulation clock",
+    "process": "the in-process drill loop (safety.drills.run_drill)",
+}  # --through
 TARGET_BOUND = 1e-3  # --target-bound's default: the breach probability to bound at 95 %
 
 
@@ -73,9 +86,13 @@ def _load(airframe: str, envelope: Path | None):
 
 
 def run_one(job: tuple) -> dict:
-    """One campaign drill in this process → a plain dict (picklable); a crash is a failed row."""
+    """One campaign drill in this process → a plain dict (picklable); a crash is a failed row.
+    job: (airframe, index, seed, envelope[, through, first instance])."""
+    cpu0 = time.process_time()
     try:
-        return _run_one(job)
+        through = job[4] if len(job) > 4 else "process"
+        row = _run_mission(job) if through == "mission" else _run_one(job[:4])
+        return row | {"through": through, "cpu_s": round(time.process_time() - cpu0, 3)}
     except Exception as e:  # noqa: BLE001  one broken drill must not lose the campaign
         airframe, index = job[0], job[1]
         return {c: "" for c in COLS} | {
@@ -89,7 +106,6 @@ def run_one(job: tuple) -> dict:
 def _run_one(job: tuple) -> dict:
     from skyherd.safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
     from skyherd.safety.drills import DrillParams, run_drill
-    from skyherd.safety.judge import first_failed
 
     airframe, index, seed, envelope = job
     spec, sp = _load(airframe, envelope)
@@ -98,25 +114,54 @@ def _run_one(job: tuple) -> dict:
     d = make_drill(ks[index % len(ks)], index, drill_rng(seed, airframe, index), spec, p)
     sink = _Collect()
     r = run_drill(d.script, make_vehicle(d, seed), d.spec, sp, p, sink)
-    tol = d.spec.limits.breach_tolerance_m
-    pos = r.track["pos"][::10]
+    end_mode = ("ai", "fallback", "pid")[int(r.track["mode"][-1])]
+    return _row(r, airframe, d.kind, spec, d.spec, sink, end_mode, r.track["pos"][::10])
+
+
+def _row(r, airframe: str, kind: str, spec, moved, sink: _Collect, end_mode: str, pos) -> dict:
+    """A drill's metrics.csv row from its result (safety.drills.DrillResult or
+    mission.drill_link.LinkDrillResult): the judge's verdict and figures. `moved`: the drill's
+    constraint set (the fixed-wing's fence moved); `pos`: its track, NED [m]. Overridden
+    failsafes: the drill's count, at least 1 when the judge's modes check failed (a request
+    that crossed a failsafe is counted by the judge from the truth, not by the drill)."""
     failed = first_failed(r.checks)
     ok = {c.name: c.ok for c in r.checks}
+    pos = np.asarray(pos, float).reshape(-1, 3)
     return {
-        "drill": r.name, "airframe": airframe, "kind": d.kind, "passed": failed is None,
+        "drill": r.name, "airframe": airframe, "kind": kind, "passed": failed is None,
         "failed_check": "" if failed is None else failed.name,
         "min_clearance_m": round(r.min_clearance_m, 3), "breach": not ok["fence"],
-        "overridden": r.overridden, "yielded": r.yielded, "switches": r.switches,
-        "fallback_s": round(r.fallback_s, 2), "pid_s": round(r.pid_s, 2),
+        "overridden": max(r.overridden, int(not ok["modes"])), "yielded": r.yielded,
+        "switches": r.switches, "fallback_s": round(r.fallback_s, 2), "pid_s": round(r.pid_s, 2),
         "autopilot_excursion_m": "" if not math.isfinite(r.autopilot_excursion_m)
         else round(r.autopilot_excursion_m, 2),
         "autopilot_excursion_mode": r.autopilot_excursion_mode, "restored": r.restored,
         "first_reason": r.reasons[0] if r.reasons else "", "why": r.why,
-        "end_mode": ("ai", "fallback", "pid")[int(r.track["mode"][-1])],
-        "not_recovered": not ok["recovered"],
-        "constraint_set_version": spec.version, "_events": sink.records, "_tol": tol,
-        "_track": (pos - np.r_[_offset(d.spec, spec), 0.0]).tolist(),
+        "end_mode": end_mode, "not_recovered": not ok["recovered"],
+        "constraint_set_version": spec.version, "_events": sink.records,
+        "_tol": moved.limits.breach_tolerance_m,
+        "_track": (pos - np.r_[_offset(moved, spec), 0.0]).tolist(),
     }  # fmt: skip
+
+
+def _run_mission(job: tuple) -> dict:
+    """One campaign drill flown by the companion's mission code (mission.drill_link)."""
+    from skyherd.mission.drill_link import run_mission_drill
+    from skyherd.safety.campaign import drill_rng, kinds_for, make_drill
+    from skyherd.safety.drills import DrillParams
+
+    airframe, index, seed, envelope, _, instance = job
+    spec, _ = _load(airframe, envelope)
+    ks = kinds_for(airframe)
+    kind = ks[index % len(ks)]
+    sink = _Collect()
+    r = run_mission_drill(kind, airframe, index, seed, instance, sink, envelope)
+    moved = make_drill(kind, index, drill_rng(seed, airframe, index), spec, DrillParams()).spec
+    track = [row[1:] for row in r.track]
+    return _row(r, airframe, kind, spec, moved, sink, r.end_mode, track) | {
+        "decisions": r.setpoints,
+        "sim_s": round(r.sim_s, 2),
+    }
 
 
 def _offset(moved, base) -> np.ndarray:
@@ -132,8 +177,9 @@ def run_campaign(args) -> int:
     airframes = ["quadrotor", "fixedwing"] if args.airframe == "all" else [args.airframe]
     specs = {a: _load(a, args.envelope) for a in airframes}
     n = args.campaign
-    jobs = [(a, i, args.seed, args.envelope) for i in range(n) for a in airframes]
-    n_link = getattr(args, "mavlink", 0)
+    through = getattr(args, "through", "process")
+    jobs = [(a, i, args.seed, args.envelope, through, getattr(args, "instance", 85))
+            for i in range(n) for a in airframes]  # fmt: skip
     run_dir = RunFolder("drill", root=args.runs_dir)
     run_dir.write_config({"args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
                           "seed": args.seed, "campaign": n, "airframes": airframes,
@@ -165,42 +211,11 @@ def run_campaign(args) -> int:
                                         args.workers, ray_address, say=tqdm.write):  # fmt: skip
                 keep(row)
                 bar.update(1)
-    link_rows = []
-    if n_link:
-        from skyherd.mission.drill_link import MAVLINK_KINDS, LinkDrillResult, run_mavlink_drill
-
-        link_jobs = [(a, i) for a in airframes for i in range(n_link)]
-        for a, i in tqdm(link_jobs, desc="through MAVLink", unit="drill"):
-            kind = MAVLINK_KINDS[i % len(MAVLINK_KINDS)]
-            sink = _Collect()
-            try:
-                r = run_mavlink_drill(kind, args.instance, args.seed, index=1_000_000 + i,
-                                      events=sink, airframe=a)  # fmt: skip
-            except Exception as e:  # noqa: BLE001  one broken drill must not lose the run
-                r = LinkDrillResult(f"{kind} {1_000_000 + i:04d}", kind, False, math.nan, 0, "",
-                                    [], f"crashed: {type(e).__name__}: {e}", 0, a)  # fmt: skip
-            for e in sink.records:
-                events.write({"drill": f"mavlink {r.name}", "airframe": a, **e})
-            link_rows.append(r)
     events.close()
     metrics.close()
     table, closest, totals, bad = summarize(rows) if rows else ("", "", "no in-process drills", 0)
     target = getattr(args, "target_bound", TARGET_BOUND)
     proof = bounds(rows, target) if rows else ""
-    if link_rows:
-        lt = markdown_table(
-            ["airframe", "drill (MAVLink)", "passed", "closest approach m", "overridden",
-             "yielded to", "restore", "dropped by the cut", "why"],
-            [[r.airframe, r.name, r.passed, round(r.min_clearance_m, 2), r.overridden,
-              r.yielded or "-", r.restored or "-", r.cut_dropped, r.why or "-"]
-             for r in link_rows],
-        )  # fmt: skip
-        table = f"{table}\n\n{lt}"
-        bad += sum(not r.passed for r in link_rows)  # the judge's verdict; a crash never passes
-        totals += (f"; through MAVLink: {len(link_rows)} drills, "
-                   f"{sum(not (r.checks and r.checks[0].ok) for r in link_rows)} breaches, "
-                   f"{sum(r.overridden for r in link_rows)} overridden failsafes, "
-                   f"{sum(not r.passed for r in link_rows)} failing a check")  # fmt: skip
     if not args.no_plots and rows:
         plot(rows, tracks, {a: s for a, (s, _) in specs.items()}, run_dir.file("campaign.png"))
     versions = ", ".join(f"{a}: {s.name} {s.version}" for a, (s, _) in specs.items())
@@ -208,13 +223,15 @@ def run_campaign(args) -> int:
     print(closest)
     print(proof)
     print(totals)
+    print(f"flown through: {THROUGH_TEXT[through]}")
     print(f"constraint sets: {versions}")
     print(f"run folder: {run_dir.path}")
     fails = [
         f"- {r['drill']} ({r['airframe']}): {r['why']}" for r in rows if not _flag(r, "passed")
     ]
     run_dir.write_summary(
-        f"# skyherd drill --campaign {n} (seed {args.seed})\n\nConstraint sets: {versions}\n\n"
+        f"# skyherd drill --campaign {n} --through {through} (seed {args.seed})\n\n"
+        f"{THROUGH_TEXT[through]}\n\nConstraint sets: {versions}\n\n"
         f"{table}\n\n## Closest approaches\n\n{closest}\n\n## What it proves\n\n{proof}\n\n"
         f"{totals}\n"
         + ("\n## Drills that failed a check\n" + "\n".join(fails[:200]) + "\n" if fails else "")

@@ -120,7 +120,9 @@ def test_fly_autopilot_rtl_between_two_ticks_exits_1_wall_time(tmp_path, capsys)
 
 def test_fly_truth_beyond_the_fence_exits_1_naming_the_fence(tmp_path, capsys):
     """Issue 26's fence case with the guards on: the north fence edge 35 m out, a 10 s gust
-    front of 25 m/s from the south from t = 15 s (above what the airframe can hold: `--wind`
+    front of 25 m/s from the south from t = 13.9 s, 5 s after the hand-over (8.9 s since the
+    companion asks for its heartbeat at 20 Hz: hil.autopilots.MODE_REPORT_HZ; it was 15 s with the
+    hand-over at 10.0 s) (above what the airframe can hold: `--wind`
     that strong is refused before take-off, a wind that rises in flight is not). The net flies
     its fallback; the truth is blown 13.8 m beyond the edge, then the mission lands and ends
     on its own terms. The judge must fail it on the fence. Should the net one day hold it
@@ -131,7 +133,7 @@ def test_fly_truth_beyond_the_fence_exits_1_naming_the_fence(tmp_path, capsys):
     env = tmp_path.parent / f"{tmp_path.name}-north35.toml"
     env.write_text(fence + '[[fence.inclusion]]\nname = "north 35"\n'
                    "points_ne = [[-200.0, -200.0], [35.0, -200.0], [35.0, 200.0], [-200.0, 200.0]]\n")  # fmt: skip
-    rc, run = _fly(tmp_path, 32, "--envelope", str(env), "--fault", "wind@15:25,180:10",
+    rc, run = _fly(tmp_path, 32, "--envelope", str(env), "--fault", "wind@13.9:25,180:10",
                    duration="20")  # fmt: skip
     last = _last_line(capsys)
     comp = json.loads((run / "companion.json").read_text())
