@@ -3,13 +3,16 @@
 Lockstep: each iteration steps the autopilot by `control_dt` (physics substeps inside), then
 lets the endpoint answer what arrived and send what is due at the new simulation time, then
 waits for the `Pacer` (speed-up S ≥ 1, or 0 = as fast as possible) once per `pace_s` of
-simulation time (a sleep per 4 ms step cost 4.3× the CPU of the unpaced loop). Every MAVLink timeout is
+simulation time (a sleep per 4 ms step cost 4.3× the CPU of the unpaced loop), and looks at the
+sockets once then: what arrived is answered at the next step (a poll per step was a hovering
+vehicle's largest messaging cost, issue 31). Every MAVLink timeout is
 measured on the simulation clock, so it scales with S; the trajectory for a given seed and
 given inputs does not depend on S.
 """
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -57,21 +60,46 @@ class Sitl:
         self.steps += 1
 
     def run(self, duration_s: float | None = None, on_step=None) -> RunStats:
-        """Step (paced) until `stop()` or until `duration_s` of simulation time has passed."""
-        t_end = None if duration_s is None else self.clock.t + duration_s
-        sim0, wall0, steps0 = self.clock.t, time.monotonic(), self.steps
-        self.endpoint.update()  # answer anything that arrived before the first step
-        next_pace = self.clock.t
+        """Step (paced) until `stop()` or until `duration_s` of simulation time has passed.
+
+        The steps between two pace points run as one batch: the stop flag, the end time, the
+        pacer and the sockets are looked at once per batch (with `on_step`, the stop flag after
+        every step, as `request_stop` promises)."""
+        clock, ap, ep = self.clock, self.autopilot, self.endpoint
+        dt = ap.control_dt
+        t_end = None if duration_s is None else clock.t + duration_s
+        sim0, wall0, steps0 = clock.t, time.monotonic(), self.steps
+        ep.update()  # answer anything that arrived before the first step
+        next_pace = clock.t
+        readable = False
         while not self._stop.is_set():
-            if t_end is not None and self.clock.t >= t_end - 1e-9:
+            t = clock.t
+            if t_end is not None and t >= t_end - 1e-9:
                 break
-            self.step()
-            if on_step is not None:
-                on_step(self)
-            if self.clock.t >= next_pace - 1e-9:  # one sleep per batch of steps, not per step
-                self.pacer.wait_until(self.clock.t)
+            n = max(1, math.ceil((next_pace - t) / dt - 1e-6))  # steps to the pace point
+            if t_end is not None:
+                n = min(n, max(1, math.ceil((t_end - t) / dt - 1e-6)))
+            if on_step is None:
+                ap.step()
+                ep.update(readable)
+                for _ in range(n - 1):
+                    ap.step()
+                    ep.update(False)
+                self.steps += n
+            else:
+                for i in range(n):
+                    ap.step()
+                    ep.update(readable and i == 0)
+                    self.steps += 1
+                    on_step(self)
+                    if self._stop.is_set():
+                        break
+            readable = False
+            if clock.t >= next_pace - 1e-9:  # one sleep per batch of steps, not per step
+                self.pacer.wait_until(clock.t)
                 next_pace += self.pace_s
-        return RunStats(self.clock.t - sim0, time.monotonic() - wall0, self.steps - steps0)
+                readable = ep.poll()  # and one look at the sockets
+        return RunStats(clock.t - sim0, time.monotonic() - wall0, self.steps - steps0)
 
     def start(self, duration_s: float | None = None) -> Sitl:
         """Run on a background thread (tests, tools); `stop()` ends it."""

@@ -12,14 +12,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from operator import attrgetter, itemgetter
 
-from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from skyherd.flight.mavlink.signing import Signing
-from skyherd.flight.mavlink.wire import CRC, HDR_V2, STX_V2
+from skyherd.flight.mavlink.payload import Payload
+from skyherd.flight.mavlink.signing import IFLAG_SIGNED, Signing
+from skyherd.flight.mavlink.wire import CRC, HDR_V2, STX_V2, X25
 
 MAVLinkMessage = mavlink.MAVLink_message
-_X25 = crc16.mcrf4xx  # MAVLink's X.25 checksum (CRC-16/MCRF4XX), as pymavlink uses it
+_X25 = X25
 
 
 class _Layout:
@@ -86,6 +86,11 @@ _LAYOUTS = {msg_id: _Layout(cls) for msg_id, cls in mavlink.mavlink_map.items()}
 _BY_CLASS = {lay.cls: lay for lay in _LAYOUTS.values()}
 
 
+def decode_payload(p: Payload) -> MAVLinkMessage:
+    """The pymavlink message a `Payload` stands for (tools and tests read its fields)."""
+    return _LAYOUTS[p.msg_id].message(p.data)
+
+
 def frame_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int) -> bytes | None:
     """One unsigned MAVLink 2 frame of `msg`, byte for byte what pymavlink's `msg.pack` gives
     (trailing-zero truncation, CRC_EXTRA), leaving `msg` as it was; None for a message class
@@ -97,11 +102,16 @@ def frame_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int
     lay = _BY_CLASS.get(type(msg))
     if lay is None:
         return None
-    payload = lay.pack_payload(*lay.wire_values(msg))
-    body = payload.rstrip(b"\x00") or payload[:1]  # MAVLink 2 drops trailing zeros, keeps one
+    return _frame_of(lay, lay.pack_payload(*lay.wire_values(msg)), seq, src_sys, src_comp)
+
+
+def _frame_of(lay: _Layout, payload: bytes, seq: int, src_sys: int, src_comp: int,
+              incompat: int = 0) -> bytes:  # fmt: skip
+    """Header, the payload without its trailing zeros (MAVLink 2 keeps one byte), CRC."""
+    body = payload.rstrip(b"\x00") or payload[:1]
     msg_id = lay.msg_id
     frame = HDR_V2.pack(
-        STX_V2, len(body), 0, 0, seq, src_sys, src_comp, msg_id & 0xFFFF, msg_id >> 16
+        STX_V2, len(body), incompat, 0, seq, src_sys, src_comp, msg_id & 0xFFFF, msg_id >> 16
     )
     frame += body
     return frame + CRC.pack(_X25(lay.extra, _X25(frame[1:])))
@@ -193,14 +203,37 @@ class Codec:
         """The encoder: `codec.mav.heartbeat_encode(...)` builds a message."""
         return self.tx
 
-    def pack(self, msg: MAVLinkMessage) -> bytes:
-        """Frame one message (MAVLink 2) with the next sequence number."""
-        tx = self.tx
-        buf = frame_unsigned_v2(msg, tx.seq, tx.srcSystem, tx.srcComponent)  # nobody reads a
-        if buf is None:  # sent message's bookkeeping: not written back (a sixth of the cost)
-            buf = bytes(msg.pack(tx))
+    def pack(self, msg: MAVLinkMessage | Payload) -> bytes:
+        """Frame one message (MAVLink 2) with the next sequence number: a pymavlink message, or
+        a `Payload` packed straight into bytes (flight.mavlink.payload: the telemetry)."""
+        if type(msg) is Payload:
+            lay = _LAYOUTS[msg.msg_id]
+            payload = msg.data
+        else:
+            lay = _BY_CLASS.get(type(msg))
+            if lay is None:  # a class the dialect does not know: pymavlink frames it
+                return self._pymavlink_pack(msg)
+            payload = lay.pack_payload(*lay.wire_values(msg))
+        return self._frame(lay, payload)
+
+    def _frame(self, lay: _Layout, payload: bytes) -> bytes:
+        """The frame and, with a key, its signature (the incompat flag is set before the CRC
+        is computed, so it is computed once)."""
+        sg, tx = self.signing, self.tx
+        signed = sg is not None and sg.key is not None
+        frame = _frame_of(lay, payload, tx.seq, tx.srcSystem, tx.srcComponent,
+                          IFLAG_SIGNED if signed else 0)  # fmt: skip
+        if signed:
+            frame += sg.signature(frame, self.link_id)
+        return self._count(frame)
+
+    def _pymavlink_pack(self, msg: MAVLinkMessage) -> bytes:
+        buf = bytes(msg.pack(self.tx))
         if self.signing is not None and self.signing.key is not None:
             buf = self.signing.sign(buf, self.link_id)
+        return self._count(buf)
+
+    def _count(self, buf: bytes) -> bytes:
         self.tx.seq = (self.tx.seq + 1) % 256
         self.stats.tx_frames += 1
         self.stats.tx_bytes += len(buf)

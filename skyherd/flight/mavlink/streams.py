@@ -9,6 +9,7 @@ link's default.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -52,7 +53,9 @@ MAX_RATE_HZ = 500.0  # faster requests are clamped
 class StreamScheduler:
     """Which messages are due on one link at simulation time t [s]."""
 
-    def __init__(self, defaults: dict[int, float] | None = None):
+    def __init__(self, defaults: dict[int, float] | None = None,
+                 on_change: Callable[[], None] | None = None):  # fmt: skip
+        self._on_change = on_change  # called when a rate changes (the endpoint's due time)
         self.defaults = dict(DEFAULT_RATES_HZ if defaults is None else defaults)
         self.rates: dict[int, float] = dict(self.defaults)
         self._next: dict[int, float] = {}
@@ -64,6 +67,8 @@ class StreamScheduler:
         self.rates.pop(msg_id, None)
         self._next.pop(msg_id, None)
         self.next_due = -1.0
+        if self._on_change is not None:
+            self._on_change()
 
     def supports(self, msg_id: int) -> bool:
         return msg_id in self.defaults
@@ -84,6 +89,8 @@ class StreamScheduler:
         self.rates[msg_id] = rate
         self._next.pop(msg_id, None)
         self.next_due = -1.0
+        if self._on_change is not None:
+            self._on_change()
         return True
 
     def interval_us(self, msg_id: int) -> int:
@@ -98,17 +105,19 @@ class StreamScheduler:
         if t < self.next_due - 1e-9:
             return []  # the common case, checked once per step
         out = []
+        nexts = self._next
         for msg_id, rate in self.rates.items():
             if rate <= 0:
                 continue
-            nxt = self._next.get(msg_id)
-            if nxt is None or t >= nxt - 1e-9:
-                out.append(msg_id)
-                period = 1.0 / rate
-                nxt = t + period if nxt is None else nxt + period
-                if nxt <= t:  # fell behind (a slow step): skip, don't burst
-                    nxt = t + period
-                self._next[msg_id] = nxt
+            nxt = nexts.get(msg_id)
+            if nxt is None:
+                nexts[msg_id] = t + 1.0 / rate
+            elif t >= nxt - 1e-9:
+                nxt += 1.0 / rate
+                nexts[msg_id] = nxt if nxt > t else t + 1.0 / rate  # fell behind: skip, no burst
+            else:
+                continue
+            out.append(msg_id)
         # _next holds only streamed messages (set_interval drops the others).
         self.next_due = min(self._next.values(), default=math.inf)
         return out
