@@ -300,11 +300,14 @@ class MavlinkEndpoint:
             sched = self.streams[link.name]
             if t < sched.next_due - 1e-9:
                 continue  # nothing due on this link
-            due = sched.due(t)
             if link.nobody_listens():  # the heartbeat goes on: it finds the next listener
+                held = sched.held_back
+                due = sched.due(t, only=M.MAVLINK_MSG_ID_HEARTBEAT)
                 kept = [m for m in due if m == M.MAVLINK_MSG_ID_HEARTBEAT]
-                self.stats["tx_stream_unheard"] += len(due) - len(kept)
+                self.stats["tx_stream_unheard"] += len(due) - len(kept) + sched.held_back - held
                 due = kept
+            else:
+                due = sched.due(t)
             for msg_id in due:
                 msg = built.get(msg_id)
                 if msg is None:

@@ -60,6 +60,7 @@ class StreamScheduler:
         self.rates: dict[int, float] = dict(self.defaults)
         self._next: dict[int, float] = {}
         self.next_due = -1.0  # no message is due before this time [s] (-1: recompute at once)
+        self.held_back = 0  # sends skipped while nobody listened (`due(t, only=...)`)
 
     def drop(self, msg_id: int) -> None:
         """This link cannot stream msg_id (its autopilot does not provide it)."""
@@ -100,8 +101,14 @@ class StreamScheduler:
         rate = self.rates[msg_id]
         return -1 if rate <= 0 else int(round(1e6 / rate))
 
-    def due(self, t: float) -> list[int]:
-        """Message ids to send now; each is rescheduled one period later (no catch-up bursts)."""
+    def due(self, t: float, only: int | None = None) -> list[int]:
+        """Message ids to send now; each is rescheduled one period later (no catch-up bursts).
+
+        `only`: the link is heard by nobody, only this message goes out (the heartbeat that
+        finds the next listener). The others are not woken for: when this one is due, each is
+        moved past t and the sends it missed are counted in `held_back`; the step after this
+        one is sent, the link is looked at again (so streams resume one step after a heartbeat
+        is no longer refused)."""
         if t < self.next_due - 1e-9:
             return []  # the common case, checked once per step
         out = []
@@ -113,11 +120,22 @@ class StreamScheduler:
             if nxt is None:
                 nexts[msg_id] = t + 1.0 / rate
             elif t >= nxt - 1e-9:
-                nxt += 1.0 / rate
-                nexts[msg_id] = nxt if nxt > t else t + 1.0 / rate  # fell behind: skip, no burst
+                period = 1.0 / rate
+                if only is not None and msg_id != only:  # every instant it missed up to t
+                    n = math.floor((t - nxt + 1e-9) / period) + 1
+                    nexts[msg_id] = nxt + n * period
+                    self.held_back += n
+                    continue
+                nxt += period
+                nexts[msg_id] = nxt if nxt > t else t + period  # fell behind: skip, no burst
             else:
                 continue
             out.append(msg_id)
         # _next holds only streamed messages (set_interval drops the others).
-        self.next_due = min(self._next.values(), default=math.inf)
+        if only is None:
+            self.next_due = min(nexts.values(), default=math.inf)
+        elif only in out:
+            self.next_due = t  # look again at the next step: is anybody there now?
+        else:
+            self.next_due = nexts.get(only, math.inf)
         return out
