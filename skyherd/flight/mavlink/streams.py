@@ -61,15 +61,21 @@ class StreamScheduler:
         self._next: dict[int, float] = {}
         self.next_due = -1.0  # no message is due before this time [s] (-1: recompute at once)
         self.held_back = 0  # sends skipped while nobody listened (`due(t, only=...)`)
+        self._periods: list[tuple[int, float]] = []  # (msg id, period [s]) of streamed messages
+        self._changed()
+
+    def _changed(self) -> None:
+        self._periods = [(m, 1.0 / r) for m, r in self.rates.items() if r > 0]
+        self.next_due = -1.0
+        if self._on_change is not None:
+            self._on_change()
 
     def drop(self, msg_id: int) -> None:
         """This link cannot stream msg_id (its autopilot does not provide it)."""
         self.defaults.pop(msg_id, None)
         self.rates.pop(msg_id, None)
         self._next.pop(msg_id, None)
-        self.next_due = -1.0
-        if self._on_change is not None:
-            self._on_change()
+        self._changed()
 
     def supports(self, msg_id: int) -> bool:
         return msg_id in self.defaults
@@ -89,9 +95,7 @@ class StreamScheduler:
             return False
         self.rates[msg_id] = rate
         self._next.pop(msg_id, None)
-        self.next_due = -1.0
-        if self._on_change is not None:
-            self._on_change()
+        self._changed()
         return True
 
     def interval_us(self, msg_id: int) -> int:
@@ -113,14 +117,11 @@ class StreamScheduler:
             return []  # the common case, checked once per step
         out = []
         nexts = self._next
-        for msg_id, rate in self.rates.items():
-            if rate <= 0:
-                continue
+        for msg_id, period in self._periods:
             nxt = nexts.get(msg_id)
             if nxt is None:
-                nexts[msg_id] = t + 1.0 / rate
+                nexts[msg_id] = t + period
             elif t >= nxt - 1e-9:
-                period = 1.0 / rate
                 if only is not None and msg_id != only:  # every instant it missed up to t
                     n = math.floor((t - nxt + 1e-9) / period) + 1
                     nexts[msg_id] = nxt + n * period
