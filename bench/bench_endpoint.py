@@ -34,6 +34,7 @@ from io import BytesIO
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+KEEP_DATAGRAMS = 2000  # API datagrams kept for the companion's receive path (formation set)
 SETS = {  # stream sets measured, each against the autopilot alone measured just before it
     "formation": "API link: the streams a formation companion reads; nobody at 14550",
     "all": "every default stream on both links, a ground station listening at 14550",
@@ -101,8 +102,10 @@ def measure(instance: int, sim_s: float, rounds: int) -> dict:
             frames = {name: {link.name: 0 for link in ep.links} for name in SETS}
             datagrams = {name: {link.name: 0 for link in ep.links} for name in SETS}
             sent = {link.name: 0 for link in ep.links}  # datagrams each link sent (sendto)
+            kept = {"on": False, "datagrams": []}  # the API link's, in the formation's rounds
             for link in ep.links:
-                link._sendto = _counted(link._sendto, sent, link.name)
+                link._sendto = _counted(link._sendto, sent, link.name,
+                                        kept if link is ep.api else None)  # fmt: skip
             for _ in range(rounds):
                 for name in SETS:
                     c0 = time.process_time()
@@ -111,6 +114,7 @@ def measure(instance: int, sim_s: float, rounds: int) -> dict:
                     cost["autopilot"].append((time.process_time() - c0) / sim_s)
                     streams(name)
                     gcs = receiver(cfg.gcs_remote[1]) if name == "all" else None  # listens
+                    kept["on"] = name == "formation"  # what a formation's companion receives
                     tx0 = {link.name: link.codec.stats.tx_frames for link in ep.links}
                     sent0 = dict(sent)
                     c0 = time.process_time()
@@ -122,6 +126,9 @@ def measure(instance: int, sim_s: float, rounds: int) -> dict:
                     if gcs is not None:
                         stop(gcs, cfg.gcs_remote[1])
             out["altitude"] = float(ap.state.altitude)
+            dgs = kept["datagrams"]  # the companion's share: these datagrams' simulated time
+            dg_per_s = datagrams["formation"]["api"] / (rounds * sim_s)
+            out["companion"] = companion_cost(dgs, key, rounds, len(dgs) / dg_per_s)
             out["signed"] = ep.signing.enabled
     stop(recv, 14540 + instance)
     alone = cost["autopilot"]
@@ -140,9 +147,31 @@ def measure(instance: int, sim_s: float, rounds: int) -> dict:
     return out
 
 
-def _counted(sendto, sent: dict, name: str):
+def companion_cost(dgs: list[bytes], key: Path, rounds: int, sim_s: float) -> dict:
+    """The companion's receive path on the vehicle's signed datagrams (`hil.link.MavlinkLink`
+    parses each with its Codec: signatures verified, messages decoded): CPU s per simulated
+    s, a fresh receiver per round (the same frames again would be replays)."""
+    from skyherd.flight.mavlink.codec import Codec
+    from skyherd.flight.mavlink.signing import Signing, load_key
+
+    costs, frames = [], 0
+    for _ in range(rounds):
+        rx = Codec(255, 190, Signing(load_key(key)))
+        c0 = time.process_time()
+        for dg in dgs:
+            frames += len(rx.parse(dg))
+        costs.append((time.process_time() - c0) / sim_s)
+    return {"parse": statistics.median(costs), "frames": frames / rounds,
+            "rejected": rx.stats.rx_rejected}  # fmt: skip
+
+
+def _counted(sendto, sent: dict, name: str, keep: dict | None = None):
+    """`sendto` counting its datagrams; with `keep`, keeping them while keep["on"]."""
+
     def counted(buf, addr):
         sent[name] += 1
+        if keep is not None and keep["on"] and len(keep["datagrams"]) < KEEP_DATAGRAMS:
+            keep["datagrams"].append(bytes(buf))
         return sendto(buf, addr)
 
     return counted
@@ -209,7 +238,10 @@ def main(argv: list[str] | None = None) -> int:
     if not args.baseline:
         r = measure(args.instance, sim_s, rounds)
         print(markdown_table(head, rows_of("this tree", r)))
-        print("\nendpoint CPU / the autopilot's (target <= 1.0x, formation): "
+        c = r["companion"]
+        print(f"\ncompanion receive path (formation, signed): {c['parse'] * 1e3:.3f} ms CPU / sim s "
+              f"({c['frames']:.0f} frames a round, {c['rejected']} refused)")  # fmt: skip
+        print("endpoint CPU / the autopilot's (target <= 1.0x, formation): "
               + ", ".join(f"{name} {r[name]['ratio']:.2f}x" for name in SETS)
               + f"; altitude {r['altitude']:.2f} m, signed {r['signed']}")  # fmt: skip
         return 0
@@ -217,11 +249,13 @@ def main(argv: list[str] | None = None) -> int:
         base = export_tree(args.baseline, Path(tmp) / "base")
         child(base, args.instance, 2.0, 1)  # numba compiles the baseline tree's kernels once
         rows, ratios = [], {(t, n): [] for t in ("baseline", "this tree") for n in SETS}
+        parse: dict[str, list[float]] = {"baseline": [], "this tree": []}
         for i in range(args.repeats):  # alternated: baseline, this tree, baseline, ...
             for tree, path in (("baseline", base), ("this tree", ROOT)):
                 r = child(path, args.instance, sim_s, rounds)
                 for name in SETS:
                     ratios[(tree, name)].append(r[name]["ratio"])
+                parse[tree].append(r["companion"]["parse"])
                 label = f"{args.baseline}" if tree == "baseline" else "working tree"
                 rows += rows_of(f"{label} #{i + 1}", r)
     print(markdown_table(head, rows))
@@ -231,6 +265,9 @@ def main(argv: list[str] | None = None) -> int:
         mb = statistics.median(ratios[("baseline", name)])
         mt = statistics.median(ratios[("this tree", name)])
         print(f"  {name}: baseline {mb:.2f}x, this tree {mt:.2f}x ({mb / mt:.1f}x less)")
+    pb, pt = statistics.median(parse["baseline"]), statistics.median(parse["this tree"])
+    print(f"companion receive path (the formation's signed datagrams parsed and verified), "
+          f"ms CPU / sim s: baseline {pb * 1e3:.3f}, this tree {pt * 1e3:.3f} ({pb / pt:.1f}x less)")  # fmt: skip
     return 0
 
 
