@@ -54,7 +54,8 @@ while s.recv(65535) != b"stop":
 def receiver(port: int) -> subprocess.Popen:
     """A process that reads what arrives at 127.0.0.1:`port` (a companion, a ground station)."""
     p = subprocess.Popen([sys.executable, "-c", RECEIVER, str(port)], stdout=subprocess.PIPE,
-                         text=True)  # fmt: skip
+                         stderr=subprocess.DEVNULL, text=True)  # fmt: skip
+    RECEIVERS.append(p)
     assert p.stdout.readline().strip() == "ready"
     return p
 
@@ -63,6 +64,10 @@ def stop(p: subprocess.Popen, port: int) -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.sendto(b"stop", ("127.0.0.1", port))
     p.wait(timeout=30)
+    RECEIVERS.remove(p)
+
+
+RECEIVERS: list[subprocess.Popen] = []  # running; ended by `main` whatever happens
 
 
 def measure(instance: int, sim_s: float, rounds: int) -> dict:
@@ -125,6 +130,10 @@ def measure(instance: int, sim_s: float, rounds: int) -> dict:
                         datagrams[name][link.name] += sent[link.name] - sent0[link.name]
                     if gcs is not None:
                         stop(gcs, cfg.gcs_remote[1])
+                    if abs(ap.state.altitude - 10.0) > 0.5:  # e.g. a low battery's landing
+                        raise SystemExit(f"the vehicle left its hover ({ap.mode.name} at "
+                                         f"{ap.state.altitude:.1f} m, t = {ap.clock.t:.0f} s): "
+                                         "fewer rounds or shorter ones")  # fmt: skip
             out["altitude"] = float(ap.state.altitude)
             dgs = kept["datagrams"]  # the companion's share: these datagrams' simulated time
             dg_per_s = datagrams["formation"]["api"] / (rounds * sim_s)
@@ -205,8 +214,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--instance", type=int, default=22, help="vehicle instance (ports 14540+N...)")
     p.add_argument("--child", metavar="TREE", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
-    sim_s = args.sim_s or (20.0 if args.quick else 60.0)
+    sim_s = args.sim_s or (20.0 if args.quick else 30.0)  # 4 x 5 x 30 s: hovers on one battery
     rounds = args.rounds or (3 if args.quick else 5)
+    try:
+        return run(args, sim_s, rounds)
+    finally:
+        for r in RECEIVERS:
+            r.kill()
+            r.wait()
+
+
+def run(args: argparse.Namespace, sim_s: float, rounds: int) -> int:
     if args.child:
         sys.path.insert(0, args.child)
         print(json.dumps(measure(args.instance, sim_s, rounds)))
