@@ -80,11 +80,12 @@ class Sitl:
             if t_end is not None:
                 n = min(n, max(1, math.ceil((t_end - t) / dt - 1e-6)))
             if on_step is None:
-                ap.step()
-                ep.update(readable)
+                step, update = ap.step, ep.update
+                step()
+                update(readable)
                 for _ in range(n - 1):
-                    ap.step()
-                    ep.update(False)
+                    step()
+                    update(False)
                 self.steps += n
             else:
                 for i in range(n):

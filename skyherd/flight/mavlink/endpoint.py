@@ -238,8 +238,8 @@ class MavlinkEndpoint:
         prog = self.ap.mission_progress
         if prog.reached or prog.current != self._sent_current:
             self._mission_events(prog)
-        if self._drain_status is not None:
-            self._forward_status()
+        if self._drain_status is not None and (lines := self._drain_status()):
+            self._forward_status(lines)
         if self._clock.time_us >= self._streams_due_us:
             self._send_streams()
         for link in self.links:  # what this step sent leaves together (a gate flushes its own)
@@ -314,7 +314,7 @@ class MavlinkEndpoint:
                     msg = built[msg_id] = self._build(msg_id)
                 link.send(msg)
                 self.stats["tx_stream"] += 1
-        due = min(s.next_due for s in self.streams.values())  # [s]; the links check exactly
+        due = min([s.next_due for s in self.streams.values()])  # [s]; the links check exactly
         self._streams_due_us = math.floor(due * 1e6) - 1 if math.isfinite(due) else _NEVER_US
 
     def _streams_changed(self) -> None:
@@ -333,9 +333,9 @@ class MavlinkEndpoint:
         reply(self._build(msg_id))
         return None
 
-    def _forward_status(self) -> None:
+    def _forward_status(self, lines: list) -> None:
         """The autopilot's own event lines (mode changes, failsafes) as STATUSTEXT INFO."""
-        for line in self._drain_status():
+        for line in lines:
             self.statustext(M.MAV_SEVERITY_INFO, str(line))
 
     def _mission_events(self, prog) -> None:
