@@ -12,7 +12,6 @@ given inputs does not depend on S.
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from dataclasses import dataclass
@@ -66,19 +65,20 @@ class Sitl:
         pacer and the sockets are looked at once per batch (with `on_step`, the stop flag after
         every step, as `request_stop` promises)."""
         clock, ap, ep = self.clock, self.autopilot, self.endpoint
-        dt = ap.control_dt
-        t_end = None if duration_s is None else clock.t + duration_s
+        step_us = round(ap.control_dt * 1e6)
+        pace_us = max(1, round(self.pace_s * 1e6))
+        t_end_us = None if duration_s is None else clock.time_us + round(duration_s * 1e6)
         sim0, wall0, steps0 = clock.t, time.monotonic(), self.steps
         ep.update()  # answer anything that arrived before the first step
-        next_pace = clock.t
+        next_pace_us = clock.time_us
         readable = False
         while not self._stop.is_set():
-            t = clock.t
-            if t_end is not None and t >= t_end - 1e-9:
+            now_us = clock.time_us
+            if t_end_us is not None and now_us >= t_end_us:
                 break
-            n = max(1, math.ceil((next_pace - t) / dt - 1e-6))  # steps to the pace point
-            if t_end is not None:
-                n = min(n, max(1, math.ceil((t_end - t) / dt - 1e-6)))
+            n = max(1, -(-(next_pace_us - now_us) // step_us))  # steps to the pace point
+            if t_end_us is not None:
+                n = min(n, -(-(t_end_us - now_us) // step_us))
             if on_step is None:
                 step, update = ap.step, ep.update
                 step()
@@ -96,9 +96,9 @@ class Sitl:
                     if self._stop.is_set():
                         break
             readable = False
-            if clock.t >= next_pace - 1e-9:  # one sleep per batch of steps, not per step
+            if clock.time_us >= next_pace_us:  # one sleep per batch of steps, not per step
                 self.pacer.wait_until(clock.t)
-                next_pace += self.pace_s
+                next_pace_us += pace_us
                 readable = ep.poll()  # and one look at the sockets
         return RunStats(clock.t - sim0, time.monotonic() - wall0, self.steps - steps0)
 
