@@ -3,7 +3,9 @@
 Lockstep: each iteration steps the autopilot by `control_dt` (physics substeps inside), then
 lets the endpoint answer what arrived and send what is due at the new simulation time, then
 waits for the `Pacer` (speed-up S ≥ 1, or 0 = as fast as possible) once per `pace_s` of
-simulation time (a sleep per 4 ms step cost 4.3× the CPU of the unpaced loop). Every MAVLink timeout is
+simulation time (a sleep per 4 ms step cost 4.3× the CPU of the unpaced loop), and looks at the
+sockets once then: what arrived is answered at the next step (a poll per step was a hovering
+vehicle's largest messaging cost, issue 31). Every MAVLink timeout is
 measured on the simulation clock, so it scales with S; the trajectory for a given seed and
 given inputs does not depend on S.
 
@@ -77,9 +79,57 @@ class Sitl:
     def run(self, duration_s: float | None = None, on_step=None,
             on_close: Callable[[list], list] | None = None) -> RunStats:  # fmt: skip
         """Step (paced) until `stop()` or until `duration_s` of simulation time has passed.
-        `on_step(sitl)` after every step; lockstep: `on_close(batch)` gives what of the
-        companion's closed tick reaches the vehicle (a link cut: nothing)."""
-        if self.gate is not None and not self._wait_hello():
+        `on_step(sitl)` after every step; lockstep: see `_run_lockstep`.
+
+        The steps between two pace points run as one batch: the stop flag, the end time, the
+        pacer and the sockets are looked at once per batch (with `on_step`, the stop flag after
+        every step, as `request_stop` promises)."""
+        if self.gate is not None:
+            return self._run_lockstep(duration_s, on_step, on_close)
+        clock, ap, ep = self.clock, self.autopilot, self.endpoint
+        step_us = round(ap.control_dt * 1e6)
+        pace_us = max(1, round(self.pace_s * 1e6))
+        t_end_us = None if duration_s is None else clock.time_us + round(duration_s * 1e6)
+        sim0, wall0, steps0 = clock.t, time.monotonic(), self.steps
+        ep.update()  # answer anything that arrived before the first step
+        next_pace_us = clock.time_us
+        readable = False
+        while not self._stop.is_set():
+            now_us = clock.time_us
+            if t_end_us is not None and now_us >= t_end_us:
+                break
+            n = max(1, -(-(next_pace_us - now_us) // step_us))  # steps to the pace point
+            if t_end_us is not None:
+                n = min(n, -(-(t_end_us - now_us) // step_us))
+            if on_step is None:
+                step, update = ap.step, ep.update
+                step()
+                update(readable)
+                for _ in range(n - 1):
+                    step()
+                    update(False)
+                self.steps += n
+            else:
+                for i in range(n):
+                    ap.step()
+                    ep.update(readable and i == 0)
+                    self.steps += 1
+                    on_step(self)
+                    if self._stop.is_set():
+                        break
+            readable = False
+            if clock.time_us >= next_pace_us:  # one sleep per batch of steps, not per step
+                self.pacer.wait_until(clock.t)
+                next_pace_us += pace_us
+                readable = ep.poll()  # and one look at the sockets
+        return RunStats(clock.t - sim0, time.monotonic() - wall0, self.steps - steps0)
+
+    def _run_lockstep(self, duration_s: float | None, on_step,
+                      on_close: Callable[[list], list] | None) -> RunStats:  # fmt: skip
+        """`run` in lockstep with a companion: a step at a time, the endpoint polled every step
+        (the API link is read at the barriers only), `on_close(batch)` what of the companion's
+        closed tick reaches the vehicle (a link cut: nothing)."""
+        if not self._wait_hello():
             return RunStats(0.0, 0.0, 0)
         t_end = None if duration_s is None else self.clock.t + duration_s
         sim0, wall0, steps0 = self.clock.t, time.monotonic(), self.steps

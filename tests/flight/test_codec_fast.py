@@ -142,6 +142,41 @@ def test_with_signing_on_unsigned_frames_never_take_the_fast_path():
     assert c.parse(good) == [] and c.stats.rx_rejected == 1  # unsigned SYS_STATUS: refused
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_signed_frames_decode_as_pymavlink_does_and_refused_ones_are_counted(seed):
+    """A datagram of signed frames (every message of the dialect, a tick's worth at a time)
+    gives the objects pymavlink's parser gives and passes our signing as the slow path does:
+    the same frames again are replays, another key's frames are refused, a RADIO_STATUS
+    unsigned is taken; a corrupt frame sends the datagram the slow, counting way."""
+    key = bytes(range(1, 33))
+    rng = random.Random(seed)
+    tx = Codec(7, 1, signing=Signing(key), link_id=3)
+    other = Codec(7, 1, signing=Signing(bytes(32 * [9])))
+    rx = Codec(255, 190, signing=Signing(key))
+    classes = list(M.mavlink_map.values())
+    for k in range(0, len(classes), 8):
+        frames = [tx.pack(random_message(cls, rng)) for cls in classes[k : k + 8]]
+        dg = b"".join(frames)
+        got = rx.parse(dg)
+        ref = slow(dg)
+        assert len(got) == len(ref) == len(frames)
+        assert all(same(a, b) for a, b in zip(got, ref, strict=True))
+        rejected = rx.stats.rx_rejected
+        assert rx.parse(dg) == [] and rx.stats.rx_rejected == rejected + len(frames)  # replays
+    forged = other.pack(M.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3))
+    radio = Codec(7, 68).pack(M.MAVLink_radio_status_message(200, 190, 100, 20, 30, 0, 0))
+    good = tx.pack(M.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3))
+    rejected = rx.stats.rx_rejected
+    assert [m.get_type() for m in rx.parse(forged + radio + good)] == ["RADIO_STATUS", "HEARTBEAT"]
+    assert rx.stats.rx_rejected == rejected + 1
+    late = tx.pack(M.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3))
+    bad = bytearray(tx.pack(M.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3)))
+    bad[12] ^= 0xFF  # a payload byte: the CRC fails
+    bad_before = rx.stats.rx_bad
+    assert [m.get_type() for m in rx.parse(late + bytes(bad))] == ["HEARTBEAT"]
+    assert rx.stats.rx_bad == bad_before + 1
+
+
 def random_message(cls, rng: random.Random):
     """A message of `cls` from random wire bytes, decoded by pymavlink: every field in range."""
     payload = bytearray(rng.randbytes(cls.unpacker.size))

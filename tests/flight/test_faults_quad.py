@@ -21,6 +21,7 @@ from skyherd.flight.faults import (
     parse_fault_event,
     wind_from,
 )
+from skyherd.flight.mavlink.codec import decode_payload
 from skyherd.flight.mavlink.telemetry import Identity, TelemetryBuilder
 from skyherd.flight.multirotor import MultirotorAutopilot
 from skyherd.flight.quadrotor import QuadrotorParams, WindModel
@@ -138,10 +139,9 @@ def test_gps_glitch_seen_in_local_position_ned_and_flown_on():
     run(ap, 20.0 - ap.clock.t - ap.control_dt)
     before = ap.state.pos_ned.copy()
     tb = TelemetryBuilder(ap, Identity(1, 1, "px4", M.MAV_TYPE_QUADROTOR))
-    mav = M.MAVLink(None, 1, 1)
     ap.step()
     ap.step()
-    lp = tb.build(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav)
+    lp = decode_payload(tb.build(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED))
     assert lp.x - before[0] == pytest.approx(20.0, abs=0.05)
     assert ap.true_state.pos_ned[0] == pytest.approx(before[0], abs=0.05)
     est, tru = run(ap, 4.9)

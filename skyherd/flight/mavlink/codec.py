@@ -14,10 +14,12 @@ from operator import attrgetter, itemgetter
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from skyherd.flight.mavlink.payload import Payload
 from skyherd.flight.mavlink.signing import IFLAG_SIGNED, SIGNATURE_LEN, Signing, is_signed
 from skyherd.flight.mavlink.wire import CRC, HDR_V2, STX_V2, X25
 
 MAVLinkMessage = mavlink.MAVLink_message
+_X25 = X25
 
 
 class _Layout:
@@ -84,6 +86,11 @@ _LAYOUTS = {msg_id: _Layout(cls) for msg_id, cls in mavlink.mavlink_map.items()}
 _BY_CLASS = {lay.cls: lay for lay in _LAYOUTS.values()}
 
 
+def decode_payload(p: Payload) -> MAVLinkMessage:
+    """The pymavlink message a `Payload` stands for (tools and tests read its fields)."""
+    return _LAYOUTS[p.msg_id].message(p.data)
+
+
 def frame_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int) -> bytes | None:
     """One unsigned MAVLink 2 frame of `msg`, byte for byte what pymavlink's `msg.pack` gives
     (trailing-zero truncation, CRC_EXTRA), leaving `msg` as it was; None for a message class
@@ -95,11 +102,16 @@ def frame_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int
     lay = _BY_CLASS.get(type(msg))
     if lay is None:
         return None
-    payload = lay.pack_payload(*lay.wire_values(msg))
-    body = payload.rstrip(b"\x00") or payload[:1]  # MAVLink 2 drops trailing zeros, keeps one
+    return _frame_of(lay, lay.pack_payload(*lay.wire_values(msg)), seq, src_sys, src_comp)
+
+
+def _frame_of(lay: _Layout, payload: bytes, seq: int, src_sys: int, src_comp: int,
+              incompat: int = 0) -> bytes:  # fmt: skip
+    """Header, the payload without its trailing zeros (MAVLink 2 keeps one byte), CRC."""
+    body = payload.rstrip(b"\x00") or payload[:1]
     msg_id = lay.msg_id
     frame = HDR_V2.pack(
-        STX_V2, len(body), 0, 0, seq, src_sys, src_comp, msg_id & 0xFFFF, msg_id >> 16
+        STX_V2, len(body), incompat, 0, seq, src_sys, src_comp, msg_id & 0xFFFF, msg_id >> 16
     )
     frame += body
     return frame + CRC.pack(X25(lay.extra, X25(frame[1:])))
@@ -128,54 +140,70 @@ def parse_unsigned_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
 
     A datagram of telemetry decoded here costs a few µs a frame; pymavlink's byte-wise
     parser, tens: with K vehicles' streams that parser was the companion's largest cost."""
-    return parse_v2(datagram, 0)
+    spans = _scan_v2(datagram, signed=False)
+    return None if spans is None else [_decode(datagram, *sp) for sp in spans]
 
 
 def parse_signed_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
-    """`parse_unsigned_v2` for a datagram made only of signed frames (incompat flags exactly
-    IFLAG_SIGNED, the 13-byte signature after the checksum), decoded as pymavlink's parser
-    without a key gives them (`_signed` False, the signature in `get_msgbuf()`); None for
-    anything else. The signature is not checked here: `Codec.accept` checks each frame."""
-    return parse_v2(datagram, IFLAG_SIGNED)
+    """`parse_unsigned_v2` for a datagram made only of signed frames (the 13-byte signature after
+    the checksum), decoded as pymavlink's parser without a key gives them (the signature kept in
+    `get_msgbuf()`); None for anything else. Signatures are not checked here (`Codec.parse`
+    verifies each frame's bytes before it decodes it)."""
+    spans = _scan_v2(datagram, signed=True)
+    if spans is None or any(sig == 0 for _, _, sig, _ in spans):
+        return None
+    return [_decode(datagram, *sp) for sp in spans]
 
 
-def parse_v2(datagram: bytes, flags: int) -> list[MAVLinkMessage] | None:
-    """Every frame of the datagram if each is a whole MAVLink 2 frame with incompat flags
-    `flags` (0, or IFLAG_SIGNED: a signature follows), a known id and a good checksum; else None."""
-    sig = SIGNATURE_LEN if flags & IFLAG_SIGNED else 0
+_Span = tuple[int, int, int, _Layout]  # start, end (signature included), signature length, layout
+
+
+def _scan_v2(datagram: bytes, signed: bool) -> list[_Span] | None:
+    """The frames of a datagram made only of whole MAVLink 2 frames of known ids with good
+    checksums (`signed`: frames with the signature flag too, their 13 bytes not checked here);
+    None for anything else. Looks, changes nothing: a caller that gets None parses it all
+    again the slow way, so nothing may have been verified (a replay window moved) before."""
     out = []
     i, n = 0, len(datagram)
     while i < n:
-        if n - i < 12 + sig or datagram[i] != STX_V2 or datagram[i + 2] != flags:
-            return None  # not MAVLink 2, or other incompat flags: slow path
-        plen = datagram[i + 1]
-        end = i + 12 + plen + sig
-        if end > n:
+        if n - i < 12 or datagram[i] != STX_V2:
+            return None  # not MAVLink 2
+        flags = datagram[i + 2]
+        sig = SIGNATURE_LEN if signed and flags == IFLAG_SIGNED else 0
+        if flags and not sig:
+            return None  # signed where not expected, or an unknown incompat flag: slow path
+        end = i + 12 + datagram[i + 1]
+        if end + sig > n:
             return None
-        _, _, _, compat, seq, src_sys, src_comp, lo, hi = HDR_V2.unpack_from(datagram, i)
-        msg_id = lo | hi << 16
-        lay = _LAYOUTS.get(msg_id)
+        lay = _LAYOUTS.get(datagram[i + 7] | datagram[i + 8] << 8 | datagram[i + 9] << 16)
         if lay is None:
             return None
         c = end - sig - 2  # where the checksum starts
         crc = datagram[c] | datagram[c + 1] << 8
         if X25(lay.extra, X25(datagram[i + 1 : c])) != crc:
             return None
-        payload = datagram[i + 10 : c]
-        if plen < lay.size:
-            payload += bytes(lay.size - plen)  # MAVLink 2 trailing-zero truncation
-        elif plen > lay.size:
-            payload = payload[: lay.size]
-        m = lay.message(payload)
-        buf = bytearray(datagram[i:end])
-        m._signed = False  # as pymavlink's parser without a key leaves it
-        m._msgbuf = buf
-        m._payload = buf[6 : c - i]  # as pymavlink's decode sets it
-        m._crc = crc
-        m._header = mavlink.MAVLink_header(msg_id, flags, compat, plen, seq, src_sys, src_comp)
-        out.append(m)
-        i = end
+        out.append((i, end + sig, sig, lay))
+        i = end + sig
     return out
+
+
+def _decode(datagram: bytes, i: int, end: int, sig: int, lay: _Layout) -> MAVLinkMessage:
+    """One scanned frame as pymavlink's parser (without a key of its own) decodes it."""
+    _, plen, incompat, compat, seq, src_sys, src_comp, lo, hi = HDR_V2.unpack_from(datagram, i)
+    stop = end - sig - 2  # the payload ends here
+    payload = datagram[i + 10 : stop]
+    if plen < lay.size:
+        payload += bytes(lay.size - plen)  # MAVLink 2 trailing-zero truncation
+    elif plen > lay.size:
+        payload = payload[: lay.size]
+    m = lay.message(payload)
+    buf = bytearray(datagram[i:end])
+    m._signed = False  # pymavlink's parser holds no key: the signature is ours to check
+    m._msgbuf = buf
+    m._payload = buf[6 : stop - i]  # as pymavlink's decode sets it
+    m._crc = datagram[stop] | datagram[stop + 1] << 8
+    m._header = mavlink.MAVLink_header(lay.msg_id, incompat, compat, plen, seq, src_sys, src_comp)
+    return m
 
 
 @dataclass
@@ -207,14 +235,37 @@ class Codec:
         """The encoder: `codec.mav.heartbeat_encode(...)` builds a message."""
         return self.tx
 
-    def pack(self, msg: MAVLinkMessage) -> bytes:
-        """Frame one message (MAVLink 2) with the next sequence number."""
-        tx = self.tx
-        buf = frame_unsigned_v2(msg, tx.seq, tx.srcSystem, tx.srcComponent)  # nobody reads a
-        if buf is None:  # sent message's bookkeeping: not written back (a sixth of the cost)
-            buf = bytes(msg.pack(tx))
+    def pack(self, msg: MAVLinkMessage | Payload) -> bytes:
+        """Frame one message (MAVLink 2) with the next sequence number: a pymavlink message, or
+        a `Payload` packed straight into bytes (flight.mavlink.payload: the telemetry)."""
+        if type(msg) is Payload:
+            lay = _LAYOUTS[msg.msg_id]
+            payload = msg.data
+        else:
+            lay = _BY_CLASS.get(type(msg))
+            if lay is None:  # a class the dialect does not know: pymavlink frames it
+                return self._pymavlink_pack(msg)
+            payload = lay.pack_payload(*lay.wire_values(msg))
+        return self._frame(lay, payload)
+
+    def _frame(self, lay: _Layout, payload: bytes) -> bytes:
+        """The frame and, with a key, its signature (the incompat flag is set before the CRC
+        is computed, so it is computed once)."""
+        sg, tx = self.signing, self.tx
+        signed = sg is not None and sg.key is not None
+        frame = _frame_of(lay, payload, tx.seq, tx.srcSystem, tx.srcComponent,
+                          IFLAG_SIGNED if signed else 0)  # fmt: skip
+        if signed:
+            frame += sg.signature(frame, self.link_id)
+        return self._count(frame)
+
+    def _pymavlink_pack(self, msg: MAVLinkMessage) -> bytes:
+        buf = bytes(msg.pack(self.tx))
         if self.signing is not None and self.signing.key is not None:
             buf = self.signing.sign(buf, self.link_id)
+        return self._count(buf)
+
+    def _count(self, buf: bytes) -> bytes:
         self.tx.seq = (self.tx.seq + 1) % 256
         self.stats.tx_frames += 1
         self.stats.tx_bytes += len(buf)
@@ -222,13 +273,25 @@ class Codec:
 
     def parse(self, datagram: bytes) -> list[MAVLinkMessage]:
         """Decode every valid frame in one datagram; malformed bytes are counted and dropped."""
-        signed = self.signing is not None and self.signing.key is not None
-        fast = (parse_signed_v2 if signed else parse_unsigned_v2)(bytes(datagram))
-        if fast is not None:
-            if signed:  # each frame's signature and timestamp (flight.mavlink.signing)
-                fast = [m for m in fast if self.accept(m)]
-            self.stats.rx_frames += len(fast)
-            return fast
+        datagram = bytes(datagram)
+        sg = self.signing
+        if sg is None or sg.key is None:
+            fast = parse_unsigned_v2(datagram)
+            if fast is not None:
+                self.stats.rx_frames += len(fast)
+                return fast
+        else:  # signed frames checked on the bytes: a refused one is never decoded
+            spans = _scan_v2(datagram, signed=True)
+            if spans is not None:
+                out = []
+                for i, end, sig, lay in spans:
+                    frame = datagram[i:end]
+                    if sg.verify(frame, lay.msg_id, frame[5], frame[6]) is None:
+                        out.append(_decode(datagram, i, end, sig, lay))
+                    else:
+                        self.stats.rx_rejected += 1
+                self.stats.rx_frames += len(out)
+                return out
         rx = self.rx
         rx.buf = bytearray()
         rx.buf_index = 0

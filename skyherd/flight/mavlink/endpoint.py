@@ -12,6 +12,7 @@ tlog that cannot be written stops logging, never the vehicle.
 from __future__ import annotations
 
 import logging
+import math
 import select
 from collections import Counter
 from collections.abc import Callable
@@ -46,6 +47,7 @@ log = logging.getLogger(__name__)
 API_BIND_PORT, API_REMOTE_PORT = ports.API_BIND_BASE, ports.API_REMOTE_BASE
 GCS_BIND_PORT, GCS_REMOTE_PORT = ports.GCS_BIND_BASE, ports.GCS_REMOTE_PORT
 COMPONENT_ID = M.MAV_COMP_ID_AUTOPILOT1
+_NEVER_US = 1 << 62  # a due time no simulation reaches [us]
 MAV_TYPES = {"quadrotor": M.MAV_TYPE_QUADROTOR, "fixedwing": M.MAV_TYPE_FIXED_WING}
 
 
@@ -152,8 +154,12 @@ class MavlinkEndpoint:
             raise
         for link in self.links:  # a step's frames leave together, one system call per link
             link.coalesce = True  # and step (update() flushes them; a gate flushes its link)
-        self.streams = {link.name: StreamScheduler(GCS_RATES_HZ if link is self.gcs else None)
+        self.streams = {link.name: StreamScheduler(GCS_RATES_HZ if link is self.gcs else None,
+                                                   self._streams_changed)
                         for link in self.links}  # fmt: skip
+        self._streams_due_us = -1  # no stream is due before this simulation time [us]
+        self._clock = autopilot.clock
+        self._serving = False  # commands, missions or parameters have timed work (`_serve`)
         self._poller = select.poll() if hasattr(select, "poll") else None
         if self._poller is not None:
             for link in self.links:
@@ -216,32 +222,53 @@ class MavlinkEndpoint:
     # --- the lockstep hook ---------------------------------------------------------------------
     def update(self, readable: bool | None = None) -> None:
         """Answer what arrived, finish timed work, send due streams. Call once per step.
-        `readable`: whether the caller's poll found data on `read_links()` (a fleet polls all its
-        vehicles' sockets at once: `world.sim.run_worlds`); None: poll them here."""
-        if readable is None:  # one system call per step tells whether any socket has data
-            readable = bool(self._poller.poll(0)) if self._poller is not None else True
+
+        `readable`: whether the caller's poll found data on `read_links()` (a runner polls once
+        per tick of its pacing, not per step: `Sitl.run`, `world.sim.run_worlds`); None: poll
+        them here. A step with nothing arrived, nothing pending and nothing due costs a few
+        comparisons: no system call, no message built."""
+        if readable is None:
+            readable = self.poll()
         if readable:
             for link in self.read_links():
                 for msg, addr in link.receive():
                     self._dispatch(link, msg, addr)
-        # timed work, each asked first whether it has any: most steps have none
-        if self.commands.pending:
-            self.commands.service()
-        if self.missions.busy:
-            self.missions.service()
-        if self.params.busy:
-            self.params.pump()
-        self._mission_events()
-        self._forward_status()
-        self._send_streams()
+        if self._serving:  # timed protocol work, only after a request started some
+            self._serve()
+        prog = self.ap.mission_progress
+        if prog.reached or prog.current != self._sent_current:
+            self._mission_events(prog)
+        if self._drain_status is not None and (lines := self._drain_status()):
+            self._forward_status(lines)
+        if self._clock.time_us >= self._streams_due_us:
+            self._send_streams()
         for link in self.links:  # what this step sent leaves together (a gate flushes its own)
-            if link.name not in self.gated:
+            if link.has_held and link.name not in self.gated:
                 link.flush()
         if self._tlog is not None:
             self._tlog.maybe_flush()
             if self._tlog.error and not self._tlog_warned:  # a full disk: say so, keep flying
                 self._tlog_warned = True
                 self.statustext(M.MAV_SEVERITY_WARNING, self._tlog.error)
+
+    def _serve(self) -> None:
+        """Commands awaiting their result, a mission upload, a parameter list: each asked
+        whether it has work; `_serving` stays on while any has."""
+        if self.commands.pending:
+            self.commands.service()
+        if self.missions.busy:
+            self.missions.service()
+        if self.params.busy:
+            self.params.pump()
+        self._serving = bool(self.commands.pending or self.missions.busy or self.params.busy)
+
+    def poll(self) -> bool:
+        """Whether any socket of the endpoint has data (one system call; True without poll).
+        Only POLLIN counts: a link that watches its remote has ICMP refusals queued (POLLERR)
+        while nobody listens there, which `nobody_listens` drains, not `receive`."""
+        if self._poller is None:
+            return True
+        return any(ev & select.POLLIN for _, ev in self._poller.poll(0))
 
     def read_links(self) -> list[UdpLink]:
         """The links `update()` reads: all but the gated ones, which are read at lockstep
@@ -268,27 +295,36 @@ class MavlinkEndpoint:
 
     def _send_streams(self) -> None:
         t = self.ap.clock.t
-        built: dict[int, object] = {}
+        built: dict[int, object] = {}  # a message due on both links is packed once
         for link in self.links:
             sched = self.streams[link.name]
             if t < sched.next_due - 1e-9:
-                continue  # the common step: nothing due on this link
-            due = sched.due(t)
+                continue  # nothing due on this link
             if link.nobody_listens():  # the heartbeat goes on: it finds the next listener
+                held = sched.held_back
+                due = sched.due(t, only=M.MAVLINK_MSG_ID_HEARTBEAT)
                 kept = [m for m in due if m == M.MAVLINK_MSG_ID_HEARTBEAT]
-                self.stats["tx_stream_unheard"] += len(due) - len(kept)
+                self.stats["tx_stream_unheard"] += len(due) - len(kept) + sched.held_back - held
                 due = kept
+            else:
+                due = sched.due(t)
             for msg_id in due:
                 msg = built.get(msg_id)
                 if msg is None:
                     msg = built[msg_id] = self._build(msg_id)
                 link.send(msg)
                 self.stats["tx_stream"] += 1
+        due = min([s.next_due for s in self.streams.values()])  # [s]; the links check exactly
+        self._streams_due_us = math.floor(due * 1e6) - 1 if math.isfinite(due) else _NEVER_US
+
+    def _streams_changed(self) -> None:
+        """A rate changed (SET_MESSAGE_INTERVAL): look at the schedules at the next step."""
+        self._streams_due_us = -1
 
     def _build(self, msg_id: int):
         if msg_id == M.MAVLINK_MSG_ID_MISSION_CURRENT:
-            return self.telemetry.mission_current(self.mav, total=len(self.missions.lists[MISSION]))
-        return self.telemetry.build(msg_id, self.mav)
+            return self.telemetry.mission_current(total=len(self.missions.lists[MISSION]))
+        return self.telemetry.build(msg_id)
 
     def _request_message(self, msg_id: int, reply, ack) -> int | None:
         if not self.telemetry.can_build(msg_id):
@@ -297,16 +333,12 @@ class MavlinkEndpoint:
         reply(self._build(msg_id))
         return None
 
-    def _forward_status(self) -> None:
+    def _forward_status(self, lines: list) -> None:
         """The autopilot's own event lines (mode changes, failsafes) as STATUSTEXT INFO."""
-        drain = self._drain_status
-        if drain is None:
-            return
-        for line in drain():
+        for line in lines:
             self.statustext(M.MAV_SEVERITY_INFO, str(line))
 
-    def _mission_events(self) -> None:
-        prog = self.ap.mission_progress
+    def _mission_events(self, prog) -> None:
         if prog.reached:
             reached = list(prog.reached)
             prog.reached.clear()  # drained: each reached item is reported once
@@ -347,6 +379,7 @@ class MavlinkEndpoint:
             _link.send(m, to=_addr)
 
         key = (link.name, addr, _src(msg))
+        self._serving = True  # the handler may have started timed work: `_serve` looks
         try:
             handler(msg, reply, key, link)
             self.stats["rx_handled"] += 1

@@ -112,6 +112,11 @@ class UdpLink:
         else:
             self._send_default(buf)
 
+    @property
+    def has_held(self) -> bool:
+        """Frames wait for `flush()`."""
+        return bool(self._held)
+
     def flush(self) -> None:
         """Send the held frames, packed whole into as few datagrams as fit PACKED_DATAGRAM: a
         step's telemetry costs one system call, a lockstep tick's telemetry and its mark wake
@@ -154,6 +159,8 @@ class UdpLink:
         where no ICMP comes back (a firewall): there it streams as any PX4 link does."""
         if not self.watch_remote or self.peer is not None:
             return False
+        if self.remote_refuses and not self._sent_remote:
+            return True  # nothing went there since it refused (no system call: the common case)
         if self._take_refusals():
             self.remote_refuses = True
         elif self._sent_remote:

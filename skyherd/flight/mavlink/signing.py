@@ -33,7 +33,7 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from skyherd.flight.mavlink.wire import X25
+from skyherd.flight.mavlink.wire import CRC, X25
 
 KEY_LEN = 32
 SIGNATURE_LEN = 13
@@ -43,6 +43,7 @@ UNITS_PER_S = 100_000  # timestamp unit: 10 us
 REPLAY_WINDOW = 60 * UNITS_PER_S  # a new stream may be one minute behind our time
 ACCEPT_UNSIGNED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS})
 MAX_STREAMS = 256  # streams remembered; only correctly signed frames create one
+_TAIL = struct.Struct("<BQ")  # link id, timestamp (its low 6 bytes are sent)
 
 
 class SigningError(ValueError):
@@ -120,6 +121,7 @@ class Signing:
         if key != self.key:
             self._streams.clear()
         self.key = key
+        self._key_hash = hashlib.sha256(key) if key is not None else None  # copied per frame
         self.timestamp = max(self.timestamp, int(initial_timestamp))
 
     def _next_timestamp(self) -> int:
@@ -133,12 +135,20 @@ class Signing:
         msg_type = mavlink.mavlink_map.get(frame[7] | frame[8] << 8 | frame[9] << 16)
         if msg_type is None:
             return frame
-        buf = bytearray(frame)
+        buf = bytearray(frame[:-2])
         buf[2] |= IFLAG_SIGNED  # the flag is inside the CRC: recompute it
-        buf[-2:] = struct.pack("<H", X25(bytes((msg_type.crc_extra,)), X25(bytes(buf[1:-2]))))
-        buf += struct.pack("<BQ", link_id & 0xFF, self._next_timestamp())[:7]
-        buf += hashlib.sha256(self.key + buf).digest()[:6]
-        return bytes(buf)
+        buf += CRC.pack(X25(bytes((msg_type.crc_extra,)), X25(bytes(buf[1:]))))
+        return bytes(buf) + self.signature(buf, link_id)
+
+    def signature(self, frame: bytes, link_id: int) -> bytes:
+        """The 13 bytes that follow a frame whose header has IFLAG_SIGNED and whose CRC covers
+        it: link id, the next timestamp, the first 6 bytes of SHA-256(key + frame + both). The
+        key's hash state is computed once per key and copied, not re-hashed per frame."""
+        tail = _TAIL.pack(link_id & 0xFF, self._next_timestamp())[:7]
+        h = self._key_hash.copy()
+        h.update(frame)
+        h.update(tail)
+        return tail + h.digest()[:6]
 
     def verify(self, frame: bytes, msg_id: int, src_system: int, src_component: int) -> str | None:
         """None if the frame is acceptable, else why it is rejected (counted in `stats`)."""
@@ -151,7 +161,9 @@ class Signing:
             return self._reject("unsigned")
         if len(frame) < 10 + SIGNATURE_LEN + 2:
             return self._reject("bad signature")
-        expected = hashlib.sha256(self.key + frame[:-6]).digest()[:6]
+        h = self._key_hash.copy()
+        h.update(frame[:-6])
+        expected = h.digest()[:6]
         if not hmac.compare_digest(expected, bytes(frame[-6:])):
             return self._reject("bad signature")
         link_id = frame[-13]

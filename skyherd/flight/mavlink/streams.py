@@ -9,6 +9,7 @@ link's default.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -52,18 +53,29 @@ MAX_RATE_HZ = 500.0  # faster requests are clamped
 class StreamScheduler:
     """Which messages are due on one link at simulation time t [s]."""
 
-    def __init__(self, defaults: dict[int, float] | None = None):
+    def __init__(self, defaults: dict[int, float] | None = None,
+                 on_change: Callable[[], None] | None = None):  # fmt: skip
+        self._on_change = on_change  # called when a rate changes (the endpoint's due time)
         self.defaults = dict(DEFAULT_RATES_HZ if defaults is None else defaults)
         self.rates: dict[int, float] = dict(self.defaults)
         self._next: dict[int, float] = {}
         self.next_due = -1.0  # no message is due before this time [s] (-1: recompute at once)
+        self.held_back = 0  # sends skipped while nobody listened (`due(t, only=...)`)
+        self._periods: list[tuple[int, float]] = []  # (msg id, period [s]) of streamed messages
+        self._changed()
+
+    def _changed(self) -> None:
+        self._periods = [(m, 1.0 / r) for m, r in self.rates.items() if r > 0]
+        self.next_due = -1.0
+        if self._on_change is not None:
+            self._on_change()
 
     def drop(self, msg_id: int) -> None:
         """This link cannot stream msg_id (its autopilot does not provide it)."""
         self.defaults.pop(msg_id, None)
         self.rates.pop(msg_id, None)
         self._next.pop(msg_id, None)
-        self.next_due = -1.0
+        self._changed()
 
     def supports(self, msg_id: int) -> bool:
         return msg_id in self.defaults
@@ -83,7 +95,7 @@ class StreamScheduler:
             return False
         self.rates[msg_id] = rate
         self._next.pop(msg_id, None)
-        self.next_due = -1.0
+        self._changed()
         return True
 
     def interval_us(self, msg_id: int) -> int:
@@ -93,22 +105,38 @@ class StreamScheduler:
         rate = self.rates[msg_id]
         return -1 if rate <= 0 else int(round(1e6 / rate))
 
-    def due(self, t: float) -> list[int]:
-        """Message ids to send now; each is rescheduled one period later (no catch-up bursts)."""
+    def due(self, t: float, only: int | None = None) -> list[int]:
+        """Message ids to send now; each is rescheduled one period later (no catch-up bursts).
+
+        `only`: the link is heard by nobody, only this message goes out (the heartbeat that
+        finds the next listener). The others are not woken for: when this one is due, each is
+        moved past t and the sends it missed are counted in `held_back`; the step after this
+        one is sent, the link is looked at again (so streams resume one step after a heartbeat
+        is no longer refused)."""
         if t < self.next_due - 1e-9:
             return []  # the common case, checked once per step
         out = []
-        for msg_id, rate in self.rates.items():
-            if rate <= 0:
+        nexts = self._next
+        for msg_id, period in self._periods:
+            nxt = nexts.get(msg_id)
+            if nxt is None:
+                nexts[msg_id] = t + period
+            elif t >= nxt - 1e-9:
+                if only is not None and msg_id != only:  # every instant it missed up to t
+                    n = math.floor((t - nxt + 1e-9) / period) + 1
+                    nexts[msg_id] = nxt + n * period
+                    self.held_back += n
+                    continue
+                nxt += period
+                nexts[msg_id] = nxt if nxt > t else t + period  # fell behind: skip, no burst
+            else:
                 continue
-            nxt = self._next.get(msg_id)
-            if nxt is None or t >= nxt - 1e-9:
-                out.append(msg_id)
-                period = 1.0 / rate
-                nxt = t + period if nxt is None else nxt + period
-                if nxt <= t:  # fell behind (a slow step): skip, don't burst
-                    nxt = t + period
-                self._next[msg_id] = nxt
+            out.append(msg_id)
         # _next holds only streamed messages (set_interval drops the others).
-        self.next_due = min(self._next.values(), default=math.inf)
+        if only is None:
+            self.next_due = min(nexts.values(), default=math.inf)
+        elif only in out:
+            self.next_due = t  # look again at the next step: is anybody there now?
+        else:
+            self.next_due = nexts.get(only, math.inf)
         return out

@@ -22,6 +22,7 @@ from skyherd.flight.mavlink.modes import (
     custom_mode_of,
     mode_of_custom,
 )
+from skyherd.flight.mavlink.payload import Payload, packer
 
 M = mavlink
 SW_VERSION = (0, 1, 0)  # skyherd version, reported in AUTOPILOT_VERSION
@@ -63,6 +64,25 @@ CAPABILITIES = (
     | M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
     | M.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
 )
+
+# Each message's packer: its fields in `<name>_encode`'s order → its wire payload (payload.py).
+_ALTITUDE = packer(M.MAVLINK_MSG_ID_ALTITUDE)
+_ATTITUDE = packer(M.MAVLINK_MSG_ID_ATTITUDE)
+_ATTITUDE_QUATERNION = packer(M.MAVLINK_MSG_ID_ATTITUDE_QUATERNION)
+_AUTOPILOT_VERSION = packer(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+_BATTERY_STATUS = packer(M.MAVLINK_MSG_ID_BATTERY_STATUS)
+_EXTENDED_SYS_STATE = packer(M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE)
+_GLOBAL_POSITION_INT = packer(M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)
+_GPS_RAW_INT = packer(M.MAVLINK_MSG_ID_GPS_RAW_INT)
+_HEARTBEAT = packer(M.MAVLINK_MSG_ID_HEARTBEAT)
+_HOME_POSITION = packer(M.MAVLINK_MSG_ID_HOME_POSITION)
+_LOCAL_POSITION_NED = packer(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
+_MISSION_CURRENT = packer(M.MAVLINK_MSG_ID_MISSION_CURRENT)
+_SYS_STATUS = packer(M.MAVLINK_MSG_ID_SYS_STATUS)
+_SYSTEM_TIME = packer(M.MAVLINK_MSG_ID_SYSTEM_TIME)
+_VFR_HUD = packer(M.MAVLINK_MSG_ID_VFR_HUD)
+_WIND = packer(M.MAVLINK_MSG_ID_WIND)
+_WIND_COV = packer(M.MAVLINK_MSG_ID_WIND_COV)
 
 BATTERY_CELLS = 4
 CELL_EMPTY_V, CELL_FULL_V = 3.5, 4.2  # [V] linear open-circuit model against charge
@@ -132,8 +152,9 @@ class TelemetryBuilder:
     def can_build(self, msg_id: int) -> bool:
         return msg_id in self._builders
 
-    def build(self, msg_id: int, mav: mavlink.MAVLink):
-        return self._builders[msg_id](mav)
+    def build(self, msg_id: int) -> Payload:
+        """Message `msg_id` now, packed (KeyError for one `can_build` says no to)."""
+        return self._builders[msg_id]()
 
     # --- helpers -------------------------------------------------------------------------
     @property
@@ -153,11 +174,11 @@ class TelemetryBuilder:
         return self._geo
 
     # --- messages ------------------------------------------------------------------------
-    def heartbeat(self, mav):
+    def heartbeat(self) -> Payload:
         ap = self.ap
         armed = ap.armed
         status = M.MAV_STATE_ACTIVE if armed else M.MAV_STATE_STANDBY
-        return mav.heartbeat_encode(
+        return _HEARTBEAT(
             self.ident.mav_type,
             self.ident.personality.mav_autopilot,
             base_mode_of(ap.mode, armed),
@@ -181,7 +202,7 @@ class TelemetryBuilder:
             return asked
         return number
 
-    def sys_status(self, mav):
+    def sys_status(self) -> Payload:
         ap = self.ap
         enabled = SENSORS_PRESENT if ap.armed else _SENSORS_ONLY
         health = (
@@ -189,7 +210,7 @@ class TelemetryBuilder:
         )
         rem = ap.battery_remaining
         volts = getattr(ap, "battery_voltage", None) or battery_voltage(rem)
-        return mav.sys_status_encode(
+        return _SYS_STATUS(
             SENSORS_PRESENT,
             enabled,
             health,
@@ -205,33 +226,33 @@ class TelemetryBuilder:
             0,
         )
 
-    def extended_sys_state(self, mav):
-        return mav.extended_sys_state_encode(M.MAV_VTOL_STATE_UNDEFINED, int(self.ap.landed_state))
+    def extended_sys_state(self) -> Payload:
+        return _EXTENDED_SYS_STATE(M.MAV_VTOL_STATE_UNDEFINED, int(self.ap.landed_state))
 
-    def attitude(self, mav):
+    def attitude(self) -> Payload:
         s = self.ap.state
         roll, pitch, yaw = s.euler
         p, q, r = s.omega_frd.tolist()
-        return mav.attitude_encode(self._ms, roll, pitch, yaw, p, q, r)
+        return _ATTITUDE(self._ms, roll, pitch, yaw, p, q, r)
 
-    def attitude_quaternion(self, mav):
+    def attitude_quaternion(self) -> Payload:
         s = self.ap.state
         w, x, y, z = s.quat.tolist()
         p, q, r = s.omega_frd.tolist()
-        return mav.attitude_quaternion_encode(self._ms, w, x, y, z, p, q, r, [0.0, 0.0, 0.0, 0.0])
+        return _ATTITUDE_QUATERNION(self._ms, w, x, y, z, p, q, r, [0.0, 0.0, 0.0, 0.0])
 
-    def local_position_ned(self, mav):
+    def local_position_ned(self) -> Payload:
         s = self.ap.state
         x, y, z = s.pos_ned.tolist()
         vx, vy, vz = s.vel_ned.tolist()
-        return mav.local_position_ned_encode(self._ms, x, y, z, vx, vy, vz)
+        return _LOCAL_POSITION_NED(self._ms, x, y, z, vx, vy, vz)
 
-    def global_position_int(self, mav):
+    def global_position_int(self) -> Payload:
         s = self.ap.state
         lat, lon, alt = self._geodetic()
         vx, vy, vz = (_clamp_i16(v * 100) for v in s.vel_ned.tolist())
         hdg = int(round(math.degrees(s.euler[2]) * 100)) % 36000
-        return mav.global_position_int_encode(
+        return _GLOBAL_POSITION_INT(
             self._ms,
             int(round(lat * 1e7)),
             int(round(lon * 1e7)),
@@ -243,13 +264,13 @@ class TelemetryBuilder:
             hdg,
         )
 
-    def gps_raw_int(self, mav):
+    def gps_raw_int(self) -> Payload:
         s = self.ap.state
         lat, lon, alt = self._geodetic()
         vn, ve = s.vel_ned.tolist()[:2]
         gs = math.hypot(vn, ve)
         cog = int(round(math.degrees(math.atan2(ve, vn)) * 100)) % 36000 if gs > 0.2 else 65535
-        return mav.gps_raw_int_encode(
+        return _GPS_RAW_INT(
             self._us,
             M.GPS_FIX_TYPE_3D_FIX,
             int(round(lat * 1e7)),
@@ -262,9 +283,9 @@ class TelemetryBuilder:
             12,  # satellites
         )
 
-    def home_position(self, mav):
+    def home_position(self) -> Payload:
         h = self.ap.home
-        return mav.home_position_encode(
+        return _HOME_POSITION(
             int(round(h.lat_deg * 1e7)),
             int(round(h.lon_deg * 1e7)),
             int(round(h.alt_m * 1000)),
@@ -278,12 +299,12 @@ class TelemetryBuilder:
             self._us,
         )
 
-    def battery_status(self, mav):
+    def battery_status(self) -> Payload:
         rem = self.ap.battery_remaining
         volts = getattr(self.ap, "battery_voltage", None) or battery_voltage(rem)
         cell_mv = int(volts / BATTERY_CELLS * 1000)
         voltages = [cell_mv] * BATTERY_CELLS + [65535] * (10 - BATTERY_CELLS)
-        return mav.battery_status_encode(
+        return _BATTERY_STATUS(
             0,
             M.MAV_BATTERY_FUNCTION_ALL,
             M.MAV_BATTERY_TYPE_LIPO,
@@ -295,14 +316,14 @@ class TelemetryBuilder:
             int(round(rem * 100)),
         )
 
-    def altitude(self, mav):
+    def altitude(self) -> Payload:
         s = self.ap.state
         rel = -float(s.pos_ned[2])
         amsl = self.ap.home.alt_m + rel
         # Flat terrain at home's altitude: terrain height = height above home.
-        return mav.altitude_encode(self._us, amsl, amsl, rel, rel, rel, rel)
+        return _ALTITUDE(self._us, amsl, amsl, rel, rel, rel, rel)
 
-    def vfr_hud(self, mav):
+    def vfr_hud(self) -> Payload:
         s = self.ap.state
         vn, ve = s.vel_ned.tolist()[:2]
         gs = float(np.hypot(vn, ve))
@@ -312,39 +333,37 @@ class TelemetryBuilder:
         # exposes it (multirotor), else 0.
         motors = getattr(self.ap, "motor_commands", None)
         thr = int(round(100 * (sum(motors.tolist()) / len(motors)))) if motors is not None else 0
-        return mav.vfr_hud_encode(gs, gs, hdg, max(0, min(100, thr)), alt, -float(s.vel_ned[2]))
+        return _VFR_HUD(gs, gs, hdg, max(0, min(100, thr)), alt, -float(s.vel_ned[2]))
 
-    def mission_current(self, mav, total: int = 0):
+    def mission_current(self, total: int = 0) -> Payload:
         prog = self.ap.mission_progress
         state = M.MISSION_STATE_NO_MISSION if total == 0 else M.MISSION_STATE_ACTIVE
         if total and prog.finished:
             state = M.MISSION_STATE_COMPLETE
-        return mav.mission_current_encode(int(prog.current), total, state, 0)
+        return _MISSION_CURRENT(int(prog.current), total, state, 0)
 
-    def autopilot_version(self, mav):
+    def autopilot_version(self) -> Payload:
         major, minor, patch = SW_VERSION
         sw = (major << 24) | (minor << 16) | (patch << 8) | 255  # FIRMWARE_VERSION_TYPE_OFFICIAL
         uid = 0x5348_0000_0000_0000 | self.ident.system_id  # "SH" + system id: unique per instance
-        return mav.autopilot_version_encode(
-            CAPABILITIES, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid
-        )
+        return _AUTOPILOT_VERSION(CAPABILITIES, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, uid)
 
-    def wind_cov(self, mav):
+    def wind_cov(self) -> Payload:
         """PX4's WIND_COV: the autopilot's own wind estimate [m/s NED, the way the air moves];
         no variance is estimated (NaN, as the message defines for unknown)."""
         w = self.ap.wind_estimate_ned.tolist()
         alt = self._geodetic()[2]
         nan = math.nan
-        return mav.wind_cov_encode(self._us, w[0], w[1], w[2], nan, nan, alt, nan, nan)
+        return _WIND_COV(self._us, w[0], w[1], w[2], nan, nan, alt, nan, nan)
 
-    def wind(self, mav):
+    def wind(self) -> Payload:
         """ArduPilot's WIND: direction the wind comes from [deg, 0..360), speed, vertical."""
         w = self.ap.wind_estimate_ned.tolist()
         frm = math.degrees(math.atan2(-w[1], -w[0])) % 360.0
-        return mav.wind_encode(frm, math.hypot(w[0], w[1]), w[2])
+        return _WIND(frm, math.hypot(w[0], w[1]), w[2])
 
-    def system_time(self, mav):
-        return mav.system_time_encode(0, self._ms)  # no real UTC in a simulation
+    def system_time(self) -> Payload:
+        return _SYSTEM_TIME(0, self._ms)  # no real UTC in a simulation
 
 
 def _clamp_i16(v: float) -> int:

@@ -15,4 +15,4 @@ STX_V2 = 0xFD
 STX_V1 = 0xFE
 HDR_V2 = struct.Struct("<BBBBBBBHB")  # stx len incompat compat seq sys comp msgid(lo16, hi8)
 CRC = struct.Struct("<H")
-X25 = crc16.mcrf4xx  # the checksum (CRC-16/MCRF4XX, as pymavlink's x25crc): X25(data, crc)
+X25 = crc16.mcrf4xx  # the X.25 checksum (CRC-16/MCRF4XX): X25(data, X25(more)) chains, as pymavlink
