@@ -19,7 +19,6 @@ from skyherd.flight.mavlink.signing import IFLAG_SIGNED, SIGNATURE_LEN, Signing,
 from skyherd.flight.mavlink.wire import CRC, HDR_V2, STX_V2, X25
 
 MAVLinkMessage = mavlink.MAVLink_message
-_X25 = X25
 
 
 class _Layout:
@@ -178,9 +177,8 @@ def _scan_v2(datagram: bytes, signed: bool) -> list[_Span] | None:
         lay = _LAYOUTS.get(datagram[i + 7] | datagram[i + 8] << 8 | datagram[i + 9] << 16)
         if lay is None:
             return None
-        c = end - sig - 2  # where the checksum starts
-        crc = datagram[c] | datagram[c + 1] << 8
-        if X25(lay.extra, X25(datagram[i + 1 : c])) != crc:
+        crc = datagram[end - 2] | datagram[end - 1] << 8
+        if X25(lay.extra, X25(datagram[i + 1 : end - 2])) != crc:
             return None
         out.append((i, end + sig, sig, lay))
         i = end + sig
