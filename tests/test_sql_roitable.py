@@ -117,3 +117,37 @@ def test_a_published_sql_d_result_is_reproduced_from_its_seed(K, seed, expected)
     assert (
         s.tail_metric, s.tail_success, s.tail_on_target, s.convergence, s.first_all_reached
     ) == expected  # fmt: skip
+
+
+def test_walk_holes_name_the_entry_cells_whose_greedy_walk_never_arrives():
+    """The published pre-training starts every episode in the ROI's corner, so far entry cells
+    of the flags next to it stay unvisited: there the first-index walk presses a wall."""
+    lay = generate_env(16, 0).layout()
+    pub, h = Rules.published(), SQLHyper()
+    holes0 = roitable.walk_holes(lay, fixed_roi_table(lay, h, pub, RoiPretrain()))
+    assert holes0 == [((43, 49), 8), ((43, 50), 8), ((49, 43), 12), ((50, 43), 12)]
+    q11 = pretrained_roi_tables(lay, h, pub, rng_state(11), RoiPretrain(seed=11))
+    assert roitable.walk_holes(lay, q11) == []
+    tiny = make_layout(6, [(1, 1)], [(6, 6)], 5)  # a 2×2 ROI: entry cells (5,5) (6,5) (5,6)
+    zero = np.zeros((1, 4, 4))  # ties → up: (5,5)→(5,6) and (5,6) press the top wall
+    assert roitable.walk_holes(tiny, zero) == [((5, 5), 0), ((5, 6), 0)]
+
+
+def test_reproduce_takes_a_table_seed_and_labels_its_runs(capsys):
+    import argparse
+
+    from skyherd.scripts import reproduce
+    from skyherd.scripts.cli import main
+
+    p = argparse.ArgumentParser()
+    reproduce.add_arguments(p)
+    args = p.parse_args(["sql", "--learners", "sql-d", "--agents", "9", "--roi-table-seed", "3"])
+    reproduce._check(args)
+    specs = reproduce._specs(args, None)
+    assert {s.rules.name for s in specs} == {"published-table3"}
+    assert {s.pretrain.seed for s in specs} == {3} and specs[0].key.startswith("published-table3")
+    args = p.parse_args(["sql", "--rules", "published", "intended"])
+    reproduce._check(args)
+    assert {s.rules.name for s in reproduce._specs(args, None)} == {"published", "intended"}
+    assert main(["reproduce", "sql", "--roi-table-seed", "-1"]) == 2
+    assert "--roi-table-seed must be >= 0" in capsys.readouterr().err

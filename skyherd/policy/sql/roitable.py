@@ -108,13 +108,45 @@ def save_table(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrain) 
     return path
 
 
+def walk_holes(layout: Layout, q2: np.ndarray, ties_first: bool = True, max_moves: int = 1000):
+    """Where the greedy walk of a table never arrives: [((x, y), flag id)] for every cell on
+    the ROI's lower row or left column (where phase 1 enters it) and every flag whose walk from
+    there does not reach the flag in `max_moves` moves (ε = 0, as the published walk)."""
+    roi = np.flatnonzero(layout.roi_id >= 0)
+    x0, y0 = layout.xy(int(roi.min()))
+    edge = [int(s) for s in roi if layout.xy(int(s))[0] == x0 or layout.xy(int(s))[1] == y0]
+    holes = []
+    for k, flag in enumerate(layout.targets):
+        for s in edge:
+            c, n = s, 0
+            while c != flag and n < max_moves:
+                row = q2[k, layout.roi_id[c]]
+                a = kernels.greedy_first(row) if ties_first else int(np.argmax(row))
+                c, n = kernels.roi_step(c, a, layout.next_cell, layout.roi_id), n + 1
+            if c != flag:
+                holes.append((layout.xy(s), k))
+    return holes
+
+
 def main(argv: list[str] | None = None) -> int:
     from skyherd.policy.sql.envfile import generate_env
 
     p = argparse.ArgumentParser(description="write the saved fixed ROI tables (published rules)")
     p.add_argument("--agents", type=int, nargs="+", default=list(STUDY_AGENTS))
+    p.add_argument("--holes", type=int, default=None, metavar="SEEDS",
+                   help="write nothing: list each K's walk holes for table seeds 0..SEEDS-1")  # fmt: skip
     args = p.parse_args(argv)
+    rules, h = Rules.published(), SQLHyper()
     for k in args.agents:
-        path = save_table(generate_env(k, 0).layout(), SQLHyper(), Rules.published(), RoiPretrain())
-        print(path)
+        lay = generate_env(k, 0).layout()
+        if args.holes is None:
+            print(save_table(lay, h, rules, RoiPretrain()))
+            continue
+        for seed in range(args.holes):
+            pre = RoiPretrain(seed=seed)
+            holes = walk_holes(
+                lay, pretrained_roi_tables(lay, h, rules, kernels.rng_state(seed), pre)
+            )
+            told = ", ".join(f"({x}, {y}) → flag {f}" for (x, y), f in holes) or "none"
+            print(f"K = {k}, table seed {seed}: {len(holes)} holes: {told}")
     return 0
