@@ -257,6 +257,7 @@ class MLPPolicy:
     """Greedy policy of a ReLU MLP Q-network, evaluated in numpy (no torch needed).
 
     __call__(obs (obs_dim,)) → int action = argmax_a Q(obs, a).  q_values(obs (..., obs_dim)).
+    explain(obs) → {module, action, reason, q_values, margin}: what the flight records.
     """
 
     def __init__(self, weights: list[np.ndarray], biases: list[np.ndarray], meta: dict[str, Any]):
@@ -287,13 +288,42 @@ class MLPPolicy:
                 x = np.maximum(x, 0.0)
         return x
 
-    def __call__(self, obs: np.ndarray) -> int:
+    def _checked(self, obs) -> np.ndarray:
         obs = np.asarray(obs, np.float64)
         if obs.shape != (self.obs_dim,) or not np.all(np.isfinite(obs)):
             raise ValueError(
                 f"policy expects a finite obs of shape ({self.obs_dim},), got {obs.shape}"
             )
-        return int(np.argmax(self.q_values(obs)))
+        return obs
+
+    def __call__(self, obs: np.ndarray) -> int:
+        return int(np.argmax(self.q_values(self._checked(obs))))
+
+    def action_names(self) -> tuple[str, ...]:
+        """The ground-air task's action names for a 7-action network, else a0, a1, …"""
+        from skyherd.task.params import ACTION_NAMES
+
+        if self.n_actions == len(ACTION_NAMES):
+            return ACTION_NAMES
+        return tuple(f"a{i}" for i in range(self.n_actions))
+
+    def explain(self, obs: np.ndarray) -> dict[str, Any]:
+        """Why the greedy action: every action's Q value and the margin over the runner-up
+        (the same decision as `__call__`: the lowest index among equal values)."""
+        q = self.q_values(self._checked(obs))
+        names = self.action_names()
+        order = np.argsort(-q, kind="stable")
+        a = int(order[0])
+        b = int(order[1]) if q.shape[0] > 1 else a
+        margin = float(q[a] - q[b])
+        return {
+            "module": str(self.meta.get("learner", "policy")),
+            "action": names[a],
+            "reason": f"Q-network chose {names[a]} (Q {q[a]:.3f}; runner-up {names[b]} "
+            f"{q[b]:.3f}, margin {margin:.3f})",
+            "q_values": {n: round(float(v), 4) for n, v in zip(names, q)},
+            "margin": round(margin, 4),
+        }
 
     def save(self, path: Path) -> None:
         """Write the `.npz` policy file atomically."""

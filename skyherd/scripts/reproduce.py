@@ -51,6 +51,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scaling-agents", type=int, nargs="*", default=[],
         help="extra K for the scaling figure, all three learners (e.g. 25 36; default none)",
     )  # fmt: skip
+    parser.add_argument(
+        "--roi-table-seed", type=int, default=0, metavar="SEED",
+        help="seed of the one fixed ROI table per K that the published rules walk "
+        "(Rules.roi_table 'fixed'; default 0, the saved tables); 'per-run' tables: "
+        "--switch roi_table=per-run",
+    )  # fmt: skip
     parser.add_argument("--episodes", type=int, default=10_000, help="episodes per run (10000)")
     parser.add_argument("--max-steps", type=int, default=1000, help="step cap per episode (1000)")
     parser.add_argument(
@@ -79,20 +85,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _specs(args, env):
-    from skyherd.policy.sql.params import Rules, SQLHyper
+    from dataclasses import replace
+
+    from skyherd.policy.sql.params import RoiPretrain, Rules, SQLHyper
     from skyherd.policy.sql.sweep import RunSpec
 
     hyper = SQLHyper(episodes=args.episodes, max_steps=args.max_steps)
+    pre = RoiPretrain(seed=args.roi_table_seed)
     Ns = args.sharing_periods
     specs = []
     for rname in args.rules:
         rules = Rules.named(rname, args.ties, args.switches)
+        if pre.seed and rules.roi_phase == "pretrained" and rules.roi_table == "fixed":
+            rules = replace(rules, name=f"{rules.name}-table{pre.seed}")  # its label in tables
         for K in dict.fromkeys([*args.agents, *args.scaling_agents]):
             cfgs = [("sql", 0), ("sql-d", 0)]
             cfgs += [("sql-sie", n) for n in (Ns if K in args.agents else Ns[:1])]
             for alg, n in (c for c in cfgs if c[0] in args.learners):
                 for seed in range(args.seeds):
-                    specs.append(RunSpec(alg, K, n, seed, rules, hyper, env=env))
+                    specs.append(RunSpec(alg, K, n, seed, rules, hyper, pre, env=env))
     return specs
 
 
@@ -103,6 +114,8 @@ def _check(args):
         args.episodes, args.seeds, args.agents = 1000, 2, [9]
     if args.episodes < 10 or args.max_steps < 1 or args.seeds < 1 or args.workers < 1:
         raise UsageError("need --episodes >= 10, --max-steps >= 1, --seeds >= 1, --workers >= 1")
+    if args.roi_table_seed < 0:
+        raise UsageError("--roi-table-seed must be >= 0")
     from skyherd.policy.sql.params import Rules
 
     args.switches = {}

@@ -79,3 +79,25 @@ def test_describe_velocity():
     assert describe_velocity([0, 0, 1.5]) == "descend 1.5 m/s"
     assert describe_velocity([0.01, 0, 0]) == "hover"
     assert describe_velocity(None) == "-" and describe_velocity([1, "x", 0]) == "-"
+    # the whole command, largest component first; only components below 5 mm/s are left out
+    assert describe_velocity([0, 2.1, -0.58]) == "east 2.1 m/s, climb 0.58 m/s"
+    assert (
+        describe_velocity([-0.34, 0.69, 0.09]) == "east 0.69 m/s, south 0.34 m/s, descend 0.09 m/s"
+    )
+    assert describe_velocity([0.004, -3, 0]) == "west 3 m/s"
+
+
+def test_a_projected_decision_states_the_certified_command_in_full(tmp_path, capsys):
+    """The net added a 0.58 m/s climb to a 4 m/s east proposal: the timeline and the detail
+    both say so (issue 29: only the largest component was named)."""
+    rec = _rec(13.0, [0, 4, 0], "projected", [0, 2.1, -0.58], LAT, reason="acceleration limit")
+    run = _run(tmp_path, [rec], torn=False)
+    assert main(["explain", str(run)]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == (
+        "t = 13.0 s lateral: team 0.31 right of centre → east 4 m/s; "
+        "net: projected → east 2.1 m/s, climb 0.58 m/s (acceleration limit)"
+    )
+    assert main(["explain", str(run), "--t", "13"]) == 0
+    out = capsys.readouterr().out
+    assert "    proposed (+0.00, +4.00, +0.00) m/s NED" in out
+    assert "    certified (+0.00, +2.10, -0.58) m/s NED" in out

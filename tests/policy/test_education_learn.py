@@ -162,6 +162,29 @@ def test_two_lesson_curriculum_end_to_end(tmp_path, capsys):
     assert main(again) == 2  # another curriculum: refused
 
 
+def test_educate_is_deterministic_for_a_seed(tmp_path):
+    """Two runs of one small curriculum with one seed give identical weights, the educated
+    policy's and the monolithic DQN's, and identical lesson tables (docs/education.md)."""
+    cur = tmp_path / "two.toml"
+    cur.write_text(TWO)
+    runs = []
+    for name in ("a", "b"):
+        out = tmp_path / name
+        args = ["educate", str(cur), "--quick", "--seeds", "1", "--seed", "2", "--eval-episodes",
+                "1", "--runs-dir", str(out)]  # fmt: skip
+        assert main(args) == 0
+        (run,) = out.iterdir()
+        runs.append(run)
+    for pol in ("educated_seed2.npz", "monolith_seed2.npz"):
+        with np.load(runs[0] / "policies" / pol) as a, np.load(runs[1] / "policies" / pol) as b:
+            assert a.files == b.files
+            for k in a.files:
+                np.testing.assert_array_equal(a[k], b[k], err_msg=f"{pol} {k}")
+    rows = [list(csv.DictReader(open(r / "lessons.csv"))) for r in runs]
+    drop = lambda rs: [{k: v for k, v in r.items() if "cpu" not in k and "_s" not in k} for r in rs]  # noqa: E731
+    assert drop(rows[0]) == drop(rows[1])
+
+
 def ex_action(rec):
     return ACTION_NAMES[rec["action"]]
 

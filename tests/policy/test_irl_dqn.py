@@ -97,3 +97,46 @@ def test_replay_buffer_and_schedule():
     p = DQNParams(total_steps=1000, eps_fraction=0.5, eps_start=1.0, eps_end=0.1)
     assert epsilon_at(p, 0) == 1.0 and epsilon_at(p, 250) == pytest.approx(0.55)
     assert epsilon_at(p, 900) == pytest.approx(0.1)
+
+
+def test_the_kept_policy_explains_every_decision_it_flies():
+    """The default policy (discrete AB) says why: every action's Q value, the runner-up and
+    the margin, the same decision as calling it; the flight's pilot records it (issue 29)."""
+    from skyherd.flight.state import VehicleState
+    from skyherd.mission.pilots import Observation, PolicyPilot
+    from skyherd.policy import load_policy
+    from skyherd.policy.groundair.env import GroundAirEnv
+    from skyherd.policy.models import DEFAULT_POLICY
+    from skyherd.task.params import ACTION_NAMES, TaskParams
+
+    pol = load_policy(DEFAULT_POLICY)
+    env = GroundAirEnv("composite")
+    obs, _ = env.reset(seed=300_000)
+    state = VehicleState(0.0, np.zeros(3), np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3),
+                         np.array([0, 0, -9.81]), False)  # fmt: skip
+    seen = set()
+    for _ in range(60):
+        a = pol(obs)
+        ex = pol.explain(obs)
+        q = pol.q_values(obs)
+        runner_up = sorted(q)[-2]
+        assert ex["module"] == "ab_mean" and ex["action"] == ACTION_NAMES[a]
+        assert ex["q_values"] == {n: round(float(v), 4) for n, v in zip(ACTION_NAMES, q)}
+        assert ex["margin"] == round(float(q[a] - runner_up), 4) and ex["margin"] >= 0
+        assert ex["reason"].startswith(f"Q-network chose {ACTION_NAMES[a]} (Q {q[a]:.3f}; ")
+        prop = PolicyPilot(pol, TaskParams()).propose(Observation(0.0, state, obs[:8], obs, 0.5))
+        assert prop.explanation == ex and prop.action == a
+        seen.add(a)
+        obs, *_ = env.step(a)
+    assert len(seen) >= 3  # several different decisions were explained
+
+
+def test_explain_breaks_ties_as_the_policy_does_and_refuses_bad_input():
+    flat = MLPPolicy([np.zeros((7, 14))], [np.zeros(7)], {})  # every Q equal
+    ex = flat.explain(np.zeros(14))
+    assert flat(np.zeros(14)) == 0 and ex["action"] == "hover" and ex["margin"] == 0.0
+    assert ex["module"] == "policy" and "runner-up north" in ex["reason"]
+    grid = MLPPolicy([np.eye(4, 3)], [np.zeros(4)], {"learner": "grid"})
+    assert grid.explain(np.array([0.0, 2.0, 1.0]))["action"] == "a1"  # not the task's 7 actions
+    with pytest.raises(ValueError, match=r"finite obs of shape \(14,\)"):
+        flat.explain(np.full(14, np.nan))

@@ -67,6 +67,38 @@ def test_train_ab_end_to_end_tiny(tmp_path, capsys):
     assert pol.meta["learner"] == "ab_mean" and pol(np.full(14, 0.5, np.float32)) in range(7)
 
 
+def test_train_ab_is_deterministic_for_a_seed_in_process_and_in_a_pool(tmp_path):
+    """Two runs of one small config with one seed (the DQN trained: steps > learning_starts)
+    give identical weights and results, in the command's process or in worker processes
+    (docs/learning.md's tables rest on this)."""
+    args = ["train", "ab", "--seeds", "1", "--seed", "3", "--dqn-steps", "1300", "--irl-iters",
+            "2", "--eval-episodes", "2", "--mu-episodes", "2", "--transfer-episodes", "0",
+            "--demo-episodes", "2", "--rules", "mean"]  # fmt: skip
+    runs = []
+    for name, workers in (("a", "1"), ("b", "2")):
+        out = tmp_path / name
+        assert main([*args, "--workers", workers, "--runs-dir", str(out)]) == 0
+        (run,) = out.iterdir()
+        runs.append(run)
+    first = {p.name: np.load(p) for p in sorted((runs[0] / "policies").glob("*.npz"))}
+    assert set(first) == {"irl_seed3.npz", "ab_mean_seed3.npz"}
+    keep = ("learner", "seed", "metrics", "chosen", "t0", "mixture")  # not the timings
+
+    def facts(run):
+        r = json.loads((run / "results.json").read_text())
+        learned = sorted([[x[k] for k in keep] for x in r["learned"]])
+        hist = {x["learner"]: [(h["t"], h["mu"]) for h in x["history"]] for x in r["learned"]}
+        return learned, hist, r["baselines"]
+
+    for run in runs[1:]:
+        for name, a in first.items():
+            b = np.load(run / "policies" / name)
+            for k in a.files:
+                if k != "meta":
+                    np.testing.assert_array_equal(a[k], b[k], err_msg=f"{run.name} {name} {k}")
+        assert facts(run) == facts(runs[0])
+
+
 def test_train_irl_from_teleop_style_demo_folder(tmp_path):
     from skyherd.policy.demos import record, scripted_expert
 

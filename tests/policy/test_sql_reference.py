@@ -102,9 +102,11 @@ def test_kernel_matches_the_published_reference_bit_for_bit(algorithm, share_eve
     rules, pre = Rules.published(), RoiPretrain(episodes=300, max_steps=150)
     hyper = replace(H, share_every=max(share_every, 1))
     run = train(algorithm, lay, hyper, 3, rules=rules, pretrain=pre)  # the trainer's path
-    rng = rng_state(3)  # the same stream: pre-training first, then the episodes
-    q2 = pretrained_roi_tables(lay, H, rules, rng, pre)
+    # the fixed table (roi_table="fixed"): pre-trained from its own seed's stream, as the
+    # published code loads one made by a separate program; the run's stream starts at episode 1
+    q2 = pretrained_roi_tables(lay, H, rules, rng_state(pre.seed), pre)
     np.testing.assert_array_equal(q2, run.q_target)
+    rng = rng_state(3)
     q_roi = np.zeros((M + 1, M + 1, 4, len(FLAGS)))  # the kernel's (T, R, 4) as [x, y, a, k]
     for s in np.flatnonzero(lay.roi_id >= 0):
         x, y = lay.xy(int(s))

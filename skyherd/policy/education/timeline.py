@@ -21,19 +21,36 @@ from typing import Any
 _DIRS = (("north", "south"), ("east", "west"), ("descend", "climb"))
 
 
-def describe_velocity(vel: Any) -> str:
-    """NED velocity [m/s] → 'east 4 m/s' (its largest component) or 'hover'."""
+def _vector(vel: Any) -> list[float] | None:
     try:
         v = [float(x) for x in vel]
     except (TypeError, ValueError):
-        return "-"
+        return None
     if len(v) != 3 or not all(math.isfinite(x) for x in v):
+        return None
+    return v
+
+
+def describe_velocity(vel: Any) -> str:
+    """NED velocity [m/s] → every component that is not ~0, largest first: 'east 4 m/s',
+    'east 2.1 m/s, climb 0.58 m/s', or 'hover' (below 0.05 m/s in all)."""
+    v = _vector(vel)
+    if v is None:
         return "-"
     if math.hypot(*v) < 0.05:
         return "hover"
-    i = max(range(3), key=lambda k: abs(v[k]))
-    name = _DIRS[i][0] if v[i] > 0 else _DIRS[i][1]
-    return f"{name} {abs(v[i]):.3g} m/s"
+    parts = []
+    for i in sorted(range(3), key=lambda k: -abs(v[k])):
+        if abs(v[i]) >= 0.005:
+            name = _DIRS[i][0] if v[i] > 0 else _DIRS[i][1]
+            parts.append(f"{name} {abs(v[i]):.3g} m/s")
+    return ", ".join(parts)
+
+
+def ned_vector(vel: Any) -> str:
+    """NED velocity in full: '(+0.00, +2.10, -0.58) m/s NED', or '-'."""
+    v = _vector(vel)
+    return "-" if v is None else "(" + ", ".join(f"{x:+.2f}" for x in v) + ") m/s NED"
 
 
 def _setpoint(rec: dict, key: str) -> str:
@@ -133,6 +150,14 @@ def detail(d: Decision) -> list[str]:
     for k, v in d.concepts.items():
         out.append(f"    {k} = {v}")
     r = d.record
+    ex = r.get("explanation") if isinstance(r.get("explanation"), dict) else {}
+    q = ex.get("q_values")
+    if isinstance(q, dict) and q:
+        out.append("    Q: " + ", ".join(f"{k} {v}" for k, v in q.items()))
+    for key in ("proposed", "certified"):
+        sp = r.get(key) if isinstance(r.get(key), dict) else {}
+        if sp.get("vel_ned") is not None:
+            out.append(f"    {key} {ned_vector(sp['vel_ned'])}")
     out.append(
         f"    pilot {r.get('pilot', '?')}, mode {r.get('mode', '?')}, autopilot {r.get('autopilot_mode', '?')}"
     )

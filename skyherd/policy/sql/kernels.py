@@ -25,6 +25,11 @@ _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 
 
+def rng_state(seed: int) -> np.ndarray:
+    """The kernels' splitmix64 state from an integer seed via numpy's SeedSequence."""
+    return np.random.SeedSequence(int(seed)).generate_state(1, dtype=np.uint64)
+
+
 @njit(cache=True)
 def next_u64(rng):
     """splitmix64: advance `rng[0]` and return 64 random bits."""

@@ -120,6 +120,7 @@ WALK_DRAWS = ("per-move", "none")
 WALK_END = ("step-onto", "on-flag")
 EPS_SCHEDULE = ("stop-decay", "clip")
 Q_FORM = ("blend", "delta")
+ROI_TABLE = ("fixed", "per-run")
 
 
 @dataclass(frozen=True)
@@ -186,6 +187,14 @@ class Rules:
     """Floating-point form of every Q update: "blend" = (1 − α)·Q + α·target (the published
     `Qvalues_update*.m`); "delta" = Q + α·(target − Q). Equal in exact arithmetic; the
     roundings differ, which can flip a first-index tie between values equal up to rounding."""
+    roi_table: str = "per-run"
+    """Where the pre-trained ROI tables come from: "fixed" = one table per formation (ROI,
+    flags) and pre-training setting, pre-trained once from `RoiPretrain.seed` alone, saved
+    and loaded (`roitable.fixed_roi_table`), as the published `SQL_D.m` / `SQL_SIE.m` load
+    one `Q_matrix_ROI*.mat` made once by `Q_Learning_ROI.m`; every run of every learner seed
+    walks the same table, and the run's random stream starts at its first episode. "per-run"
+    = new tables pre-trained inside every run from the run's own random stream before its
+    first episode (skyherd's behaviour before issue 29). Only read by roi_phase="pretrained"."""
 
     def __post_init__(self) -> None:
         for field, allowed in (
@@ -199,6 +208,7 @@ class Rules:
             ("walk_end", WALK_END),
             ("eps_schedule", EPS_SCHEDULE),
             ("q_form", Q_FORM),
+            ("roi_table", ROI_TABLE),
         ):
             if getattr(self, field) not in allowed:
                 raise ValueError(
@@ -214,7 +224,7 @@ class Rules:
         """The public MATLAB implementation's rules."""
         return Rules(
             "published", ties, "blend", "pretrained", "q-argmax", "published",
-            "agents-1-2", "per-move", "step-onto", "stop-decay", "blend",
+            "agents-1-2", "per-move", "step-onto", "stop-decay", "blend", "fixed",
         )  # fmt: skip
 
     @staticmethod
@@ -222,7 +232,7 @@ class Rules:
         """The paper's description (skyherd's original kernels)."""
         return Rules(
             "intended", ties, "add", "online", "nearest", "own", "own", "none", "on-flag",
-            "clip", "delta",
+            "clip", "delta", "per-run",
         )  # fmt: skip
 
     @staticmethod
@@ -255,3 +265,12 @@ class RoiPretrain:
     eps_min: float = 0.05
     reward: float = 1.0
     """Reward on reaching the target (the published ROI trainer uses 1, not 10)."""
+    seed: int = 0
+    """Seed of the fixed tables (`Rules.roi_table` "fixed"): their pre-training draws from
+    this seed's stream only, never from a run's. Not read by "per-run"."""
+
+    def __post_init__(self) -> None:
+        if not (self.episodes >= 1 and self.max_steps >= 1 and self.seed >= 0):
+            raise ValueError("ROI pre-training needs episodes >= 1, max_steps >= 1, seed >= 0")
+        if not (0.0 < self.eps_decay <= 1.0 and 0.0 <= self.eps_min <= 1.0):
+            raise ValueError("ROI pre-training needs eps_decay in (0, 1], eps_min in [0, 1]")

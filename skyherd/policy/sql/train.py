@@ -13,8 +13,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from skyherd.policy.sql import kernels
+from skyherd.policy.sql.kernels import rng_state
 from skyherd.policy.sql.layout import Layout
 from skyherd.policy.sql.params import Algorithm, RoiPretrain, Rules, SQLHyper
+from skyherd.policy.sql.roitable import fixed_roi_table, pretrained_roi_tables
+
+__all__ = [
+    "Metrics", "TrainResult", "fixed_roi_table", "greedy_rollout", "plan_paths",
+    "pretrained_roi_tables", "rng_state", "train",
+]  # fmt: skip
 
 CHUNK = 100
 """Episodes per kernel call (one progress-bar tick)."""
@@ -51,11 +58,6 @@ class TrainResult:
     """SQL-D / SQL-SIE: (T, R, 4) per-target tables over ROI cells; None for SQL."""
     rules: Rules = Rules()
     """The rule variants the run followed."""
-
-
-def rng_state(seed: int) -> np.ndarray:
-    """The kernels' splitmix64 state from an integer seed via numpy's SeedSequence."""
-    return np.random.SeedSequence(int(seed)).generate_state(1, dtype=np.uint64)
 
 
 def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths, rules=None):
@@ -131,25 +133,6 @@ def _call(algorithm, layout, hyper, q, q2, eps, learn, rng, episode0, paths, rul
     return out
 
 
-def pretrained_roi_tables(
-    layout: Layout, hyper: SQLHyper, rules: Rules, rng: np.ndarray, pre: RoiPretrain
-) -> np.ndarray:
-    """(T, R, 4) per-target ROI tables trained as the published `Q_Learning_ROI.m` does.
-
-    Starts every episode on the ROI's lowest-x, lowest-y cell; α and γ from `hyper`, ties by
-    `rules.ties`. `rng` (the run's kernel state) is advanced.
-    """
-    roi = np.flatnonzero(layout.roi_id >= 0)
-    corner = int(roi.min())  # cell index grows with y then x: the (x_min, y_min) corner
-    q2 = np.zeros((layout.targets.shape[0], layout.n_roi, 4))
-    kernels.pretrain_roi(
-        layout.next_cell, layout.roi_id, layout.targets, corner, q2, pre.episodes,
-        pre.max_steps, pre.eps_decay, pre.eps_min, pre.reward, hyper.alpha, hyper.gamma,
-        rules.ties == "first", rng, rules.q_form == "blend",
-    )  # fmt: skip
-    return q2
-
-
 def train(
     algorithm: Algorithm,
     layout: Layout,
@@ -162,8 +145,10 @@ def train(
     """Train for hyper.episodes episodes; `progress(n)` is called after every n episodes.
 
     `rules` (default `Rules()`, the intended set) picks the rule variants; with
-    rules.roi_phase == "pretrained" the per-target ROI tables are first pre-trained
-    (`pretrained_roi_tables`, settings `pretrain`) and then kept fixed.
+    rules.roi_phase == "pretrained" the per-target ROI tables are kept fixed through the run:
+    rules.roi_table "fixed" (published) loads the formation's one table (`fixed_roi_table`,
+    seeded by `pretrain.seed`, the same for every run), "per-run" pre-trains new ones first
+    from the run's own random stream (`pretrained_roi_tables`); settings `pretrain`.
     """
     rules = rules or Rules()
     algorithm = Algorithm(algorithm)
@@ -176,8 +161,11 @@ def train(
     rng = rng_state(seed)
     q2 = None
     if algorithm is not Algorithm.SQL:
-        if rules.roi_phase == "pretrained":
-            q2 = pretrained_roi_tables(layout, hyper, rules, rng, pretrain or RoiPretrain())
+        pre = pretrain or RoiPretrain()
+        if rules.roi_phase == "pretrained" and rules.roi_table == "fixed":
+            q2 = fixed_roi_table(layout, hyper, rules, pre)
+        elif rules.roi_phase == "pretrained":
+            q2 = pretrained_roi_tables(layout, hyper, rules, rng, pre)
         else:
             q2 = np.zeros((K, layout.n_roi, 4))
     cols = [[], [], [], [], []]

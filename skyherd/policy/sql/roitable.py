@@ -1,0 +1,152 @@
+"""The pre-trained per-target ROI tables of the published rules: one fixed table per formation.
+
+The published `SQL_D.m` / `SQL_SIE.m` load one `Q_matrix_ROI*.mat`, made once by
+`Q_Learning_ROI.m`, and every run walks it (`Rules.roi_table` "fixed"). Here a table is a pure
+function of its key — the ROI and flag cells, the pre-training settings (`RoiPretrain`, its
+`seed` included), α, γ and the tie and update rules it was trained with — and is pre-trained
+from `RoiPretrain.seed`'s own random stream, never from a run's. The study's formations
+(K = 4, 9, 16, 25, 36 on the 50×50 grid, default settings) are saved in `roi_tables/` and
+loaded; any other key is pre-trained once per process and kept. Writing the saved files:
+
+    .venv/bin/python -c "from skyherd.policy.sql.roitable import main; main()"  # K = 4 … 36
+
+`pretrained_roi_tables` is the pre-training itself (`Q_Learning_ROI.m`), also used by the
+"per-run" switch with the run's stream.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from skyherd.policy.sql import kernels
+from skyherd.policy.sql.layout import Layout
+from skyherd.policy.sql.params import RoiPretrain, Rules, SQLHyper
+
+TABLES_DIR = Path(__file__).with_name("roi_tables")
+"""Saved fixed tables, one `.npz` per key (`table_path`)."""
+STUDY_AGENTS = (4, 9, 16, 25, 36)
+"""The formations whose fixed tables are saved (published rules, default settings)."""
+
+_LOADED: dict[str, np.ndarray] = {}
+
+
+def pretrained_roi_tables(
+    layout: Layout, hyper: SQLHyper, rules: Rules, rng: np.ndarray, pre: RoiPretrain
+) -> np.ndarray:
+    """(T, R, 4) per-target ROI tables trained as the published `Q_Learning_ROI.m` does.
+
+    Starts every episode on the ROI's lowest-x, lowest-y cell; α and γ from `hyper`, ties by
+    `rules.ties`. `rng` (a kernel state) is advanced.
+    """
+    roi = np.flatnonzero(layout.roi_id >= 0)
+    corner = int(roi.min())  # cell index grows with y then x: the (x_min, y_min) corner
+    q2 = np.zeros((layout.targets.shape[0], layout.n_roi, 4))
+    kernels.pretrain_roi(
+        layout.next_cell, layout.roi_id, layout.targets, corner, q2, pre.episodes,
+        pre.max_steps, pre.eps_decay, pre.eps_min, pre.reward, hyper.alpha, hyper.gamma,
+        rules.ties == "first", rng, rules.q_form == "blend",
+    )  # fmt: skip
+    return q2
+
+
+def table_key(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrain) -> dict:
+    """Everything a fixed table depends on (obstacles never lie in the ROI: not part of it)."""
+    roi = np.flatnonzero(layout.roi_id >= 0)
+    return {
+        "size": layout.size,
+        "roi_cells": [list(layout.xy(int(s))) for s in roi],
+        "flags": [list(layout.xy(int(s))) for s in layout.targets],
+        "pretrain": asdict(pre),
+        "alpha": hyper.alpha,
+        "gamma": hyper.gamma,
+        "ties": rules.ties,
+        "q_form": rules.q_form,
+    }
+
+
+def _digest(key: dict) -> str:
+    return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def table_path(key: dict) -> Path:
+    """Where the table of `key` is saved: roi_tables/K<T>_<digest of the key>.npz."""
+    return TABLES_DIR / f"K{len(key['flags'])}_{_digest(key)}.npz"
+
+
+def fixed_roi_table(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrain) -> np.ndarray:
+    """The formation's fixed (T, R, 4) table (a copy): loaded if saved, else pre-trained from
+    `pre.seed` once per process. The same key gives the same values bit for bit either way."""
+    key = table_key(layout, hyper, rules, pre)
+    d = _digest(key)
+    if d not in _LOADED:
+        path = table_path(key)
+        if path.exists():
+            with np.load(path) as f:
+                if json.loads(str(f["key"])) != key:
+                    raise ValueError(f"{path}: saved key does not match its name; rewrite it")
+                q2 = f["q2"]
+        else:
+            q2 = pretrained_roi_tables(layout, hyper, rules, kernels.rng_state(pre.seed), pre)
+        q2.setflags(write=False)
+        _LOADED[d] = q2
+    return _LOADED[d].copy()
+
+
+def save_table(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrain) -> Path:
+    """Pre-train the table of this key from `pre.seed` and save it (`table_path`)."""
+    key = table_key(layout, hyper, rules, pre)
+    q2 = pretrained_roi_tables(layout, hyper, rules, kernels.rng_state(pre.seed), pre)
+    path = table_path(key)
+    path.parent.mkdir(exist_ok=True)
+    np.savez_compressed(path, q2=q2, key=np.array(json.dumps(key, sort_keys=True)))
+    return path
+
+
+def walk_holes(layout: Layout, q2: np.ndarray, ties_first: bool = True, max_moves: int = 1000):
+    """Where the greedy walk of a table never arrives: [((x, y), flag id)] for every cell on
+    the ROI's lower row or left column (where phase 1 enters it) and every flag whose walk from
+    there does not reach the flag in `max_moves` moves (ε = 0, as the published walk)."""
+    roi = np.flatnonzero(layout.roi_id >= 0)
+    x0, y0 = layout.xy(int(roi.min()))
+    edge = [int(s) for s in roi if layout.xy(int(s))[0] == x0 or layout.xy(int(s))[1] == y0]
+    holes = []
+    for k, flag in enumerate(layout.targets):
+        for s in edge:
+            c, n = s, 0
+            while c != flag and n < max_moves:
+                row = q2[k, layout.roi_id[c]]
+                a = kernels.greedy_first(row) if ties_first else int(np.argmax(row))
+                c, n = kernels.roi_step(c, a, layout.next_cell, layout.roi_id), n + 1
+            if c != flag:
+                holes.append((layout.xy(s), k))
+    return holes
+
+
+def main(argv: list[str] | None = None) -> int:
+    from skyherd.policy.sql.envfile import generate_env
+
+    p = argparse.ArgumentParser(description="write the saved fixed ROI tables (published rules)")
+    p.add_argument("--agents", type=int, nargs="+", default=list(STUDY_AGENTS))
+    p.add_argument("--holes", type=int, default=None, metavar="SEEDS",
+                   help="write nothing: list each K's walk holes for table seeds 0..SEEDS-1")  # fmt: skip
+    args = p.parse_args(argv)
+    rules, h = Rules.published(), SQLHyper()
+    for k in args.agents:
+        lay = generate_env(k, 0).layout()
+        if args.holes is None:
+            print(save_table(lay, h, rules, RoiPretrain()))
+            continue
+        for seed in range(args.holes):
+            pre = RoiPretrain(seed=seed)
+            holes = walk_holes(
+                lay, pretrained_roi_tables(lay, h, rules, kernels.rng_state(seed), pre)
+            )
+            told = ", ".join(f"({x}, {y}) → flag {f}" for (x, y), f in holes) or "none"
+            print(f"K = {k}, table seed {seed}: {len(holes)} holes: {told}")
+    return 0
