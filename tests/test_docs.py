@@ -276,7 +276,7 @@ def table_rows(text: str) -> list[list[str]]:
     for ln in text.splitlines():
         ln = ln.strip()
         if ln.startswith("|") and not re.fullmatch(r"\|[\s|:-]+\|", ln):
-            rows.append([c.strip() for c in ln.strip("|").split("|")])
+            rows.append([c.strip() for c in re.split(r"(?<!\\)\|", ln.strip("|"))])
     return rows
 
 

@@ -64,6 +64,8 @@ def test_the_contract_catches_a_violation(tmp_path, monkeypatch):
     """The check itself can fail: a module of a low layer that imports the command line."""
     pkg = tmp_path / "runio"
     pkg.mkdir()
-    (pkg / "bad.py").write_text("from skyherd.scripts.cli import UsageError\nimport skyherd.mission.flight\n")
+    (pkg / "bad.py").write_text(
+        "from skyherd.scripts.cli import UsageError\nimport skyherd.mission.flight\n"
+    )
     monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
     assert violations("runio") == ["runio/bad.py imports mission", "runio/bad.py imports scripts"]

@@ -17,7 +17,10 @@ def test_the_wheel_installs_one_top_level_module(tmp_path):
     )  # fmt: skip
     (wheel,) = (tmp_path / "dist").glob("skyherd-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
-    assert {n.split("/")[0] for n in names} == {"skyherd", wheel.name.split("-py")[0] + ".dist-info"}
+    assert {n.split("/")[0] for n in names} == {
+        "skyherd",
+        wheel.name.split("-py")[0] + ".dist-info",
+    }
     for data in ("skyherd/safety/envelopes/quadrotor_groundair.toml",
                  "skyherd/flight/airframes/quadrotor_x.toml",
                  "skyherd/policy/models/groundair_ab.npz",

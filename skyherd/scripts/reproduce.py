@@ -352,7 +352,10 @@ def _panel_plot(path, panels, title, ylabel, window, cap, results, what):
     for ax, (ptitle, lines) in zip(axes, panels):
         for label, ss in lines:
             x, mean, sd = _curves(results, ss, window, cap, what)
-            (ln,) = ax.plot(x, mean, lw=1.3, label=f"{label} ({len(ss)} seeds)")
+            n_s = len(ss)
+            (ln,) = ax.plot(x, mean, lw=1.3, label=f"{label} ({n_s} seed{'s' if n_s != 1 else ''})")
+            if n_s < 2:  # one seed has no spread: no band
+                continue
             lo = np.maximum(mean - sd, 1.0) if what == "metric" else np.clip(mean - sd, 0, 1)
             hi = np.minimum(mean + sd, cap) if what == "metric" else np.clip(mean + sd, 0, 1)
             ax.fill_between(x, lo, hi, color=ln.get_color(), alpha=0.18, lw=0)

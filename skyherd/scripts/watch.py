@@ -23,6 +23,7 @@ import numpy as np
 from skyherd.perception.camera import CameraParams
 from skyherd.perception.detector import Detector, annotate, contact_sheet, write_png
 from skyherd.perception.features import FEATURE_NAMES, FeatureParams
+from skyherd.perception.sheet import label, legend
 from skyherd.perception.transport import (
     FrameSubscriber,
     ZenohParams,
@@ -200,8 +201,8 @@ def _watch(args: argparse.Namespace, zp: ZenohParams, session, ctrl_c: CtrlC) ->
             idx = np.linspace(0, len(strip) - 1, min(args.strip, len(strip))).round().astype(int)
             tiles = [cv2.resize(strip[i][1], None, fx=0.5, fy=0.5) for i in idx]
             labels = [f"t = {strip[i][0]:.1f} s" for i in idx]
-            sheet = contact_sheet(_label(tiles, labels), cols=4)
-            write_png(run.file("strip.png"), np.vstack([sheet, _legend(sheet.shape[1])]))
+            sheet = contact_sheet(label(tiles, labels), cols=4)
+            write_png(run.file("strip.png"), np.vstack([sheet, legend(sheet.shape[1], "sim time")]))
             run.describe("strip.png", f"{len(idx)} annotated frames, sim time on each (red dot "
                          "image centre, blue dot UGVs' centre of mass, blue circle their spread)")  # fmt: skip
         lat = np.array(stats.latencies_s) * 1e3
@@ -306,46 +307,8 @@ def _loop(args, sub, st: dict, metrics, run, bar, ctrl_c: CtrlC) -> None:
         bar.update(1)
 
 
-def _legend(width: int) -> np.ndarray:
-    """A band under the strip saying what the marks are (colours of perception.detector)."""
-    from skyherd.perception.detector import BLUE, GREEN, RED
-
-    band = np.full((26, width, 3), 255, np.uint8)
-    x = 8
-    for kind, colour, text in (("dot", RED, "image centre"), ("dot", BLUE, "UGVs' centre of mass"),
-                               ("ring", BLUE, "their spread (enclosing circle)"),
-                               ("ring", GREEN, "a detected UGV")):  # fmt: skip
-        cv2.circle(
-            band,
-            (x + 6, 13),
-            5 if kind == "dot" else 7,
-            colour,
-            -1 if kind == "dot" else 2,
-            cv2.LINE_AA,
-        )
-        cv2.putText(
-            band, text, (x + 18, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA
-        )
-        x += 40 + cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)[0][0]
-    return band
-
-
 def _recorder(session, vehicle: str, path, live):
     """A ZenohRecorder into `path` and/or the live server."""
     from skyherd.record import ZenohRecorder
 
     return ZenohRecorder(session, vehicle, path, also=[live] if live is not None else [])
-
-
-def _label(tiles: list[np.ndarray], labels: list[str]) -> list[np.ndarray]:
-    """Each tile with its label (sim time) in the bottom-left corner, white on a dark band."""
-    out = []
-    for img, text in zip(tiles, labels):
-        img = img.copy()
-        w = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)[0][0]
-        h = img.shape[0]  # bottom-left: the detector's count sits top-left
-        cv2.rectangle(img, (0, h - 20), (min(img.shape[1], 8 + w), h), (0, 0, 0), -1)
-        cv2.putText(img, text, (4, h - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
-                    cv2.LINE_AA)  # fmt: skip
-        out.append(img)
-    return out
