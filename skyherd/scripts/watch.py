@@ -30,17 +30,22 @@ from skyherd.perception.transport import (
     open_session,
     subscriber_params,
 )
+from skyherd.runio import ports
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicle", default="uav0", help="vehicle name in the key")
     parser.add_argument(
         "--connect",
-        default="tcp:127.0.0.1:7447",
+        default=None,
         metavar="ADDRESS",
         help="the frame source, in the address syntax of every command (tcp:HOST:PORT; "
-        "Zenoh's tcp/HOST:PORT is accepted too)",
+        "Zenoh's tcp/HOST:PORT is accepted too) (default: tcp:127.0.0.1:7447+N for --instance N)",
     )
+    parser.add_argument("--instance", type=int, default=0, metavar="N",
+                        help=f"watch the flight of vehicle instance N in [0, {ports.MAX_INSTANCE}] "
+                        "(`skyherd fly/sim --instance N`): its simulator's Zenoh port 7447+N on "
+                        "127.0.0.1")  # fmt: skip
     parser.add_argument(
         "--zenoh-config", default=None, help="Zenoh JSON5 config file (replaces --connect)"
     )
@@ -72,6 +77,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _check(args: argparse.Namespace) -> None:
     from skyherd.scripts.cli import UsageError
 
+    try:
+        ports.check_instance(args.instance)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if args.connect is not None and args.instance != 0:
+        raise UsageError(f"--connect {args.connect} and --instance {args.instance} both say where "
+                         "the frames come from: give one")  # fmt: skip
+    if args.connect is None and not args.zenoh_config:
+        args.connect = ports.zenoh_address(args.instance)
     if args.frames < 1:
         raise UsageError("--frames must be >= 1")
     if args.ugvs < 1:
