@@ -140,3 +140,26 @@ def test_train_quick_sets_the_budget_that_was_not_given_and_warns_on_a_short_one
 def test_no_command_prints_help_and_is_bad_usage(capsys):
     assert main([]) == 2
     assert "COMMAND" in capsys.readouterr().out
+
+
+def test_every_command_has_examples_in_its_help_and_each_one_parses():
+    """`skyherd CMD --help` ends with examples; each is a real command line its parser accepts
+    (the part before `#` is the command)."""
+    import shlex
+
+    from skyherd.scripts.cli import COMMANDS, EXAMPLES
+    from skyherd.scripts.train import EXAMPLES as TRAIN_EXAMPLES
+    from skyherd.scripts.train import LEARNERS
+
+    assert set(EXAMPLES) == set(COMMANDS) and set(TRAIN_EXAMPLES) == set(LEARNERS)
+    helps = {n: p.format_help() for n, p in _walk(build_parser(None))}
+    for name, lines in [*EXAMPLES.items(), *((f"train {k}", v) for k, v in TRAIN_EXAMPLES.items())]:
+        text = helps[f"skyherd {name}"]
+        assert "examples:\n" in text, name
+        for line in lines:
+            assert line in text, (name, line)
+            argv = shlex.split(line.split("#", 1)[0])
+            assert argv[0] == "skyherd"
+            only = argv[1]
+            args, extra = build_parser(only).parse_known_args(argv[1:])
+            assert extra == [] and getattr(args, "_module", None) is not None, line

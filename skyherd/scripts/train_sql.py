@@ -86,7 +86,9 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "sql") -> None
     parser.add_argument("--map-seed", type=int, default=0, help="obstacle map seed (default 0)")
     parser.add_argument(
         "--rules", choices=("published", "intended"), default="intended",
-        help="rule set: published = the public MATLAB code, intended = the paper (default)",
+        help="rule set: published = the public MATLAB code, intended = the paper (default: "
+        "intended, unlike `reproduce sql`: the published ROI walk moves agents through one "
+        "another, so only the intended rules give a flyable plan_K<K>.json)",
     )  # fmt: skip
     parser.add_argument(
         "--ties", choices=("first", "random"), default=None,
@@ -202,6 +204,10 @@ def _plot(path, title, curves, window, max_steps) -> None:
                           label=f"{label} ({n} seed{'s' if n != 1 else ''})")  # fmt: skip
         if n > 1:
             ax.fill_between(x, ma.min(axis=0), ma.max(axis=0), color=line.get_color(), alpha=0.2)
+    stuck = [label for label, runs in curves if min(min(r) for r in runs) >= max_steps]
+    if stuck:  # lines that lie on the step limit, on top of one another: named
+        ax.text(0.01, 0.02, "at the step limit in every episode: " + ", ".join(stuck),
+                transform=ax.transAxes, fontsize=8, va="bottom")  # fmt: skip
     ax.axhline(max_steps, color="grey", lw=0.8, ls=":", label=f"step limit ({max_steps})")
     ax.set_yscale("log")
     ax.set_ylim(top=max_steps * 1.3)
