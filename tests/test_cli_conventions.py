@@ -163,3 +163,22 @@ def test_every_command_has_examples_in_its_help_and_each_one_parses():
             only = argv[1]
             args, extra = build_parser(only).parse_known_args(argv[1:])
             assert extra == [] and getattr(args, "_module", None) is not None, line
+
+
+@pytest.mark.parametrize(
+    "extra, speedup",
+    [([], 0.0), (["--free-run"], 10.0), (["--connect", "udpin:127.0.0.1:14540"], 10.0),
+     (["--speedup", "3"], 3.0)],
+)  # fmt: skip
+def test_fly_and_sim_share_one_speedup_default(extra, speedup):
+    """--speedup: 0 in lockstep (the flight is the same at any speed-up: `skyherd fly` is
+    `make run`'s flight), 10 when free-running (a pacer is needed); sim resolves it alike."""
+    from skyherd.scripts import fly, sim
+
+    args = build_parser("fly").parse_args(["fly", *extra])
+    fly._check_own(args)
+    assert args.speedup == speedup
+    if "--connect" not in extra:
+        s = build_parser("sim").parse_args(["sim", *extra])
+        sim.check(s)
+        assert s.speedup == speedup

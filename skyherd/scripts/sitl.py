@@ -32,7 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--speedup",
         type=float,
         default=1.0,
-        help="simulation speed over wall time (>= 1, or 0 = as fast as possible)",
+        help="simulation speed over wall time (>= 1, or 0 = as fast as possible); 1 by default, "
+        "unlike fly and sim: the vehicle stands alone for ground stations and MAVSDK, which "
+        "expect real time",
     )
     parser.add_argument(
         "--home",
