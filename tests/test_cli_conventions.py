@@ -182,3 +182,25 @@ def test_fly_and_sim_share_one_speedup_default(extra, speedup):
         s = build_parser("sim").parse_args(["sim", *extra])
         sim.check(s)
         assert s.speedup == speedup
+
+
+def test_quick_has_one_meaning_in_every_command():
+    """--quick: one help sentence everywhere (a smoke run, not results), and an option given
+    on the command line wins over its budget (here `reproduce sql`'s)."""
+    from skyherd.scripts import reproduce
+    from skyherd.scripts.cli import QUICK_MEANING
+
+    having = []
+    for name, p in _walk(build_parser(None)):
+        f = p._get_formatter()
+        for a in p._actions:
+            if "--quick" in a.option_strings:
+                having.append(name)
+                assert " ".join(f._expand_help(a).split()).startswith(QUICK_MEANING), name
+    assert {"skyherd train sql", "skyherd train ab", "skyherd reproduce", "skyherd educate",
+            "skyherd train abs-dl"} <= set(having)  # fmt: skip
+    argv = ["reproduce", "sql", "--quick", "--episodes", "200"]
+    args = build_parser("reproduce").parse_args(argv)
+    args._argv = argv
+    reproduce._check(args)
+    assert (args.episodes, args.seeds, args.agents) == (200, 2, [9])

@@ -88,6 +88,33 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
 }  # fmt: skip
 
 
+QUICK_MEANING = (
+    "a smoke run: the whole job on a small budget (minutes of CPU at most), to see "
+    "it work, not for results"
+)  # --quick in every command that has it
+
+
+def quick_help(sets: str) -> str:
+    """--quick's help: its one meaning, what it sets, and that an option given wins."""
+    return f"{QUICK_MEANING}: {sets}; an option given on the command line wins"
+
+
+def apply_quick(args: argparse.Namespace, budget: dict, argv: list[str] | None = None) -> list[str]:
+    """With --quick, `budget`'s value for every option not given on the command line (`argv`,
+    else args._argv, else sys.argv); returns the options it set, as "--flag value"."""
+    if not getattr(args, "quick", False):
+        return []
+    given = set(argv if argv is not None else getattr(args, "_argv", None) or sys.argv[1:])
+    changed = []
+    for k, v in budget.items():
+        flag = f"--{k.replace('_', '-')}"
+        if not any(a == flag or a.startswith(flag + "=") for a in given):
+            setattr(args, k, v)
+            shown = " ".join(map(str, v)) if isinstance(v, list | tuple) else v
+            changed.append(f"{flag} {shown}")
+    return changed
+
+
 def examples_epilog(lines: tuple[str, ...]) -> str:
     return "examples:\n" + "\n".join(f"  {ln}" for ln in lines)
 

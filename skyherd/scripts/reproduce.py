@@ -17,8 +17,10 @@ from dataclasses import asdict
 import numpy as np
 
 from skyherd.runio.runfolder import RunFolder, atomic_write_text, markdown_table
+from skyherd.scripts.cli import quick_help
 
 STUDIES = ("sql",)
+QUICK = {"episodes": 1000, "seeds": 2, "agents": [9]}  # --quick (scripts.cli.apply_quick)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,7 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2, help="local CPUs to use (2)")
     parser.add_argument("--window", type=int, default=100, help="moving-average window (100)")
     parser.add_argument(
-        "--quick", action="store_true", help="1000 episodes, 2 seeds, K = 9 (a smoke run)"
+        "--quick", action="store_true", help=quick_help("1000 episodes, 2 seeds, K = 9")
     )
     parser.add_argument("--runs-dir", default="runs", help="where run folders go (runs)")
     parser.add_argument(
@@ -97,10 +99,9 @@ def _specs(args, env):
 
 
 def _check(args):
-    from skyherd.scripts.cli import UsageError
+    from skyherd.scripts.cli import UsageError, apply_quick
 
-    if args.quick:
-        args.episodes, args.seeds, args.agents = 1000, 2, [9]
+    apply_quick(args, QUICK)
     if args.episodes < 10 or args.max_steps < 1 or args.seeds < 1 or args.workers < 1:
         raise UsageError("need --episodes >= 10, --max-steps >= 1, --seeds >= 1, --workers >= 1")
     from skyherd.policy.sql.params import Rules

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from skyherd.runio.runfolder import RunFolder, atomic_write_text, markdown_table
+from skyherd.scripts.cli import quick_help
 
 EXPERIMENTS = ("compare", "sharing", "scalability")
 
@@ -107,7 +108,7 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "sql") -> None
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="small budget: 2000 episodes, K = 4 (and 4, 9 for scalability)",
+        help=quick_help("2000 episodes, K = 4 (and 4, 9 for scalability), window 20"),
     )
     parser.add_argument(
         "--runs-dir", "--out", dest="runs_dir", default="runs",
