@@ -18,6 +18,8 @@ import numpy as np
 from skyherd.perception.detector import BLUE, GREEN, RED, Detections, annotate, contact_sheet
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
+LABEL_SCALE = 0.75  # tile labels: legible when a sheet of 4 columns is shown page-wide
+LEGEND_SCALE = 0.7
 
 
 @dataclass(frozen=True)
@@ -97,10 +99,10 @@ def label(tiles: list[np.ndarray], labels: list[str]) -> list[np.ndarray]:
     out = []
     for img, text in zip(tiles, labels):
         img = img.copy()
-        w = cv2.getTextSize(text, FONT, 0.5, 1)[0][0]
+        w = cv2.getTextSize(text, FONT, LABEL_SCALE, 2)[0][0]
         h = img.shape[0]
-        cv2.rectangle(img, (0, h - 22), (min(img.shape[1], 10 + w), h), (0, 0, 0), -1)
-        cv2.putText(img, text, (4, h - 6), FONT, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+        cv2.rectangle(img, (0, h - 30), (min(img.shape[1], 12 + w), h), (0, 0, 0), -1)
+        cv2.putText(img, text, (5, h - 9), FONT, LABEL_SCALE, (255, 255, 255), 2, cv2.LINE_AA)
         out.append(img)
     return out
 
@@ -113,18 +115,18 @@ def legend(width: int, label_says: str = "sim time, altitude above home, phase")
              ("text", None, f"label: {label_says}"))  # fmt: skip
     placed, x, line = [], 8, 0
     for kind, colour, text in items:
-        w = (18 if kind != "text" else 0) + cv2.getTextSize(text, FONT, 0.5, 1)[0][0]
+        w = (18 if kind != "text" else 0) + cv2.getTextSize(text, FONT, LEGEND_SCALE, 1)[0][0]
         if x > 8 and x + w > width - 8:
             x, line = 8, line + 1
         placed.append((kind, colour, text, x, line))
         x += w + 24
-    band = np.full((30 * (line + 1), width, 3), 255, np.uint8)
+    band = np.full((34 * (line + 1), width, 3), 255, np.uint8)
     for kind, colour, text, x, line in placed:
-        y = 15 + 30 * line
+        y = 17 + 34 * line
         if kind != "text":
             filled = kind == "dot"
             cv2.circle(band, (x + 6, y), 5 if filled else 7, colour, -1 if filled else 2,
                        cv2.LINE_AA)  # fmt: skip
             x += 18
-        cv2.putText(band, text, (x, y + 5), FONT, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(band, text, (x, y + 7), FONT, LEGEND_SCALE, (0, 0, 0), 1, cv2.LINE_AA)
     return band
