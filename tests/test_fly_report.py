@@ -199,3 +199,19 @@ def test_write_report_html_on_an_empty_folder_says_no_summary(tmp_path):
     assert write_report_html(tmp_path) is None
     page = parse(tmp_path / REPORT)
     assert "no summary" in page.ids["verdict"] and page.imgs == []
+
+
+def test_skyherd_companion_alone_says_its_own_name(flown, tmp_path, capsys):
+    """The report of `skyherd companion` run alone says "skyherd companion", not "skyherd fly"."""
+    import argparse
+
+    from skyherd.scripts.fly_report import report
+
+    run = tmp_path / flown.name
+    shutil.copytree(flown, run)
+    args = argparse.Namespace(**{**json.loads((run / "config.json").read_text())["args"],
+                                 "command": "companion"})  # fmt: skip
+    assert report(run, args, 0, "") is True
+    assert (run / "summary.md").read_text().startswith("# skyherd companion: completed")
+    out = capsys.readouterr().out
+    assert "skyherd companion: completed;" in out and "skyherd fly" not in out

@@ -126,7 +126,8 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
         reason = f"{reason}; first failed check: {failed_text(failed)}"
         if outcome == "failed":
             reason = f"first failed check: {failed_text(failed)}"
-    lines = [f"# skyherd fly: {status}", "", title + ".", ""]
+    who = f"skyherd {getattr(args, 'command', None) or 'fly'}"  # `skyherd companion` alone too
+    lines = [f"# {who}: {status}", "", title + ".", ""]
     signing = _config(run_dir).get("signing")
     if signing:
         lines += [f"MAVLink signing: {signing}.", ""]
@@ -155,9 +156,7 @@ def report(run_dir: Path, args, rc: int, why: str) -> bool:
     if not ok:
         print(verdicts)
     files = sorted(p.name for p in run_dir.iterdir())
-    print(
-        f"skyherd fly: {status}{'' if ok else ': ' + (reason or '')}; {', '.join(files)} in {run_dir}"
-    )
+    print(f"{who}: {status}{'' if ok else ': ' + (reason or '')}; {', '.join(files)} in {run_dir}")
     return ok
 
 
