@@ -286,16 +286,23 @@ def _figure(ncols: int, size):
 
 
 def _plot_square(run_dir: Path, track: np.ndarray, decisions: list[dict]) -> None:
-    plt, fig, (ax1, ax2) = _figure(2, (11, 4.5))
+    from skyherd.scripts.plots_flight import phase_spans, shade_phases
+
+    plt, fig, (ax1, ax2) = _figure(2, (12, 4.8))
     c = np.array([leg[2] for leg in _legs(decisions)]).reshape(-1, 3)
     ax1.plot(np.r_[0, c[:, 1]], np.r_[0, c[:, 0]], "k--", lw=1, label="planned")
     if len(track):
         ax1.plot(track[:, 2], track[:, 1], "b-", lw=1.5, label="flown")
-        ax2.plot(track[:, 0], -track[:, 3], "b-")
+        ax1.plot(track[0, 2], track[0, 1], "o", color="tab:green", ms=6, label="start")
+        ax1.plot(track[-1, 2], track[-1, 1], "s", color="k", ms=6, label="end")
+        shade_phases([ax2], phase_spans(_rows(run_dir / "metrics.csv")), label_ax=ax2)
+        ax2.plot(track[:, 0], -track[:, 3], "b-", label="altitude (autopilot's estimate)")
+        ax2.set_xlim(0, max(float(track[-1, 0]), 1.0))
+        ax2.legend(fontsize=8, loc="lower center")
     ax1.set(xlabel="east [m]", ylabel="north [m]", title="track (NED, about home)")
     ax1.set_aspect("equal")
-    ax1.legend()
-    ax2.set(xlabel="time [s]", ylabel="altitude above home [m]", title="altitude")
+    ax1.legend(fontsize=8)
+    ax2.set(xlabel="simulation time [s]", ylabel="altitude above home [m]")
     fig.tight_layout()
     fig.savefig(run_dir / "track.png", dpi=110)
     plt.close(fig)
