@@ -7,7 +7,7 @@ STAMP := $(VENV)/.skyherd-installed
 MAVPROXY_VENV := .venv-mavproxy
 MAVPROXY_STAMP := $(MAVPROXY_VENV)/.installed
 
-.PHONY: run test test-fast test-autopilots bench lint venv mavproxy clean
+.PHONY: run test test-fast test-autopilots bench lint venv mavproxy clean figures
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -47,6 +47,11 @@ test-fast: $(STAMP) $(MAVPROXY_STAMP)
 # reason. -s prints each flight's verdict, judge checks and figures; --durations its wall time.
 test-autopilots: $(STAMP)
 	$(BIN)/python -m pytest -q -m autopilot -rs -s --durations=0
+
+# the README's figures: two flights, their figures and report.html screenshots (headless
+# Chromium, Debian's `chromium`) into docs/figures/ with figures.json (commands, hashes)
+figures: $(STAMP)
+	$(BIN)/python -m skyherd.scripts.figures
 
 bench: $(STAMP)
 	for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

@@ -276,7 +276,7 @@ def table_rows(text: str) -> list[list[str]]:
     for ln in text.splitlines():
         ln = ln.strip()
         if ln.startswith("|") and not re.fullmatch(r"\|[\s|:-]+\|", ln):
-            rows.append([c.strip() for c in ln.strip("|").split("|")])
+            rows.append([c.strip() for c in re.split(r"(?<!\\)\|", ln.strip("|"))])
     return rows
 
 
@@ -377,3 +377,55 @@ def test_readme_mavsdk_line_works_with_mavsdk_4():
         sitl.start()
         drone, sysid = asyncio.run(asyncio.wait_for(ns["_readme"](), timeout=120))
     assert drone is not None and sysid == 1 + instance
+
+
+# -- the README's figures: the output of a script, each with its command -------------------
+
+FIGURE = re.compile(r"!\[[^\]]*\]\((docs/figures/[^)\s]+)\)")
+FIGURES_INSTANCE = 37  # this area's vehicle instance
+
+
+def _figures_manifest() -> dict:
+    from skyherd.scripts.figures import MANIFEST, OUT
+
+    return json.loads((OUT / MANIFEST).read_text(encoding="utf-8"))
+
+
+def test_readme_figures_exist_with_their_command_and_hash():
+    """Every figure the README shows is in docs/figures/figures.json (written by
+    `python -m skyherd.scripts.figures`) with the command on the line above it and the file's
+    SHA-256; the README's figures block is the one the script writes from that file."""
+    import hashlib
+
+    from skyherd.scripts.figures import readme_block
+
+    manifest = _figures_manifest()
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    shown = [(i, m.group(1)) for i, ln in enumerate(lines) if (m := FIGURE.search(ln))]
+    assert {Path(p).name for _, p in shown} == set(manifest["figures"]) and shown
+    for i, rel in shown:
+        entry = manifest["figures"][Path(rel).name]
+        assert lines[i - 1].strip() == f"<!-- figure: {entry['command']} -->", rel
+        data = (ROOT / rel).read_bytes()
+        assert (
+            data.startswith(b"\x89PNG") and hashlib.sha256(data).hexdigest() == entry["sha256"]
+        ), f"{rel} is not the file figures.json lists: run `make figures`"
+    assert readme_block(manifest) in "\n".join(lines)
+
+
+@pytest.mark.slow
+def test_readme_figures_are_what_their_command_draws_today(tmp_path):
+    """Fly each drawn figure's command (the flight is the same on any machine at any load:
+    lockstep) and compare the figure it draws, byte for byte, with the README's."""
+    from skyherd.scripts.figures import DRAWN, command_text, fly, sha256
+
+    manifest = _figures_manifest()
+    runs: dict[tuple, Path] = {}
+    for name, (argv, src, _) in DRAWN.items():
+        assert manifest["figures"][name]["command"] == command_text(argv)
+        if argv not in runs:
+            runs[argv] = fly(argv, tmp_path / "runs", FIGURES_INSTANCE)
+        assert sha256(runs[argv] / src) == manifest["figures"][name]["sha256"], (
+            f"docs/figures/{name} is not what `{command_text(argv)}` draws today: run "
+            "`make figures` (python -m skyherd.scripts.figures) and commit its output"
+        )

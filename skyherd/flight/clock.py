@@ -10,6 +10,20 @@ import time
 from dataclasses import dataclass, field
 
 US_PER_S = 1_000_000
+FREE_RUN_SPEEDUP = (
+    10.0  # `fly` / `sim`'s pace when free-running (a pacer is needed) [sim s / wall s]
+)
+SPEEDUP_HELP = ("simulation seconds per wall second; 0 = as fast as possible (default: 0 in "
+                "lockstep, where the flight is the same at any speed-up; "
+                f"{FREE_RUN_SPEEDUP:g} when free-running, which needs a pacer)")  # fmt: skip
+
+
+def default_speedup(given: float | None, free_running: bool) -> float:
+    """--speedup as given, or its default: 0 (as fast as possible) in lockstep, where the
+    flight does not depend on it; FREE_RUN_SPEEDUP when nothing waits for the companion."""
+    if given is not None:
+        return given
+    return FREE_RUN_SPEEDUP if free_running else 0.0
 
 
 @dataclass

@@ -125,7 +125,7 @@ class SingleVehicleMission:
     # ---- called by the companion's loop --------------------------------------------------------
     def on_frame(self, t: float, frame, status: str) -> None:
         if self.perception is not None:
-            self.perception.on_frame(t, frame, status)
+            self.perception.on_frame(t, frame, status, self.phase)
         if frame is not None and self.net is not None:
             self.net.frame(t)  # arrival = capture: the tick's own frame, or the newest
 

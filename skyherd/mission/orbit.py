@@ -56,7 +56,8 @@ from skyherd.mission.steps import (
 )
 from skyherd.mission.vehicle import VehicleLink
 from skyherd.perception.camera import backproject_to_ground
-from skyherd.perception.detector import Detector, annotate
+from skyherd.perception.detector import Detector
+from skyherd.perception.sheet import FrameSample, SheetParams
 from skyherd.safety.consistency import agreeing_values
 from skyherd.safety.net import SafetyNet
 
@@ -106,10 +107,9 @@ class TeamSight:
         self.camera_t: float | None = None  # time of the last good frame [s]
         self.rows: list[tuple[float, int, bool]] = []  # (t, detected, all in view) per frame
         self.counts = {"ok": 0, "corrupt": 0, "lost": 0}
-        self.strip: list[tuple[float, np.ndarray]] = []
+        self.strip = FrameSample(SheetParams(every_s=8.0))  # frames.png's (perception.sheet)
 
-    def on_frame(self, t: float, frame: CameraFrame | None, status: str,
-                 strip_every_s: float = 8.0) -> None:  # fmt: skip
+    def on_frame(self, t: float, frame: CameraFrame | None, status: str, phase: str = "") -> None:
         self.counts[status] = self.counts.get(status, 0) + 1
         if frame is None:
             return
@@ -117,8 +117,7 @@ class TeamSight:
         self.camera_t = t
         n = len(det.centroids_px)
         self.rows.append((t, n, bool(det.all_in_view)))
-        if not self.strip or t >= self.strip[-1][0] + strip_every_s:
-            self.strip.append((t, annotate(frame.image, det)))
+        self.strip.add(t, frame.image, det, frame.altitude_m, phase)
         pose = frame.camera_pose(ORBIT_CAMERA, "pointed")
         if n == 0 or pose is None:
             return
@@ -163,7 +162,7 @@ class OrbitMission:
 
     # ---- called by the companion's loop --------------------------------------------------------
     def on_frame(self, t: float, frame, status: str) -> None:
-        self.sight.on_frame(t, frame, status)
+        self.sight.on_frame(t, frame, status, self.phase)
         if frame is not None:
             self.net.frame(t)
 

@@ -12,11 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from skyherd.mission.onboard import CameraFrame
-from skyherd.perception.detector import Detector, annotate
+from skyherd.perception.detector import Detector
+from skyherd.perception.sheet import FrameSample
 from skyherd.task.observation import make_observation
 from skyherd.task.params import TaskParams
-
-STRIP_EVERY_S = 6.0  # one annotated frame in the strip per this much tick time [s]
 
 
 class Perception:
@@ -27,10 +26,10 @@ class Perception:
         self.phi_prev: np.ndarray | None = None  # φ at the previous decision
         self.camera_t: float | None = None  # tick time of the last good frame [s]
         self.counts = {"ok": 0, "corrupt": 0, "lost": 0}
-        self.strip: list[tuple[float, np.ndarray]] = []
+        self.strip = FrameSample()  # frames.png's frames (perception.sheet)
         self.last = None  # (CameraFrame, Detections) of the last good frame (mission.search)
 
-    def on_frame(self, t: float, frame: CameraFrame | None, status: str) -> None:
+    def on_frame(self, t: float, frame: CameraFrame | None, status: str, phase: str = "") -> None:
         self.counts[status] = self.counts.get(status, 0) + 1
         if frame is None:
             return
@@ -38,8 +37,7 @@ class Perception:
         self.last = (frame, det)
         self.phi = self.detector.features(det, frame.altitude_m)
         self.camera_t = t
-        if not self.strip or t >= self.strip[-1][0] + STRIP_EVERY_S:
-            self.strip.append((t, annotate(frame.image, det)))
+        self.strip.add(t, frame.image, det, frame.altitude_m, phase)
 
     def observation(self, state) -> np.ndarray:
         """(φ, velocity, Δφ since the last decision), built by the training environment's code."""

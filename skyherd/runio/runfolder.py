@@ -239,8 +239,11 @@ def markdown_table(headers: list[str], rows: list[list[Any]], missing: str = "no
     """A GitHub-style table; also readable as plain text on a terminal.
 
     A cell that is None or NaN is shown as "—", never as "nan", and a line under the table
-    says why (`missing`: e.g. "no decision was made: the run aborted before the hand-over")."""
-    cells = [[str(h) for h in headers]] + [[_fmt(c) for c in r] for r in rows]
+    says why (`missing`: e.g. "no decision was made: the run aborted before the hand-over");
+    a "|" in a cell is written "\\|", as GitHub escapes it."""
+    # a literal pipe in a cell is escaped (GitHub's \|): it would otherwise split the cell
+    cells = [[str(h).replace("|", "\\|") for h in headers]]
+    cells += [[_fmt(c).replace("|", "\\|") for c in r] for r in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
     line = lambda r: "| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |"  # noqa: E731
     sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"

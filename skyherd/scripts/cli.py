@@ -68,14 +68,70 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+# name → examples shown under each sub-command's --help (each one parses: tests/scripts/test_cli_conventions.py)
+EXAMPLES: dict[str, tuple[str, ...]] = {
+    "sitl": ("skyherd sitl --speedup 1    # one quadrotor in real time; MAVSDK: udpin://127.0.0.1:14540",
+             "skyherd sitl --airframe fixedwing --instance 1 --personality ardupilot"),
+    "fly": ("skyherd fly --speedup 0    # make run: the main job, as fast as the machine goes",
+            "skyherd fly --speedup 0 --wind 5 --fault gps_glitch@30:20,0,0:5 --cut-link 40:2",
+            "skyherd fly --airframe fixedwing --speedup 0    # the orbit over the team",
+            "skyherd fly --connect udpin:127.0.0.1:14540    # an outside PX4 SITL"),
+    "sim": ("skyherd sim --speedup 10 --free-run    # the world alone, not waiting for a companion",),
+    "companion": ("skyherd companion --connect udpin:127.0.0.1:14540 --free-run    # beside `skyherd sitl`",),
+    "drill": ("skyherd drill    # every named drill of the quadrotor",
+              "skyherd drill --airframe all --campaign 100 --seed 98"),
+    "train": ("skyherd train sql --quick", "skyherd train ab --quick"),
+    "teleop": ("skyherd teleop --episodes 2    # keyboard; demonstrations into runs/",),
+    "watch": ("skyherd watch --instance 0 --frames 100    # the camera of `skyherd fly --instance 0`",),
+    "certs": ("skyherd certs --router-host 192.168.1.10 --out flight-tls",),
+    "record": ("skyherd record runs/20261206T045157Z-fly    # flight.mcap from a run folder",),
+    "educate": ("skyherd educate --quick    # a smoke run of the default curriculum",),
+    "evaluate": ("skyherd evaluate runs/T-educate/educated_seed0.npz --ab skyherd/policy/models/groundair_ab.npz",),
+    "explain": ("skyherd explain runs/20261206T045157Z-fly --t 30    # what the policy did at t = 30 s",),
+    "reproduce": ("skyherd reproduce sql --quick", "skyherd reproduce sql --rules published intended"),
+}  # fmt: skip
+
+
+QUICK_MEANING = (
+    "a smoke run: the whole job on a small budget (minutes of CPU at most), to see "
+    "it work, not for results"
+)  # --quick in every command that has it
+
+
+def quick_help(sets: str) -> str:
+    """--quick's help: its one meaning, what it sets, and that an option given wins."""
+    return f"{QUICK_MEANING}: {sets}; an option given on the command line wins"
+
+
+def apply_quick(args: argparse.Namespace, budget: dict, argv: list[str] | None = None) -> list[str]:
+    """With --quick, `budget`'s value for every option not given on the command line (`argv`,
+    else args._argv, else sys.argv); returns the options it set, as "--flag value"."""
+    if not getattr(args, "quick", False):
+        return []
+    given = set(argv if argv is not None else getattr(args, "_argv", None) or sys.argv[1:])
+    changed = []
+    for k, v in budget.items():
+        flag = f"--{k.replace('_', '-')}"
+        if not any(a == flag or a.startswith(flag + "=") for a in given):
+            setattr(args, k, v)
+            shown = " ".join(map(str, v)) if isinstance(v, list | tuple) else v
+            changed.append(f"{flag} {shown}")
+    return changed
+
+
+def examples_epilog(lines: tuple[str, ...]) -> str:
+    return "examples:\n" + "\n".join(f"  {ln}" for ln in lines)
+
+
 from skyherd.runio.run import RunAborted, UsageError  # noqa: E402  (one definition, in runio)
 
 __all__ = ["COMMANDS", "UsageError", "build_parser", "main"]
 
 
-class DefaultsFormatter(argparse.HelpFormatter):
+class DefaultsFormatter(argparse.RawDescriptionHelpFormatter):
     """Every option's help ends with its default, unless the help already states it as
-    "(default X)" (flags and options whose default is None show none)."""
+    "(default X)" (flags and options whose default is None show none); the description and the
+    examples under it keep their lines."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
@@ -91,6 +147,11 @@ class DefaultsFormatter(argparse.HelpFormatter):
         ):
             return text
         shown = " ".join(map(str, d)) if isinstance(d, list | tuple) else str(d)
+        # already said in the text ("default 1: ..."), or marked where it belongs: never twice
+        if re.search(rf"\bdefault:? {re.escape(shown)}\b", text):
+            return text
+        if "(default)" in text:  # "PX4 modes (default) or ...": the value where it is marked
+            return text.replace("(default)", f"(default: {shown})", 1)
         if f"({shown})" in text:  # the older "(value)" convention
             return text.replace(f"({shown})", f"(default: {shown})")
         return f"{text} (default: {shown})".strip()
@@ -165,7 +226,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--version", action=_Version, help="print the version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module_name, help_text) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(name, help=help_text, description=help_text,
+                           epilog=examples_epilog(EXAMPLES[name]) if name in EXAMPLES else None)  # fmt: skip
         if only is None or only == name:
             module = importlib.import_module(module_name)
             module.add_arguments(p)

@@ -759,11 +759,10 @@ def _write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = Non
                       "fallback_s": st.fallback_s, "pid_s": st.pid_s}  # fmt: skip
     try_write_text(run_dir / "companion.json", json.dumps(out, indent=2) + "\n")
     if mission.perception is not None and mission.perception.strip:
-        from skyherd.perception.detector import contact_sheet, write_png
+        from skyherd.perception.detector import write_png
 
         try:
-            write_png(run_dir / "frames.png",
-                      contact_sheet([f for _, f in mission.perception.strip], cols=4))  # fmt: skip
+            write_png(run_dir / "frames.png", mission.perception.strip.sheet())
         except OSError as e:
             _say(f"skyherd companion: frames.png not written ({e.strerror or e})")
 

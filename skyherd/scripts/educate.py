@@ -32,7 +32,7 @@ from skyherd.runio.runfolder import (
     atomic_write_text,
     markdown_table,
 )
-from skyherd.scripts.cli import UsageError
+from skyherd.scripts.cli import UsageError, quick_help
 
 EVAL_SCENARIOS = ("composite", "groundsim:route", "groundsim:speedoff", "groundsim:camouflage")
 EVAL_SEED = {"composite": 300_000}  # others: 200_000 (policy.evaluate's transfer seeds)
@@ -43,7 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="curriculum TOML (default policy/education/curricula/groundair.toml)")  # fmt: skip
     parser.add_argument("--seeds", type=int, default=5, help="training seeds (default 5)")
     parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-    parser.add_argument("--quick", action="store_true", help="a tiny budget (tests, smoke runs)")
+    parser.add_argument("--quick", action="store_true",
+                        help=quick_help("policy.education.teach.QUICK's DQN steps, IRL iterations "
+                                        "and test episodes"))  # fmt: skip
     parser.add_argument(
         "--dqn-steps", type=int, default=None, help="env steps per DQN solve (default 6000)"
     )

@@ -74,12 +74,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--instance", type=int, default=0,
                         help=f"built-in vehicle instance N in [0, {ports.MAX_INSTANCE}]: its MAVLink ports "
                         "(14540+N, 14580+N, 18570+N) and its Zenoh port (7447+N)")  # fmt: skip
-    parser.add_argument(
-        "--speedup",
-        type=float,
-        default=10.0,
-        help="simulation seconds per wall second; 0 = as fast as possible (lockstep only)",
-    )
+    from skyherd.flight.clock import SPEEDUP_HELP
+
+    parser.add_argument("--speedup", type=float, default=None, metavar="S",
+                        help=SPEEDUP_HELP + "; --connect free-runs")  # fmt: skip
     parser.add_argument(
         "--free-run",
         action="store_true",
@@ -163,10 +161,13 @@ def _check_own(args) -> None:
     port (runio.ports) when --zenoh-port is not given."""
     import math
 
+    from skyherd.flight.clock import default_speedup
+
     try:
         args.zenoh_port = ports.checked_zenoh_port(args.instance, args.zenoh_port)
     except ValueError as e:
         raise UsageError(str(e)) from None
+    args.speedup = default_speedup(args.speedup, args.free_run or args.connect is not None)
     if not (math.isfinite(args.timeout) and args.timeout > 0):
         raise UsageError(
             f"--timeout {args.timeout:g}: a wall-clock limit in seconds, > 0 (default 600)"
@@ -462,6 +463,10 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     lines = waysout.ending_lines(run_dir, output=output, cut=waysout.recording_cut(recorder))
     waysout.append_ending(run_dir, lines)
     make_plots(plots)
+    if plots:  # report.html again, now with the figures made after the verdict
+        from skyherd.scripts.report_html import write_report_html
+
+        write_report_html(run_dir)
     if rc <= 128 and kept.signum is not None:  # a signal while the report was written
         rc = waysout.interrupted(Interrupted(kept.signum))[0]
         print(f"skyherd fly: interrupted ({signal.Signals(kept.signum).name}) after the flight "

@@ -25,6 +25,7 @@ from skyherd.safety.judge import (
     judge,
 )
 from skyherd.scripts.launch import flight_reason
+from skyherd.scripts.plots_flight import plot_groundair, plot_orbit
 from skyherd.task.params import TaskParams
 
 
@@ -118,7 +119,8 @@ def report(run_dir: Path, args, rc: int, why: str, later: list | None = None) ->
         table = markdown_table(["metric", "value"], rows)
         team = getattr(args, "ugvs", "as the simulator drives it")
         title = f"ground–air mission, UGV team `{team}`, pilot `{args.pilot}`, {args.duration:.0f} s behind the safety net"
-        _plot(later, "groundair.png", _plot_groundair, run_dir, decisions, track, world)
+        _plot(later, "groundair.png", plot_groundair, run_dir, decisions, _rows(run_dir / "metrics.csv"),
+              world, _config(run_dir).get("envelope"), comp.get("authority") or {})  # fmt: skip
     status = {"completed": "completed", "yielded": "ended: the autopilot took over"}.get(
         outcome, outcome.upper()
     )
@@ -126,7 +128,8 @@ def report(run_dir: Path, args, rc: int, why: str, later: list | None = None) ->
         reason = f"{reason}; first failed check: {failed_text(failed)}"
         if outcome == "failed":
             reason = f"first failed check: {failed_text(failed)}"
-    lines = [f"# skyherd fly: {status}", "", title + ".", ""]
+    who = f"skyherd {getattr(args, 'command', None) or 'fly'}"  # `skyherd companion` alone too
+    lines = [f"# {who}: {status}", "", title + ".", ""]
     signing = _config(run_dir).get("signing")
     if signing:
         lines += [f"MAVLink signing: {signing}.", ""]
@@ -155,9 +158,7 @@ def report(run_dir: Path, args, rc: int, why: str, later: list | None = None) ->
     if not ok:
         print(verdicts)
     files = sorted({p.name for p in run_dir.iterdir()} | {name for name, _ in later or ()})
-    print(
-        f"skyherd fly: {status}{'' if ok else ': ' + (reason or '')}; {', '.join(files)} in {run_dir}"
-    )
+    print(f"{who}: {status}{'' if ok else ': ' + (reason or '')}; {', '.join(files)} in {run_dir}")
     return ok
 
 
@@ -278,9 +279,10 @@ def _square_table(decisions: list[dict], track: np.ndarray) -> str:
 
 
 def _plot(later: list | None, name: str, plot, *args) -> None:
-    """`plot(*args)` now, or appended to `later` as (name, call)."""
+    """`plot(*args)` now (a record it cannot draw from is said: `_plotting`), or appended to
+    `later` as (name, call)."""
     if later is None:
-        plot(*args)
+        _plotting(name, plot, *args)
     else:
         later.append((name, lambda: plot(*args)))
 
@@ -295,55 +297,34 @@ def _figure(ncols: int, size):
 
 
 def _plot_square(run_dir: Path, track: np.ndarray, decisions: list[dict]) -> None:
-    plt, fig, (ax1, ax2) = _figure(2, (11, 4.5))
+    from skyherd.scripts.plots_flight import phase_spans, shade_phases
+
+    plt, fig, (ax1, ax2) = _figure(2, (12, 4.8))
     c = np.array([leg[2] for leg in _legs(decisions)]).reshape(-1, 3)
     ax1.plot(np.r_[0, c[:, 1]], np.r_[0, c[:, 0]], "k--", lw=1, label="planned")
     if len(track):
         ax1.plot(track[:, 2], track[:, 1], "b-", lw=1.5, label="flown")
-        ax2.plot(track[:, 0], -track[:, 3], "b-")
+        ax1.plot(track[0, 2], track[0, 1], "o", color="tab:green", ms=6, label="start")
+        ax1.plot(track[-1, 2], track[-1, 1], "s", color="k", ms=6, label="end")
+        shade_phases([ax2], phase_spans(_rows(run_dir / "metrics.csv")), label_ax=ax2)
+        ax2.plot(track[:, 0], -track[:, 3], "b-", label="altitude (autopilot's estimate)")
+        ax2.set_xlim(0, max(float(track[-1, 0]), 1.0))
+        ax2.legend(fontsize=8, loc="lower center")
     ax1.set(xlabel="east [m]", ylabel="north [m]", title="track (NED, about home)")
     ax1.set_aspect("equal")
-    ax1.legend()
-    ax2.set(xlabel="time [s]", ylabel="altitude above home [m]", title="altitude")
+    ax1.legend(fontsize=8)
+    ax2.set(xlabel="simulation time [s]", ylabel="altitude above home [m]")
     fig.tight_layout()
     fig.savefig(run_dir / "track.png", dpi=110)
     plt.close(fig)
 
 
-def _plot_groundair(
-    run_dir: Path, decisions: list[dict], track: np.ndarray, world: list[dict]
-) -> None:
-    plt, fig, axs = _figure(3, (15, 4.5))
-    n_ugv = sum(1 for k in (world[0] if world else {}) if k.endswith("_n") and k.startswith("ugv"))
-    t_dec = np.array([float(d["t"]) for d in decisions])
-    t0 = t_dec[0] if len(t_dec) else 0.0
-    moving = [r for r in world if float(r["t"]) >= t0]
-    for i in range(n_ugv):
-        axs[0].plot([float(r[f"ugv{i}_e"]) for r in moving], [float(r[f"ugv{i}_n"]) for r in moving],
-                    lw=0.8, alpha=0.7, label=f"UGV {i}")  # fmt: skip
-    if len(track):
-        sel = track[:, 0] >= t0
-        axs[0].plot(track[sel, 2], track[sel, 1], "k-", lw=1.5, label="UAV")
-        axs[1].plot(track[:, 0], -track[:, 3], "k-")
-    if decisions:
-        phi = np.array([d["phi"] for d in decisions])
-        axs[2].plot(t_dec, phi[:, 5], "g-", label="all in view (φ6)")
-        axs[2].plot(t_dec, phi[:, 2], "b-", label="spread (φ3)")
-        code = {"accepted": 0.0, "projected": 0.25, "pid": 0.5, "fallback": 1.0}
-        axs[2].plot(t_dec, [code[d["verdict"]] for d in decisions], "r:",
-                    label="net: 0 accepted, .25 projected, .5 PID, 1 fallback")  # fmt: skip
-        axs[2].legend(fontsize=8, loc="lower left")
-    for ax in axs[1:]:
-        ax.set_xlim(0, max(track[-1, 0] if len(track) else 1.0, 1.0))
-    axs[0].set(xlabel="east [m]", ylabel="north [m]", title="UAV over the UGV team (NED)")
-    axs[0].set_aspect("equal", adjustable="datalim")
-    if axs[0].get_legend_handles_labels()[0]:  # nothing flown, nothing to name
-        axs[0].legend(fontsize=8)
-    axs[1].set(xlabel="time [s]", ylabel="altitude above home [m]", title="altitude")
-    axs[2].set(xlabel="time [s]", ylabel="feature value [0..1]", title="features and safety net")
-    fig.tight_layout()
-    fig.savefig(run_dir / "groundair.png", dpi=100)
-    plt.close(fig)
+def _plotting(name: str, plot, *a) -> None:
+    """A figure of the report; a record it cannot draw from is said, and the report goes on."""
+    try:
+        plot(*a)
+    except (ValueError, KeyError, IndexError, TypeError) as e:
+        print(f"skyherd fly: no {name} ({type(e).__name__}: {e})", file=sys.stderr)
 
 
 def _shepherd_report(run_dir: Path, args, comp: dict, decisions: list[dict], track: np.ndarray):
@@ -454,30 +435,7 @@ def _orbit_report(run_dir: Path, comp: dict, track: np.ndarray) -> tuple[str, st
         ["autopilot took over", comp.get("yielded") or "no"],
     ]  # fmt: skip
     if world:
-        _plot_orbit(run_dir, world, track, plan, t_est)
+        _plotting("track.png", plot_orbit, run_dir, world, _rows(run_dir / "metrics.csv"), plan,
+                  t_est, _config(run_dir).get("envelope"), comp.get("authority") or {}, sight,
+                  _jsonl(run_dir / "decisions.jsonl"))  # fmt: skip
     return markdown_table(["metric", "value"], rows), "fixed-wing orbit over the UGV team"
-
-
-def _plot_orbit(run_dir: Path, world: list[dict], track: np.ndarray, plan: dict, t_est) -> None:
-    plt, fig, ax = _figure(1, (10, 7))
-    n_ugv = sum(1 for k in world[0] if k.startswith("ugv") and k.endswith("_n"))
-    w = np.array([[float(r["t"]), float(r["north"]), float(r["east"])] for r in world])
-    c = np.array([np.mean([[float(r[f"ugv{i}_n"]), float(r[f"ugv{i}_e"])] for i in range(n_ugv)],
-                          axis=0) for r in world])  # fmt: skip
-    ax.plot(w[:, 2], w[:, 1], "-", lw=0.8, color="tab:blue", label="aircraft (truth)")
-    ax.plot(c[:, 1], c[:, 0], "-", lw=1.5, color="tab:green", label="UGV team centre (truth)")
-    if t_est is not None and plan:
-        k = int(np.searchsorted(w[:, 0], t_est))
-        k = min(k, len(c) - 1)
-        a = np.linspace(0, 2 * np.pi, 200)
-        R = plan["radius_m"]
-        ax.plot(c[k, 1] + R * np.sin(a), c[k, 0] + R * np.cos(a), "k:", lw=1,
-                label=f"planned orbit R = {R:.0f} m (at t = {t_est:.0f} s)")  # fmt: skip
-    ax.set_xlabel("east [m]")
-    ax.set_ylabel("north [m]")
-    ax.set_aspect("equal")
-    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
-    ax.set_title("fixed-wing orbit (take-off north, climb-out, orbit, landing)")
-    fig.tight_layout()
-    fig.savefig(run_dir / "track.png", dpi=110)
-    plt.close(fig)

@@ -17,8 +17,10 @@ from dataclasses import asdict
 import numpy as np
 
 from skyherd.runio.runfolder import RunFolder, atomic_write_text, markdown_table
+from skyherd.scripts.cli import quick_help
 
 STUDIES = ("sql",)
+QUICK = {"episodes": 1000, "seeds": 2, "agents": [9]}  # --quick (scripts.cli.apply_quick)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -74,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2, help="local CPUs to use (2)")
     parser.add_argument("--window", type=int, default=100, help="moving-average window (100)")
     parser.add_argument(
-        "--quick", action="store_true", help="1000 episodes, 2 seeds, K = 9 (a smoke run)"
+        "--quick", action="store_true", help=quick_help("1000 episodes, 2 seeds, K = 9")
     )
     parser.add_argument("--runs-dir", default="runs", help="where run folders go (runs)")
     parser.add_argument(
@@ -108,10 +110,9 @@ def _specs(args, env):
 
 
 def _check(args):
-    from skyherd.scripts.cli import UsageError
+    from skyherd.scripts.cli import UsageError, apply_quick
 
-    if args.quick:
-        args.episodes, args.seeds, args.agents = 1000, 2, [9]
+    apply_quick(args, QUICK)
     if args.episodes < 10 or args.max_steps < 1 or args.seeds < 1 or args.workers < 1:
         raise UsageError("need --episodes >= 10, --max-steps >= 1, --seeds >= 1, --workers >= 1")
     if args.roi_table_seed < 0:
@@ -365,7 +366,10 @@ def _panel_plot(path, panels, title, ylabel, window, cap, results, what):
     for ax, (ptitle, lines) in zip(axes, panels):
         for label, ss in lines:
             x, mean, sd = _curves(results, ss, window, cap, what)
-            (ln,) = ax.plot(x, mean, lw=1.3, label=f"{label} ({len(ss)} seeds)")
+            n_s = len(ss)
+            (ln,) = ax.plot(x, mean, lw=1.3, label=f"{label} ({n_s} seed{'s' if n_s != 1 else ''})")
+            if n_s < 2:  # one seed has no spread: no band
+                continue
             lo = np.maximum(mean - sd, 1.0) if what == "metric" else np.clip(mean - sd, 0, 1)
             hi = np.minimum(mean + sd, cap) if what == "metric" else np.clip(mean + sd, 0, 1)
             ax.fill_between(x, lo, hi, color=ln.get_color(), alpha=0.18, lw=0)

@@ -17,6 +17,7 @@ import signal
 import sys
 from dataclasses import dataclass
 
+from skyherd.flight.clock import SPEEDUP_HELP, default_speedup
 from skyherd.runio import RunFolder, args_dict, ports
 from skyherd.scripts.cli import UsageError, check_with
 
@@ -64,12 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="WHEN",
         help="when the UGVs start to drive: 'offboard' (when the vehicle is handed to the companion) or a simulation time [s]",
     )
-    parser.add_argument(
-        "--speedup",
-        type=float,
-        default=10.0,
-        help="simulation seconds per wall second; 0 = as fast as possible",
-    )
+    parser.add_argument("--speedup", type=float, default=None, metavar="S", help=SPEEDUP_HELP)
     parser.add_argument(
         "--camera-hz",
         type=float,
@@ -272,6 +268,7 @@ def build_world(args):
         raise UsageError(
             "--ugvs none is the built-in vehicle alone: drop --follow, --autopilot, --cut-camera"
         )
+    args.speedup = default_speedup(args.speedup, args.free_run)
     if not (args.speedup == 0 or args.speedup >= 1):
         raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
     if args.free_run and args.speedup == 0:

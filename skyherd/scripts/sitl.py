@@ -17,6 +17,17 @@ from pathlib import Path
 from skyherd.flight.geo import DEFAULT_HOME, Home
 
 
+def saved_params(config, airframe: str) -> dict:
+    """The parameter values a previous run saved in --state-dir (set over MAVLink) that this
+    run loads: {"file": path or None, "values": {name: value}} for config.json and the
+    start-up line."""
+    from skyherd.flight.mavlink.params import ParamFile
+
+    path = config.param_file(airframe)
+    values = ParamFile(path).load() if path is not None and path.exists() else {}
+    return {"file": str(path) if path is not None else None, "values": values}
+
+
 def default_state_dir() -> Path:
     """Where parameters persist: $XDG_STATE_HOME/skyherd/sitl (or ~/.local/state/...)."""
     base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
@@ -32,7 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--speedup",
         type=float,
         default=1.0,
-        help="simulation speed over wall time (>= 1, or 0 = as fast as possible)",
+        help="simulation speed over wall time (>= 1, or 0 = as fast as possible); 1 by default, "
+        "unlike fly and sim: the vehicle stands alone for ground stations and MAVSDK, which "
+        "expect real time",
     )
     parser.add_argument(
         "--home",
@@ -113,10 +126,11 @@ def run(args: argparse.Namespace) -> int:
         tlog=None if args.no_tlog else folder.file("telemetry.tlog"),
         signing_key=args.signing_key,
     )
+    saved = saved_params(config, ap.airframe)
     folder.write_config({"airframe": args.airframe, "speedup": args.speedup, "home": home,
                          "seed": args.seed, "endpoint": config, "control_dt": ap.control_dt,
                          "faults": plan, "fault_args": plan.to_args(),
-                         "params_file": args.params})  # fmt: skip
+                         "params_file": args.params, "params_saved": saved})  # fmt: skip
     try:
         sitl = Sitl(ap, config, speedup=args.speedup)
     except OSError as e:
@@ -132,6 +146,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"skyherd sitl: {args.airframe}, system id {config.system_id}, {args.personality} personality, "
           f"speed-up {args.speedup:g}, run folder {folder.path}")  # fmt: skip
     print(markdown_table(["link", "bound to", "sends to"], rows), flush=True)
+    if saved["values"]:  # never reloaded silently
+        names = ", ".join(f"{k}={v:g}" for k, v in list(saved["values"].items())[:6])
+        more = len(saved["values"]) - 6
+        n = len(saved["values"])
+        print(f"skyherd sitl: {n} parameter{'s' if n != 1 else ''} saved in {saved['file']} "
+              f"loaded again ({names}{f', +{more} more' if more > 0 else ''}); delete that file or "
+              "give another --state-dir to start from the defaults", flush=True)  # fmt: skip
     stats = None
     # SIGTERM (and SIGINT, even when a shell started us in the background) end the run cleanly.
     for sig in (signal.SIGTERM, signal.SIGINT):

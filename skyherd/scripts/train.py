@@ -26,10 +26,22 @@ LEARNERS: dict[str, tuple[str, str]] = {
 }
 
 
+EXAMPLES: dict[str, tuple[str, ...]] = {
+    "sql": ("skyherd train sql --quick    # a smoke run: K = 4, 2000 episodes",
+            "skyherd train sql --experiment compare --agents 9 16 --seeds 0 1 2"),
+    "irl": ("skyherd train irl --quick",),
+    "ab": ("skyherd train ab --quick", "skyherd train ab --save-policy ab.npz"),
+    "abs-dl": ("skyherd train abs-dl --quick --save-policy absdl.npz",),
+}  # fmt: skip
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from skyherd.scripts.cli import examples_epilog
+
     sub = parser.add_subparsers(dest="learner", metavar="LEARNER", required=True)
     for name, (module_name, help_text) in LEARNERS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(name, help=help_text, description=help_text,
+                           epilog=examples_epilog(EXAMPLES[name]))  # fmt: skip
         module = importlib.import_module(module_name)
         module.add_arguments(p, learner=name)
         p.set_defaults(_learner_module=module)

@@ -18,7 +18,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from skyherd.scripts.cli import UsageError
+from skyherd.scripts.cli import UsageError, quick_help
 
 
 def _field_help() -> dict[str, str]:
@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "abs-dl") -> N
                         help="also copy the fused ABS-DL policy to this file")  # fmt: skip
     quick = ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in QUICK.items())
     parser.add_argument("--quick", action="store_true",
-                        help=f"a small budget (under a minute of CPU): {quick}; options given win")  # fmt: skip
+                        help=quick_help(f"under a minute of CPU: {quick}"))  # fmt: skip
     parser.set_defaults(learner_name=learner)
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from skyherd.runio import RunFolder, atomic_write_text, file_facts, markdown_table
-from skyherd.scripts.cli import UsageError
+from skyherd.scripts.cli import UsageError, quick_help
 
 # --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
 # learning_starts, so something is learnt); any option given on the command line wins.
@@ -75,7 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
     quick = ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in QUICK.items())
     parser.add_argument(
         "--quick", action="store_true",
-        help=f"a small budget (about 45 s of CPU for ab): {quick}; options given win",
+        help=quick_help(f"about 45 s of CPU for ab: {quick}"),
     )  # fmt: skip
     if learner == "ab":
         from skyherd.policy.ab import RULES
@@ -88,18 +88,9 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
 def apply_quick(args: argparse.Namespace, argv: list[str] | None = None) -> list[str]:
     """With --quick, the QUICK budget for every option not given on the command line;
     returns the options it set."""
-    if not getattr(args, "quick", False):
-        return []
-    import sys
+    from skyherd.scripts.cli import apply_quick as _apply
 
-    given = set(sys.argv[1:] if argv is None else argv)
-    changed = []
-    for k, v in QUICK.items():
-        flag = f"--{k.replace('_', '-')}"
-        if not any(a == flag or a.startswith(flag + "=") for a in given):
-            setattr(args, k, v)
-            changed.append(f"{flag} {v}")
-    return changed
+    return _apply(args, QUICK, argv)
 
 
 def budget_warnings(args: argparse.Namespace) -> list[str]:

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from skyherd.runio.runfolder import RunFolder, atomic_write_text, markdown_table
+from skyherd.scripts.cli import quick_help
 
 EXPERIMENTS = ("compare", "sharing", "scalability")
 
@@ -86,7 +87,9 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "sql") -> None
     parser.add_argument("--map-seed", type=int, default=0, help="obstacle map seed (default 0)")
     parser.add_argument(
         "--rules", choices=("published", "intended"), default="intended",
-        help="rule set: published = the public MATLAB code, intended = the paper (default)",
+        help="rule set: published = the public MATLAB code, intended = the paper (default: "
+        "intended, unlike `reproduce sql`: the published ROI walk moves agents through one "
+        "another, so only the intended rules give a flyable plan_K<K>.json)",
     )  # fmt: skip
     parser.add_argument(
         "--ties", choices=("first", "random"), default=None,
@@ -105,7 +108,7 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "sql") -> None
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="small budget: 2000 episodes, K = 4 (and 4, 9 for scalability)",
+        help=quick_help("2000 episodes, K = 4 (and 4, 9 for scalability), window 20"),
     )
     parser.add_argument(
         "--runs-dir", "--out", dest="runs_dir", default="runs",
@@ -180,7 +183,9 @@ def _first_success(summaries) -> str:
 
 
 def _plot(path, title, curves, window, max_steps) -> None:
-    """Learning curves: moving-average max steps per episode, log y, mean and min–max band."""
+    """Learning curves: moving-average max steps per episode, log y; the mean over seeds, and
+    the min–max band only when there are 2 seeds or more. Each curve has its own line style,
+    so curves that coincide (e.g. every learner still at the step limit) stay visible and named."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -189,17 +194,28 @@ def _plot(path, title, curves, window, max_steps) -> None:
     from skyherd.policy.sql.metrics import moving_average
 
     fig, ax = plt.subplots(figsize=(8, 4.8))
-    for label, runs in curves:
+    styles = ("-", "--", ":", "-.")
+    seeds = {len(runs) for _, runs in curves}
+    for k, (label, runs) in enumerate(curves):
         ma = np.stack([moving_average(r, window) for r in runs])
         x = np.arange(window, window + ma.shape[1])
         mean = ma.mean(axis=0)
-        (line,) = ax.plot(x, mean, label=f"{label} ({len(runs)} seeds)", lw=1.4)
-        ax.fill_between(x, ma.min(axis=0), ma.max(axis=0), color=line.get_color(), alpha=0.2)
+        n = len(runs)
+        (line,) = ax.plot(x, mean, styles[k % len(styles)], lw=1.4 + 0.6 * (k % 2),
+                          label=f"{label} ({n} seed{'s' if n != 1 else ''})")  # fmt: skip
+        if n > 1:
+            ax.fill_between(x, ma.min(axis=0), ma.max(axis=0), color=line.get_color(), alpha=0.2)
+    stuck = [label for label, runs in curves if min(min(r) for r in runs) >= max_steps]
+    if stuck:  # lines that lie on the step limit, on top of one another: named
+        ax.text(0.01, 0.02, "at the step limit in every episode: " + ", ".join(stuck),
+                transform=ax.transAxes, fontsize=8, va="bottom")  # fmt: skip
+    ax.axhline(max_steps, color="grey", lw=0.8, ls=":", label=f"step limit ({max_steps})")
     ax.set_yscale("log")
     ax.set_ylim(top=max_steps * 1.3)
     ax.set_xlabel("episode")
     ax.set_ylabel(f"largest agent step count ({window}-episode mean)")
-    ax.set_title(title + "  (line: mean over seeds, band: min–max)")
+    band = "band: min–max over seeds" if max(seeds, default=1) > 1 else "one seed: no band"
+    ax.set_title(f"{title}  (line: mean over seeds; {band})", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
@@ -357,13 +373,15 @@ def run(args: argparse.Namespace) -> int:
     table = markdown_table(headers, rows)
 
     # The learned SQL-SIE formation plans (seed = first seed), for flying them later.
-    plans = {}
+    # One try per K (its first SQL-SIE run): a K said to have no plan gets no plan file.
+    plans, tried = {}, set()
     for (c, seed), r in results.items():
-        if c.algorithm == "sql-sie" and seed == args.seeds[0] and c.n_agents not in plans:
+        if c.algorithm == "sql-sie" and seed == args.seeds[0] and c.n_agents not in tried:
+            tried.add(c.n_agents)
             try:
                 plans[c.n_agents] = plan_paths(r, c.n_agents)
             except ValueError as e:
-                print(f"no plan for K={c.n_agents}: {e}")
+                print(f"no plan for K={c.n_agents} (no plan_K{c.n_agents}.json): {e}")
     for k, p in plans.items():
         atomic_write_text(folder.file(f"plan_K{k}.json"), json.dumps(p) + "\n")
 

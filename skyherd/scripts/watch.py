@@ -23,23 +23,29 @@ import numpy as np
 from skyherd.perception.camera import CameraParams
 from skyherd.perception.detector import Detector, annotate, contact_sheet, write_png
 from skyherd.perception.features import FEATURE_NAMES, FeatureParams
+from skyherd.perception.sheet import label, legend
 from skyherd.perception.transport import (
     FrameSubscriber,
     ZenohParams,
     open_session,
     subscriber_params,
 )
+from skyherd.runio import ports
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicle", default="uav0", help="vehicle name in the key")
     parser.add_argument(
         "--connect",
-        default="tcp:127.0.0.1:7447",
+        default=None,
         metavar="ADDRESS",
         help="the frame source, in the address syntax of every command (tcp:HOST:PORT; "
-        "Zenoh's tcp/HOST:PORT is accepted too)",
+        "Zenoh's tcp/HOST:PORT is accepted too) (default: tcp:127.0.0.1:7447+N for --instance N)",
     )
+    parser.add_argument("--instance", type=int, default=0, metavar="N",
+                        help=f"watch the flight of vehicle instance N in [0, {ports.MAX_INSTANCE}] "
+                        "(`skyherd fly/sim --instance N`): its simulator's Zenoh port 7447+N on "
+                        "127.0.0.1")  # fmt: skip
     parser.add_argument(
         "--zenoh-config", default=None, help="Zenoh JSON5 config file (replaces --connect)"
     )
@@ -71,6 +77,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _check(args: argparse.Namespace) -> None:
     from skyherd.scripts.cli import UsageError
 
+    try:
+        ports.check_instance(args.instance)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    if args.connect is not None and args.instance != 0:
+        raise UsageError(f"--connect {args.connect} and --instance {args.instance} both say where "
+                         "the frames come from: give one")  # fmt: skip
+    if args.connect is None and not args.zenoh_config:
+        args.connect = ports.zenoh_address(args.instance)
     if args.frames < 1:
         raise UsageError("--frames must be >= 1")
     if args.ugvs < 1:
@@ -200,8 +215,8 @@ def _watch(args: argparse.Namespace, zp: ZenohParams, session, ctrl_c: CtrlC) ->
             idx = np.linspace(0, len(strip) - 1, min(args.strip, len(strip))).round().astype(int)
             tiles = [cv2.resize(strip[i][1], None, fx=0.5, fy=0.5) for i in idx]
             labels = [f"t = {strip[i][0]:.1f} s" for i in idx]
-            sheet = contact_sheet(_label(tiles, labels), cols=4)
-            write_png(run.file("strip.png"), np.vstack([sheet, _legend(sheet.shape[1])]))
+            sheet = contact_sheet(label(tiles, labels), cols=4)
+            write_png(run.file("strip.png"), np.vstack([sheet, legend(sheet.shape[1], "sim time")]))
             run.describe("strip.png", f"{len(idx)} annotated frames, sim time on each (red dot "
                          "image centre, blue dot UGVs' centre of mass, blue circle their spread)")  # fmt: skip
         lat = np.array(stats.latencies_s) * 1e3
@@ -306,46 +321,8 @@ def _loop(args, sub, st: dict, metrics, run, bar, ctrl_c: CtrlC) -> None:
         bar.update(1)
 
 
-def _legend(width: int) -> np.ndarray:
-    """A band under the strip saying what the marks are (colours of perception.detector)."""
-    from skyherd.perception.detector import BLUE, GREEN, RED
-
-    band = np.full((26, width, 3), 255, np.uint8)
-    x = 8
-    for kind, colour, text in (("dot", RED, "image centre"), ("dot", BLUE, "UGVs' centre of mass"),
-                               ("ring", BLUE, "their spread (enclosing circle)"),
-                               ("ring", GREEN, "a detected UGV")):  # fmt: skip
-        cv2.circle(
-            band,
-            (x + 6, 13),
-            5 if kind == "dot" else 7,
-            colour,
-            -1 if kind == "dot" else 2,
-            cv2.LINE_AA,
-        )
-        cv2.putText(
-            band, text, (x + 18, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA
-        )
-        x += 40 + cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)[0][0]
-    return band
-
-
 def _recorder(session, vehicle: str, path, live):
     """A ZenohRecorder into `path` and/or the live server."""
     from skyherd.record import ZenohRecorder
 
     return ZenohRecorder(session, vehicle, path, also=[live] if live is not None else [])
-
-
-def _label(tiles: list[np.ndarray], labels: list[str]) -> list[np.ndarray]:
-    """Each tile with its label (sim time) in the bottom-left corner, white on a dark band."""
-    out = []
-    for img, text in zip(tiles, labels):
-        img = img.copy()
-        w = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)[0][0]
-        h = img.shape[0]  # bottom-left: the detector's count sits top-left
-        cv2.rectangle(img, (0, h - 20), (min(img.shape[1], 8 + w), h), (0, 0, 0), -1)
-        cv2.putText(img, text, (4, h - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
-                    cv2.LINE_AA)  # fmt: skip
-        out.append(img)
-    return out

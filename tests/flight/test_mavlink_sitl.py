@@ -244,3 +244,21 @@ def test_offboard_type_mask():
                 msg(0b1001_1111_1000, x=math.nan), msg(0b0101_1100_0111, vx=1e3)):  # fmt: skip
         with pytest.raises(SetpointError):
             setpoint_from_local(bad)
+
+
+def test_parameters_saved_in_the_state_dir_are_announced_and_recorded(tmp_path, capsys):
+    """A value a previous run saved (over MAVLink, in --state-dir) is loaded again: said at
+    start-up with the file and how to start from the defaults, and in config.json."""
+    from skyherd.flight.mavlink.params import ParamFile
+    from skyherd.scripts.cli import main
+
+    state = tmp_path / "state"
+    ParamFile(state / "quadrotor-65" / "params.json").save({"MPC_XY_VEL_MAX": 7.0})
+    assert main(["sitl", "--instance", "65", "--speedup", "0", "--duration", "0.5", "--no-tlog",
+                 "--state-dir", str(state), "--runs-dir", str(tmp_path / "runs")]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert "1 parameter saved in" in out and "MPC_XY_VEL_MAX=7" in out and "--state-dir" in out
+    (run,) = (tmp_path / "runs").iterdir()
+    saved = json.loads((run / "config.json").read_text())["params_saved"]
+    assert saved["values"] == {"MPC_XY_VEL_MAX": 7.0}
+    assert saved["file"].endswith("quadrotor-65/params.json")

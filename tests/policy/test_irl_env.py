@@ -52,6 +52,24 @@ def test_gym_make_with_the_module_prefix_in_a_fresh_interpreter():
     assert out.stdout.strip() == "(14,)"
 
 
+def test_gymnasium_entry_point_module_colon_env_id_in_a_fresh_interpreter():
+    """gymnasium 1.4's "module:env_id": `gym.make` imports skyherd.policy, whose import
+    registers the env; nothing of skyherd imported before (a new interpreter)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import sys, gymnasium as gym\n"
+            "assert 'skyherd' not in sys.modules\n"
+            "env = gym.make('skyherd.policy:skyherd/GroundAir-v0', scenario='climb')\n"
+            "o, _ = env.reset(seed=0)\n"
+            "print(type(env.unwrapped).__name__, o.shape, env.unwrapped.scenario)")  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["GroundAirEnv", "(14,)", "climb"]
+
+
 def test_fast_phi_equals_perception_features():
     cam = CameraParams()
     lc = LevelCamera(cam)

@@ -140,3 +140,67 @@ def test_train_quick_sets_the_budget_that_was_not_given_and_warns_on_a_short_one
 def test_no_command_prints_help_and_is_bad_usage(capsys):
     assert main([]) == 2
     assert "COMMAND" in capsys.readouterr().out
+
+
+def test_every_command_has_examples_in_its_help_and_each_one_parses():
+    """`skyherd CMD --help` ends with examples; each is a real command line its parser accepts
+    (the part before `#` is the command)."""
+    import shlex
+
+    from skyherd.scripts.cli import COMMANDS, EXAMPLES
+    from skyherd.scripts.train import EXAMPLES as TRAIN_EXAMPLES
+    from skyherd.scripts.train import LEARNERS
+
+    assert set(EXAMPLES) == set(COMMANDS) and set(TRAIN_EXAMPLES) == set(LEARNERS)
+    helps = {n: p.format_help() for n, p in _walk(build_parser(None))}
+    for name, lines in [*EXAMPLES.items(), *((f"train {k}", v) for k, v in TRAIN_EXAMPLES.items())]:
+        text = helps[f"skyherd {name}"]
+        assert "examples:\n" in text, name
+        for line in lines:
+            assert line in text, (name, line)
+            argv = shlex.split(line.split("#", 1)[0])
+            assert argv[0] == "skyherd"
+            only = argv[1]
+            args, extra = build_parser(only).parse_known_args(argv[1:])
+            assert extra == [] and getattr(args, "_module", None) is not None, line
+
+
+@pytest.mark.parametrize(
+    "extra, speedup",
+    [([], 0.0), (["--free-run"], 10.0), (["--connect", "udpin:127.0.0.1:14540"], 10.0),
+     (["--speedup", "3"], 3.0)],
+)  # fmt: skip
+def test_fly_and_sim_share_one_speedup_default(extra, speedup):
+    """--speedup: 0 in lockstep (the flight is the same at any speed-up: `skyherd fly` is
+    `make run`'s flight), 10 when free-running (a pacer is needed); sim resolves it alike."""
+    from skyherd.scripts import fly, sim
+
+    args = build_parser("fly").parse_args(["fly", *extra])
+    fly._check_own(args)
+    assert args.speedup == speedup
+    if "--connect" not in extra:
+        s = build_parser("sim").parse_args(["sim", *extra])
+        sim.check(s)
+        assert s.speedup == speedup
+
+
+def test_quick_has_one_meaning_in_every_command():
+    """--quick: one help sentence everywhere (a smoke run, not results), and an option given
+    on the command line wins over its budget (here `reproduce sql`'s)."""
+    from skyherd.scripts import reproduce
+    from skyherd.scripts.cli import QUICK_MEANING
+
+    having = []
+    for name, p in _walk(build_parser(None)):
+        f = p._get_formatter()
+        for a in p._actions:
+            if "--quick" in a.option_strings:
+                having.append(name)
+                assert " ".join(f._expand_help(a).split()).startswith(QUICK_MEANING), name
+    assert {"skyherd train sql", "skyherd train ab", "skyherd reproduce", "skyherd educate",
+            "skyherd train abs-dl"} <= set(having)  # fmt: skip
+    argv = ["reproduce", "sql", "--quick", "--episodes", "200"]
+    args = build_parser("reproduce").parse_args(argv)
+    args._argv = argv
+    reproduce._check(args)
+    assert (args.episodes, args.seeds, args.agents) == (200, 2, [9])

@@ -62,3 +62,37 @@ def test_watch_bad_usage_is_exit_2(tmp_path, capsys):
     assert main(["watch", "--connect", "not-an-endpoint", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "skyherd watch:" in err
+
+
+def test_watch_instance_n_listens_where_fly_instance_n_publishes(tmp_path, capsys):
+    """`--instance N`: the Zenoh port of runio.ports (7447+N), as `fly`/`sim --instance N`."""
+    from skyherd.runio import ports
+
+    n = 150
+    src = subprocess.Popen(
+        [sys.executable, "-m", "skyherd.perception.camstream", "--port", str(ports.zenoh_port(n)),
+         "--frames", "60", "--rate", "50", "--wait-s", "10"],
+        stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        code = main(["watch", "--instance", str(n), "--frames", "10", "--runs-dir", str(tmp_path),
+                     "--timeout", "8", "--no-show", "--no-mcap"])  # fmt: skip
+    finally:
+        src.wait(timeout=30)
+    assert code == 0
+    (run,) = list(tmp_path.iterdir())
+    cfg = (run / "config.json").read_text()
+    assert f"tcp/127.0.0.1:{7447 + n}" in cfg
+    assert len(list(csv.DictReader(open(run / "metrics.csv")))) == 10
+
+
+def test_watch_instance_bad_usage_is_one_line_exit_2(tmp_path, capsys):
+    runs = tmp_path / "runs"
+    assert main(["watch", "--instance", "201", "--runs-dir", str(runs)]) == 2
+    err = capsys.readouterr().err
+    assert "--instance 201: instance must be in [0, 200]" in err and err.count("\n") == 1
+    assert main(["watch", "--instance", "3", "--connect", "tcp:127.0.0.1:7450",
+                 "--runs-dir", str(runs)]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "give one" in err and err.count("\n") == 1
+    assert not runs.exists()

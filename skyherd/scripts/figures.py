@@ -1,0 +1,147 @@
+"""The README's figures, produced by commands rather than copied by hand (`make figures`,
+`python -m skyherd.scripts.figures`).
+
+Flies the main job (`skyherd fly --speedup 0`, what `make run` flies) and a flight the judge
+fails (the same with a forced disarm in the air), copies the figures of the first into
+docs/figures/, screenshots both run folders' report.html in headless Chromium (when the
+machine has it: Debian's `chromium`), and writes docs/figures/figures.json: for every figure
+the command that drew it, its SHA-256, when and at what load. The README's block between
+`<!-- figures:begin -->` and `<!-- figures:end -->` is rewritten from that file
+(`readme_block`), so its words are the script's too. tests/test_docs.py checks that every
+figure the README shows is listed with its hash, and re-flies the command to check that the
+drawn figures are byte for byte what it draws today.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+OUT = ROOT / "docs" / "figures"
+MANIFEST = "figures.json"
+BEGIN, END = "<!-- figures:begin -->", "<!-- figures:end -->"
+MAIN_JOB = ("fly", "--speedup", "0")  # `make run`
+FAILED = ("fly", "--speedup", "0", "--duration", "20", "--fault", "disarm@25")
+DRAWN = {  # figure in docs/figures → (command, the run folder's file, what it shows)
+    "groundair.png": (MAIN_JOB, "groundair.png", "the flight on one time axis"),
+    "frames.png": (MAIN_JOB, "frames.png", "the companion's camera frames, annotated"),
+}
+SHOTS = {  # screenshot in docs/figures → (command, what it shows)
+    "report_run.png": (MAIN_JOB, "report.html of `make run` in headless Chromium"),
+    "report_failed.png": (
+        FAILED,
+        "report.html of a flight the judge fails (forced disarm in the air) in headless Chromium",
+    ),  # fmt: skip
+}
+
+
+def command_text(argv: tuple[str, ...]) -> str:
+    return "skyherd " + " ".join(argv)
+
+
+def fly(argv: tuple[str, ...], runs: Path, instance: int) -> Path:
+    """One flight of `skyherd fly` (a child process, as a user runs it); its run folder."""
+    before = set(runs.iterdir()) if runs.exists() else set()
+    cmd = [sys.executable, "-m", "skyherd.scripts.cli", *argv, "--instance", str(instance),
+           "--runs-dir", str(runs)]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
+    made = sorted(set(runs.iterdir()) - before)
+    if len(made) != 1:
+        raise RuntimeError(f"{command_text(argv)}: exit {r.returncode}, no run folder: "
+                           f"{(r.stderr or r.stdout)[-500:]}")  # fmt: skip
+    return made[0]
+
+
+def chromium() -> str | None:
+    return shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def screenshot(page: Path, png: Path, size=(1280, 2300)) -> None:
+    """A page rendered by headless Chromium into `png` (RuntimeError if it could not)."""
+    exe = chromium()
+    if exe is None:
+        raise RuntimeError("no chromium on this machine (Debian: apt-get install chromium)")
+    r = subprocess.run([exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+                        f"--screenshot={png}", f"--window-size={size[0]},{size[1]}", page.as_uri()],
+                       capture_output=True, text=True, timeout=180)  # fmt: skip
+    if r.returncode != 0 or not png.exists():
+        raise RuntimeError(f"chromium: exit {r.returncode}: {r.stderr[-300:]}")
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def readme_block(manifest: dict) -> str:
+    """The README's figures block, from figures.json (module docstring)."""
+    lines = [BEGIN, f"Produced by `python -m skyherd.scripts.figures` (`make figures`) on "
+             f"{manifest['date']} on a {manifest['cores']}-core machine at load "
+             f"{manifest['load']}; each figure's command is on the line above it "
+             f"(docs/figures/{MANIFEST} has its SHA-256).", ""]  # fmt: skip
+    for name, f in manifest["figures"].items():
+        lines += [f"<!-- figure: {f['command']} -->",
+                  f"![{f['what']}](docs/figures/{name})", ""]  # fmt: skip
+    return "\n".join(lines + [END])
+
+
+def write_readme(manifest: dict, readme: Path = ROOT / "README.md") -> None:
+    text = readme.read_text(encoding="utf-8")
+    block = readme_block(manifest)
+    if BEGIN in text and END in text:
+        text = re.sub(re.escape(BEGIN) + r".*?" + re.escape(END), lambda _: block, text, flags=re.S)
+    else:
+        text = text.rstrip() + "\n\n## Figures\n\n" + block + "\n"
+    readme.write_text(text, encoding="utf-8")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m skyherd.scripts.figures", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    ap.add_argument("--out", type=Path, default=OUT, help="where the figures go (docs/figures)")
+    ap.add_argument("--instance", type=int, default=0, help="the flights' vehicle instance N")
+    ap.add_argument("--no-readme", action="store_true", help="leave README.md as it is")
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    figures = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = {}
+        for argv_ in (MAIN_JOB, FAILED):
+            print(f"figures: {command_text(argv_)}", flush=True)
+            runs[argv_] = fly(argv_, Path(tmp) / "runs", args.instance)
+        for name, (argv_, src, what) in DRAWN.items():
+            shutil.copyfile(runs[argv_] / src, args.out / name)
+            figures[name] = {"command": command_text(argv_), "file": src, "what": what,
+                             "check": "bytes"}  # fmt: skip
+        for name, (argv_, what) in SHOTS.items():
+            try:
+                screenshot(runs[argv_] / "report.html", args.out / name)
+            except RuntimeError as e:
+                print(f"figures: no {name}: {e}", file=sys.stderr)
+                continue
+            figures[name] = {"command": command_text(argv_), "file": "report.html", "what": what,
+                             "check": "recorded"}  # fmt: skip
+    for name, f in figures.items():
+        f["sha256"] = sha256(args.out / name)
+    manifest = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                "load": round(os.getloadavg()[0], 1), "cores": os.cpu_count(),
+                "figures": figures}  # fmt: skip
+    (args.out / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+    if not args.no_readme:
+        write_readme(manifest)
+    print(f"figures: {', '.join(figures)} in {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
