@@ -89,6 +89,8 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     "evaluate": ("skyherd evaluate runs/T-educate/educated_seed0.npz --ab skyherd/policy/models/groundair_ab.npz",),
     "explain": ("skyherd explain runs/20261206T045157Z-fly --t 30    # what the policy did at t = 30 s",),
     "reproduce": ("skyherd reproduce sql --quick", "skyherd reproduce sql --rules published intended"),
+    "study": ("skyherd study search --episodes 50    # the lost-UGV search, 50 unseen episodes each",
+              "skyherd study shepherd --seeds 100 --agents 20"),
 }  # fmt: skip
 
 

@@ -32,6 +32,7 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     "irl": ("skyherd train irl --quick",),
     "ab": ("skyherd train ab --quick", "skyherd train ab --save-policy ab.npz"),
     "abs-dl": ("skyherd train abs-dl --quick --save-policy absdl.npz",),
+    "shepherd": ("skyherd train shepherd --out /tmp/selector.json    # the kept file stays as it is",),
 }  # fmt: skip
 
 
