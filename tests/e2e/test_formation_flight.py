@@ -325,13 +325,14 @@ def test_fly_formation_bad_usage_exits_2(tmp_path, capsys):
 
 
 def test_flight_out_of_time_aborts_with_exit_1_and_frees_every_port_walltime(tmp_path):
-    """Wall time: --timeout is a wall-clock limit (2 s: the programs are still starting)."""
+    """Wall time: --timeout is a wall-clock limit. 2 s of wall time, at speed-up 1 (the flight
+    needs 37 s of simulation time, so at least 37 s of wall time on any machine)."""
     plan = [[[1, 5], [2, 5]], [[1, 2], [2, 2]], [[2, 1], [3, 1]], [[5, 1], [6, 1]]]
     f = tmp_path / "p.json"
     f.write_text(json.dumps(plan))
     inst = BASE + 30
     code = main(["fly", "--mission", "formation", "--agents", "4", "--policy-file", str(f),
-                 "--timeout", "2", "--instance", str(inst), "--runs-dir", str(tmp_path / "r")])  # fmt: skip
+                 "--speedup", "1", "--timeout", "2", "--instance", str(inst), "--runs-dir", str(tmp_path / "r")])  # fmt: skip
     assert code == 1
     (run,) = (tmp_path / "r").iterdir()
     summary = (run / "summary.md").read_text()

@@ -112,9 +112,9 @@ def test_camouflage_changes_the_rendered_marker():
 def test_world_is_quiet_on_stdout():
     code = (
         "import numpy as np\n"
-        "from groundsim.world import GroundWorld, WorldParams\n"
-        "from groundsim.behaviours import make_behaviour, triangle_offsets\n"
-        "from groundsim.ugv import initial_states\n"
+        "from skyherd.groundsim.world import GroundWorld, WorldParams\n"
+        "from skyherd.groundsim.behaviours import make_behaviour, triangle_offsets\n"
+        "from skyherd.groundsim.ugv import initial_states\n"
         "w = GroundWorld(initial_states(triangle_offsets(3)),"
         " make_behaviour('route', 3, np.random.default_rng(0)))\n"
         "[w.step(i * 0.05, 0.05) for i in range(20)]\n"

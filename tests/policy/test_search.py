@@ -117,8 +117,9 @@ def test_sightings_from_a_rendered_frame_name_each_ugv_and_place_it_on_the_groun
 
 def test_fly_with_the_search_finds_the_speed_off_ugv_behind_the_net(tmp_path):
     """`skyherd fly --ugvs groundsim:speedoff --lost-ugv-search` (instance 71, Zenoh 7471, in a
-    private network namespace): the search starts when UGV 2 escapes, sees it again, and the
-    net never switches out of AI for it."""
+    private network namespace): a search for UGV 2 starts after it escapes (20 s), sees it again
+    within 15 s, and the net never switches out of AI for it. (A search for another UGV may come
+    first: a UGV at the view's edge is lost for a moment and searched for.)"""
     import json
 
     from skyherd.scripts.cli import main
@@ -129,9 +130,12 @@ def test_fly_with_the_search_finds_the_speed_off_ugv_behind_the_net(tmp_path):
     (run,) = tmp_path.iterdir()
     rows = [json.loads(x) for x in (run / "decisions.jsonl").read_text().splitlines()]
     search = [r for r in rows if (r.get("explanation") or {}).get("module") == "search"]
-    assert search and search[0]["explanation"]["concepts"]["quarry"] == 2 and search[0]["t"] > 20.0
-    again = [r for r in search if 2 in r["explanation"]["concepts"]["seen"]]
-    assert again and again[0]["t"] - search[0]["t"] < 15.0
+    for_2 = [r for r in search if r["explanation"]["concepts"]["quarry"] == 2]
+    assert for_2 and for_2[0]["t"] > 20.0  # UGV 2 speeds off at 20 s; lost after that
+    again = [r for r in for_2 if 2 in r["explanation"]["concepts"]["seen"]]
+    again += [r for r in search if r["t"] > for_2[0]["t"] and r["explanation"]["concepts"]["quarry"] != 2
+              and 2 in r["explanation"]["concepts"]["seen"]]  # fmt: skip
+    assert again and min(r["t"] for r in again) - for_2[0]["t"] < 15.0
     assert json.loads((run / "companion.json").read_text())["net"]["switches"] == 0
     assert (
         main(["fly", "--mission", "square", "--lost-ugv-search", "--runs-dir", str(tmp_path / "x")])
