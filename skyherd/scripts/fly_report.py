@@ -158,6 +158,7 @@ def report(run_dir: Path, args, rc: int, why: str, later: list | None = None) ->
     if not ok:
         print(verdicts)
     files = sorted({p.name for p in run_dir.iterdir()} | {name for name, _ in later or ()})
+    files = ["report.html"] + [f for f in files if f != "report.html"]  # written with the ending
     print(f"{who}: {status}{'' if ok else ': ' + (reason or '')}; {', '.join(files)} in {run_dir}")
     return ok
 
