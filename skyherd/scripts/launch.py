@@ -38,7 +38,7 @@ from skyherd.runio.space import Appender
 from skyherd.scripts import waysout
 
 KEEP_LINES = 200  # a child's last output lines kept in memory (its log may be cut)
-COMPANION_GRACE_S = waysout.COMPANION_GRACE_S  # the companion's hand-over, then SIGKILL [s]
+COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before SIGKILL [s]
 WIND_DOWN_S = 120.0  # wall time for a simulator's span alone with the autopilot before SIGINT [s]
 PARENT_DEATH = signal.SIGUSR1  # every child's parent-death signal (module docstring)
 PR_SET_PDEATHSIG = 1  # linux/prctl.h

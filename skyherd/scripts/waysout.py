@@ -8,10 +8,8 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import signal
 import sys
-import time
 from pathlib import Path
 
 from skyherd.runio import RunFolder, UsageError, try_write_text
@@ -19,7 +17,6 @@ from skyherd.runio.run import Interrupted
 from skyherd.runio.space import RESERVE_BYTES, free_bytes
 
 MIN_FREE_BYTES = 2 * RESERVE_BYTES  # a flight starts only with this much free [bytes]
-COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before it is killed [s]
 
 
 def open_run_folder(command: str, root: Path | str) -> RunFolder:
@@ -48,29 +45,8 @@ def write_running(run_dir: Path) -> None:
     try_write_text(run_dir / "summary.md", RUNNING)
 
 
-def companions_running(run_dir: Path) -> list[int]:
-    """Process ids of `skyherd companion`s still flying from `run_dir` (their argv holds
-    `companion` and `--run-dir run_dir`; read in /proc, Linux)."""
-    found = []
-    for entry in Path("/proc").glob("[0-9]*"):
-        try:
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue  # ended meanwhile, or not ours to read
-        words = [a.decode(errors="replace") for a in argv]
-        if "companion" in words and str(run_dir) in words and int(entry.name) != os.getpid():
-            found.append(int(entry.name))
-    return found
-
-
-def parent_died(run_dir: Path, vehicles: list[str] | None = None,
-                wait_s: float = COMPANION_GRACE_S) -> None:  # fmt: skip
-    """A child whose `skyherd fly` died says how the flight ended in its summary.md: the
-    simulator, once the companion (its own parent-death signal: hand over, write
-    companion.json) has ended, or `wait_s` of wall time have passed."""
-    deadline = time.monotonic() + wait_s
-    while companions_running(run_dir) and time.monotonic() < deadline:
-        time.sleep(0.05)
+def parent_died(run_dir: Path, vehicles: list[str] | None = None) -> None:
+    """A child whose `skyherd fly` died says how the flight ended in its summary.md."""
     lines = ["`skyherd fly` died; its children ended on their parent-death signals"]
     append_ending(run_dir, lines + ending_lines(run_dir, vehicles))
 
