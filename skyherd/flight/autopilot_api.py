@@ -43,13 +43,24 @@ class LandedState(enum.IntEnum):
     LANDING = 4
 
 
+class ModeSource(enum.Enum):
+    """Who asks for a mode change. A user (a ground station, an RC pilot) may take the vehicle
+    out of the autopilot's own failsafe, as PX4 lets a user take over; a companion (an onboard
+    computer, MAV_COMP_ID_ONBOARD_COMPUTER*) may not while that failsafe is in force."""
+
+    USER = "user"
+    COMPANION = "companion"
+
+
 @dataclass(frozen=True)
 class Result:
-    """Outcome of a request. `ok` False carries a reason a person can act on."""
+    """Outcome of a request. `ok` False carries a reason a person can act on; `temporary`:
+    refused for now (MAV_RESULT_TEMPORARILY_REJECTED), not for what was asked."""
 
     ok: bool
     reason: str = ""
     in_progress: bool = False
+    temporary: bool = False
 
     @staticmethod
     def accepted() -> Result:
@@ -58,6 +69,10 @@ class Result:
     @staticmethod
     def denied(reason: str) -> Result:
         return Result(False, reason)
+
+    @staticmethod
+    def rejected_for_now(reason: str) -> Result:
+        return Result(False, reason, temporary=True)
 
 
 @dataclass(frozen=True)
@@ -149,7 +164,11 @@ class Autopilot(Protocol):
 
     def arm(self, force: bool = False) -> Result: ...
     def disarm(self, force: bool = False) -> Result: ...
-    def set_mode(self, mode: FlightMode) -> Result: ...
+    def set_mode(self, mode: FlightMode, source: ModeSource = ModeSource.USER) -> Result:
+        """Switch modes; refused for now to a companion while the autopilot's own failsafe is
+        in force (AutopilotBase.set_mode)."""
+        ...
+
     def takeoff(self, altitude: float | None = None) -> Result: ...
     def land(self) -> Result: ...
     def return_to_launch(self) -> Result: ...
@@ -175,11 +194,50 @@ def offboard_lost_text(gap_s: float, loss_t_s: float) -> str:
 
 
 class AutopilotBase:
-    """The read-outs and parameter calls that every skyherd autopilot answers the same way.
+    """The read-outs, parameter calls and mode-change rule every skyherd autopilot shares.
 
     A subclass keeps `_state` (VehicleState), `_armed`, `_mode` (FlightMode), `_progress`
-    (MissionProgress), `_gps_fix`, `_pos_valid` and `params` (a flight.params store) up to date.
+    (MissionProgress), `_gps_fix`, `_pos_valid` and `params` (a flight.params store) up to date,
+    switches modes in `_enter_mode`, and calls `_failsafe_action(why)` whenever one of its own
+    failsafes (battery, position loss, geofence) switches the mode, and `_failsafe_action("")`
+    when it arms.
+
+    The failsafe rule (`set_mode`): while the autopilot's own failsafe action is in force (armed,
+    and no user has changed the mode since), a companion's request for another mode is refused
+    for now (MAV_RESULT_TEMPORARILY_REJECTED, the reason in STATUSTEXT), as PX4's failsafe state
+    machine keeps its action against a request it does not take as the user's. A companion
+    decides on telemetry that is at least its latency old: a request it decided just before the
+    failsafe's heartbeat could reach it would otherwise arrive after the switch and undo it
+    (docs/safety.md, Run 7 and Run 8). The loss of the companion's own setpoint stream (its HOLD)
+    is not held: that failsafe clears when the stream comes back, as PX4's offboard loss does.
     """
+
+    _failsafe_why = ""  # why the autopilot's own failsafe switched the mode; "" none in force
+
+    @property
+    def failsafe_in_force(self) -> str:
+        """Why the autopilot's own failsafe action holds the vehicle now ("" if none)."""
+        return self._failsafe_why if self._armed else ""
+
+    def _failsafe_action(self, why: str) -> None:
+        self._failsafe_why = why
+
+    def set_mode(self, mode: FlightMode, source: ModeSource = ModeSource.USER) -> Result:
+        if not isinstance(mode, FlightMode):
+            return Result.denied(f"unknown mode {mode!r}")
+        why = self.failsafe_in_force
+        if why and source is ModeSource.COMPANION and mode is not self._mode:
+            return Result.rejected_for_now(
+                f"{mode.name} refused to the companion: failsafe in force ({why})"
+            )
+        before = self._mode
+        res = self._enter_mode(mode)
+        if res.ok and self._mode is not before:
+            self._failsafe_why = ""  # a user took over from the failsafe
+        return res
+
+    def _enter_mode(self, mode: FlightMode) -> Result:
+        raise NotImplementedError
 
     _state: VehicleState
     _armed: bool

@@ -11,6 +11,12 @@ time-passed-in machine; its rules in its docstring): a mode the net did not ask 
 or link-loss failsafe, a fence action, a ground station, an RC pilot) ends the AI's authority;
 the mission ends on RTL / LAND and waits on any other mode until someone gives OFFBOARD back.
 A request counts as asked for when it is sent, and is withdrawn if the autopilot refuses it.
+A request refused *for now* (COMMAND_ACK TEMPORARILY_REJECTED) is the autopilot's own failsafe
+in force: the net yields at once (`Authority.refused`) and never retries over it. This closes
+the crossing the campaign found (docs/safety.md, Run 7): a request decided on the tick the
+autopilot's battery failsafe switched arrives the lockstep latency later, before any heartbeat
+could show the switch; the autopilot refuses it instead of being switched out of its failsafe,
+and the heartbeat that then shows the failsafe's mode is written as not the companion's.
 Blind — no telemetry for longer than `blind_s` or no heartbeat for longer than
 `heartbeat_blind_s` (a lost link), and then until a heartbeat newer than the gap's start has
 come — nothing is asked: the companion does not know the mode the autopilot chose meanwhile
@@ -57,6 +63,7 @@ class ModeAuthority:
     blind_s: float = 0.5  # no telemetry for longer than this: blind [s] (it streams >= 10 Hz)
     heartbeat_blind_s: float = 1.5  # no heartbeat for longer than this: blind [s] (1 Hz + margin)
     blind_since: float | None = None  # tick time the gap was found; None: not blind [s]
+    refused_unseen: bool = False  # yielded on a refusal; the failsafe's heartbeat not yet seen
     _read: int = 0  # how many of VehicleLink.seen are taken
 
     def adopt(self, v: VehicleLink, mode: FlightMode) -> None:
@@ -74,8 +81,9 @@ class ModeAuthority:
         self._read = len(v.seen)
         for s in new:
             by = None
-            if feed and self.rules.has_authority:
-                by = s.mode is self.rules.asked and s.armed
+            if feed and (self.rules.has_authority or self.refused_unseen):
+                by = s.mode is self.rules.asked and s.armed and not self.refused_unseen
+                self.refused_unseen = False
                 if not s.armed and s.alt_m > self.airborne_m:
                     self._write(s, by)
                     raise MissionError(f"disarmed in the air at {s.alt_m:.1f} m (t = {s.t:.2f} s)"
@@ -97,18 +105,24 @@ class ModeAuthority:
 
     def update(self, v: VehicleLink) -> str:
         """Once per tick: the autopilot's answer to a pending request, then its reported mode.
-        Returns "fly", "wait" or "end" (safety.authority's rule 2)."""
+        Returns "fly", "wait" or "end" (safety.authority's rule 2). A refusal for now is judged
+        after the changes seen: a heartbeat that already shows the failsafe names the yield."""
+        refused = None
         if self.pending is not None:
             result = v.acks.get(M.MAV_CMD_DO_SET_MODE, M.MAV_RESULT_IN_PROGRESS)
             if result != M.MAV_RESULT_IN_PROGRESS:
                 v.acks.pop(M.MAV_CMD_DO_SET_MODE, None)
-                if result != M.MAV_RESULT_ACCEPTED:
+                if result == M.MAV_RESULT_TEMPORARILY_REJECTED:
+                    refused = self.pending
+                elif result != M.MAV_RESULT_ACCEPTED:
                     self.rules.requested(v.t, self.pending, accepted=False)
                 self.pending = None
         if self.t_start is None:  # the first tick under the rules: the hand-over's (a net's
             self.record(v)  # `handover` started the rules); what came before it is the phases'
             self.t_start = v.t
         self._take(v, feed=True)  # every change in arrival order, not the tick's last
+        if refused is not None:
+            self.refused_unseen = bool(self.rules.refused(v.t, refused, v.tel.statustext))
         if self.gap(v):
             if self.blind_since is None:
                 self.blind_since = v.t

@@ -235,11 +235,15 @@ class VehicleLink:
     def feed(self, net) -> None:
         """What arrived from this vehicle for its SafetyNet (safety.net), once per tick before
         its step: the link's freshness, anyone's PARAM_SET seen (PARAM_VALUE) and the
-        autopilot's wind estimate."""
+        autopilot's wind estimate. A parameter set to break a rule is set back at once
+        (`SafetyNet.restores`: PARAM_SET, until its PARAM_VALUE echo agrees)."""
         net.link(self.heartbeat_t, self.telemetry_t)
         for t_p, name, value in self.param_updates:
             net.param(t_p, name, value)
         self.param_updates.clear()
+        for name, value in net.restores(self.t).items():
+            self.send(M.MAVLink_param_set_message(self.target_system or 1, 1, name.encode("ascii"),
+                                                  float(value), M.MAV_PARAM_TYPE_REAL32))  # fmt: skip
         w = self.wind_speed()
         if w is not None:
             net.wind(self.wind_t, w)

@@ -19,6 +19,11 @@ station, an RC pilot — ends the AI's authority:
 accepted, or `Result.ok` in-process). A mode the net asked for but that was denied counts as
 not asked for. The reported mode that has not changed yet (heartbeats lag the request) is
 not a change, so a stale heartbeat never ends authority.
+
+A request the autopilot refuses *for now* (COMMAND_ACK TEMPORARILY_REJECTED: its own failsafe
+is in force, flight.autopilot_api.AutopilotBase) is the autopilot having taken over, whatever
+its heartbeat shows yet (`refused`): rules 1 and 2 as for a change; the request is never
+retried over the failsafe.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from skyherd.flight.autopilot_api import FlightMode
 
 NET_MODES = (FlightMode.OFFBOARD, FlightMode.HOLD)
 ENDING_MODES = (FlightMode.RTL, FlightMode.LAND)
+NOT_SHOWN = "?"  # the mode of a yield on a refusal, until a heartbeat shows it
 
 
 class Phase(enum.Enum):
@@ -88,17 +94,10 @@ class Authority:
             return ""  # no change: a stale heartbeat or a denied request, never a yield
         if self.phase is Phase.AI and mode is not self.asked:
             reason = f"the autopilot switched {prev.name if prev else '?'} -> {mode.name}, not asked for by the net"
-            reason += f" ({why})" if why else ""
-            self.phase = Phase.ENDED if mode in ENDING_MODES else Phase.WAIT
-            rule = (
-                "mission ends"
-                if self.phase is Phase.ENDED
-                else "mission waits for OFFBOARD from the operator"
-            )
-            self.reason = f"{reason}; {rule}"
-            self.yields.append((t, mode.name, self.reason))
-            self._event(t, "yield", mode, self.reason)
-            return self.reason
+            return self._yield(t, mode, reason + (f" ({why})" if why else ""))
+        if self.phase is not Phase.AI and self.yields and self.yields[-1][1] == NOT_SHOWN:
+            ty, _, why_y = self.yields[-1]  # a refusal's yield: named by the mode now shown
+            self.yields[-1] = (ty, mode.name, why_y)
         if self.phase is Phase.WAIT and mode is FlightMode.OFFBOARD:
             self.phase = Phase.AI
             self.asked, self.asked_t = mode, t
@@ -107,6 +106,28 @@ class Authority:
             self.phase = Phase.ENDED
             self._event(t, "end", mode, f"{mode.name} while waiting: mission ends")
         return ""
+
+    def refused(self, t: float, mode: FlightMode, why: str = "") -> str:
+        """The autopilot refused the net's request for `mode` at t for now: its own failsafe
+        holds the vehicle. The net yields (WAIT, or ENDED if the mode shown is RTL / LAND; a
+        later RTL / LAND ends a WAIT, `observe`). Returns the reason if this ended the AI's
+        authority now, else "" (it had already ended)."""
+        self.requested(t, mode, accepted=False)
+        if self.phase is not Phase.AI:
+            return ""
+        reason = f"the autopilot refused {mode.name}: its own failsafe is in force"
+        return self._yield(t, None, reason + (f" ({why})" if why else ""))
+
+    def _yield(self, t: float, mode: FlightMode | None, reason: str) -> str:
+        """The AI's authority ends at t (rules 1 and 2); `mode`: the one shown then (None: not
+        shown yet, a refusal's; the next mode shown names the yield, `observe`)."""
+        self.phase = Phase.ENDED if mode in ENDING_MODES else Phase.WAIT
+        ended = self.phase is Phase.ENDED
+        rule = "mission ends" if ended else "mission waits for OFFBOARD from the operator"
+        self.reason = f"{reason}; {rule}"
+        self.yields.append((t, mode.name if mode else NOT_SHOWN, self.reason))
+        self._event(t, "yield", mode, self.reason)
+        return self.reason
 
     def resync(self, t: float, mode: FlightMode | None, why: str = "") -> str:
         """After a gap in the heartbeats (a lost link): the mode shown now is judged as if it

@@ -22,7 +22,7 @@ by (seed, airframe, index), so any drill can be replayed alone):
   param_sabotage   a client sets COM_OF_LOSS_T to 1-5 s (or the fixed-wing's NAV_LOITER_RAD, the
                    multirotor's MPC_XY_VEL_MAX) mid-push, then the link is cut near the fence;
                    1-4 s after the link is back another client sets it back: the net re-checks
-                   at that PARAM_VALUE and hands back to the AI (it never sets it back itself)
+                   at that PARAM_VALUE (the net set it back at once, ParamGuard.restores)
 
 Faults play on the autopilot (flight/faults.py: wind, GPS error in the estimate it flies on,
 battery) and in the harness (link cut, PARAM_SET), see safety.drills.run_drill.

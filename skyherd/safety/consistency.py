@@ -33,7 +33,12 @@ that is true. The rules, each with the parameter names of PX4 and ArduPilot:
      `required_values` every value that agrees (`--configure-autopilot`).
 
 A parameter that is absent is not checked (an autopilot without it); a value that is not
-finite is a mismatch. `ParamGuard` keeps the parameters it has seen and the problems now.
+finite is a mismatch. `ParamGuard` keeps the parameters it has seen, the problems now and each
+parameter's last value that broke no rule: a parameter someone sets to break a rule in flight
+is refused (the net's fallback while it disagrees) *and set back* (`restores`: PARAM_SET to that
+value until the PARAM_VALUE echo agrees), so that the autopilot's own failsafes — its hold
+circle, its link-loss time — fly safe parameters when the net yields to them (docs/safety.md,
+Run 7: a sabotaged NAV_LOITER_RAD flown by the offboard-loss HOLD beyond the fence).
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ from skyherd.runio.constants import POS_SPEED_MAX_MPS
 from skyherd.safety.envelope import EnvelopeSpec
 
 PX4_OBL_OK = {0: "position", 3: "return", 4: "land", 5: "hold"}
+RESTORE_RETRY_S = 1.0  # a restore whose echo has not come is sent again after this long [s]
 BANK_OVERSHOOT_DEG = 5.0  # a bank limit's overshoot in a turn's entry [deg]
 CLIMB_PARAMS = (("TECS_CLMB_MAX", "FW_T_CLMB_MAX"), ("TECS_SINK_MAX", "FW_T_SINK_MAX"))
 HOLD_PARAMS = frozenset({"MPC_TILTMAX_AIR", "ANGLE_MAX", "MPC_ACC_HOR", "LOIT_BRK_ACCEL",
@@ -232,16 +238,37 @@ class ParamGuard:
         self.vehicle = vehicle
         self.params: dict[str, float] = {}
         self.problems: dict[str, str] = {}
+        self.safe: dict[str, float] = {}  # each parameter's last value that broke no rule
+        self._restored: dict[str, float] = {}  # name → when its restore was last sent [s]
 
     def load(self, t: float, params: Mapping[str, float]) -> str:
         """All parameters at start; returns the fault ("" = consistent)."""
         self.params.update({k: v for k, v in params.items()})
-        return self._recheck(t, "parameters read")
+        fault = self._recheck(t, "parameters read")
+        self.safe.update({k: v for k, v in self.params.items() if k not in self.problems})
+        return fault
 
     def update(self, t: float, name: str, value: float) -> str:
         """One PARAM_VALUE (after anyone's PARAM_SET); returns the fault ("" = consistent)."""
-        self.params[str(name).rstrip("\x00")] = value
-        return self._recheck(t, f"{name} = {value}")
+        name = str(name).rstrip("\x00")
+        self.params[name] = value
+        fault = self._recheck(t, f"{name} = {value}")
+        if name not in self.problems:
+            self.safe[name] = value
+        return fault
+
+    def restores(self, t: float) -> dict[str, float]:
+        """{name: value} to PARAM_SET at t: each parameter breaking a rule now, back to its
+        last value that broke none (none known: left to the operator), again every
+        RESTORE_RETRY_S until its echo agrees; each send is an event."""
+        out = {}
+        for n in sorted(self.problems):
+            if n in self.safe and t - self._restored.get(n, -math.inf) >= RESTORE_RETRY_S:
+                self._restored[n] = t
+                out[n] = self.safe[n]
+        for n, v in out.items():
+            self._event(t, "param_restore", {"name": n, "value": v, "reason": self.problems[n]})
+        return out
 
     @property
     def hold_ok(self) -> bool:
@@ -260,14 +287,20 @@ class ParamGuard:
 
     def _recheck(self, t: float, what: str) -> str:
         new = check_params(self.spec, self.params, self.pos_speed_max)
-        if new != self.problems and self.events is not None:
-            rec: dict[str, Any] = {"t": round(float(t), 6), "event": "params",
-                                   "vehicle": self.vehicle, "trigger": what,
-                                   "consistent": not new, "reason": "; ".join(new.values()) or
-                                   "autopilot parameters agree with the envelope"}  # fmt: skip
-            try:
-                self.events.write(rec)
-            except Exception:  # noqa: BLE001  logging never stops the safety net
-                pass
+        if new != self.problems:
+            self._event(t, "params", {"trigger": what, "consistent": not new,
+                                      "reason": "; ".join(new.values()) or
+                                      "autopilot parameters agree with the envelope"})  # fmt: skip
         self.problems = new
+        for n in [n for n in self._restored if n not in new]:
+            del self._restored[n]  # agrees again: its restore is done
         return self.fault
+
+    def _event(self, t: float, kind: str, fields: dict[str, Any]) -> None:
+        if self.events is None:
+            return
+        rec: dict[str, Any] = {"t": round(float(t), 6), "event": kind, "vehicle": self.vehicle}
+        try:
+            self.events.write({**rec, **fields})
+        except Exception:  # noqa: BLE001  logging never stops the safety net
+            pass

@@ -784,7 +784,10 @@ def run_drill(
         if d.mode is not prev_mode:
             rec.switch(t, d.mode)
         prev_mode = d.mode
-        if link_up and auth.has_authority:  # a lost link carries no commands
+        if link_up:  # a sabotaged parameter set back (a lost link carries no commands)
+            for n, value in net.restores(t).items():
+                ap.set_param(n, value)
+        if link_up and auth.has_authority:
             before, by_ap = ap.mode, own["by_autopilot"]
             apply_decision(ap, d, net.use_autopilot_hold, authority=auth)
             rec.change(t, ap.mode, ap.armed, True)  # a switch here is the net's

@@ -6,6 +6,7 @@
     net.handover(t, ap_mode)            # the companion switched to OFFBOARD / GUIDED (accepted)
     # per arrival (simulation time of the tick it arrived in):
     net.link(heartbeat_t, telemetry_t); net.frame(t, stamp_t); net.param(t, name, value)
+    net.restores(t)                     # {name: value} to PARAM_SET back (a sabotage undone)
     net.observe(t, mode, armed)         # every HEARTBEAT mode / arming change, in order
     d = net.step(t, state, proposal)    # Decision: command, mode, verdict, reason
     want = net.request(d)               # the mode to ask the autopilot for now, or None
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skyherd.flight.autopilot_api import Autopilot, FlightMode, Result, Setpoint
+from skyherd.flight.autopilot_api import Autopilot, FlightMode, ModeSource, Result, Setpoint
 from skyherd.flight.geo import GRAVITY
 from skyherd.flight.state import VehicleState
 from skyherd.safety.authority import NET_MODES, Authority
@@ -96,8 +97,10 @@ def apply_decision(
     ask = authority.request(want) if authority is not None else (want if ap.mode != want else None)
     if ask is None:
         return r
-    r = ap.set_mode(ask)
-    if authority is not None:
+    r = ap.set_mode(ask, ModeSource.COMPANION)
+    if authority is not None and r.temporary:
+        authority.refused(t, ask, r.reason)  # the autopilot's failsafe holds the vehicle
+    elif authority is not None:
         authority.requested(t, ask, r.ok)
         authority.observe(t, ap.mode)  # in-process the switch is immediate
     return r
@@ -188,6 +191,11 @@ class SafetyNet:
 
     def param(self, t: float, name: str, value: float) -> str:
         return self.params.update(t, name, value)
+
+    def restores(self, t: float) -> dict[str, float]:
+        """{name: value} to PARAM_SET at t: a parameter set to break a rule, back to its last
+        safe value (safety.consistency.ParamGuard.restores)."""
+        return self.params.restores(t)
 
     def handover_ok(self) -> tuple[bool, str]:
         return self.params.handover()

@@ -183,6 +183,7 @@ class FixedWingAutopilot(AutopilotBase):
         grow from 0 per their Gauss-Markov model, and the start injects no wind step."""
         mean = None if self.faults is None else self.faults.wind.mean_ned
         trim = self.model.reset_airborne(altitude, airspeed, heading, mean)
+        self._failsafe_action("")
         self._armed = True
         self._reset_loops(trim.elevator, trim.throttle)
         self._state = self._true_state = self._stamp(self.model.state())
@@ -283,6 +284,7 @@ class FixedWingAutopilot(AutopilotBase):
         else:
             self.land()
             self._event("mode -> land (geofence)")
+        self._failsafe_action(f"geofence breach: {why}")
 
     def _apply_faults(self) -> None:
         """Wind on JSBSim and the estimate's GPS error for the step that starts now."""
@@ -310,6 +312,7 @@ class FixedWingAutopilot(AutopilotBase):
             if self._flying() and self._mode not in (FlightMode.HOLD, FlightMode.LAND):
                 self._mode = FlightMode.HOLD
                 self._enter_hold()
+                self._failsafe_action("position lost: hold")
 
     def _estimate(self, s: VehicleState) -> VehicleState:
         if self._inj is None or not self._inj.touches_estimate:
@@ -368,9 +371,11 @@ class FixedWingAutopilot(AutopilotBase):
         if rem <= self.p("BAT_EMERGEN_THR") and mode != FlightMode.LAND:
             self._event(f"battery {rem:.0%}: emergency -> land")
             self.land()
+            self._failsafe_action(f"battery {rem:.0%}: emergency land")
         elif rem <= self.p("BAT_CRIT_THR") and mode not in (FlightMode.RTL, FlightMode.LAND):
             self._event(f"battery {rem:.0%}: critical -> return")
             self.return_to_launch()
+            self._failsafe_action(f"battery {rem:.0%}: critical return")
 
     def default_loiter_radius(self) -> float:
         """NAV_LOITER_RAD, or V_trim^2 / (g tan(0.7 φ_max)) when it is 0 [m]."""
@@ -393,6 +398,7 @@ class FixedWingAutopilot(AutopilotBase):
         why = self.fence_violation(self._state.pos_ned)
         if why is not None and not force:
             return Result.denied(f"outside geofence ({why}): arming refused")
+        self._failsafe_action("")
         self._armed = True
         self.model.set_engine(True)
         self._landed_t = None
@@ -411,9 +417,7 @@ class FixedWingAutopilot(AutopilotBase):
             self._phase = Phase.IDLE
         return Result.accepted()
 
-    def set_mode(self, mode: FlightMode) -> Result:
-        if not isinstance(mode, FlightMode):
-            return Result.denied(f"unknown mode {mode!r}")
+    def _enter_mode(self, mode: FlightMode) -> Result:
         if mode == FlightMode.HOLD:
             if self._mode == FlightMode.HOLD and self._phase == Phase.LOITER:
                 return Result.accepted()  # already holding: keep the same circle

@@ -3,7 +3,9 @@
 Every parameter is checked before anything changes: an infinite parameter, a latitude,
 longitude, altitude or yaw out of range, or NaN where the spec gives NaN no meaning is refused
 with MAV_RESULT_DENIED and a STATUSTEXT saying why (NaN means "keep the current value" where
-the spec says so). An autopilot refusal is DENIED with its reason. Unknown commands are
+the spec says so). An autopilot refusal is DENIED with its reason, or TEMPORARILY_REJECTED when
+it refuses for now (a companion's mode change while the autopilot's own failsafe is in force:
+`ModeSource`, by the sender's component id). Unknown commands are
 UNSUPPORTED. A retry (COMMAND_LONG with confirmation > 0 and the same parameters) is answered
 with the first answer and not executed twice. A command the autopilot reports as still running
 is acknowledged IN_PROGRESS, then finally ACCEPTED or FAILED when it completes (or after a
@@ -22,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from skyherd.flight.autopilot_api import Autopilot, FlightMode, LandedState, Result
+from skyherd.flight.autopilot_api import Autopilot, FlightMode, LandedState, ModeSource, Result
 from skyherd.flight.geo import geodetic_to_ned
 from skyherd.flight.mavlink.modes import COPTER, Personality, mode_of_custom
 
@@ -38,6 +40,10 @@ MAX_PENDING = 16  # IN_PROGRESS commands tracked at once; the oldest is answered
 MAX_ABS_ALT_M = 100_000.0  # [m] |altitude| of any frame beyond this is refused
 MAX_ABS_YAW = 360.0  # [deg or rad as the command gives it] |yaw| beyond this is refused
 MIN_HEARTBEAT_HZ = 1.0  # HEARTBEAT cannot be stopped or slowed below this (all clients need it)
+ONBOARD_COMPONENTS = frozenset(  # senders whose mode changes are a companion's (ModeSource)
+    (M.MAV_COMP_ID_ONBOARD_COMPUTER, M.MAV_COMP_ID_ONBOARD_COMPUTER2,
+     M.MAV_COMP_ID_ONBOARD_COMPUTER3, M.MAV_COMP_ID_ONBOARD_COMPUTER4)
+)  # fmt: skip
 
 # Commands whose param5..7 are latitude [deg], longitude [deg], altitude [m] and param4 a yaw.
 _POSITIONAL = {M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND, M.MAV_CMD_DO_REPOSITION}
@@ -218,7 +224,7 @@ class CommandService:
             return M.MAV_RESULT_DENIED
         if not res.ok:
             self.statustext(M.MAV_SEVERITY_WARNING, res.reason or f"command {c} denied")
-            return M.MAV_RESULT_DENIED
+            return refusal_result(res)
         if res.in_progress and done is not None:
             reply(self._ack(cmd, M.MAV_RESULT_IN_PROGRESS))
             self._track(_Pending(c, reply, cmd.sender, done, self.ap.clock.t))
@@ -295,7 +301,7 @@ class CommandService:
         )
         if mode is None:
             raise Denied(f"mode {main:g}/{sub:g} not available")
-        res = self.ap.set_mode(mode)
+        res = self.ap.set_mode(mode, mode_source(cmd.sender[1]))
         if res.ok and self.personality is Personality.ARDUPILOT:
             self.mode_number, self.guided_hover = int(main), False  # the heartbeat shows it
         return res, None
@@ -350,6 +356,16 @@ _SERVICE_COMMANDS = {
     M.MAV_CMD_REQUEST_MESSAGE,
     M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
 }
+
+
+def mode_source(component: int) -> ModeSource:
+    """Whose mode change a sender's is: an onboard computer's is a companion's."""
+    return ModeSource.COMPANION if component in ONBOARD_COMPONENTS else ModeSource.USER
+
+
+def refusal_result(res: Result) -> int:
+    """The MAV_RESULT of an autopilot's refusal: for now, or for good."""
+    return M.MAV_RESULT_TEMPORARILY_REJECTED if res.temporary else M.MAV_RESULT_DENIED
 
 
 def _check_params(cmd: Cmd) -> None:

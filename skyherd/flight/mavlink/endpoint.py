@@ -22,7 +22,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from skyherd.flight.autopilot_api import Autopilot
-from skyherd.flight.mavlink.commands import Cmd, CommandService
+from skyherd.flight.mavlink.commands import Cmd, CommandService, mode_source, refusal_result
 from skyherd.flight.mavlink.link import Address, UdpLink
 from skyherd.flight.mavlink.mission import MISSION, FenceShape, MissionService
 from skyherd.flight.mavlink.modes import Personality, mode_of_packed
@@ -397,17 +397,18 @@ class MavlinkEndpoint:
     def _on_set_mode(self, msg, reply, key, link) -> None:
         """Legacy SET_MODE (MAVProxy, ArduPilot tools): answered like ArduPilot, COMMAND_ACK 11."""
         result = M.MAV_RESULT_DENIED
+        src = _src(msg)
         if msg.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
             mode = mode_of_packed(self.config.personality, msg.custom_mode, self.ap.airframe)
             if mode is not None:
-                res = self.ap.set_mode(mode)
+                res = self.ap.set_mode(mode, mode_source(src[1]))
                 if res.ok:
                     result = M.MAV_RESULT_ACCEPTED
                     self.commands.mode_number = int(msg.custom_mode)
                     self.commands.guided_hover = False
                 else:
+                    result = refusal_result(res)
                     self.statustext(M.MAV_SEVERITY_WARNING, res.reason)
-        src = _src(msg)
         reply(self.mav.command_ack_encode(M.MAVLINK_MSG_ID_SET_MODE, result, 0, 0, src[0], src[1]))
 
     def _on_mission_set_current(self, msg, reply, key, link) -> None:

@@ -377,6 +377,7 @@ class MultirotorAutopilot(AutopilotBase):
             if self._armed and self._mode not in _NO_POSITION_MODES + (FlightMode.LAND,):
                 self._event("failsafe: position lost -> land")
                 self._switch(FlightMode.LAND)
+                self._failsafe_action("position lost: land")
 
     def _make_state(self, src: np.ndarray | None = None) -> VehicleState:
         """One copy of the state vector; the state's arrays are views into it (hot path)."""
@@ -549,9 +550,11 @@ class MultirotorAutopilot(AutopilotBase):
         if rem <= self._bat_emergency and mode != FlightMode.LAND:
             self._event(f"battery {rem:.0%}: emergency -> land")
             self._switch(FlightMode.LAND)
+            self._failsafe_action(f"battery {rem:.0%}: emergency land")
         elif rem <= self._bat_crit and mode not in (FlightMode.RTL, FlightMode.LAND):
             self._event(f"battery {rem:.0%}: critical -> return")
             self._switch(FlightMode.RTL)
+            self._failsafe_action(f"battery {rem:.0%}: critical return")
 
     # ------------------------------------------------------------------ geofence
     def set_fence(self, shapes) -> None:
@@ -586,6 +589,7 @@ class MultirotorAutopilot(AutopilotBase):
                 self._switch(FlightMode.RTL)
         else:  # 4 terminate (not simulated) and 5 land
             self._switch(FlightMode.LAND)
+        self._failsafe_action(f"geofence breach: {why}")
 
     def _target_refusal(self, pos: np.ndarray) -> str | None:
         """Why the autopilot refuses to fly to pos (3,) NED, or None."""
@@ -981,6 +985,7 @@ class MultirotorAutopilot(AutopilotBase):
         if why is not None and not force:
             return Result.denied(f"outside geofence ({why}): arming refused")
         self.fence.outside_count, self.fence.breached = 0, False
+        self._failsafe_action("")
         self._armed = True
         self._armed_at = self.clock.t
         self._flown = not self.on_ground
@@ -1000,9 +1005,7 @@ class MultirotorAutopilot(AutopilotBase):
         self._event("disarmed" + (" (forced)" if force else ""))
         return Result.accepted()
 
-    def set_mode(self, mode: FlightMode) -> Result:
-        if not isinstance(mode, FlightMode):
-            return Result.denied(f"unknown mode {mode!r}")
+    def _enter_mode(self, mode: FlightMode) -> Result:
         t = self.clock.t
         if mode == self._mode:
             return Result.accepted()
