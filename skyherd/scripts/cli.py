@@ -29,6 +29,8 @@ import sys  # noqa: E402
 import threading  # noqa: E402
 from typing import NoReturn  # noqa: E402
 
+from skyherd.runio.constants import API_REMOTE_BASE, LOOPBACK  # noqa: E402
+
 # name → (module, one-line help). Modules are imported only when their command runs,
 # so `skyherd --help` stays fast and one broken sub-command cannot break the others.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -70,14 +72,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 # name → examples shown under each sub-command's --help (each one parses: tests/scripts/test_cli_conventions.py)
 EXAMPLES: dict[str, tuple[str, ...]] = {
-    "sitl": ("skyherd sitl --speedup 1    # one quadrotor in real time; MAVSDK: udpin://127.0.0.1:14540",
+    "sitl": (f"skyherd sitl --speedup 1    # one quadrotor in real time; MAVSDK: udpin://{LOOPBACK}:{API_REMOTE_BASE}",
              "skyherd sitl --airframe fixedwing --instance 1 --personality ardupilot"),
     "fly": ("skyherd fly --speedup 0    # make run: the main job, as fast as the machine goes",
             "skyherd fly --speedup 0 --wind 5 --fault gps_glitch@30:20,0,0:5 --cut-link 40:2",
             "skyherd fly --airframe fixedwing --speedup 0    # the orbit over the team",
-            "skyherd fly --connect udpin:127.0.0.1:14540    # an outside PX4 SITL"),
+            f"skyherd fly --connect udpin:{LOOPBACK}:{API_REMOTE_BASE}    # an outside PX4 SITL"),
     "sim": ("skyherd sim --speedup 10 --free-run    # the world alone, not waiting for a companion",),
-    "companion": ("skyherd companion --connect udpin:127.0.0.1:14540 --free-run    # beside `skyherd sitl`",),
+    "companion": (f"skyherd companion --connect udpin:{LOOPBACK}:{API_REMOTE_BASE} --free-run    # beside `skyherd sitl`",),
     "drill": ("skyherd drill    # every named drill of the quadrotor",
               "skyherd drill --airframe all --campaign 100 --seed 98"),
     "train": ("skyherd train sql --quick", "skyherd train ab --quick"),

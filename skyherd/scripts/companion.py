@@ -87,14 +87,14 @@ def add_arguments(
             "--connect",
             metavar="ADDRESS",
             default=None,
-            help="the autopilot's MAVLink address (pymavlink form; default udpin:127.0.0.1:14540+N)",
+            help=f"the autopilot's MAVLink address (pymavlink form; default {ports.COMPANION_ADDRESS_HELP})",
         )
         parser.add_argument(
             "--instance",
             type=int,
             default=0,
             help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}] (system id 1+N, default "
-            "addresses: MAVLink udpin:127.0.0.1:14540+N, Zenoh tcp:127.0.0.1:7447+N)",
+            f"addresses: MAVLink {ports.COMPANION_ADDRESS_HELP}, Zenoh {ports.ZENOH_ADDRESS_HELP})",
         )
         parser.add_argument(
             "--free-run",
@@ -106,7 +106,7 @@ def add_arguments(
             default=None,
             metavar="ADDRESS",
             help="where the camera frames are published (tcp:HOST:PORT; default: "
-            "tcp:127.0.0.1:7447+N for --instance N)",
+            f"{ports.ZENOH_ADDRESS_HELP} for --instance N)",
         )
         parser.add_argument(
             "--zenoh-config",
@@ -240,7 +240,7 @@ def check_args(argv: list[str]) -> str | None:
 def check(args) -> str:
     """Every check of the arguments that needs nothing started (UsageError, one line); fills
     the instance's default addresses in. Returns the autopilot's MAVLink address."""
-    from skyherd.hil.link import parse_address
+    from skyherd.hil.link import link_address
 
     try:
         ports.check_instance(args.instance)
@@ -248,7 +248,7 @@ def check(args) -> str:
         raise UsageError(str(e)) from None
     address = args.connect or ports.companion_address(args.instance)
     try:
-        parse_address(address)
+        link_address(address)
     except ValueError as e:
         raise UsageError(str(e)) from None
     if args.zenoh_connect is None:
@@ -308,7 +308,7 @@ def build_mission(args, run_dir: Path | None):
             pilot, net, perception = WaypointPilot(wps), None, None
             plan = FlightPlan(altitude_m=altitude, duration_s=600.0)
         else:
-            plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
+            plan = FlightPlan(altitude_m=altitude, duration_s=args.duration, decision_s=task.dt_s)
             net = _load_net(args.envelope, run_dir)
             if args.pilot == "policy":
                 pilot = PolicyPilot(_load_policy(args.policy), task)
@@ -344,11 +344,13 @@ def _shepherd_mission(args, run_dir: Path | None):
     is attached once the Zenoh session is open (`attach_flock`)."""
     from skyherd.mission.flight import FlightPlan, Record, SingleVehicleMission
     from skyherd.mission.shepherd import ShepherdPilot
+    from skyherd.policy.shepherd.rules import ShepherdParams
     from skyherd.policy.shepherd.selector import make_selector
     from skyherd.runio import CsvWriter
 
     altitude = SHEPHERD_ALTITUDE_M if args.altitude is None else args.altitude
-    plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
+    plan = FlightPlan(altitude_m=altitude, duration_s=args.duration,
+                      decision_s=ShepherdParams().decision_s)  # fmt: skip
     net = _load_net(args.envelope, run_dir)
     spec = net.spec
     pilot = ShepherdPilot(make_selector(args.shepherd_selector), lambda t: None, altitude, spec.limits,

@@ -36,6 +36,7 @@ from skyherd.mission.formation_plan import (
     vehicle_homes,
     vehicle_instances,
 )
+from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text, markdown_table
 from skyherd.scripts.cli import UsageError
 from skyherd.scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
@@ -132,7 +133,7 @@ def run_formation(args: argparse.Namespace) -> int:
     waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     skipped = (
-        " (10 skipped: its companion port is the ground stations' 14550)"
+        f" (10 skipped: its companion port is the ground stations' {GCS_REMOTE_PORT})"
         if 10 in range(instances[0], instances[-1])
         else ""
     )

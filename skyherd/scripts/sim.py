@@ -19,9 +19,10 @@ from dataclasses import dataclass
 
 from skyherd.flight.clock import SPEEDUP_HELP, default_speedup
 from skyherd.runio import RunFolder, args_dict, ports
+from skyherd.runio.constants import CAMERA_HZ, LOCKSTEP_LATENCY_S
 from skyherd.scripts.cli import UsageError, check_with
 
-DEFAULT_ZENOH_PORT = ports.ZENOH_BASE  # instance 0's; instance N listens on 7447+N
+DEFAULT_ZENOH_PORT = ports.ZENOH_BASE  # instance 0's; instance N listens on ZENOH_BASE+N
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,8 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--instance",
         type=int,
         default=0,
-        help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}]: MAVLink ports (14540+N, 14580+N, "
-        "18570+N), Zenoh port 7447+N and system id 1+N",
+        help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}]: {ports.MAVLINK_PORTS_HELP}, "
+        f"{ports.ZENOH_PORT_HELP} and system id 1+N",
     )
     parser.add_argument(
         "--seed",
@@ -69,8 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--camera-hz",
         type=float,
-        default=10.0,
-        help="camera frames per simulated second (the companion's tick)",
+        default=CAMERA_HZ,
+        help="camera frames per simulated second (the companion's tick) (default %(default)s)",
     )
     parser.add_argument(
         "--free-run",
@@ -80,7 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--latency",
         type=float,
-        default=0.02,
+        default=LOCKSTEP_LATENCY_S,
         metavar="S",
         help="lockstep: the companion's declared compute latency [s of simulation time]",
     )
@@ -95,7 +96,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--zenoh-port",
         type=int,
         default=None,
-        help="Zenoh listen port on 127.0.0.1 (default: 7447+N for --instance N)",
+        help=f"Zenoh listen port on {ports.LOOPBACK} (default: {ports.ZENOH_BASE}+N for --instance N)",
     )
     parser.add_argument(
         "--zenoh-config",
@@ -514,11 +515,11 @@ def run_fleet(args, params, endpoint, fleet: list[FleetVehicle], run_dir) -> int
 
 def _follow(args, params, session, run_dir):
     """The world around an outside vehicle (world/follow.py)."""
-    from skyherd.hil.link import LinkError, MavlinkLink, parse_address
+    from skyherd.hil.link import LinkError, MavlinkLink, link_address
     from skyherd.world.follow import FollowWorld
 
     try:
-        parse_address(args.follow)
+        link_address(args.follow)
         # ArduPilot SITL opens SERIAL1 only once the companion is on SERIAL0: retry 60 s
         link = MavlinkLink.open(args.follow, connect_wait_s=60.0, source_system=255,
                                 source_component=190, signing_key=args.signing_key)  # fmt: skip
