@@ -29,7 +29,7 @@ import sys  # noqa: E402
 import threading  # noqa: E402
 from typing import NoReturn  # noqa: E402
 
-from skyherd.runio.constants import API_REMOTE_BASE, LOOPBACK  # noqa: E402
+from skyherd.runio.constants import API_REMOTE_BASE, LOOPBACK, ZENOH_BASE  # noqa: E402
 
 # name → (module, one-line help). Modules are imported only when their command runs,
 # so `skyherd --help` stays fast and one broken sub-command cannot break the others.
@@ -62,6 +62,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "skyherd.scripts.explain",
         "a run's decisions as a readable timeline (module, reason, net)",
     ),
+    "transfer": (
+        "skyherd.scripts.transfer",
+        "a train irl/ab run's policies on the groundsim UGV behaviours (transfer.md)",
+    ),
+    "camstream": (
+        "skyherd.scripts.camstream",
+        "a frame source on its own: UGVs on a route and a hovering UAV's camera on Zenoh",
+    ),
     "reproduce": ("skyherd.scripts.reproduce", "reproduce a published study in one command (sql)"),
     "study": (
         "skyherd.scripts.study",
@@ -90,6 +98,8 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     "educate": ("skyherd educate --quick    # a smoke run of the default curriculum",),
     "evaluate": ("skyherd evaluate runs/T-educate/educated_seed0.npz --ab skyherd/policy/models/groundair_ab.npz",),
     "explain": ("skyherd explain runs/20261206T045157Z-fly --t 30    # what the policy did at t = 30 s",),
+    "transfer": ("skyherd transfer runs/T-train-ab --episodes 10    # transfer.md in that folder",),
+    "camstream": (f"skyherd camstream --frames 100 --rate 30    # listens on tcp/{LOOPBACK}:{ZENOH_BASE}; then skyherd watch",),
     "reproduce": ("skyherd reproduce sql --quick", "skyherd reproduce sql --rules published intended"),
     "study": ("skyherd study search --episodes 50    # the lost-UGV search, 50 unseen episodes each",
               "skyherd study shepherd --seeds 100 --agents 20"),
