@@ -230,12 +230,15 @@ def _validate(args) -> tuple[list[str], list[str]]:
     if args.mission in ("groundair", "shepherd") and args.connect is None:
         _refuse_wind_above_limit(args)
     if args.policy is not None:
-        from skyherd.scripts.companion import _load_policy
+        from skyherd.mission.build import load_pilot_policy
 
-        _load_policy(args.policy)
+        try:
+            load_pilot_policy(args.policy)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
     if args.pilot.startswith("drill:"):  # a named drill of the flight's envelope
+        from skyherd.mission.build import drill_pilot
         from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError, load_envelope
-        from skyherd.scripts.companion import drill_pilot
 
         try:
             spec, _ = load_envelope(args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe])
