@@ -7,7 +7,7 @@ Prints markdown tables:
 2. detector frames/s (goal ≥ 1000 at 320×240);
 3. detector accuracy against ground truth over random scenes from both renderers (1000 frames
    each; 200 with --quick): median centroid error (goal ≤ 2 px), spread radius (≤ 3 px);
-4. Zenoh between two processes (perception.camstream → this process) on loopback: latency
+4. Zenoh between two processes (`skyherd camstream` → this process) on loopback: latency
    p50/p95 at a paced 30 frames/s, and frames/s delivered when the source sends flat out;
 5. the ground world alone (kinematic, PyBullet box, PyBullet husky): real-time factor;
 6. real-time factor of the loop ground world step + render + detect + φ(s), camera at 10 and
@@ -114,7 +114,7 @@ def zenoh_run(size: str, frames: int, rate: float) -> dict:
     session = open_session(subscriber_params(port=port))
     sub = FrameSubscriber(session, "bench")
     src = subprocess.Popen(
-        [sys.executable, "-m", "skyherd.perception.camstream", "--vehicle", "bench", "--port", str(port),
+        [sys.executable, "-m", "skyherd.scripts.cli", "camstream", "--vehicle", "bench", "--port", str(port),
          "--frames", str(frames), "--rate", str(rate), "--size", size, "--static",
          "--wait-s", "10"],
         stderr=subprocess.DEVNULL,

@@ -1,6 +1,6 @@
-"""One MAVLink link for every tool: address parsing, transports, framing and the tlog.
+"""One MAVLink link for every tool: transports, framing and the tlog.
 
-Addresses use pymavlink's forms:
+Addresses use pymavlink's forms (parsed by runio.address, the one parser):
     udpin:HOST:PORT     listen; replies go to whoever sent last
     udpout:HOST:PORT    send to HOST:PORT (and receive on the same socket)
     tcp:HOST:PORT       connect to a TCP server
@@ -25,7 +25,6 @@ import select
 import socket
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -35,14 +34,14 @@ from skyherd.flight.mavlink.codec import Codec, MAVLinkMessage
 from skyherd.flight.mavlink.signing import Signing, load_key, now_units
 from skyherd.flight.mavlink.statustext import StatustextAssembler
 from skyherd.flight.mavlink.tlog import TlogWriter
+from skyherd.runio.address import Address, AddressError, parse_address
 
 __all__ = [
-    "Address",
     "LinkError",
     "MavlinkLink",
     "StatustextAssembler",
+    "link_address",
     "open_transport",
-    "parse_address",
 ]
 
 DEFAULT_BAUD = 57600
@@ -61,32 +60,19 @@ class Transport(Protocol):
     def close(self) -> None: ...
 
 
-@dataclass(frozen=True)
-class Address:
-    kind: str  # "udpin" | "udpout" | "tcp" | "serial"
-    host: str = ""
-    port: int = 0
-    device: str = ""
-    baud: int = DEFAULT_BAUD
+LINK_SCHEMES = ("udpin", "udpout", "udp", "tcp", "serial")  # what this link opens (no tcpin)
 
 
-def parse_address(text: str) -> Address:
-    """Parse a pymavlink-style address. Raises ValueError with the accepted forms."""
-    forms = "udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or /dev/PATH[,BAUD]"
-    text = text.strip()
-    if text.startswith("/") or text.upper().startswith("COM"):
-        dev, _, baud = text.partition(",")
-        try:
-            return Address("serial", device=dev, baud=int(baud) if baud else DEFAULT_BAUD)
-        except ValueError:
-            raise ValueError(f"bad baud rate in {text!r}; expected {forms}") from None
-    kind, _, rest = text.partition(":")
-    host, _, port = rest.rpartition(":")
-    if kind not in ("udpin", "udpout", "udp", "tcp") or not host or not port.isdigit():
-        raise ValueError(f"cannot parse link address {text!r}; expected {forms}")
-    if not 0 < int(port) < 65536:
-        raise ValueError(f"port out of range in {text!r}")
-    return Address("udpin" if kind == "udp" else kind, host=host, port=int(port))
+def link_address(text: str) -> Address:
+    """`text` parsed by the one address parser (runio.address) and checked to be a link this
+    module opens; AddressError (a ValueError, one line) otherwise."""
+    addr = parse_address(text)
+    if addr.scheme not in LINK_SCHEMES:
+        raise AddressError(
+            f"{text!r}: a MAVLink link connects (udpin:, udpout:, udp:, tcp: or a serial "
+            f"device), it does not listen on {addr.scheme}:"
+        )
+    return addr
 
 
 class UdpTransport:
@@ -96,7 +82,7 @@ class UdpTransport:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.peer: tuple[str, int] | None = None
         try:
-            if addr.kind == "udpin":
+            if addr.scheme in ("udpin", "udp"):  # udp: pymavlink's udpin
                 self.sock.bind((addr.host, addr.port))
             else:
                 self.peer = (addr.host, addr.port)
@@ -104,7 +90,7 @@ class UdpTransport:
         except OSError as e:
             self.sock.close()
             raise LinkError(f"cannot bind UDP {addr.host}:{addr.port}: {e} (port in use?)") from e
-        self.fixed_peer = addr.kind == "udpout"
+        self.fixed_peer = addr.scheme == "udpout"
         self.last_sender: tuple[str, int] | None = None  # of the last datagram received
 
     def send(self, data: bytes) -> None:
@@ -178,10 +164,11 @@ class SerialTransport:
     def __init__(self, addr: Address):
         import serial  # pyserial, only needed for serial links
 
+        baud = addr.baud or DEFAULT_BAUD
         try:
-            self.port = serial.Serial(addr.device, addr.baud, timeout=0)
+            self.port = serial.Serial(addr.device, baud, timeout=0)
         except (serial.SerialException, OSError) as e:
-            raise LinkError(f"cannot open {addr.device} at {addr.baud} baud: {e}") from e
+            raise LinkError(f"cannot open {addr.device} at {baud} baud: {e}") from e
 
     def send(self, data: bytes) -> None:
         self.port.write(data)
@@ -200,10 +187,10 @@ class SerialTransport:
 
 def open_transport(address: str, connect_wait_s: float = 0.0) -> Transport:
     """The transport of a pymavlink-style address; `connect_wait_s`: see TcpTransport."""
-    addr = parse_address(address)
-    if addr.kind in ("udpin", "udpout"):
+    addr = link_address(address)
+    if addr.scheme in ("udpin", "udpout", "udp"):
         return UdpTransport(addr)
-    if addr.kind == "tcp":
+    if addr.scheme == "tcp":
         return TcpTransport(addr, connect_wait_s=connect_wait_s)
     return SerialTransport(addr)
 
@@ -289,7 +276,7 @@ class MavlinkLink:
 
     @staticmethod
     def open(address: str, connect_wait_s: float = 0.0, **kwargs) -> MavlinkLink:
-        """`MavlinkLink.open("udpin:127.0.0.1:14540", signing_key=Path("uav.key"), tlog=...)`;
+        """`MavlinkLink.open("udpin:HOST:PORT", signing_key=Path("uav.key"), tlog=...)`;
         `connect_wait_s` [s]: how long a refused TCP connection is retried (default: not)."""
         signing_key = kwargs.get("signing_key")
         if signing_key is not None:

@@ -34,6 +34,7 @@ class CompanionParams:
     heartbeat_s: float = 1.0  # our HEARTBEAT period [s of tick time]
     frame_patience_s: float = 10.0  # lockstep: wait this long [wall s] for tick k's frame
     link_patience_s: float = 60.0  # [wall s] no tick mark (free-running: no message) = gone
+    drain_wait_s: float = 0.02  # free-running: wait this long [wall s] for the lead's messages
 
     def __post_init__(self) -> None:
         if not (self.tick_s > 0 and self.heartbeat_s > 0):
@@ -202,7 +203,7 @@ def run_fleet(vs: list[VehicleLink], mission: Mission, gen, frames: FrameSource 
                 else:
                     mission.on_frame(t, None, "lost")
         else:
-            if sum([v.drain(0.02 if v is lead else 0.0) for v in vs]):
+            if sum([v.drain(p.drain_wait_s if v is lead else 0.0) for v in vs]):
                 heard = time.monotonic()
             elif time.monotonic() - heard > p.link_patience_s:
                 raise LinkLost(f"nothing from the vehicle for {p.link_patience_s:.0f} s")

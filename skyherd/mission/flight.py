@@ -35,6 +35,7 @@ from skyherd.runio.mac import sign_record
 from skyherd.safety.authority import Authority
 from skyherd.safety.net import SafetyNet
 from skyherd.safety.supervisor import Decision, Mode, Severity
+from skyherd.task.params import TaskParams
 
 TRACK_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "phase"]
 
@@ -45,7 +46,7 @@ class FlightPlan:
 
     altitude_m: float = 20.0  # take-off and hand-over altitude above home [m]
     duration_s: float = 60.0  # flight behind the safety net after the hand-over [s]
-    decision_s: float = 0.5  # the pilot decides this often [s] (the policy's training step)
+    decision_s: float = TaskParams.dt_s  # the pilot decides this often [s] (the policy's step)
     land: bool = True  # land at the end (else hold position and stop)
     descend_above_floor_m: float = 1.0  # the descent behind the net ends this far above the
     # envelope's floor + margin; the autopilot's LAND flies the column below it [m]

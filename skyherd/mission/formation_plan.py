@@ -240,7 +240,7 @@ def formation_envelope(paths_ne: list[np.ndarray], params: FormationParams,
 
 def vehicle_instances(base: int, n: int) -> list[int]:
     """The MAVLink instances of n formation vehicles from `base` up, skipping every instance
-    whose companion port (14540+N, the PX4 layout) is the ground stations' 14550 (N = 10: its
+    whose companion port (API_REMOTE_PORT+N, the PX4 layout) is the ground stations' GCS_REMOTE_PORT (N = 10: its
     companion would hear every vehicle's ground-station stream; CONVENTIONS.md, "overlaps")."""
     from skyherd.flight.mavlink.endpoint import API_REMOTE_PORT, GCS_REMOTE_PORT
 

@@ -1,18 +1,17 @@
 """A stand-alone frame source: UGVs on a route, a UAV hovering over them, frames on Zenoh.
 
-`python -m skyherd.perception.camstream --frames 200 --rate 30` publishes what the UAV's camera sees
-(fast renderer, kinematic ground world) on `skyherd/<vehicle>/camera/frame`, and the UGVs'
+`stream(CamstreamParams(frames=200, rate_hz=30))` (`skyherd camstream --frames 200 --rate 30`)
+publishes what the UAV's camera sees (fast renderer, kinematic ground world) on `skyherd/<vehicle>/camera/frame`, and the UGVs'
 states on `skyherd/ugv/<id>/state`, so that
 `skyherd watch`, the Zenoh tests and the benchmark have a real second process to talk to.
 The UAV trails the group's centre with a 3 s first-order lag at 25–35 m (so the group drifts
-in the image and sometimes leaves it); simulation time advances --sim-dt per frame.
+in the image and sometimes leaves it); simulation time advances `sim_dt_s` per frame.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -24,29 +23,29 @@ from skyherd.groundsim.ugv import UGVModel, initial_states
 from skyherd.perception.camera import CameraParams, UAVPose
 from skyherd.perception.render_fast import FastRenderer
 from skyherd.perception.transport import FramePublisher, ZenohParams, open_session, publisher_params
+from skyherd.runio.constants import ZENOH_BASE
 
 
-def parse(argv: list[str] | None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(prog="python -m skyherd.perception.camstream", description=__doc__)
-    ap.add_argument("--vehicle", default="uav0")
-    ap.add_argument("--port", type=int, default=7447, help="listen on tcp/127.0.0.1:PORT")
-    ap.add_argument("--config", default=None, help="Zenoh JSON5 config file (replaces --port)")
-    ap.add_argument("--frames", type=int, default=300, help="frames to send (0 = forever)")
-    ap.add_argument("--rate", type=float, default=30.0, help="frames per second (0 = max)")
-    ap.add_argument("--sim-dt", type=float, default=0.1, help="simulation time per frame [s]")
-    ap.add_argument("--size", default="320x240", help="image WxH")
-    ap.add_argument("--encoding", choices=("raw", "jpeg"), default="raw")
-    ap.add_argument("--behaviour", default="route")
-    ap.add_argument(
-        "--wait-s", type=float, default=5.0, help="wait up to this long for a subscriber [s]"
-    )
-    ap.add_argument("--static", action="store_true", help="send one pre-rendered frame (bench)")
-    ap.add_argument("--seed", type=int, default=0)
-    return ap.parse_args(argv)
+@dataclass(frozen=True)
+class CamstreamParams:
+    """What the frame source sends, and where."""
+
+    vehicle: str = "uav0"  # the vehicle's name in the key expressions
+    port: int = ZENOH_BASE  # listen on tcp/127.0.0.1:PORT
+    config: str | None = None  # a Zenoh JSON5 configuration file instead of `port`
+    frames: int = 300  # frames to send (0: until interrupted)
+    rate_hz: float = 30.0  # frames per wall second (0: as fast as possible)
+    sim_dt_s: float = 0.1  # simulation time per frame [s]
+    size: str = "320x240"  # image WxH [px]
+    encoding: str = "raw"  # raw | jpeg
+    behaviour: str = "route"  # the UGVs' groundsim behaviour
+    wait_s: float = 5.0  # wait up to this long for a subscriber [wall s]
+    static: bool = False  # send one pre-rendered frame again and again (the benchmark)
+    seed: int = 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    a = parse(argv)
+def stream(a: CamstreamParams) -> int:
+    """Publish `a.frames` frames (and the UGVs' states); returns how many were sent."""
     w, h = (int(x) for x in a.size.lower().split("x"))
     cam = CameraParams(width_px=w, height_px=h)
     zp = ZenohParams(config_file=a.config) if a.config else publisher_params(a.port)
@@ -62,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     uav = UAVPose(np.array([0.0, 0.0, -30.0]), euler_to_quat(0.0, 0.0, 0.0))
     if pub.wait_for_subscriber(a.wait_s):
         time.sleep(0.05)  # the route is known on both ends; let the link settle
-    dt = a.sim_dt
+    dt = a.sim_dt_s
     t, k, next_wall = 0.0, 0, time.monotonic()
     image = renderer.render(uav, world.states)
     try:
@@ -78,8 +77,8 @@ def main(argv: list[str] | None = None) -> int:
             ugv_pub.publish(t, world.states)
             t += dt
             k += 1
-            if a.rate > 0:
-                next_wall += 1.0 / a.rate
+            if a.rate_hz > 0:
+                next_wall += 1.0 / a.rate_hz
                 time.sleep(max(0.0, next_wall - time.monotonic()))
     except KeyboardInterrupt:
         pass
@@ -88,9 +87,4 @@ def main(argv: list[str] | None = None) -> int:
         pub.close()
         ugv_pub.close()
         session.close()
-    print(f"camstream: sent {k} frames", file=sys.stderr)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    return k

@@ -35,7 +35,7 @@ camera that went silent: the consumer's camera-loss path. Readers without a key 
 without one, a viewer) read both versions; they check the header CRC, and the pixels of plain
 frames only (a signed frame's digest needs the key).
 
-Sessions: by default a Zenoh peer that listens on tcp/127.0.0.1 only (the publisher, port 7447)
+Sessions: by default a Zenoh peer that listens on tcp/127.0.0.1 only (the publisher, runio.ports.zenoh_port)
 or connects to it (the subscriber), multicast scouting off: nothing to start by hand, nothing
 leaves the machine. `ZenohParams.config_file` hands the whole configuration to a Zenoh JSON5
 file instead (e.g. client mode towards a router on another machine; see docs/perception.md).

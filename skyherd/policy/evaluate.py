@@ -1,17 +1,12 @@
 """Evaluate policies on GroundAir scenarios, including UGV behaviours they were not trained on.
 
 `transfer_table(policies, scenarios, episodes, seed)` → rows of mean metrics per (policy,
-scenario). Run on a finished training run folder to add the transfer table:
-
-    python -m skyherd.policy.evaluate runs/<time>-train-ab [--episodes 10]
-
-(writes transfer.md and transfer.csv into the folder, printing the table).
+scenario). `write_transfer(run, episodes, seed)` adds the transfer table to a finished training
+run folder (transfer.md and transfer.csv; `skyherd transfer RUN` on the command line).
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -63,36 +58,25 @@ def best_policies(run: Path) -> dict[str, Factory]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+TRANSFER_SEED = 200_000  # the transfer episodes' first seed (unseen by every learner)
+TRANSFER_COLUMNS = ["policy", "scenario", "all_in_view_frac", "footprint_ratio", "ugv_losses"]
+
+
+def write_transfer(run: Path, episodes: int = 10, seed: int = TRANSFER_SEED) -> str:
+    """The best policy of each learner in `run` and the baselines on the composite scenario and
+    every groundsim behaviour: transfer.md and transfer.csv into `run`; returns the table.
+    ValueError (one line) if `run` has no policies/ folder."""
     from skyherd.runio.runfolder import CsvWriter, atomic_write_text, markdown_table
 
-    ap = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    ap.add_argument("run", type=Path, help="a train-irl/train-ab run folder")
-    ap.add_argument("--episodes", type=int, default=10)
-    ap.add_argument("--seed", type=int, default=200_000)
-    args = ap.parse_args(argv)
-    if not (args.run / "policies").is_dir():
-        print(f"{args.run}: no policies/ folder (not a finished training run)", file=sys.stderr)
-        return 2
-    pols = best_policies(args.run) | baseline_factories()
-    rows = transfer_table(pols, ("composite",) + GROUNDSIM_SCENARIOS, args.episodes, args.seed)
+    if not (run / "policies").is_dir():
+        raise ValueError(f"{run}: no policies/ folder (not a finished training run)")
+    pols = best_policies(run) | baseline_factories()
+    rows = transfer_table(pols, ("composite",) + GROUNDSIM_SCENARIOS, episodes, seed)
     head = ["policy", "scenario", "all-in-view frac", "footprint/circle", "UGV losses / ep"]
     table = markdown_table(head, rows)
-    atomic_write_text(
-        args.run / "transfer.md", "# Transfer to groundsim UGV behaviours\n\n" + table
-    )
-    w = CsvWriter(
-        args.run / "transfer.csv",
-        ["policy", "scenario", "all_in_view_frac", "footprint_ratio", "ugv_losses"],
-    )
+    atomic_write_text(run / "transfer.md", "# Transfer to groundsim UGV behaviours\n\n" + table)
+    w = CsvWriter(run / "transfer.csv", TRANSFER_COLUMNS)
     for r in rows:
         w.write(dict(zip(w.columns, r)))
     w.close()
-    print(table)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    return table

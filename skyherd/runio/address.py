@@ -14,6 +14,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from skyherd.runio.constants import API_REMOTE_BASE, LOOPBACK
+
 SCHEMES = ("udpin", "udpout", "udp", "tcp", "tcpin")
 FORMS = "tcp:HOST:PORT, udpin:HOST:PORT, udpout:HOST:PORT or /dev/ttyX[,BAUD]"
 _HOST = re.compile(r"^(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9.\-]+)$")
@@ -71,7 +73,7 @@ def parse_address(text: str) -> Address:
     host, colon, port = rest.rpartition(":")
     if not colon or not host:
         raise AddressError(
-            f"{s!r} needs HOST:PORT after '{scheme}{sep}'; e.g. {scheme}:127.0.0.1:14540"
+            f"{s!r} needs HOST:PORT after '{scheme}{sep}'; e.g. {scheme}:{LOOPBACK}:{API_REMOTE_BASE}"
         )
     if not _HOST.match(host):
         raise AddressError(f"{s!r}: {host!r} is not a host name or IP address")

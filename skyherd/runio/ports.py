@@ -5,16 +5,16 @@ For instance N (0..MAX_INSTANCE):
 
 | what | port |
 | --- | --- |
-| API / offboard link, we bind (UDP) | 14580 + N |
-| ... it sends to the companion / MAVSDK (UDP) | 14540 + N |
-| ground-station link, we bind (UDP) | 18570 + N |
-| ... it sends to the ground station (UDP, every instance) | 14550 |
-| PX4 simulator_mavlink on our physics, we listen (TCP) | 4560 + N |
-| ArduPilot JSON on our physics, we listen (UDP) | 9002 + 10 N |
-| the simulator's Zenoh peer, we listen (TCP on 127.0.0.1) | 7447 + N |
+| API / offboard link, we bind (UDP) | API_BIND_BASE + N |
+| ... it sends to the companion / MAVSDK (UDP) | API_REMOTE_BASE + N |
+| ground-station link, we bind (UDP) | GCS_BIND_BASE + N |
+| ... it sends to the ground station (UDP, every instance) | GCS_REMOTE_PORT |
+| PX4 simulator_mavlink on our physics, we listen (TCP) | PX4_SIM_BASE + N |
+| ArduPilot JSON on our physics, we listen (UDP) | JSON_BASE + JSON_STRIDE N |
+| the simulator's Zenoh peer, we listen (TCP on 127.0.0.1) | ZENOH_BASE + N |
 
-Instance 0 keeps the well-known defaults (14540, 14550, 7447, ...). The ranges of the
-instances 0..200 do not overlap one another's kinds.
+The numbers are in runio/constants.py; instance 0 keeps the well-known defaults (PX4's and
+Zenoh's). The ranges of the instances 0..200 do not overlap one another's kinds.
 """
 
 from __future__ import annotations
@@ -106,3 +106,10 @@ def instance_ports(n: int) -> dict[str, int]:
         "ardupilot_json_udp": json_port(n),
         "zenoh_tcp": zenoh_port(n),
     }
+
+
+# the command line's help, built from the bases (one home for every number in it)
+MAVLINK_PORTS_HELP = f"MAVLink ports ({API_REMOTE_BASE}+N, {API_BIND_BASE}+N, {GCS_BIND_BASE}+N)"
+ZENOH_PORT_HELP = f"Zenoh port {ZENOH_BASE}+N"
+COMPANION_ADDRESS_HELP = f"udpin:{LOOPBACK}:{API_REMOTE_BASE}+N"
+ZENOH_ADDRESS_HELP = f"tcp:{LOOPBACK}:{ZENOH_BASE}+N"

@@ -29,6 +29,8 @@ import sys  # noqa: E402
 import threading  # noqa: E402
 from typing import NoReturn  # noqa: E402
 
+from skyherd.runio.constants import API_REMOTE_BASE, LOOPBACK, ZENOH_BASE  # noqa: E402
+
 # name → (module, one-line help). Modules are imported only when their command runs,
 # so `skyherd --help` stays fast and one broken sub-command cannot break the others.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -60,6 +62,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "skyherd.scripts.explain",
         "a run's decisions as a readable timeline (module, reason, net)",
     ),
+    "transfer": (
+        "skyherd.scripts.transfer",
+        "a train irl/ab run's policies on the groundsim UGV behaviours (transfer.md)",
+    ),
+    "camstream": (
+        "skyherd.scripts.camstream",
+        "a frame source on its own: UGVs on a route and a hovering UAV's camera on Zenoh",
+    ),
     "reproduce": ("skyherd.scripts.reproduce", "reproduce a published study in one command (sql)"),
     "study": (
         "skyherd.scripts.study",
@@ -70,14 +80,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 # name → examples shown under each sub-command's --help (each one parses: tests/scripts/test_cli_conventions.py)
 EXAMPLES: dict[str, tuple[str, ...]] = {
-    "sitl": ("skyherd sitl --speedup 1    # one quadrotor in real time; MAVSDK: udpin://127.0.0.1:14540",
+    "sitl": (f"skyherd sitl --speedup 1    # one quadrotor in real time; MAVSDK: udpin://{LOOPBACK}:{API_REMOTE_BASE}",
              "skyherd sitl --airframe fixedwing --instance 1 --personality ardupilot"),
     "fly": ("skyherd fly --speedup 0    # make run: the main job, as fast as the machine goes",
             "skyherd fly --speedup 0 --wind 5 --fault gps_glitch@30:20,0,0:5 --cut-link 40:2",
             "skyherd fly --airframe fixedwing --speedup 0    # the orbit over the team",
-            "skyherd fly --connect udpin:127.0.0.1:14540    # an outside PX4 SITL"),
+            f"skyherd fly --connect udpin:{LOOPBACK}:{API_REMOTE_BASE}    # an outside PX4 SITL"),
     "sim": ("skyherd sim --speedup 10 --free-run    # the world alone, not waiting for a companion",),
-    "companion": ("skyherd companion --connect udpin:127.0.0.1:14540 --free-run    # beside `skyherd sitl`",),
+    "companion": (f"skyherd companion --connect udpin:{LOOPBACK}:{API_REMOTE_BASE} --free-run    # beside `skyherd sitl`",),
     "drill": ("skyherd drill    # every named drill of the quadrotor",
               "skyherd drill --airframe all --campaign 100 --seed 98"),
     "train": ("skyherd train sql --quick", "skyherd train ab --quick"),
@@ -88,6 +98,8 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     "educate": ("skyherd educate --quick    # a smoke run of the default curriculum",),
     "evaluate": ("skyherd evaluate runs/T-educate/educated_seed0.npz --ab skyherd/policy/models/groundair_ab.npz",),
     "explain": ("skyherd explain runs/20261206T045157Z-fly --t 30    # what the policy did at t = 30 s",),
+    "transfer": ("skyherd transfer runs/T-train-ab --episodes 10    # transfer.md in that folder",),
+    "camstream": (f"skyherd camstream --frames 100 --rate 30    # listens on tcp/{LOOPBACK}:{ZENOH_BASE}; then skyherd watch",),
     "reproduce": ("skyherd reproduce sql --quick", "skyherd reproduce sql --rules published intended"),
     "study": ("skyherd study search --episodes 50    # the lost-UGV search, 50 unseen episodes each",
               "skyherd study shepherd --seeds 100 --agents 20"),

@@ -87,14 +87,14 @@ def add_arguments(
             "--connect",
             metavar="ADDRESS",
             default=None,
-            help="the autopilot's MAVLink address (pymavlink form; default udpin:127.0.0.1:14540+N)",
+            help=f"the autopilot's MAVLink address (pymavlink form; default {ports.COMPANION_ADDRESS_HELP})",
         )
         parser.add_argument(
             "--instance",
             type=int,
             default=0,
             help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}] (system id 1+N, default "
-            "addresses: MAVLink udpin:127.0.0.1:14540+N, Zenoh tcp:127.0.0.1:7447+N)",
+            f"addresses: MAVLink {ports.COMPANION_ADDRESS_HELP}, Zenoh {ports.ZENOH_ADDRESS_HELP})",
         )
         parser.add_argument(
             "--free-run",
@@ -106,7 +106,7 @@ def add_arguments(
             default=None,
             metavar="ADDRESS",
             help="where the camera frames are published (tcp:HOST:PORT; default: "
-            "tcp:127.0.0.1:7447+N for --instance N)",
+            f"{ports.ZENOH_ADDRESS_HELP} for --instance N)",
         )
         parser.add_argument(
             "--zenoh-config",
@@ -240,7 +240,7 @@ def check_args(argv: list[str]) -> str | None:
 def check(args) -> str:
     """Every check of the arguments that needs nothing started (UsageError, one line); fills
     the instance's default addresses in. Returns the autopilot's MAVLink address."""
-    from skyherd.hil.link import parse_address
+    from skyherd.hil.link import link_address
 
     try:
         ports.check_instance(args.instance)
@@ -248,7 +248,7 @@ def check(args) -> str:
         raise UsageError(str(e)) from None
     address = args.connect or ports.companion_address(args.instance)
     try:
-        parse_address(address)
+        link_address(address)
     except ValueError as e:
         raise UsageError(str(e)) from None
     if args.zenoh_connect is None:
@@ -285,92 +285,22 @@ def check(args) -> str:
     return address
 
 
-def build_mission(args, run_dir: Path | None):
-    """Policy, safety net, pilot and the mission generator's owner (UsageError on bad input)."""
-    from skyherd.mission.flight import FlightPlan, Record, SingleVehicleMission
-    from skyherd.mission.perception import Perception
-    from skyherd.mission.pilots import PerceptionFollower, PolicyPilot, WaypointPilot
-    from skyherd.runio import CsvWriter
-    from skyherd.task.params import TaskParams
+def mission_choice(args):
+    """The mission the command line chose (mission.build.MissionChoice); an option another
+    command's parser lacks keeps its default."""
+    from skyherd.mission.build import MissionChoice
 
-    task = TaskParams()
-    altitude = 20.0 if args.altitude is None else args.altitude
-    if args.mission == "orbit":
-        return _orbit_mission(args, run_dir)
-    try:
-        if args.mission == "shepherd":
-            return _shepherd_mission(args, run_dir)
-        if args.mission == "square":
-            if not (0 < altitude <= 120 and 0 < args.side <= 500):
-                raise ValueError("--altitude must be in (0, 120] m and --side in (0, 500] m")
-            s, z = args.side, -altitude
-            wps = [np.array(w, dtype=float) for w in ([s, 0, z], [s, s, z], [0, s, z], [0, 0, z])]
-            pilot, net, perception = WaypointPilot(wps), None, None
-            plan = FlightPlan(altitude_m=altitude, duration_s=600.0)
-        else:
-            plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
-            net = _load_net(args.envelope, run_dir)
-            if args.pilot == "policy":
-                pilot = PolicyPilot(_load_policy(args.policy), task)
-            elif args.pilot == "pid":
-                pilot = PerceptionFollower(task)
-            else:  # a drill's adversarial AI, deciding every tick as the drills' AI does
-                pilot = drill_pilot(args.pilot, net.spec)
-                plan = FlightPlan(altitude_m=altitude, duration_s=args.duration, decision_s=0.1)
-            perception = Perception(task)
-            if getattr(args, "lost_ugv_search", False) and not args.pilot.startswith("drill:"):
-                from skyherd.mission.search import SearchPilot
-                from skyherd.policy.search.lost import LostSearch
-
-                pilot = SearchPilot(pilot, perception, LostSearch(None, task), net.spec.limits,
-                                    net.spec.dynamics.tau_s)  # fmt: skip
-    except ValueError as e:
-        raise UsageError(str(e)) from None
-    record = Record(
-        decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
-        track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
-    )
-    return SingleVehicleMission(pilot, net, plan, record, perception,
-                                getattr(args, "configure_autopilot", False), _say), plan  # fmt: skip
-
-
-SHEPHERD_ALTITUDE_M = 12.0
-"""--mission shepherd: the default altitude above home [m] (the flock feels the UAV's
-horizontal position only; low enough for the camera to show the flock's part under it)."""
-
-
-def _shepherd_mission(args, run_dir: Path | None):
-    """The shepherd (mission/shepherd.py) behind the ground-air envelope's net; its flock reader
-    is attached once the Zenoh session is open (`attach_flock`)."""
-    from skyherd.mission.flight import FlightPlan, Record, SingleVehicleMission
-    from skyherd.mission.shepherd import ShepherdPilot
-    from skyherd.policy.shepherd.selector import make_selector
-    from skyherd.runio import CsvWriter
-
-    altitude = SHEPHERD_ALTITUDE_M if args.altitude is None else args.altitude
-    plan = FlightPlan(altitude_m=altitude, duration_s=args.duration)
-    net = _load_net(args.envelope, run_dir)
-    spec = net.spec
-    pilot = ShepherdPilot(make_selector(args.shepherd_selector), lambda t: None, altitude, spec.limits,
-                          spec.dynamics.tau_s)  # fmt: skip
-    record = Record(
-        decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
-        track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
-    )
-    return SingleVehicleMission(pilot, net, plan, record, None), plan
-
-
-def attach_flock(session, mission, key: bytes | None = None) -> object:
-    """The shepherd reads the flock's reports (skyherd/ugv/<id>/state) on `session` (with the
-    flight's key only authentic ones); returns the subscriber (closed with the session), kept
-    as `mission.flock_sub` for companion.json."""
-    from skyherd.groundsim.flock import FlockParams
-    from skyherd.groundsim.transport import UGVStateSubscriber
-    from skyherd.mission.shepherd import flock_reader
-
-    sub = mission.flock_sub = UGVStateSubscriber(session, key=key)
-    mission.pilot.flock = flock_reader(sub, FlockParams().n)
-    return sub
+    d = MissionChoice()
+    return MissionChoice(
+        mission=args.mission, altitude_m=args.altitude, duration_s=args.duration,
+        side_m=args.side, envelope=args.envelope, pilot=args.pilot, policy=args.policy,
+        lost_ugv_search=getattr(args, "lost_ugv_search", d.lost_ugv_search),
+        configure_autopilot=getattr(args, "configure_autopilot", d.configure_autopilot),
+        shepherd_selector=getattr(args, "shepherd_selector", d.shepherd_selector),
+        orbit_team=getattr(args, "orbit_team", d.orbit_team),
+        orbit_seed=getattr(args, "orbit_seed", d.orbit_seed),
+        orbit_no_land=getattr(args, "orbit_no_land", d.orbit_no_land),
+    )  # fmt: skip
 
 
 def pilot_choice(value: str) -> str:
@@ -378,103 +308,6 @@ def pilot_choice(value: str) -> str:
     if value in ("policy", "pid") or value.startswith("drill:"):
         return value
     raise argparse.ArgumentTypeError(f"{value!r}: use policy, pid or drill:NAME")
-
-
-INPUT_FAULT_DRILLS = ("camera loss", "link loss")
-"""Named drills whose fault is an input, not the AI's action: in a flight those are the
-simulator's --cut-camera / --cut-link, not a pilot."""
-
-
-def drill_pilot(choice: str, spec):
-    """The adversarial pilot of `--pilot drill:NAME` for the flight's envelope (ValueError
-    naming the drills there are)."""
-    from skyherd.mission.pilots import DrillPilot
-    from skyherd.safety.drills import DrillParams, scripted_drills
-
-    p = DrillParams()
-    name = choice.split(":", 1)[1].replace("-", " ").strip()
-    scripts = {s.name: s for s in scripted_drills(spec, p) if s.name not in INPUT_FAULT_DRILLS}
-    if name not in scripts:
-        names = ", ".join("drill:" + n.replace(" ", "-") for n in scripts)
-        raise ValueError(f"--pilot {choice}: no such drill for {spec.name}; use one of {names}")
-    return DrillPilot(scripts[name], p, p.duration(spec.airframe), name=f"drill:{name}")
-
-
-def _orbit_mission(args, run_dir: Path | None):
-    """The fixed-wing orbit (mission/orbit.py) behind the fixed-wing envelope's net."""
-    from skyherd.mission.flight import Record
-    from skyherd.mission.orbit import OrbitFlight, OrbitMission, briefing_for
-    from skyherd.mission.orbit_plan import fence_reserve
-    from skyherd.runio import CsvWriter
-    from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError
-    from skyherd.safety.net import SafetyNet, warm_up
-
-    events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
-    try:
-        flight = OrbitFlight(
-            duration_s=args.duration, land=not getattr(args, "orbit_no_land", False)
-        )
-        net = SafetyNet.load(
-            "fixedwing", args.envelope or ENVELOPE_DIR / "fixedwing_field.toml", events=events
-        )
-    except (EnvelopeFileError, ValueError) as e:
-        raise UsageError(f"{e}; fix the envelope file or the duration") from None
-    warm_up(net.envelope, net.p)
-    lim = net.envelope.spec.limits
-    brief = briefing_for(args.orbit_team, args.orbit_seed, flight.duration_s, flight.establish_s)
-    record = Record(
-        decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
-        track=CsvWriter(run_dir / "metrics.csv", _track_columns()) if run_dir else None,
-    )
-    alt_band = (lim.floor_m + lim.margin_m, lim.ceiling_m - lim.margin_m - 15.0)
-    mission = OrbitMission(net, flight, brief, record, fence_reserve(net.envelope.spec), alt_band)
-    return mission, flight
-
-
-def _track_columns():
-    from skyherd.mission.flight import TRACK_COLUMNS
-
-    return TRACK_COLUMNS
-
-
-def _load_policy(path):
-    from skyherd.policy.dqn import PolicyFileError, load_policy
-    from skyherd.policy.models import DEFAULT_POLICY
-    from skyherd.task.observation import OBS_DIM
-    from skyherd.task.params import N_ACTIONS
-
-    try:
-        policy = load_policy(path or DEFAULT_POLICY)
-    except PolicyFileError as e:
-        raise UsageError(f"{e}; train one with `skyherd train ab` or pass --policy") from None
-    if getattr(policy, "continuous", False):  # a deep velocity policy (skyherd train abs-dl)
-        shape = (getattr(policy, "obs_dim", None), getattr(policy, "act_dim", None))
-        if shape != (OBS_DIM, 3):
-            raise UsageError(f"{path}: the deep policy takes {shape[0]} inputs and gives {shape[1]} "
-                             f"velocity components; the ground-air task has {OBS_DIM} inputs and a "
-                             "3-component NED velocity: pass a policy from `skyherd train abs-dl`")  # fmt: skip
-        return policy
-    shape = (getattr(policy, "obs_dim", None), getattr(policy, "n_actions", None))
-    if shape != (OBS_DIM, N_ACTIONS):
-        raise UsageError(f"{path or DEFAULT_POLICY}: the policy takes {shape[0]} inputs and gives "
-                         f"{shape[1]} actions; the ground-air task has {OBS_DIM} inputs and {N_ACTIONS} "
-                         "actions: pass a policy trained for it (`skyherd train ab`) or drop --policy")  # fmt: skip
-    return policy
-
-
-def _load_net(envelope, run_dir):
-    """The ground-air mission's SafetyNet (the camera is one of its inputs)."""
-    from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError
-    from skyherd.safety.net import SafetyNet, warm_up
-
-    path = envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
-    events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
-    try:
-        net = SafetyNet.load("quadrotor", path, events=events, camera=True)
-    except (EnvelopeFileError, ValueError) as e:
-        raise UsageError(f"{e}; fix the file or pass another --envelope") from None
-    warm_up(net.envelope, net.p)  # compile now, not at the first switch in flight
-    return net
 
 
 def zenoh_endpoint(address: str) -> str:
@@ -575,12 +408,14 @@ def run(args: argparse.Namespace) -> int:
         run_dir = folder.path
     if args.mission == "formation":
         return _run_formation(args, run_dir, folder)
+    from skyherd.mission.build import attach_flock, build_mission
+
     try:
-        mission, plan = build_mission(args, run_dir)
-    except UsageError:
+        mission, plan = build_mission(mission_choice(args), run_dir, _say)
+    except ValueError as e:
         if folder is not None:  # no run folder for a usage error
             shutil.rmtree(run_dir, ignore_errors=True)
-        raise
+        raise UsageError(str(e)) from None
     if folder is not None:
         folder.write_config({"args": args_dict(args), "plan": plan, "address": address})
     session = frames = None

@@ -107,8 +107,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument(
         "--instance", type=int, default=85,
-        help="--through mission: the first vehicle instance (MAVLink ports 14540+N, 14580+N, "
-        "18570+N); each drill running at once takes the next free one, up to N+31 (default 85)",
+        help=f"--through mission: the first vehicle instance ({ports.MAVLINK_PORTS_HELP}); each drill running at once takes the next free one, up to N+31 (default 85)",
     )  # fmt: skip
 
 

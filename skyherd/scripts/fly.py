@@ -25,8 +25,12 @@ import sys
 from pathlib import Path
 
 from skyherd.runio import args_dict, ports
+from skyherd.runio.constants import GCS_REMOTE_PORT, LOCKSTEP_LATENCY_S, LOOPBACK
 from skyherd.runio.run import Interrupted
 from skyherd.scripts.cli import UsageError
+
+# --world-link's default beside a udp --connect: the autopilot's ground-station stream
+GCS_WORLD_LINK = f"udpin:{LOOPBACK}:{GCS_REMOTE_PORT}"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,11 +41,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="quadrotor, or fixedwing (JSBSim; flies the ground-air task as an orbit)",
     )
     parser.add_argument("--connect", metavar="ADDRESS",
-                        help="fly an outside autopilot at this pymavlink address (e.g. udpin:127.0.0.1:14540, "
+                        help="fly an outside autopilot at this pymavlink address (e.g. "
+                        f"{ports.companion_address(0)}, "
                         "tcp:127.0.0.1:5760) instead of the built-in vehicle")  # fmt: skip
     parser.add_argument("--world-link", metavar="ADDRESS", default=None,
                         help="with --connect: a second MAVLink link of the autopilot for the world (UGVs, "
-                        "camera) built around it (default: udpin:127.0.0.1:14550 for a udp address, "
+                        f"camera) built around it (default: {GCS_WORLD_LINK} for a udp address, "
                         "PORT+2 for tcp:HOST:PORT, i.e. ArduPilot's SERIAL1)")  # fmt: skip
     parser.add_argument(
         "--world-system",
@@ -73,7 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--instance", type=int, default=0,
                         help=f"built-in vehicle instance N in [0, {ports.MAX_INSTANCE}]: its MAVLink ports "
-                        "(14540+N, 14580+N, 18570+N) and its Zenoh port (7447+N)")  # fmt: skip
+                        f"{ports.MAVLINK_PORTS_HELP} and its {ports.ZENOH_PORT_HELP}")  # fmt: skip
     from skyherd.flight.clock import SPEEDUP_HELP
 
     parser.add_argument("--speedup", type=float, default=None, metavar="S",
@@ -86,7 +91,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--latency",
         type=float,
-        default=0.02,
+        default=LOCKSTEP_LATENCY_S,
         metavar="S",
         help="lockstep: the companion's declared compute latency [s of simulation time]",
     )
@@ -121,7 +126,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="wall-clock limit for the whole flight [s] (> 0)",
     )
     parser.add_argument("--zenoh-port", type=int, default=None,
-                        help="the simulator's Zenoh port on 127.0.0.1 (default: 7447+N for --instance N)")  # fmt: skip
+                        help=f"the simulator's Zenoh port on {ports.LOOPBACK} (default: {ports.ZENOH_BASE}+N for --instance N)")  # fmt: skip
     parser.add_argument(
         "--no-zenoh", action="store_true", help=argparse.SUPPRESS
     )  # kept for old scripts
@@ -191,7 +196,7 @@ def check_children(args, sim_args: list[str], comp_args: list[str]) -> None:
 
 def _validate(args) -> tuple[list[str], list[str]]:
     """The children's argument lists; UsageError before anything starts or is written."""
-    from skyherd.hil.link import parse_address
+    from skyherd.hil.link import link_address
     from skyherd.task.scenarios import FLOCK, TEAMS
 
     if args.mission == "shepherd":
@@ -207,7 +212,7 @@ def _validate(args) -> tuple[list[str], list[str]]:
         raise UsageError(f"--ugvs {FLOCK} is the shepherding flock: fly it with --mission shepherd")
     if args.connect is not None:
         try:
-            parse_address(args.connect)
+            link_address(args.connect)
         except ValueError as e:
             raise UsageError(str(e)) from None
     if args.connect is None and not (args.speedup == 0 or args.speedup >= 1):
@@ -225,12 +230,15 @@ def _validate(args) -> tuple[list[str], list[str]]:
     if args.mission in ("groundair", "shepherd") and args.connect is None:
         _refuse_wind_above_limit(args)
     if args.policy is not None:
-        from skyherd.scripts.companion import _load_policy
+        from skyherd.mission.build import load_pilot_policy
 
-        _load_policy(args.policy)
+        try:
+            load_pilot_policy(args.policy)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
     if args.pilot.startswith("drill:"):  # a named drill of the flight's envelope
+        from skyherd.mission.build import drill_pilot
         from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError, load_envelope
-        from skyherd.scripts.companion import drill_pilot
 
         try:
             spec, _ = load_envelope(args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe])
@@ -296,7 +304,7 @@ def _validate(args) -> tuple[list[str], list[str]]:
         comp += ["--connect", args.connect]
         if args.mission == "groundair":
             sim += ["--follow", world_link(args), "--follow-system", str(args.world_system)]
-    comp += ["--zenoh-connect", f"tcp:127.0.0.1:{args.zenoh_port}"]
+    comp += ["--zenoh-connect", f"tcp:{ports.LOOPBACK}:{args.zenoh_port}"]
     return sim, comp
 
 
@@ -378,19 +386,19 @@ def _refuse_wind_above_limit(args) -> None:
 
 def world_link(args) -> str:
     """The MAVLink link the world follows an outside vehicle on (--world-link, or a default)."""
-    from skyherd.hil.link import parse_address
+    from skyherd.hil.link import link_address
 
     if args.world_link:
         try:
-            parse_address(args.world_link)
+            link_address(args.world_link)
         except ValueError as e:
             raise UsageError(f"--world-link: {e}") from None
         return args.world_link
-    a = parse_address(args.connect)
-    if a.kind == "tcp":
+    a = link_address(args.connect)
+    if a.scheme == "tcp":
         return f"tcp:{a.host}:{a.port + 2}"
-    if a.kind in ("udpin", "udpout"):
-        return "udpin:127.0.0.1:14550"
+    if a.scheme in ("udpin", "udpout", "udp"):
+        return GCS_WORLD_LINK
     raise UsageError("the ground-air mission around a serial autopilot needs --world-link ADDRESS")
 
 
@@ -515,6 +523,7 @@ class _Recording:
 
 SIM_STARTED = "skyherd sim: instance"  # the simulator's line once its world runs (scripts.sim)
 SIM_START_PATIENCE_S = 120.0  # wall time the recorder waits for that line [s]
+SIM_START_POLL_S = 0.02  # ... looking this often [wall s]
 
 
 def _recorder(args, run_dir: Path, key_file: str | None = None, give_up=None, ready=None):
@@ -540,7 +549,7 @@ def _recorder(args, run_dir: Path, key_file: str | None = None, give_up=None, re
         while ready is not None and not ready() and time.monotonic() < deadline:
             if give_up is not None and give_up():
                 return None
-            time.sleep(0.02)
+            time.sleep(SIM_START_POLL_S)
         params = subscriber_params(f"tcp/127.0.0.1:{args.zenoh_port}")
         try:
             session = open_client(dataclasses.replace(params, mode="client"), give_up=give_up)

@@ -36,10 +36,12 @@ from skyherd.mission.formation_plan import (
     vehicle_homes,
     vehicle_instances,
 )
+from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text, markdown_table
 from skyherd.scripts.cli import UsageError
 from skyherd.scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
 from skyherd.scripts.launch import flight_reason
+from skyherd.world.fleet import FleetVehicle, write_fleet
 
 MAX_INSTANCE = 200  # EndpointConfig's limit
 
@@ -132,7 +134,7 @@ def run_formation(args: argparse.Namespace) -> int:
     waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     skipped = (
-        " (10 skipped: its companion port is the ground stations' 14550)"
+        f" (10 skipped: its companion port is the ground stations' {GCS_REMOTE_PORT})"
         if 10 in range(instances[0], instances[-1])
         else ""
     )
@@ -146,10 +148,10 @@ def run_formation(args: argparse.Namespace) -> int:
     try:
         with kids:  # stopped on every way out, the companion first
             for g, group in enumerate(groups):
-                fleet = [{"name": f"uav{k}", "instance": instances[k], "seed": args.seed + k,
-                          "home": [homes[k].lat_deg, homes[k].lon_deg, homes[k].alt_m]} for k in group]  # fmt: skip
+                fleet = [FleetVehicle(f"uav{k}", instances[k], args.seed + k,
+                                      (homes[k].lat_deg, homes[k].lon_deg, homes[k].alt_m)) for k in group]  # fmt: skip
                 fleet_file = run_dir / f"sim{g}.json"
-                atomic_write_text(fleet_file, json.dumps(fleet, indent=1) + "\n")
+                write_fleet(fleet_file, fleet)
                 kids.start_sim(f"sim{g}", launch.skyherd_cmd(
                     "sim", "--fleet", str(fleet_file), "--ugvs", "none", "--speedup", repr(args.speedup),
                     "--latency", repr(args.latency), "--run-dir", str(run_dir), *signing), run_dir / f"sim{g}.log")  # fmt: skip

@@ -3,6 +3,8 @@ that `skyherd fly` (the ground-air default) imports neither mission's code to pa
 
 from __future__ import annotations
 
+from skyherd.runio.constants import GCS_REMOTE_PORT
+
 AGENT_CHOICES = (1, 4, 9, 16)
 
 
@@ -11,7 +13,7 @@ def add_formation_arguments(group) -> None:
     group.add_argument("--agents", type=int, choices=AGENT_CHOICES, default=9,
                        help="K: vehicles and formation targets (1, 4, 9 or 16; default 9; 1 needs --policy-file); "
                        "the vehicles are instances N, N+1, ... with N = --instance, skipping 10 (PX4 layout: its "
-                       "companion port is the ground stations' 14550)")  # fmt: skip
+                       f"companion port is the ground stations' {GCS_REMOTE_PORT})")  # fmt: skip
     group.add_argument(
         "--sql-seed",
         type=int,

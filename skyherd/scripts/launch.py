@@ -40,6 +40,7 @@ from skyherd.scripts import waysout
 KEEP_LINES = 200  # a child's last output lines kept in memory (its log may be cut)
 COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before SIGKILL [s]
 WIND_DOWN_S = 120.0  # wall time for a simulator's span alone with the autopilot before SIGINT [s]
+CHILD_POLL_S = 0.02  # a child's end is seen within this [wall s] (it ends the flight)
 PARENT_DEATH = signal.SIGUSR1  # every child's parent-death signal (module docstring)
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
@@ -271,4 +272,4 @@ class Launch:
             if time.monotonic() > deadline:
                 stop(companion, COMPANION_GRACE_S)
                 return 1, f"the flight took longer than --timeout {timeout_s:.0f} s of wall time"
-            time.sleep(0.02)  # a child's end is seen within 20 ms (it ends the flight)
+            time.sleep(CHILD_POLL_S)

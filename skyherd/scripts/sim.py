@@ -15,13 +15,13 @@ import math
 import os
 import signal
 import sys
-from dataclasses import dataclass
 
 from skyherd.flight.clock import SPEEDUP_HELP, default_speedup
 from skyherd.runio import RunFolder, args_dict, ports
+from skyherd.runio.constants import CAMERA_HZ, LOCKSTEP_LATENCY_S
 from skyherd.scripts.cli import UsageError, check_with
 
-DEFAULT_ZENOH_PORT = ports.ZENOH_BASE  # instance 0's; instance N listens on 7447+N
+DEFAULT_ZENOH_PORT = ports.ZENOH_BASE  # instance 0's; instance N listens on ZENOH_BASE+N
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,8 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--instance",
         type=int,
         default=0,
-        help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}]: MAVLink ports (14540+N, 14580+N, "
-        "18570+N), Zenoh port 7447+N and system id 1+N",
+        help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}]: {ports.MAVLINK_PORTS_HELP}, "
+        f"{ports.ZENOH_PORT_HELP} and system id 1+N",
     )
     parser.add_argument(
         "--seed",
@@ -69,8 +69,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--camera-hz",
         type=float,
-        default=10.0,
-        help="camera frames per simulated second (the companion's tick)",
+        default=CAMERA_HZ,
+        help="camera frames per simulated second (the companion's tick) (default %(default)s)",
     )
     parser.add_argument(
         "--free-run",
@@ -80,7 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--latency",
         type=float,
-        default=0.02,
+        default=LOCKSTEP_LATENCY_S,
         metavar="S",
         help="lockstep: the companion's declared compute latency [s of simulation time]",
     )
@@ -95,7 +95,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--zenoh-port",
         type=int,
         default=None,
-        help="Zenoh listen port on 127.0.0.1 (default: 7447+N for --instance N)",
+        help=f"Zenoh listen port on {ports.LOOPBACK} (default: {ports.ZENOH_BASE}+N for --instance N)",
     )
     parser.add_argument(
         "--zenoh-config",
@@ -415,19 +415,9 @@ def say(text: str) -> None:
         pass
 
 
-@dataclass(frozen=True)
-class FleetVehicle:
-    """One vehicle of a `--fleet` file."""
-
-    name: str  # its folder in the run folder
-    instance: int
-    seed: int
-    home: tuple[float, float, float]  # lat [deg], lon [deg], alt AMSL [m]
-
-
-def read_fleet(args) -> list[FleetVehicle]:
-    """The `--fleet` file, checked (UsageError naming the file and the entry otherwise)."""
-    from pathlib import Path
+def read_fleet(args) -> list:
+    """The `--fleet` file (world.fleet), checked with the options it flies with (UsageError)."""
+    from skyherd.world.fleet import read_fleet as read_file
 
     if args.ugvs != "none":
         raise UsageError("--fleet flies built-in vehicles alone: add --ugvs none")
@@ -440,57 +430,23 @@ def read_fleet(args) -> list[FleetVehicle]:
     ):
         raise UsageError("--fleet: built-in quadrotors only; drop --follow, --autopilot, --airframe, "
                          "--param, --cut-link (or run one `skyherd sim` per vehicle)")  # fmt: skip
-    path = Path(args.fleet)
     try:
-        entries = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as e:
-        raise UsageError(f"--fleet {path}: not a readable JSON file ({e})") from None
-    if not isinstance(entries, list) or not entries:
-        raise UsageError(f"--fleet {path}: expected a non-empty JSON list of vehicles")
-    fleet = []
-    for i, e in enumerate(entries):
-        try:
-            v = FleetVehicle(str(e["name"]), int(e["instance"]), int(e["seed"]),
-                             tuple(float(x) for x in e["home"]))  # fmt: skip
-            ok = (len(v.home) == 3 and all(math.isfinite(x) for x in v.home) and v.instance >= 0
-                  and v.name.isidentifier() and v.instance == e["instance"] and v.seed == e["seed"])  # fmt: skip
-        except (TypeError, KeyError, ValueError):
-            ok = False
-        if not ok:
-            raise UsageError(f"--fleet {path}: vehicle {i} is not "
-                             '{"name": IDENTIFIER, "instance": INT >= 0, "seed": INT, "home": [LAT, LON, ALT]}')  # fmt: skip
-        _home(",".join(repr(x) for x in v.home))  # the range checks of --home
-        fleet.append(v)
-    for attr in ("name", "instance"):
-        values = [getattr(v, attr) for v in fleet]
-        if len(set(values)) != len(values):
-            raise UsageError(f"--fleet {path}: two vehicles with the same {attr}")
-    return fleet
+        return read_file(args.fleet)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
 
 
-def run_fleet(args, params, endpoint, fleet: list[FleetVehicle], run_dir) -> int:
-    """Several built-in vehicles in this process: one step of each in turn, each in lockstep
-    with its companion (world.sim.run_worlds); each writes into run_dir/<name>/."""
-    import dataclasses
-
+def run_fleet(args, params, endpoint, fleet: list, run_dir) -> int:
+    """Several built-in vehicles in this process (world.fleet): one step of each in turn, each
+    in lockstep with its companion (world.sim.run_worlds); each writes into run_dir/<name>/."""
     from skyherd.flight.clock import Pacer
-    from skyherd.world.sim import World, run_worlds
+    from skyherd.world.fleet import open_fleet
+    from skyherd.world.sim import run_worlds
 
-    worlds: list[World] = []
     try:
-        for v in fleet:
-            d = run_dir / v.name
-            d.mkdir(exist_ok=True)
-            p = dataclasses.replace(params, instance=v.instance, seed=v.seed, home=v.home)
-            cfg = dataclasses.replace(endpoint, instance=v.instance)
-            worlds.append(World(p, run_dir=d, endpoint_config=cfg, faults=_faults(args, v.seed)))
-    except (OSError, ValueError) as e:
-        for w in worlds:
-            w.close()
-        hint = (
-            f"; is another vehicle using instance {v.instance}?" if isinstance(e, OSError) else ""
-        )
-        raise UsageError(f"--fleet {v.name}: {e}{hint}") from None
+        worlds = open_fleet(params, endpoint, fleet, run_dir, lambda seed: _faults(args, seed))
+    except ValueError as e:
+        raise UsageError(str(e)) from None
     stop = lambda *_: [w.stop() for w in worlds]  # noqa: E731
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, stop)
@@ -514,11 +470,11 @@ def run_fleet(args, params, endpoint, fleet: list[FleetVehicle], run_dir) -> int
 
 def _follow(args, params, session, run_dir):
     """The world around an outside vehicle (world/follow.py)."""
-    from skyherd.hil.link import LinkError, MavlinkLink, parse_address
+    from skyherd.hil.link import LinkError, MavlinkLink, link_address
     from skyherd.world.follow import FollowWorld
 
     try:
-        parse_address(args.follow)
+        link_address(args.follow)
         # ArduPilot SITL opens SERIAL1 only once the companion is on SERIAL0: retry 60 s
         link = MavlinkLink.open(args.follow, connect_wait_s=60.0, source_system=255,
                                 source_component=190, signing_key=args.signing_key)  # fmt: skip

@@ -1,8 +1,8 @@
 """`skyherd sitl`: run one simulated vehicle with its MAVLink endpoints until interrupted.
 
-Ports for instance N (CONVENTIONS.md): API/offboard UDP 14580+N → 127.0.0.1:14540+N (MAVSDK:
-`udpin://127.0.0.1:14540`), ground station UDP 18570+N → 127.0.0.1:14550 (QGroundControl,
-MAVProxy). System id 1+N. Parameters set over MAVLink persist per airframe and instance.
+Ports for instance N: the PX4 SITL layout (CONVENTIONS.md; every number in runio/constants.py):
+an API/offboard link for MAVSDK and a ground-station link for QGroundControl and MAVProxy.
+System id 1+N. Parameters set over MAVLink persist per airframe and instance.
 """
 
 from __future__ import annotations

@@ -40,12 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="ADDRESS",
         help="the frame source, in the address syntax of every command (tcp:HOST:PORT; "
-        "Zenoh's tcp/HOST:PORT is accepted too) (default: tcp:127.0.0.1:7447+N for --instance N)",
+        f"Zenoh's tcp/HOST:PORT is accepted too) (default: {ports.ZENOH_ADDRESS_HELP} for --instance N)",
     )
     parser.add_argument("--instance", type=int, default=0, metavar="N",
                         help=f"watch the flight of vehicle instance N in [0, {ports.MAX_INSTANCE}] "
-                        "(`skyherd fly/sim --instance N`): its simulator's Zenoh port 7447+N on "
-                        "127.0.0.1")  # fmt: skip
+                        f"(`skyherd fly/sim --instance N`): its simulator's {ports.ZENOH_PORT_HELP} on "
+                        f"{ports.LOOPBACK}")  # fmt: skip
     parser.add_argument(
         "--zenoh-config", default=None, help="Zenoh JSON5 config file (replaces --connect)"
     )

@@ -129,7 +129,7 @@ class FollowWorld:
                 if self.system_id == 0 and _is_autopilot_heartbeat(msg):
                     self.system_id = msg.get_srcSystem()  # auto: the first autopilot heard
                 if msg.get_srcSystem() != self.system_id or msg.get_srcComponent() != 1:
-                    continue  # another vehicle on a shared ground-station port (14550)
+                    continue  # another vehicle on the shared ground-station port
                 try:
                     update_telemetry(self.tel, msg)
                 except UnknownAutopilot as e:

@@ -101,7 +101,7 @@ def test_two_processes_exchange_frames_over_loopback():
     session = open_session(subscriber_params(port=port))
     sub = FrameSubscriber(session, "uav0")
     pub = subprocess.Popen(
-        [sys.executable, "-m", "skyherd.perception.camstream", "--port", str(port),
+        [sys.executable, "-m", "skyherd.scripts.cli", "camstream", "--port", str(port),
          "--frames", "120", "--rate", "60", "--sim-dt", "0.05", "--wait-s", "10"],
         stderr=subprocess.PIPE, text=True,
     )  # fmt: skip

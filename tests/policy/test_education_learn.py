@@ -225,11 +225,11 @@ def test_modular_file_roundtrip_and_the_fly_loader(tmp_path):
     assert ex["read"] == []
     # `skyherd fly --policy FILE` loads it with the companion's loader; its pilot explains
     from skyherd.flight.state import VehicleState
+    from skyherd.mission.build import load_pilot_policy
     from skyherd.mission.pilots import Observation, PolicyPilot
-    from skyherd.scripts.companion import _load_policy
     from skyherd.task.params import TaskParams
 
-    flown = _load_policy(str(path))
+    flown = load_pilot_policy(str(path))
     assert isinstance(flown, ModularPolicy)
     state = VehicleState(0.0, np.zeros(3), np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3),
                          np.array([0, 0, -9.81]), False)  # fmt: skip

@@ -191,11 +191,14 @@ def test_groundsim_behaviours_drive_the_ugvs():
     assert len(GROUNDSIM_SCENARIOS) == 6
 
 
-def test_evaluate_cli_on_a_run_folder(tmp_path, capsys):
+def test_transfer_table_on_a_run_folder(tmp_path, capsys):
     from skyherd.policy.dqn import MLPPolicy
-    from skyherd.policy.evaluate import main
+    from skyherd.policy.evaluate import write_transfer
+    from skyherd.scripts.cli import main
 
-    assert main([str(tmp_path)]) == 2
+    with pytest.raises(ValueError, match="no policies/ folder"):
+        write_transfer(tmp_path)
+    assert main(["transfer", str(tmp_path)]) == 2
     (tmp_path / "policies").mkdir()
     rng = np.random.default_rng(0)
     pol = MLPPolicy(
@@ -204,7 +207,7 @@ def test_evaluate_cli_on_a_run_folder(tmp_path, capsys):
         {"learner": "irl", "eval": {"all_in_view_frac": 0.5}},
     )
     pol.save(tmp_path / "policies" / "irl_seed0.npz")
-    assert main([str(tmp_path), "--episodes", "1"]) == 0
+    assert main(["transfer", str(tmp_path), "--episodes", "1"]) == 0
     text = (tmp_path / "transfer.md").read_text()
     assert "irl (irl_seed0)" in text and "groundsim:speedoff" in text and "expert (ideal)" in text
 

@@ -1,5 +1,5 @@
 """`skyherd watch` records the flight it watches (flight.mcap through record.ZenohRecorder)
-from a frame source in another process (perception.camstream on port 7468)."""
+from a frame source in another process (`skyherd camstream` on port 7468)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ PORT = 7468
 
 def _watch(tmp_path, *extra) -> int:
     src = subprocess.Popen(
-        [sys.executable, "-m", "skyherd.perception.camstream", "--port", str(PORT), "--frames", "60",
+        [sys.executable, "-m", "skyherd.scripts.cli", "camstream", "--port", str(PORT), "--frames", "60",
          "--rate", "30", "--wait-s", "60"], stderr=subprocess.DEVNULL,
     )  # fmt: skip
     try:

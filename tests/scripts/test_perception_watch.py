@@ -19,7 +19,7 @@ def free_port() -> int:
 def test_watch_saves_annotated_frames_and_counts(tmp_path, capsys):
     port = free_port()
     src = subprocess.Popen(
-        [sys.executable, "-m", "skyherd.perception.camstream", "--port", str(port),
+        [sys.executable, "-m", "skyherd.scripts.cli", "camstream", "--port", str(port),
          "--frames", "120", "--rate", "50", "--wait-s", "10"],
         stderr=subprocess.DEVNULL,
     )  # fmt: skip
@@ -70,7 +70,7 @@ def test_watch_instance_n_listens_where_fly_instance_n_publishes(tmp_path, capsy
 
     n = 150
     src = subprocess.Popen(
-        [sys.executable, "-m", "skyherd.perception.camstream", "--port", str(ports.zenoh_port(n)),
+        [sys.executable, "-m", "skyherd.scripts.cli", "camstream", "--port", str(ports.zenoh_port(n)),
          "--frames", "60", "--rate", "50", "--wait-s", "10"],
         stderr=subprocess.DEVNULL,
     )  # fmt: skip

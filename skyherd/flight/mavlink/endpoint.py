@@ -58,7 +58,7 @@ class EndpointConfig:
     instance      vehicle instance N: system id 1+N, ports offset by N
     personality   PX4 custom modes (default) or ArduCopter mode numbers
     bind_host     address both sockets bind to (127.0.0.1 unless opted out)
-    remote_host   where the default peers (MAVSDK 14540+N, GCS 14550) listen
+    remote_host   where the default peers (MAVSDK, the ground station: runio/ports.py) listen
     state_dir     parameter persistence root (None: parameters are not saved)
     tlog          write every frame in and out to this .tlog file (None: no log)
     signing_key   MAVLink 2 signing key file (32 bytes): signing on from the start. None:
@@ -144,7 +144,7 @@ class MavlinkEndpoint:
                 self.signing, link_id=0,
             )  # fmt: skip
             self.links.append(self.api)
-            self.gcs = UdpLink(  # streams only heartbeats while nothing listens at 14550
+            self.gcs = UdpLink(  # streams only heartbeats while no ground station listens
                 "gcs", config.gcs_bind, config.gcs_remote, config.system_id, COMPONENT_ID, hook,
                 self.signing, link_id=1, watch_remote=True,
             )  # fmt: skip

@@ -8,7 +8,10 @@ from `RoiPretrain.seed`'s own random stream, never from a run's. The study's for
 (K = 4, 9, 16, 25, 36 on the 50×50 grid, default settings) are saved in `roi_tables/` and
 loaded; any other key is pre-trained once per process and kept. Writing the saved files:
 
-    .venv/bin/python -c "from skyherd.policy.sql.roitable import main; main()"  # K = 4 … 36
+    .venv/bin/python -c "from skyherd.policy.sql.roitable import write_tables; write_tables()"
+
+(K = 4 … 36; `print(*holes_lines(STUDY_AGENTS, 20), sep="\\n")` lists each table seed's walk holes
+instead of writing anything).
 
 `pretrained_roi_tables` is the pre-training itself (`Q_Learning_ROI.m`), also used by the
 "per-run" switch with the run's stream.
@@ -16,7 +19,6 @@ loaded; any other key is pre-trained once per process and kept. Writing the save
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 from dataclasses import asdict
@@ -128,25 +130,27 @@ def walk_holes(layout: Layout, q2: np.ndarray, ties_first: bool = True, max_move
     return holes
 
 
-def main(argv: list[str] | None = None) -> int:
+def write_tables(agents: tuple[int, ...] = STUDY_AGENTS) -> list[Path]:
+    """Pre-train and save the fixed ROI table of each K in `agents` (published rules, default
+    settings, the study's 50×50 grid); returns the files written."""
     from skyherd.policy.sql.envfile import generate_env
 
-    p = argparse.ArgumentParser(description="write the saved fixed ROI tables (published rules)")
-    p.add_argument("--agents", type=int, nargs="+", default=list(STUDY_AGENTS))
-    p.add_argument("--holes", type=int, default=None, metavar="SEEDS",
-                   help="write nothing: list each K's walk holes for table seeds 0..SEEDS-1")  # fmt: skip
-    args = p.parse_args(argv)
     rules, h = Rules.published(), SQLHyper()
-    for k in args.agents:
+    return [save_table(generate_env(k, 0).layout(), h, rules, RoiPretrain()) for k in agents]
+
+
+def holes_lines(agents: tuple[int, ...], seeds: int) -> list[str]:
+    """One line per K and table seed 0..seeds-1: the walk holes of that table (writes nothing)."""
+    from skyherd.policy.sql.envfile import generate_env
+
+    rules, h, out = Rules.published(), SQLHyper(), []
+    for k in agents:
         lay = generate_env(k, 0).layout()
-        if args.holes is None:
-            print(save_table(lay, h, rules, RoiPretrain()))
-            continue
-        for seed in range(args.holes):
+        for seed in range(seeds):
             pre = RoiPretrain(seed=seed)
             holes = walk_holes(
                 lay, pretrained_roi_tables(lay, h, rules, kernels.rng_state(seed), pre)
             )
             told = ", ".join(f"({x}, {y}) → flag {f}" for (x, y), f in holes) or "none"
-            print(f"K = {k}, table seed {seed}: {len(holes)} holes: {told}")
-    return 0
+            out.append(f"K = {k}, table seed {seed}: {len(holes)} holes: {told}")
+    return out

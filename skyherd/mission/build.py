@@ -1,0 +1,211 @@
+"""The companion's missions built from what the command line chose (`MissionChoice`): the
+pilot, the safety net, the plan and the mission object `skyherd companion` flies
+(`build_mission`), without argparse; ValueError with a one-line reason on bad input.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from skyherd.runio import JsonlWriter
+
+
+@dataclass(frozen=True)
+class MissionChoice:
+    """What the companion flies (`skyherd companion`'s options; saved with its arguments)."""
+
+    mission: str = "groundair"  # groundair | square | shepherd | orbit
+    altitude_m: float | None = None  # take-off altitude above home [m] (None: the mission's)
+    duration_s: float = 60.0  # flight behind the safety net [s]
+    side_m: float = 40.0  # --mission square: the square's side [m]
+    envelope: str | None = None  # constraint-set TOML of the net (None: the mission's)
+    pilot: str = "policy"  # policy | pid | drill:NAME
+    policy: str | None = None  # the policy file (None: the kept one)
+    lost_ugv_search: bool = False  # search for a UGV that left the view
+    configure_autopilot: bool = False  # set the outside autopilot's parameters the net needs
+    shepherd_selector: str = "learned"  # learned | strombom
+    orbit_team: str = "lateral"  # --mission orbit: the UGV team's scenario briefed
+    orbit_seed: int = 0  # ... and its seed
+    orbit_no_land: bool = False  # --mission orbit: hold instead of landing at the end
+    groundair_altitude_m: float = 20.0  # the ground-air and square missions' default [m]
+    shepherd_altitude_m: float = 12.0  # --mission shepherd's default [m]: the flock feels the
+    # UAV's horizontal position only; low enough for the camera to show the flock's part under it
+
+
+def _say_nothing(text: str) -> None:
+    pass
+
+
+def _record(run_dir: Path | None):
+    """decisions.jsonl and metrics.csv (TRACK_COLUMNS) in `run_dir`, or no records."""
+    from skyherd.mission.flight import TRACK_COLUMNS, Record
+    from skyherd.runio import CsvWriter
+
+    return Record(
+        decisions=JsonlWriter(run_dir / "decisions.jsonl") if run_dir else None,
+        track=CsvWriter(run_dir / "metrics.csv", TRACK_COLUMNS) if run_dir else None,
+    )
+
+
+def build_mission(c: MissionChoice, run_dir: Path | None, say=_say_nothing):
+    """Policy, safety net, pilot and the mission generator's owner, and its plan (ValueError,
+    one line, on bad input). With `run_dir`, the records go there; `say(line)` tells progress."""
+    from skyherd.mission.flight import FlightPlan, SingleVehicleMission
+    from skyherd.mission.perception import Perception
+    from skyherd.mission.pilots import PerceptionFollower, PolicyPilot, WaypointPilot
+    from skyherd.task.params import TaskParams
+
+    task = TaskParams()
+    altitude = c.groundair_altitude_m if c.altitude_m is None else c.altitude_m
+    if c.mission == "orbit":
+        return _orbit_mission(c, run_dir)
+    if c.mission == "shepherd":
+        return _shepherd_mission(c, run_dir)
+    if c.mission == "square":
+        if not (0 < altitude <= 120 and 0 < c.side_m <= 500):
+            raise ValueError("--altitude must be in (0, 120] m and --side in (0, 500] m")
+        s, z = c.side_m, -altitude
+        wps = [np.array(w, dtype=float) for w in ([s, 0, z], [s, s, z], [0, s, z], [0, 0, z])]
+        pilot, net, perception = WaypointPilot(wps), None, None
+        plan = FlightPlan(altitude_m=altitude, duration_s=600.0)
+    else:
+        plan = FlightPlan(altitude_m=altitude, duration_s=c.duration_s, decision_s=task.dt_s)
+        net = load_groundair_net(c.envelope, run_dir)
+        if c.pilot == "policy":
+            pilot = PolicyPilot(load_pilot_policy(c.policy), task)
+        elif c.pilot == "pid":
+            pilot = PerceptionFollower(task)
+        else:  # a drill's adversarial AI, deciding every tick as the drills' AI does
+            pilot = drill_pilot(c.pilot, net.spec)
+            plan = FlightPlan(altitude_m=altitude, duration_s=c.duration_s, decision_s=0.1)
+        perception = Perception(task)
+        if c.lost_ugv_search and not c.pilot.startswith("drill:"):
+            from skyherd.mission.search import SearchPilot
+            from skyherd.policy.search.lost import LostSearch
+
+            pilot = SearchPilot(pilot, perception, LostSearch(None, task), net.spec.limits,
+                                net.spec.dynamics.tau_s)  # fmt: skip
+    record = _record(run_dir)
+    return SingleVehicleMission(pilot, net, plan, record, perception,
+                                c.configure_autopilot, say), plan  # fmt: skip
+
+
+def _shepherd_mission(c: MissionChoice, run_dir: Path | None):
+    """The shepherd (mission/shepherd.py) behind the ground-air envelope's net; its flock reader
+    is attached once the Zenoh session is open (`attach_flock`)."""
+    from skyherd.mission.flight import FlightPlan, SingleVehicleMission
+    from skyherd.mission.shepherd import ShepherdPilot
+    from skyherd.policy.shepherd.rules import ShepherdParams
+    from skyherd.policy.shepherd.selector import make_selector
+
+    altitude = c.shepherd_altitude_m if c.altitude_m is None else c.altitude_m
+    plan = FlightPlan(altitude_m=altitude, duration_s=c.duration_s,
+                      decision_s=ShepherdParams().decision_s)  # fmt: skip
+    net = load_groundair_net(c.envelope, run_dir)
+    spec = net.spec
+    pilot = ShepherdPilot(make_selector(c.shepherd_selector), lambda t: None, altitude, spec.limits,
+                          spec.dynamics.tau_s)  # fmt: skip
+    record = _record(run_dir)
+    return SingleVehicleMission(pilot, net, plan, record, None), plan
+
+
+def attach_flock(session, mission, key: bytes | None = None) -> object:
+    """The shepherd reads the flock's reports (skyherd/ugv/<id>/state) on `session` (with the
+    flight's key only authentic ones); returns the subscriber (closed with the session), kept
+    as `mission.flock_sub` for companion.json."""
+    from skyherd.groundsim.flock import FlockParams
+    from skyherd.groundsim.transport import UGVStateSubscriber
+    from skyherd.mission.shepherd import flock_reader
+
+    sub = mission.flock_sub = UGVStateSubscriber(session, key=key)
+    mission.pilot.flock = flock_reader(sub, FlockParams().n)
+    return sub
+
+
+INPUT_FAULT_DRILLS = ("camera loss", "link loss")
+"""Named drills whose fault is an input, not the AI's action: in a flight those are the
+simulator's --cut-camera / --cut-link, not a pilot."""
+
+
+def drill_pilot(choice: str, spec):
+    """The adversarial pilot of `--pilot drill:NAME` for the flight's envelope (ValueError
+    naming the drills there are)."""
+    from skyherd.mission.pilots import DrillPilot
+    from skyherd.safety.drills import DrillParams, scripted_drills
+
+    p = DrillParams()
+    name = choice.split(":", 1)[1].replace("-", " ").strip()
+    scripts = {s.name: s for s in scripted_drills(spec, p) if s.name not in INPUT_FAULT_DRILLS}
+    if name not in scripts:
+        names = ", ".join("drill:" + n.replace(" ", "-") for n in scripts)
+        raise ValueError(f"--pilot {choice}: no such drill for {spec.name}; use one of {names}")
+    return DrillPilot(scripts[name], p, p.duration(spec.airframe), name=f"drill:{name}")
+
+
+def _orbit_mission(c: MissionChoice, run_dir: Path | None):
+    """The fixed-wing orbit (mission/orbit.py) behind the fixed-wing envelope's net."""
+    from skyherd.mission.orbit import OrbitFlight, OrbitMission, briefing_for
+    from skyherd.mission.orbit_plan import fence_reserve
+    from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError
+    from skyherd.safety.net import SafetyNet, warm_up
+
+    events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
+    try:
+        flight = OrbitFlight(duration_s=c.duration_s, land=not c.orbit_no_land)
+        net = SafetyNet.load(
+            "fixedwing", c.envelope or ENVELOPE_DIR / "fixedwing_field.toml", events=events
+        )
+    except (EnvelopeFileError, ValueError) as e:
+        raise ValueError(f"{e}; fix the envelope file or the duration") from None
+    warm_up(net.envelope, net.p)
+    lim = net.envelope.spec.limits
+    brief = briefing_for(c.orbit_team, c.orbit_seed, flight.duration_s, flight.establish_s)
+    record = _record(run_dir)
+    alt_band = (lim.floor_m + lim.margin_m, lim.ceiling_m - lim.margin_m - 15.0)
+    mission = OrbitMission(net, flight, brief, record, fence_reserve(net.envelope.spec), alt_band)
+    return mission, flight
+
+
+def load_pilot_policy(path: str | None):
+    """The ground-air policy file (the kept one without `path`), checked against the task's
+    observation and actions (ValueError, one line)."""
+    from skyherd.policy.dqn import PolicyFileError, load_policy
+    from skyherd.policy.models import DEFAULT_POLICY
+    from skyherd.task.observation import OBS_DIM
+    from skyherd.task.params import N_ACTIONS
+
+    try:
+        policy = load_policy(path or DEFAULT_POLICY)
+    except PolicyFileError as e:
+        raise ValueError(f"{e}; train one with `skyherd train ab` or pass --policy") from None
+    if getattr(policy, "continuous", False):  # a deep velocity policy (skyherd train abs-dl)
+        shape = (getattr(policy, "obs_dim", None), getattr(policy, "act_dim", None))
+        if shape != (OBS_DIM, 3):
+            raise ValueError(f"{path}: the deep policy takes {shape[0]} inputs and gives {shape[1]} "
+                             f"velocity components; the ground-air task has {OBS_DIM} inputs and a "
+                             "3-component NED velocity: pass a policy from `skyherd train abs-dl`")  # fmt: skip
+        return policy
+    shape = (getattr(policy, "obs_dim", None), getattr(policy, "n_actions", None))
+    if shape != (OBS_DIM, N_ACTIONS):
+        raise ValueError(f"{path or DEFAULT_POLICY}: the policy takes {shape[0]} inputs and gives "
+                         f"{shape[1]} actions; the ground-air task has {OBS_DIM} inputs and {N_ACTIONS} "
+                         "actions: pass a policy trained for it (`skyherd train ab`) or drop --policy")  # fmt: skip
+    return policy
+
+
+def load_groundair_net(envelope: str | None, run_dir: Path | None):
+    """The ground-air mission's SafetyNet (the camera is one of its inputs)."""
+    from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError
+    from skyherd.safety.net import SafetyNet, warm_up
+
+    path = envelope or ENVELOPE_DIR / "quadrotor_groundair.toml"
+    events = JsonlWriter(run_dir / "events.jsonl") if run_dir else None
+    try:
+        net = SafetyNet.load("quadrotor", path, events=events, camera=True)
+    except (EnvelopeFileError, ValueError) as e:
+        raise ValueError(f"{e}; fix the file or pass another --envelope") from None
+    warm_up(net.envelope, net.p)  # compile now, not at the first switch in flight
+    return net
