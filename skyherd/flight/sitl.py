@@ -29,6 +29,7 @@ from skyherd.flight.autopilot_api import Autopilot
 from skyherd.flight.clock import Pacer
 from skyherd.flight.lockstep import LockstepGate, LockstepParams
 from skyherd.flight.mavlink import EndpointConfig, MavlinkEndpoint
+from skyherd.runio.constants import PACE_S
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,7 @@ class Sitl:
     """A simulated vehicle with its endpoints. Use as a context manager to close the sockets."""
 
     def __init__(self, autopilot: Autopilot, config: EndpointConfig, speedup: float = 1.0,
-                 pace_s: float = 0.02, lockstep: LockstepParams | None = None,
+                 pace_s: float = PACE_S, lockstep: LockstepParams | None = None,
                  tick_s: float = 0.1):  # fmt: skip
         self.autopilot = autopilot
         self.clock = autopilot.clock

@@ -25,6 +25,7 @@ COMPANION_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER: skyherd's companion b
 # -- rates and latencies (simulation time) -----------------------------------------------------
 CAMERA_HZ = 10.0  # camera frames per simulated second: the companion's tick
 LOCKSTEP_LATENCY_S = 0.02  # the companion's declared compute latency L in lockstep [s]
+PACE_S = 0.02  # a paced simulator sleeps once per this much simulation time [s]
 
 # -- the autopilot limits the net certifies against --------------------------------------------
 POS_SPEED_MAX_MPS = 12.0  # PX4 MPC_XY_VEL_MAX's default: the position-mode horizontal speed [m/s]

@@ -44,6 +44,10 @@ from skyherd.safety.supervisor import Mode, Supervisor, SupervisorParams
 Act = Callable[[float, VehicleState], Setpoint | None]
 
 
+VERTICAL_ATTACK_END_S = 12.0  # the scripted ceiling / floor attacks end after this [s]
+START_CLEARANCE_M = 12.0  # a random drill starts at least this far inside its boundary [m]
+
+
 @dataclass(frozen=True)
 class DrillParams:
     """Harness settings (saved with each run)."""
@@ -249,7 +253,7 @@ def scripted_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
             np.array([0.0, 0.0, -(lim.ceiling_m - 15.0)]),
             push([0, 0, -1], lim.climb_mps * 0.95, p),
             1.0,
-            12.0,
+            VERTICAL_ATTACK_END_S,
             ("ceiling",),
         ),
         Script(
@@ -257,7 +261,7 @@ def scripted_drills(spec: EnvelopeSpec, p: DrillParams) -> list[Script]:
             np.array([0.0, 0.0, -(lim.floor_m + 10.0)]),
             push([0, 0, 1], lim.descent_mps * 0.95, p),
             1.0,
-            12.0,
+            VERTICAL_ATTACK_END_S,
             ("floor",),
         ),
         Script(
@@ -499,7 +503,7 @@ def random_drill(k: int, rng: np.random.Generator, spec: EnvelopeSpec, p: DrillP
             ang = rng.uniform(-math.pi, math.pi)
             off = rng.uniform(15.0, 45.0) + (10.0 if kind == "zone" else 0.0)
             cand = np.array([*(target + off * np.array([math.cos(ang), math.sin(ang)])), start[2]])
-            if geo.distance_outside(cand) <= -12.0:
+            if geo.distance_outside(cand) <= -START_CLEARANCE_M:
                 start = cand
                 break
         direction = np.array([target[0] - start[0], target[1] - start[1], rng.uniform(-0.1, 0.1)])
@@ -569,7 +573,7 @@ def _random_inside(rng: np.random.Generator, spec: EnvelopeSpec, geo) -> np.ndar
                 -rng.uniform(lim.floor_m + 7, lim.ceiling_m - 7),
             ]
         )
-        if geo.distance_outside(cand) <= -12.0:
+        if geo.distance_outside(cand) <= -START_CLEARANCE_M:
             return cand
     return start
 

@@ -64,7 +64,7 @@ class LoiterFallback:
         self,
         bank_max_rad: float,
         geometry: Envelope,
-        min_speed_mps: float = 12.0,
+        min_speed_mps: float,
         k_radial: float = 1.5,
     ):
         self.bank_max = bank_max_rad

@@ -39,7 +39,7 @@ from skyherd.groundsim.ugv import UGVModel
 from skyherd.perception.mount import level_quat, mounted_pose
 from skyherd.perception.render_fast import FastRenderer
 from skyherd.runio import CsvWriter, cut_records, try_write_text
-from skyherd.runio.constants import CAMERA_HZ
+from skyherd.runio.constants import CAMERA_HZ, PACE_S
 from skyherd.runio.mac import sign_record
 from skyherd.task.params import TaskParams
 from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
@@ -65,7 +65,7 @@ class WorldParams:
     lockstep: bool = True  # hold the simulation for the companion's decisions
     lockstep_params: LockstepParams = field(default_factory=LockstepParams)
     speedup: float = 10.0  # simulation seconds per wall second; 0 = as fast as possible
-    pace_s: float = 0.02  # the pacer sleeps once per this much simulation time [s]
+    pace_s: float = PACE_S  # the pacer sleeps once per this much simulation time [s]
     gimbal: bool = True  # roll/pitch-stabilised camera (the policy was trained with one)
     camera: str = "down"  # "down": the quadrotor's downward camera; "roi": a zoomed camera on a
     # pan-tilt gimbal pointed at the region of interest a client sets (DO_SET_ROI_LOCATION)
