@@ -26,9 +26,9 @@ from typing import Any
 
 from skyherd.record.flightlog import FlightLog
 from skyherd.record.mcap_file import FlightRecorder
+from skyherd.runio.constants import CLOCK_KEY
 from skyherd.runio.mac import record_ok
 
-CLOCK_KEY = "skyherd/sim/clock"
 ZENOH_METADATA = "skyherd zenoh"  # the MCAP metadata record of the counts, written at close
 
 

@@ -29,3 +29,6 @@ PACE_S = 0.02  # a paced simulator sleeps once per this much simulation time [s]
 
 # -- the autopilot limits the net certifies against --------------------------------------------
 POS_SPEED_MAX_MPS = 12.0  # PX4 MPC_XY_VEL_MAX's default: the position-mode horizontal speed [m/s]
+
+# -- Zenoh key expressions (CONVENTIONS.md "Zenoh") -----------------------------------------------
+CLOCK_KEY = "skyherd/sim/clock"  # the simulation clock, one sample per camera instant

@@ -1,8 +1,8 @@
 """The world around a real autopilot that flies on skyherd's physics (`skyherd sim --autopilot
 px4|ardupilot`): PX4 (`none_iris`, TCP 4560+N) or ArduPilot (`--model JSON`, UDP 9002+10N) steps
 the bridge's quadrotor in its own lockstep (hil/px4_sim.py, hil/ardupilot_json.py); at every camera
-instant of that simulation clock the world renders the UGV team from the bridge's true pose and
-publishes the frame. The companion talks MAVLink to the autopilot itself (free-running: the
+instant of that simulation clock the world's `Scene` (world/scene.py) renders the UGV team from the
+bridge's true pose and publishes the frame, the UGV states and the clock. The companion talks MAVLink to the autopilot itself (free-running: the
 autopilot paces itself), so `skyherd fly --connect` flies it.
 """
 
@@ -13,15 +13,9 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
-
-from skyherd.groundsim.transport import UGVStatePublisher
-from skyherd.groundsim.ugv import UGVModel
-from skyherd.perception.render_fast import FastRenderer
-from skyherd.runio import CsvWriter, atomic_write_text
+from skyherd.runio import atomic_write_text
 from skyherd.task.params import TaskParams
-from skyherd.world.sim import level_camera_mount
-from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
+from skyherd.world.scene import Scene
 
 
 class BridgedWorld:
@@ -29,25 +23,12 @@ class BridgedWorld:
 
     def __init__(self, bridge, params, session=None, run_dir: Path | None = None,
                  key: bytes | None = None):  # fmt: skip
-        """key: the flight key: camera frames and UGV states signed (perception, groundsim)."""
-        from skyherd.perception.transport import FramePublisher
-
+        """key: the flight key: camera frames, UGV states and the clock signed."""
         self.bridge, self.p = bridge, params
         self.task = TaskParams()
-        self.team = new_team(params.scenario, params.seed, self.task.n_ugvs)
-        self.renderer = FastRenderer(self.task.camera, UGVModel())
-        self.publisher = self.ugv_pub = None
-        if session is not None:
-            self.publisher = FramePublisher(session, params.vehicle, self.task.camera,
-                                            mount="level",  # level_camera_mount below
-                                            rng=np.random.default_rng(params.seed), key=key)  # fmt: skip
-            self.ugv_pub = UGVStatePublisher(session, self.task.n_ugvs, key=key)
-        self.run_dir = Path(run_dir) if run_dir is not None else None
-        cols = ["t", "north", "east", "down"] + ugv_columns(self.task.n_ugvs)
-        self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
+        self.scene = Scene(params, self.task, session, run_dir, key)
+        self.run_dir = self.scene.run_dir
         self._stop = threading.Event()
-        self.frames = 0
-        self._t_team = 0.0
 
     def stop(self) -> None:
         self._stop.set()
@@ -71,7 +52,9 @@ class BridgedWorld:
             if t >= next_t - 1e-9:
                 self._camera(t)
                 next_t += period
-        stats = {"bridged": True, "frames": self.frames, "sim_s": self.bridge.t,
+        stats = {"bridged": True, "frames": self.scene.frames, "sim_s": self.bridge.t,
+                 "render_failures": self.scene.render_failures,
+                 "camera_loss_frames": self.scene.camera_dropped,
                  "wall_s": time.monotonic() - wall0, "bridge": str(getattr(self.bridge, "stats", ""))}  # fmt: skip
         stats["real_time_factor"] = stats["sim_s"] / stats["wall_s"] if stats["wall_s"] > 0 else 0.0
         if self.run_dir is not None:
@@ -79,27 +62,10 @@ class BridgedWorld:
         return stats
 
     def _camera(self, t: float) -> None:
-        if t > self._t_team:  # the team drives from the start (no OFFBOARD to wait for here)
-            self.team.step(t - self._t_team)
-            self._t_team = t
-        state = self.bridge.state
-        ugvs = team_states(self.team)
-        if self.publisher is not None:
-            uav = level_camera_mount(state)
-            try:
-                image = self.renderer.render(uav, ugvs, self.publisher.frame_buffer())
-            except ValueError:
-                return
-            self.publisher.publish(t, uav.pos_ned, uav.quat, image)
-            self.ugv_pub.publish(t, ugvs)
-            self.frames += 1
-        if self.truth is not None:
-            self.truth.write(truth_row(round(t, 6), state.pos_ned, ugvs))
+        # The bridge carries no flight mode: a team waiting for "offboard" drives from the
+        # start here (a time in --ugv-start is kept); mode and arming are not in world.csv.
+        self.scene.instant(t, self.bridge.state, "", None, offboard=True)
 
     def close(self) -> None:
-        if self.truth is not None:
-            self.truth.close()
-        for x in (self.publisher, self.ugv_pub):
-            if x is not None:
-                x.close()
+        self.scene.close()
         self.bridge.close()

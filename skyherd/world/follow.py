@@ -28,19 +28,15 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from skyherd.flight.autopilot_api import FlightMode
-from skyherd.groundsim.ugv import UGVModel
 from skyherd.hil.autopilots import UnknownAutopilot
 from skyherd.hil.telemetry import Telemetry, update_telemetry
-from skyherd.perception.mount import mounted_pose
-from skyherd.perception.render_fast import FastRenderer
-from skyherd.runio import CsvWriter, atomic_write_text
+from skyherd.runio import atomic_write_text
 from skyherd.task.params import TaskParams
-from skyherd.world.sim import _during, alone_record
-from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
+from skyherd.world.scene import Scene
+from skyherd.world.sim import alone_record
 
 M = mavlink2
 ALONE_WALL_SLACK_S = (
@@ -67,37 +63,17 @@ class FollowWorld:
         system_id: int = 1,
         key: bytes | None = None,
     ):
-        """key: the flight key: camera frames signed (perception.transport)."""
-        from skyherd.perception.transport import FramePublisher
-
+        """key: the flight key: camera frames, UGV states and the clock signed."""
         self.link, self.p = link, params
         self.system_id = system_id  # the followed autopilot's system id (0: the first heard)
         self.task = task if task is not None else TaskParams()
         self.tel = Telemetry()
-        self.team = new_team(params.scenario, params.seed, self.task.n_ugvs)
-        self.team_t: float | None = None
-        self._team_t0 = 0.0
-        self.cam = self.task.camera
-        self.roi_ned: np.ndarray | None = None  # where the pointed head looks (None: nadir)
-        self.roi_commands = 0
-        if getattr(params, "camera", "down") == "roi":
-            from skyherd.perception.gimbal import ORBIT_CAMERA
-
-            self.cam = ORBIT_CAMERA
-        self.renderer = FastRenderer(self.cam, UGVModel())
-        self.publisher = None
-        if session is not None:
-            self.publisher = FramePublisher(session, params.vehicle, self.cam, mount=self._mount(),
-                                            rng=np.random.default_rng(params.seed), key=key)  # fmt: skip
-        self.run_dir = Path(run_dir) if run_dir is not None else None
-        cols = ["t", "north", "east", "down", "mode", "armed", "team_t"]
-        cols += ugv_columns(self.task.n_ugvs)
-        self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
+        self.scene = Scene(params, self.task, session, run_dir, key)
+        self.run_dir = self.scene.run_dir
         self._stop = threading.Event()
         self._alone = threading.Event()  # the companion is gone: follow the autopilot alone
         self.alone_why = ""
         self.alone: dict | None = None  # what the autopilot did alone (sim_stats.json)
-        self.frames = 0
         self.error = ""
 
     def stop(self) -> None:
@@ -124,7 +100,7 @@ class FollowWorld:
         modes: list = []
         while not self._stop.is_set():
             for msg in self.link.recv(0.05):
-                if self.cam is not self.task.camera and self._gimbal_command(msg):
+                if self.p.camera == "roi" and self._gimbal_command(msg):
                     continue
                 if self.system_id == 0 and _is_autopilot_heartbeat(msg):
                     self.system_id = msg.get_srcSystem()  # auto: the first autopilot heard
@@ -136,7 +112,7 @@ class FollowWorld:
                     self.error = str(e)
                     return self._stats(wall0)
             now = time.monotonic()
-            if self.cam is not self.task.camera and self.system_id and now - announced > 1.0:
+            if self.p.camera == "roi" and self.system_id and now - announced > 1.0:
                 announced = now
                 self._announce_gimbal()
             if self.tel.profile is not None and now - asked > 5.0:  # ArduPilot: ask for streams
@@ -171,33 +147,10 @@ class FollowWorld:
         return self._stats(wall0)
 
     def _camera(self, t: float, state) -> None:
-        if self.team_t is None:
-            start = self.p.ugv_start
-            go = self.tel.mode is FlightMode.OFFBOARD if start == "offboard" else t >= float(start)
-            if go:
-                self.team_t, self._team_t0 = 0.0, t
-        elif t - self._team_t0 > self.team_t:
-            self.team.step(t - self._team_t0 - self.team_t)
-            self.team_t = t - self._team_t0
-        ugvs = team_states(self.team)
-        # --cut-camera windows count the vehicle's clock here (a fallback drill on a real autopilot)
-        if self.publisher is not None and not _during(self.p.camera_losses, t):
-            try:  # a position not yet known (NaN before the EKF's) renders nothing
-                uav = self._camera_mount(state)
-                image = self.renderer.render(uav, ugvs, self.publisher.frame_buffer())
-            except ValueError:
-                return
-            self.publisher.publish(t, uav.pos_ned, uav.quat, image)
-            self.frames += 1
-        if self.truth is not None:
-            self._write_truth(t, state, ugvs)
-
-    def _mount(self) -> str:
-        """The level downward mount, or the pan-tilt head pointed at the ROI (hil.camera_mount)."""
-        return "level" if self.cam is self.task.camera else "pointed"
-
-    def _camera_mount(self, state):
-        return mounted_pose(self.cam, self._mount(), state.pos_ned, state.quat, self.roi_ned)
+        """The scene at the autopilot's time t (--cut-camera windows count the vehicle's clock:
+        a fallback drill on a real autopilot)."""
+        self.scene.instant(round(t, 6), state, self.tel.mode_name, bool(self.tel.armed),
+                           offboard=self.tel.mode is FlightMode.OFFBOARD)  # fmt: skip
 
     def _announce_gimbal(self) -> None:
         """HEARTBEAT as the followed vehicle's gimbal (its system id, MAV_COMP_ID_GIMBAL)."""
@@ -218,8 +171,7 @@ class FollowWorld:
         target = roi_ned(self.tel.home, msg.param5, msg.param6, msg.param7)
         ok = target is not None
         if ok:
-            self.roi_ned = target
-            self.roi_commands += 1
+            self.scene.point(target)
         enc = M.MAVLink(None, srcSystem=self.system_id, srcComponent=M.MAV_COMP_ID_GIMBAL)
         ack = M.MAVLink_command_ack_message(msg.command, M.MAV_RESULT_ACCEPTED if ok else
                                             M.MAV_RESULT_DENIED, 0, 0, msg.get_srcSystem(),
@@ -227,17 +179,11 @@ class FollowWorld:
         self.link.transport.send(ack.pack(enc))
         return True
 
-    def _write_truth(self, t: float, state, ugvs) -> None:
-        """One world.csv row: the vehicle as its autopilot reports it, and the team."""
-        self.truth.write(truth_row(round(t, 6), state.pos_ned, ugvs, mode=self.tel.mode_name,
-                                   armed=int(self.tel.armed),
-                                   team_t="" if self.team_t is None else round(self.team_t, 6)))  # fmt: skip
-
     def _end_alone(self, t_gone: float, modes: list, state) -> None:
         """What the autopilot did alone; world.csv ends on its end state."""
         t = self.tel.t
-        if self.truth is not None and state is not None:
-            self._write_truth(t, state, team_states(self.team))
+        if state is not None:
+            self.scene.write_truth(round(t, 6), state, self.tel.mode_name, bool(self.tel.armed))
         alt = math.nan if state is None else -float(state.pos_ned[2])
         self.alone = alone_record(
             self.alone_why,
@@ -251,9 +197,9 @@ class FollowWorld:
         )
 
     def _stats(self, wall0: float) -> dict:
-        stats = {"followed": True, "frames": self.frames, "wall_s": time.monotonic() - wall0,
+        stats = {"followed": True, "frames": self.scene.frames, "wall_s": time.monotonic() - wall0,
                  "vehicle_t_s": self.tel.t, "autopilot": self.tel.profile.name if self.tel.profile else None,
-                 "roi_commands": self.roi_commands, "system_id": self.system_id,
+                 "roi_commands": self.scene.roi_commands, "system_id": self.system_id,
                  "error": self.error, "after_companion": self.alone,
                  "mavlink_signing": {"on": self.link.signing is not None and self.link.signing.enabled,
                                      "rejected": self.link.rejected_packets}}  # fmt: skip
@@ -262,8 +208,5 @@ class FollowWorld:
         return stats
 
     def close(self) -> None:
-        if self.truth is not None:
-            self.truth.close()
-        if self.publisher is not None:
-            self.publisher.close()
+        self.scene.close()
         self.link.close()

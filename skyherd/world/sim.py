@@ -30,21 +30,17 @@ from pathlib import Path
 
 import numpy as np
 
+from skyherd.flight.autopilot_api import FlightMode
 from skyherd.flight.clock import Pacer
 from skyherd.flight.lockstep import LockstepGate, LockstepParams, LockstepTimeout, collect_closes
 from skyherd.flight.mavlink.signing import load_key
 from skyherd.flight.state import VehicleState
-from skyherd.groundsim.transport import UGVStatePublisher
-from skyherd.groundsim.ugv import UGVModel
-from skyherd.perception.mount import level_quat, mounted_pose
-from skyherd.perception.render_fast import FastRenderer
-from skyherd.runio import CsvWriter, cut_records, try_write_text
+from skyherd.perception.mount import level_quat
+from skyherd.runio import cut_records, try_write_text
 from skyherd.runio.constants import CAMERA_HZ, PACE_S
-from skyherd.runio.mac import sign_record
 from skyherd.task.params import TaskParams
-from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
+from skyherd.world.scene import Scene, during
 
-CLOCK_KEY = "skyherd/sim/clock"
 HEARTBEAT = 0  # MAVLINK_MSG_ID_HEARTBEAT
 
 
@@ -124,10 +120,6 @@ def alone_record(
     }
 
 
-def _during(windows: tuple[tuple[float, float], ...], t: float) -> bool:
-    return any(t0 <= t < t0 + d for t0, d in windows)
-
-
 def level_camera_mount(state: VehicleState) -> VehicleState:
     """The state as a 2-axis (roll, pitch) stabilised gimbal sees it: heading kept, level."""
     return dataclasses.replace(state, quat=level_quat(state.quat))
@@ -168,20 +160,6 @@ class World:
         self.endpoint.gated.add("api")  # read by the gate (lockstep) or by this loop (free-run)
         self.gate = LockstepGate(self.endpoint.api, self.endpoint.mav, params.lockstep_params)
         self.endpoint.api.coalesce = params.lockstep  # what a tick sends leaves with its mark
-        # no team: the vehicle alone (a formation vehicle); its ticks are marked all the same
-        self.team = None if params.scenario == "none" else new_team(params.scenario, params.seed,
-                                                                    self.task.n_ugvs)  # fmt: skip
-        n_ugvs = 0 if self.team is None else len(self.team.positions())  # a flock: its own size
-        self.team_t: float | None = None  # team time [s]; None while parked
-        self.cam = self.task.camera
-        self.roi_ned: np.ndarray | None = None  # where the pointed gimbal looks (None: nadir)
-        self.roi_commands = 0
-        if params.camera == "roi":
-            from skyherd.perception.gimbal import ORBIT_CAMERA
-
-            self.cam = ORBIT_CAMERA
-        self.mount = "pointed" if params.camera == "roi" else "level" if params.gimbal else "body"
-        self.renderer = FastRenderer(self.cam, UGVModel())
         self.pacer = Pacer(params.speedup)
         self.lag = Lag()
         self._stop = threading.Event()
@@ -189,26 +167,9 @@ class World:
         self.alone_why = ""
         self.alone: dict | None = None  # what the autopilot did alone (sim_stats.json)
         self._session = session
-        self.publisher = None
-        self._ugv_pub = None
-        self._clock_pub = None
-        self._flight_key = None  # signs the UGV states and the clock (groundsim.transport)
-        if session is not None and self.team is not None:
-            from skyherd.perception.transport import FramePublisher
-
-            key = load_key(cfg.signing_key) if cfg.signing_key else None  # frames signed too
-            self.publisher = FramePublisher(session, params.vehicle, self.cam, mount=self.mount,
-                                            rng=np.random.default_rng(params.seed), key=key)  # fmt: skip
-            self._ugv_pub = UGVStatePublisher(session, n_ugvs, key=key)
-            self._flight_key = key
-            self._clock_pub = session.declare_publisher(CLOCK_KEY)
-        self.run_dir = Path(run_dir) if run_dir is not None else None
-        cols = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
-        cols += ugv_columns(n_ugvs)
-        self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
-        self._truth_t = -math.inf  # simulation time of world.csv's last row [s]
-        self.frames = 0
-        self.render_failures = 0
+        key = load_key(cfg.signing_key) if cfg.signing_key else None  # frames signed too
+        self.scene = Scene(params, self.task, session, run_dir, key)
+        self.run_dir = self.scene.run_dir
         self.cut_dropped = 0  # companion messages lost in link cuts
         self.camera_dropped = 0  # frames not sent while the camera was lost
 
@@ -278,7 +239,7 @@ class World:
             self._camera_instant(t_us)
             self._next_frame_us += self._period_us
             self._open_tick = t_us if p.lockstep and self._alone_t0 is None else None
-        self._cut = bool(p.link_cuts) and _during(p.link_cuts, clock.t)
+        self._cut = bool(p.link_cuts) and during(p.link_cuts, clock.t)
         self.endpoint.api.muted = self._cut  # a real cut: nothing reaches the companion
         return True
 
@@ -332,8 +293,8 @@ class World:
         t = self.clock.t
         # world.csv ends on the end state, if the autopilot flew alone at all (a flight that
         # ended disarmed keeps the world.csv it always had)
-        if self.truth is not None and t > max(self._truth_t, self._alone_t0):
-            self._write_truth(t, state, None if self.team is None else team_states(self.team))
+        if t > max(self.scene.truth_t, self._alone_t0):
+            self.scene.write_truth(t, state, ap.mode.name, bool(ap.armed))
         self.alone = alone_record(self.alone_why, self._alone_t0, t, self.p.alone_s,
                                   self._alone_modes, ap.mode.name, bool(ap.armed),
                                   -float(state.pos_ned[2]))  # fmt: skip
@@ -346,36 +307,12 @@ class World:
                            self._span, process_vehicles)  # fmt: skip
 
     def _camera_instant(self, t_us: int) -> None:
-        t = t_us / 1e6
-        self._move_team(t)
         ap = self.autopilot  # the physics, not the estimate, where the two differ
         state = ap.true_state if hasattr(ap, "true_state") else ap.state
-        ugvs = None if self.team is None else team_states(self.team)
-        seq = None
-        if self.publisher is not None:
-            uav = self._camera_mount(state)
-            if _during(self.p.camera_losses, t):
-                self.camera_dropped += 1  # the camera is lost: no frame leaves
-            else:
-                try:
-                    # drawn straight into the payload that is published (no copy)
-                    image = self.renderer.render(uav, ugvs, self.publisher.frame_buffer())
-                except ValueError:  # a non-finite pose: no frame, as a real camera link would give
-                    self.render_failures += 1
-                else:
-                    seq = self.publisher.publish(t, uav.pos_ned, uav.quat, image)
-                    self.frames += 1
-            self._publish_truth(t, ugvs)
+        seq = self.scene.instant(t_us / 1e6, state, ap.mode.name, bool(ap.armed),
+                                 offboard=ap.mode is FlightMode.OFFBOARD)  # fmt: skip
         if self.p.lockstep:
             self.gate.mark(t_us, seq)
-        if self.truth is not None:
-            self._write_truth(t, state, ugvs)
-
-    def _camera_mount(self, state: VehicleState):
-        """The pose the camera renders from (hil.camera_mount): the level downward gimbal (or
-        body-fixed without one), or the pan-tilt head pointed at the ROI (straight down until a
-        client sets one)."""
-        return mounted_pose(self.cam, self.mount, state.pos_ned, state.quat, self.roi_ned)
 
     def _gimbal_commands(self, batch: list) -> list:
         """The gimbal manager on the vehicle: MAV_CMD_DO_SET_ROI_LOCATION (COMMAND_LONG, params
@@ -393,8 +330,7 @@ class World:
                 target = roi_ned(self.autopilot.home, msg.param5, msg.param6, msg.param7)
                 ok = target is not None
                 if ok:
-                    self.roi_ned = target
-                    self.roi_commands += 1
+                    self.scene.point(target)
                 res = M.MAV_RESULT_ACCEPTED if ok else M.MAV_RESULT_DENIED
                 ep = self.endpoint
                 ack = ep.mav.command_ack_encode(msg.command, res, 0, 0, msg.get_srcSystem(),
@@ -403,37 +339,6 @@ class World:
             else:
                 rest.append((msg, src))
         return rest
-
-    def _move_team(self, t: float) -> None:
-        if self.team is None:
-            return
-        if self.team_t is None:
-            start = self.p.ugv_start
-            from skyherd.flight.autopilot_api import FlightMode
-
-            go = (
-                (self.autopilot.mode is FlightMode.OFFBOARD)
-                if start == "offboard"
-                else t >= float(start)
-            )
-            if not go:
-                return
-            self.team_t = 0.0
-            self._team_t0 = t
-            return
-        dt = (t - self._team_t0) - self.team_t
-        if dt > 0:
-            if hasattr(self.team, "set_shepherd"):  # a flock feels where the UAV truly is
-                ap = self.autopilot
-                self.team.set_shepherd(
-                    (ap.true_state if hasattr(ap, "true_state") else ap.state).pos_ned[:2]
-                )
-            self.team.step(dt)
-            self.team_t += dt
-
-    def _republish(self) -> None:
-        if self.publisher is not None:
-            self.publisher.republish()
 
     def _free_run_receive(self) -> None:
         got = self.endpoint.api.receive()
@@ -444,18 +349,6 @@ class World:
             if msg.get_type().startswith("SET_POSITION_TARGET"):
                 self.lag.samples.append(now - msg.time_boot_ms / 1000.0)
         self.endpoint.dispatch(self.endpoint.api, self._gimbal_commands(got))
-
-    def _publish_truth(self, t: float, ugvs) -> None:
-        self._ugv_pub.publish(t, ugvs)
-        self._clock_pub.put(sign_record({"t_sim": t}, self._flight_key))
-
-    def _write_truth(self, t: float, state: VehicleState, ugvs) -> None:
-        v = state.vel_ned
-        row = truth_row(t, state.pos_ned, ugvs, vn=v[0], ve=v[1], vd=v[2], mode=self.autopilot.mode.name,
-                        armed=int(self.autopilot.armed),
-                        team_t="" if self.team_t is None else round(self.team_t, 6))  # fmt: skip
-        self.truth.write(row)
-        self._truth_t = t
 
     def _stats(self, sim_s: float, wall_s: float, cpu_s: float = 0.0, span=None,
                process_vehicles: int = 1) -> dict:  # fmt: skip
@@ -474,8 +367,8 @@ class World:
             "flight_wall_s": f_wall,
             "flight_cpu_s": f_cpu,
             "real_time_factor": f_sim / f_wall if f_wall > 0 else math.inf,
-            "frames": self.frames,
-            "render_failures": self.render_failures,
+            "frames": self.scene.frames,
+            "render_failures": self.scene.render_failures,
             "lockstep": self.p.lockstep,
             "ticks_closed": g.ticks,
             "mark_resends": g.resends,
@@ -483,31 +376,20 @@ class World:
             "free_run_lag": self.lag.summary(),
             "link_cut_dropped": self.cut_dropped,
             "link_cut_muted": self.endpoint.api.stats_muted,
-            "camera_loss_frames": self.camera_dropped,
+            "camera_loss_frames": self.scene.camera_dropped,
             "mavlink_signing": {
                 "on": self.endpoint.signing.enabled,
                 **dict(sorted(self.endpoint.signing.stats.items())),
             },  # fmt: skip
             "after_companion": self.alone,
-            "records_cut": cut_records([self.truth]),
+            "records_cut": cut_records([self.scene.truth]),
         }
         if self.run_dir is not None:
             try_write_text(self.run_dir / "sim_stats.json", json.dumps(stats, indent=2) + "\n")
         return stats
 
     def close(self) -> None:
-        if self.truth is not None:
-            self.truth.close()
-        if self.publisher is not None:
-            self.publisher.close()
-        if self._ugv_pub is not None:
-            self._ugv_pub.close()
-        for pub in [self._clock_pub]:
-            if pub is not None:
-                try:
-                    pub.undeclare()
-                except Exception:  # noqa: BLE001 - already closed with its session
-                    pass
+        self.scene.close()
         self.endpoint.close()
 
 
@@ -565,7 +447,9 @@ def run_worlds(worlds: list[World], pacer: Pacer, duration_s: float | None = Non
         due = [(w, tick) for w in worlds if (tick := w.close_due()) is not None]
         if due:
             try:
-                batches = collect_closes([(w.gate, tick, w._republish) for w, tick in due], stopped)
+                batches = collect_closes(
+                    [(w.gate, tick, w.scene.republish) for w, tick in due], stopped
+                )
             except LockstepTimeout as e:  # the companion is stuck or gone: the autopilot alone
                 first.companion_gone(f"lockstep: {e}")
                 continue

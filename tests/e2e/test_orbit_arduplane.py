@@ -234,7 +234,7 @@ def test_the_followed_world_plays_the_gimbal_the_autopilot_routes_the_roi_to():
 
     link = FakeWorldLink()
     w = FollowWorld(link, WorldParams(airframe="fixedwing", camera="roi", lockstep=False))
-    assert w.cam is ORBIT_CAMERA
+    assert w.scene.cam is ORBIT_CAMERA
     w._announce_gimbal()
     parser = M.MAVLink(None)
     (hb,) = parser.parse_buffer(link.transport.sent[-1])
@@ -245,14 +245,14 @@ def test_the_followed_world_plays_the_gimbal_the_autopilot_routes_the_roi_to():
                                          lat, lon, alt)  # fmt: skip
     assert not w._gimbal_command(cmd)  # addressed to the autopilot itself: not the gimbal's
     cmd.target_component = M.MAV_COMP_ID_GIMBAL
-    assert w._gimbal_command(cmd) and w.roi_commands == 1
-    assert w.roi_ned == pytest.approx([120.0, -40.0, 0.0], abs=1e-3)
+    assert w._gimbal_command(cmd) and w.scene.roi_commands == 1
+    assert w.scene.roi_ned == pytest.approx([120.0, -40.0, 0.0], abs=1e-3)
     (ack,) = parser.parse_buffer(link.transport.sent[-1])
     assert ack.get_type() == "COMMAND_ACK" and ack.result == M.MAV_RESULT_ACCEPTED
     # the head looks at the ROI from a banked aircraft: the ROI at the image centre
     state = FakeTel(np.array([0.0, 93.0, -92.5]), np.zeros(3), None).vehicle_state()
-    gp = w._camera_mount(state)
-    uv, _ = project(ORBIT_CAMERA, camera_pose(ORBIT_CAMERA, gp.pos_ned, gp.quat), w.roi_ned)
+    gp = w.scene.camera_pose(state)
+    uv, _ = project(ORBIT_CAMERA, camera_pose(ORBIT_CAMERA, gp.pos_ned, gp.quat), w.scene.roi_ned)
     assert uv == pytest.approx(ORBIT_CAMERA.centre_px, abs=1e-6)
     w.close()
 
