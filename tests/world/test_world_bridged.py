@@ -33,3 +33,36 @@ def test_sim_with_px4_on_our_physics_renders_the_world_on_its_clock(tmp_path):
     assert stats["frames"] == 41  # 10 Hz of the bridge's simulation clock, t = 0 … 4 s
     rows = list(csv.DictReader(open(run / "world.csv")))
     assert float(rows[-1]["t"]) >= 3.9 and -float(rows[-1]["down"]) > 1.0  # the script climbs
+
+
+def test_a_bridged_world_honours_cut_camera_and_a_timed_ugv_start(tmp_path):
+    """The options every world shares (world/scene.py): no frame inside a --cut-camera window
+    of the bridge's clock, and a team parked until --ugv-start's time."""
+    run = tmp_path / "run"
+    run.mkdir()
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "skyherd.scripts.cli", "sim", "--autopilot", "px4", "--instance", str(INSTANCE),
+         "--speedup", "0", "--duration", "4", "--zenoh-port", "7483", "--run-dir", str(run),
+         "--cut-camera", "1:2", "--ugv-start", "2.5"],
+        stdout=open(run / "sim.log", "wb"), stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    peer = Px4SimPeer(port=4560 + INSTANCE)
+    try:
+        peer.connect(timeout_s=60.0)
+        peer.run(4 * 250, timeout_s=60.0)
+    finally:
+        peer.close()
+        assert sim.wait(60) == 0, (run / "sim.log").read_text()[-2000:]
+    stats = json.loads((run / "sim_stats.json").read_text())
+    assert stats["camera_loss_frames"] == 20  # t = 1.0 … 2.9 s at 10 Hz
+    assert stats["frames"] == 41 - 20
+    rows = list(csv.DictReader(open(run / "world.csv")))
+    assert len(rows) == 41  # the truth is kept while the camera is lost
+    parked = [r for r in rows if r["team_t"] == ""]
+    driving = [r for r in rows if r["team_t"] != ""]
+    # the bridge's clock steps 4 ms: a camera instant is within a step of its 0.1 s
+    assert len(parked) >= 25 and max(float(r["t"]) for r in parked) < 2.5 + 0.005
+    assert min(float(r["t"]) for r in driving) >= 2.5 - 0.005
+    first = rows[0]["ugv0_n"], rows[0]["ugv0_e"]
+    assert all((r["ugv0_n"], r["ugv0_e"]) == first for r in parked)  # parked: not one move
+    assert (rows[-1]["ugv0_n"], rows[-1]["ugv0_e"]) != first
