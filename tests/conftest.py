@@ -49,6 +49,9 @@ MACHINE_NETNS_FD: int | None = None
 
 NETWORK = _own_network_namespace()
 
+PR_SET_CHILD_SUBREAPER = 36  # <linux/prctl.h>: orphans of the tests' processes come back here
+ctypes.CDLL(None, use_errno=True).prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)  # (no_process_left)
+
 
 def pytest_report_header(config):
     return f"skyherd: network namespace: {NETWORK}"
@@ -66,3 +69,68 @@ def north35_spec():
     fence = polygon_zone("north 35", [[-200, -200], [n, -200], [n, 200], [-200, 200]])
     tower = circle_zone("tower", np.array([0.0, 100.0]), 10.0, 16, True)
     return dataclasses.replace(base, inclusions=(fence,), exclusions=(tower,))
+
+
+# -- no test leaves a process behind -------------------------------------------------------------
+# The suite runs its tests one after another in one network namespace, and tests reuse vehicle
+# instances (instance N's ports are reused by a later test, and N+40's client port is N's API port:
+# CONVENTIONS.md). That is safe only while nothing a test started outlives it: a vehicle left
+# running would be heard by the next test on those ports. So every test ends with none of the
+# processes it started still alive (a grace for ones already on their way out); what is left is
+# killed and the test fails naming it. SKYHERD_TEST_LEFTOVERS=report only prints them. The session
+# is its processes' subreaper, so an orphan (its parent killed) is still found here.
+LEFTOVER_GRACE_S = 20.0  # [wall s] for a process to finish its own exit (load: margin)
+
+
+def _descendants() -> dict[int, str]:
+    """This process's live descendants: pid -> command line."""
+    children: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat", "rb") as f:
+                stat = f.read()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(b")") + 2 :].split()
+        if fields[0] == b"Z":  # a zombie is dead: only its exit status is left to reap
+            continue
+        children.setdefault(int(fields[1]), []).append(int(d))
+    out, todo = {}, [os.getpid()]
+    while todo:
+        for pid in children.get(todo.pop(), []):
+            try:
+                with open(f"/proc/{pid}/cmdline", "rb") as f:
+                    out[pid] = f.read().replace(b"\0", b" ").decode(errors="replace").strip()
+            except OSError:
+                continue
+            todo.append(pid)
+    return out
+
+
+@pytest.fixture(autouse=True)
+def no_process_left():
+    before = set(_descendants())
+    yield
+    import time
+
+    deadline = time.monotonic() + LEFTOVER_GRACE_S
+    left = {p: c for p, c in _descendants().items() if p not in before}
+    while left and time.monotonic() < deadline:
+        time.sleep(0.2)
+        left = {p: c for p, c in _descendants().items() if p not in before}
+    if not left:
+        return
+    import signal
+
+    for pid in left:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+    what = "; ".join(f"{p}: {c[:160]}" for p, c in sorted(left.items()))
+    if os.environ.get("SKYHERD_TEST_LEFTOVERS") == "report":
+        print(f"\nleft running after the test (killed): {what}")
+    else:
+        pytest.fail(f"{len(left)} process(es) left running after the test (killed): {what}")
