@@ -114,21 +114,24 @@ def test_real_arducopter_flown_signed_refuses_an_unsigned_intruder_on_serial2(tm
     with ardupilot_listening(binary, "+", "copter.parm", tmp_path, "GUID_TIMEOUT 0.5\n",
                              instance=AP_INSTANCE):  # fmt: skip
         intruder.start()
-        rc = main(["fly", "--connect", f"tcp:127.0.0.1:{SERIAL0}", "--signing-key", str(key),
-                   "--setup-signing", "--duration", "30", "--instance", str(FLY_INSTANCE),
-                   "--zenoh-port", str(ZENOH_PORT), "--timeout", "900", "--runs-dir", str(runs)])  # fmt: skip
-        t_flown = time.monotonic()
-        intruder.land = False
-        _signing_off_over_serial0()
-        deadline = time.monotonic() + 30.0
-        while intruder.counts(t_flown, time.monotonic()).get("value", 0) < 3:
-            assert time.monotonic() < deadline, intruder.log[-20:]
-            time.sleep(0.2)
-        intruder.stop.set()
-        intruder.join(10)
+        try:
+            rc = main(["fly", "--connect", f"tcp:127.0.0.1:{SERIAL0}", "--signing-key", str(key),
+                       "--setup-signing", "--duration", "30", "--instance", str(FLY_INSTANCE),
+                       "--zenoh-port", str(ZENOH_PORT), "--timeout", "900", "--runs-dir", str(runs)])  # fmt: skip
+            t_flown = time.monotonic()
+            intruder.land = False
+            (run,) = runs.iterdir()
+            summary = (run / "summary.md").read_text()
+            assert rc == 0 and judged_all_pass(run), summary  # every mode change the companion's
+            _signing_off_over_serial0()
+            deadline = time.monotonic() + 30.0
+            while intruder.counts(t_flown, time.monotonic()).get("value", 0) < 3:
+                assert time.monotonic() < deadline, intruder.log[-20:]
+                time.sleep(0.2)
+        finally:
+            intruder.stop.set()
+            intruder.join(10)
     wall = time.monotonic() - wall0
-    (run,) = runs.iterdir()
-    summary = (run / "summary.md").read_text()
     comp = json.loads((run / "companion.json").read_text())
     world = json.loads((run / "sim_stats.json").read_text())
     rows = [float(r["t"]) for r in csv.DictReader(open(run / "world.csv")) if r.get("t")]
@@ -144,9 +147,9 @@ def test_real_arducopter_flown_signed_refuses_an_unsigned_intruder_on_serial2(tm
         "exit": rc, "wall_s": round(wall, 1), "checks": judge_checks(summary),
         "world_frames": world["frames"], "expected_frames": round(expected),
         "companion_frames": comp["frames"], "companion_rejected": comp["mavlink"]["rejected"],
-        "world_rejected": world["mavlink_signing"]["rejected"], "intruder_before_the_key": before, "intruder_signed": during,
+        "world_rejected": world["mavlink_signing"]["rejected"],
+        "intruder_before_the_key": before, "intruder_signed": during,
         "intruder_after_signing_off": after}, indent=1))  # fmt: skip
-    assert rc == 0 and judged_all_pass(run), summary  # every mode change the companion's
     for name in ("fence", "armed", "modes", "camera", "end", "mission"):
         assert name in judge_checks(summary), name
     assert f"MAVLink signing: key file {key.resolve()}." in summary
