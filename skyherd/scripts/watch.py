@@ -49,6 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--zenoh-config", default=None, help="Zenoh JSON5 config file (replaces --connect)"
     )
+    parser.add_argument("--signing-key", default=None, metavar="FILE",
+                        help="the flight's key file (32 bytes: `skyherd fly --signing-key FILE`, or the "
+                        "per-run <run>/signing.key): take only authentic frames and records, refuse "
+                        "(count) plain or forged ones (default: none, frames are shown unchecked)")  # fmt: skip
     parser.add_argument("--frames", type=int, default=100, help="frames to process")
     parser.add_argument(
         "--runs-dir", "--out", dest="runs_dir", default="runs",
@@ -180,15 +184,29 @@ class CtrlC:
             raise KeyboardInterrupt
 
 
+def flight_key(args: argparse.Namespace) -> bytes | None:
+    """The flight key (--signing-key), None without one; a bad file is a UsageError."""
+    from skyherd.flight.mavlink.signing import SigningError, load_key
+    from skyherd.scripts.cli import UsageError
+
+    if not args.signing_key:
+        return None
+    try:
+        return load_key(args.signing_key)
+    except SigningError as e:
+        raise UsageError(f"--signing-key: {e}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     _check(args)
+    key = flight_key(args)
     ctrl_c = CtrlC()
     prev = signal.signal(signal.SIGINT, ctrl_c)
     try:
         zp, session = _session(args)
         try:
             ctrl_c.check()  # during the session's opening: no run folder
-            return _watch(args, zp, session, ctrl_c)
+            return _watch(args, zp, session, ctrl_c, key)
         finally:
             # on every ending, however early (closing twice is harmless): its subscribers'
             # callback threads are not daemons, and the exit waits for them
@@ -197,12 +215,14 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGINT, prev)
 
 
-def _watch(args: argparse.Namespace, zp: ZenohParams, session, ctrl_c: CtrlC) -> int:
+def _watch(
+    args: argparse.Namespace, zp: ZenohParams, session, ctrl_c: CtrlC, key: bytes | None
+) -> int:
     from tqdm import tqdm
 
     from skyherd.runio import RunFolder, markdown_table
 
-    sub = FrameSubscriber(session, args.vehicle)
+    sub = FrameSubscriber(session, args.vehicle, key=key)
     st = {"processed": 0, "counts": [], "all_in": [], "strip": [], "detector": None}
 
     def finish() -> None:
@@ -237,9 +257,10 @@ def _watch(args: argparse.Namespace, zp: ZenohParams, session, ctrl_c: CtrlC) ->
             counts = st["recorder"].log.counts
             rec_line = (f"flight.mcap: {sum(counts.values())} messages on {len(counts)} channels "
                         f"({', '.join(f'{k} {n}' for k, n in sorted(counts.items()))}).\n\n")  # fmt: skip
-        run.summary(
-            f"Frames of `skyherd/{args.vehicle}/camera/frame`.\n\n{table}\n{rec_line}{cam_line}"
-        )
+        checked = (f"authenticated with the flight key ({args.signing_key}): {stats.refused} refused"
+                   if key is not None else "not authenticated (no --signing-key): any publisher's are shown")  # fmt: skip
+        run.summary(f"Frames of `skyherd/{args.vehicle}/camera/frame`, {checked}.\n\n"
+                    f"{table}\n{rec_line}{cam_line}")  # fmt: skip
         print(table)
         print(f"run folder: {run.path}")
 
@@ -258,7 +279,7 @@ def _watch(args: argparse.Namespace, zp: ZenohParams, session, ctrl_c: CtrlC) ->
         run.config(zenoh=zp, feature_params=FeatureParams())
         if args.mcap or live is not None:
             path = run.file("flight.mcap") if args.mcap else None
-            rec = run.closing(_recorder(session, args.vehicle, path, live))
+            rec = run.closing(_recorder(session, args.vehicle, path, live, key))
             st["recorder"] = rec
         (run.path / "frames").mkdir()
         run.describe("frames", f"annotated frames, PNG (one in every {args.save_every})")
@@ -273,8 +294,13 @@ def _watch(args: argparse.Namespace, zp: ZenohParams, session, ctrl_c: CtrlC) ->
         _loop(args, sub, st, metrics, run, bar, ctrl_c)
         ctrl_c.check()  # outside every lock: the run folder ends as interrupted
         if st["processed"] == 0:
-            run.fail(f"no frame on skyherd/{args.vehicle}/camera/frame within {args.timeout:g} s "
-                     f"(is a flight publishing? --connect {args.connect})")  # fmt: skip
+            refused = sub.stats.refused
+            why = (f"{refused} refused as not signed with --signing-key {args.signing_key} (another "
+                   "flight's key, or an unsigned source?)" if refused else
+                   f"is a flight publishing? --connect {args.connect}")  # fmt: skip
+            run.fail(
+                f"no frame on skyherd/{args.vehicle}/camera/frame within {args.timeout:g} s ({why})"
+            )
     if run.outcome == "failed":
         print(f"skyherd watch: {run.reason}")
         return 1
@@ -321,8 +347,8 @@ def _loop(args, sub, st: dict, metrics, run, bar, ctrl_c: CtrlC) -> None:
         bar.update(1)
 
 
-def _recorder(session, vehicle: str, path, live):
-    """A ZenohRecorder into `path` and/or the live server."""
+def _recorder(session, vehicle: str, path, live, key: bytes | None):
+    """A ZenohRecorder into `path` and/or the live server (with `key`: authentic records only)."""
     from skyherd.record import ZenohRecorder
 
-    return ZenohRecorder(session, vehicle, path, also=[live] if live is not None else [])
+    return ZenohRecorder(session, vehicle, path, also=[live] if live is not None else [], key=key)

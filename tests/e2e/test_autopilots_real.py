@@ -275,10 +275,12 @@ def test_real_px4_sih_flown_by_skyherd_fly_connect(tmp_path):
 
 
 @contextlib.contextmanager
-def ardupilot_listening(binary: Path, model: str, parm: str, cwd: Path, extra: str = ""):
+def ardupilot_listening(binary: Path, model: str, parm: str, cwd: Path, extra: str = "",
+                        instance: int = ARDUPILOT_INSTANCE):  # fmt: skip
     """The autopilot started, waiting on SERIAL0 for a client that is not ours (`fly`'s);
-    `extra`: parameter lines added after the defaults file (as an operator's own file)."""
-    args = [str(binary), "--model", model, "--speedup", "1", "-I", str(ARDUPILOT_INSTANCE),
+    `extra`: parameter lines added after the defaults file (as an operator's own file);
+    `instance`: its -I N (SERIAL0 on TCP 5760 + 10·N)."""
+    args = [str(binary), "--model", model, "--speedup", "1", "-I", str(instance),
             "--home", HOME, "-w"]  # fmt: skip
     files = [str(d)] if (d := _defaults(binary, parm)) is not None else []
     if extra:

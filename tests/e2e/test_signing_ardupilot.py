@@ -1,5 +1,6 @@
 """Issue 27: a signed flight against the built-in vehicle in its ArduCopter personality (real
-ArduCopter is the opt-in `make test-autopilots`): `skyherd fly --connect ... --signing-key FILE`
+ArduCopter: the opt-in tests/e2e/test_signing_arducopter.py, `make test-autopilots`):
+`skyherd fly --connect ... --signing-key FILE`
 with the vehicle holding the same key, while real attacker processes without the key
 (tests/attacker.py, pymavlink) send unsigned commands to the vehicle's ground-station port.
 
