@@ -1,9 +1,11 @@
 """`skyherd educate CURRICULUM`: teach a curriculum lesson by lesson; a modular policy that explains.
 
 For each seed: every skill lesson trains its module (projection IRL on its demonstrations, or DQN
-on its reward; warm-started from the demonstrations by DQfD where the lesson says so), freezes it, and re-tests every earlier lesson; the composite lesson learns the
-arbiter (policy/education/teach.py). A monolithic DQN is taught the same lessons in the same
-order (unless --no-monolith) so retention can be compared. Then, on test episodes never used in
+on its reward; warm-started from the demonstrations by DQfD where the lesson says so), freezes
+it, and re-tests every earlier lesson; the composite lesson learns the arbiter
+(policy/education/teach.py, one seed: policy/education/course.py). A monolithic DQN is taught the
+same lessons in the same order (unless --no-monolith) so retention can be compared. Then
+(policy/education/evaluation.py), on test episodes never used in
 training: the educated policies beside the scripted expert and, with --baselines RUN, the
 policies of a `skyherd train ab` run (AB, IRL); explanation fidelity; one test episode's
 decisions with their explanations (decisions.jsonl, `skyherd explain RUN`).
@@ -16,7 +18,6 @@ decisions.jsonl, lessons.png, compare.png, results.json, summary.md.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import math
@@ -153,36 +154,18 @@ def run(args: argparse.Namespace) -> int:
 
 def _report_only(args, cur) -> int:
     """--from-run: the evaluation part of `run` on earlier runs' policies and lessons.csv."""
-    from skyherd.policy.education.course import params_from_config, results_from_rows
+    from skyherd.policy.education.course import read_finished_runs
 
-    p, cfg0, results, pol_dirs = None, None, [], {}
-    for src in args.from_run:
-        try:
-            cfg = json.loads((src / "config.json").read_text())
-            q = params_from_config(cfg)
-            rows = list(csv.DictReader(open(src / "lessons.csv")))
-        except (OSError, KeyError, TypeError, ValueError) as e:
-            raise UsageError(f"--from-run {src}: not a finished educate run ({e})") from None
-        if cfg["curriculum"]["sha256"] != cur.sha256:
-            raise UsageError(f"--from-run {src} was taught another curriculum (sha256 differs)")
-        same = {"seed": 0, "monolith": True}  # a run without the monolith still compares
-        if p is not None and dataclasses.replace(q, **same) != dataclasses.replace(p, **same):
-            raise UsageError(f"--from-run {src}: other hyper-parameters than {args.from_run[0]}")
-        p, cfg0 = p or q, cfg0 or cfg
-        for r in results_from_rows(rows):
-            if r["seed"] in pol_dirs:
-                raise UsageError(f"--from-run {src}: seed {r['seed']} is also in another run")
-            pol_dirs[r["seed"]] = src / "policies"
-            results.append(r)
-    if not results:
-        raise UsageError(f"--from-run {args.from_run[0]}: lessons.csv has no finished seed")
-    results.sort(key=lambda r: r["seed"])
+    try:
+        done = read_finished_runs(args.from_run, cur.sha256)
+    except ValueError as e:
+        raise UsageError(f"--from-run {e}") from None
     rf = RunFolder("educate", root=args.runs_dir)
     srcs = [str(x) for x in args.from_run]
     print(f"skyherd educate: run folder {rf.path} (report on {', '.join(srcs)})")
-    rf.write_config({"curriculum": cfg0["curriculum"], "hyper_parameters": p,
+    rf.write_config({"curriculum": done.curriculum, "hyper_parameters": done.params,
                      "args": args_dict(args), "from_run": srcs[0] if len(srcs) == 1 else srcs})  # fmt: skip
-    return _report(cur, p, args, results, pol_dirs, rf)
+    return _report(cur, done.params, args, done.results, done.policy_dirs, rf)
 
 
 def _report(cur, p, args, results, pol_dir: Path | dict[int, Path], rf) -> int:

@@ -141,3 +141,37 @@ def test_decision_records_are_the_companions_with_no_net(taught):
     assert timeline([parse_record(r) for r in recs])[0].startswith("t = 0.0 s descend: ")
     assert ACTION_NAMES[recs[0]["action"]] in ("hover", "descend")
     np.testing.assert_array_equal(E.decision_episode(pol)[0]["phi"], recs[0]["phi"])
+
+
+def _finished_run(folder, out, p, sha="abc"):
+    """A run folder as `skyherd educate` leaves it: config.json, lessons.csv, policies/."""
+    (folder / "policies").mkdir(parents=True)
+    cfg = {"curriculum": {"name": "one", "sha256": sha}, "hyper_parameters": to_jsonable(p)}
+    (folder / "config.json").write_text(json.dumps(cfg))
+    w = CsvWriter(folder / "lessons.csv", course.LESSON_COLUMNS)
+    for r in course.lesson_rows(out):
+        w.write(r)
+    w.close()
+    return folder
+
+
+def test_finished_runs_are_read_back_as_one(taught, tmp_path):
+    _, out = taught
+    a = _finished_run(tmp_path / "a", out, QUICK)
+    b = _finished_run(tmp_path / "b", dict(out, seed=9), dataclasses.replace(QUICK, monolith=False))
+    done = course.read_finished_runs([b, a], "abc")
+    assert [r["seed"] for r in done.results] == [4, 9] and done.params.monolith is False
+    assert done.policy_dirs == {4: a / "policies", 9: b / "policies"}
+    assert done.curriculum == {"name": "one", "sha256": "abc"}
+    for folders, sha, words in (
+        ([a], "abd", "another curriculum"),
+        ([a, a], "abc", "seed 4 is also in another run"),
+        ([tmp_path / "none"], "abc", "not a finished educate run"),
+    ):
+        with pytest.raises(ValueError, match=words):
+            course.read_finished_runs(folders, sha)
+    other = _finished_run(
+        tmp_path / "c", dict(out, seed=5), dataclasses.replace(QUICK, irl_iters=2)
+    )
+    with pytest.raises(ValueError, match=f"other hyper-parameters than {a}"):
+        course.read_finished_runs([a, other], "abc")

@@ -4,12 +4,15 @@
 lessons beside it (policy.education.monolith); both policies go to `job.policy_dir` as .npz files,
 the lesson results come back as plain dicts. `lesson_rows` writes them as lessons.csv rows and
 `results_from_rows` reads those rows back; `params_from_config` reads a run's hyper-parameters back
-from its config.json — so a finished run can be reported on again (`skyherd educate --from-run`).
+from its config.json; `read_finished_runs` gathers finished runs of one curriculum and one set of
+hyper-parameters, so that they can be reported on again (`skyherd educate --from-run`).
 """
 
 from __future__ import annotations
 
+import csv
 import dataclasses
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -102,3 +105,43 @@ def params_from_config(cfg: dict[str, Any]) -> EduParams:
     if "measures" in hp:
         hp["measures"] = MeasuresObjective(**hp["measures"])
     return EduParams(dqn=DQNParams(**dqn), seed=seed0, **hp)
+
+
+@dataclass
+class FinishedRuns:
+    """Finished educate runs read back, as one run of all their seeds."""
+
+    params: EduParams  # the first run's
+    curriculum: dict[str, Any]  # the first run's config.json "curriculum" entry
+    results: list[dict[str, Any]]  # per seed, in seed order (results_from_rows)
+    policy_dirs: dict[int, Path]  # seed → the policies/ folder of its run
+
+
+def read_finished_runs(folders: list[Path], sha256: str) -> FinishedRuns:
+    """The runs in `folders` (config.json, lessons.csv, policies/), taught the curriculum with
+    this sha256 on the same hyper-parameters (the seed and the monolith aside) and on different
+    seeds. ValueError, one line starting with the folder, for anything else."""
+    p, cfg0, results, dirs = None, None, [], {}
+    for src in folders:
+        try:
+            cfg = json.loads((src / "config.json").read_text())
+            q = params_from_config(cfg)
+            with open(src / "lessons.csv", newline="") as f:
+                rows = list(csv.DictReader(f))
+        except (OSError, KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"{src}: not a finished educate run ({e})") from None
+        if cfg["curriculum"]["sha256"] != sha256:
+            raise ValueError(f"{src} was taught another curriculum (sha256 differs)")
+        same = {"seed": 0, "monolith": True}  # a run without the monolith still compares
+        if p is not None and dataclasses.replace(q, **same) != dataclasses.replace(p, **same):
+            raise ValueError(f"{src}: other hyper-parameters than {folders[0]}")
+        p, cfg0 = p or q, cfg0 or cfg
+        for r in results_from_rows(rows):
+            if r["seed"] in dirs:
+                raise ValueError(f"{src}: seed {r['seed']} is also in another run")
+            dirs[r["seed"]] = src / "policies"
+            results.append(r)
+    if not results:
+        raise ValueError(f"{folders[0]}: lessons.csv has no finished seed")
+    results.sort(key=lambda r: r["seed"])
+    return FinishedRuns(p, cfg0["curriculum"], results, dirs)
