@@ -30,16 +30,16 @@ unit = "image half-diagonal"
 formula = "spread_error < -0.06"
 unit = "bool"
 
-[[lessons]]
+[[lessons]]  # a lone skill lesson: no composite, the module flies alone
 name = "descend"
-scenario = "descend"
 teaches = ["spread_error", "too_tight"]
+scenario = "descend"
 module = "descend"
+method = "dqn"
 inputs = ["spread_error"]
 actions = ["hover", "descend"]
-method = "dqn"
-reward = {all_in_view = 1.0, spread_30_45 = 0.5}
-pass = {footprint_ratio = "<= 30"}
+pass = {all_in_view_frac = ">= 0.0"}
+reward = {all_in_view = 1.0, spread_15_30 = 0.3, spread_30_45 = 0.7}
 """
 
 
