@@ -72,7 +72,10 @@ class ExperimentParams:
         if bad:
             raise ValueError(f"unknown AB rule(s) {', '.join(bad)}; choose from {', '.join(RULES)}")
         if (self.learner == "ab") != bool(self.rules):
-            raise ValueError("combination rules go with learner 'ab', and 'ab' needs at least one")
+            raise ValueError(
+                f"learner 'ab' needs one or more combination rules of {RULES} "
+                "(and only 'ab' takes them)"
+            )
         if self.seeds < 1 or self.eval_episodes < 1 or self.demo_episodes < 1:
             raise ValueError("seeds, eval_episodes and demo_episodes must be >= 1")
 

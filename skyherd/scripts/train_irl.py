@@ -144,8 +144,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _experiment(args: argparse.Namespace):
-    """The experiment's parameters from the options (UsageError on an unknown AB rule)."""
-    from skyherd.policy.ab import RULES
+    """The experiment's parameters from the options (UsageError if they are refused)."""
     from skyherd.policy.apprentice import ApprenticeParams
     from skyherd.policy.demos import ExpertParams
     from skyherd.policy.dqn import DQNParams
@@ -154,22 +153,20 @@ def _experiment(args: argparse.Namespace):
 
     learner = args.learner_name
     rules = tuple(r for r in getattr(args, "rules", "").split(",") if r) if learner == "ab" else ()
-    bad = [r for r in rules if r not in RULES]
-    if bad:
-        raise UsageError(f"unknown AB rule(s) {', '.join(bad)}; choose from {', '.join(RULES)}")
-    if learner == "ab" and not rules:
-        raise UsageError(f"--rules needs at least one of {', '.join(RULES)}")
     hyper = ApprenticeParams(
         dqn=DQNParams(total_steps=args.dqn_steps, gamma=args.gamma),
         irl=IRLParams(epsilon=args.epsilon, max_iters=args.irl_iters),
         mu_episodes=args.mu_episodes,
     )
-    return ExperimentParams(
-        learner=learner, rules=rules, with_irl=not getattr(args, "no_irl", False),
-        seeds=args.seeds, seed=args.seed, apprentice=hyper,
-        expert=ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag),
-        demo_episodes=args.demo_episodes, eval_episodes=args.eval_episodes,
-    )  # fmt: skip
+    try:
+        return ExperimentParams(
+            learner=learner, rules=rules, with_irl=not getattr(args, "no_irl", False),
+            seeds=args.seeds, seed=args.seed, apprentice=hyper,
+            expert=ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag),
+            demo_episodes=args.demo_episodes, eval_episodes=args.eval_episodes,
+        )  # fmt: skip
+    except ValueError as e:  # an unknown AB rule, no rule, --demo-episodes 0
+        raise UsageError(str(e)) from None
 
 
 def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
