@@ -1,9 +1,11 @@
 """`skyherd educate CURRICULUM`: teach a curriculum lesson by lesson; a modular policy that explains.
 
 For each seed: every skill lesson trains its module (projection IRL on its demonstrations, or DQN
-on its reward; warm-started from the demonstrations by DQfD where the lesson says so), freezes it, and re-tests every earlier lesson; the composite lesson learns the
-arbiter (policy/education/teach.py). A monolithic DQN is taught the same lessons in the same
-order (unless --no-monolith) so retention can be compared. Then, on test episodes never used in
+on its reward; warm-started from the demonstrations by DQfD where the lesson says so), freezes
+it, and re-tests every earlier lesson; the composite lesson learns the arbiter
+(policy/education/teach.py, one seed: policy/education/course.py). A monolithic DQN is taught the
+same lessons in the same order (unless --no-monolith) so retention can be compared. Then
+(policy/education/evaluation.py), on test episodes never used in
 training: the educated policies beside the scripted expert and, with --baselines RUN, the
 policies of a `skyherd train ab` run (AB, IRL); explanation fidelity; one test episode's
 decisions with their explanations (decisions.jsonl, `skyherd explain RUN`).
@@ -16,7 +18,6 @@ decisions.jsonl, lessons.png, compare.png, results.json, summary.md.
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
 import json
 import math
@@ -27,15 +28,13 @@ import numpy as np
 
 from skyherd.runio.runfolder import (
     CsvWriter,
+    JsonlWriter,
     RunFolder,
     args_dict,
     atomic_write_text,
     markdown_table,
 )
 from skyherd.scripts.cli import UsageError, quick_help
-
-EVAL_SCENARIOS = ("composite", "groundsim:route", "groundsim:speedoff", "groundsim:camouflage")
-EVAL_SEED = {"composite": 300_000}  # others: 200_000 (policy.evaluate's transfer seeds)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -93,30 +92,6 @@ def _params(args):
     return dataclasses.replace(p, monolith=not args.no_monolith, **over)
 
 
-# --------------------------------------------------------------------------- one seed (worker)
-def _job(spec: dict) -> dict:
-    import torch
-
-    torch.set_num_threads(1)
-    from skyherd.policy.education.curriculum import load_curriculum
-    from skyherd.policy.education.monolith import teach_monolith
-    from skyherd.policy.education.teach import teach
-
-    cur = load_curriculum(spec["curriculum"])
-    p = dataclasses.replace(spec["params"], seed=spec["seed"])
-    pol, res = teach(cur, p)
-    out = {"seed": spec["seed"], "educated": [dataclasses.asdict(r) for r in res]}
-    pol.save(Path(spec["policy_dir"]) / f"educated_seed{spec['seed']}.npz")
-    if p.monolith and spec.get("monolith", True):
-        tgt = pol.meta.get("composite_target")
-        target = (tgt["kind"], np.asarray(tgt["vector"])) if tgt else ("w", np.zeros(9))
-        net, mres = teach_monolith(cur, p, res, target)
-        net.meta.update({"seed": spec["seed"], "curriculum": pol.meta["curriculum"]})
-        net.save(Path(spec["policy_dir"]) / f"monolith_seed{spec['seed']}.npz")
-        out["monolith"] = [dataclasses.asdict(r) for r in mres]
-    return out
-
-
 # --------------------------------------------------------------------------- the command
 def run(args: argparse.Namespace) -> int:
     import matplotlib
@@ -124,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     from tqdm import tqdm
 
+    from skyherd.policy.education.course import LESSON_COLUMNS, SeedJob, teach_seed
     from skyherd.policy.education.curriculum import (
         DEFAULT_CURRICULUM,
         CurriculumError,
@@ -155,21 +131,19 @@ def run(args: argparse.Namespace) -> int:
     pol_dir = rf.path / "policies"
     pol_dir.mkdir()
     n_mono = args.seeds if args.monolith_seeds is None else args.monolith_seeds
-    specs = [{"curriculum": str(path), "params": p, "seed": args.seed + s, "policy_dir": str(pol_dir),
-              "monolith": s < n_mono} for s in range(args.seeds)]  # fmt: skip
+    jobs = [SeedJob(Path(path), p, args.seed + s, pol_dir, s < n_mono) for s in range(args.seeds)]
     events = rf.events()
-    lessons = CsvWriter(rf.file("lessons.csv"), ["learner", "seed", "after_lesson", "tested_lesson", "all_in_view_frac",
-                          "footprint_ratio", "ugv_losses", "passed", "cpu_s"])  # fmt: skip
+    lessons = CsvWriter(rf.file("lessons.csv"), LESSON_COLUMNS)
     results = []
-    bar = tqdm(total=len(specs), desc="educate", unit="seed")
+    bar = tqdm(total=len(jobs), desc="educate", unit="seed")
     if args.workers > 1:
         with ProcessPoolExecutor(max_workers=args.workers) as pool:
-            for out in pool.map(_job, specs):
+            for out in pool.map(teach_seed, jobs):
                 results.append(out)
                 _log(out, events, lessons, bar)
     else:
-        for spec in specs:
-            out = _job(spec)
+        for job in jobs:
+            out = teach_seed(job)
             results.append(out)
             _log(out, events, lessons, bar)
     bar.close()
@@ -180,66 +154,24 @@ def run(args: argparse.Namespace) -> int:
 
 def _report_only(args, cur) -> int:
     """--from-run: the evaluation part of `run` on earlier runs' policies and lessons.csv."""
-    from skyherd.policy.dqn import DQNParams
-    from skyherd.policy.education.dqfd import DQfDParams
-    from skyherd.policy.education.teach import EduParams, MeasuresObjective
+    from skyherd.policy.education.course import read_finished_runs
 
-    p, cfg0, results, pol_dirs = None, None, [], {}
-    for src in args.from_run:
-        try:
-            cfg = json.loads((src / "config.json").read_text())
-            hp = dict(cfg["hyper_parameters"])
-            seed0 = hp.pop("seed", 0)
-            d = hp.pop("dqn")
-            dqn = dict(d, hidden=tuple(d["hidden"]), seed=0)
-            if "dqfd" in hp:  # runs before DQfD have the default
-                hp["dqfd"] = DQfDParams(**hp["dqfd"])
-            if "measures" in hp:  # runs before the measures objective have the default
-                hp["measures"] = MeasuresObjective(**hp["measures"])
-            q = EduParams(dqn=DQNParams(**dqn), seed=seed0, **hp)
-            rows = list(csv.DictReader(open(src / "lessons.csv")))
-        except (OSError, KeyError, TypeError, ValueError) as e:
-            raise UsageError(f"--from-run {src}: not a finished educate run ({e})") from None
-        if cfg["curriculum"]["sha256"] != cur.sha256:
-            raise UsageError(f"--from-run {src} was taught another curriculum (sha256 differs)")
-        same = {"seed": 0, "monolith": True}  # a run without the monolith still compares
-        if p is not None and dataclasses.replace(q, **same) != dataclasses.replace(p, **same):
-            raise UsageError(f"--from-run {src}: other hyper-parameters than {args.from_run[0]}")
-        p, cfg0 = p or q, cfg0 or cfg
-        for r in _results_from_rows(rows):
-            if r["seed"] in pol_dirs:
-                raise UsageError(f"--from-run {src}: seed {r['seed']} is also in another run")
-            pol_dirs[r["seed"]] = src / "policies"
-            results.append(r)
-    if not results:
-        raise UsageError(f"--from-run {args.from_run[0]}: lessons.csv has no finished seed")
-    results.sort(key=lambda r: r["seed"])
+    try:
+        done = read_finished_runs(args.from_run, cur.sha256)
+    except ValueError as e:
+        raise UsageError(f"--from-run {e}") from None
     rf = RunFolder("educate", root=args.runs_dir)
     srcs = [str(x) for x in args.from_run]
     print(f"skyherd educate: run folder {rf.path} (report on {', '.join(srcs)})")
-    rf.write_config({"curriculum": cfg0["curriculum"], "hyper_parameters": p,
+    rf.write_config({"curriculum": done.curriculum, "hyper_parameters": done.params,
                      "args": args_dict(args), "from_run": srcs[0] if len(srcs) == 1 else srcs})  # fmt: skip
-    return _report(cur, p, args, results, pol_dirs, rf)
-
-
-def _results_from_rows(rows: list[dict]) -> list[dict]:
-    """lessons.csv rows → the per-seed lesson results `run` builds (seeds with all lessons)."""
-    by: dict[int, dict[str, list]] = {}
-    for r in rows:
-        seq = by.setdefault(int(r["seed"]), {}).setdefault(r["learner"], [])
-        if not seq or seq[-1]["lesson"] != r["after_lesson"]:
-            seq.append({"lesson": r["after_lesson"], "retention": {}, "passed": {},
-                        "seconds": float(r["cpu_s"]), "detail": {}})  # fmt: skip
-        m = {k: float(r[k]) for k in ("all_in_view_frac", "footprint_ratio", "ugv_losses")}
-        seq[-1]["retention"][r["tested_lesson"]] = m
-        seq[-1]["passed"][r["tested_lesson"]] = r["passed"] == "True"
-    n = max((len(v.get("educated", [])) for v in by.values()), default=0)
-    return [{"seed": s, **v} for s, v in sorted(by.items()) if len(v.get("educated", [])) == n]
+    return _report(cur, done.params, args, done.results, done.policy_dirs, rf)
 
 
 def _report(cur, p, args, results, pol_dir: Path | dict[int, Path], rf) -> int:
     """pol_dir: the policies/ folder, or one per seed (--from-run of several runs)."""
     from skyherd.policy.dqn import load_policy
+    from skyherd.policy.education import evaluation as E
 
     where = pol_dir if isinstance(pol_dir, dict) else {r["seed"]: pol_dir for r in results}
     educated = {
@@ -248,12 +180,12 @@ def _report(cur, p, args, results, pol_dir: Path | dict[int, Path], rf) -> int:
     for r in results:  # the arbiter each seed learnt (also when read back from lessons.csv)
         r["educated"][-1]["detail"]["arbiter"] = educated[r["seed"]].arbiter.describe()
     print("evaluating on unseen episodes …")
-    comparison = _compare(educated, args, p)
-    fid = _fidelity(educated, args)
-    best_seed = max(comparison["educated"]["composite"], key=lambda kv: kv[1]["all_in_view_frac"])[
-        0
-    ]
-    _decisions(educated[best_seed], rf, EVAL_SEED["composite"])
+    comparison = E.compare(educated, args.baselines, args.eval_episodes, p.dqn.gamma)
+    fid = E.fidelity_totals(educated, args.eval_episodes)
+    best_seed = E.best_seed(comparison)
+    w = JsonlWriter(rf.file("decisions.jsonl"))  # one composite test episode, the best seed's
+    w.write_many(E.decision_episode(educated[best_seed]))
+    w.close()
     summary = _summary(cur, p, args, results, comparison, fid, rf)
     rf.write_summary(summary)
     atomic_write_text(rf.file("results.json"), json.dumps(
@@ -268,92 +200,17 @@ def _report(cur, p, args, results, pol_dir: Path | dict[int, Path], rf) -> int:
 
 
 def _log(out: dict, events, lessons, bar) -> None:
-    for learner in ("educated", "monolith"):
+    from skyherd.policy.education.course import LEARNERS, lesson_rows
+
+    for row in lesson_rows(out):
+        lessons.write(row)
+    for learner in LEARNERS:
         for r in out.get(learner, []):
-            for tested, m in r["retention"].items():
-                lessons.write({"learner": learner, "seed": out["seed"], "after_lesson": r["lesson"],
-                               "tested_lesson": tested, "all_in_view_frac": m["all_in_view_frac"],
-                               "footprint_ratio": m["footprint_ratio"], "ugv_losses": m["ugv_losses"],
-                               "passed": r["passed"][tested], "cpu_s": r["seconds"]})  # fmt: skip
             events.write({"event": "lesson", "learner": learner, "seed": out["seed"],
                           "lesson": r["lesson"], "cpu_s": r["seconds"], "passed": r["passed"]})  # fmt: skip
     arb = out["educated"][-1]["detail"].get("arbiter", "")
     bar.update(1)
     bar.set_postfix_str(f"seed {out['seed']}: {arb}"[:60])
-
-
-def _policies_of(folder: Path) -> dict[str, list]:
-    from skyherd.policy.dqn import load_policy
-
-    out: dict[str, list] = {}
-    for f in sorted((folder / "policies").glob("*.npz")):
-        pol = load_policy(f)
-        out.setdefault(str(pol.meta.get("learner", f.stem)), []).append((f.stem, pol))
-    return out
-
-
-def _compare(educated: dict, args, p) -> dict:
-    """{learner: {scenario: [(seed or name, metrics)]}} on the unseen evaluation episodes."""
-    from skyherd.policy.demos import ExpertParams, rollout_stats, scripted_expert
-
-    learners: dict[str, list] = {"educated": list(educated.items())}
-    for b in args.baselines:
-        for k, v in _policies_of(b).items():
-            label = f"{k} [{b.name}]" if len(args.baselines) > 1 else k
-            learners.setdefault(label, []).extend(v)
-    out: dict = {}
-    for name, pols in learners.items():
-        out[name] = {sc: [(s, rollout_stats(pol, sc, args.eval_episodes, EVAL_SEED.get(sc, 200_000),
-                                             p.dqn.gamma)[1]) for s, pol in pols]
-                     for sc in EVAL_SCENARIOS}  # fmt: skip
-    out["expert (ideal)"] = {sc: [("ideal", rollout_stats(scripted_expert("composite", ExpertParams(), 0), sc,
-                                                          args.eval_episodes, EVAL_SEED.get(sc, 200_000),
-                                                          p.dqn.gamma)[1])] for sc in EVAL_SCENARIOS}  # fmt: skip
-    return out
-
-
-def _fidelity(educated: dict, args) -> dict:
-    from skyherd.policy.education.fidelity import decision_observations, fidelity
-
-    total: dict = {}
-    for pol in educated.values():
-        obs = decision_observations(pol, "composite", args.eval_episodes, EVAL_SEED["composite"])
-        for role, r in fidelity(pol, obs).items():
-            keys = ("n", "action_changed", "module_changed", "action_changed_far")
-            t = total.setdefault(role, dict.fromkeys(keys, 0) | {"per_seed": []})
-            for k in keys:
-                t[k] += r[k]
-            t["per_seed"].append(r["action_rate"] if r["n"] else math.nan)
-    for t in total.values():
-        t["action_rate"] = t["action_changed"] / max(t["n"], 1)
-        t["module_rate"] = t["module_changed"] / max(t["n"], 1)
-        t["action_rate_far"] = t["action_changed_far"] / max(t["n"], 1)
-    return total
-
-
-def _decisions(pol, rf: RunFolder, seed: int) -> None:
-    """One composite test episode of `pol`, one record per decision (the companion's format)."""
-    from skyherd.policy.groundair.env import GroundAirEnv
-    from skyherd.runio.runfolder import JsonlWriter
-    from skyherd.task.params import action_velocity_ned
-
-    env = GroundAirEnv("composite")
-    obs, info = env.reset(seed=seed)
-    w = JsonlWriter(rf.file("decisions.jsonl"))
-    done = False
-    while not done:
-        ex = pol.explain(obs)
-        a = pol(obs)
-        v = list(action_velocity_ned(a, env.task.uav))
-        sp = {"pos_ned": None, "vel_ned": v, "yaw": 0.0}
-        w.write({"t": env.steps * env.task.dt_s, "vehicle": "uav0", "pilot": "policy",
-                 "phi": [float(x) for x in info["phi"]], "proposed": sp, "certified": sp,
-                 "verdict": "none", "reason": "gymnasium evaluation: no safety net",
-                 "mode": "ai", "autopilot_mode": "-", "action": a,
-                 "explanation": {k: ex[k] for k in ("module", "reason", "concepts")}})  # fmt: skip
-        obs, _, term, trunc, info = env.step(a)
-        done = term or trunc
-    w.close()
 
 
 def _ms(vals) -> str:

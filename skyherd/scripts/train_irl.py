@@ -13,12 +13,9 @@ policies (policies/*.npz, loadable with policy.dqn.load_policy).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import sys
-import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -108,68 +105,15 @@ def budget_warnings(args: argparse.Namespace) -> list[str]:
     return out
 
 
-# --------------------------------------------------------------------------- one training job
-def _job(spec: dict) -> dict:
-    """Train one learner for one seed (runs in a worker process)."""
-    import torch
-
-    torch.set_num_threads(1)
-    from skyherd.policy.apprentice import run_apprenticeship
-    from skyherd.policy.demos import rollout_stats
-
-    p = dataclasses.replace(spec["params"], seed=spec["seed"])
-    cpu0 = time.process_time()
-    on_iteration = spec.get("on_iteration")
-    if spec.get("ticks") is not None:  # a worker process: tell the parent's progress bar
-        q, key = spec["ticks"], (spec["learner"], spec["seed"])
-        on_iteration = lambda it: q.put((*key, float(it.t)))  # noqa: E731
-    res = run_apprenticeship(
-        np.asarray(spec["mu_expert"]), p, on_iteration=on_iteration,
-        progress=spec.get("progress", False),
-    )  # fmt: skip
-    cpu_s = time.process_time() - cpu0
-    _, m = rollout_stats(
-        res.policy, "composite", spec["eval_episodes"], spec["eval_seed"], spec["gamma"]
-    )
-    hist = [
-        {
-            "i": h.i,
-            "t": h.t,
-            "dist": h.dist,
-            "seconds": h.seconds,
-            "w": h.w.tolist(),
-            "mu": h.mu.tolist(),
-        }
-        for h in res.irl.history
-    ]
-    return {
-        "learner": spec["learner"],
-        "seed": spec["seed"],
-        "metrics": m,
-        "train_s": res.seconds,
-        "train_cpu_s": cpu_s,
-        "chosen": res.chosen,
-        "converged": res.irl.converged,
-        "t0": float(np.linalg.norm(res.irl.mu_expert - res.irl.mu0)),
-        "history": hist,
-        "mixture": res.mixture.tolist(),
-        "weights": [w.tolist() for w in res.policy.weights],
-        "biases": [b.tolist() for b in res.policy.biases],
-        "meta": res.policy.meta,
-        "params": dataclasses.asdict(p),
-    }
-
-
 # --------------------------------------------------------------------------- the command
 def run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from skyherd.policy.ab import SUBTASKS
-    from skyherd.policy.demos import DemoFileError, ExpertParams, load_demo
+    from skyherd.policy.demos import DemoFileError, load_demo
+    from skyherd.policy.irl_experiment import needed_scenarios
 
     quick = apply_quick(args, getattr(args, "_argv", None))
-    learner = args.learner_name
     if (
         args.seeds < 1
         or args.dqn_steps < 100
@@ -182,284 +126,149 @@ def run(args: argparse.Namespace) -> int:
         )
     if not (0 <= args.demo_epsilon <= 1 and 0 <= args.demo_lag <= 1 and 0 < args.gamma < 1):
         raise UsageError("--demo-epsilon/--demo-lag must be in [0, 1] and --gamma in (0, 1)")
-    rules = [r for r in getattr(args, "rules", "").split(",") if r] if learner == "ab" else []
-    from skyherd.policy.ab import RULES
-
-    bad = [r for r in rules if r not in RULES]
-    if bad:
-        raise UsageError(f"unknown AB rule(s) {', '.join(bad)}; choose from {', '.join(RULES)}")
-
+    p = _experiment(args)
     warnings = budget_warnings(args)
     for w in warnings:
-        print(f"skyherd train {learner}: warning: {w}", file=sys.stderr)
-    expert_p = ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag)
-    needed = (
-        ["composite"]
-        if learner == "irl"
-        else list(SUBTASKS) + ([] if args.no_irl else ["composite"])
-    )
+        print(f"skyherd train {p.learner}: warning: {w}", file=sys.stderr)
     demos, demo_files = {}, {}
-    for sc in needed:  # before the run folder: a missing demo file is bad usage
+    for sc in needed_scenarios(p):  # before the run folder: a missing demo file is bad usage
         if args.demos is not None:
             try:
                 demos[sc] = load_demo(args.demos / f"{sc}.npz")
             except DemoFileError as e:
                 raise UsageError(f"{e}; record it with `skyherd teleop --scenario {sc}`") from e
             demo_files[sc] = file_facts(args.demos / f"{sc}.npz")
-    with RunFolder.open(f"train-{learner}", args, root=args.runs_dir) as run:
+    with RunFolder.open(f"train-{p.learner}", args, root=args.runs_dir) as run:
         print(f"run folder: {run.path}")
-        return _train(run, args, learner, rules, expert_p, needed, demos, demo_files, quick,
-                      warnings)  # fmt: skip
+        return _train(run, args, p, demos, demo_files, quick, warnings)
 
 
-def _train(run, args, learner, rules, expert_p, needed, demos, demo_files, quick, warnings):
-    from tqdm import tqdm
-
-    from skyherd.policy.ab import combine
-    from skyherd.policy.demos import (
-        ExpertParams,
-        demo_feature_expectations,
-        random_policy,
-        record,
-        rollout_stats,
-        scripted_expert,
-    )
-    from skyherd.policy.dqn import MLPPolicy
-    from skyherd.policy.groundair.env import PSI_NAMES
-
-    rf = run
-    (rf.path / "demos").mkdir()
-    for sc in tqdm(needed, desc="demonstrations", unit="scenario", disable=None):
-        if sc not in demos:
-            ex = scripted_expert(sc, expert_p, seed=7)
-            demos[sc] = record(
-                sc,
-                ex,
-                args.demo_episodes,
-                1000,
-                "scripted",
-                {"expert": dataclasses.asdict(expert_p)},
-            )
-        demos[sc].save(rf.path / "demos" / f"{sc}.npz")
-    mu_e = {}
-    if "composite" in demos:
-        mu_e["irl"] = demo_feature_expectations(demos["composite"], args.gamma)
-    for r in rules:
-        mu_e[f"ab_{r}"] = combine(demos, r, args.gamma)
+def _experiment(args: argparse.Namespace):
+    """The experiment's parameters from the options (UsageError if they are refused)."""
     from skyherd.policy.apprentice import ApprenticeParams
+    from skyherd.policy.demos import ExpertParams
     from skyherd.policy.dqn import DQNParams
     from skyherd.policy.irl import IRLParams
+    from skyherd.policy.irl_experiment import ExperimentParams
 
+    learner = args.learner_name
+    rules = tuple(r for r in getattr(args, "rules", "").split(",") if r) if learner == "ab" else ()
     hyper = ApprenticeParams(
         dqn=DQNParams(total_steps=args.dqn_steps, gamma=args.gamma),
         irl=IRLParams(epsilon=args.epsilon, max_iters=args.irl_iters),
         mu_episodes=args.mu_episodes,
     )
-    print(f"hyper-parameters (seed field varies per run): {hyper}")
-    config = {
-        "learner": learner,
-        "hyper_parameters": hyper,
-        "args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
-        "expert": expert_p,
-        "mu_expert": {k: v.tolist() for k, v in mu_e.items()},
-        "psi_names": PSI_NAMES,
-        "demos": {sc: d.meta["demonstrator"] for sc, d in demos.items()},
-        "demo_files": demo_files,
-        "quick": quick,
-        "warnings": warnings,
-    }
-    run.config(**config)
+    try:
+        return ExperimentParams(
+            learner=learner, rules=rules, with_irl=not getattr(args, "no_irl", False),
+            seeds=args.seeds, seed=args.seed, apprentice=hyper,
+            expert=ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag),
+            demo_episodes=args.demo_episodes, eval_episodes=args.eval_episodes,
+        )  # fmt: skip
+    except ValueError as e:  # an unknown AB rule, no rule, --demo-episodes 0
+        raise UsageError(str(e)) from None
 
-    eval_seed = 100_000
-    specs = [
-        {
-            "learner": name,
-            "seed": args.seed + s,
-            "mu_expert": mu.tolist(),
-            "params": hyper,
-            "gamma": args.gamma,
-            "eval_episodes": args.eval_episodes,
-            "eval_seed": eval_seed,
-        }
-        for s in range(args.seeds)
-        for name, mu in mu_e.items()
-    ]
-    events = rf.events()
-    metrics = rf.metrics(
-        ["learner", "seed", "iter", "t", "dist", "seconds"] + [f"mu_{n}" for n in PSI_NAMES]
-    )
-    results = []
+
+def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
+    from tqdm import tqdm
+
+    from skyherd.policy import irl_experiment as X
+    from skyherd.policy.groundair.env import PSI_NAMES
+
+    (run.path / "demos").mkdir()
+    for sc in tqdm(X.needed_scenarios(p), desc="demonstrations", unit="scenario", disable=None):
+        if sc not in demos:
+            demos[sc] = X.scripted_demonstration(sc, p)
+        demos[sc].save(run.path / "demos" / f"{sc}.npz")
+    mu_e = X.expert_feature_expectations(p, demos)
+    print(f"experiment (seed of the hyper-parameters varies per run): {p}")
+    run.config(
+        learner=p.learner, experiment=p, hyper_parameters=p.apprentice,
+        args={k: v for k, v in vars(args).items() if not k.startswith("_")}, expert=p.expert,
+        mu_expert={k: v.tolist() for k, v in mu_e.items()}, psi_names=PSI_NAMES,
+        demos={sc: d.meta["demonstrator"] for sc, d in demos.items()}, demo_files=demo_files,
+        quick=quick, warnings=warnings,
+    )  # fmt: skip
+
+    n_jobs = len(X.jobs(p, mu_e))
+    events = run.events()
+    metrics = run.metrics(X.METRIC_COLUMNS)
     # the bar counts IRL iterations (each a DQN solve), so it moves during a run of a learner
-    bar = run.closing(tqdm(total=len(specs) * args.irl_iters, desc=f"train {learner}",
+    bar = run.closing(tqdm(total=n_jobs * args.irl_iters, desc=f"train {p.learner}",
                            unit="iter", disable=None))  # fmt: skip
+    ticks: dict[tuple[str, int], int] = {}
 
-    def progress_note() -> None:
-        run.summary(f"{len(results)} of {len(specs)} training runs finished "
+    def note(n_done: int) -> None:
+        run.summary(f"{n_done} of {n_jobs} training runs finished "
                     f"(learner × seed); results so far in metrics.csv and events.jsonl.\n")  # fmt: skip
 
-    progress_note()
-    if args.workers > 1:
-        _run_pool(specs, args.workers, results, events, metrics, bar, args.irl_iters, progress_note)
-    else:
-        for spec in specs:
-            done = {"n": 0}
+    def on_iteration(learner: str, seed: int, t: float) -> None:
+        ticks[(learner, seed)] = ticks.get((learner, seed), 0) + 1
+        bar.update(1)
+        bar.set_postfix(run=f"{learner}/{seed}", t=f"{t:.3g}")
 
-            def tick(it, spec=spec, done=done) -> None:
-                done["n"] += 1
-                bar.update(1)
-                bar.set_postfix(run=f"{spec['learner']}/{spec['seed']}", t=f"{it.t:.3g}")
+    def on_result(r, done) -> None:
+        for row in r.metric_rows():
+            metrics.write(row)
+        events.write({"event": "trained", "learner": r.learner, "seed": r.seed,
+                      "train_s": r.train_s, "metrics": r.metrics, "chosen": r.chosen})  # fmt: skip
+        # IRL may stop before --irl-iters: count the rest as done
+        bar.update(max(0, args.irl_iters - ticks.get((r.learner, r.seed), 0)))
+        bar.set_postfix(last=f"{r.learner}/{r.seed} view={r.metrics['all_in_view_frac']:.3f}")
+        note(len(done))
 
-            out = _job({**spec, "on_iteration": tick, "progress": bar.disable is False})
-            results.append(out)
-            _log(out, events, metrics, bar, args.irl_iters - done["n"])
-            progress_note()
+    note(0)
+    results = X.run_experiment(p, mu_e, args.workers, on_iteration, on_result,
+                               progress=bar.disable is False)  # fmt: skip
     bar.close()
 
     # baselines on the same test seeds: the demonstrator, the ideal expert, random
-    base = {}
-    for name, mk in tqdm(
-        (
-            ("expert (demonstrator)", lambda s: scripted_expert("composite", expert_p, seed=s)),
-            ("expert (ideal)", lambda s: scripted_expert("composite", ExpertParams(), seed=s)),
-            ("random", lambda s: random_policy(seed=s)),
-        ),
-        desc="baselines",
-        unit="policy",
-        disable=None,
-    ):
-        base[name] = [
-            rollout_stats(
-                mk(args.seed + s), "composite", args.eval_episodes, eval_seed, args.gamma
-            )[1]
-            for s in range(args.seeds)
-        ]
-
-    # policies
-    pol_dir = rf.path / "policies"
+    base = {
+        name: X.baseline_metrics(make, p)
+        for name, make in tqdm(X.baseline_factories(p).items(), desc="baselines", unit="policy",
+                               disable=None)
+    }  # fmt: skip
+    pol_dir = run.path / "policies"
     pol_dir.mkdir()
-    best = {}
-    for out in results:
-        pol = MLPPolicy(
-            [np.array(w) for w in out["weights"]], [np.array(b) for b in out["biases"]], out["meta"]
-        )
-        pol.meta.update({"learner": out["learner"], "seed": out["seed"], "eval": out["metrics"]})
-        pol.save(pol_dir / f"{out['learner']}_seed{out['seed']}.npz")
-        key = out["learner"]
-        if (
-            key not in best
-            or out["metrics"]["all_in_view_frac"] > best[key][0]["metrics"]["all_in_view_frac"]
-        ):
-            best[key] = (out, pol)
+    for r in results:
+        r.labelled_policy().save(pol_dir / f"{r.learner}_seed{r.seed}.npz")
+    best = X.best_runs(results)
 
-    summary, table = _summary(results, base, learner, args)
+    learned = [r.facts() for r in results]
+    summary, table = _summary(learned, base, p.learner, args)
     if warnings:
         summary += "\n## Warnings\n\n" + "\n".join(f"- {w}" for w in warnings) + "\n"
     if quick:
         summary += f"\n--quick budget: {', '.join(quick)}.\n"
     if args.transfer_episodes > 0:
-        from skyherd.policy.evaluate import baseline_factories, transfer_table
-        from skyherd.task.scenarios import GROUNDSIM_SCENARIOS
-
-        pols = {f"{k} (seed {o['seed']})": (lambda s, p=p: p) for k, (o, p) in best.items()}
-        rows = transfer_table(
-            pols | baseline_factories(), GROUNDSIM_SCENARIOS, args.transfer_episodes, 200_000
-        )
-        ttable = markdown_table(
-            ["policy", "scenario", "all-in-view frac", "footprint/circle", "UGV losses / ep"], rows
-        )
-        summary += (
-            "\n## Transfer: best seed of each learner on groundsim UGV behaviours\n\n"
-            f"{args.transfer_episodes} episodes each (not trained on these).\n\n{ttable}"
-        )
+        summary += _transfer(best, args.transfer_episodes)
     run.summary(summary)
-    atomic_write_text(
-        rf.file("results.json"),
-        json.dumps(
-            {
-                "learned": [
-                    {k: v for k, v in r.items() if k not in ("weights", "biases")} for r in results
-                ],
-                "baselines": base,
-            },
-            indent=1,
-            default=float,
-        ),
-    )
-    _plots(rf, results, base)
+    atomic_write_text(run.file("results.json"), json.dumps(
+        {"learned": learned, "baselines": base}, indent=1, default=float))  # fmt: skip
+    _plots(run, learned, base)
     print(table)
     if args.save_policy is not None:
-        key = "irl" if learner == "irl" else f"ab_{rules[0]}"
-        out, pol = best[key]
+        r = best[p.main_learner]
         args.save_policy.parent.mkdir(parents=True, exist_ok=True)
-        pol.save(args.save_policy)
-        print(f"saved {key} seed {out['seed']} policy → {args.save_policy}")
-    print(f"summary: {rf.path / 'summary.md'}")
+        r.labelled_policy().save(args.save_policy)
+        print(f"saved {p.main_learner} seed {r.seed} policy → {args.save_policy}")
+    print(f"summary: {run.path / 'summary.md'}")
     return 0
 
 
-def _run_pool(specs, workers, results, events, metrics, bar, irl_iters, note) -> None:
-    """The jobs on `workers` processes; each IRL iteration in a worker moves the bar (through
-    a queue), so it never sits still for a whole job. Results keep the order of `specs`."""
-    import multiprocessing as mp
-    import queue
-    from concurrent.futures import FIRST_COMPLETED, wait
+def _transfer(best: dict, episodes: int) -> str:
+    """The transfer table: the best seed of each learner on the groundsim UGV behaviours."""
+    from skyherd.policy.evaluate import TRANSFER_SEED, baseline_factories, transfer_table
+    from skyherd.task.scenarios import GROUNDSIM_SCENARIOS
 
-    with mp.Manager() as mgr, ProcessPoolExecutor(max_workers=workers) as pool:
-        q = mgr.Queue()
-        futs = {pool.submit(_job, {**spec, "ticks": q}): i for i, spec in enumerate(specs)}
-        ticks: dict[tuple, int] = {}
-        done_by_index: dict[int, dict] = {}
-        pending = set(futs)
-
-        def drain() -> None:
-            while True:
-                try:
-                    learner, seed, t = q.get_nowait()
-                except queue.Empty:
-                    return
-                ticks[(learner, seed)] = ticks.get((learner, seed), 0) + 1
-                bar.update(1)
-                bar.set_postfix(run=f"{learner}/{seed}", t=f"{t:.3g}")
-
-        while pending:
-            finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
-            drain()
-            for f in finished:
-                out = f.result()
-                done_by_index[futs[f]] = out
-                seen = ticks.get((out["learner"], out["seed"]), 0)
-                _log(out, events, metrics, bar, irl_iters - seen)
-                results[:] = [done_by_index[i] for i in sorted(done_by_index)]
-                note()
-
-
-def _log(out: dict, events, metrics, bar, iters_left: int = 0) -> None:
-    from skyherd.policy.groundair.env import PSI_NAMES
-
-    for h in out["history"]:
-        row = {
-            "learner": out["learner"],
-            "seed": out["seed"],
-            "iter": h["i"],
-            "t": h["t"],
-            "dist": h["dist"],
-            "seconds": h["seconds"],
-        }
-        row.update({f"mu_{n}": v for n, v in zip(PSI_NAMES, h["mu"])})
-        metrics.write(row)
-    events.write(
-        {
-            "event": "trained",
-            "learner": out["learner"],
-            "seed": out["seed"],
-            "train_s": out["train_s"],
-            "metrics": out["metrics"],
-            "chosen": out["chosen"],
-        }
+    pols = {f"{k} (seed {r.seed})": (lambda s, p=r.policy: p) for k, r in best.items()}
+    rows = transfer_table(pols | baseline_factories(), GROUNDSIM_SCENARIOS, episodes, TRANSFER_SEED)
+    ttable = markdown_table(
+        ["policy", "scenario", "all-in-view frac", "footprint/circle", "UGV losses / ep"], rows
     )
-    bar.update(max(0, iters_left))  # IRL may stop before --irl-iters: count the rest as done
-    bar.set_postfix(
-        last=f"{out['learner']}/{out['seed']} view={out['metrics']['all_in_view_frac']:.3f}"
+    return (
+        "\n## Transfer: best seed of each learner on groundsim UGV behaviours\n\n"
+        f"{episodes} episodes each (not trained on these).\n\n{ttable}"
     )
 
 
