@@ -21,7 +21,8 @@ from skyherd.runio.space import Appender
 
 KEYS = ("t", "vehicle", "pilot", "phi", "proposed", "certified", "verdict", "reason", "mode",
         "autopilot_mode")  # fmt: skip
-VERDICTS = ("accepted", "projected", "rejected", "fallback", "pid")
+# the net's verdicts, and "none": no net judged it (a learner's evaluation episode flies without)
+VERDICTS = ("accepted", "projected", "rejected", "fallback", "pid", "none")
 COMMAND_KEYS = ("pos_ned", "vel_ned", "yaw")
 
 
