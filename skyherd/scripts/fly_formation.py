@@ -18,7 +18,6 @@ import csv
 import json
 import math
 import os
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -72,8 +71,10 @@ def _check(args) -> None:
 
 
 def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
-    """The lock-step plan and where it came from (for config.json). UsageError if unusable."""
-    from skyherd.policy.sql import Algorithm, GridParams, SQLHyper, build_layout, plan_paths, train
+    """The lock-step plan (--policy-file, or learned: policy.sql.learn_plan) and where it came
+    from (for config.json). UsageError if unusable."""
+    from skyherd.policy.sql import GridParams, PlanParams, learn_plan
+    from skyherd.policy.sql.layout import STARTS
 
     K = args.agents
     size = GridParams().size
@@ -83,24 +84,19 @@ def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
         except PlanError as e:
             raise UsageError(f"{e}; pass a plan_K{K}.json from `skyherd train sql`") from None
         return plan, {"source": "file", "path": str(args.policy_file)}
-    if K not in (4, 9, 16):
-        raise UsageError(
-            f"the study's SQL-SIE plans are for K = 4, 9, 16: for K = {K} pass --policy-file"
-        )
+    if K not in STARTS:
+        raise UsageError(f"the study's SQL-SIE plans are for K = {', '.join(map(str, STARTS))}: "
+                         f"for K = {K} pass --policy-file")  # fmt: skip
     from tqdm import tqdm
 
-    grid = GridParams(n_agents=K)
-    hyper = SQLHyper()
-    layout = build_layout(grid)
-    with tqdm(total=hyper.episodes, desc=f"train SQL-SIE K={K}", unit="ep") as bar:
-        res = train(Algorithm.SQL_SIE, layout, hyper, seed=args.sql_seed, progress=bar.update)
+    params = PlanParams(GridParams(n_agents=K), seed=args.sql_seed)
     try:
-        plan = validate_plan([[list(c) for c in p] for p in plan_paths(res, K)], K, size)
+        with tqdm(total=params.hyper.episodes, desc=f"train SQL-SIE K={K}", unit="ep") as bar:
+            paths = learn_plan(params, bar.update)
+        plan = validate_plan(paths, K, size)
     except ValueError as e:
         raise UsageError(f"{e}; try another --sql-seed or pass --policy-file") from None
-    info = {"source": "trained", "algorithm": "sql-sie", "seed": args.sql_seed,
-            "grid": asdict(grid), "hyper": asdict(hyper)}  # fmt: skip
-    return plan, info
+    return plan, params.describe()
 
 
 def run_formation(args: argparse.Namespace) -> int:
