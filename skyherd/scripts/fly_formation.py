@@ -14,7 +14,6 @@ sim_stats.json, sim.log), formation.png and summary.md with landing errors, sepa
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
@@ -35,6 +34,7 @@ from skyherd.mission.formation_plan import (
     vehicle_homes,
     vehicle_instances,
 )
+from skyherd.mission.formation_run import judge_vehicles, read_tracks
 from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text, markdown_table
 from skyherd.scripts.cli import UsageError
@@ -217,72 +217,11 @@ def _plan_json(plan) -> str:
     )
 
 
-def read_tracks(run_dir: Path, K: int) -> list[np.ndarray]:
-    """metrics.csv → per vehicle (t, north, east, down) rows in the field frame."""
-    tracks: list[list[tuple[float, ...]]] = [[] for _ in range(K)]
-    path = run_dir / "metrics.csv"
-    if path.exists():
-        with open(path, newline="") as f:
-            for r in csv.DictReader(f):
-                try:
-                    k = int(r["vehicle"])
-                    row = (float(r["t"]), float(r["north"]), float(r["east"]), float(r["down"]))
-                except (KeyError, ValueError):
-                    continue  # a torn last line of a killed companion
-                if 0 <= k < K:
-                    tracks[k].append(row)
-    return [np.array(t) if t else np.zeros((0, 4)) for t in tracks]
-
-
 def _json(path: Path) -> dict:
     try:
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return {}
-
-
-def judge_vehicles(run_dir: Path, plan, params: FormationParams, comp: dict) -> list[list]:
-    """skyherd.safety.judge on each vehicle, as `skyherd fly` judges one: its truth (uav<k>/world.csv,
-    moved from its home into the field frame) against the formation's envelope, the net's
-    switches (events.jsonl), the AI window from its hand-over to the settled formation's
-    landing, no camera, the mission's outcome. The formation writes no modes.jsonl: its modes
-    check sees no changes. One list of checks per vehicle."""
-    from skyherd.mission.formation_plan import field_offsets, formation_envelope
-    from skyherd.safety.judge import Ending, Truth, judge
-
-    K = len(plan)
-    paths = plan_ne(plan, params.cell_m)
-    spec = formation_envelope(list(paths), params)
-    homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
-    off = field_offsets(DEFAULT_HOME, homes)
-    events = []
-    try:
-        for line in (run_dir / "events.jsonl").read_text().splitlines():
-            try:
-                events.append(json.loads(line))
-            except ValueError:
-                pass  # a line cut by a kill
-    except OSError:
-        pass
-    t_end = (comp.get("times") or {}).get("all_over_targets")
-    ending = Ending(comp.get("outcome", "aborted"), str(comp.get("reason") or ""))
-    out = []
-    for k in range(K):
-        rows = []
-        try:
-            with open(run_dir / f"uav{k}" / "world.csv", newline="") as f:
-                rows = list(csv.DictReader(f))
-        except OSError:
-            pass
-        truth = Truth.from_rows(rows)
-        truth = Truth(truth.t, truth.pos_ned + np.r_[off[k], 0.0], truth.armed, truth.mode)
-        mine = [e for e in events if e.get("vehicle") == f"uav{k}"]
-        start = next((float(e["t"]) for e in mine if e.get("event") == "handover"), None)
-        last = float(truth.t[-1]) if len(truth.t) else start
-        window = None if start is None else (start, float(t_end) if t_end is not None else last)
-        switches = [(float(e["t"]), str(e["to"])) for e in mine if e.get("event") == "switch"]
-        out.append(judge(truth, spec, [], window, None, 0, ending, switches))
-    return out
 
 
 def formation_report(run_dir: Path, rc: int, why: str) -> bool:
