@@ -28,6 +28,7 @@ from skyherd.mission.formation_plan import (
     load_plan,
     plan_moves,
     plan_ne,
+    plan_text,
     separation,
     tracking_error,
     validate_plan,
@@ -35,14 +36,13 @@ from skyherd.mission.formation_plan import (
     vehicle_instances,
 )
 from skyherd.mission.formation_run import judge_vehicles, read_tracks
+from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text, markdown_table
 from skyherd.scripts.cli import UsageError
 from skyherd.scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
 from skyherd.scripts.launch import flight_reason
 from skyherd.world.fleet import FleetVehicle, write_fleet
-
-MAX_INSTANCE = 200  # EndpointConfig's limit
 
 
 def _params(args) -> FormationParams:
@@ -63,10 +63,10 @@ def _check(args) -> None:
         raise UsageError(
             f"--sims {args.sims}: give 1..{args.agents} processes (or 0: one per CPU core)"
         )
-    if not 0 <= args.instance <= MAX_INSTANCE - args.agents + 1:
+    if not 0 <= args.instance <= ports.MAX_INSTANCE - args.agents + 1:
         raise UsageError(
             f"--instance {args.instance} + {args.agents} vehicles goes past instance "
-            f"{MAX_INSTANCE}; pick a smaller --instance"
+            f"{ports.MAX_INSTANCE}; pick a smaller --instance"
         )
 
 
@@ -126,7 +126,7 @@ def run_formation(args: argparse.Namespace) -> int:
                   "east (x-1)*cell_m",
          "signing": signing_mode(args)}
     )  # fmt: skip
-    atomic_write_text(run_dir / "plan.json", _plan_json(plan))
+    atomic_write_text(run_dir / "plan.json", plan_text(plan))
     waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     skipped = (
@@ -194,27 +194,11 @@ def sim_groups(K: int, sims: int) -> list[list[int]]:
 
 def _ports_free(instances: list[int]) -> None:
     """UsageError before anything starts if a vehicle's or the companion's UDP port is taken."""
-    import socket
-
-    from skyherd.flight.mavlink import EndpointConfig
-
-    for inst in instances:
-        cfg = EndpointConfig(instance=inst)
-        for host, port in (cfg.api_bind, cfg.gcs_bind, ("127.0.0.1", cfg.api_remote[1])):
-            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-                try:
-                    s.bind((host, port))
-                except OSError as e:
-                    raise UsageError(f"UDP port {port} of instance {inst} is taken ({e.strerror}); "
-                                     "pick another --instance") from None  # fmt: skip
-
-
-def _plan_json(plan) -> str:
-    return (
-        "[\n"
-        + ",\n".join("  " + str([list(c) for c in p]).replace(" ", "") for p in plan)
-        + "\n]\n"
-    )
+    taken = ports.taken_udp_port(instances)
+    if taken is not None:
+        inst, port, why = taken
+        raise UsageError(f"UDP port {port} of instance {inst} is taken ({why}); "
+                         "pick another --instance")  # fmt: skip
 
 
 def _json(path: Path) -> dict:

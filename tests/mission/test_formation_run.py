@@ -1,5 +1,6 @@
 """A formation run folder read back (mission.formation_run) without the command line: the tracks
-of metrics.csv, and every vehicle judged from its own world.csv in the field frame."""
+of metrics.csv, every vehicle judged from its own world.csv in the field frame, and plan.json's
+text (mission.formation_plan.plan_text)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import json
 
 import numpy as np
 
-from skyherd.mission.formation_plan import TRACK_COLUMNS, FormationParams
+from skyherd.mission.formation_plan import TRACK_COLUMNS, FormationParams, load_plan, plan_text
 from skyherd.mission.formation_run import judge_vehicles, read_tracks
 from skyherd.safety.judge import first_failed
 
@@ -47,3 +48,10 @@ def test_each_vehicle_is_judged_on_its_own_truth_moved_into_the_field(tmp_path):
     fence = [{c.name: c.ok for c in checks}["fence"] for checks in judged]
     assert fence == [True, False]
     assert first_failed(judged[1]).name == "fence"
+
+
+def test_plan_json_is_what_load_plan_reads(tmp_path):
+    path = tmp_path / "plan.json"
+    path.write_text(plan_text(PLAN))
+    assert path.read_text().splitlines()[1] == "  [[1,1],[2,1],[3,1]],"
+    assert load_plan(path, 2) == PLAN
