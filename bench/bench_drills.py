@@ -20,11 +20,12 @@ import time
 
 import numpy as np
 
+from skyherd.mission.campaign import run_one
 from skyherd.runio.runfolder import markdown_table
-from skyherd.scripts.drill_campaign import run_one
+from skyherd.safety.campaign_run import DrillJob
 
 
-def cpu_of(job: tuple) -> tuple[float, dict]:
+def cpu_of(job: DrillJob) -> tuple[float, dict]:
     c0 = time.process_time()
     row = run_one(job)
     return time.process_time() - c0, row
@@ -39,14 +40,14 @@ def main() -> None:
     out = []
     for airframe in ("quadrotor", "fixedwing"):
         for way in ("mission", "process"):  # warm-up: imports, compiled kernels, sockets
-            cpu_of((airframe, 10_000, args.seed, None, way, args.instance))
+            cpu_of(DrillJob(airframe, 10_000, args.seed, None, way, args.instance))
         cpu = {"mission": [], "process": []}
         sim = []
         bad = 0
         for i in range(args.drills):
             order = ("mission", "process") if i % 2 == 0 else ("process", "mission")
             for way in order:
-                c, row = cpu_of((airframe, i, args.seed, None, way, args.instance))
+                c, row = cpu_of(DrillJob(airframe, i, args.seed, None, way, args.instance))
                 cpu[way].append(c)
                 bad += not row["passed"]
                 if way == "mission":

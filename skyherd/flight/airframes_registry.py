@@ -13,6 +13,7 @@ from pathlib import Path
 from skyherd.flight.autopilot_api import Autopilot
 from skyherd.flight.clock import SimClock
 from skyherd.flight.geo import DEFAULT_HOME, Home
+from skyherd.flight.params import ParamStore
 
 PX4_STANDIN = Path(__file__).parent / "airframes" / "px4_standin.toml"  # docs/quadrotor.md
 
@@ -45,6 +46,20 @@ def autopilot_class(airframe: str) -> type:
         raise AirframeUnavailable(f"airframe {airframe!r} is not available yet ({e})") from e
 
 
+def param_store(airframe: str) -> ParamStore:
+    """The built-in autopilot's parameter table for `airframe` at its defaults (names, ranges,
+    units), without building the autopilot; AirframeUnavailable for an unknown airframe."""
+    if airframe == "quadrotor":
+        from skyherd.flight.multirotor.params import MULTIROTOR_PARAMS as specs
+    elif airframe == "fixedwing":
+        from skyherd.flight.fixedwing.fw_params import FW_PARAM_SPECS as specs
+    else:
+        raise AirframeUnavailable(
+            f"unknown airframe {airframe!r}: choose one of {airframe_names()}"
+        )
+    return ParamStore(specs)
+
+
 def make_autopilot(
     airframe: str,
     clock: SimClock | None = None,
@@ -67,10 +82,7 @@ def make_autopilot(
         return cls(home=home, clock=clock, seed=seed, faults=faults, params_file=params_file)
     overrides = None
     if params_file is not None:
-        from skyherd.flight.fixedwing.fw_params import FW_PARAM_SPECS
-        from skyherd.flight.params import ParamStore
-
-        store = ParamStore(FW_PARAM_SPECS)
+        store = param_store("fixedwing")
         store.load_toml(params_file)
         overrides = store.as_dict()
     return cls(

@@ -9,6 +9,7 @@ order of `names()`, which a MAVLink endpoint uses as `param_index`.
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from collections.abc import Iterable, Mapping
@@ -74,6 +75,10 @@ class ParamStore:
 
     def __contains__(self, name: str) -> bool:
         return name in self._specs
+
+    def close_names(self, name: str, n: int = 3) -> list[str]:
+        """Up to n parameter names like `name` (any case), the closest first ("did you mean")."""
+        return difflib.get_close_matches(name.upper(), self.names(), n=n)
 
     def as_dict(self) -> dict[str, float]:
         return dict(self._values)

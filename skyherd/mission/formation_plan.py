@@ -167,6 +167,13 @@ def validate_plan(paths, n_agents: int, size: int) -> list[list[Cell]]:
     return out
 
 
+def plan_text(paths: list[list[Cell]]) -> str:
+    """A plan as plan.json's text (what `load_plan` reads): one agent's path per line,
+    cells as [x,y]."""
+    rows = ("  " + str([list(c) for c in p]).replace(" ", "") for p in paths)
+    return "[\n" + ",\n".join(rows) + "\n]\n"
+
+
 def load_plan(path: Path | str, n_agents: int, size: int = 50) -> list[list[Cell]]:
     """A plan saved by `skyherd train sql` (plan_K<K>.json); PlanError if unusable."""
     try:

@@ -108,6 +108,22 @@ def instance_ports(n: int) -> dict[str, int]:
     }
 
 
+def taken_udp_port(instances: list[int], host: str = LOOPBACK) -> tuple[int, int, str] | None:
+    """The first UDP port of these instances that cannot be bound on `host` now — each
+    instance's API and ground-station ports, then its companion's — as (instance, port, the
+    operating system's reason); None if every one is free. A probe: nothing stays bound."""
+    import socket
+
+    for n in instances:
+        for port in (api_bind_port(n), gcs_bind_port(n), api_remote_port(n)):
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                try:
+                    s.bind((host, port))
+                except OSError as e:
+                    return n, port, e.strerror
+    return None
+
+
 # the command line's help, built from the bases (one home for every number in it)
 MAVLINK_PORTS_HELP = f"MAVLink ports ({API_REMOTE_BASE}+N, {API_BIND_BASE}+N, {GCS_BIND_BASE}+N)"
 ZENOH_PORT_HELP = f"Zenoh port {ZENOH_BASE}+N"

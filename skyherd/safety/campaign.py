@@ -81,6 +81,12 @@ def kinds_for(airframe: str) -> tuple[str, ...]:
     return tuple(k for k in KINDS if not (airframe == "fixedwing" and k == "battery"))
 
 
+def drill_kind(airframe: str, index: int) -> str:
+    """The kind of a campaign's drill `index`: the airframe's kinds in turn."""
+    ks = kinds_for(airframe)
+    return ks[index % len(ks)]
+
+
 @dataclass
 class CampaignDrill:
     """A drill of the campaign: the script for run_drill and the autopilot's fault plan."""
@@ -321,11 +327,10 @@ def shift_spec(spec: EnvelopeSpec, offset_ne: np.ndarray) -> EnvelopeSpec:
 
 def campaign(spec: EnvelopeSpec, p: DrillParams, n: int, seed: int) -> list[CampaignDrill]:
     """n drills for the airframe of `spec`, the kinds in turn."""
-    ks = kinds_for(spec.airframe)
     out = []
     for i in range(n):
         rng = drill_rng(seed, spec.airframe, i)
-        out.append(make_drill(ks[i % len(ks)], i, rng, spec, p))
+        out.append(make_drill(drill_kind(spec.airframe, i), i, rng, spec, p))
     return out
 
 

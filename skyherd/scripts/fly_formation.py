@@ -14,11 +14,9 @@ sim_stats.json, sim.log), formation.png and summary.md with landing errors, sepa
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -30,20 +28,21 @@ from skyherd.mission.formation_plan import (
     load_plan,
     plan_moves,
     plan_ne,
+    plan_text,
     separation,
     tracking_error,
     validate_plan,
     vehicle_homes,
     vehicle_instances,
 )
+from skyherd.mission.formation_run import judge_vehicles, read_tracks
+from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text, markdown_table
 from skyherd.scripts.cli import UsageError
 from skyherd.scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
 from skyherd.scripts.launch import flight_reason
 from skyherd.world.fleet import FleetVehicle, write_fleet
-
-MAX_INSTANCE = 200  # EndpointConfig's limit
 
 
 def _params(args) -> FormationParams:
@@ -64,16 +63,18 @@ def _check(args) -> None:
         raise UsageError(
             f"--sims {args.sims}: give 1..{args.agents} processes (or 0: one per CPU core)"
         )
-    if not 0 <= args.instance <= MAX_INSTANCE - args.agents + 1:
+    if not 0 <= args.instance <= ports.MAX_INSTANCE - args.agents + 1:
         raise UsageError(
             f"--instance {args.instance} + {args.agents} vehicles goes past instance "
-            f"{MAX_INSTANCE}; pick a smaller --instance"
+            f"{ports.MAX_INSTANCE}; pick a smaller --instance"
         )
 
 
 def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
-    """The lock-step plan and where it came from (for config.json). UsageError if unusable."""
-    from skyherd.policy.sql import Algorithm, GridParams, SQLHyper, build_layout, plan_paths, train
+    """The lock-step plan (--policy-file, or learned: policy.sql.learn_plan) and where it came
+    from (for config.json). UsageError if unusable."""
+    from skyherd.policy.sql import GridParams, PlanParams, learn_plan
+    from skyherd.policy.sql.layout import STARTS
 
     K = args.agents
     size = GridParams().size
@@ -83,24 +84,19 @@ def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
         except PlanError as e:
             raise UsageError(f"{e}; pass a plan_K{K}.json from `skyherd train sql`") from None
         return plan, {"source": "file", "path": str(args.policy_file)}
-    if K not in (4, 9, 16):
-        raise UsageError(
-            f"the study's SQL-SIE plans are for K = 4, 9, 16: for K = {K} pass --policy-file"
-        )
+    if K not in STARTS:
+        raise UsageError(f"the study's SQL-SIE plans are for K = {', '.join(map(str, STARTS))}: "
+                         f"for K = {K} pass --policy-file")  # fmt: skip
     from tqdm import tqdm
 
-    grid = GridParams(n_agents=K)
-    hyper = SQLHyper()
-    layout = build_layout(grid)
-    with tqdm(total=hyper.episodes, desc=f"train SQL-SIE K={K}", unit="ep") as bar:
-        res = train(Algorithm.SQL_SIE, layout, hyper, seed=args.sql_seed, progress=bar.update)
+    params = PlanParams(GridParams(n_agents=K), seed=args.sql_seed)
     try:
-        plan = validate_plan([[list(c) for c in p] for p in plan_paths(res, K)], K, size)
+        with tqdm(total=params.hyper.episodes, desc=f"train SQL-SIE K={K}", unit="ep") as bar:
+            paths = learn_plan(params, bar.update)
+        plan = validate_plan(paths, K, size)
     except ValueError as e:
         raise UsageError(f"{e}; try another --sql-seed or pass --policy-file") from None
-    info = {"source": "trained", "algorithm": "sql-sie", "seed": args.sql_seed,
-            "grid": asdict(grid), "hyper": asdict(hyper)}  # fmt: skip
-    return plan, info
+    return plan, params.describe()
 
 
 def run_formation(args: argparse.Namespace) -> int:
@@ -130,7 +126,7 @@ def run_formation(args: argparse.Namespace) -> int:
                   "east (x-1)*cell_m",
          "signing": signing_mode(args)}
     )  # fmt: skip
-    atomic_write_text(run_dir / "plan.json", _plan_json(plan))
+    atomic_write_text(run_dir / "plan.json", plan_text(plan))
     waysout.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     skipped = (
@@ -198,44 +194,11 @@ def sim_groups(K: int, sims: int) -> list[list[int]]:
 
 def _ports_free(instances: list[int]) -> None:
     """UsageError before anything starts if a vehicle's or the companion's UDP port is taken."""
-    import socket
-
-    from skyherd.flight.mavlink import EndpointConfig
-
-    for inst in instances:
-        cfg = EndpointConfig(instance=inst)
-        for host, port in (cfg.api_bind, cfg.gcs_bind, ("127.0.0.1", cfg.api_remote[1])):
-            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-                try:
-                    s.bind((host, port))
-                except OSError as e:
-                    raise UsageError(f"UDP port {port} of instance {inst} is taken ({e.strerror}); "
-                                     "pick another --instance") from None  # fmt: skip
-
-
-def _plan_json(plan) -> str:
-    return (
-        "[\n"
-        + ",\n".join("  " + str([list(c) for c in p]).replace(" ", "") for p in plan)
-        + "\n]\n"
-    )
-
-
-def read_tracks(run_dir: Path, K: int) -> list[np.ndarray]:
-    """metrics.csv → per vehicle (t, north, east, down) rows in the field frame."""
-    tracks: list[list[tuple[float, ...]]] = [[] for _ in range(K)]
-    path = run_dir / "metrics.csv"
-    if path.exists():
-        with open(path, newline="") as f:
-            for r in csv.DictReader(f):
-                try:
-                    k = int(r["vehicle"])
-                    row = (float(r["t"]), float(r["north"]), float(r["east"]), float(r["down"]))
-                except (KeyError, ValueError):
-                    continue  # a torn last line of a killed companion
-                if 0 <= k < K:
-                    tracks[k].append(row)
-    return [np.array(t) if t else np.zeros((0, 4)) for t in tracks]
+    taken = ports.taken_udp_port(instances)
+    if taken is not None:
+        inst, port, why = taken
+        raise UsageError(f"UDP port {port} of instance {inst} is taken ({why}); "
+                         "pick another --instance")  # fmt: skip
 
 
 def _json(path: Path) -> dict:
@@ -243,50 +206,6 @@ def _json(path: Path) -> dict:
         return json.loads(path.read_text())
     except (OSError, ValueError):
         return {}
-
-
-def judge_vehicles(run_dir: Path, plan, params: FormationParams, comp: dict) -> list[list]:
-    """skyherd.safety.judge on each vehicle, as `skyherd fly` judges one: its truth (uav<k>/world.csv,
-    moved from its home into the field frame) against the formation's envelope, the net's
-    switches (events.jsonl), the AI window from its hand-over to the settled formation's
-    landing, no camera, the mission's outcome. The formation writes no modes.jsonl: its modes
-    check sees no changes. One list of checks per vehicle."""
-    from skyherd.mission.formation_plan import field_offsets, formation_envelope
-    from skyherd.safety.judge import Ending, Truth, judge
-
-    K = len(plan)
-    paths = plan_ne(plan, params.cell_m)
-    spec = formation_envelope(list(paths), params)
-    homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
-    off = field_offsets(DEFAULT_HOME, homes)
-    events = []
-    try:
-        for line in (run_dir / "events.jsonl").read_text().splitlines():
-            try:
-                events.append(json.loads(line))
-            except ValueError:
-                pass  # a line cut by a kill
-    except OSError:
-        pass
-    t_end = (comp.get("times") or {}).get("all_over_targets")
-    ending = Ending(comp.get("outcome", "aborted"), str(comp.get("reason") or ""))
-    out = []
-    for k in range(K):
-        rows = []
-        try:
-            with open(run_dir / f"uav{k}" / "world.csv", newline="") as f:
-                rows = list(csv.DictReader(f))
-        except OSError:
-            pass
-        truth = Truth.from_rows(rows)
-        truth = Truth(truth.t, truth.pos_ned + np.r_[off[k], 0.0], truth.armed, truth.mode)
-        mine = [e for e in events if e.get("vehicle") == f"uav{k}"]
-        start = next((float(e["t"]) for e in mine if e.get("event") == "handover"), None)
-        last = float(truth.t[-1]) if len(truth.t) else start
-        window = None if start is None else (start, float(t_end) if t_end is not None else last)
-        switches = [(float(e["t"]), str(e["to"])) for e in mine if e.get("event") == "switch"]
-        out.append(judge(truth, spec, [], window, None, 0, ending, switches))
-    return out
 
 
 def formation_report(run_dir: Path, rc: int, why: str) -> bool:

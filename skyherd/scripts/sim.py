@@ -219,13 +219,9 @@ def check(args) -> tuple:
 def _check_params(airframe: str, items: list[str]) -> None:
     """--param NAME=VALUE against the built-in autopilot's parameter table (names, numbers,
     ranges), before the autopilot exists; UsageError naming the item."""
-    from skyherd.flight.params import ParamStore
+    from skyherd.flight.airframes_registry import param_store
 
-    if airframe == "fixedwing":
-        from skyherd.flight.fixedwing.fw_params import FW_PARAM_SPECS as specs
-    else:
-        from skyherd.flight.multirotor.params import MULTIROTOR_PARAMS as specs
-    store = ParamStore(specs)
+    store = param_store(airframe)
     for item in items:
         name, eq, value = item.partition("=")
         if not eq:
@@ -241,9 +237,7 @@ def _param_hint(store, name: str, airframe: str) -> str:
     """What to do about an unknown parameter name: the close names, or where the table is."""
     if name in store:
         return ""
-    import difflib
-
-    close = difflib.get_close_matches(name.upper(), store.names(), n=3)
+    close = store.close_names(name)
     if close:
         return f"; did you mean {' or '.join(close)}?"
     return f"; the built-in {airframe}'s {len(store.names())} parameters: `skyherd sitl` and a ground station list them"

@@ -60,3 +60,19 @@ def test_autopilot_reads_params_file_and_live_changes(tmp_path):
     for _ in range(3000):
         ap.step()
     assert ap.state.pos_ned[2] == pytest.approx(-4.0, abs=0.1)
+
+
+def test_each_airframes_table_without_its_autopilot_and_the_close_names():
+    """flight.airframes_registry.param_store: the table `skyherd sim --param` is checked against
+    before any autopilot exists; close_names: its "did you mean"."""
+    from skyherd.flight.airframes_registry import AirframeUnavailable, param_store
+    from skyherd.flight.fixedwing.fw_params import FW_PARAM_SPECS
+
+    quad = param_store("quadrotor")
+    assert quad.names() == [s.name for s in MULTIROTOR_PARAMS]
+    assert quad.as_dict() == ParamStore(MULTIROTOR_PARAMS).as_dict()  # at the defaults
+    assert param_store("fixedwing").names() == [s.name for s in FW_PARAM_SPECS]
+    with pytest.raises(AirframeUnavailable):
+        param_store("blimp")
+    assert quad.close_names("com_of_los_t")[0] == "COM_OF_LOSS_T"  # any case
+    assert quad.close_names("ZZZZZZZZ") == []

@@ -1,4 +1,4 @@
-"""Campaign regressions for the quadrotor and the campaign's exit rule (scripts.drill_campaign).
+"""Campaign regressions for the quadrotor and the campaign's exit rule (safety.campaign_verdict).
 
 Run 3 (seed 51) found battery 0182: the autopilot's own battery RTL flew its straight line home
 across a reflex corner of the notched field, 1.3 m beyond the fence, after the net had yielded.
@@ -9,10 +9,10 @@ the autopilot's own HOLD beyond the fence (which the built-in vehicle fits to th
 from __future__ import annotations
 
 from skyherd.safety.campaign import drill_rng, kinds_for, make_drill, make_vehicle
+from skyherd.safety.campaign_verdict import summarize
 from skyherd.safety.config import default_envelope_path, fill_dataclass, load_envelope
 from skyherd.safety.drills import DrillParams, run_drill
 from skyherd.safety.supervisor import SupervisorParams
-from skyherd.scripts.drill_campaign import summarize
 
 
 def test_battery_0182_rtl_path_is_the_autopilots_and_reported():

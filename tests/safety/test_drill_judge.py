@@ -10,6 +10,7 @@ import pytest
 from scipy.stats import binom
 
 from skyherd.safety.campaign import breach_upper_bound, drills_needed
+from skyherd.safety.campaign_verdict import bounds, summarize
 from skyherd.safety.config import default_envelope_path, load_envelope
 from skyherd.safety.envelope import NZ, SignedDistance
 from skyherd.safety.judge import (
@@ -24,7 +25,6 @@ from skyherd.safety.judge import (
     verdict,
     worst_rows,
 )
-from skyherd.scripts.drill_campaign import bounds, summarize
 
 NORTH = 35.0
 

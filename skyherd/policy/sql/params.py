@@ -7,7 +7,7 @@ probability 1 − ε), knowledge-sharing period N (episodes).
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -274,3 +274,26 @@ class RoiPretrain:
             raise ValueError("ROI pre-training needs episodes >= 1, max_steps >= 1, seed >= 0")
         if not (0.0 < self.eps_decay <= 1.0 and 0.0 <= self.eps_min <= 1.0):
             raise ValueError("ROI pre-training needs eps_decay in (0, 1], eps_min in [0, 1]")
+
+
+@dataclass(frozen=True)
+class PlanParams:
+    """How a formation's lock-step plan is learned when none is given (`skyherd fly --mission
+    formation` without --policy-file): SQL-SIE on the built-in layout of K agents, the intended
+    rules, from one learner seed."""
+
+    grid: GridParams = GridParams(n_agents=4)
+    """The grid world: K (grid.n_agents) must have a built-in layout (layout.STARTS: 4, 9, 16)."""
+    hyper: SQLHyper = SQLHyper()
+    """Learning hyper-parameters (the study's defaults)."""
+    seed: int = 0
+    """Learner seed (`--sql-seed`): the same seed, the same plan."""
+
+    def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ValueError(f"the learner seed must be >= 0, got {self.seed}")
+
+    def describe(self) -> dict:
+        """Where a learned plan came from (config.json's "plan")."""
+        return {"source": "trained", "algorithm": Algorithm.SQL_SIE.value, "seed": self.seed,
+                "grid": asdict(self.grid), "hyper": asdict(self.hyper)}  # fmt: skip

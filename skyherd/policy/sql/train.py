@@ -2,7 +2,7 @@
 
 `train` is the one entry point for SQL, SQL-D and SQL-SIE; `greedy_rollout` / `plan_paths`
 replay the learned policy without exploration or learning (for evaluation and for flying the
-formation later).
+formation later); `learn_plan` trains SQL-SIE and returns the plan the formation flies.
 """
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ import numpy as np
 
 from skyherd.policy.sql import kernels
 from skyherd.policy.sql.kernels import rng_state
-from skyherd.policy.sql.layout import Layout
-from skyherd.policy.sql.params import Algorithm, RoiPretrain, Rules, SQLHyper
+from skyherd.policy.sql.layout import STARTS, Layout, build_layout
+from skyherd.policy.sql.params import Algorithm, PlanParams, RoiPretrain, Rules, SQLHyper
 from skyherd.policy.sql.roitable import fixed_roi_table, pretrained_roi_tables
 
 __all__ = [
-    "Metrics", "TrainResult", "fixed_roi_table", "greedy_rollout", "plan_paths",
+    "Metrics", "TrainResult", "fixed_roi_table", "greedy_rollout", "learn_plan", "plan_paths",
     "pretrained_roi_tables", "rng_state", "train",
 ]  # fmt: skip
 
@@ -237,3 +237,19 @@ def plan_paths(result: TrainResult, K: int, seed: int = 0) -> list[list[tuple[in
             f"{result.hyper.max_steps} steps; train longer before flying it"
         )
     return [[result.layout.xy(int(s)) for s in row] for row in paths]
+
+
+def learn_plan(
+    params: PlanParams, progress: Callable[[int], None] | None = None
+) -> list[list[tuple[int, int]]]:
+    """The formation's lock-step plan: SQL-SIE trained on the built-in layout of K =
+    params.grid.n_agents agents (intended rules), then its greedy paths (`plan_paths`);
+    `progress(n)` as in `train`. ValueError if K has no built-in layout or if the greedy policy
+    leaves an agent off its target (another seed may succeed). Same params, same plan."""
+    K = params.grid.n_agents
+    if K not in STARTS:
+        raise ValueError(f"no built-in layout for K = {K}: the learned plans are for K = "
+                         f"{', '.join(map(str, STARTS))}")  # fmt: skip
+    layout = build_layout(params.grid)
+    res = train(Algorithm.SQL_SIE, layout, params.hyper, seed=params.seed, progress=progress)
+    return plan_paths(res, K)

@@ -1,0 +1,78 @@
+"""The drill campaign's runner (`skyherd drill --campaign N`): N randomized adversarial drills per
+airframe (safety.campaign), each a pure function of its job (airframe, index, seed), on this
+process, a local process pool or Ray tasks (runio.parallel: a dead worker's drill runs again).
+
+A drill flies `through` "mission" (mission.drill_link: `skyherd fly`'s mission code — the
+companion's SingleVehicleMission with the drill's adversarial pilot, the same SafetyNet,
+authority and decision records — over loopback MAVLink to the built-in vehicle in lockstep on
+the simulation clock, each drill running at once on its own vehicle instance) or "process" (the
+in-process drill loop, safety.campaign_run). Either way it becomes one row of the campaign's
+metrics.csv (safety.campaign_run.drill_row); the verdict over the rows is
+safety.campaign_verdict's.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from skyherd.safety.campaign import drill_kind, drill_rng, make_drill
+from skyherd.safety.campaign_run import (
+    DrillJob,
+    EventSink,
+    crash_row,
+    drill_row,
+    load_set,
+    run_process_drill,
+)
+from skyherd.safety.drills import DrillParams
+
+
+def campaign_jobs(airframes: list[str], n: int, seed: int, envelope: Path | None,
+                  through: str, instance: int) -> list[DrillJob]:  # fmt: skip
+    """The campaign's drills 0..n-1 of every airframe, drill by drill (the airframes in turn)."""
+    return [DrillJob(a, i, seed, envelope, through, instance) for i in range(n) for a in airframes]
+
+
+def run_one(job: DrillJob) -> dict:
+    """One campaign drill in this process → its row (a plain, picklable dict) with the way it
+    flew and its CPU time; a drill that raised is a failed row (one broken drill must not lose
+    the campaign)."""
+    cpu0 = time.process_time()
+    try:
+        row = run_mission_drill_row(job) if job.through == "mission" else run_process_drill(job)
+        return row | {"through": job.through, "cpu_s": round(time.process_time() - cpu0, 3)}
+    except Exception as e:  # noqa: BLE001  one broken drill must not lose the campaign
+        return crash_row(job, e)
+
+
+def run_mission_drill_row(job: DrillJob) -> dict:
+    """One campaign drill flown by the companion's mission code (mission.drill_link) → its row."""
+    from skyherd.mission.drill_link import run_mission_drill  # MAVLink, only when flown so
+
+    spec, _ = load_set(job.airframe, job.envelope)
+    kind = drill_kind(job.airframe, job.index)
+    sink = EventSink()
+    r = run_mission_drill(kind, job.airframe, job.index, job.seed, job.instance, sink, job.envelope)
+    rng = drill_rng(job.seed, job.airframe, job.index)
+    moved = make_drill(kind, job.index, rng, spec, DrillParams()).spec
+    track = [row[1:] for row in r.track]
+    return drill_row(r, job.airframe, kind, spec, moved, sink, r.end_mode, track) | {
+        "decisions": r.setpoints,
+        "sim_s": round(r.sim_s, 2),
+    }
+
+
+def run_all(jobs: list[DrillJob], workers: int = 1, backend: str = "auto",
+            ray_address: str | None = None,
+            say: Callable[[str], None] = print) -> Iterator[dict]:  # fmt: skip
+    """Every job's row as it finishes: in this process, in order, with one worker and no Ray
+    address; else on Ray tasks or a process pool (runio.parallel), in completion order."""
+    if workers == 1 and ray_address is None:
+        yield from map(run_one, jobs)
+        return
+    from skyherd.runio.parallel import map_unordered
+
+    for _, row in map_unordered(run_one, jobs, backend, workers, ray_address, say=say):
+        yield row
