@@ -16,6 +16,7 @@ PX4_SIM_BASE = 4560  # TCP, PX4 `-i N` connects its simulator_mavlink to 4560+N
 JSON_BASE = 9002  # UDP, ArduPilot `-I N --model JSON` sends its servos to 9002+10N
 JSON_STRIDE = 10  # ArduPilot's -I N moves every port by 10 N
 ZENOH_BASE = 7447  # TCP, the simulator's Zenoh peer listens on 127.0.0.1:7447+N
+MISSION_DRILL_INSTANCE = 85  # `skyherd drill --through mission`: the first vehicle instance
 LOOPBACK = "127.0.0.1"  # every socket skyherd opens binds here unless a flag says otherwise
 
 # -- MAVLink identities (CONVENTIONS.md) -------------------------------------------------------
@@ -32,3 +33,6 @@ POS_SPEED_MAX_MPS = 12.0  # PX4 MPC_XY_VEL_MAX's default: the position-mode hori
 
 # -- Zenoh key expressions (CONVENTIONS.md "Zenoh") -----------------------------------------------
 CLOCK_KEY = "skyherd/sim/clock"  # the simulation clock, one sample per camera instant
+
+# -- safety evidence ----------------------------------------------------------------------------
+TARGET_BOUND = 1e-3  # the breach probability a drill campaign is bounded against at 95 % [-]

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skyherd.runio.constants import MISSION_DRILL_INSTANCE
 from skyherd.safety.campaign import drill_kind, drill_rng, make_drill, make_vehicle
 from skyherd.safety.config import (
     EnvelopeFileError,
@@ -49,7 +50,7 @@ class DrillJob:
     """The constraint-set file; None: the airframe's field set."""
     through: str = "process"
     """"process": the in-process drill loop; "mission": the companion's mission code."""
-    instance: int = 85
+    instance: int = MISSION_DRILL_INSTANCE
     """"mission": the first vehicle instance to try (each drill at once takes the next free)."""
 
 
@@ -76,7 +77,10 @@ def load_set(airframe: str, envelope: Path | None) -> tuple[EnvelopeSpec, Superv
     except ValueError as e:
         raise ValueError(f"constraint set {path}: {e}") from e
     if spec.airframe != airframe:
-        raise ValueError(f"constraint set {path} is for {spec.airframe}, not {airframe}")
+        raise ValueError(
+            f"constraint set {path} is for {spec.airframe}, not {airframe}; "
+            "pass a matching --envelope"
+        )
     return spec, sp
 
 

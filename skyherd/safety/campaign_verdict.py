@@ -25,12 +25,10 @@ import math
 
 import numpy as np
 
+from skyherd.runio.constants import TARGET_BOUND
 from skyherd.runio.runfolder import markdown_table
 from skyherd.safety.campaign import CONFIDENCE, breach_upper_bound, drill_kind, drills_needed
 from skyherd.safety.judge import FAILSAFE_PATH_MODES
-
-TARGET_BOUND = 1e-3
-"""The breach probability a campaign is bounded against at 95 % (`--target-bound`'s default)."""
 
 
 def drill_passed(row: dict) -> bool:

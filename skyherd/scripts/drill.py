@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from skyherd.runio import ports
+from skyherd.runio.constants import MISSION_DRILL_INSTANCE, TARGET_BOUND
 from skyherd.runio.runfolder import RunFolder, markdown_table
 from skyherd.scripts.cli import UsageError
 
@@ -92,7 +93,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--target-bound",
         type=float,
-        default=1e-3,
+        default=TARGET_BOUND,
         metavar="P",
         help="--campaign: the breach probability to bound (95 %% one-sided Clopper-Pearson); "
         "the report says how many breach-free drills that needs (default 1e-3: 2,995)",
@@ -106,8 +107,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(safety.drills.run_drill) (default mission)",
     )  # fmt: skip
     parser.add_argument(
-        "--instance", type=int, default=85,
-        help=f"--through mission: the first vehicle instance ({ports.MAVLINK_PORTS_HELP}); each drill running at once takes the next free one, up to N+31 (default 85)",
+        "--instance", type=int, default=MISSION_DRILL_INSTANCE,
+        help=f"--through mission: the first vehicle instance ({ports.MAVLINK_PORTS_HELP}); each drill running at once takes the next free one, up to N+31 (default {MISSION_DRILL_INSTANCE})",
     )  # fmt: skip
 
 
@@ -137,14 +138,7 @@ def _factory(airframe: str):
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from skyherd.safety.config import (
-        EnvelopeFileError,
-        default_envelope_path,
-        fill_dataclass,
-        load_envelope,
-    )
     from skyherd.safety.drills import DrillParams, random_drill, run_drill, scripted_drills
-    from skyherd.safety.supervisor import SupervisorParams
 
     if args.random < 0:
         raise UsageError("--random must be >= 0")
@@ -158,26 +152,15 @@ def run(args: argparse.Namespace) -> int:
         ports.check_instance(args.instance)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    if args.campaign:
-        from skyherd.scripts.drill_campaign import run_campaign
+    from skyherd.scripts.drill_campaign import load_set_or_usage, run_campaign
 
+    if args.campaign:
         return run_campaign(args)
     if args.duration is not None and not (5.0 <= args.duration <= 600.0):
         raise UsageError("--duration must be within [5, 600] s")
     plans = []
     for airframe in _airframes(args.airframe):
-        path = args.envelope if args.envelope is not None else default_envelope_path(airframe)
-        try:
-            spec, sup_table = load_envelope(path)
-            sp = fill_dataclass(SupervisorParams, sup_table, "supervisor")
-        except EnvelopeFileError as e:
-            raise UsageError(f"{e}; fix the file or pass another --envelope") from e
-        except ValueError as e:
-            raise UsageError(f"constraint set {path}: {e}") from e
-        if spec.airframe != airframe:
-            raise UsageError(
-                f"constraint set {path} is for {spec.airframe}, not {airframe}; pass a matching --envelope"
-            )
+        spec, sp = load_set_or_usage(airframe, args.envelope)
         if args.intervention:
             sp = dataclasses.replace(sp, intervention=args.intervention)
         make = _factory(airframe)

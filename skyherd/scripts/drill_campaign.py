@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from skyherd.runio.constants import MISSION_DRILL_INSTANCE
 from skyherd.runio.runfolder import RunFolder
 from skyherd.safety.campaign_run import COLUMNS, load_set
 from skyherd.safety.campaign_verdict import (
@@ -35,7 +36,7 @@ THROUGH_TEXT = {
 }  # --through
 
 
-def _load(airframe: str, envelope: Path | None):
+def load_set_or_usage(airframe: str, envelope: Path | None):
     """The airframe's constraint set and supervisor parameters (safety.campaign_run.load_set);
     UsageError naming what to fix."""
     try:
@@ -54,11 +55,11 @@ def run_campaign(args) -> int:
     from skyherd.mission.campaign import campaign_jobs, run_all
 
     airframes = ["quadrotor", "fixedwing"] if args.airframe == "all" else [args.airframe]
-    specs = {a: _load(a, args.envelope) for a in airframes}
+    specs = {a: load_set_or_usage(a, args.envelope) for a in airframes}
     n = args.campaign
     through = getattr(args, "through", "process")
     jobs = campaign_jobs(airframes, n, args.seed, args.envelope, through,
-                         getattr(args, "instance", 85))  # fmt: skip
+                         getattr(args, "instance", MISSION_DRILL_INSTANCE))  # fmt: skip
     run_dir = RunFolder("drill", root=args.runs_dir)
     run_dir.write_config({"args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
                           "seed": args.seed, "campaign": n, "airframes": airframes,
