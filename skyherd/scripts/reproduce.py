@@ -54,9 +54,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="extra K for the scaling figure, all three learners (e.g. 25 36; default none)",
     )  # fmt: skip
     parser.add_argument(
-        "--roi-table-seed", type=int, default=0, metavar="SEED",
+        "--roi-table-seed", default="auto", metavar="SEED|auto",
         help="seed of the one fixed ROI table per K that the published rules walk "
-        "(Rules.roi_table 'fixed'; default 0, the saved tables); 'per-run' tables: "
+        "(Rules.roi_table 'fixed'); auto: per K the first seed whose greedy walks all arrive "
+        "(policy.sql.roitable.walkable_seed: a property of the table, found before any run; "
+        "the published code's runs had no walk failure); default auto; 'per-run' tables: "
         "--switch roi_table=per-run",
     )  # fmt: skip
     parser.add_argument("--episodes", type=int, default=10_000, help="episodes per run (10000)")
@@ -89,18 +91,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _specs(args, env):
     from dataclasses import replace
 
-    from skyherd.policy.sql.params import RoiPretrain, Rules, SQLHyper
+    from skyherd.policy.sql.params import Rules, SQLHyper
     from skyherd.policy.sql.sweep import RunSpec
 
     hyper = SQLHyper(episodes=args.episodes, max_steps=args.max_steps)
-    pre = RoiPretrain(seed=args.roi_table_seed)
     Ns = args.sharing_periods
     specs = []
     for rname in args.rules:
-        rules = Rules.named(rname, args.ties, args.switches)
-        if pre.seed and rules.roi_phase == "pretrained" and rules.roi_table == "fixed":
-            rules = replace(rules, name=f"{rules.name}-table{pre.seed}")  # its label in tables
+        named = Rules.named(rname, args.ties, args.switches)
         for K in dict.fromkeys([*args.agents, *args.scaling_agents]):
+            rules, pre = named, _table(args, named, hyper, K, env)
+            if pre.seed and rules.roi_phase == "pretrained" and rules.roi_table == "fixed":
+                rules = replace(rules, name=f"{rules.name}-table{pre.seed}")  # its label in tables
             cfgs = [("sql", 0), ("sql-d", 0)]
             cfgs += [("sql-sie", n) for n in (Ns if K in args.agents else Ns[:1])]
             for alg, n in (c for c in cfgs if c[0] in args.learners):
@@ -109,14 +111,36 @@ def _specs(args, env):
     return specs
 
 
+def _table(args, rules, hyper, K: int, env):
+    """The ROI table's pre-training settings of formation K: --roi-table-seed, or with auto the
+    first walkable table seed of its layout (the map given, else the generated one)."""
+    from skyherd.policy.sql.envfile import generate_env
+    from skyherd.policy.sql.params import RoiPretrain
+    from skyherd.policy.sql.roitable import walkable_seed
+
+    if args.roi_table_seed != "auto":
+        return RoiPretrain(seed=args.roi_table_seed)
+    if rules.roi_phase != "pretrained" or rules.roi_table != "fixed":
+        return RoiPretrain()  # no fixed table is walked: nothing to choose
+    layout = (env if env is not None else generate_env(K, 0)).layout()
+    seed, holes = walkable_seed(layout, hyper, rules, RoiPretrain())
+    print(f"K = {K}: ROI table seed {seed} ({holes} walk holes; --roi-table-seed auto)")
+    return RoiPretrain(seed=seed)
+
+
 def _check(args):
     from skyherd.scripts.cli import UsageError, apply_quick
 
     apply_quick(args, QUICK)
     if args.episodes < 10 or args.max_steps < 1 or args.seeds < 1 or args.workers < 1:
         raise UsageError("need --episodes >= 10, --max-steps >= 1, --seeds >= 1, --workers >= 1")
-    if args.roi_table_seed < 0:
-        raise UsageError("--roi-table-seed must be >= 0")
+    if args.roi_table_seed != "auto":
+        try:
+            args.roi_table_seed = int(args.roi_table_seed)
+        except ValueError:
+            args.roi_table_seed = -1
+        if args.roi_table_seed < 0:
+            raise UsageError("--roi-table-seed must be auto or an integer >= 0")
     from skyherd.policy.sql.params import Rules
 
     args.switches = {}

@@ -2,6 +2,7 @@
 `Q_matrix_ROI*.mat`), saved and loaded, and the study's small-K results from fixed seeds."""
 
 import json
+from collections import Counter
 from dataclasses import replace
 
 import numpy as np
@@ -26,12 +27,14 @@ from skyherd.policy.sql.train import rng_state, train
 
 def test_the_saved_tables_are_their_seeds_pretraining_bit_for_bit():
     saved = sorted(TABLES_DIR.glob("*.npz"))
-    assert sorted(int(p.name[1:].split("_")[0]) for p in saved) == sorted(STUDY_AGENTS)
+    # per K: table seed 0 and the first walkable seed (one file where they are the same, K = 4)
+    counts = Counter(int(p.name[1:].split("_")[0]) for p in saved)
+    assert counts == {k: 1 if k == 4 else 2 for k in STUDY_AGENTS}
     for path in saved:
         with np.load(path) as f:
             key, q2 = json.loads(str(f["key"])), f["q2"]
         lay = generate_env(len(key["flags"]), 0).layout()
-        rules, pre = Rules.published(), RoiPretrain()
+        rules, pre = Rules.published(), RoiPretrain(seed=key["pretrain"]["seed"])
         assert table_key(lay, SQLHyper(), rules, pre) == key and table_path(key) == path
         fresh = pretrained_roi_tables(lay, SQLHyper(), rules, rng_state(pre.seed), pre)
         np.testing.assert_array_equal(fresh, q2)
@@ -146,8 +149,33 @@ def test_reproduce_takes_a_table_seed_and_labels_its_runs(capsys):
     specs = reproduce._specs(args, None)
     assert {s.rules.name for s in specs} == {"published-table3"}
     assert {s.pretrain.seed for s in specs} == {3} and specs[0].key.startswith("published-table3")
-    args = p.parse_args(["sql", "--rules", "published", "intended"])
+    args = p.parse_args(["sql", "--rules", "published", "intended", "--roi-table-seed", "0"])
     reproduce._check(args)
     assert {s.rules.name for s in reproduce._specs(args, None)} == {"published", "intended"}
-    assert main(["reproduce", "sql", "--roi-table-seed", "-1"]) == 2
-    assert "--roi-table-seed must be >= 0" in capsys.readouterr().err
+    # auto (the default): per K the first table seed whose walks all arrive; intended rules
+    # walk no fixed table and keep their name
+    args = p.parse_args(["sql", "--learners", "sql-d", "--rules", "published", "intended"])
+    reproduce._check(args)
+    specs = reproduce._specs(args, None)
+    assert {(s.n_agents, s.rules.name, s.pretrain.seed) for s in specs} == {
+        (9, "published-table1", 1), (16, "published-table11", 11),
+        (9, "intended", 0), (16, "intended", 0)}  # fmt: skip
+    assert "K = 16: ROI table seed 11 (0 walk holes" in capsys.readouterr().out
+    for bad in ("-1", "first"):
+        assert main(["reproduce", "sql", "--roi-table-seed", bad]) == 2
+        assert "--roi-table-seed must be auto or an integer >= 0" in capsys.readouterr().err
+
+
+def test_the_walkable_seed_is_the_first_table_without_a_hole():
+    lay = generate_env(9, 0).layout()
+    h, pub = SQLHyper(), Rules.published()
+    assert roitable.walkable_seed(lay, h, pub, RoiPretrain()) == (1, 0)
+    zero_holes = roitable.walk_holes(lay, fixed_roi_table(lay, h, pub, RoiPretrain(seed=1)))
+    assert zero_holes == [] and roitable.walk_holes(
+        lay, fixed_roi_table(lay, h, pub, RoiPretrain())
+    )
+    # none without a hole among the seeds tried: the first with the fewest
+    seed, holes = roitable.walkable_seed(
+        generate_env(25, 0).layout(), h, pub, RoiPretrain(), limit=3
+    )
+    assert (seed, holes) == (2, 7)  # seeds 0, 1, 2: 19, 14, 7 holes (docs/sql.md)
