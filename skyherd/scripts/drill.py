@@ -76,6 +76,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "sabotage) instead of the named drills; --airframe all for both",
     )
     parser.add_argument(
+        "--drill", type=int, nargs="+", default=[], metavar="INDEX", dest="campaign_drills",
+        help="--campaign: fly only these drills of the campaign (its index, e.g. 664 for drill "
+        "0664 of the summary; the same seed and N fly the same drill), e.g. to look at one "
+        "that failed (default: all N)",
+    )  # fmt: skip
+    parser.add_argument(
         "--workers", type=int, default=1,
         help="--campaign: CPUs (a local Ray instance's or the process pool's; default 1: in "
         "this process)",
@@ -144,6 +150,10 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--random must be >= 0")
     if args.campaign < 0 or not (1 <= args.workers <= 16):
         raise UsageError("--campaign must be >= 0 and --workers within [1, 16]")
+    if args.campaign_drills and not all(0 <= i < args.campaign for i in args.campaign_drills):
+        raise UsageError(
+            f"--drill needs --campaign N and indices within [0, N), got {args.campaign_drills}"
+        )
     if not 0.0 < args.target_bound < 1.0:
         raise UsageError(
             f"--target-bound must be within (0, 1), e.g. 1e-3; got {args.target_bound:g}"

@@ -60,6 +60,9 @@ def run_campaign(args) -> int:
     through = getattr(args, "through", "process")
     jobs = campaign_jobs(airframes, n, args.seed, args.envelope, through,
                          getattr(args, "instance", MISSION_DRILL_INSTANCE))  # fmt: skip
+    only = set(getattr(args, "campaign_drills", []))
+    if only:  # --drill: those drills of the campaign alone, as the whole campaign flies them
+        jobs = [j for j in jobs if j.index in only]
     run_dir = RunFolder("drill", root=args.runs_dir)
     run_dir.write_config({"args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
                           "seed": args.seed, "campaign": n, "airframes": airframes,
@@ -100,7 +103,9 @@ def run_campaign(args) -> int:
     print(f"run folder: {run_dir.path}")
     fails = [f"- {r['drill']} ({r['airframe']}): {r['why']}" for r in rows if not drill_passed(r)]
     run_dir.write_summary(
-        f"# skyherd drill --campaign {n} --through {through} (seed {args.seed})\n\n"
+        f"# skyherd drill --campaign {n} --through {through} (seed {args.seed})"
+        + (f", drills {', '.join(f'{i:04d}' for i in sorted(only))} only" if only else "")
+        + "\n\n"
         f"{THROUGH_TEXT[through]}\n\nConstraint sets: {versions}\n\n"
         f"{table}\n\n## Closest approaches\n\n{closest}\n\n## What it proves\n\n{proof}\n\n"
         f"{totals}\n"
