@@ -28,6 +28,7 @@ import json
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -64,12 +65,16 @@ def _stop_bridge(proc: subprocess.Popen, log: Path) -> None:
         pytest.fail(f"the bridge did not stop on SIGTERM; see {log}")
 
 
-def _fly(address: str, tmp: Path, instance: int, zenoh_port: int) -> tuple[int, str, Path]:
-    """`skyherd fly --connect ADDRESS` as a user runs it: (exit code, the verdict line, run folder)."""
+def _fly(
+    address: str, tmp: Path, instance: int, zenoh_port: int, *extra: str
+) -> tuple[int, str, Path]:
+    """`skyherd fly --connect ADDRESS [EXTRA...]` as a user runs it: (exit code, the verdict
+    line, run folder)."""
     runs = tmp / "runs"
     cmd = [sys.executable, "-m", "skyherd.scripts.cli", "fly", "--connect", address,
            "--duration", repr(DURATION_S), "--instance", str(instance),
-           "--zenoh-port", str(zenoh_port), "--timeout", "1200", "--runs-dir", str(runs)]  # fmt: skip
+           "--zenoh-port", str(zenoh_port), "--timeout", "1200", "--runs-dir", str(runs),
+           *extra]  # fmt: skip
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=1500)
     (tmp / "fly.out").write_text(proc.stdout + "\n--- stderr\n" + proc.stderr)
     (run,) = runs.iterdir()
@@ -180,34 +185,57 @@ def on_the_bridge(tmp: Path, autopilot: str, instance: int, zenoh_port: int, sta
         ap_log.close()
 
 
-def test_px4_none_iris_on_skyherd_physics_flown_by_skyherd_fly_connect(tmp_path):
-    """PX4 with COM_OF_LOSS_T 0.5 s at boot (the stock 1 s is refused before take-off by the
-    parameter guard); the companion on its onboard link, the world on its ground-station link."""
+@dataclass(frozen=True)
+class Slots:
+    """One flight's instance numbers and Zenoh ports: the autopilot's (and its bridge's), the
+    companion's."""
+
+    autopilot: int
+    bridge_zenoh: int
+    fly: int
+    fly_zenoh: int
+
+
+def fly_px4(tmp: Path, slots: Slots, *extra: str) -> tuple[int, str, Path, Path]:
+    """PX4 `none_iris` on the bridge flown by `skyherd fly --connect` (+ `extra`), PX4 with
+    COM_OF_LOSS_T 0.5 s at boot (the stock 1 s is refused before take-off by the parameter
+    guard); the companion on its onboard link (14549 for every instance > 9), the world on its
+    ground-station link. (exit code, verdict, run folder, bridge run folder)."""
     binary = _binary("SKYHERD_PX4_BIN")
 
     def start(work, log):
-        return autopilot_sitl.start_px4(binary, PX4_INSTANCE, work, log, {"COM_OF_LOSS_T": 0.5})
+        return autopilot_sitl.start_px4(binary, slots.autopilot, work, log, {"COM_OF_LOSS_T": 0.5})
 
     wall = time.monotonic()
-    with on_the_bridge(tmp_path, "px4", PX4_INSTANCE, 7476, start) as bridge_run:
-        rc, verdict, run = _fly("udpin:127.0.0.1:14549", tmp_path, 79, 7477)
+    with on_the_bridge(tmp, "px4", slots.autopilot, slots.bridge_zenoh, start) as bridge_run:
+        rc, verdict, run = _fly("udpin:127.0.0.1:14549", tmp, slots.fly, slots.fly_zenoh, *extra)
     print("px4: wall time [s]", round(time.monotonic() - wall, 1))
-    check_flight(rc, verdict, run, bridge_run, "PX4")
+    return rc, verdict, run, bridge_run
 
 
-def test_arducopter_json_on_skyherd_physics_flown_by_skyherd_fly_connect(tmp_path):
-    """ArduCopter on stock copter.parm + skyherd's frame + GUID_TIMEOUT 0.5 (an operator's
-    file: the stock 3 s is refused before take-off by the parameter guard); the companion on
-    SERIAL0, the world on SERIAL1."""
+def fly_arducopter(tmp: Path, slots: Slots, *extra: str) -> tuple[int, str, Path, Path]:
+    """ArduCopter `--model JSON` on the bridge flown by `skyherd fly --connect` (+ `extra`),
+    on stock copter.parm + skyherd's frame + GUID_TIMEOUT 0.5 (an operator's file: the stock
+    3 s is refused before take-off by the parameter guard); the companion on SERIAL0, the world
+    on SERIAL1. (exit code, verdict, run folder, bridge run folder)."""
     binary = _binary("SKYHERD_ARDUCOPTER_BIN")
     parm = _defaults(binary, "copter.parm")
 
     def start(work, log):
-        return autopilot_sitl.start_arducopter(binary, COPTER_INSTANCE, work, log,
+        return autopilot_sitl.start_arducopter(binary, slots.autopilot, work, log,
                                                [parm] if parm else [], "GUID_TIMEOUT 0.5\n")  # fmt: skip
 
     wall = time.monotonic()
-    with on_the_bridge(tmp_path, "ardupilot", COPTER_INSTANCE, 7478, start) as bridge_run:
-        rc, verdict, run = _fly(f"tcp:127.0.0.1:{5760 + 10 * COPTER_INSTANCE}", tmp_path, 9, 7479)
+    address = f"tcp:127.0.0.1:{5760 + 10 * slots.autopilot}"
+    with on_the_bridge(tmp, "ardupilot", slots.autopilot, slots.bridge_zenoh, start) as bridge_run:
+        rc, verdict, run = _fly(address, tmp, slots.fly, slots.fly_zenoh, *extra)
     print("arducopter: wall time [s]", round(time.monotonic() - wall, 1))
-    check_flight(rc, verdict, run, bridge_run, "ArduCopter")
+    return rc, verdict, run, bridge_run
+
+
+def test_px4_none_iris_on_skyherd_physics_flown_by_skyherd_fly_connect(tmp_path):
+    check_flight(*fly_px4(tmp_path, Slots(PX4_INSTANCE, 7476, 79, 7477)), "PX4")
+
+
+def test_arducopter_json_on_skyherd_physics_flown_by_skyherd_fly_connect(tmp_path):
+    check_flight(*fly_arducopter(tmp_path, Slots(COPTER_INSTANCE, 7478, 9, 7479)), "ArduCopter")
