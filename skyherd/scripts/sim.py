@@ -63,7 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ugv-start",
         default="offboard",
         metavar="WHEN",
-        help="when the UGVs start to drive: 'offboard' (when the vehicle is handed to the companion) or a simulation time [s]",
+        help="when the UGVs start to drive: 'offboard' (when the vehicle is handed to the companion: "
+        "OFFBOARD for the built-in vehicle; beside --follow or --autopilot, the companion's first "
+        "decision on skyherd/<vehicle>/decision) or a simulation time [s] (default offboard)",
     )
     parser.add_argument("--speedup", type=float, default=None, metavar="S", help=SPEEDUP_HELP)
     parser.add_argument(

@@ -27,6 +27,7 @@ class BridgedWorld:
         self.bridge, self.p = bridge, params
         self.task = TaskParams()
         self.scene = Scene(params, self.task, session, run_dir, key)
+        self.scene.listen_for_hand_over(session)
         self.run_dir = self.scene.run_dir
         self._stop = threading.Event()
 
@@ -62,9 +63,10 @@ class BridgedWorld:
         return stats
 
     def _camera(self, t: float) -> None:
-        # The bridge carries no flight mode: a team waiting for "offboard" drives from the
-        # start here (a time in --ugv-start is kept); mode and arming are not in world.csv.
-        self.scene.instant(t, self.bridge.state, "", None, offboard=True)
+        # The bridge carries no flight mode: a team waiting for "offboard" starts at the
+        # companion's first decision (Scene.listen_for_hand_over); mode and arming are not in
+        # world.csv.
+        self.scene.instant(t, self.bridge.state, "", None, offboard=self.scene.handed_over)
 
     def close(self) -> None:
         self.scene.close()

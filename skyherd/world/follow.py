@@ -30,7 +30,6 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from skyherd.flight.autopilot_api import FlightMode
 from skyherd.hil.autopilots import UnknownAutopilot
 from skyherd.hil.telemetry import Telemetry, update_telemetry
 from skyherd.runio import atomic_write_text
@@ -69,6 +68,7 @@ class FollowWorld:
         self.task = task if task is not None else TaskParams()
         self.tel = Telemetry()
         self.scene = Scene(params, self.task, session, run_dir, key)
+        self.scene.listen_for_hand_over(session)
         self.run_dir = self.scene.run_dir
         self._stop = threading.Event()
         self._alone = threading.Event()  # the companion is gone: follow the autopilot alone
@@ -148,9 +148,10 @@ class FollowWorld:
 
     def _camera(self, t: float, state) -> None:
         """The scene at the autopilot's time t (--cut-camera windows count the vehicle's clock:
-        a fallback drill on a real autopilot)."""
+        a fallback drill on a real autopilot); a team parked until "offboard" starts at the
+        companion's first decision (Scene.listen_for_hand_over)."""
         self.scene.instant(round(t, 6), state, self.tel.mode_name, bool(self.tel.armed),
-                           offboard=self.tel.mode is FlightMode.OFFBOARD)  # fmt: skip
+                           offboard=self.scene.handed_over)  # fmt: skip
 
     def _announce_gimbal(self) -> None:
         """HEARTBEAT as the followed vehicle's gimbal (its system id, MAV_COMP_ID_GIMBAL)."""

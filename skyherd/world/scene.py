@@ -75,9 +75,32 @@ class Scene:
         cols = TRUTH_COLUMNS + ugv_columns(n_ugvs)
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
         self.truth_t = -np.inf  # time of world.csv's last row [s]
+        self.handed_over = False  # the companion's first decision heard (listen_for_hand_over)
+        self._decisions = None
         self.frames = 0
         self.render_failures = 0
         self.camera_dropped = 0  # frames not sent while the camera was lost
+
+    def listen_for_hand_over(self, session) -> None:
+        """Beside an outside autopilot the world cannot tell the hand-over from the mode
+        (ArduPilot takes off in GUIDED, the mode the AI then flies in; a bridge carries no mode
+        at all): the companion's first decision on skyherd/<vehicle>/decision is the hand-over
+        (decisions start with the AI phase); with the flight key only an authentic one."""
+        if session is None or self.team is None or self.p.ugv_start != "offboard":
+            return
+        import json
+
+        from skyherd.runio.mac import record_ok
+
+        def heard(sample) -> None:
+            try:
+                rec = json.loads(sample.payload.to_bytes())
+            except ValueError:
+                return  # not a record: never the hand-over
+            if isinstance(rec, dict) and (self._key is None or record_ok(rec, self._key)):
+                self.handed_over = True
+
+        self._decisions = session.declare_subscriber(f"skyherd/{self.p.vehicle}/decision", heard)
 
     def point(self, roi_ned: np.ndarray | None) -> None:
         """Point the pan-tilt head at `roi_ned` (a DO_SET_ROI_LOCATION the world accepted)."""
@@ -158,8 +181,10 @@ class Scene:
             self.publisher.close()
         if self._ugv_pub is not None:
             self._ugv_pub.close()
-        if self._clock_pub is not None:
+        for z in (self._clock_pub, self._decisions):
+            if z is None:
+                continue
             try:
-                self._clock_pub.undeclare()
+                z.undeclare()
             except Exception:  # noqa: BLE001 - already closed with its session
                 pass

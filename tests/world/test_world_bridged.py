@@ -66,3 +66,49 @@ def test_a_bridged_world_honours_cut_camera_and_a_timed_ugv_start(tmp_path):
     first = rows[0]["ugv0_n"], rows[0]["ugv0_e"]
     assert all((r["ugv0_n"], r["ugv0_e"]) == first for r in parked)  # parked: not one move
     assert (rows[-1]["ugv0_n"], rows[-1]["ugv0_e"]) != first
+
+
+def test_a_bridged_team_waits_for_the_companions_first_decision(tmp_path):
+    """--ugv-start offboard beside a bridge (no flight mode on it): the team stays parked until
+    the companion's first decision arrives on skyherd/uav0/decision (world/scene.py), and one
+    forged without the flight key does not start it."""
+    import time
+
+    from skyherd.perception.transport import open_session, subscriber_params
+    from skyherd.runio.mac import sign_record
+
+    run = tmp_path / "run"
+    run.mkdir()
+    key = tmp_path / "k.key"
+    key.write_bytes(bytes(range(32)))
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "skyherd.scripts.cli", "sim", "--autopilot", "px4", "--instance", str(INSTANCE),
+         "--speedup", "0", "--duration", "4", "--zenoh-port", "7483", "--run-dir", str(run),
+         "--signing-key", str(key)],
+        stdout=open(run / "sim.log", "wb"), stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    peer = Px4SimPeer(port=4560 + INSTANCE)
+    session = open_session(subscriber_params(port=7483))
+    try:
+        decisions = session.declare_publisher("skyherd/uav0/decision")
+        peer.connect(timeout_s=60.0)
+        peer.run(250, timeout_s=60.0)  # 1 s
+        decisions.put(sign_record({"t": 1.0, "pilot": "policy"}, bytes(32)))  # another key
+        time.sleep(1.0)  # [wall s] for it to arrive (it must not count)
+        peer.run(250, timeout_s=60.0)  # 2 s
+        decisions.put(sign_record({"t": 2.0, "pilot": "policy"}, bytes(range(32))))
+        time.sleep(1.0)  # [wall s] for it to arrive before the bridge steps on
+        peer.run(2 * 250, timeout_s=60.0)
+    finally:
+        peer.close()
+        session.close()
+        assert sim.wait(60) == 0, (run / "sim.log").read_text()[-2000:]
+    rows = list(csv.DictReader(open(run / "world.csv")))
+    parked = [float(r["t"]) for r in rows if r["team_t"] == ""]
+    driving = [float(r["t"]) for r in rows if r["team_t"] != ""]
+    assert parked and driving
+    # not before the authentic decision (the forged one at 1 s did not start it); at the first
+    # camera instant after it arrived: 2.0 or 2.1 s unless Zenoh took over a second of wall
+    # time to deliver it, hence the bound at the run's end
+    assert 2.0 - 0.005 <= min(driving) < 4.0
+    assert max(parked) < min(driving)
