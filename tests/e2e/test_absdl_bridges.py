@@ -35,12 +35,11 @@ def test_px4_flies_the_deep_policy_through_the_bridge(tmp_path):
 
 
 def test_arducopter_flies_the_deep_policy_through_the_bridge(tmp_path):
-    """In view and the net's share are printed, not asserted: GUIDED is both ArduCopter's
-    take-off and its AI mode, so the followed world (world/follow.py: the team starts when the
-    vehicle is first in the AI mode) starts the team at the take-off, about 15 s before the
-    hand-over, and the policy takes over a team already spread beyond its frame (measured
-    2026-12-06: 2 of 3 UGVs in view at the hand-over, never all of them; on PX4, which climbs in
-    TAKEOFF mode, the team starts at the hand-over)."""
+    """GUIDED is both ArduCopter's take-off and its AI mode: the team beside it starts at the
+    companion's first decision (world/scene.py), so the policy takes over the same team as on
+    PX4 (before that fix: the team started at the take-off, 15 s early, and was never all in
+    view)."""
     flight = fly_arducopter(tmp_path, Slots(93, 7540, 94, 7541), "--policy", str(ABSDL_POLICY))
-    check_deep_policy(flight[2], MIN_DECISIONS)
+    fig = check_deep_policy(flight[2], MIN_DECISIONS)
     check_flight(*flight, "ArduCopter")
+    assert fig["in_view"] >= 0.9 and fig["changed_by_net"] < 0.10, fig
