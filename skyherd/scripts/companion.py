@@ -30,24 +30,29 @@ SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 ends the companion at once."""
 PARENT_DIED = signal.SIGUSR1
 """The companion's parent-death signal under `skyherd fly` (scripts.launch): hand over as
-above; the kernel may send it more than once (once per thread of the dying parent), so a
-repeat never counts as a second signal."""
+above. The kernel sends it once per thread of the dying parent (each thread that exits hands
+its children to the next and signals them again), spread over as long as the dying threads
+wait for a CPU: a repeat never counts as a second signal, and one after the flight's loop is
+ignored (its default would end the companion before companion.json is written)."""
 
 
 @contextlib.contextmanager
 def stop_on_signals(stop):
     """SIGINT, SIGTERM and SIGHUP set `stop` (a second one, or one before the flight, raises
     runio.Interrupted) while the block runs, and so does PARENT_DIED (never a second); the
-    previous handlers afterwards."""
+    previous handlers afterwards, except PARENT_DIED's: ignored from then on (the loop is
+    over, the records are still to be written)."""
 
     def on_signal(signum, _frame) -> None:
         stop.request(signum, again_ends=signum != PARENT_DIED)
 
     stop.waiting = True  # until the loop takes over (mission.companion): nothing flies yet
-    old = {sig: signal.signal(sig, on_signal) for sig in (*SIGNALS, PARENT_DIED)}
+    old = {sig: signal.signal(sig, on_signal) for sig in SIGNALS}
+    signal.signal(PARENT_DIED, on_signal)
     try:
         yield stop
     finally:
+        signal.signal(PARENT_DIED, signal.SIG_IGN)
         for sig, h in old.items():
             signal.signal(sig, h)
 

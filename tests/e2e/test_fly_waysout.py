@@ -16,8 +16,10 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -156,8 +158,8 @@ def test_sigterm_to_a_formation_hands_every_vehicle_over(tmp_path):
 @needs_namespaces
 @pytest.mark.slow
 def test_kill_9_of_fly_leaves_no_process_and_the_vehicle_landed(tmp_path):
-    """kill -9 of `fly`: its children get their parent-death signals (companion SIGTERM: it
-    hands over; simulator SIGUSR1: alone until disarmed) and end; the simulator writes how the
+    """kill -9 of `fly`: its children get their parent-death signal SIGUSR1 (the companion
+    hands over; the simulator steps on alone until disarmed) and end; the simulator writes how the
     flight ended into summary.md. Then the same instance flies again, undisturbed."""
     res = way_out(tmp_path, "fly:SIGKILL")
     assert res["rc"] == -9
@@ -169,6 +171,75 @@ def test_kill_9_of_fly_leaves_no_process_and_the_vehicle_landed(tmp_path):
     assert again["rc"] == 0, again["stderr"][-2000:]
     assert "completed" in again["summary.md"]
     landed(again)
+
+
+_PDEATH_CHILD = """
+import os, sys, time
+from pathlib import Path
+from skyherd.mission.handover import StopRequest
+from skyherd.runio.run import Interrupted
+from skyherd.scripts.companion import stop_on_signals
+out, parent = Path(sys.argv[1]), os.getppid()
+stop = StopRequest()
+(out / "pid").write_text(str(os.getpid()))
+try:
+    with stop_on_signals(stop):
+        os.replace(out / "pid", out / "ready")  # whole (the parent acts when it is there)
+        time.sleep(60)  # the flight's loop, waiting for its next tick
+except Interrupted:
+    pass
+(out / "loop_ended").write_text(str(stop.signum))
+while os.getppid() == parent:  # writing its records when the parent's last thread exits
+    time.sleep(0.01)
+time.sleep(0.2)  # that thread's repeat of the signal has arrived
+(out / "records").write_text("written")
+"""
+
+_PDEATH_PARENT = """
+import os, sys, threading, time
+from pathlib import Path
+from skyherd.scripts.launch import PARENT_DEATH, start
+out = Path(sys.argv[1])
+def until(name):
+    while not (out / name).exists():
+        time.sleep(0.01)
+def spawn():  # this thread forks the child, then exits: the first parent-death signal
+    start("companion", [sys.executable, "-c", sys.argv[2], str(out)], None,
+          parent_death=PARENT_DEATH)
+    until("ready")
+t = threading.Thread(target=spawn)
+t.start()
+t.join()
+until("loop_ended")
+os._exit(0)  # the last thread: the signal again, after the companion's loop has ended
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_repeated_parent_death_signal_after_the_loop_does_not_end_the_companion(tmp_path):
+    """The kernel sends a parent-death signal once per thread of the dying parent (a thread
+    that exits hands its children to the next one and signals them again); under load the
+    last one comes after the companion's loop has ended, while it writes companion.json (seen
+    in test_kill_9_of_fly: the companion ended by it, no companion.json). Here a thread of the
+    parent forks the companion-like child and exits (the first signal: the loop ends), then
+    the parent's last thread exits (the second): the child lives on and writes its records."""
+    r = subprocess.run([sys.executable, "-c", _PDEATH_PARENT, str(tmp_path), _PDEATH_CHILD],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    pid = int((tmp_path / "ready").read_text())
+    for _ in range(6000):  # until the child has ended (60 s of wall time at most)
+        if not Path(f"/proc/{pid}").exists() or "Z" in _state(pid):
+            break
+        time.sleep(0.01)
+    assert (tmp_path / "loop_ended").read_text() == str(int(signal.SIGUSR1))
+    assert (tmp_path / "records").read_text() == "written"
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return "X"
 
 
 @needs_namespaces
