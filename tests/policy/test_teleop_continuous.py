@@ -18,6 +18,7 @@ from skyherd.policy.absdl.env import velocity_limits
 from skyherd.policy.demos import (
     FORMAT,
     FORMAT_CONTINUOUS,
+    DemoFileError,
     load_demo,
     record,
     replay,
@@ -129,3 +130,21 @@ def test_a_discrete_file_keeps_format_1_and_still_loads(tmp_path):
     back = load_demo(path)
     assert back.vel_ned is None and replay(back) == 0.0
     assert np.array_equal(back.actions, demo.actions)
+
+
+def test_continuous_needs_the_mavlink_stick(tmp_path, capsys):
+    assert main(["teleop", "--continuous", "--runs-dir", str(tmp_path)]) == 2
+    assert "--continuous needs --mavlink" in capsys.readouterr().err
+
+
+def test_a_format_2_file_without_its_velocities_is_refused(recorded, tmp_path):
+    with np.load(recorded) as z:
+        arrays = {k: z[k] for k in z.files if k != "vel_ned"}
+    bad = tmp_path / "composite.npz"
+    np.savez(bad, **arrays)
+    with pytest.raises(DemoFileError, match="not a readable demonstration"):
+        load_demo(bad)
+    arrays["vel_ned"] = np.zeros((len(arrays["actions"]), 2))
+    np.savez(bad, **arrays)
+    with pytest.raises(DemoFileError, match=r"vel_ned is not \(T, 3\)"):
+        load_demo(bad)
