@@ -12,12 +12,20 @@ episode     (T,) i64       episode index of each row
 t_s         (T,) f64       simulation time of the row [s]
 uav_ned     (T, 3) f64     UAV position NED [m] before the action
 ugv_ne      (T, n, 2) f64  UGV positions (north, east) [m] before the action
-meta        () str         JSON: format "skyherd-demo/1", scenario, demonstrator, episode seeds,
-                           episode lengths and metrics, expert params, task params, created (UTC)
+vel_ned     (T, 3) f64     continuous files only: the velocity command flown (north, east, down)
+                           [m/s], inside policy.absdl.env.velocity_limits
+meta        () str         JSON: format, scenario, demonstrator, episode seeds, episode lengths
+                           and metrics, expert params, task params, created (UTC)
 ==========  =============  ====================================================================
 
+Two formats: "skyherd-demo/1" (discrete: the seven action rows are the commands) and
+"skyherd-demo/2" (continuous, `record(..., continuous=True)`: `vel_ned` is the command;
+`actions` holds the allowed action whose velocity row is nearest it, for readers of discrete
+actions). A file without `vel_ned` is written as /1, so discrete recordings are unchanged and
+both stay readable.
+
 A demonstration is replayable: the environment's randomness comes from the recorded episode seed,
-so `replay` re-runs each episode with the recorded actions and reports how far the observations
+so `replay` re-runs each episode with the recorded commands and reports how far the observations
 drift from the recorded ones (0 for a faithful file).
 """
 
@@ -43,10 +51,12 @@ from skyherd.task.params import (
     DESCEND_ACTIONS,
     LATERAL_ACTIONS,
     TaskParams,
+    action_velocity_ned,
 )
 from skyherd.task.scenarios import SCENARIOS
 
 FORMAT = "skyherd-demo/1"
+FORMAT_CONTINUOUS = "skyherd-demo/2"
 ALLOWED_ACTIONS: dict[str, tuple[int, ...]] = {
     "lateral": LATERAL_ACTIONS,
     "climb": CLIMB_ACTIONS,
@@ -138,17 +148,21 @@ class Demonstration:
     uav_ned: np.ndarray
     ugv_ne: np.ndarray
     meta: dict[str, Any]
+    vel_ned: np.ndarray | None = None  # continuous files: the flown command per row [m/s]
 
     @property
     def n_episodes(self) -> int:
         return len(self.meta["episode_seeds"])
 
     def save(self, path: Path) -> Path:
-        """Write atomically (temp file + rename)."""
-        meta = dict(self.meta, format=FORMAT)
+        """Write atomically (temp file + rename); with `vel_ned` as skyherd-demo/2."""
+        continuous = self.vel_ned is not None
+        meta = dict(self.meta, format=FORMAT_CONTINUOUS if continuous else FORMAT)
+        extra = {"vel_ned": self.vel_ned.astype(np.float64)} if continuous else {}
         bio = io.BytesIO()
         np.savez_compressed(
             bio,
+            **extra,
             obs=self.obs.astype(np.float32),
             actions=self.actions.astype(np.int64),
             psi=self.psi.astype(np.float32),
@@ -168,20 +182,27 @@ def load_demo(path: str | Path) -> Demonstration:
     keys = ("obs", "actions", "psi", "episode", "t_s", "uav_ned", "ugv_ne")
     try:
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in keys}
             meta = json.loads(str(z["meta"]))
+            if meta.get("format") == FORMAT_CONTINUOUS:
+                keys += ("vel_ned",)
+            arrays = {k: z[k] for k in keys}
     except FileNotFoundError as e:
         raise DemoFileError(f"{path}: no such demonstration file") from e
     except Exception as e:  # BadZipFile, KeyError, zlib/JSON errors on a truncated file …
         raise DemoFileError(
             f"{path}: not a readable demonstration ({type(e).__name__}: {e})"
         ) from e
-    if meta.get("format") != FORMAT:
-        raise DemoFileError(f"{path}: format {meta.get('format')!r}, expected {FORMAT!r}")
+    if meta.get("format") not in (FORMAT, FORMAT_CONTINUOUS):
+        raise DemoFileError(
+            f"{path}: format {meta.get('format')!r}, expected {FORMAT!r} or {FORMAT_CONTINUOUS!r}"
+        )
     T = arrays["actions"].shape[0]
     if any(arrays[k].shape[0] != T for k in keys) or arrays["psi"].shape[1:] != (N_PSI,):
         raise DemoFileError(f"{path}: arrays have inconsistent lengths")
-    if not all(np.all(np.isfinite(arrays[k])) for k in ("obs", "psi", "uav_ned")):
+    if "vel_ned" in arrays and arrays["vel_ned"].shape[1:] != (3,):
+        raise DemoFileError(f"{path}: vel_ned is not (T, 3)")
+    finite = ("obs", "psi", "uav_ned") + (("vel_ned",) if "vel_ned" in arrays else ())
+    if not all(np.all(np.isfinite(arrays[k])) for k in finite):
         raise DemoFileError(f"{path}: NaN/inf in the recorded data")
     if meta.get("scenario") not in SCENARIOS:
         raise DemoFileError(f"{path}: unknown scenario {meta.get('scenario')!r}")
@@ -190,22 +211,33 @@ def load_demo(path: str | Path) -> Demonstration:
 
 def record(
     scenario: str,
-    act: Callable[[np.ndarray], int],
+    act: Callable[[np.ndarray], Any],
     n_episodes: int,
     seed: int,
     demonstrator: str,
     extra_meta: dict[str, Any] | None = None,
     task: TaskParams | None = None,
     on_step: Callable[[GroundAirEnv, np.ndarray, int], None] | None = None,
+    continuous: bool = False,
 ) -> Demonstration:
-    """Run `n_episodes` of `scenario` with the demonstrator `act(obs) → action` and record them.
+    """Run `n_episodes` of `scenario` with the demonstrator `act(obs)` and record them.
 
-    Episode k uses environment seed `seed + k`. An action < 0 means "stop": recording ends there
-    and the partial episode is kept (teleop's quit key).
+    Discrete: `act(obs) → action`; an action < 0 means "stop". Continuous: `act(obs) → (3,)`
+    NED velocity [m/s], None means "stop"; it is flown in policy.absdl.env.ContinuousGroundAirEnv
+    (clipped to its limits), the flown command is recorded as `vel_ned` and the nearest allowed
+    action as `actions` (skyherd-demo/2). Episode k uses environment seed `seed + k`; on "stop"
+    recording ends there and the partial episode is kept (teleop's quit key).
     """
-    env = GroundAirEnv(scenario, task=task)
+    if continuous:
+        from skyherd.policy.absdl.env import ContinuousGroundAirEnv
+
+        env = ContinuousGroundAirEnv(scenario, task=task)
+        base = env.base
+    else:
+        env = base = GroundAirEnv(scenario, task=task)
+    allowed = ALLOWED_ACTIONS[scenario]
     rows: dict[str, list] = {
-        k: [] for k in ("obs", "actions", "psi", "episode", "t_s", "uav_ned", "ugv_ne")
+        k: [] for k in ("obs", "actions", "psi", "episode", "t_s", "uav_ned", "ugv_ne", "vel_ned")
     }
     seeds, lengths, metrics = [], [], []
     stopped = False
@@ -216,24 +248,27 @@ def record(
         seeds.append(seed + k)
         done = False
         while not done:
-            a = int(act(obs))
-            if a < 0:  # the demonstrator stopped: keep what was recorded so far
+            a = act(obs)
+            if (a is None) if continuous else (int(a) < 0):  # the demonstrator stopped
                 stopped = True
-                info = {"metrics": env.episode_metrics()}
+                info = {"metrics": base.episode_metrics()}
                 break
-            s = env.uav_state()
+            s = base.uav_state()
             rows["obs"].append(obs)
             rows["uav_ned"].append((s["n"], s["e"], s["d"]))
-            rows["ugv_ne"].append(env.formation.positions())
-            rows["t_s"].append(env.formation.t)
+            rows["ugv_ne"].append(base.formation.positions())
+            rows["t_s"].append(base.formation.t)
             rows["episode"].append(k)
-            rows["actions"].append(a)
-            obs, _, term, trunc, info = env.step(a)
+            obs, _, term, trunc, info = env.step(a if continuous else int(a))
+            if continuous:
+                rows["vel_ned"].append(info["command"])
+                a = nearest_action(info["command"], allowed, base.task)
+            rows["actions"].append(int(a))
             rows["psi"].append(info["psi"])
             if on_step:
-                on_step(env, obs, a)
+                on_step(base, obs, int(a))
             done = term or trunc
-        lengths.append(env.steps)
+        lengths.append(base.steps)
         metrics.append(info["metrics"])
     meta = {
         "scenario": scenario,
@@ -241,16 +276,24 @@ def record(
         "episode_seeds": seeds,
         "episode_lengths": lengths,
         "episode_metrics": metrics,
-        "task": dataclasses.asdict(env.task),
+        "task": dataclasses.asdict(base.task),
         "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         **(extra_meta or {}),
     }
+    vel = np.asarray(rows.pop("vel_ned"), float).reshape(-1, 3)
     arr = {k: np.asarray(v) for k, v in rows.items()}
-    return Demonstration(meta=meta, **arr)
+    return Demonstration(meta=meta, vel_ned=vel if continuous else None, **arr)
+
+
+def nearest_action(v_ned, allowed: tuple[int, ...], task: TaskParams) -> int:
+    """The allowed action whose velocity row (action_velocity_ned) is nearest the command."""
+    v = np.asarray(v_ned, float)
+    return min(allowed, key=lambda a: float(np.sum((action_velocity_ned(a, task.uav) - v) ** 2)))
 
 
 def replay(demo: Demonstration, task: TaskParams | None = None) -> float:
-    """Re-run every episode with its seed and recorded actions; max |obs − recorded obs|."""
+    """Re-run every episode with its seed and recorded commands (`vel_ned` when the file has
+    it, else the actions); max |obs − recorded obs|."""
     env = GroundAirEnv(demo.meta["scenario"], task=task)
     worst = 0.0
     for k, seed in enumerate(demo.meta["episode_seeds"]):
@@ -258,7 +301,10 @@ def replay(demo: Demonstration, task: TaskParams | None = None) -> float:
         obs, _ = env.reset(seed=int(seed))
         for j in idx:
             worst = max(worst, float(np.max(np.abs(obs - demo.obs[j]))))
-            obs, *_ = env.step(int(demo.actions[j]))
+            if demo.vel_ned is not None:
+                obs, *_ = env.step_velocity(demo.vel_ned[j])
+            else:
+                obs, *_ = env.step(int(demo.actions[j]))
     return worst
 
 

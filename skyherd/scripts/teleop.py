@@ -14,6 +14,13 @@ y right → east/west, z thrust above/below its 500 centre → climb/descend; bu
 --step-s 0 every MANUAL_CONTROL message is one step; otherwise the newest message of each step
 counts and a stick silent for more than 1 s means hover.
 
+`--mavlink ADDRESS --continuous` keeps the stick proportional (`manual_control_velocity`): x/1000
+of the horizontal speed limit north, y/1000 of it east, thrust (z − 500)/500 of the climb limit
+above the centre and of the descent limit below it, the limits being ABS-DL's continuous ones
+(policy.absdl.env.velocity_limits); only the scenario's manoeuvres pass. The episode is flown in
+policy.absdl.env.ContinuousGroundAirEnv and saved as skyherd-demo/2 with the commanded velocity
+of every step (`vel_ned`), ready for `skyherd train abs-dl --demos FOLDER`.
+
 The run folder (`runs/<time>-teleop/`) gets config.json, summary.md and the demonstration
 (`<scenario>.npz`, unless --out says elsewhere).
 
@@ -37,17 +44,38 @@ from skyherd.runio import RunFolder
 from skyherd.scripts.cli import UsageError
 
 KEYS = {"w": 1, "s": 2, "d": 3, "a": 4, "r": 5, "f": 6, " ": 0}
+STICK_FULL = 1000
+"""MANUAL_CONTROL x, y full deflection (−1000..1000); thrust z spans 0..1000."""
+THRUST_HOLD = 500
+"""MANUAL_CONTROL thrust z at the centre: hold the altitude."""
 
 
 def manual_control_action(x: int, y: int, z: int, allowed, deadband: int = 300) -> int:
     """MANUAL_CONTROL axes (x, y in −1000..1000; z thrust 0..1000, 500 = hold) → action index."""
-    cands = [(x, 1, 2), (y, 3, 4), (z - 500, 5, 6)]
+    cands = [(x, 1, 2), (y, 3, 4), (z - THRUST_HOLD, 5, 6)]
     defl, pos, neg = max(cands, key=lambda c: abs(c[0]) * (2 if c[1] == 5 else 1))
     scale = 2 if pos == 5 else 1  # thrust spans half the range of the other sticks
     if abs(defl) * scale < deadband:
         return 0
     a = pos if defl > 0 else neg
     return a if a in allowed else 0
+
+
+def manual_control_velocity(x: int, y: int, z: int, scenario: str, limits):
+    """MANUAL_CONTROL axes → (3,) NED velocity [m/s], proportional to the stick.
+
+    north = x/1000 · h, east = y/1000 · h, down = −(z − 500)/500 · up above the thrust centre
+    and (500 − z)/500 · down below it, with `limits` (policy.absdl.env.VelocityLimits) h, up,
+    down; only the scenario's manoeuvres (policy.absdl.demonstrator.restrict), then clipped to
+    the limits (the horizontal speed to its disc)."""
+    import numpy as np
+
+    from skyherd.policy.absdl.demonstrator import restrict
+
+    dz = (z - THRUST_HOLD) / THRUST_HOLD
+    down = -dz * (limits.up_mps if dz > 0 else limits.down_mps)
+    v = np.array([x / STICK_FULL * limits.h_mps, y / STICK_FULL * limits.h_mps, down])
+    return limits.clip(restrict(scenario, v))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -85,6 +113,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="ADDRESS",
         help="take MANUAL_CONTROL from a joystick/ground station at ADDRESS instead of keys",
     )
+    parser.add_argument(
+        "--continuous",
+        action="store_true",
+        help="with --mavlink: record the stick as a continuous velocity (ABS-DL's limits, "
+        "skyherd-demo/2) instead of the seven discrete actions",
+    )
     parser.add_argument("--no-view", action="store_true", help="do not draw the text view")
 
 
@@ -104,6 +138,8 @@ def _view(env) -> str:
 def run(args: argparse.Namespace) -> int:
     if args.episodes < 1 or args.step_s < 0 or args.episode_s <= 0:
         raise UsageError("need --episodes >= 1, --step-s >= 0 and --episode-s > 0")
+    if args.continuous and not args.mavlink:
+        raise UsageError("--continuous needs --mavlink ADDRESS (keys have no proportional axis)")
     if args.mavlink:
         return _run_mavlink(args)
     fd = sys.stdin.fileno()
@@ -230,26 +266,25 @@ def _run_mavlink(args: argparse.Namespace) -> int:
 
 
 def _run_link(args: argparse.Namespace, run, link) -> int:
+    from skyherd.policy.absdl.env import velocity_limits
     from skyherd.policy.demos import ALLOWED_ACTIONS, record
     from skyherd.task.params import TaskParams
 
     allowed = ALLOWED_ACTIONS[args.scenario]
+    limits = velocity_limits() if args.continuous else None
     task = TaskParams(episode_s=args.episode_s)
     out = _out_path(args, run)
     state = {"last": None, "t_last": -1e9, "t_next": None}
-    print(f"teleop ready: {args.scenario}, MANUAL_CONTROL on {args.mavlink}", flush=True)
+    mode = "continuous" if args.continuous else "discrete"
+    print(f"teleop ready: {args.scenario}, MANUAL_CONTROL on {args.mavlink} ({mode})", flush=True)
 
-    def take(msg) -> int:
-        if msg.buttons & 1:
-            return -1
-        return manual_control_action(msg.x, msg.y, msg.z, allowed)
-
-    def act(obs) -> int:
+    def newest():
+        """This step's MANUAL_CONTROL message; None = the stick is silent (hover)."""
         if args.step_s == 0:
             while True:
                 for m in link.recv(0.5):
                     if m.get_type() == "MANUAL_CONTROL":
-                        return take(m)
+                        return m
         if state["t_next"] is None:
             state["t_next"] = time.monotonic() + args.step_s
         while (left := state["t_next"] - time.monotonic()) > 0:
@@ -258,19 +293,37 @@ def _run_link(args: argparse.Namespace, run, link) -> int:
                     state["last"], state["t_last"] = m, time.monotonic()
         state["t_next"] += args.step_s
         if state["last"] is None or time.monotonic() - state["t_last"] > 1.0:
-            return 0
-        return take(state["last"])
+            return None
+        return state["last"]
 
+    def act(obs) -> int:
+        m = newest()
+        if m is not None and m.buttons & 1:
+            return -1
+        return 0 if m is None else manual_control_action(m.x, m.y, m.z, allowed)
+
+    def act_velocity(obs):
+        m = newest()
+        if m is not None and m.buttons & 1:
+            return None
+        if m is None:
+            return (0.0, 0.0, 0.0)
+        return manual_control_velocity(m.x, m.y, m.z, args.scenario, limits)
+
+    meta = {"address": args.mavlink, "step_s": args.step_s}
+    if args.continuous:
+        meta["velocity_limits"] = limits
     try:
         demo = record(
             args.scenario,
-            act,
+            act_velocity if args.continuous else act,
             args.episodes,
             args.seed,
-            "mavlink:MANUAL_CONTROL",
-            {"address": args.mavlink, "step_s": args.step_s},
+            "mavlink:MANUAL_CONTROL" + (":continuous" if args.continuous else ""),
+            meta,
             task=task,
+            continuous=args.continuous,
         )
     finally:
         link.close()
-    return _save(args, run, demo, out, "MAVLink MANUAL_CONTROL")
+    return _save(args, run, demo, out, f"MAVLink MANUAL_CONTROL, {mode}")

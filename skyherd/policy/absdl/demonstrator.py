@@ -38,6 +38,17 @@ AXES: dict[str, tuple[bool, bool, bool]] = {
 """The axes (north, east, down) each sub-task's demonstrator commands."""
 
 
+def restrict(subtask: str, v_ned) -> np.ndarray:
+    """The command (3,) NED with only the sub-task's manoeuvres: its AXES, and for climb only
+    up (down ≤ 0), for descend only down (down ≥ 0)."""
+    v = np.asarray(v_ned, float) * np.array(AXES[subtask], float)
+    if subtask == "climb":
+        v[2] = min(v[2], 0.0)
+    elif subtask == "descend":
+        v[2] = max(v[2], 0.0)
+    return v
+
+
 def pd_command(o, task: TaskParams, p: DemonstratorParams, gain: float = 1.0) -> np.ndarray:
     """The noise-free PD command (3,) NED [m/s] for observation o (all axes)."""
     cam = task.camera
@@ -90,19 +101,10 @@ class Demonstrator:
 
     def ideal(self, o) -> np.ndarray:
         """The noise-free, undelayed command of this sub-task (the DAgger label)."""
-        v = pd_command(o, self.task, self.p) * self.mask
-        if self.subtask == "climb":
-            v[2] = min(v[2], 0.0)
-        elif self.subtask == "descend":
-            v[2] = max(v[2], 0.0)
-        return self.limits.clip(v)
+        return self.limits.clip(restrict(self.subtask, pd_command(o, self.task, self.p)))
 
     def __call__(self, o) -> np.ndarray:
-        v = pd_command(o, self.task, self.p, self.gain) * self.mask
-        if self.subtask == "climb":
-            v[2] = min(v[2], 0.0)
-        elif self.subtask == "descend":
-            v[2] = max(v[2], 0.0)
+        v = restrict(self.subtask, pd_command(o, self.task, self.p, self.gain))
         if self.p.noise_mps > 0:
             v = v + self.rng.normal(0.0, self.p.noise_mps, 3) * self.mask
         self.queue.append(v)

@@ -118,11 +118,12 @@ def dagger(
 
 
 def from_recording(demo, shield: bool, on_episode=None) -> DataSet:
-    """A recorded demonstration (policy.demos format skyherd-demo/1: `skyherd teleop` from the
-    keyboard or MAVLink MANUAL_CONTROL, or any recorder) as continuous training data: each
-    episode is replayed with its seed and recorded actions (the file's states), each action's
-    velocity row (action_velocity_ned) is the command, and with the shield its target is what
-    the net certifies at the recorded state."""
+    """A recorded demonstration (policy.demos: `skyherd teleop` from the keyboard or MAVLink
+    MANUAL_CONTROL, or any recorder) as continuous training data: each episode is replayed
+    with its seed and recorded commands (the file's states). The command is the recorded
+    velocity of a continuous file (skyherd-demo/2, `vel_ned`), else the action's velocity row
+    (action_velocity_ned); with the shield its target is what the net certifies at the
+    recorded state."""
     from skyherd.task.params import action_velocity_ned
 
     env = ContinuousGroundAirEnv(demo.meta["scenario"])
@@ -139,7 +140,10 @@ def from_recording(demo, shield: bool, on_episode=None) -> DataSet:
             sh.reset()
         obs, target = [], []
         for i, j in enumerate(idx):
-            v = np.array(action_velocity_ned(int(demo.actions[j]), uav))
+            if demo.vel_ned is not None:
+                v = np.array(demo.vel_ned[j], float)
+            else:
+                v = np.array(action_velocity_ned(int(demo.actions[j]), uav))
             c = sh.certify(i * dt, env.uav_state(), v)[0] if sh is not None else v
             obs.append(o)
             target.append(c)
