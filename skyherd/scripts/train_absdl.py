@@ -54,7 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "abs-dl") -> N
     parser.add_argument(
         "--demos", type=Path, default=None,
         help="folder of recorded demonstrations <scenario>.npz (lateral, climb, descend, "
-        "composite; e.g. from skyherd teleop, keyboard or MANUAL_CONTROL) used instead of the "
+        "composite; e.g. from skyherd teleop: keyboard, MANUAL_CONTROL, or --continuous stick "
+        "velocities, skyherd-demo/2) used instead of the "
         "scripted demonstrator for the networks they name (default: none)",
     )  # fmt: skip
     parser.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run folders go")
