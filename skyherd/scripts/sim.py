@@ -351,8 +351,7 @@ def run(args: argparse.Namespace) -> int:
         _set_params(world, args.param, session)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: world.stop())
-    alone = getattr(world, "companion_gone", None)  # the built-in vehicle; others just stop
-    signal.signal(signal.SIGUSR1, lambda *_: alone(COMPANION_GONE) if alone else world.stop())
+    signal.signal(signal.SIGUSR1, lambda *_: _companion_signal([world]))
     mode = "free-running" if args.free_run else f"lockstep (latency {args.latency:g} s)"
     if args.autopilot != "builtin":
         mode = f"{args.autopilot} on skyherd's physics (its own lockstep)"
@@ -372,9 +371,25 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-COMPANION_GONE = "SIGUSR1: the companion is gone (it exited, or `skyherd fly` died)"
+COMPANION_GONE = "SIGUSR1: the companion is gone (it exited)"
 """Why the simulator steps on alone (world.sim.World.companion_gone): `skyherd fly` sends
-SIGUSR1 once its companion has exited, and it is the simulator's parent-death signal."""
+SIGUSR1 once its companion has exited."""
+FLY_DIED = "SIGUSR1: `skyherd fly` died (its parent-death signal)"
+"""SIGUSR1 is also the simulator's parent-death signal: then the companion is handing over
+(world.sim.World.parent_died)."""
+
+
+def _companion_signal(worlds) -> None:
+    """SIGUSR1: from `skyherd fly` once the companion exited, or the kernel's parent-death
+    signal when `skyherd fly` died (the companion got its own and is handing over)."""
+    died = _parent_gone()
+    for w in worlds:
+        if died and hasattr(w, "parent_died"):
+            w.parent_died(FLY_DIED)
+        elif hasattr(w, "companion_gone"):
+            w.companion_gone(FLY_DIED if died else COMPANION_GONE)
+        else:
+            w.stop()  # a bridged world: nothing flies alone here
 
 
 PARENT = os.getppid()  # the process that started this one (`skyherd fly`, a shell)
@@ -446,7 +461,7 @@ def run_fleet(args, params, endpoint, fleet: list, run_dir) -> int:
     stop = lambda *_: [w.stop() for w in worlds]  # noqa: E731
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, stop)
-    signal.signal(signal.SIGUSR1, lambda *_: worlds[0].companion_gone(COMPANION_GONE))
+    signal.signal(signal.SIGUSR1, lambda *_: _companion_signal(worlds))
     names = ", ".join(f"{v.name} (instance {v.instance})" for v in fleet)
     say(f"skyherd sim: fleet of {len(fleet)}: {names}; lockstep (latency {args.latency:g} s), "
         f"speed-up {args.speedup:g}; run folder {run_dir}")  # fmt: skip

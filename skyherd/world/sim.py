@@ -44,6 +44,11 @@ from skyherd.world.scene import Scene, during
 HEARTBEAT = 0  # MAVLINK_MSG_ID_HEARTBEAT
 
 
+PARENT_DIED_TICK_WAIT_S = 5.0
+"""`skyherd fly` died: how long [s of wall time] a tick waits for the companion's close before
+the autopilot steps on alone (its hand-over closes ticks within milliseconds; margin for load)."""
+
+
 @dataclass(frozen=True)
 class WorldParams:
     """What `skyherd sim` simulates (saved in config.json)."""
@@ -164,6 +169,8 @@ class World:
         self.lag = Lag()
         self._stop = threading.Event()
         self._alone = threading.Event()  # the companion is gone: the autopilot flies alone
+        self._begun = False  # begin() ran: the flight's ticks have started
+        self.fly_died = ""  # why, once `skyherd fly` died (parent_died)
         self.alone_why = ""
         self.alone: dict | None = None  # what the autopilot did alone (sim_stats.json)
         self._session = session
@@ -188,6 +195,20 @@ class World:
             self.alone_why = why
         self._alone.set()
 
+    def parent_died(self, why: str) -> None:
+        """`skyherd fly` died (kill -9): the companion got its own parent-death signal and is
+        handing over, which in lockstep needs its ticks. So once flying the simulator keeps
+        them, waiting PARENT_DIED_TICK_WAIT_S of wall time per tick instead of the usual
+        timeout, and steps on alone when the companion stops closing them (it ended, or died
+        too); before the flight or free-running, alone at once. Safe from a signal handler."""
+        self.fly_died = why
+        if self.p.lockstep and self._begun and not self._alone.is_set():
+            self.gate.p = dataclasses.replace(
+                self.gate.p, timeout_s=min(self.gate.p.timeout_s, PARENT_DIED_TICK_WAIT_S)
+            )
+        else:
+            self.companion_gone(why)
+
     def run(self, duration_s: float | None = None) -> dict:
         """Step until `stop()` (or `duration_s` of simulation time); return the run's stats."""
         return run_worlds([self], self.pacer, duration_s)[0]
@@ -198,6 +219,7 @@ class World:
     def begin(self, duration_s: float | None = None) -> None:
         """Start the run's counters (after the companion's hello, in lockstep)."""
         p, clock = self.p, self.clock
+        self._begun = True
         self._step_us = round(self.autopilot.control_dt * 1e6)
         self._period_us = round(1e6 / p.camera_hz)
         self._latency_us = round(p.lockstep_params.latency_s * 1e6 / self._step_us) * self._step_us
@@ -451,7 +473,9 @@ def run_worlds(worlds: list[World], pacer: Pacer, duration_s: float | None = Non
                     [(w.gate, tick, w.scene.republish) for w, tick in due], stopped
                 )
             except LockstepTimeout as e:  # the companion is stuck or gone: the autopilot alone
-                first.companion_gone(f"lockstep: {e}")
+                died = next((w.fly_died for w in worlds if w.fly_died), "")
+                first.companion_gone(f"{died}; then the companion stopped closing ticks" if died
+                                     else f"lockstep: {e}")  # fmt: skip
                 continue
             if batches is None:
                 if any(w._stop.is_set() for w in worlds):
