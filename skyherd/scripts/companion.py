@@ -505,7 +505,7 @@ def run(args: argparse.Namespace) -> int:
         _say(f"skyherd companion: {'' if interrupted else 'aborted: '}{error}")
     rc = 0 if mission.outcome == "completed" else (_interrupt_rc(stop) if interrupted else 1)
     if folder is not None:  # on its own (not under `skyherd fly`): its own summary and plots
-        from skyherd.scripts.fly_report import report
+        from skyherd.report.fly import report
 
         report(run_dir, args, rc, error)
     return rc

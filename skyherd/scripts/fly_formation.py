@@ -36,12 +36,12 @@ from skyherd.mission.formation_plan import (
     vehicle_instances,
 )
 from skyherd.mission.formation_run import judge_vehicles, read_tracks
+from skyherd.report.reason import flight_reason
 from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text, markdown_table
 from skyherd.scripts.cli import UsageError
 from skyherd.scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
-from skyherd.scripts.launch import flight_reason
 from skyherd.world.fleet import FleetVehicle, write_fleet
 
 
