@@ -38,6 +38,8 @@ from skyherd.safety.envelope import (
 
 ENVELOPE_DIR = Path(__file__).parent / "envelopes"
 AIRFRAMES = ("quadrotor", "fixedwing")
+# the constraint set `skyherd fly` flies by default, per airframe (and judges a run without one by)
+FLY_ENVELOPE = {"quadrotor": "quadrotor_groundair.toml", "fixedwing": "fixedwing_field.toml"}
 
 
 class EnvelopeFileError(ValueError):
@@ -46,6 +48,10 @@ class EnvelopeFileError(ValueError):
 
 def default_envelope_path(airframe: str) -> Path:
     return ENVELOPE_DIR / f"{airframe}_field.toml"
+
+
+def fly_envelope_path(airframe: str) -> Path:
+    return ENVELOPE_DIR / FLY_ENVELOPE[airframe]
 
 
 def load_envelope(path: Path | str) -> tuple[EnvelopeSpec, dict[str, Any]]:

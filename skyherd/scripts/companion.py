@@ -510,7 +510,7 @@ def run(args: argparse.Namespace) -> int:
         _say(f"skyherd companion: {'' if interrupted else 'aborted: '}{error}")
     rc = 0 if mission.outcome == "completed" else (_interrupt_rc(stop) if interrupted else 1)
     if folder is not None:  # on its own (not under `skyherd fly`): its own summary and plots
-        from skyherd.scripts.fly_report import report
+        from skyherd.report.fly import report
 
         report(run_dir, args, rc, error)
     return rc
@@ -728,7 +728,7 @@ def _run_formation(args, run_dir: Path, folder) -> int:
         _say(f"skyherd companion: {'' if interrupted else 'aborted: '}{error}")
     rc = 0 if mission.outcome == "completed" else (_interrupt_rc(stop) if interrupted else 1)
     if folder is not None:
-        from skyherd.scripts.fly_formation import formation_report
+        from skyherd.report.formation import formation_report
 
         formation_report(run_dir, rc, error)
     return rc

@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 from pathlib import Path
 
 import numpy as np
 
+from skyherd.report import drill as report
 from skyherd.runio import ports
 from skyherd.runio.constants import MISSION_DRILL_INSTANCE, TARGET_BOUND
-from skyherd.runio.runfolder import RunFolder, markdown_table
+from skyherd.runio.runfolder import RunFolder
 from skyherd.scripts.cli import UsageError
 
 
@@ -210,22 +210,7 @@ def run(args: argparse.Namespace) -> int:
         }
     )
     events = run_dir.events()
-    cols = [
-        "drill",
-        "airframe",
-        "passed",
-        "excursion_m",
-        "fallback_s",
-        "pid_s",
-        "recover_s",
-        "rejected",
-        "projected",
-        "switches",
-        "first_reason",
-        "why",
-        "constraint_set_version",
-    ]
-    metrics = run_dir.metrics(cols)
+    metrics = run_dir.metrics(report.COLUMNS)
     results = []
     total = sum(len(s[-1]) for s in plans)
     with tqdm(total=total, desc="drills", unit="drill") as bar:
@@ -234,25 +219,9 @@ def run(args: argparse.Namespace) -> int:
                 tagged = _Tagged(events, script.name, airframe)
                 r = run_drill(script, make(args.seed), spec, sp, p, tagged)
                 results.append((r, spec))
-                metrics.write(
-                    {
-                        "drill": r.name,
-                        "airframe": r.airframe,
-                        "passed": r.passed,
-                        "excursion_m": round(r.excursion_m, 3),
-                        "fallback_s": round(r.fallback_s, 3),
-                        "pid_s": round(r.pid_s, 3),
-                        "recover_s": "" if math.isnan(r.recover_s) else round(r.recover_s, 3),
-                        "rejected": r.rejected,
-                        "projected": r.projected,
-                        "switches": r.switches,
-                        "first_reason": r.reasons[0] if r.reasons else "",
-                        "why": r.why,
-                        "constraint_set_version": spec.version,
-                    }
-                )
+                metrics.write(report.metrics_row(r, spec.version))
                 if not args.no_plots and not r.name.startswith("random"):
-                    _plot(r, spec, run_dir.file(_slug(f"{airframe}-{r.name}") + ".png"))
+                    report.plot_drill(r, spec, run_dir.file(_slug(f"{airframe}-{r.name}") + ".png"))
                 bar.update(1)
     events.close()
     metrics.close()
@@ -260,72 +229,19 @@ def run(args: argparse.Namespace) -> int:
         for airframe, spec, *_ in plans:
             rs = [r for r, s in results if r.airframe == airframe and r.name.startswith("random")]
             if rs:
-                _plot_many(rs, spec, run_dir.file(f"{airframe}-random.png"))
+                report.plot_random(rs, spec, run_dir.file(f"{airframe}-random.png"))
 
-    headers = [
-        "drill",
-        "airframe",
-        "result",
-        "excursion m",
-        "fallback s",
-        "recover s",
-        "rejected",
-        "first reason",
-    ]
-    shown = [r for r, _ in results if not r.name.startswith("random") or not r.passed]
-    rows = [
-        [
-            r.name,
-            r.airframe,
-            "pass" if r.passed else f"FAIL ({_first(r)})",
-            r.excursion_m,
-            r.fallback_s + r.pid_s,
-            "-" if math.isnan(r.recover_s) else r.recover_s,
-            r.rejected,
-            (r.reasons[0] if r.reasons else "-")[:40],
-        ]
-        for r in shown
-    ]
-    rnd = [r for r, _ in results if r.name.startswith("random")]
-    if rnd:
-        trig = [r for r in rnd if r.switches]
-        rec = [r.recover_s for r in rnd if not math.isnan(r.recover_s)]
-        rows.append(
-            [
-                f"random x{len(rnd)} (seed {args.seed})",
-                "/".join(sorted({r.airframe for r in rnd})),
-                f"{sum(r.passed for r in rnd)}/{len(rnd)} pass",
-                max(r.excursion_m for r in rnd),
-                sum(r.fallback_s + r.pid_s for r in rnd),
-                f"max {max(rec):.1f}" if rec else "-",
-                sum(r.rejected for r in rnd),
-                f"{len(trig)} triggered a fallback",
-            ]
-        )
-    table = markdown_table(headers, rows)
+    table = report.drill_table(results, args.seed)
+    totals = report.drill_totals(results)
     n_fail = sum(not r.passed for r, _ in results)
-    breaches = sum(_first(r) == "fence" for r, _ in results)
-    worst = max(r.excursion_m for r, _ in results) if results else math.nan
-    totals = (f"{len(results)} drills judged by safety.judge, {len(results) - n_fail} passed, "
-              f"{n_fail} failed a check; ground-truth breaches beyond the tolerance: {breaches}; "
-              f"worst excursion {worst:.2f} m (negative = stayed inside)")  # fmt: skip
     versions = ", ".join(f"{a}: {s.name} {s.version}" for a, s, *_ in plans)
     print(table)
     print(totals)
     print(f"constraint sets: {versions}")
     print(f"run folder: {run_dir.path}")
-    fails = [f"- {r.name}: {r.why}" for r, _ in results if not r.passed]
-    run_dir.write_summary(
-        f"# skyherd drill\n\nConstraint sets: {versions}\n\n{table}\n{totals}\n"
-        + ("\n## Failures\n" + "\n".join(fails) + "\n" if fails else "")
-    )
+    run_dir.write_summary(report.drill_summary(versions, table, totals, results))
     _mcap(run_dir.path)
     return 1 if n_fail else 0
-
-
-def _first(r) -> str:
-    """The name of a drill's first failed check ("" if it passed)."""
-    return next((c.name for c in r.checks if not c.ok), "")
 
 
 def _mcap(folder) -> None:
@@ -352,79 +268,3 @@ class _Tagged:
 
 def _slug(s: str) -> str:
     return "".join(c if c.isalnum() else "-" for c in s).strip("-")
-
-
-_COLORS = {0: "tab:blue", 1: "tab:red", 2: "tab:orange"}
-
-
-def _draw_fence(ax, spec) -> None:
-    for z in spec.inclusions:
-        pts = np.vstack([z.points, z.points[:1]])
-        ax.plot(pts[:, 1], pts[:, 0], "k-", lw=1.5)
-    for z in spec.exclusions:
-        pts = np.vstack([z.points, z.points[:1]])
-        ax.fill(pts[:, 1], pts[:, 0], color="0.7", alpha=0.6)
-    if spec.limits.home_radius_m > 0:
-        a = np.linspace(0, 2 * np.pi, 100)
-        ax.plot(
-            spec.limits.home_radius_m * np.sin(a),
-            spec.limits.home_radius_m * np.cos(a),
-            "k:",
-            lw=0.8,
-        )
-
-
-def _plot(r, spec, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.5))
-    _draw_fence(a1, spec)
-    pos, mode, t = r.track["pos"], r.track["mode"], r.track["t"]
-    for m, lab in ((0, "AI"), (1, "fallback (HOLD)"), (2, "recovery PID")):
-        sel = mode == m
-        if sel.any():
-            a1.scatter(pos[sel, 1], pos[sel, 0], s=2, color=_COLORS[m], label=lab)
-            a2.scatter(t[sel], -pos[sel, 2], s=2, color=_COLORS[m])
-    lo, hi = pos[:, :2].min(axis=0) - 30.0, pos[:, :2].max(axis=0) + 30.0
-    a1.set_xlim(lo[1], hi[1])
-    a1.set_ylim(lo[0], hi[0])
-    a1.set_xlabel("east [m]")
-    a1.set_ylabel("north [m]")
-    a1.set_aspect("equal")
-    a1.legend(loc="lower left", fontsize=7, markerscale=4)
-    a1.set_title(
-        f"{r.name} ({r.airframe}): {'pass' if r.passed else 'FAIL'}, excursion {r.excursion_m:.2f} m"
-    )
-    a2.axhline(spec.limits.ceiling_m, color="k", lw=1)
-    a2.axhline(spec.limits.floor_m, color="k", lw=1)
-    a2.set_xlabel("time since hand-over [s]")
-    a2.set_ylabel("altitude [m]")
-    a2.set_title("altitude (lines: ceiling, floor)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def _plot_many(rs, spec, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.5, 6.5))
-    _draw_fence(ax, spec)
-    for r in rs:
-        pos, mode = r.track["pos"], r.track["mode"]
-        ax.plot(pos[:, 1], pos[:, 0], lw=0.4, color="tab:blue", alpha=0.5)
-        sel = mode != 0
-        ax.scatter(pos[sel, 1], pos[sel, 0], s=0.5, color="tab:red")
-    ax.set_aspect("equal")
-    ax.set_xlabel("east [m]")
-    ax.set_ylabel("north [m]")
-    ax.set_title(f"{len(rs)} random drills: track (blue), safety net flying (red)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)

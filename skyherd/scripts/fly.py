@@ -238,10 +238,10 @@ def _validate(args) -> tuple[list[str], list[str]]:
             raise UsageError(str(e)) from None
     if args.pilot.startswith("drill:"):  # a named drill of the flight's envelope
         from skyherd.mission.build import drill_pilot
-        from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError, load_envelope
+        from skyherd.safety.config import EnvelopeFileError, fly_envelope_path, load_envelope
 
         try:
-            spec, _ = load_envelope(args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe])
+            spec, _ = load_envelope(args.envelope or fly_envelope_path(args.airframe))
             drill_pilot(args.pilot, spec)
         except (EnvelopeFileError, ValueError) as e:
             raise UsageError(str(e)) from None
@@ -363,14 +363,14 @@ def _refuse_wind_above_limit(args) -> None:
     limit ([guards] wind_limit_mps): the net's envelope assumes braking that such a wind takes
     away. Wind that rises later (--fault wind@T:...) is the net's to judge in flight."""
     from skyherd.flight.faults import parse_fault_args
-    from skyherd.safety.config import ENVELOPE_DIR, load_envelope
+    from skyherd.safety.config import fly_envelope_path, load_envelope
 
     try:
         plan = parse_fault_args(args.wind, args.gust, args.noise, args.fault, seed=args.seed)
     except ValueError as e:  # a fault flag: its own message names it and its form
         raise UsageError(str(e)) from None
     try:
-        spec, _ = load_envelope(args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe])
+        spec, _ = load_envelope(args.envelope or fly_envelope_path(args.airframe))
     except ValueError as e:
         raise UsageError(f"{e}; fix it or pass another --envelope") from None
     w = plan.wind.mean_ned
@@ -403,7 +403,6 @@ def world_link(args) -> str:
 
 
 SIGNING_KEY_FILE = "signing.key"  # the per-run key in the run folder
-_ENVELOPE = {"quadrotor": "quadrotor_groundair.toml", "fixedwing": "fixedwing_field.toml"}
 
 
 def run_two_processes(args: argparse.Namespace) -> int:
@@ -463,7 +462,7 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     finally:  # signals are kept again (Launch.__exit__): the report is written whole
         if recorder is not None:
             recorder.close()
-    from skyherd.scripts.fly_report import report  # after the flight: not on the way to the launch
+    from skyherd.report.fly import report  # after the flight: not on the way to the launch
 
     plots: list = []  # made once the verdict and the ending are said (make_plots)
     ok = waysout.report_safely(report, run_dir, args, rc, why, plots, why=why)  # never raises
@@ -472,7 +471,7 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     waysout.append_ending(run_dir, lines)
     make_plots(plots)
     if plots:  # report.html again, now with the figures made after the verdict
-        from skyherd.scripts.report_html import write_report_html
+        from skyherd.report.page import write_report_html
 
         write_report_html(run_dir)
     if rc <= 128 and kept.signum is not None:  # a signal while the report was written
@@ -496,9 +495,9 @@ def make_plots(plots: list) -> None:
 
 def _envelope(args) -> dict:
     """The safety net's constraint set (name, version, rows) for config.json; UsageError if bad."""
-    from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError, load_envelope
+    from skyherd.safety.config import EnvelopeFileError, fly_envelope_path, load_envelope
 
-    path = args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe]
+    path = args.envelope or fly_envelope_path(args.airframe)
     try:
         spec, _ = load_envelope(path)
     except (EnvelopeFileError, ValueError) as e:
@@ -563,10 +562,10 @@ def _recorder(args, run_dir: Path, key_file: str | None = None, give_up=None, re
             )
         rec = ZenohRecorder(session, "uav0", path, also=also, key=key)
         if args.mission in ("groundair", "shepherd"):  # the fence and the envelope's rows
-            from skyherd.safety.config import ENVELOPE_DIR, load_envelope
+            from skyherd.safety.config import fly_envelope_path, load_envelope
 
             rec.log.geometry(
-                0.0, load_envelope(args.envelope or ENVELOPE_DIR / _ENVELOPE[args.airframe])[0]
+                0.0, load_envelope(args.envelope or fly_envelope_path(args.airframe))[0]
             )
         return _Recording(session, rec)
     except Exception as e:  # noqa: BLE001 - say so and fly without a recording

@@ -167,9 +167,6 @@ def stop_all(children: list[Child], grace_s: float = 10.0) -> list[int]:
     return [c.proc.returncode for c in children]
 
 
-COMPANION_EXITED = "the companion exited with code"  # how supervise() begins that reason
-
-
 def exit_text(rc: int) -> str:
     """A child's exit code as words: "code 1", "code -9 (killed by SIGKILL)"."""
     if rc < 0:
@@ -181,14 +178,6 @@ def exit_text(rc: int) -> str:
 
 
 INTERRUPTS = waysout.INTERRUPTS  # the ways a user ends `fly`
-
-
-def flight_reason(companion_reason: str | None, why: str) -> str:
-    """Why the flight ended: the supervisor's reason when it stopped the companion (the time
-    limit, a simulator that died), else the companion's own (it ended the flight)."""
-    if why and not why.startswith(COMPANION_EXITED):
-        return why
-    return companion_reason or why
 
 
 def say(text: str) -> None:

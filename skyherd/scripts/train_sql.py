@@ -14,9 +14,8 @@ import json
 import time
 from dataclasses import asdict, dataclass, replace
 
-import numpy as np
-
-from skyherd.runio.runfolder import RunFolder, atomic_write_text, markdown_table
+from skyherd.report import sql as report
+from skyherd.runio.runfolder import RunFolder, atomic_write_text
 from skyherd.scripts.cli import quick_help
 
 EXPERIMENTS = ("compare", "sharing", "scalability")
@@ -169,60 +168,6 @@ def _check(args: argparse.Namespace) -> None:
         raise UsageError("--seeds must be distinct non-negative integers")
 
 
-def _fmt_pm(values: list[float], digits: int = 1) -> str:
-    if not values:
-        return "–"
-    a = np.asarray(values, dtype=np.float64)
-    return f"{a.mean():.{digits}f} ± {a.std():.{digits}f}"
-
-
-def _first_success(summaries) -> str:
-    firsts = [s.first_success for s in summaries if s.first_success is not None]
-    never = len(summaries) - len(firsts)
-    return _fmt_pm(firsts, 0) + (f" ({never} never)" if never else "")
-
-
-def _plot(path, title, curves, window, max_steps) -> None:
-    """Learning curves: moving-average max steps per episode, log y; the mean over seeds, and
-    the min–max band only when there are 2 seeds or more. Each curve has its own line style,
-    so curves that coincide (e.g. every learner still at the step limit) stay visible and named."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from skyherd.policy.sql.metrics import moving_average
-
-    fig, ax = plt.subplots(figsize=(8, 4.8))
-    styles = ("-", "--", ":", "-.")
-    seeds = {len(runs) for _, runs in curves}
-    for k, (label, runs) in enumerate(curves):
-        ma = np.stack([moving_average(r, window) for r in runs])
-        x = np.arange(window, window + ma.shape[1])
-        mean = ma.mean(axis=0)
-        n = len(runs)
-        (line,) = ax.plot(x, mean, styles[k % len(styles)], lw=1.4 + 0.6 * (k % 2),
-                          label=f"{label} ({n} seed{'s' if n != 1 else ''})")  # fmt: skip
-        if n > 1:
-            ax.fill_between(x, ma.min(axis=0), ma.max(axis=0), color=line.get_color(), alpha=0.2)
-    stuck = [label for label, runs in curves if min(min(r) for r in runs) >= max_steps]
-    if stuck:  # lines that lie on the step limit, on top of one another: named
-        ax.text(0.01, 0.02, "at the step limit in every episode: " + ", ".join(stuck),
-                transform=ax.transAxes, fontsize=8, va="bottom")  # fmt: skip
-    ax.axhline(max_steps, color="grey", lw=0.8, ls=":", label=f"step limit ({max_steps})")
-    ax.set_yscale("log")
-    ax.set_ylim(top=max_steps * 1.3)
-    ax.set_xlabel("episode")
-    ax.set_ylabel(f"largest agent step count ({window}-episode mean)")
-    band = "band: min–max over seeds" if max(seeds, default=1) > 1 else "one seed: no band"
-    ax.set_title(f"{title}  (line: mean over seeds; {band})", fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -272,21 +217,7 @@ def run(args: argparse.Namespace) -> int:
     results: dict[tuple[Config, int], object] = {}
     summaries: dict[tuple[Config, int], object] = {}
     timing: dict[Config, float] = {}
-    metrics_csv = folder.metrics(
-        [
-            "config",
-            "algorithm",
-            "n_agents",
-            "share_every",
-            "seed",
-            "episodes",
-            "episodes_to_converge",
-            "final_steps",
-            "final_success",
-            "first_success",
-            "wall_s",
-        ]
-    )
+    metrics_csv = folder.metrics(report.COLUMNS)
     total = len(configs) * len(args.seeds) * episodes
     with tqdm(total=total, unit="ep", desc="train sql", smoothing=0.05) as bar:
         for c in configs:
@@ -301,76 +232,14 @@ def run(args: argparse.Namespace) -> int:
                 timing[c] = timing.get(c, 0.0) + wall
                 s = summarize(r.metrics, window, tail)
                 results[(c, seed)], summaries[(c, seed)] = r, s
-                m = r.metrics
-                ep = np.column_stack(
-                    [
-                        np.arange(1, episodes + 1),
-                        m.steps,
-                        m.success.astype(int),
-                        m.reached,
-                        m.collisions,
-                        m.agent_steps,
-                    ]
-                )
-                lines = ["episode,steps,success,reached,collisions,agent_steps"]
-                lines += [",".join(map(str, row)) for row in ep.tolist()]
-                atomic_write_text(
-                    folder.path / "episodes" / f"{c.key}_seed{seed}.csv", "\n".join(lines) + "\n"
-                )
-                metrics_csv.write(
-                    {
-                        "config": c.key,
-                        "algorithm": c.algorithm,
-                        "n_agents": c.n_agents,
-                        "share_every": c.share_every,
-                        "seed": seed,
-                        "episodes": episodes,
-                        "episodes_to_converge": s.episodes_to_converge
-                        if s.episodes_to_converge is not None
-                        else "",
-                        "final_steps": s.final_steps,
-                        "final_success": s.final_success,
-                        "first_success": s.first_success if s.first_success is not None else "",
-                        "wall_s": round(wall, 3),
-                    }
-                )
+                atomic_write_text(folder.path / "episodes" / f"{c.key}_seed{seed}.csv",
+                                  report.episodes_csv(r.metrics, episodes))  # fmt: skip
+                metrics_csv.write(report.metrics_row(c, seed, episodes, s, wall))
     metrics_csv.close()
 
-    headers = [
-        "experiment",
-        "learner",
-        "K",
-        "N",
-        "converged",
-        "first success",
-        "episodes to converge",
-        "final max steps",
-        "final success rate",
-        "s / run",
-    ]
-    rows = []
-    for exp, cs in plan.items():
-        curves = []
-        for c in cs:
-            ss = [summaries[(c, s)] for s in args.seeds]
-            conv = [s.episodes_to_converge for s in ss if s.episodes_to_converge is not None]
-            rows.append(
-                [
-                    exp,
-                    c.algorithm.upper(),
-                    c.n_agents,
-                    c.share_every or "–",
-                    f"{len(conv)}/{len(ss)}",
-                    _first_success(ss),
-                    _fmt_pm(conv, 0),
-                    _fmt_pm([s.final_steps for s in ss]),
-                    _fmt_pm([s.final_success for s in ss], 2),
-                    f"{timing[c] / len(args.seeds):.1f}",
-                ]
-            )
-            curves.append((c.label, [results[(c, s)].metrics.steps for s in args.seeds]))
-        _plot(folder.file(f"curves_{exp}.png"), f"{exp}", curves, window, args.max_steps)
-    table = markdown_table(headers, rows)
+    table, curves = report.results(plan, args.seeds, summaries, results, timing)
+    for exp, cs in curves.items():
+        report.plot_curves(folder.file(f"curves_{exp}.png"), f"{exp}", cs, window, args.max_steps)
 
     # The learned SQL-SIE formation plans (seed = first seed), for flying them later.
     # One try per K (its first SQL-SIE run): a K said to have no plan gets no plan file.
@@ -385,17 +254,7 @@ def run(args: argparse.Namespace) -> int:
     for k, p in plans.items():
         atomic_write_text(folder.file(f"plan_K{k}.json"), json.dumps(p) + "\n")
 
-    summary = (
-        f"# skyherd train sql\n\n{len(args.seeds)} seeds {list(args.seeds)}, {episodes} "
-        f"episodes per run, map seed {args.map_seed}. Final values: mean over the last {tail} "
-        f"episodes; convergence: {window}-episode moving average settled within 10 % of the "
-        f"final value, counted only for runs with final success rate >= 0.9. "
-        f"Mean ± std over seeds (converged seeds only for episodes to converge).\n\n"
-        + table
-        + "\nPlots: "
-        + ", ".join(f"curves_{e}.png" for e in plan)
-        + "\n"
-    )
+    summary = report.summary_md(args.seeds, episodes, args.map_seed, tail, window, table, plan)
     folder.write_summary(summary)
     atomic_write_text(folder.file("results.md"), summary)
     print(table)

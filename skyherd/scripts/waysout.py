@@ -224,7 +224,7 @@ def append_ending(run_dir: Path, lines: list[str]) -> None:
         old = "# skyherd fly\n"
     why = try_write_text(path, old.rstrip() + "\n\n## How it ended\n\n" + text + "\n")
     if why is None:  # the page of the whole flight, from the summary as it now stands
-        from skyherd.scripts.report_html import write_report_html
+        from skyherd.report.page import write_report_html
 
         write_report_html(run_dir)
     try:  # a simulator whose `fly` died: nobody reads its output

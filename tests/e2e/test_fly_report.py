@@ -20,8 +20,8 @@ import pytest
 
 from skyherd.perception.detector import Detector
 from skyherd.perception.sheet import FrameSample, SheetParams
+from skyherd.report.page import REPORT, markdown_to_html, write_report_html
 from skyherd.scripts.cli import main
-from skyherd.scripts.report_html import REPORT, markdown_to_html, write_report_html
 from skyherd.task.params import TaskParams
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -107,7 +107,7 @@ def test_a_failed_flight_has_its_report_with_the_failed_check_first(flown, tmp_p
     import argparse
     import csv
 
-    from skyherd.scripts.fly_report import report
+    from skyherd.report.fly import report
     from skyherd.scripts.waysout import append_ending
 
     run = tmp_path / flown.name
@@ -205,7 +205,7 @@ def test_skyherd_companion_alone_says_its_own_name(flown, tmp_path, capsys):
     """The report of `skyherd companion` run alone says "skyherd companion", not "skyherd fly"."""
     import argparse
 
-    from skyherd.scripts.fly_report import report
+    from skyherd.report.fly import report
 
     run = tmp_path / flown.name
     shutil.copytree(flown, run)

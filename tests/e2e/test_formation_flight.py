@@ -358,8 +358,10 @@ def test_stop_all_signals_every_child_at_once_and_reasons_prefer_the_supervisor_
     t0 = time.monotonic()
     assert launch.stop_all(kids, grace_s=30.0) == [3, 3, 3, 3]
     assert time.monotonic() - t0 < 3.5  # sequential stops would take >= 4 s
-    assert launch.flight_reason("landed", "") == "landed"
-    assert launch.flight_reason("x", f"{launch.COMPANION_EXITED} 2") == "x"
-    assert launch.flight_reason("interrupted", "the flight took longer than --timeout 2 s") == (
+    from skyherd.report.reason import COMPANION_EXITED, flight_reason
+
+    assert flight_reason("landed", "") == "landed"
+    assert flight_reason("x", f"{COMPANION_EXITED} 2") == "x"
+    assert flight_reason("interrupted", "the flight took longer than --timeout 2 s") == (
         "the flight took longer than --timeout 2 s"
     )

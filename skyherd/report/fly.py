@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from skyherd.mission.metrics import cross_track, groundair_metrics
+from skyherd.report.plots_flight import plot_groundair, plot_orbit
+from skyherd.report.reason import flight_reason
 from skyherd.runio import atomic_write_text, markdown_table
 from skyherd.safety.judge import (
     Check,
@@ -24,8 +26,6 @@ from skyherd.safety.judge import (
     first_failed,
     judge,
 )
-from skyherd.scripts.launch import flight_reason
-from skyherd.scripts.plots_flight import plot_groundair, plot_orbit
 from skyherd.task.params import TaskParams
 
 
@@ -168,9 +168,8 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     autopilot's own track in metrics.csv, said so), the envelope of config.json (a mission
     flown without a net, the square, is judged on the airframe's default fence and ceiling, no
     floor), modes.jsonl, frames.csv and companion.json's hand-over window."""
-    from skyherd.safety.config import ENVELOPE_DIR, load_envelope
+    from skyherd.safety.config import fly_envelope_path, load_envelope
     from skyherd.safety.envelope import CAMERA_TIMEOUT_S  # not the supervisor: no numba, no QP
-    from skyherd.scripts.fly import _ENVELOPE
 
     cfg = {}
     if (run_dir / "config.json").exists():
@@ -178,7 +177,7 @@ def judge_run(run_dir: Path, args, comp: dict, outcome: str, reason: str) -> lis
     env = (cfg.get("envelope") or {}).get("path") or getattr(args, "envelope", None)
     orbit = getattr(args, "mission", "") == "orbit"  # `skyherd companion --mission orbit`
     airframe = "fixedwing" if orbit else getattr(args, "airframe", "quadrotor")
-    spec, _ = load_envelope(env or ENVELOPE_DIR / _ENVELOPE[airframe])
+    spec, _ = load_envelope(env or fly_envelope_path(airframe))
     guards = getattr(spec, "guards", None)  # the camera guard's timeout ("off": the default's)
     camera_s = getattr(guards, "camera_timeout_s", None) or CAMERA_TIMEOUT_S
     world = _rows(run_dir / "world.csv")
@@ -298,7 +297,7 @@ def _figure(ncols: int, size):
 
 
 def _plot_square(run_dir: Path, track: np.ndarray, decisions: list[dict]) -> None:
-    from skyherd.scripts.plots_flight import phase_spans, shade_phases
+    from skyherd.report.plots_flight import phase_spans, shade_phases
 
     plt, fig, (ax1, ax2) = _figure(2, (12, 4.8))
     c = np.array([leg[2] for leg in _legs(decisions)]).reshape(-1, 3)
