@@ -170,7 +170,8 @@ def test_the_check_fails_on_a_probe_tree(tmp_path, kind):
 _PROGRAMS = {
     "sim": "import skyherd.scripts.sim, skyherd.world.sim, skyherd.world.follow, skyherd.world.bridged",
     "companion": (
-        "import skyherd.scripts.companion, skyherd.mission.companion, skyherd.mission.flight, "
+        "import skyherd.scripts.companion, skyherd.mission.companion, skyherd.mission.runner, "
+        "skyherd.mission.flight, "
         "skyherd.mission.pilots, skyherd.mission.perception, skyherd.mission.orbit, "
         "skyherd.mission.shepherd, skyherd.mission.search, skyherd.policy.models as kept; "
         "from skyherd import policy; policy.load_policy(kept.DEFAULT_POLICY)"

@@ -35,6 +35,22 @@ class MissionChoice:
     # UAV's horizontal position only; low enough for the camera to show the flock's part under it
 
 
+def mission_choice(options) -> MissionChoice:
+    """The mission `options` chose (a namespace with `skyherd companion`'s option names); an
+    option another command's parser lacks keeps its default."""
+    d = MissionChoice()
+    return MissionChoice(
+        mission=options.mission, altitude_m=options.altitude, duration_s=options.duration,
+        side_m=options.side, envelope=options.envelope, pilot=options.pilot, policy=options.policy,
+        lost_ugv_search=getattr(options, "lost_ugv_search", d.lost_ugv_search),
+        configure_autopilot=getattr(options, "configure_autopilot", d.configure_autopilot),
+        shepherd_selector=getattr(options, "shepherd_selector", d.shepherd_selector),
+        orbit_team=getattr(options, "orbit_team", d.orbit_team),
+        orbit_seed=getattr(options, "orbit_seed", d.orbit_seed),
+        orbit_no_land=getattr(options, "orbit_no_land", d.orbit_no_land),
+    )  # fmt: skip
+
+
 def _say_nothing(text: str) -> None:
     pass
 

@@ -14,10 +14,13 @@ COM_OF_LOSS_T), which acts once the setpoints stop.
 `StopRequest` is what the signal handler sets. While the loop waits for the vehicle's next
 tick, the handler raises `Interrupted` instead, so a vehicle that is gone (its simulator died)
 costs `PATIENCE_S` of wall time, not the link's full patience; a second signal always raises.
+`stop_on_signals` installs that handler for the flight's loop.
 """
 
 from __future__ import annotations
 
+import contextlib
+import signal
 from collections.abc import Generator
 
 from pymavlink.dialects.v20 import ardupilotmega as M
@@ -29,6 +32,15 @@ from skyherd.runio.run import Interrupted
 
 PATIENCE_S = 3.0  # wall time to wait for a tick mark while handing over [s]
 LEFT_ALONE = (FlightMode.LAND, FlightMode.RTL)  # the autopilot lands or returns by itself
+SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+"""End the flight by handing the vehicles to their autopilots; a second one ends the companion
+at once."""
+PARENT_DIED = signal.SIGUSR1
+"""The companion's parent-death signal under `skyherd fly` (runio.launch): hand over as
+above. The kernel sends it once per thread of the dying parent (each thread that exits hands
+its children to the next and signals them again), spread over as long as the dying threads
+wait for a CPU: a repeat never counts as a second signal, and one after the flight's loop is
+ignored (its default would end the companion before companion.json is written)."""
 
 
 class StopRequest:
@@ -49,6 +61,35 @@ class StopRequest:
             self.signum = signum
         if (self.waiting and first) or (not first and again_ends):
             raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def stop_on_signals(stop: StopRequest):
+    """SIGINT, SIGTERM and SIGHUP set `stop` (a second one, or one before the flight, raises
+    runio.Interrupted) while the block runs, and so does PARENT_DIED (never a second); the
+    previous handlers afterwards, except PARENT_DIED's: ignored from then on (the loop is
+    over, the records are still to be written)."""
+
+    def on_signal(signum, _frame) -> None:
+        stop.request(signum, again_ends=signum != PARENT_DIED)
+
+    stop.waiting = True  # until the loop takes over (mission.companion): nothing flies yet
+    old = {sig: signal.signal(sig, on_signal) for sig in SIGNALS}
+    signal.signal(PARENT_DIED, on_signal)
+    try:
+        yield stop
+    finally:
+        signal.signal(PARENT_DIED, signal.SIG_IGN)
+        for sig, h in old.items():
+            signal.signal(sig, h)
+
+
+def signal_name(x) -> str:
+    """The signal of an Interrupted or a StopRequest by name (a bare Ctrl-C's is SIGINT; the
+    parent-death signal says so)."""
+    signum = getattr(x, "signum", None)
+    name = signal.Signals(signum).name if signum else "SIGINT"
+    return name + (": its parent died" if signum == PARENT_DIED else "")
 
 
 def hand_over(v: VehicleLink) -> Generator[None, None, str]:

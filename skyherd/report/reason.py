@@ -1,4 +1,4 @@
-"""Why a flight ended, in words: the supervisor's reason (scripts.launch) or the companion's own
+"""Why a flight ended, in words: the supervisor's reason (runio.launch) or the companion's own
 (companion.json). No heavy import: `skyherd fly` reads COMPANION_EXITED on its way to the launch."""
 
 from __future__ import annotations

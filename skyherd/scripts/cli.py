@@ -317,10 +317,16 @@ def exit_now(rc: int) -> NoReturn:
     os._exit(rc)
 
 
+def skyherd_cmd(*args: str) -> list[str]:
+    """A sub-command of this installation's `skyherd`, as a child process's argv (the children
+    of `skyherd fly`: runio.launch)."""
+    return [sys.executable, "-m", "skyherd.scripts.cli", *args]
+
+
 def console() -> NoReturn:
     """The `skyherd` console script (pyproject [project.scripts]): `main`, then `exit_now`."""
     exit_now(main())
 
 
-if __name__ == "__main__":  # the children of `skyherd fly` (scripts.launch.skyherd_cmd)
+if __name__ == "__main__":  # the children of `skyherd fly` (skyherd_cmd)
     exit_now(main())

@@ -426,7 +426,9 @@ def run_two_processes(args: argparse.Namespace) -> int:
 def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> int:
     """The flight in its run folder: start, supervise, stop, report; every signal kept by
     `kept` until the children run, then acted on (Launch.supervise)."""
-    from skyherd.scripts import launch, waysout
+    from skyherd.runio import launch
+    from skyherd.scripts import waysout
+    from skyherd.scripts.cli import skyherd_cmd
 
     key = per_run_key(args, run_dir)
     if key is not None:  # handed to both programs
@@ -443,12 +445,12 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     try:
         with kids:  # stopped on every way out, the companion first
             if args.connect is None or args.mission == "groundair":
-                kids.start_sim("sim", launch.skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
+                kids.start_sim("sim", skyherd_cmd("sim", *sim_args, "--run-dir", str(run_dir)),
                          run_dir / "sim.log")  # fmt: skip
             # the companion sets up meanwhile and says hello (the simulator's clock starts on
             # it) only once the recorder has subscribed: the recording holds the flight from
             # its start
-            companion = kids.start_companion(launch.skyherd_cmd(
+            companion = kids.start_companion(skyherd_cmd(
                 "companion", *comp_args, "--run-dir", str(run_dir), "--wait-go"), wait_go=True)  # fmt: skip
             if kids.sims:  # once the simulator says it runs (its Zenoh session is open)
                 sim_up = lambda: kids.sims[0].said(SIM_STARTED)  # noqa: E731
@@ -457,7 +459,7 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
                                      ready=sim_up)  # fmt: skip
             companion.go()
             rc, why = kids.supervise(args.timeout)  # acts on a signal kept until now
-    except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
+    except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (runio.launch): 128 + signum
         rc, why = waysout.interrupted(e)
     finally:  # signals are kept again (Launch.__exit__): the report is written whole
         if recorder is not None:
@@ -540,9 +542,9 @@ def _recorder(args, run_dir: Path, key_file: str | None = None, give_up=None, re
         from skyherd.flight.mavlink.signing import load_key
 
         key = load_key(Path(key_file)) if key_file else None
+        from skyherd.mission.connect import GaveUp, open_client
         from skyherd.perception.transport import subscriber_params
         from skyherd.record import LiveServer, ZenohRecorder
-        from skyherd.scripts.companion import GaveUp, open_client
 
         deadline = time.monotonic() + SIM_START_PATIENCE_S
         while ready is not None and not ready() and time.monotonic() < deadline:

@@ -91,7 +91,8 @@ def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
 
 def run_formation(args: argparse.Namespace) -> int:
     """Fly the formation as K simulators + one companion; 0 if every vehicle landed on its target."""
-    from skyherd.scripts import launch
+    from skyherd.runio import launch
+    from skyherd.scripts.cli import skyherd_cmd
     from skyherd.scripts.fly import check_signing, per_run_key, signing_mode
 
     _check(args)
@@ -138,15 +139,15 @@ def run_formation(args: argparse.Namespace) -> int:
                                       (homes[k].lat_deg, homes[k].lon_deg, homes[k].alt_m)) for k in group]  # fmt: skip
                 fleet_file = run_dir / f"sim{g}.json"
                 write_fleet(fleet_file, fleet)
-                kids.start_sim(f"sim{g}", launch.skyherd_cmd(
+                kids.start_sim(f"sim{g}", skyherd_cmd(
                     "sim", "--fleet", str(fleet_file), "--ugvs", "none", "--speedup", repr(args.speedup),
                     "--latency", repr(args.latency), "--run-dir", str(run_dir), *signing), run_dir / f"sim{g}.log")  # fmt: skip
-            kids.start_companion(launch.skyherd_cmd(
+            kids.start_companion(skyherd_cmd(
                 "companion", "--mission", "formation", "--plan", str(run_dir / "plan.json"), "--cell-m",
                 repr(params.cell_m), "--instance", str(args.instance), "--run-dir", str(run_dir),
                 *signing))  # fmt: skip
             rc, why = kids.supervise(args.timeout)
-    except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (scripts.launch): 128 + signum
+    except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (runio.launch): 128 + signum
         rc, why = waysout.interrupted(e)
     ok = waysout.report_safely(formation_report, run_dir, rc, why, why=why)  # never raises
     output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory

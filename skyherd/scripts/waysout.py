@@ -8,12 +8,11 @@ from __future__ import annotations
 import csv
 import json
 import math
-import signal
 import sys
 from pathlib import Path
 
 from skyherd.runio import RunFolder, UsageError, try_write_text
-from skyherd.runio.run import Interrupted
+from skyherd.runio.signals import INTERRUPTS, KeptSignals, interrupted  # noqa: F401 - fly's names
 from skyherd.runio.space import RESERVE_BYTES, free_bytes
 
 MIN_FREE_BYTES = 2 * RESERVE_BYTES  # a flight starts only with this much free [bytes]
@@ -60,69 +59,6 @@ def report_safely(report, *args, why: str) -> bool:
         print(f"skyherd fly: the report was not written ({type(e).__name__}: {e}); "
               f"{why or 'the flight ended'}: see how, below", file=sys.stderr, flush=True)  # fmt: skip
         return False
-
-
-INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # the ways a user ends `fly`
-
-
-class KeptSignals:
-    """SIGINT, SIGTERM and SIGHUP kept, not raised, while `fly` makes its run folder and starts
-    its children (an exception raised half-way through a fork, a pipe or a relay thread would
-    leave a child no one stops, or a folder no one ends): `act()` then raises
-    runio.Interrupted (a KeyboardInterrupt naming the signal) for the first one kept, and from
-    `raising()` on every signal raises at once (the flight's supervision, its stopping: a second
-    signal skips to stopping the simulators). `keeping()` goes back to keeping (the report is
-    written whole; `signum` says a signal came). The previous handlers come back on exit."""
-
-    def __init__(self, signals: tuple[int, ...] = INTERRUPTS) -> None:
-        self.signals = signals
-        self.kept: list[int] = []
-        self._raise = False
-        self._old: dict[int, object] = {}
-
-    def __enter__(self) -> KeptSignals:
-        for sig in self.signals:
-            self._old[sig] = signal.signal(sig, self._on_signal)
-        return self
-
-    def __exit__(self, *exc) -> None:
-        for sig, old in self._old.items():
-            signal.signal(sig, old)
-
-    def _on_signal(self, signum: int, _frame) -> None:
-        self.kept.append(signum)
-        if self._raise:
-            raise Interrupted(signum)
-
-    @property
-    def signum(self) -> int | None:
-        """The first signal that came (None: none yet)."""
-        return self.kept[0] if self.kept else None
-
-    def act(self) -> None:
-        """Raise Interrupted for the first signal kept, if one came."""
-        if self.kept:
-            raise Interrupted(self.kept[0])
-
-    def raising(self, act: bool = True) -> None:
-        """From now on a signal raises at once; one kept before raises now (with `act`)."""
-        self._raise = True
-        if act:
-            self.act()
-
-    def keeping(self) -> None:
-        """From now on a signal is kept again (`signum` tells later)."""
-        self._raise = False
-
-
-def interrupted(e: BaseException) -> tuple[int, str]:
-    """(exit code, why) of a KeyboardInterrupt / runio.Interrupted: 128 + the signal number."""
-    signum = getattr(e, "signum", signal.SIGINT)
-    name = signal.Signals(signum).name
-    return (
-        128 + signum,
-        "interrupted (Ctrl-C)" if signum == signal.SIGINT else f"interrupted ({name})",
-    )
 
 
 def _json(path: Path) -> dict:

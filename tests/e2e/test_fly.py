@@ -161,12 +161,12 @@ while True:
 
 
 def test_a_launch_stops_the_companion_first_then_every_simulator_on_a_ctrl_c(tmp_path):
-    """`scripts.launch.Launch` on a KeyboardInterrupt inside its `with` (a Ctrl-C while the
+    """`runio.launch.Launch` on a KeyboardInterrupt inside its `with` (a Ctrl-C while the
     children start or fly): the companion gets SIGINT and is waited for (it hands the
     vehicles to their autopilots) before the simulators get SIGUSR1 (they wind down alone with
     the autopilot); none is left running. Ordered by the log the children write, not by a
     clock's margin."""
-    from skyherd.scripts import launch
+    from skyherd.runio import launch
 
     log = tmp_path / "order.log"
     ready = lambda: log.read_text().count("ready") if log.exists() else 0  # noqa: E731

@@ -178,7 +178,7 @@ import os, sys, time
 from pathlib import Path
 from skyherd.mission.handover import StopRequest
 from skyherd.runio.run import Interrupted
-from skyherd.scripts.companion import stop_on_signals
+from skyherd.mission.handover import stop_on_signals
 out, parent = Path(sys.argv[1]), os.getppid()
 stop = StopRequest()
 (out / "pid").write_text(str(os.getpid()))
@@ -198,7 +198,7 @@ time.sleep(0.2)  # that thread's repeat of the signal has arrived
 _PDEATH_PARENT = """
 import os, sys, threading, time
 from pathlib import Path
-from skyherd.scripts.launch import PARENT_DEATH, start
+from skyherd.runio.launch import PARENT_DEATH, start
 out = Path(sys.argv[1])
 def until(name):
     while not (out / name).exists():

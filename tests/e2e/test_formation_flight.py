@@ -348,7 +348,7 @@ def test_stop_all_signals_every_child_at_once_and_reasons_prefer_the_supervisor_
     import sys
     import time
 
-    from skyherd.scripts import launch
+    from skyherd.runio import launch
 
     code = "import signal, time\nsignal.signal(signal.SIGINT, lambda *a: (time.sleep(1.0), exit(3)))\nprint('up', flush=True)\ntime.sleep(60)\n"  # fmt: skip
     kids = [launch.Child(f"k{i}", subprocess.Popen([sys.executable, "-c", code],

@@ -34,8 +34,8 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+from skyherd.runio.signals import KeptSignals
 from skyherd.runio.space import Appender
-from skyherd.scripts import waysout
 
 KEEP_LINES = 200  # a child's last output lines kept in memory (its log may be cut)
 COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before SIGKILL [s]
@@ -87,11 +87,6 @@ def relay(pipe, log: Path, lines: deque) -> None:
         pipe.close()
 
 
-def skyherd_cmd(*args: str) -> list[str]:
-    """A sub-command of this installation's `skyherd`, as a child process's argv."""
-    return [sys.executable, "-m", "skyherd.scripts.cli", *args]
-
-
 def die_with_parent(sig: int):
     """A `preexec_fn` that sets the child's parent-death signal to `sig` (Linux prctl
     PR_SET_PDEATHSIG) between fork and exec; a child whose parent died before that exits at
@@ -137,33 +132,35 @@ def stop(child: Child, grace_s: float = 10.0) -> int:
     return stop_all([child], grace_s)[0]
 
 
-def wind_down(sims: list[Child], wall_s: float = WIND_DOWN_S) -> None:
-    """SIGUSR1 to every simulator still running ("your companion is gone": it steps on alone
-    until the autopilot disarms or its `alone_s` has passed, then exits); wait up to `wall_s`."""
-    for c in sims:
+def signal_and_wait(children: list[Child], sig: int, wall_s: float) -> list[Child]:
+    """`sig` to every child still running at once, then wait up to `wall_s` for them all;
+    returns those still running."""
+    for c in children:
         if c.proc.poll() is None:
-            c.proc.send_signal(signal.SIGUSR1)
+            c.proc.send_signal(sig)
     deadline = time.monotonic() + wall_s
-    for c in sims:
+    late = []
+    for c in children:
         try:
             c.proc.wait(max(0.0, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
-            pass  # stop_all ends it
+            late.append(c)
+    return late
+
+
+def wind_down(sims: list[Child], wall_s: float = WIND_DOWN_S) -> None:
+    """SIGUSR1 to every simulator still running ("your companion is gone": it steps on alone
+    until the autopilot disarms or its `alone_s` has passed, then exits); wait up to `wall_s`
+    (stop_all ends those still running)."""
+    signal_and_wait(sims, signal.SIGUSR1, wall_s)
 
 
 def stop_all(children: list[Child], grace_s: float = 10.0) -> list[int]:
     """SIGINT to every child at once, then wait for each; SIGKILL to any still running
     `grace_s` after the signal. K simulators end together, not one after another."""
-    for c in children:
-        if c.proc.poll() is None:
-            c.proc.send_signal(signal.SIGINT)
-    deadline = time.monotonic() + grace_s
-    for c in children:
-        try:
-            c.proc.wait(max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            c.proc.kill()
-            c.proc.wait()
+    for c in signal_and_wait(children, signal.SIGINT, grace_s):
+        c.proc.kill()
+        c.proc.wait()
     return [c.proc.returncode for c in children]
 
 
@@ -175,9 +172,6 @@ def exit_text(rc: int) -> str:
         except ValueError:
             pass
     return f"code {rc}"
-
-
-INTERRUPTS = waysout.INTERRUPTS  # the ways a user ends `fly`
 
 
 def say(text: str) -> None:
@@ -194,16 +188,16 @@ class Launch:
     flight's end, an error, SIGINT / SIGTERM / SIGHUP at any moment, the start-up included):
     the companion first, so that it hands the vehicles to their autopilots, then every
     simulator winds down alone with its autopilot (module docstring). A signal while the
-    children start is kept (waysout.KeptSignals: never raised half-way through a start) and
+    children start is kept (runio.signals.KeptSignals: never raised half-way through a start) and
     acted on when `supervise` begins; from then on SIGINT, SIGTERM and SIGHUP raise
     `Interrupted` (a KeyboardInterrupt naming the signal). `signals`: the caller's
     KeptSignals (`fly` keeps them from before its run folder is made), else its own."""
 
-    def __init__(self, signals: waysout.KeptSignals | None = None) -> None:
+    def __init__(self, signals: KeptSignals | None = None) -> None:
         self.companion: Child | None = None
         self.sims: list[Child] = []
         self._own = signals is None
-        self.signals = waysout.KeptSignals() if signals is None else signals
+        self.signals = KeptSignals() if signals is None else signals
 
     def start_sim(self, name: str, argv: list[str], log: Path | None) -> Child:
         child = start(name, argv, log, parent_death=PARENT_DEATH)
