@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from skyherd.runio import RunFolder, UsageError, try_write_text
-from skyherd.runio.signals import INTERRUPTS, KeptSignals, interrupted  # noqa: F401 - fly's names
+from skyherd.runio.signals import KeptSignals, interrupted  # noqa: F401 - fly uses waysout.X
 from skyherd.runio.space import RESERVE_BYTES, free_bytes
 
 MIN_FREE_BYTES = 2 * RESERVE_BYTES  # a flight starts only with this much free [bytes]
