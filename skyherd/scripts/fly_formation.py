@@ -1,14 +1,10 @@
-"""The formation mission of `skyherd fly`: K quadrotors fly the learned SQL-SIE plan.
-
-`skyherd fly --mission formation --agents K` takes the lock-step grid plan (trained in-process
-with a fixed seed, a few seconds, or read from `--policy-file`, a `plan_K<K>.json` written by
-`skyherd train sql`), maps the 50×50 grid onto the field (cell (x, y) → north (y−1)·cell,
-east (x−1)·cell about the field origin), and starts K+1 programs: one `skyherd sim --ugvs none`
-per vehicle (instance N+k, its home on its start cell) and one `skyherd companion --mission
-formation` flying all K in lockstep (mission/formation.py), every setpoint behind its vehicle's
-safety net. The run folder gets plan.json, decisions.jsonl and events.jsonl (every vehicle),
-metrics.csv (every position sample, field frame), uav<k>/ (each vehicle's tlog, world.csv,
-sim_stats.json, sim.log), formation.png and summary.md with landing errors, separations, times.
+"""The formation mission of `skyherd fly --mission formation --agents K`: the learned SQL-SIE
+plan (or `--policy-file`, a `plan_K<K>.json` of `skyherd train sql`) on the field
+(mission/formation_plan.py), flown by K+1 programs: `skyherd sim --ugvs none` processes sharing
+the vehicles (instance N+k, its home on its start cell) and one `skyherd companion --mission
+formation` flying all K in lockstep (mission/formation.py). The run folder gets plan.json,
+decisions.jsonl, events.jsonl, metrics.csv (field frame), uav<k>/ and the report
+(report/formation.py: formation.png, summary.md with landing errors, separations, times).
 """
 
 from __future__ import annotations

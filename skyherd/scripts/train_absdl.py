@@ -87,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
+    from skyherd.policy.absdl.experiment import load_recorded
     from skyherd.policy.dqn import PolicyFileError, load_policy
     from skyherd.runio import RunFolder, file_facts
 
@@ -95,7 +96,10 @@ def run(args: argparse.Namespace) -> int:
         ab = load_policy(args.ab_policy)
     except PolicyFileError as e:
         raise UsageError(f"{e}; pass --ab-policy FILE (a `skyherd train ab` policy)") from None
-    recorded = _recorded(args.demos)
+    try:
+        recorded = {} if args.demos is None else load_recorded(args.demos)
+    except ValueError as e:  # a bad file, one of another scenario, none at all
+        raise UsageError(str(e)) from None
     print(f"skyherd train abs-dl: {p}")
     if recorded:
         print(f"recorded demonstrations: {', '.join(sorted(recorded))} from {args.demos}")
@@ -105,16 +109,6 @@ def run(args: argparse.Namespace) -> int:
         if recorded:
             run.config(demo_files={n: file_facts(args.demos / f"{n}.npz") for n in recorded})
         return _train(run, args, p, ab, recorded)
-
-
-def _recorded(folder: Path | None) -> dict:
-    """Network name → recorded Demonstration from FOLDER/<name>.npz (UsageError on bad files)."""
-    from skyherd.policy.absdl.experiment import load_recorded
-
-    try:
-        return {} if folder is None else load_recorded(folder)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
 
 
 def _train(run, args, p, ab, recorded) -> int:

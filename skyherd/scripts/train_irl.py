@@ -13,7 +13,7 @@ from pathlib import Path
 
 from skyherd.report import irl as report
 from skyherd.runio import RunFolder, file_facts
-from skyherd.scripts.cli import UsageError, quick_help
+from skyherd.scripts.cli import UsageError, apply_quick, quick_help
 
 # --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
 # learning_starts, so something is learnt); any option given on the command line wins.
@@ -74,14 +74,6 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
     parser.set_defaults(learner_name=learner)
 
 
-def apply_quick(args: argparse.Namespace, argv: list[str] | None = None) -> list[str]:
-    """With --quick, the QUICK budget for every option not given on the command line;
-    returns the options it set."""
-    from skyherd.scripts.cli import apply_quick as _apply
-
-    return _apply(args, QUICK, argv)
-
-
 def run(args: argparse.Namespace) -> int:
     import matplotlib
 
@@ -89,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     from skyherd.policy.demos import DemoFileError, load_demo
     from skyherd.policy.irl_experiment import budget_warnings, needed_scenarios
 
-    quick = apply_quick(args, getattr(args, "_argv", None))
+    quick = apply_quick(args, QUICK, getattr(args, "_argv", None))  # the options it set
     if (
         args.seeds < 1
         or args.dqn_steps < 100
