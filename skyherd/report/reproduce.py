@@ -71,10 +71,11 @@ def write_results(folder, args, specs, results, summaries, wall, backend, n_reus
     return md
 
 
-def read_finished(folder: Path, specs: list, env_path: str | None) -> dict:
+def read_finished(folder: Path, specs: list, env_path: str | None, known=()) -> dict:
     """The finished runs of an earlier reproduce-sql run folder whose settings are those of
-    `specs` (policy.sql.sweep.RunSpec; same episodes, step cap and map `env_path`):
-    {spec: RunResult}. ValueError if the folder is not one, or has other settings."""
+    `specs` (policy.sql.sweep.RunSpec; same episodes, step cap and map `env_path`), but for
+    those `known` already: {spec: RunResult}. ValueError if the folder is not one, or has
+    other settings."""
     from skyherd.policy.sql.envfile import EnvSpec
     from skyherd.policy.sql.sweep import RunResult
 
@@ -90,7 +91,12 @@ def read_finished(folder: Path, specs: list, env_path: str | None) -> dict:
     found = {}
     for row in rows:
         spec = by_key.get(row["run"])
-        if spec is None or spec in found or cfg["rules"].get(spec.rules.name) != asdict(spec.rules):
+        if (
+            spec is None
+            or spec in found
+            or spec in known
+            or cfg["rules"].get(spec.rules.name) != asdict(spec.rules)
+        ):
             continue
         path = folder / "episodes" / f"{spec.key}.csv"
         a = np.loadtxt(path, delimiter=",", skiprows=1, dtype=np.int64, ndmin=2)

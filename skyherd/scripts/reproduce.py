@@ -156,8 +156,7 @@ def _reused(args, specs) -> dict:
     found = {}
     for d in map(Path, args.reuse):
         try:
-            for spec, res in report.read_finished(d, specs, args.env).items():
-                found.setdefault(spec, res)
+            found |= report.read_finished(d, specs, args.env, found)
         except ValueError as e:
             raise UsageError(f"--reuse {d}: {e}") from None
     return found
