@@ -386,7 +386,7 @@ FIGURES_INSTANCE = 37  # this area's vehicle instance
 
 
 def _figures_manifest() -> dict:
-    from skyherd.scripts.figures import MANIFEST, OUT
+    from skyherd.report.figures import MANIFEST, OUT
 
     return json.loads((OUT / MANIFEST).read_text(encoding="utf-8"))
 
@@ -397,7 +397,7 @@ def test_readme_figures_exist_with_their_command_and_hash():
     SHA-256; the README's figures block is the one the script writes from that file."""
     import hashlib
 
-    from skyherd.scripts.figures import readme_block
+    from skyherd.report.figures import readme_block
 
     manifest = _figures_manifest()
     lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
@@ -417,7 +417,8 @@ def test_readme_figures_exist_with_their_command_and_hash():
 def test_readme_figures_are_what_their_command_draws_today(tmp_path):
     """Fly each drawn figure's command (the flight is the same on any machine at any load:
     lockstep) and compare the figure it draws, byte for byte, with the README's."""
-    from skyherd.scripts.figures import DRAWN, command_text, fly, sha256
+    from skyherd.report.figures import DRAWN, command_text, sha256
+    from skyherd.scripts.figures import fly
 
     manifest = _figures_manifest()
     runs: dict[tuple, Path] = {}

@@ -21,8 +21,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +34,9 @@ from skyherd.safety.config import default_envelope_path, load_envelope
 from skyherd.safety.envelope import EnvelopeSpec, Zone
 from skyherd.safety.separation import SeparationParams
 from skyherd.safety.supervisor import SupervisorParams
+
+if TYPE_CHECKING:
+    from skyherd.policy.sql.params import PlanParams
 
 Cell = tuple[int, int]
 
@@ -182,6 +187,32 @@ def load_plan(path: Path | str, n_agents: int, size: int = 50) -> list[list[Cell
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise PlanError(f"cannot read plan {path}: {e}") from None
     return validate_plan(raw, n_agents, size)
+
+
+def plan_params(n_agents: int, sql_seed: int) -> PlanParams:
+    """How the study's SQL-SIE plan for K = `n_agents` is learnt, with the fixed learner seed
+    `sql_seed`; PlanError if K has no built-in layout."""
+    from skyherd.policy.sql import GridParams, PlanParams
+    from skyherd.policy.sql.layout import STARTS
+
+    if n_agents not in STARTS:
+        raise PlanError(f"the study's SQL-SIE plans are for K = {', '.join(map(str, STARTS))}: "
+                        f"for K = {n_agents} pass --policy-file")  # fmt: skip
+    return PlanParams(GridParams(n_agents=n_agents), seed=sql_seed)
+
+
+def learned_plan(
+    params: PlanParams, progress: Callable[[int], object] | None = None
+) -> list[list[Cell]]:
+    """The plan learnt in this process (policy.sql.learn_plan, a few seconds;
+    `progress(episodes)`); PlanError if it is unusable."""
+    from skyherd.policy.sql import learn_plan
+
+    K = params.grid.n_agents
+    try:
+        return validate_plan(learn_plan(params, progress), K, params.grid.size)
+    except ValueError as e:
+        raise PlanError(f"{e}; try another --sql-seed or pass --policy-file") from None
 
 
 def vehicle_homes(origin: Home, starts: list[Cell], cell_m: float) -> list[Home]:

@@ -96,6 +96,20 @@ class ExperimentParams:
         return "irl" if self.learner == "irl" else f"ab_{self.rules[0]}"
 
 
+def budget_warnings(p: ExperimentParams, enough_steps: int) -> list[str]:
+    """Budgets too short to learn anything, said out loud (printed and in summary.md);
+    `enough_steps`: a DQN budget that does learn (the --quick one)."""
+    starts, steps = p.apprentice.dqn.learning_starts, p.apprentice.dqn.total_steps
+    out = []
+    if steps <= starts:
+        out.append(
+            f"--dqn-steps {steps} is not more than the DQN's learning_starts ({starts}): "
+            f"the network is never trained and every learned policy is the untrained one; "
+            f"give --dqn-steps > {starts} (e.g. --quick uses {enough_steps})"
+        )
+    return out
+
+
 def needed_scenarios(p: ExperimentParams) -> list[str]:
     """The scenarios whose demonstrations the learners need."""
     if p.learner == "irl":
@@ -159,6 +173,11 @@ class LearnerRun:
         pol = MLPPolicy(self.policy.weights, self.policy.biases, self.policy.meta)
         pol.meta.update({"learner": self.learner, "seed": self.seed, "eval": self.metrics})
         return pol
+
+    def event(self) -> dict[str, Any]:
+        """The events.jsonl record of the finished run."""
+        return {"event": "trained", "learner": self.learner, "seed": self.seed,
+                "train_s": self.train_s, "metrics": self.metrics, "chosen": self.chosen}  # fmt: skip
 
     def metric_rows(self) -> list[dict[str, Any]]:
         """metrics.csv rows (METRIC_COLUMNS), one per IRL iteration."""
@@ -282,3 +301,15 @@ def best_runs(runs: list[LearnerRun]) -> dict[str, LearnerRun]:
         if old is None or r.metrics["all_in_view_frac"] > old.metrics["all_in_view_frac"]:
             best[r.learner] = r
     return best
+
+
+def transfer_rows(best: dict[str, LearnerRun], episodes: int) -> list[list]:
+    """The transfer table's rows (policy.evaluate.transfer_table): the best seed of each
+    learner and the reference policies on the groundsim UGV behaviours, not trained on."""
+    from skyherd.policy.evaluate import TRANSFER_SEED, transfer_table
+    from skyherd.task.scenarios import GROUNDSIM_SCENARIOS
+
+    pols = {f"{k} (seed {r.seed})": (lambda s, p=r.policy: p) for k, r in best.items()}
+    return transfer_table(
+        pols | reference_factories(), GROUNDSIM_SCENARIOS, episodes, TRANSFER_SEED
+    )

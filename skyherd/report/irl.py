@@ -1,14 +1,16 @@
 """`skyherd train irl` / `skyherd train ab`'s report: summary.md's tables (each learner and
-reference policy, mean ± std over seeds; the all-in-view fraction relative to the references)
-and the figures irl_t.png and compare.png. matplotlib is imported inside the plots."""
+reference policy, mean ± std over seeds; the all-in-view fraction relative to the references;
+the transfer to groundsim UGV behaviours), results.json and the figures irl_t.png and
+compare.png. matplotlib is imported inside the plots."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 
-from skyherd.runio import markdown_table
+from skyherd.runio import atomic_write_text, markdown_table
 
 
 def _ms(vals) -> str | None:
@@ -74,6 +76,42 @@ def summary(results, base, learner, args) -> tuple[str, str]:
         "Plots: irl_t.png (t per iteration), compare.png (metrics per policy).\n"
     )
     return md, table + "\n" + rtable
+
+
+def progress_note(done: int, jobs: int) -> str:
+    """summary.md while the learners train."""
+    return (
+        f"{done} of {jobs} training runs finished "
+        f"(learner × seed); results so far in metrics.csv and events.jsonl.\n"
+    )
+
+
+def transfer_md(rows: list[list], episodes: int) -> str:
+    """summary.md's transfer section (policy.irl_experiment.transfer_rows)."""
+    ttable = markdown_table(
+        ["policy", "scenario", "all-in-view frac", "footprint/circle", "UGV losses / ep"], rows
+    )
+    return (
+        "\n## Transfer: best seed of each learner on groundsim UGV behaviours\n\n"
+        f"{episodes} episodes each (not trained on these).\n\n{ttable}"
+    )
+
+
+def write(rf, learned, base, learner, args, warnings, quick, transfer) -> str:
+    """summary.md (with the budget's warnings, what --quick set and the `transfer` rows, if
+    any), results.json and the plots into run folder `rf`; returns the tables printed."""
+    md, table = summary(learned, base, learner, args)
+    if warnings:
+        md += "\n## Warnings\n\n" + "\n".join(f"- {w}" for w in warnings) + "\n"
+    if quick:
+        md += f"\n--quick budget: {', '.join(quick)}.\n"
+    if transfer is not None:
+        md += transfer_md(transfer, args.transfer_episodes)
+    rf.summary(md)
+    atomic_write_text(rf.file("results.json"), json.dumps(
+        {"learned": learned, "baselines": base}, indent=1, default=float))  # fmt: skip
+    plots(rf, learned, base)
+    return table
 
 
 def plots(rf, results, base) -> None:

@@ -1,12 +1,18 @@
 """`skyherd reproduce sql`'s report: a run's episodes as CSV, its metrics.csv row, results.md
-(the table over seeds) and the figures (learning, success, sharing period, scaling with K).
+(the table over seeds) and the figures (learning, success, sharing period, scaling with K); and
+the finished runs read back from an earlier run folder (`read_finished`, for --reuse).
 matplotlib is imported inside the plot."""
 
 from __future__ import annotations
 
+import csv
+import json
+from dataclasses import asdict
+from pathlib import Path
+
 import numpy as np
 
-from skyherd.runio.runfolder import markdown_table
+from skyherd.runio.runfolder import atomic_write_text, markdown_table
 
 FIELDS = ["run", "rules", "algorithm", "n_agents", "share_every", "seed", "worker",
           "wall_s", "tail_metric", "tail_success", "tail_on_target", "convergence",
@@ -31,6 +37,73 @@ def episode_csv(res) -> str:
     lines = ["episode,steps,on_target,reached,collisions,agent_steps"]
     lines += [",".join(map(str, r)) for r in rows]
     return "\n".join(lines) + "\n"
+
+
+def config(args, specs, backend: str) -> dict:
+    """config.json of the study: its options (checked `args`), rule sets, budget and runs."""
+    return {
+        "study": args.study, "rules": {r: asdict(s.rules) for s in specs for r in [s.rules.name]},
+        "hyper": asdict(specs[0].hyper), "roi_pretrain": asdict(specs[0].pretrain),
+        "seeds": list(range(args.seeds)), "agents": args.agents,
+        "scaling_agents": args.scaling_agents, "sharing_periods": args.sharing_periods,
+        "env": args.env, "backend": backend, "ray_address": args.ray_address,
+        "workers": args.workers, "window": args.window, "runs": [s.key for s in specs],
+        "reused_from": args.reuse,
+    }  # fmt: skip
+
+
+def write_run(folder, table, spec, res, s) -> None:
+    """A finished run into run folder `folder`: episodes/<run>.csv, its map (once per K and
+    seed) and its row of metrics.csv (`table`); `s` its study summary."""
+    atomic_write_text(folder.path / "episodes" / f"{spec.key}.csv", episode_csv(res))
+    mp = folder.path / "maps" / f"K{spec.n_agents}_seed{spec.seed}.json"
+    if not mp.exists():
+        atomic_write_text(mp, res.env.to_json())
+    table.write(metrics_row(spec, res, s))
+
+
+def write_results(folder, args, specs, results, summaries, wall, backend, n_reused) -> str:
+    """results.md (= summary.md) with the figures' names, and the figures; returns it."""
+    md = results_md(args, specs, results, summaries, wall, backend, n_reused)
+    md += "\nFigures: " + ", ".join(figures(folder, args, specs, results)) + "\n"
+    folder.write_summary(md)
+    atomic_write_text(folder.file("results.md"), md)
+    return md
+
+
+def read_finished(folder: Path, specs: list, env_path: str | None, known=()) -> dict:
+    """The finished runs of an earlier reproduce-sql run folder whose settings are those of
+    `specs` (policy.sql.sweep.RunSpec; same episodes, step cap and map `env_path`), but for
+    those `known` already: {spec: RunResult}. ValueError if the folder is not one, or has
+    other settings."""
+    from skyherd.policy.sql.envfile import EnvSpec
+    from skyherd.policy.sql.sweep import RunResult
+
+    by_key = {s.key: s for s in specs}
+    try:
+        cfg = json.loads((folder / "config.json").read_text())
+        with open(folder / "metrics.csv") as f:
+            rows = list(csv.DictReader(f))
+    except (OSError, ValueError) as e:
+        raise ValueError(f"not a reproduce-sql run folder ({e})") from None
+    if cfg.get("hyper") != asdict(specs[0].hyper) or cfg.get("env") != env_path:
+        raise ValueError("other episodes/step cap/map settings than this run")
+    found = {}
+    for row in rows:
+        spec = by_key.get(row["run"])
+        if (
+            spec is None
+            or spec in found
+            or spec in known
+            or cfg["rules"].get(spec.rules.name) != asdict(spec.rules)
+        ):
+            continue
+        path = folder / "episodes" / f"{spec.key}.csv"
+        a = np.loadtxt(path, delimiter=",", skiprows=1, dtype=np.int64, ndmin=2)
+        env = EnvSpec.load(folder / "maps" / f"K{spec.n_agents}_seed{spec.seed}.json")
+        found[spec] = RunResult(a[:, 1], a[:, 2].astype(bool), a[:, 3], a[:, 4], a[:, 5], env,
+                                float(row["wall_s"]), row["worker"])  # fmt: skip
+    return found
 
 
 def learner_label(alg: str, n: int) -> str:

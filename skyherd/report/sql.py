@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from skyherd.runio.runfolder import markdown_table
+from skyherd.runio.runfolder import atomic_write_text, markdown_table
 
 COLUMNS = [
     "config",
@@ -23,15 +23,15 @@ COLUMNS = [
 ]  # metrics.csv: one row per (configuration, seed)
 
 
-def metrics_row(c, seed: int, episodes: int, s, wall: float) -> dict:
-    """The metrics.csv row of configuration `c` (scripts.train_sql.Config), its summary `s`
-    (policy.sql.metrics.summarize) and wall time `wall` [s]."""
+def metrics_row(r, episodes: int) -> dict:
+    """The metrics.csv row of one finished run `r` (policy.sql.experiments.Trained)."""
+    c, s = r.config, r.summary
     return {
         "config": c.key,
         "algorithm": c.algorithm,
         "n_agents": c.n_agents,
         "share_every": c.share_every,
-        "seed": seed,
+        "seed": r.seed,
         "episodes": episodes,
         "episodes_to_converge": s.episodes_to_converge
         if s.episodes_to_converge is not None
@@ -39,8 +39,28 @@ def metrics_row(c, seed: int, episodes: int, s, wall: float) -> dict:
         "final_steps": s.final_steps,
         "final_success": s.final_success,
         "first_success": s.first_success if s.first_success is not None else "",
-        "wall_s": round(wall, 3),
+        "wall_s": round(r.wall_s, 3),
     }
+
+
+def write_run(folder, table, r, episodes: int) -> None:
+    """A finished run `r` into run folder `folder`: episodes/<config>_seed<s>.csv and its row
+    of metrics.csv (`table`)."""
+    atomic_write_text(folder.path / "episodes" / f"{r.config.key}_seed{r.seed}.csv",
+                      episodes_csv(r.result.metrics, episodes))  # fmt: skip
+    table.write(metrics_row(r, episodes))
+
+
+def write_results(folder, p, runs: list) -> str:
+    """The results table, the learning curves (curves_<experiment>.png), summary.md and
+    results.md of experiment `p` (policy.sql.experiments.ExperimentParams); returns the table."""
+    table, curves = results(p.plan, p.seeds, runs)
+    for exp, cs in curves.items():
+        plot_curves(folder.file(f"curves_{exp}.png"), f"{exp}", cs, p.window, p.hyper.max_steps)
+    summary = summary_md(p.seeds, p.hyper.episodes, p.map_seed, p.tail, p.window, table, p.plan)
+    folder.write_summary(summary)
+    atomic_write_text(folder.file("results.md"), summary)
+    return table
 
 
 def episodes_csv(m, episodes: int) -> str:
@@ -73,9 +93,14 @@ def first_success(summaries) -> str:
     return fmt_pm(firsts, 0) + (f" ({never} never)" if never else "")
 
 
-def results(plan: dict, seeds, summaries: dict, runs: dict, timing: dict):
+def results(plan: dict, seeds, runs: list):
     """The results table (one row per experiment and configuration) and each experiment's
-    learning curves, (label, per-seed steps) pairs, for `plot_curves`."""
+    learning curves, (label, per-seed steps) pairs, for `plot_curves`; `runs`: the finished
+    runs (policy.sql.experiments.Trained)."""
+    by_run = {(r.config, r.seed): r for r in runs}
+    timing: dict = {}
+    for r in runs:
+        timing[r.config] = timing.get(r.config, 0.0) + r.wall_s
     headers = [
         "experiment",
         "learner",
@@ -92,7 +117,7 @@ def results(plan: dict, seeds, summaries: dict, runs: dict, timing: dict):
     for exp, cs in plan.items():
         curves[exp] = []
         for c in cs:
-            ss = [summaries[(c, s)] for s in seeds]
+            ss = [by_run[(c, s)].summary for s in seeds]
             conv = [s.episodes_to_converge for s in ss if s.episodes_to_converge is not None]
             rows.append(
                 [
@@ -108,7 +133,7 @@ def results(plan: dict, seeds, summaries: dict, runs: dict, timing: dict):
                     f"{timing[c] / len(seeds):.1f}",
                 ]
             )
-            curves[exp].append((c.label, [runs[(c, s)].metrics.steps for s in seeds]))
+            curves[exp].append((c.label, [by_run[(c, s)].result.metrics.steps for s in seeds]))
     return markdown_table(headers, rows), curves
 
 

@@ -1,18 +1,11 @@
 """`skyherd educate CURRICULUM`: teach a curriculum lesson by lesson; a modular policy that explains.
 
-For each seed: every skill lesson trains its module (projection IRL on its demonstrations, or DQN
-on its reward; warm-started from the demonstrations by DQfD where the lesson says so), freezes
-it, and re-tests every earlier lesson; the composite lesson learns the arbiter
-(policy/education/teach.py, one seed: policy/education/course.py). A monolithic DQN is taught the
-same lessons in the same order (unless --no-monolith) so retention can be compared. Then
-(policy/education/evaluation.py), on test episodes never used in
-training: the educated policies beside the scripted expert and, with --baselines RUN, the
-policies of a `skyherd train ab` run (AB, IRL); explanation fidelity; one test episode's
-decisions with their explanations (decisions.jsonl, `skyherd explain RUN`).
-
+Each seed's course is policy/education/course.py's (teach.py: the lessons; a monolithic DQN
+taught the same lessons beside it unless --no-monolith), its evaluation on unseen test episodes
+policy/education/evaluation.py's, with --baselines RUN the policies of a `skyherd train ab` run.
 Run folder: config.json (curriculum name/version/sha256, hyper-parameters), lessons.csv (every
 lesson's re-test after every lesson, per learner and seed), events.jsonl, policies/*.npz,
-decisions.jsonl, lessons.png, compare.png, results.json, summary.md.
+decisions.jsonl (`skyherd explain RUN`), lessons.png, compare.png, results.json, summary.md.
 """
 
 from __future__ import annotations
@@ -20,7 +13,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from skyherd.report import educate as report
@@ -89,19 +81,19 @@ def _params(args):
     return dataclasses.replace(p, monolith=not args.no_monolith, **over)
 
 
-# --------------------------------------------------------------------------- the command
 def run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
     from tqdm import tqdm
 
-    from skyherd.policy.education.course import LESSON_COLUMNS, SeedJob, teach_seed
+    from skyherd.policy.education import course
     from skyherd.policy.education.curriculum import (
         DEFAULT_CURRICULUM,
         CurriculumError,
         load_curriculum,
     )
+    from skyherd.policy.education.teach import curriculum_meta
 
     path = args.curriculum or DEFAULT_CURRICULUM
     try:
@@ -120,33 +112,29 @@ def run(args: argparse.Namespace) -> int:
     print(f"skyherd educate: run folder {rf.path}")
     if cur.composite is not None and cur.composite.method == "measures":
         print(f"skyherd educate: arbiter objective {p.measures.describe()}")
-    from skyherd.policy.education.teach import curriculum_meta
-
     rf.write_config(
         {"curriculum": curriculum_meta(cur), "hyper_parameters": p, "args": args_dict(args)}
     )
     pol_dir = rf.path / "policies"
     pol_dir.mkdir()
     n_mono = args.seeds if args.monolith_seeds is None else args.monolith_seeds
-    jobs = [SeedJob(Path(path), p, args.seed + s, pol_dir, s < n_mono) for s in range(args.seeds)]
+    jobs = [course.SeedJob(Path(path), p, args.seed + s, pol_dir, s < n_mono)
+            for s in range(args.seeds)]  # fmt: skip
     events = rf.events()
-    lessons = CsvWriter(rf.file("lessons.csv"), LESSON_COLUMNS)
+    lessons = CsvWriter(rf.file("lessons.csv"), course.LESSON_COLUMNS)
     results = []
-    bar = tqdm(total=len(jobs), desc="educate", unit="seed")
-    if args.workers > 1:
-        with ProcessPoolExecutor(max_workers=args.workers) as pool:
-            for out in pool.map(teach_seed, jobs):
-                results.append(out)
-                _log(out, events, lessons, bar)
-    else:
-        for job in jobs:
-            out = teach_seed(job)
+    with tqdm(total=len(jobs), desc="educate", unit="seed") as bar:
+        for out in course.teach_all(jobs, args.workers):
             results.append(out)
-            _log(out, events, lessons, bar)
-    bar.close()
+            for row in course.lesson_rows(out):
+                lessons.write(row)
+            events.write_many(course.lesson_events(out))
+            arb = out["educated"][-1]["detail"].get("arbiter", "")
+            bar.update(1)
+            bar.set_postfix_str(f"seed {out['seed']}: {arb}"[:60])
     lessons.close()
     atomic_write_text(rf.file("lessons.json"), json.dumps(results, indent=1, default=float))
-    return _report(cur, p, args, results, pol_dir, rf)
+    return _report(cur, p, args, results, {r["seed"]: pol_dir for r in results}, rf)
 
 
 def _report_only(args, cur) -> int:
@@ -165,46 +153,24 @@ def _report_only(args, cur) -> int:
     return _report(cur, done.params, args, done.results, done.policy_dirs, rf)
 
 
-def _report(cur, p, args, results, pol_dir: Path | dict[int, Path], rf) -> int:
-    """pol_dir: the policies/ folder, or one per seed (--from-run of several runs)."""
-    from skyherd.policy.dqn import load_policy
-    from skyherd.policy.education import evaluation as E
+def _report(cur, p, args, results, pol_dirs: dict[int, Path], rf) -> int:
+    """pol_dirs: seed → the policies/ folder of its run."""
+    from skyherd.policy.education.evaluation import evaluate_run
 
-    where = pol_dir if isinstance(pol_dir, dict) else {r["seed"]: pol_dir for r in results}
-    educated = {
-        r["seed"]: load_policy(where[r["seed"]] / f"educated_seed{r['seed']}.npz") for r in results
-    }
-    for r in results:  # the arbiter each seed learnt (also when read back from lessons.csv)
-        r["educated"][-1]["detail"]["arbiter"] = educated[r["seed"]].arbiter.describe()
     print("evaluating on unseen episodes …")
-    comparison = E.compare(educated, args.baselines, args.eval_episodes, p.dqn.gamma)
-    fid = E.fidelity_totals(educated, args.eval_episodes)
-    best_seed = E.best_seed(comparison)
+    ev = evaluate_run(results, pol_dirs, args.baselines, args.eval_episodes, p.dqn.gamma)
     w = JsonlWriter(rf.file("decisions.jsonl"))  # one composite test episode, the best seed's
-    w.write_many(E.decision_episode(educated[best_seed]))
+    w.write_many(ev.decisions)
     w.close()
-    summary = report.summary(cur, p, args, results, comparison, fid, rf)
+    summary = report.summary(cur, p, args, results, ev.comparison, ev.fidelity, rf)
     rf.write_summary(summary)
     atomic_write_text(rf.file("results.json"), json.dumps(
-        {"lessons": results, "comparison": comparison, "fidelity": fid}, indent=1, default=float))  # fmt: skip
-    report.plots(rf, results, comparison)
+        {"lessons": results, "comparison": ev.comparison, "fidelity": ev.fidelity}, indent=1,
+        default=float))  # fmt: skip
+    report.plots(rf, results, ev.comparison)
     if args.save_policy is not None:
         args.save_policy.parent.mkdir(parents=True, exist_ok=True)
-        educated[best_seed].save(args.save_policy)
-        print(f"saved educated seed {best_seed} policy → {args.save_policy}")
+        ev.educated[ev.best_seed].save(args.save_policy)
+        print(f"saved educated seed {ev.best_seed} policy → {args.save_policy}")
     print(summary)
     return 0
-
-
-def _log(out: dict, events, lessons, bar) -> None:
-    from skyherd.policy.education.course import LEARNERS, lesson_rows
-
-    for row in lesson_rows(out):
-        lessons.write(row)
-    for learner in LEARNERS:
-        for r in out.get(learner, []):
-            events.write({"event": "lesson", "learner": learner, "seed": out["seed"],
-                          "lesson": r["lesson"], "cpu_s": r["seconds"], "passed": r["passed"]})  # fmt: skip
-    arb = out["educated"][-1]["detail"].get("arbiter", "")
-    bar.update(1)
-    bar.set_postfix_str(f"seed {out['seed']}: {arb}"[:60])

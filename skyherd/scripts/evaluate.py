@@ -1,9 +1,7 @@
 """`skyherd evaluate EDUCATED.npz... --ab AB.npz`: the pre-registered evaluation of issue 14's
-composite goals (policy/education/prereg.py) on 100 fresh episodes, into a run folder.
-
-Writes results.json (the rule, every episode's figures, the summaries, the verdicts) and
-summary.md (the table: mean ± per-episode standard error, and each goal held or not).
-"""
+composite goals (policy/education/prereg.py) on 100 fresh episodes, into a run folder:
+results.json (the rule, every episode's figures, the summaries, the verdicts) and summary.md
+(report/evaluate.py)."""
 
 from __future__ import annotations
 
@@ -28,7 +26,8 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from skyherd.policy.education import prereg
-    from skyherd.runio.runfolder import RunFolder, atomic_write_text, markdown_table
+    from skyherd.report import evaluate as report
+    from skyherd.runio.runfolder import RunFolder, atomic_write_text
 
     for f in [*args.educated, args.ab]:
         if not f.is_file():
@@ -44,21 +43,8 @@ def run(args: argparse.Namespace) -> int:
     with tqdm(total=total, unit="ep", desc="evaluate") as bar:
         res = prereg.evaluate(list(args.educated), args.ab, on_episode=bar.update)
     atomic_write_text(folder.file("results.json"), json.dumps(res, indent=1) + "\n")
-    rows = []
-    for name, summ in res["summary"].items():
-        a, f = summ["all_in_view_frac"], summ["footprint_ratio"]
-        rows.append([name, f"{a['mean']:.4f} ± {a['se']:.4f}", f"{f['mean']:.3f} ± {f['se']:.3f}",
-                     a["n"]])  # fmt: skip
-    edu = res["educated_mean_over_policies"]
-    table = markdown_table(["policy", "all-in-view frac", "footprint/circle", "episodes"], rows)
-    verdicts = "\n".join(f"- {k}: {'holds' if v else 'FAILS'}" for k, v in res["verdicts"].items())
-    lo, hi = res["seeds"]
-    folder.write_summary(
-        f"# skyherd evaluate: pre-registered, {prereg.SCENARIO} seeds {lo}–{hi}\n\n{table}\n\n"
-        f"educated (mean over {len(args.educated)} policies): all-in-view "
-        f"{edu['all_in_view_frac']:.4f}, footprint {edu['footprint_ratio']:.3f}\n\n{verdicts}\n"
-    )
-    print(table)
-    print(verdicts)
+    folder.write_summary(report.summary(res, prereg.SCENARIO, len(args.educated)))
+    print(report.table(res))
+    print(report.verdicts(res))
     print(f"skyherd evaluate: results.json, summary.md in {folder.path}")
     return 0 if all(res["verdicts"].values()) else 1

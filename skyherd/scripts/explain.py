@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from skyherd.policy.education.timeline import at_time, detail, read_decisions, timeline
+    from skyherd.policy.education.timeline import explain, read_decisions
 
     path = args.run / "decisions.jsonl" if args.run.is_dir() else args.run
     if not path.is_file():
@@ -38,17 +38,5 @@ def run(args: argparse.Namespace) -> int:
     decisions, bad = read_decisions(path)
     if not decisions:
         raise UsageError(f"{path}: no readable decision records ({bad} unreadable lines)")
-    if args.t is not None:
-        d = at_time(decisions, args.t)
-        print("\n".join(detail(d)))
-    else:
-        lines = timeline(decisions)
-        print("\n".join(lines[: args.max_lines]))
-        if len(lines) > args.max_lines:
-            print(f"… {len(lines) - args.max_lines} more lines (--max-lines)")
-    n_ex = sum(1 for d in decisions if d.concepts or d.record.get("explanation"))
-    print(
-        f"{len(decisions)} decisions, {n_ex} explained"
-        + (f", {bad} unreadable lines skipped" if bad else "")
-    )
+    print("\n".join(explain(decisions, bad, args.t, args.max_lines)))
     return 0

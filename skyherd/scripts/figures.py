@@ -15,38 +15,27 @@ drawn figures are byte for byte what it draws today.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-OUT = ROOT / "docs" / "figures"
-MANIFEST = "figures.json"
-BEGIN, END = "<!-- figures:begin -->", "<!-- figures:end -->"
-MAIN_JOB = ("fly", "--speedup", "0")  # `make run`
-FAILED = ("fly", "--speedup", "0", "--duration", "20", "--fault", "disarm@25")
-DRAWN = {  # figure in docs/figures → (command, the run folder's file, what it shows)
-    "groundair.png": (MAIN_JOB, "groundair.png", "the flight on one time axis"),
-    "frames.png": (MAIN_JOB, "frames.png", "the companion's camera frames, annotated"),
-}
-SHOTS = {  # screenshot in docs/figures → (command, what it shows)
-    "report_run.png": (MAIN_JOB, "report.html of `make run` in headless Chromium"),
-    "report_failed.png": (
-        FAILED,
-        "report.html of a flight the judge fails (forced disarm in the air) in headless Chromium",
-    ),  # fmt: skip
-}
-
-
-def command_text(argv: tuple[str, ...]) -> str:
-    return "skyherd " + " ".join(argv)
+from skyherd.report.figures import (
+    DRAWN,
+    FAILED,
+    MAIN_JOB,
+    MANIFEST,
+    OUT,
+    ROOT,
+    SHOTS,
+    command_text,
+    manifest,
+    screenshot,
+    write_readme,
+)
 
 
 def fly(argv: tuple[str, ...], runs: Path, instance: int) -> Path:
@@ -61,48 +50,6 @@ def fly(argv: tuple[str, ...], runs: Path, instance: int) -> Path:
         raise RuntimeError(f"{command_text(argv)}: exit {r.returncode}, no run folder: "
                            f"{(r.stderr or r.stdout)[-500:]}")  # fmt: skip
     return made[0]
-
-
-def chromium() -> str | None:
-    return shutil.which("chromium") or shutil.which("chromium-browser")
-
-
-def screenshot(page: Path, png: Path, size=(1280, 2300)) -> None:
-    """A page rendered by headless Chromium into `png` (RuntimeError if it could not)."""
-    exe = chromium()
-    if exe is None:
-        raise RuntimeError("no chromium on this machine (Debian: apt-get install chromium)")
-    r = subprocess.run([exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
-                        f"--screenshot={png}", f"--window-size={size[0]},{size[1]}", page.as_uri()],
-                       capture_output=True, text=True, timeout=180)  # fmt: skip
-    if r.returncode != 0 or not png.exists():
-        raise RuntimeError(f"chromium: exit {r.returncode}: {r.stderr[-300:]}")
-
-
-def sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def readme_block(manifest: dict) -> str:
-    """The README's figures block, from figures.json (module docstring)."""
-    lines = [BEGIN, f"Produced by `python -m skyherd.scripts.figures` (`make figures`) on "
-             f"{manifest['date']} on a {manifest['cores']}-core machine at load "
-             f"{manifest['load']}; each figure's command is on the line above it "
-             f"(docs/figures/{MANIFEST} has its SHA-256).", ""]  # fmt: skip
-    for name, f in manifest["figures"].items():
-        lines += [f"<!-- figure: {f['command']} -->",
-                  f"![{f['what']}](docs/figures/{name})", ""]  # fmt: skip
-    return "\n".join(lines + [END])
-
-
-def write_readme(manifest: dict, readme: Path = ROOT / "README.md") -> None:
-    text = readme.read_text(encoding="utf-8")
-    block = readme_block(manifest)
-    if BEGIN in text and END in text:
-        text = re.sub(re.escape(BEGIN) + r".*?" + re.escape(END), lambda _: block, text, flags=re.S)
-    else:
-        text = text.rstrip() + "\n\n## Figures\n\n" + block + "\n"
-    readme.write_text(text, encoding="utf-8")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -131,14 +78,10 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             figures[name] = {"command": command_text(argv_), "file": "report.html", "what": what,
                              "check": "recorded"}  # fmt: skip
-    for name, f in figures.items():
-        f["sha256"] = sha256(args.out / name)
-    manifest = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                "load": round(os.getloadavg()[0], 1), "cores": os.cpu_count(),
-                "figures": figures}  # fmt: skip
-    (args.out / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
+    made = manifest(figures, args.out)
+    (args.out / MANIFEST).write_text(json.dumps(made, indent=1) + "\n", encoding="utf-8")
     if not args.no_readme:
-        write_readme(manifest)
+        write_readme(made)
     print(f"figures: {', '.join(figures)} in {args.out}")
     return 0
 

@@ -1,28 +1,24 @@
-"""The formation mission of `skyherd fly`: K quadrotors fly the learned SQL-SIE plan.
-
-`skyherd fly --mission formation --agents K` takes the lock-step grid plan (trained in-process
-with a fixed seed, a few seconds, or read from `--policy-file`, a `plan_K<K>.json` written by
-`skyherd train sql`), maps the 50×50 grid onto the field (cell (x, y) → north (y−1)·cell,
-east (x−1)·cell about the field origin), and starts K+1 programs: one `skyherd sim --ugvs none`
-per vehicle (instance N+k, its home on its start cell) and one `skyherd companion --mission
-formation` flying all K in lockstep (mission/formation.py), every setpoint behind its vehicle's
-safety net. The run folder gets plan.json, decisions.jsonl and events.jsonl (every vehicle),
-metrics.csv (every position sample, field frame), uav<k>/ (each vehicle's tlog, world.csv,
-sim_stats.json, sim.log), formation.png and summary.md with landing errors, separations, times.
+"""The formation mission of `skyherd fly --mission formation --agents K`: the learned SQL-SIE
+plan (or `--policy-file`, a `plan_K<K>.json` of `skyherd train sql`) on the field
+(mission/formation_plan.py), flown by K+1 programs: `skyherd sim --ugvs none` processes sharing
+the vehicles (instance N+k, its home on its start cell) and one `skyherd companion --mission
+formation` flying all K in lockstep (mission/formation.py). The run folder gets plan.json,
+decisions.jsonl, events.jsonl, metrics.csv (field frame), uav<k>/ and the report
+(report/formation.py: formation.png, summary.md with landing errors, separations, times).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 
 from skyherd.flight.geo import DEFAULT_HOME
 from skyherd.mission.formation_plan import (
     FormationParams,
     PlanError,
+    learned_plan,
     load_plan,
+    plan_params,
     plan_text,
-    validate_plan,
     vehicle_homes,
     vehicle_instances,
 )
@@ -32,7 +28,7 @@ from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text
 from skyherd.scripts.cli import UsageError
 from skyherd.scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
-from skyherd.world.fleet import FleetVehicle, write_fleet
+from skyherd.world.fleet import FleetVehicle, sim_groups, write_fleet
 
 
 def _params(args) -> FormationParams:
@@ -61,31 +57,25 @@ def _check(args) -> None:
 
 
 def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
-    """The lock-step plan (--policy-file, or learned: policy.sql.learn_plan) and where it came
-    from (for config.json). UsageError if unusable."""
-    from skyherd.policy.sql import GridParams, PlanParams, learn_plan
-    from skyherd.policy.sql.layout import STARTS
+    """The lock-step plan (--policy-file, or learned: mission.formation_plan.learned_plan) and
+    where it came from (for config.json). UsageError if unusable."""
+    from skyherd.policy.sql import GridParams
 
     K = args.agents
-    size = GridParams().size
     if args.policy_file:
         try:
-            plan = load_plan(args.policy_file, K, size)
+            plan = load_plan(args.policy_file, K, GridParams().size)
         except PlanError as e:
             raise UsageError(f"{e}; pass a plan_K{K}.json from `skyherd train sql`") from None
         return plan, {"source": "file", "path": str(args.policy_file)}
-    if K not in STARTS:
-        raise UsageError(f"the study's SQL-SIE plans are for K = {', '.join(map(str, STARTS))}: "
-                         f"for K = {K} pass --policy-file")  # fmt: skip
     from tqdm import tqdm
 
-    params = PlanParams(GridParams(n_agents=K), seed=args.sql_seed)
     try:
+        params = plan_params(K, args.sql_seed)
         with tqdm(total=params.hyper.episodes, desc=f"train SQL-SIE K={K}", unit="ep") as bar:
-            paths = learn_plan(params, bar.update)
-        plan = validate_plan(paths, K, size)
-    except ValueError as e:
-        raise UsageError(f"{e}; try another --sql-seed or pass --policy-file") from None
+            plan = learned_plan(params, bar.update)
+    except PlanError as e:
+        raise UsageError(str(e)) from None
     return plan, params.describe()
 
 
@@ -168,19 +158,6 @@ def _check_children(args) -> None:
                                        "--cell-m", repr(args.cell_m), "--instance", str(args.instance)])  # fmt: skip
     if why:
         raise UsageError(why)
-
-
-def sim_groups(K: int, sims: int) -> list[list[int]]:
-    """Vehicles 0..K-1 shared among `sims` processes (0: one per CPU core, at most K), in
-    contiguous groups whose sizes differ by at most one."""
-    n = sims if sims > 0 else max(1, min(K, os.cpu_count() or 1))
-    base, extra = divmod(K, n)
-    groups, k = [], 0
-    for g in range(n):
-        size = base + (1 if g < extra else 0)
-        groups.append(list(range(k, k + size)))
-        k += size
-    return groups
 
 
 def _ports_free(instances: list[int]) -> None:

@@ -1,24 +1,20 @@
-"""`skyherd reproduce sql`: the seed study's whole table in one command, runs in parallel.
-
-Runs SQL, SQL-D and SQL-SIE (sharing every N of --sharing-periods episodes) at each K of
---agents, for every seed and rule set, each run a Ray task (local Ray on loopback by default,
-`--ray-address` for a cluster; a local process pool when Ray is not installed or with
-`--backend process`). Writes to the run folder: config.json, runs.csv (one row per run, with
-its seed and worker), episodes/<run>.csv (per episode), maps/K<K>_seed<s>.json (each map, in
-the --env format), results.md (= summary.md) and the figures.
+"""`skyherd reproduce sql`: the seed study's whole table in one command (policy/sql/reproduce.py),
+each run a Ray task (local Ray on loopback by default, `--ray-address` for a cluster; a local
+process pool when Ray is not installed or with `--backend process`). Writes to the run folder:
+config.json, metrics.csv (one row per run, with its seed and worker), episodes/<run>.csv,
+maps/K<K>_seed<s>.json (each map, in the --env format), results.md (= summary.md), the figures.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import asdict
-
-import numpy as np
+from itertools import chain
+from pathlib import Path
 
 from skyherd.report import reproduce as report
-from skyherd.runio.runfolder import RunFolder, atomic_write_text
-from skyherd.scripts.cli import quick_help
+from skyherd.runio.runfolder import RunFolder
+from skyherd.scripts.cli import UsageError, apply_quick, quick_help
 
 STUDIES = ("sql",)
 QUICK = {"episodes": 1000, "seeds": 2, "agents": [9]}  # --quick (scripts.cli.apply_quick)
@@ -90,48 +86,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _specs(args, env):
-    from dataclasses import replace
-
+    """Every run of the study (policy.sql.reproduce.study_specs) from the checked options."""
     from skyherd.policy.sql.params import Rules, SQLHyper
-    from skyherd.policy.sql.sweep import RunSpec
+    from skyherd.policy.sql.reproduce import study_specs
 
+    rule_sets = [Rules.named(r, args.ties, args.switches) for r in args.rules]
     hyper = SQLHyper(episodes=args.episodes, max_steps=args.max_steps)
-    Ns = args.sharing_periods
-    specs = []
-    for rname in args.rules:
-        named = Rules.named(rname, args.ties, args.switches)
-        for K in dict.fromkeys([*args.agents, *args.scaling_agents]):
-            rules, pre = named, _table(args, named, hyper, K, env)
-            if pre.seed and rules.roi_phase == "pretrained" and rules.roi_table == "fixed":
-                rules = replace(rules, name=f"{rules.name}-table{pre.seed}")  # its label in tables
-            cfgs = [("sql", 0), ("sql-d", 0)]
-            cfgs += [("sql-sie", n) for n in (Ns if K in args.agents else Ns[:1])]
-            for alg, n in (c for c in cfgs if c[0] in args.learners):
-                for seed in range(args.seeds):
-                    specs.append(RunSpec(alg, K, n, seed, rules, hyper, pre, env=env))
-    return specs
-
-
-def _table(args, rules, hyper, K: int, env):
-    """The ROI table's pre-training settings of formation K: --roi-table-seed, or with auto the
-    first walkable table seed of its layout (the map given, else the generated one)."""
-    from skyherd.policy.sql.envfile import generate_env
-    from skyherd.policy.sql.params import RoiPretrain
-    from skyherd.policy.sql.roitable import walkable_seed
-
-    if args.roi_table_seed != "auto":
-        return RoiPretrain(seed=args.roi_table_seed)
-    if rules.roi_phase != "pretrained" or rules.roi_table != "fixed":
-        return RoiPretrain()  # no fixed table is walked: nothing to choose
-    layout = (env if env is not None else generate_env(K, 0)).layout()
-    seed, holes = walkable_seed(layout, hyper, rules, RoiPretrain())
-    print(f"K = {K}: ROI table seed {seed} ({holes} walk holes; --roi-table-seed auto)")
-    return RoiPretrain(seed=seed)
+    table_seed = None if args.roi_table_seed == "auto" else args.roi_table_seed
+    return study_specs(rule_sets, args.learners, args.seeds, args.agents, args.scaling_agents,
+                       args.sharing_periods, hyper, env, table_seed)  # fmt: skip
 
 
 def _check(args):
-    from skyherd.scripts.cli import UsageError, apply_quick
-
     apply_quick(args, QUICK)
     if args.episodes < 10 or args.max_steps < 1 or args.seeds < 1 or args.workers < 1:
         raise UsageError("need --episodes >= 10, --max-steps >= 1, --seeds >= 1, --workers >= 1")
@@ -187,42 +153,12 @@ def _check(args):
 
 def _reused(args, specs) -> dict:
     """Finished runs of the --reuse folders: {spec: RunResult} for specs with equal settings."""
-    import csv
-    import json
-    from pathlib import Path
-
-    from skyherd.policy.sql.envfile import EnvSpec
-    from skyherd.policy.sql.sweep import RunResult
-    from skyherd.scripts.cli import UsageError
-
-    by_key = {s.key: s for s in specs}
     found = {}
     for d in map(Path, args.reuse):
         try:
-            cfg = json.loads((d / "config.json").read_text())
-            rows = list(csv.DictReader(open(d / "metrics.csv")))
-        except (OSError, ValueError) as e:
-            raise UsageError(f"--reuse {d}: not a reproduce-sql run folder ({e})") from None
-        if cfg.get("hyper") != asdict(specs[0].hyper) or cfg.get("env") != args.env:
-            raise UsageError(f"--reuse {d}: other episodes/step cap/map settings than this run")
-        for row in rows:
-            spec = by_key.get(row["run"])
-            if (
-                spec is None
-                or spec in found
-                or cfg["rules"].get(spec.rules.name) != asdict(spec.rules)
-            ):
-                continue
-            a = np.loadtxt(
-                d / "episodes" / f"{spec.key}.csv",
-                delimiter=",",
-                skiprows=1,
-                dtype=np.int64,
-                ndmin=2,
-            )
-            env = EnvSpec.load(d / "maps" / f"K{spec.n_agents}_seed{spec.seed}.json")
-            found[spec] = RunResult(a[:, 1], a[:, 2].astype(bool), a[:, 3], a[:, 4], a[:, 5], env,
-                                    float(row["wall_s"]), row["worker"])  # fmt: skip
+            found |= report.read_finished(d, specs, args.env, found)
+        except ValueError as e:
+            raise UsageError(f"--reuse {d}: {e}") from None
     return found
 
 
@@ -243,54 +179,23 @@ def run(args: argparse.Namespace) -> int:
     folder = RunFolder("reproduce-sql", root=args.runs_dir)
     for sub in ("episodes", "maps"):
         (folder.path / sub).mkdir()
-    folder.write_config(
-        {
-            "study": args.study,
-            "rules": {r: asdict(s.rules) for s in specs for r in [s.rules.name]},
-            "hyper": asdict(specs[0].hyper),
-            "roi_pretrain": asdict(specs[0].pretrain),
-            "seeds": list(range(args.seeds)),
-            "agents": args.agents,
-            "scaling_agents": args.scaling_agents,
-            "sharing_periods": args.sharing_periods,
-            "env": args.env,
-            "backend": backend,
-            "ray_address": args.ray_address,
-            "workers": args.workers,
-            "window": args.window,
-            "runs": [s.key for s in specs],
-            "reused_from": args.reuse,
-        }
-    )
+    folder.write_config(report.config(args, specs, backend))
     todo = [s for s in specs if s not in reused]
     print(f"run folder: {folder.path}\n{len(todo)} runs on {backend}, {len(reused)} reused")
     table = folder.metrics(report.FIELDS)
     results, summaries = {}, {}
     t0 = time.perf_counter()
-
-    def finished():
-        yield from reused.items()
-        if todo:
-            yield from run_all(todo, backend, args.workers, args.ray_address)
-
+    done = run_all(todo, backend, args.workers, args.ray_address) if todo else ()
     with tqdm(total=len(specs), unit="run", desc="reproduce sql", smoothing=0.1) as bar:
-        for spec, res in finished():
+        for spec, res in chain(reused.items(), done):
             s = study_summary(res.steps, res.success, args.max_steps, args.window)
             results[spec], summaries[spec] = res, s
-            atomic_write_text(folder.path / "episodes" / f"{spec.key}.csv", report.episode_csv(res))
-            mp = folder.path / "maps" / f"K{spec.n_agents}_seed{spec.seed}.json"
-            if not mp.exists():
-                atomic_write_text(mp, res.env.to_json())
-            table.write(report.metrics_row(spec, res, s))
+            report.write_run(folder, table, spec, res, s)
             bar.set_postfix_str(f"{spec.key} {res.wall_s:.1f}s", refresh=False)
             bar.update(1)
     table.close()
     wall = time.perf_counter() - t0
-    md = report.results_md(args, specs, results, summaries, wall, backend, len(reused))
-    figs = report.figures(folder, args, specs, results)
-    md += "\nFigures: " + ", ".join(figs) + "\n"
-    folder.write_summary(md)
-    atomic_write_text(folder.file("results.md"), md)
+    md = report.write_results(folder, args, specs, results, summaries, wall, backend, len(reused))
     print(md)
     print(f"wrote {folder.path}")
     return 0

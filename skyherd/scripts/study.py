@@ -68,22 +68,16 @@ def _search(args, out: Path) -> str:
 
 
 def _shepherd(args, out: Path) -> str:
-    from skyherd.groundsim.flock import FlockParams
     from skyherd.policy.shepherd import study
     from skyherd.policy.shepherd.rules import ShepherdParams
-    from skyherd.policy.shepherd.selector import StrombomSelector, make_selector
+    from skyherd.report.shepherd import plot_shepherd
 
-    d = FlockParams()
-    nb = args.neighbours if args.neighbours is not None else (
-        d.neighbours if args.agents == d.n else args.agents - 1)  # fmt: skip
     try:
-        flock = FlockParams(n=args.agents, neighbours=nb)
+        flock = study.study_flock(args.agents, args.neighbours)
     except ValueError as e:
         raise UsageError(str(e)) from None
     eps: dict = {}
     rows = study.run(args.seeds, args.first_seed, out, args.selector_file, flock, episodes=eps)
-    sels = {"strombom": StrombomSelector(), "learned": make_selector("learned", args.selector_file)}
-    from skyherd.report.shepherd import plot_shepherd
-
+    sels = study.selectors(args.selector_file)
     plot_shepherd(eps, ShepherdParams(), flock, out / "shepherd_study.png", args.first_seed, sels)
     return f"flock: N = {flock.n}, {flock.neighbours} neighbours\n\n{study.table(rows)}"

@@ -1,12 +1,6 @@
-"""`skyherd train abs-dl`: Apprenticeship Bootstrapping via deep learning with a safety net.
-
-Trains ABS-DL (policy.absdl: one network per sub-task from sub-task demonstrations, fused by
-relevance gating) and the baseline network on composite demonstrations, both shielded by the
-flown SafetyNet; by default also ABS-DL without the shield (to report what the shield changes);
-then evaluates them, the noise-free demonstrator and the kept discrete AB policy on unseen
-composite episodes, every policy flown through the net. Writes the run folder (config.json with
-the parameters, curves.png, scores.png, metrics.csv, summary.md, the policy files).
-"""
+"""`skyherd train abs-dl`: Apprenticeship Bootstrapping via deep learning with a safety net
+(policy/absdl/experiment.py). Writes the run folder (config.json with the parameters, curves.png,
+scores.png, metrics.csv, summary.md, the policy files)."""
 
 from __future__ import annotations
 
@@ -93,16 +87,19 @@ def run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from skyherd.runio import RunFolder
+    from skyherd.policy.absdl.experiment import load_recorded
+    from skyherd.policy.dqn import PolicyFileError, load_policy
+    from skyherd.runio import RunFolder, file_facts
 
     p = params_from(args)
-    from skyherd.policy.dqn import PolicyFileError, load_policy
-
     try:
         ab = load_policy(args.ab_policy)
     except PolicyFileError as e:
         raise UsageError(f"{e}; pass --ab-policy FILE (a `skyherd train ab` policy)") from None
-    recorded = _recorded(args.demos)
+    try:
+        recorded = {} if args.demos is None else load_recorded(args.demos)
+    except ValueError as e:  # a bad file, one of another scenario, none at all
+        raise UsageError(str(e)) from None
     print(f"skyherd train abs-dl: {p}")
     if recorded:
         print(f"recorded demonstrations: {', '.join(sorted(recorded))} from {args.demos}")
@@ -110,61 +107,24 @@ def run(args: argparse.Namespace) -> int:
         run.config(params=dataclasses.asdict(p))
         print(f"run folder: {run.path}")
         if recorded:
-            from skyherd.runio import file_facts
-
             run.config(demo_files={n: file_facts(args.demos / f"{n}.npz") for n in recorded})
         return _train(run, args, p, ab, recorded)
 
 
-def _recorded(folder: Path | None) -> dict:
-    """Network name → recorded Demonstration from FOLDER/<name>.npz (UsageError on bad files)."""
-    if folder is None:
-        return {}
-    from skyherd.policy.absdl.train import NETWORKS
-    from skyherd.policy.demos import DemoFileError, load_demo
-
-    out = {}
-    for name in NETWORKS:
-        path = folder / f"{name}.npz"
-        if not path.exists():
-            continue
-        try:
-            demo = load_demo(path)
-        except DemoFileError as e:
-            raise UsageError(
-                f"{e}; record it again with `skyherd teleop --scenario {name}`"
-            ) from None
-        if demo.meta["scenario"] != name:
-            raise UsageError(
-                f"{path} records the {demo.meta['scenario']!r} scenario, not {name!r}: rename it"
-            )
-        out[name] = demo
-    if not out:
-        raise UsageError(f"--demos {folder}: no lateral.npz, climb.npz, descend.npz or composite.npz; "
-                         "record one with `skyherd teleop --scenario lateral --out DIR/lateral.npz`")  # fmt: skip
-    return out
-
-
 def _train(run, args, p, ab, recorded) -> int:
-    import numpy as np
     from tqdm import tqdm
 
-    from skyherd.policy.absdl import report
-    from skyherd.policy.absdl.demonstrator import Demonstrator
-    from skyherd.policy.absdl.evaluate import discrete_actor, evaluate, within
-    from skyherd.policy.absdl.train import train, work_units
-    from skyherd.policy.demos import scripted_expert
+    from skyherd.policy.absdl import experiment as X
+    from skyherd.report import absdl as report
 
-    variants = [p] + ([dataclasses.replace(p, shield=False)] if args.shield_comparison else [])
-    n_eval = 5 + (1 if args.shield_comparison else 0)
-    total = sum(work_units(v, recorded) for v in variants) + n_eval * p.eval_episodes
+    total = X.work(p, args.shield_comparison, recorded)
     bar = run.closing(tqdm(total=total, desc="abs-dl", unit="step", disable=None))
 
     def tick(what: str) -> None:
         bar.set_postfix_str(what, refresh=False)
         bar.update(1)
 
-    results = [train(v, tick, recorded) for v in variants]
+    results = X.train_all(p, args.shield_comparison, recorded, tick)
     res = results[0]
     fused_path, base_path = run.file("absdl_fused.npz"), run.file("composite_baseline.npz")
     res.fused.save(fused_path)
@@ -176,20 +136,7 @@ def _train(run, args, p, ab, recorded) -> int:
         print(f"saved the fused policy to {args.save_policy}")
     report.plot_curves(res.losses, run.file("curves.png"))
     run.describe("curves.png", "training loss per epoch of every fit")
-
-    seeds = range(p.eval_seed, p.eval_seed + p.eval_episodes)
-    expert = Demonstrator("composite", p.demonstrator(noisy=False))
-    dexp = scripted_expert("composite")  # the discrete AB's demonstrator, without imperfection
-    actors = [
-        ("expert (PD, noise-free)", expert, lambda s: expert.reset(np.random.default_rng(s))),
-        ("ABS-DL (sub-task demos, fused)", res.fused, None),
-        ("composite-demo network", res.baseline, None),
-        ("discrete AB (kept file)", discrete_actor(ab), None),
-        ("discrete scripted expert", discrete_actor(dexp), None),
-    ]
-    if args.shield_comparison:
-        actors.insert(4, ("ABS-DL trained without shield", results[1].fused, None))
-    scores = [evaluate(n, a, seeds, r, lambda: tick("evaluate")) for n, a, r in actors]
+    scores = X.evaluate_all(p, results, ab, tick)
     bar.close()
     report.plot_scores(scores, run.file("scores.png"))
     run.describe("scores.png", "evaluation means ± std")
@@ -197,44 +144,7 @@ def _train(run, args, p, ab, recorded) -> int:
     w = run.metrics(list(rows[0]))
     for row in rows:
         w.write(row)
-
-    ex, fu, ba, di = (s.mean for s in scores[:4])
-    checks = [
-        ("ABS-DL all-in-view within 2 % of the composite-demo network",
-         within(fu["all_in_view_frac"], ba["all_in_view_frac"], 0.02),
-         f"{fu['all_in_view_frac']:.3f} vs {ba['all_in_view_frac']:.3f}"),
-        ("ABS-DL footprint ratio closer to the expert's than discrete AB's",
-         abs(fu["footprint_ratio"] - ex["footprint_ratio"])
-         < abs(di["footprint_ratio"] - ex["footprint_ratio"]),
-         f"{fu['footprint_ratio']:.2f} vs expert {ex['footprint_ratio']:.2f}, AB {di['footprint_ratio']:.2f}"),
-        ("ABS-DL decisions the net changes below 10 %", fu["changed"] < 0.10,
-         f"{100 * scores[1].changed / scores[1].decisions:.2f} % vs AB "
-         f"{100 * scores[3].changed / scores[3].decisions:.1f} %"),
-        ("ABS-DL mean commanded jerk below discrete AB's", fu["jerk_proposed"] < di["jerk_proposed"],
-         f"{fu['jerk_proposed']:.2f} vs {di['jerk_proposed']:.2f} m/s³"),
-    ]  # fmt: skip
-    demo_rows = []
-    for v, r in zip(variants, results):
-        for name, st in r.demo_shield.items():
-            if v.shield:
-                demo_rows.append([name, st.decisions, f"{st.changed} ({100 * st.fraction:.2f} %)",
-                                  ", ".join(f"{k} {n}" for k, n in sorted(st.verdicts.items()))])  # fmt: skip
-    lines = [
-        f"ABS-DL on {p.eval_episodes} unseen composite episodes (seeds {p.eval_seed}–"
-        f"{p.eval_seed + p.eval_episodes - 1}), every policy flown through the SafetyNet:\n",
-        report.score_table(scores),
-        "\nMust-show checks:\n",
-        report.markdown_table(
-            ["check", "holds", "numbers"], [[c, "yes" if ok else "NO", n] for c, ok, n in checks]
-        ),  # fmt: skip
-        "\nDemonstrations certified by the shield (training data):\n",
-        report.markdown_table(["sub-task", "decisions", "net changed", "verdicts"], demo_rows),
-        f"\nSamples per network (demos + DAgger): {res.samples}",
-        f"\nParameters: `{p}`",
-    ]
-    if recorded:
-        lines.insert(-1, f"\nRecorded demonstrations (no DAgger): {', '.join(sorted(recorded))}")
-    text = "\n".join(lines)
+    text = report.summary(p, scores, X.variants(p, args.shield_comparison), results, recorded)
     run.summary(text)
     print(text)
     return 0

@@ -1,25 +1,19 @@
-"""`skyherd train irl` / `skyherd train ab`: apprenticeship learning on the GroundAir composite task.
-
-irl  μ_E from composite demonstrations (scenario 4), projection IRL with DQN.
-ab   Apprenticeship Bootstrapping: μ_E from sub-task demonstrations (1)–(3) only, one run per
-     combination rule (policy.ab.RULES); IRL on composite demonstrations is trained beside it
-     (unless --no-irl) so the report compares AB, IRL, the scripted expert and a random policy.
-
-The run folder gets config.json, demos/ (the demonstrations used), metrics.csv (per learner,
-seed and IRL iteration), events.jsonl, eval.csv, summary.md (tables), PNG plots and the learned
-policies (policies/*.npz, loadable with policy.dqn.load_policy).
+"""`skyherd train irl` / `skyherd train ab`: apprenticeship learning on the GroundAir composite
+task (policy/irl_experiment.py: irl, μ_E from composite demonstrations; ab, Apprenticeship
+Bootstrapping from sub-task demonstrations, one run per combination rule, IRL beside it unless
+--no-irl). The run folder gets config.json, demos/, metrics.csv (per learner, seed and IRL
+iteration), events.jsonl, summary.md (tables), PNG plots and policies/*.npz.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from skyherd.report import irl as report
-from skyherd.runio import RunFolder, atomic_write_text, file_facts, markdown_table
-from skyherd.scripts.cli import UsageError, quick_help
+from skyherd.runio import RunFolder, file_facts
+from skyherd.scripts.cli import UsageError, apply_quick, quick_help
 
 # --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
 # learning_starts, so something is learnt); any option given on the command line wins.
@@ -80,38 +74,14 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
     parser.set_defaults(learner_name=learner)
 
 
-def apply_quick(args: argparse.Namespace, argv: list[str] | None = None) -> list[str]:
-    """With --quick, the QUICK budget for every option not given on the command line;
-    returns the options it set."""
-    from skyherd.scripts.cli import apply_quick as _apply
-
-    return _apply(args, QUICK, argv)
-
-
-def budget_warnings(args: argparse.Namespace) -> list[str]:
-    """Budgets too short to learn anything, said out loud (printed and in summary.md)."""
-    from skyherd.policy.dqn import DQNParams
-
-    starts = DQNParams().learning_starts
-    out = []
-    if args.dqn_steps <= starts:
-        out.append(
-            f"--dqn-steps {args.dqn_steps} is not more than the DQN's learning_starts ({starts}): "
-            f"the network is never trained and every learned policy is the untrained one; "
-            f"give --dqn-steps > {starts} (e.g. --quick uses {QUICK['dqn_steps']})"
-        )
-    return out
-
-
-# --------------------------------------------------------------------------- the command
 def run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
     from skyherd.policy.demos import DemoFileError, load_demo
-    from skyherd.policy.irl_experiment import needed_scenarios
+    from skyherd.policy.irl_experiment import budget_warnings, needed_scenarios
 
-    quick = apply_quick(args, getattr(args, "_argv", None))
+    quick = apply_quick(args, QUICK, getattr(args, "_argv", None))  # the options it set
     if (
         args.seeds < 1
         or args.dqn_steps < 100
@@ -125,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if not (0 <= args.demo_epsilon <= 1 and 0 <= args.demo_lag <= 1 and 0 < args.gamma < 1):
         raise UsageError("--demo-epsilon/--demo-lag must be in [0, 1] and --gamma in (0, 1)")
     p = _experiment(args)
-    warnings = budget_warnings(args)
+    warnings = budget_warnings(p, QUICK["dqn_steps"])
     for w in warnings:
         print(f"skyherd train {p.learner}: warning: {w}", file=sys.stderr)
     demos, demo_files = {}, {}
@@ -187,18 +157,12 @@ def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
         demos={sc: d.meta["demonstrator"] for sc, d in demos.items()}, demo_files=demo_files,
         quick=quick, warnings=warnings,
     )  # fmt: skip
-
     n_jobs = len(X.jobs(p, mu_e))
-    events = run.events()
-    metrics = run.metrics(X.METRIC_COLUMNS)
+    events, metrics = run.events(), run.metrics(X.METRIC_COLUMNS)
     # the bar counts IRL iterations (each a DQN solve), so it moves during a run of a learner
     bar = run.closing(tqdm(total=n_jobs * args.irl_iters, desc=f"train {p.learner}",
                            unit="iter", disable=None))  # fmt: skip
     ticks: dict[tuple[str, int], int] = {}
-
-    def note(n_done: int) -> None:
-        run.summary(f"{n_done} of {n_jobs} training runs finished "
-                    f"(learner × seed); results so far in metrics.csv and events.jsonl.\n")  # fmt: skip
 
     def on_iteration(learner: str, seed: int, t: float) -> None:
         ticks[(learner, seed)] = ticks.get((learner, seed), 0) + 1
@@ -208,42 +172,26 @@ def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
     def on_result(r, done) -> None:
         for row in r.metric_rows():
             metrics.write(row)
-        events.write({"event": "trained", "learner": r.learner, "seed": r.seed,
-                      "train_s": r.train_s, "metrics": r.metrics, "chosen": r.chosen})  # fmt: skip
+        events.write(r.event())
         # IRL may stop before --irl-iters: count the rest as done
         bar.update(max(0, args.irl_iters - ticks.get((r.learner, r.seed), 0)))
         bar.set_postfix(last=f"{r.learner}/{r.seed} view={r.metrics['all_in_view_frac']:.3f}")
-        note(len(done))
+        run.summary(report.progress_note(len(done), n_jobs))
 
-    note(0)
+    run.summary(report.progress_note(0, n_jobs))
     results = X.run_experiment(p, mu_e, args.workers, on_iteration, on_result,
                                progress=bar.disable is False)  # fmt: skip
     bar.close()
-
     # baselines on the same test seeds: the demonstrator, the ideal expert, random
-    base = {
-        name: X.baseline_metrics(make, p)
-        for name, make in tqdm(X.baseline_factories(p).items(), desc="baselines", unit="policy",
-                               disable=None)
-    }  # fmt: skip
-    pol_dir = run.path / "policies"
-    pol_dir.mkdir()
+    facs = tqdm(X.baseline_factories(p).items(), desc="baselines", unit="policy", disable=None)
+    base = {name: X.baseline_metrics(make, p) for name, make in facs}
+    (run.path / "policies").mkdir()
     for r in results:
-        r.labelled_policy().save(pol_dir / f"{r.learner}_seed{r.seed}.npz")
+        r.labelled_policy().save(run.path / "policies" / f"{r.learner}_seed{r.seed}.npz")
     best = X.best_runs(results)
-
-    learned = [r.facts() for r in results]
-    summary, table = report.summary(learned, base, p.learner, args)
-    if warnings:
-        summary += "\n## Warnings\n\n" + "\n".join(f"- {w}" for w in warnings) + "\n"
-    if quick:
-        summary += f"\n--quick budget: {', '.join(quick)}.\n"
-    if args.transfer_episodes > 0:
-        summary += _transfer(best, args.transfer_episodes)
-    run.summary(summary)
-    atomic_write_text(run.file("results.json"), json.dumps(
-        {"learned": learned, "baselines": base}, indent=1, default=float))  # fmt: skip
-    report.plots(run, learned, base)
+    rows = X.transfer_rows(best, args.transfer_episodes) if args.transfer_episodes > 0 else None
+    table = report.write(run, [r.facts() for r in results], base, p.learner, args,
+                         warnings, quick, rows)  # fmt: skip
     print(table)
     if args.save_policy is not None:
         r = best[p.main_learner]
@@ -252,19 +200,3 @@ def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
         print(f"saved {p.main_learner} seed {r.seed} policy → {args.save_policy}")
     print(f"summary: {run.path / 'summary.md'}")
     return 0
-
-
-def _transfer(best: dict, episodes: int) -> str:
-    """The transfer table: the best seed of each learner on the groundsim UGV behaviours."""
-    from skyherd.policy.evaluate import TRANSFER_SEED, baseline_factories, transfer_table
-    from skyherd.task.scenarios import GROUNDSIM_SCENARIOS
-
-    pols = {f"{k} (seed {r.seed})": (lambda s, p=r.policy: p) for k, r in best.items()}
-    rows = transfer_table(pols | baseline_factories(), GROUNDSIM_SCENARIOS, episodes, TRANSFER_SEED)
-    ttable = markdown_table(
-        ["policy", "scenario", "all-in-view frac", "footprint/circle", "UGV losses / ep"], rows
-    )
-    return (
-        "\n## Transfer: best seed of each learner on groundsim UGV behaviours\n\n"
-        f"{episodes} episodes each (not trained on these).\n\n{ttable}"
-    )

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,3 +105,16 @@ def open_fleet(params: WorldParams, endpoint, fleet: list[FleetVehicle], run_dir
         )
         raise ValueError(f"--fleet {v.name}: {e}{hint}") from None
     return worlds
+
+
+def sim_groups(K: int, sims: int) -> list[list[int]]:
+    """Vehicles 0..K-1 shared among `sims` simulator processes (0: one per CPU core, at most K),
+    in contiguous groups whose sizes differ by at most one."""
+    n = sims if sims > 0 else max(1, min(K, os.cpu_count() or 1))
+    base, extra = divmod(K, n)
+    groups, k = [], 0
+    for g in range(n):
+        size = base + (1 if g < extra else 0)
+        groups.append(list(range(k, k + size)))
+        k += size
+    return groups

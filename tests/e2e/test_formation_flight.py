@@ -264,7 +264,7 @@ def test_the_flight_is_the_same_in_one_simulator_process_or_one_per_vehicle(tmp_
 
 
 def test_sim_groups_share_the_vehicles_in_contiguous_near_equal_groups():
-    from skyherd.scripts.fly_formation import sim_groups
+    from skyherd.world.fleet import sim_groups
 
     assert sim_groups(16, 2) == [list(range(8)), list(range(8, 16))]
     assert sim_groups(9, 2) == [list(range(5)), list(range(5, 9))]

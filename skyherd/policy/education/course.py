@@ -1,6 +1,7 @@
 """One seed's course of `skyherd educate`, and its record in a run folder.
 
-`teach_seed(job)` teaches every lesson (policy.education.teach), and the monolithic DQN the same
+`teach_all(jobs, workers)` teaches the seeds, in worker processes when `workers` > 1, and
+yields their results in seed order; `teach_seed(job)` teaches every lesson (policy.education.teach), and the monolithic DQN the same
 lessons beside it (policy.education.monolith); both policies go to `job.policy_dir` as .npz files,
 the lesson results come back as plain dicts. `lesson_rows` writes them as lessons.csv rows and
 `results_from_rows` reads those rows back; `params_from_config` reads a run's hyper-parameters back
@@ -13,6 +14,8 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -63,6 +66,24 @@ def teach_seed(job: SeedJob) -> dict[str, Any]:
         net.save(Path(job.policy_dir) / f"monolith_seed{job.seed}.npz")
         out["monolith"] = [dataclasses.asdict(r) for r in mres]
     return out
+
+
+def teach_all(jobs: list[SeedJob], workers: int = 1) -> Iterator[dict[str, Any]]:
+    """`teach_seed` of every job, in job order, on `workers` processes (1: this process)."""
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            yield from pool.map(teach_seed, jobs)
+    else:
+        yield from map(teach_seed, jobs)
+
+
+def lesson_events(out: dict[str, Any]) -> list[dict[str, Any]]:
+    """events.jsonl records of one seed's course: one per lesson taught, per learner."""
+    return [
+        {"event": "lesson", "learner": learner, "seed": out["seed"], "lesson": r["lesson"],
+         "cpu_s": r["seconds"], "passed": r["passed"]}
+        for learner in LEARNERS for r in out.get(learner, [])
+    ]  # fmt: skip
 
 
 def lesson_rows(out: dict[str, Any]) -> list[dict[str, Any]]:

@@ -6,12 +6,13 @@ scripted expert) on the composite scenario (seeds 300000+) and the groundsim UGV
 fidelity (policy.education.fidelity) over the educated policies; `decision_episode` flies one
 composite test episode and returns one decisions.jsonl record per decision, in the companion's
 format (safety.supervisor.Decision.record) with no safety net: proposed = certified, verdict
-"none".
+"none". `evaluate_run` does all of it for an educate run's seeds.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -118,3 +119,36 @@ def decision_episode(pol, seed: int = COMPOSITE_SEED) -> list[dict[str, Any]]:
         obs, _, term, trunc, info = env.step(a)
         done = term or trunc
     return out
+
+
+@dataclass(frozen=True, eq=False)
+class RunEvaluation:
+    """An educate run's evaluation: its educated policies (seed → policy) beside the rest."""
+
+    educated: dict[int, Any]
+    comparison: Comparison
+    fidelity: dict[str, dict[str, Any]]
+    best_seed: int
+    decisions: list[dict[str, Any]]  # one composite test episode of the best seed's policy
+
+
+def evaluate_run(
+    results: list[dict[str, Any]],
+    policy_dirs: dict[int, Path],
+    baselines: list[Path],
+    episodes: int,
+    gamma: float,
+) -> RunEvaluation:
+    """The educated policy of every seed of `results` (policy_dirs[seed]/educated_seed<s>.npz)
+    on `episodes` unseen episodes per scenario beside the `baselines` runs' policies; each
+    seed's last lesson result gets the arbiter it learnt (detail "arbiter")."""
+    educated = {
+        r["seed"]: load_policy(policy_dirs[r["seed"]] / f"educated_seed{r['seed']}.npz")
+        for r in results
+    }
+    for r in results:  # the arbiter each seed learnt (also when read back from lessons.csv)
+        r["educated"][-1]["detail"]["arbiter"] = educated[r["seed"]].arbiter.describe()
+    comparison = compare(educated, baselines, episodes, gamma)
+    fid = fidelity_totals(educated, episodes)
+    best = best_seed(comparison)
+    return RunEvaluation(educated, comparison, fid, best, decision_episode(educated[best]))

@@ -162,3 +162,19 @@ def detail(d: Decision) -> list[str]:
         f"    pilot {r.get('pilot', '?')}, mode {r.get('mode', '?')}, autopilot {r.get('autopilot_mode', '?')}"
     )
     return out
+
+
+def explain(decisions: list[Decision], bad: int, t: float | None, max_lines: int) -> list[str]:
+    """What `skyherd explain` prints: the decision in force at time `t` [s] in detail, or
+    (t None) the timeline cut at `max_lines`; then the count of decisions, of those explained
+    and of the `bad` lines skipped."""
+    if t is not None:
+        out = detail(at_time(decisions, t))
+    else:
+        lines = timeline(decisions)
+        out = lines[:max_lines]
+        if len(lines) > max_lines:
+            out.append(f"… {len(lines) - max_lines} more lines (--max-lines)")
+    n_ex = sum(1 for d in decisions if d.concepts or d.record.get("explanation"))
+    skipped = f", {bad} unreadable lines skipped" if bad else ""
+    return [*out, f"{len(decisions)} decisions, {n_ex} explained{skipped}"]

@@ -40,6 +40,21 @@ def summarise(eps) -> dict:
             "drive_fraction": float(np.mean([e.drive_fraction for e in eps]))}  # fmt: skip
 
 
+def study_flock(n: int, neighbours: int | None = None) -> FlockParams:
+    """The study's flock of `n` agents, each steering by the centre of mass of `neighbours`
+    others: by default the kept number for the default flock size, n − 1 for any other n (the
+    kept 6 lets a larger flock split). ValueError if FlockParams refuses them."""
+    d = FlockParams()
+    if neighbours is None:
+        neighbours = d.neighbours if n == d.n else n - 1
+    return FlockParams(n=n, neighbours=neighbours)
+
+
+def selectors(selector_file: str | None = None) -> dict:
+    """The two selectors compared: Strömbom's and the learned one (default: the kept file)."""
+    return {"strombom": StrombomSelector(), "learned": make_selector("learned", selector_file)}
+
+
 def table(rows: dict[str, dict]) -> str:
     out = ["| selector | success | rate (95 % CI) | median time to goal [s] | p90 [s] | "
            "mean end spread [m] | drive decisions |",
@@ -58,7 +73,7 @@ def run(seeds: int = 100, first_seed: int = 0, out: str | Path | None = "runs/sh
     """Both selectors on seeds first_seed .. first_seed+seeds−1; returns {name: summary}.
     `episodes`, a dict, receives {name: [Episode]} (for a figure)."""
     flock, task = flock if flock is not None else FlockParams(), ShepherdParams()
-    sels = {"strombom": StrombomSelector(), "learned": make_selector("learned", selector_file)}
+    sels = selectors(selector_file)
     eps = {name: [run_episode(s, sel, flock, task) for s in range(first_seed, first_seed + seeds)]
            for name, sel in sels.items()}  # fmt: skip
     rows = {name: summarise(e) for name, e in eps.items()}
