@@ -144,3 +144,39 @@ class ParamStore:
                 f"{n} = {self._values[n]!r}  # [{s.min}, {s.max}] {s.unit}: {s.description}"
             )
         return "\n".join(lines) + "\n"
+
+
+def check_assignments(store: ParamStore, items: Iterable[str], airframe: str) -> None:
+    """`NAME=VALUE` items (`--param`) against a built-in autopilot's table (names, numbers,
+    ranges), before the autopilot exists; ValueError naming the item and what to do."""
+    for item in items:
+        name, eq, value = item.partition("=")
+        if not eq:
+            raise ValueError(f"--param {item!r}: expected NAME=VALUE, e.g. COM_OF_LOSS_T=3")
+        res = store.check(name.strip(), value.strip())
+        if not res.ok:
+            raise ValueError(f"--param {item}: {res.reason}{_hint(store, name.strip(), airframe)}")
+
+
+def _hint(store: ParamStore, name: str, airframe: str) -> str:
+    """What to do about an unknown parameter name: the close names, or where the table is."""
+    if name in store:
+        return ""
+    close = store.close_names(name)
+    if close:
+        return f"; did you mean {' or '.join(close)}?"
+    return f"; the built-in {airframe}'s {len(store.names())} parameters: `skyherd sitl` and a ground station list them"
+
+
+def apply_assignments(autopilot, items: Iterable[str]) -> None:
+    """`NAME=VALUE` items set on a built-in autopilot at start (`set_param`); ValueError
+    naming the first item it refuses."""
+    for item in items:
+        name, _, value = item.partition("=")
+        try:
+            res = autopilot.set_param(name.strip(), float(value))
+        except ValueError:
+            res = None
+        if res is None or not res.ok:
+            why = res.reason if res is not None else f"{value!r} is not a number"
+            raise ValueError(f"--param {item}: {why}")

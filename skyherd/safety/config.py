@@ -54,6 +54,43 @@ def fly_envelope_path(airframe: str) -> Path:
     return ENVELOPE_DIR / FLY_ENVELOPE[airframe]
 
 
+def fly_envelope(path: Path | str | None, airframe: str) -> EnvelopeSpec:
+    """The constraint set `skyherd fly` flies: `path` (--envelope), else the airframe's."""
+    return load_envelope(path or fly_envelope_path(airframe))[0]
+
+
+def flight_envelope_record(path: Path | str | None, airframe: str) -> tuple[EnvelopeSpec, dict]:
+    """The flight's constraint set (`path`, else the airframe's), checked for its airframe, and
+    config.json's record of it (path, name, version, rows); ValueError saying what to do."""
+    path = path or fly_envelope_path(airframe)
+    try:
+        spec, _ = load_envelope(path)
+    except ValueError as e:  # EnvelopeFileError
+        raise ValueError(f"{e}; fix the file or pass another --envelope") from None
+    if spec.airframe != airframe:
+        raise ValueError(f"--envelope {path} is for a {spec.airframe}; this flight is a {airframe}")
+    return spec, {"path": str(Path(path).resolve()), **spec.describe()}
+
+
+def check_mean_wind(path: Path | str | None, airframe: str, wind_ned, asked: str) -> None:
+    """ValueError when the mean wind `wind_ned` [m/s] (`--wind asked`) is above the wind limit
+    ([guards] wind_limit_mps) of the flight's constraint set (`fly_envelope`): the net's
+    envelope assumes braking that such a wind takes away. Wind that rises later (--fault
+    wind@T:...) is the net's to judge in flight."""
+    try:
+        spec = fly_envelope(path, airframe)
+    except ValueError as e:  # EnvelopeFileError
+        raise ValueError(f"{e}; fix it or pass another --envelope") from None
+    speed = (wind_ned[0] ** 2 + wind_ned[1] ** 2) ** 0.5
+    limit = spec.guards.wind_limit_mps
+    if limit is not None and speed > limit:
+        raise ValueError(
+            f"--wind {asked}: {speed:.1f} m/s is above the {spec.airframe}'s wind limit "
+            f"{limit:g} m/s ({spec.name} {spec.version}, [guards] wind_limit_mps); fly in "
+            f"{limit:g} m/s or less, or with a constraint set stated for this wind (--envelope)"
+        )
+
+
 def load_envelope(path: Path | str) -> tuple[EnvelopeSpec, dict[str, Any]]:
     """Read a constraint-set file → (spec, supervisor table): the [supervisor] table with the
     [guards] added as SupervisorParams fields (None = off)."""

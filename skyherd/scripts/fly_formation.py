@@ -83,7 +83,7 @@ def run_formation(args: argparse.Namespace) -> int:
     """Fly the formation as K simulators + one companion; 0 if every vehicle landed on its target."""
     from skyherd.runio import launch
     from skyherd.scripts.cli import skyherd_cmd
-    from skyherd.scripts.fly import check_signing, per_run_key, signing_mode
+    from skyherd.scripts.fly_options import check_signing, per_run_key, signing_mode
 
     _check(args)
     _check_children(args)

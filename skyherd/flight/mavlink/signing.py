@@ -29,6 +29,7 @@ import os
 import struct
 import time
 from collections import Counter, OrderedDict
+from dataclasses import dataclass
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -89,6 +90,58 @@ def save_key(path: Path, key: bytes) -> None:
     finally:
         os.close(fd)
     os.replace(tmp, path)
+
+
+PER_RUN_KEY_FILE = "signing.key"  # a flight's own key in its run folder
+
+
+@dataclass(frozen=True)
+class FlightSigning:
+    """How one flight signs its MAVLink links and its Zenoh records: with a key file given
+    (`key_file`), unsigned (`off`), or with a new key per run. A per-run key is for the built-in
+    vehicles only: an outside autopilot (`outside`) signs with its own key, or not at all.
+    `setup`: give the outside autopilot the key file first (SETUP_SIGNING)."""
+
+    key_file: str | None = None
+    off: bool = False
+    outside: bool = False
+    setup: bool = False
+
+    def checked_key_file(self) -> str | None:
+        """The key file's absolute path, its key read (None: a per-run key, or unsigned);
+        ValueError naming the option otherwise."""
+        if self.key_file and self.off:
+            raise ValueError("--signing-key and --no-signing contradict each other: drop one")
+        if self.setup and (not self.outside or not self.key_file):
+            raise ValueError("--setup-signing gives an outside autopilot your key: it needs "
+                             "--connect ADDRESS and --signing-key FILE (the built-in vehicle is "
+                             "signed by default)")  # fmt: skip
+        if not self.key_file:
+            return None
+        try:
+            load_key(Path(self.key_file))
+        except SigningError as e:
+            raise ValueError(f"--signing-key: {e}") from None
+        return str(Path(self.key_file).resolve())
+
+    def mode(self) -> str:
+        """How the flight is signed, as its config.json and summary.md say it."""
+        if self.key_file:
+            return f"key file {Path(self.key_file).resolve()}"
+        if self.off:
+            return "off (--no-signing)"
+        if self.outside:
+            return "off (outside autopilot: give --signing-key FILE with the autopilot's key)"
+        return "on (per-run key)"
+
+    def per_run_key(self, run_dir: Path) -> Path | None:
+        """With the built-in vehicle(s) and neither a key file nor `off`: a new key
+        `<run>/signing.key` (32 random bytes, mode 0600) for every program of the flight."""
+        if self.key_file or self.off or self.outside:
+            return None
+        path = Path(run_dir) / PER_RUN_KEY_FILE
+        save_key(path, os.urandom(KEY_LEN))
+        return path
 
 
 def is_signed(frame: bytes) -> bool:
