@@ -13,8 +13,10 @@ compiled from source in each of the three processes; `--keep-env` keeps it). For
 the CPU time of the whole job (this process's RUSAGE_CHILDREN after the parent `fly` is
 reaped: fly + sim + companion, exact) and of each of the three processes (user + system time
 read from /proc/PID/stat every 20 ms while it runs: the last reading before the process ends,
-so each may be up to ~20 ms short; the total is exact), and the wall time. Prints a table per run and the medians, and the ratio this / baseline.
-Run it inside `unshare -n` (the flight's ports are the instance's).
+so each may be up to ~20 ms short; the total is exact), and the wall time; beside each run,
+the CPU of its groundair.png drawn again from the run folder in a fresh process (what the plot
+costs: matplotlib's import and the drawing). Prints a table per run and the medians, and the
+ratio this / baseline. Run it inside `unshare -n` (the flight's ports are the instance's).
 """
 
 from __future__ import annotations
@@ -60,11 +62,36 @@ def _role(argv: str) -> str:
     return "other"
 
 
+# groundair.png drawn again from a run folder in a fresh process: its CPU [s] (matplotlib's
+# import and the drawing; the records are read before the clock starts)
+REDRAW = """
+import json, os, sys
+from pathlib import Path
+run, out = Path(sys.argv[1]), Path(sys.argv[2])
+from skyherd.report import fly as r
+args = (r._jsonl(run / "decisions.jsonl"), r._rows(run / "metrics.csv"), r._rows(run / "world.csv"),
+        r._config(run).get("envelope"), json.loads((run / "companion.json").read_text())["authority"])
+t = os.times()
+from skyherd.report.plots_flight import plot_groundair
+plot_groundair(out, *args)
+u = os.times()
+print(u.user + u.system - t.user - t.system)
+"""
+
+
+def plot_cpu_s(tree: Path, run: Path, env: dict) -> float:
+    """CPU [s] of groundair.png made again from `run` by `tree`'s report in a fresh process."""
+    out = Path(tempfile.mkdtemp(prefix="skyherd-benchplot-"))
+    text = subprocess.run([sys.executable, "-c", REDRAW, str(run), str(out)], cwd=tree, env=env,
+                          capture_output=True, text=True, check=True).stdout  # fmt: skip
+    return float(text.split()[-1])
+
+
 def fly_once(
     tree: Path, instance: int, extra: list[str] = (), keep_env: bool = False
 ) -> dict[str, float]:
     """One `skyherd fly --speedup 0` from source tree `tree`: CPU [s] of fly, sim, companion,
-    the job (exact) and wall [s]."""
+    the job (exact), wall [s], and the CPU [s] of its groundair.png drawn again (plot_cpu_s)."""
     root = Path(tempfile.mkdtemp(prefix="skyherd-benchrun-"))
     env = dict(os.environ, PYTHONPATH=str(tree))
     if not keep_env:
@@ -94,7 +121,10 @@ def fly_once(
     wall = time.monotonic() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     job = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
-    out = {"fly": 0.0, "sim": 0.0, "companion": 0.0, "job": job, "wall": wall, "rc": rc}
+    runs = sorted(root.glob("*-fly"))
+    plot = plot_cpu_s(tree, runs[0], env) if rc == 0 and runs else float("nan")
+    out = {"fly": 0.0, "sim": 0.0, "companion": 0.0, "job": job, "wall": wall, "rc": rc,
+           "plot": plot}  # fmt: skip
     for cpu, argv in seen.values():
         role = _role(argv)
         if role in out:
@@ -127,35 +157,30 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(a.warmup):
             fly_once(tree, a.instance, a.fly_args.split(), a.keep_env)
     res: dict[str, list[dict]] = {name: [] for name, _ in trees}
-    print(
-        "| tree | run | fly CPU s | sim CPU s | companion CPU s | job CPU s (exact) | wall s | exit |"
-    )
-    print("|---|---|---|---|---|---|---|---|")
+    print("| tree | run | fly CPU s | sim CPU s | companion CPU s | job CPU s (exact) | wall s | "
+          "exit | groundair.png CPU s (again) |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|")
     for k in range(a.runs):
         for name, tree in trees if k % 2 == 0 else trees[::-1]:
             r = fly_once(tree, a.instance, a.fly_args.split(), a.keep_env)
             res[name].append(r)
             print(f"| {name} | {k} | {r['fly']:.2f} | {r['sim']:.2f} | {r['companion']:.2f} | "
-                  f"{r['job']:.2f} | {r['wall']:.1f} | {r['rc']} |", flush=True)  # fmt: skip
+                  f"{r['job']:.2f} | {r['wall']:.1f} | {r['rc']} | {r['plot']:.2f} |", flush=True)  # fmt: skip
     print("\nmedians:\n")
-    print("| tree | fly CPU s | sim CPU s | companion CPU s | job CPU s | wall s |")
-    print("|---|---|---|---|---|---|")
+    print("| tree | fly CPU s | sim CPU s | companion CPU s | job CPU s | wall s | "
+          "groundair.png CPU s |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|")
     med = {}
     for name, rs in res.items():
-        med[name] = {
-            k: statistics.median(r[k] for r in rs)
-            for k in ("fly", "sim", "companion", "job", "wall")
-        }
-        m = med[name]
-        print(
-            f"| {name} | {m['fly']:.2f} | {m['sim']:.2f} | {m['companion']:.2f} | {m['job']:.2f} | {m['wall']:.1f} |"
-        )
+        keys = ("fly", "sim", "companion", "job", "wall", "plot")
+        med[name] = m = {k: statistics.median(r[k] for r in rs) for k in keys}
+        print(f"| {name} | {m['fly']:.2f} | {m['sim']:.2f} | {m['companion']:.2f} | "
+              f"{m['job']:.2f} | {m['wall']:.1f} | {m['plot']:.2f} |")  # fmt: skip
     if "baseline" in med:
         ratio = med["this"]["job"] / med["baseline"]["job"]
         print(f"\njob CPU this / baseline: {ratio:.2f} (medians)")
-    print(
-        f"bytecode cache: {'as the environment says' if a.keep_env else 'on (PYTHONDONTWRITEBYTECODE dropped)'}"
-    )
+    cache = "as the environment says" if a.keep_env else "on (PYTHONDONTWRITEBYTECODE dropped)"
+    print(f"bytecode cache: {cache}")
     print(f"load average at the end: {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     return 0 if all(r["rc"] == 0 for rs in res.values() for r in rs) else 1
 
