@@ -74,11 +74,19 @@ def verdict_strip(ax, decisions: list[dict], t_end: float) -> None:
     ts = [float(d["t"]) for d in decisions]
     period = float(np.median(np.diff(ts))) if len(ts) > 1 else 0.5
     counts: dict[str, int] = {}
+    spans: dict[str, list[tuple[float, float]]] = {}  # verdict → its runs (start, width)
     for k, d in enumerate(decisions):
         v = d.get("verdict", "")
         counts[v] = counts.get(v, 0) + 1
         t1 = ts[k + 1] if k + 1 < len(ts) else min(ts[k] + period, max(t_end, ts[k] + period))
-        ax.broken_barh([(ts[k], t1 - ts[k])], (0, 1), color=VERDICT_COLOURS.get(v, "grey"), lw=0)
+        same = k > 0 and decisions[k - 1].get("verdict", "") == v
+        if same:  # the run of this verdict goes on: one rectangle, not one per decision
+            t0, _ = spans[v][-1]
+            spans[v][-1] = (t0, t1 - t0)
+        else:
+            spans.setdefault(v, []).append((ts[k], t1 - ts[k]))
+    for v, runs in spans.items():  # one collection per verdict: drawn at a fraction of the cost
+        ax.broken_barh(runs, (0, 1), color=VERDICT_COLOURS.get(v, "grey"), lw=0)
     ax.set_yticks([])
     ax.set_ylim(0, 1)
     ax.set_ylabel("the net's\nverdict", rotation=0, ha="right", va="center", fontsize=8)

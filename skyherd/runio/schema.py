@@ -15,11 +15,15 @@ import json
 import math
 import typing
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from pydantic import ConfigDict, ValidationError, create_model
+if TYPE_CHECKING:
+    from pydantic import ValidationError
 
-STRICT = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+# pydantic's ConfigDict. pydantic itself (~0.1 s of CPU to import) is imported by the first
+# table validated (_validated), not by `import skyherd.runio`: every program imports runio,
+# and `skyherd sim` validates no table unless given --param.
+STRICT = {"extra": "forbid", "allow_inf_nan": False, "strict": True}
 
 
 class ConfigError(ValueError):
@@ -64,11 +68,7 @@ def fill_dataclass(cls: type, table: Any, where: str):
     fields = {f.name: (hints[f.name], f.default if f.default is not dataclasses.MISSING
                        else f.default_factory())  # type: ignore[misc]
               for f in dataclasses.fields(cls) if f.init}  # fmt: skip
-    model = create_model(f"{cls.__name__}Table", __config__=STRICT, **fields)  # type: ignore[call-overload]
-    try:
-        values = model.model_validate_json(_json(table))
-    except ValidationError as e:
-        raise ConfigError(_one_line(e, where, fields)) from e
+    values = _validated(f"{cls.__name__}Table", fields, table, where)
     return cls(**{k: getattr(values, k) for k in table})
 
 
@@ -77,14 +77,22 @@ def validate_mapping(table: Any, value_type: type, known: Iterable[str], where: 
     known = list(known)
     if not isinstance(table, dict):
         raise ConfigError(f"[{where}] must be a table, got {type(table).__name__}")
-    model = create_model(
-        f"{where}Table", __config__=STRICT, **{k: (value_type | None, None) for k in known}
-    )  # type: ignore[call-overload]
-    try:
-        values = model.model_validate_json(_json(table))
-    except ValidationError as e:
-        raise ConfigError(_one_line(e, where, known)) from e
+    values = _validated(
+        f"{where}Table", {k: (value_type | None, None) for k in known}, table, where
+    )
     out = {k: getattr(values, k) for k in table}
     if value_type is float and not all(math.isfinite(v) for v in out.values()):
         raise ConfigError(f"[{where}] values must be finite numbers")
     return out
+
+
+def _validated(name: str, fields: dict, table: Any, where: str):
+    """`table` checked by a strict pydantic model of `fields` (name → (type, default)); its
+    values as the model's attributes. ConfigError (one line) if it does not match."""
+    from pydantic import ValidationError, create_model
+
+    model = create_model(name, __config__=STRICT, **fields)  # type: ignore[call-overload]
+    try:
+        return model.model_validate_json(_json(table))
+    except ValidationError as e:
+        raise ConfigError(_one_line(e, where, fields)) from e
