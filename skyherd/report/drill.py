@@ -136,6 +136,66 @@ def campaign_summary(n: int, through: str, seed: int, only: set, versions: str, 
     )
 
 
+def versions_line(specs) -> str:
+    """The constraint sets flown: `specs` maps each airframe to its EnvelopeSpec."""
+    return ", ".join(f"{a}: {s.name} {s.version}" for a, s in specs.items())
+
+
+def drill_report(results, specs, seed: int) -> tuple[str, str]:
+    """(what `skyherd drill` prints, its summary.md): the drills' table, the totals, the
+    constraint sets (`specs`: airframe → EnvelopeSpec)."""
+    table = drill_table(results, seed)
+    totals = drill_totals(results)
+    versions = versions_line(specs)
+    printed = f"{table}\n{totals}\nconstraint sets: {versions}"
+    return printed, drill_summary(versions, table, totals, results)
+
+
+def campaign_report(rows: list[dict], specs, n: int, through: str, seed: int, only: set,
+                    target: float) -> tuple[str, str]:  # fmt: skip
+    """(what `skyherd drill --campaign N` prints, its summary.md): safety.campaign_verdict's
+    tables and bounds over the drills' rows, the way they flew, the constraint sets (`specs`:
+    airframe → EnvelopeSpec), the drills that failed a check."""
+    from skyherd.safety.campaign_verdict import bounds, drill_passed, summarize
+
+    table, closest, totals, _ = summarize(rows) if rows else ("", "", "no in-process drills", 0)
+    proof = bounds(rows, target) if rows else ""
+    versions = versions_line(specs)
+    printed = "\n".join([table, closest, proof, totals, f"flown through: {THROUGH_TEXT[through]}",
+                         f"constraint sets: {versions}"])  # fmt: skip
+    fails = [f"- {r['drill']} ({r['airframe']}): {r['why']}" for r in rows if not drill_passed(r)]
+    summary = campaign_summary(n, through, seed, only, versions, table, closest, proof, totals,
+                               fails)  # fmt: skip
+    return printed, summary
+
+
+def write_mcap(folder: Path) -> str:
+    """flight.mcap of the drills (their metrics, events and envelope; record.from_run), so a
+    drill opens in Foxglove like a flight; the line that says so. A recording that fails never
+    fails the drills: the line says why."""
+    try:
+        from skyherd.record.from_run import mcap_from_run
+
+        res = mcap_from_run(folder)
+        return f"flight.mcap: {sum(res.counts.values())} messages"
+    except Exception as e:  # noqa: BLE001 - say so, keep the drills' result
+        return f"no flight.mcap ({type(e).__name__}: {e})"
+
+
+def figure_name(airframe: str, drill: str) -> str:
+    """A scripted drill's figure: <airframe>-<drill>.png, every other character a dash."""
+    slug = "".join(c if c.isalnum() else "-" for c in f"{airframe}-{drill}").strip("-")
+    return slug + ".png"
+
+
+def plot_randoms(results, specs, folder: Path) -> None:
+    """One figure of the random drills per airframe: <airframe>-random.png."""
+    for airframe, spec in specs.items():
+        rs = [r for r, _ in results if r.airframe == airframe and r.name.startswith("random")]
+        if rs:
+            plot_random(rs, spec, folder / f"{airframe}-random.png")
+
+
 _COLORS = {0: "tab:blue", 1: "tab:red", 2: "tab:orange"}
 
 
