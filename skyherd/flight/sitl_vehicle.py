@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import sys
 from pathlib import Path
 
 from skyherd.flight.mavlink import EndpointConfig
@@ -51,6 +53,25 @@ def links_table(config: EndpointConfig) -> str:
         ["ground station", f"udp {config.gcs_bind[0]}:{config.gcs_bind[1]}", f"{config.gcs_remote[0]}:{config.gcs_remote[1]}"],
     ]  # fmt: skip
     return markdown_table(["link", "bound to", "sends to"], rows)
+
+
+def run_until_stopped(sitl: Sitl, duration_s: float | None) -> RunStats:
+    """Run until SIGTERM or SIGINT (even when a shell started the process in the background)
+    end it cleanly, or until `duration_s` of simulation time; a bounded run shows its progress
+    in simulated seconds on a terminal."""
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: sitl.request_stop())
+    if duration_s is None:
+        return sitl.run(duration_s=None, on_step=None)
+    from tqdm import tqdm
+
+    with tqdm(total=round(duration_s), unit="sim s", disable=not sys.stderr.isatty()) as bar:
+
+        def progress(s: Sitl) -> None:
+            if s.clock.t - bar.n >= 1.0:
+                bar.update(int(s.clock.t - bar.n))
+
+        return sitl.run(duration_s=duration_s, on_step=progress)
 
 
 def run_summary(sitl: Sitl, stats: RunStats | None) -> str:

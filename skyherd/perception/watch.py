@@ -73,6 +73,16 @@ def try_show(img: np.ndarray, enabled: bool) -> bool:
         return False
 
 
+def watch_folder(run, save_every: int):
+    """frames/ and metrics.csv in the run folder `run` (runio.Run), described; the metrics
+    writer (COLUMNS)."""
+    (run.path / "frames").mkdir()
+    run.describe("frames", f"annotated frames, PNG (one in every {save_every})")
+    run.describe("metrics.csv", "one row per processed frame: seq, sim time, UGVs detected, "
+                 "centre of mass, spread, latency, φ(s)")  # fmt: skip
+    return run.metrics(COLUMNS)
+
+
 def watch_frames(
     sub: FrameSubscriber,
     p: WatchParams,

@@ -1,6 +1,7 @@
-"""`skyherd drill`'s report: its metrics.csv rows, tables, summary.md and figures (one per
-scripted drill, the random drills' tracks, the campaign's closest approaches and tracks).
-matplotlib is imported inside the plots."""
+"""`skyherd drill`'s report: its tables, summary.md and figures (one per scripted drill, the
+random drills' tracks, the campaign's closest approaches and tracks), flight.mcap of the drills.
+matplotlib is imported inside the plots. The metrics.csv rows are safety.drill_run's (named and
+random drills) and safety.campaign_run's (the campaign)."""
 
 from __future__ import annotations
 
@@ -16,41 +17,6 @@ THROUGH_TEXT = {
     "over loopback MAVLink to the built-in vehicle, lockstep on the simulation clock",
     "process": "the in-process drill loop (safety.drills.run_drill)",
 }  # --through
-
-COLUMNS = [
-    "drill",
-    "airframe",
-    "passed",
-    "excursion_m",
-    "fallback_s",
-    "pid_s",
-    "recover_s",
-    "rejected",
-    "projected",
-    "switches",
-    "first_reason",
-    "why",
-    "constraint_set_version",
-]  # metrics.csv of `skyherd drill` (the campaign's: safety.campaign_run.COLUMNS)
-
-
-def metrics_row(r, version: str) -> dict:
-    """One drill's metrics.csv row (safety.drills.DrillResult `r`, its constraint set's version)."""
-    return {
-        "drill": r.name,
-        "airframe": r.airframe,
-        "passed": r.passed,
-        "excursion_m": round(r.excursion_m, 3),
-        "fallback_s": round(r.fallback_s, 3),
-        "pid_s": round(r.pid_s, 3),
-        "recover_s": "" if math.isnan(r.recover_s) else round(r.recover_s, 3),
-        "rejected": r.rejected,
-        "projected": r.projected,
-        "switches": r.switches,
-        "first_reason": r.reasons[0] if r.reasons else "",
-        "why": r.why,
-        "constraint_set_version": version,
-    }
 
 
 def failed_check(r) -> str:

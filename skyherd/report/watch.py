@@ -9,6 +9,7 @@ import numpy as np
 from skyherd.perception.detector import write_png
 from skyherd.perception.transport import LinkStats
 from skyherd.perception.watch import Watched, strip_image
+from skyherd.record.watch import FlightWatch
 from skyherd.runio import Run, markdown_table
 
 
@@ -27,19 +28,11 @@ def watch_table(stats: LinkStats, seen: Watched) -> str:
     return markdown_table(["quantity", "value"], rows, missing="no frame was processed")
 
 
-def finish_watch(
-    run: Run,
-    stats: LinkStats,
-    seen: Watched,
-    *,
-    vehicle: str,
-    strip: int,
-    signing_key: str | None,
-    recorded: dict[str, int] | None,
-) -> str:
-    """strip.png (at most `strip` frames) and summary.md; returns the table. `signing_key`:
-    the key file the frames were authenticated with (None: not authenticated); `recorded`:
-    flight.mcap's messages per channel (None: no flight.mcap)."""
+def finish_watch(run: Run, w: FlightWatch, strip: int, signing_key: str | None) -> None:
+    """strip.png (at most `strip` frames) and summary.md from what `w` received; the table and
+    the run folder on standard output. `signing_key`: the key file the frames were
+    authenticated with (None: not authenticated)."""
+    stats, seen, vehicle, recorded = w.sub.stats, w.seen, w.vehicle, w.recorded()
     if strip and seen.strip:
         image, n = strip_image(seen.strip, strip)
         write_png(run.file("strip.png"), image)
@@ -56,4 +49,15 @@ def finish_watch(
                if signing_key is not None else "not authenticated (no --signing-key): any publisher's are shown")  # fmt: skip
     run.summary(f"Frames of `skyherd/{vehicle}/camera/frame`, {checked}.\n\n"
                 f"{table}\n{rec_line}{cam_line}")  # fmt: skip
-    return table
+    print(table)
+    print(f"run folder: {run.path}")
+
+
+def no_frame(
+    vehicle: str, timeout_s: float, refused: int, signing_key: str | None, connect: str | None
+) -> str:
+    """Why a watch ends failed: no frame within the timeout, and the likely cause."""
+    why = (f"{refused} refused as not signed with --signing-key {signing_key} (another "
+           "flight's key, or an unsigned source?)" if refused else
+           f"is a flight publishing? --connect {connect}")  # fmt: skip
+    return f"no frame on skyherd/{vehicle}/camera/frame within {timeout_s:g} s ({why})"

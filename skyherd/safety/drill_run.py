@@ -1,12 +1,13 @@
 """`skyherd drill`'s named and random drills of one airframe: the plan (its constraint set, the
 supervisor's parameters, the drill parameters, the scripted and random drills) and flying it
 drill by drill in the in-process drill loop (safety.drills.run_drill), every supervisor event
-tagged with its drill and airframe. The randomized campaign is safety.campaign_run's and
-mission.campaign's."""
+tagged with its drill and airframe, one metrics.csv row per drill. The randomized campaign is
+safety.campaign_run's and mission.campaign's."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
@@ -23,6 +24,41 @@ from skyherd.safety.drills import (
 )
 from skyherd.safety.envelope import EnvelopeSpec
 from skyherd.safety.supervisor import SupervisorParams
+
+COLUMNS = [
+    "drill",
+    "airframe",
+    "passed",
+    "excursion_m",
+    "fallback_s",
+    "pid_s",
+    "recover_s",
+    "rejected",
+    "projected",
+    "switches",
+    "first_reason",
+    "why",
+    "constraint_set_version",
+]  # metrics.csv of `skyherd drill` (the campaign's: safety.campaign_run.COLUMNS)
+
+
+def metrics_row(r, version: str) -> dict:
+    """One drill's metrics.csv row (safety.drills.DrillResult `r`, its constraint set's version)."""
+    return {
+        "drill": r.name,
+        "airframe": r.airframe,
+        "passed": r.passed,
+        "excursion_m": round(r.excursion_m, 3),
+        "fallback_s": round(r.fallback_s, 3),
+        "pid_s": round(r.pid_s, 3),
+        "recover_s": "" if math.isnan(r.recover_s) else round(r.recover_s, 3),
+        "rejected": r.rejected,
+        "projected": r.projected,
+        "switches": r.switches,
+        "first_reason": r.reasons[0] if r.reasons else "",
+        "why": r.why,
+        "constraint_set_version": version,
+    }
 
 
 @dataclass(frozen=True)
@@ -91,6 +127,25 @@ def fly_plan(plan: DrillPlan, seed: int, events) -> Iterator[DrillResult]:
     for script in plan.scripts:
         tagged = Tagged(events, script.name, plan.airframe)
         yield run_drill(script, plan.make(seed), plan.spec, plan.sp, plan.p, tagged)
+
+
+def fly_plans(
+    plans: list[DrillPlan],
+    seed: int,
+    events,
+    metrics,
+    on_result: Callable[[DrillPlan, DrillResult], None] | None = None,
+) -> list[tuple[DrillResult, EnvelopeSpec]]:
+    """Every drill of `plans` (`fly_plan`), each one's row to `metrics` (COLUMNS) as it ends,
+    then `on_result(plan, result)`; the (result, constraint set) pairs in order."""
+    results = []
+    for plan in plans:
+        for r in fly_plan(plan, seed, events):
+            results.append((r, plan.spec))
+            metrics.write(metrics_row(r, plan.spec.version))
+            if on_result is not None:
+                on_result(plan, r)
+    return results
 
 
 class Tagged:

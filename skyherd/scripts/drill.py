@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from skyherd.report import drill as report
-from skyherd.runio import UsageError, ports
+from skyherd.runio import UsageError, args_dict, ports
 from skyherd.runio.constants import MISSION_DRILL_INSTANCE, TARGET_BOUND
 from skyherd.runio.runfolder import RunFolder
 
@@ -162,9 +162,16 @@ def _plan(airframe: str, args: argparse.Namespace):
 
     spec, sp = load_set_or_usage(airframe, args.envelope)
     try:
-        return drill_plan(airframe, spec, sp, intervention=args.intervention,
-                          duration_s=args.duration, only=args.only, n_random=args.random,
-                          seed=args.seed)  # fmt: skip
+        return drill_plan(
+            airframe,
+            spec,
+            sp,
+            intervention=args.intervention,
+            duration_s=args.duration,
+            only=args.only,
+            n_random=args.random,
+            seed=args.seed,
+        )
     except AirframeUnavailable as e:
         raise UsageError(f"{e}; try --airframe quadrotor") from e
     except ValueError as e:
@@ -175,24 +182,23 @@ def _drills(args: argparse.Namespace, plans) -> int:
     """The named and random drills of `plans`: run folder, progress, figures, table, summary."""
     from tqdm import tqdm
 
-    from skyherd.safety.drill_run import fly_plan
+    from skyherd.safety.drill_run import COLUMNS, fly_plans
 
     run_dir = RunFolder("drill", root=args.runs_dir)
-    run_dir.write_config({"args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
-                          "seed": args.seed, "plans": [p.describe() for p in plans]})  # fmt: skip
+    plan_facts = [p.describe() for p in plans]
+    run_dir.write_config({"args": args_dict(args), "seed": args.seed, "plans": plan_facts})
     events = run_dir.events()
-    metrics = run_dir.metrics(report.COLUMNS)
-    results = []
+    metrics = run_dir.metrics(COLUMNS)
     with tqdm(total=sum(len(p.scripts) for p in plans), desc="drills", unit="drill") as bar:
-        for plan in plans:
-            for r in fly_plan(plan, args.seed, events):
-                results.append((r, plan.spec))
-                metrics.write(report.metrics_row(r, plan.spec.version))
-                if not args.no_plots and not r.name.startswith("random"):
-                    report.plot_drill(
-                        r, plan.spec, run_dir.file(report.figure_name(plan.airframe, r.name))
-                    )
-                bar.update(1)
+
+        def plot(plan, r) -> None:
+            if not args.no_plots and not r.name.startswith("random"):
+                report.plot_drill(
+                    r, plan.spec, run_dir.file(report.figure_name(plan.airframe, r.name))
+                )
+            bar.update(1)
+
+        results = fly_plans(plans, args.seed, events, metrics, plot)
     events.close()
     metrics.close()
     specs = {p.airframe: p.spec for p in plans}
@@ -211,8 +217,8 @@ def _campaign(args: argparse.Namespace) -> int:
     (safety.campaign_verdict.failed_drills), else 1."""
     from tqdm import tqdm
 
-    from skyherd.mission.campaign import campaign_jobs, run_all
-    from skyherd.safety.campaign_run import COLUMNS, split_row
+    from skyherd.mission.campaign import campaign_jobs, record_campaign
+    from skyherd.safety.campaign_run import COLUMNS
     from skyherd.safety.campaign_verdict import failed_drills
 
     airframes = _airframes(args.airframe)
@@ -223,30 +229,30 @@ def _campaign(args: argparse.Namespace) -> int:
     if only:  # --drill: those drills of the campaign alone, as the whole campaign flies them
         jobs = [j for j in jobs if j.index in only]
     run_dir = RunFolder("drill", root=args.runs_dir)
-    run_dir.write_config({"args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
+    run_dir.write_config({"args": args_dict(args),
                           "seed": args.seed, "campaign": args.campaign, "airframes": airframes,
                           "constraint_sets": {a: s.describe() for a, (s, _) in sets.items()},
                           "supervisor": {a: sp for a, (_, sp) in sets.items()}})  # fmt: skip
     events = run_dir.events()
     metrics = run_dir.metrics(COLUMNS)
-    rows: list[dict] = []
-    tracks: dict[str, list] = {a: [] for a in airframes}
     with tqdm(total=len(jobs), desc="campaign", unit="drill") as bar:
-        for row in run_all(jobs, args.workers, args.backend, args.ray_address, say=tqdm.write):
-            row, drill_events, track = split_row(row)  # streamed as drills finish
-            for e in drill_events:
-                events.write(e)
-            tracks[row["airframe"]].append(track)
-            metrics.write(row)
-            rows.append(row)
-            bar.update(1)
+        rows, tracks = record_campaign(
+            jobs,
+            events,
+            metrics,
+            args.workers,
+            args.backend,
+            args.ray_address,
+            tqdm.write,
+            lambda row: bar.update(1),
+        )
     events.close()
     metrics.close()
     specs = {a: s for a, (s, _) in sets.items()}
     if not args.no_plots and rows:
         report.plot_campaign(rows, tracks, specs, run_dir.file("campaign.png"))
-    printed, summary = report.campaign_report(rows, specs, args.campaign, args.through,
-                                              args.seed, only, args.target_bound)  # fmt: skip
+    n, through, target = args.campaign, args.through, args.target_bound
+    printed, summary = report.campaign_report(rows, specs, n, through, args.seed, only, target)
     print(printed)
     print(f"run folder: {run_dir.path}")
     run_dir.write_summary(summary)

@@ -5,7 +5,6 @@ set over MAVLink persist per airframe and instance)."""
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from pathlib import Path
 
@@ -66,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
     from skyherd.flight.sitl_vehicle import (
         links_table,
         run_summary,
+        run_until_stopped,
         saved_params,
         saved_params_line,
     )
@@ -127,29 +127,10 @@ def run(args: argparse.Namespace) -> int:
     print(links_table(config), flush=True)
     if (line := saved_params_line(saved)) is not None:
         print(line, flush=True)
-    # SIGTERM (and SIGINT, even when a shell started us in the background) end the run cleanly.
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: sitl.request_stop())
     with sitl:
-        stats = _run(sitl, args.duration)
+        stats = run_until_stopped(sitl, args.duration)
     table = run_summary(sitl, stats)
     folder.write_summary("# skyherd sitl\n\n" + table)
     print(table)
     print(f"skyherd sitl: stopped at t = {sitl.clock.t:.1f} s simulated", file=sys.stderr)
     return 0
-
-
-def _run(sitl, duration_s: float | None):
-    """Run until stopped; a bounded run shows its progress in simulated seconds (on a terminal
-    only)."""
-    if duration_s is None:
-        return sitl.run(duration_s=None, on_step=None)
-    from tqdm import tqdm
-
-    with tqdm(total=round(duration_s), unit="sim s", disable=not sys.stderr.isatty()) as bar:
-
-        def progress(s) -> None:
-            if s.clock.t - bar.n >= 1.0:
-                bar.update(int(s.clock.t - bar.n))
-
-        return sitl.run(duration_s=duration_s, on_step=progress)

@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 from skyherd.hil.teleop import TeleopParams, record_keyboard, record_stick
+from skyherd.report.teleop import save_demo
 from skyherd.runio import RunFolder, UsageError
 
 
@@ -77,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("teleop needs a terminal on stdin (run it in a terminal, not a pipe)")
     with RunFolder.open("teleop", args, root=args.runs_dir) as run:
         out = _out_path(args, run)
-        return _save(args, run, record_keyboard(p, fd), out, "keyboard")
+        return save_demo(run, record_keyboard(p, fd), out, args.scenario, "keyboard")
 
 
 def _run_mavlink(args: argparse.Namespace, p: TeleopParams) -> int:
@@ -101,36 +102,10 @@ def _run_mavlink(args: argparse.Namespace, p: TeleopParams) -> int:
         finally:
             link.close()
         mode = "continuous" if args.continuous else "discrete"
-        return _save(args, run, demo, out, f"MAVLink MANUAL_CONTROL, {mode}")
+        return save_demo(run, demo, out, args.scenario, f"MAVLink MANUAL_CONTROL, {mode}")
 
 
 def _out_path(args: argparse.Namespace, run) -> Path:
     out = args.out or run.file(f"{args.scenario}.npz")
     out.parent.mkdir(parents=True, exist_ok=True)
     return out
-
-
-def _save(args: argparse.Namespace, run, demo, out: Path, source: str) -> int:
-    """Save the demonstration, say what it holds in summary.md; nothing recorded = failed."""
-    from skyherd.runio import file_facts, markdown_table
-
-    if demo.actions.shape[0] == 0:
-        print("nothing recorded (quit before the first step)")
-        run.fail("nothing recorded (quit before the first step)")
-        return 1
-    demo.save(out)
-    m = demo.meta["episode_metrics"]
-    print(f"run folder: {run.path}")
-    run.config(demo=file_facts(out), source=source)
-    run.describe(out.name, f"the demonstration ({args.scenario}, {source}), skyherd-demo format")
-    rows = [[i, x["all_in_view_frac"]] for i, x in enumerate(m)]
-    run.summary(
-        f"{demo.actions.shape[0]} steps of {args.scenario} from the {source} in {len(m)} "
-        f"episode(s), saved to `{out}`.\n\n"
-        + markdown_table(["episode", "all-in-view fraction"], rows)
-    )
-    print(
-        f"\nrecorded {demo.actions.shape[0]} steps in {len(m)} episode(s) of {args.scenario} → {out}"
-    )
-    print(f"all-in-view fraction per episode: {[round(x['all_in_view_frac'], 3) for x in m]}")
-    return 0

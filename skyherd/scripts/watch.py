@@ -1,14 +1,7 @@
-"""`skyherd watch`: subscribe to a vehicle's camera frames, detect the UGVs, save the view.
-
-Connects (Zenoh peer, loopback by default) to `skyherd/<vehicle>/camera/frame`, runs the
-detector on the newest frame each time one arrives, and writes into `runs/<time>-watch/`:
-annotated PNGs (red dot = image centre, blue dot = UGVs' centre of mass, blue circle = spread),
-`strip.png` (a frame strip), `metrics.csv` (one row per processed frame: counts, φ(s),
-latency), `config.json` and `summary.md` (link counts and detection figures). A window shows
-the annotated view only when a display exists and OpenCV has a GUI.
-
-Exit codes: 0 frames were processed; 1 no frame arrived before --timeout; 2 bad usage.
-"""
+"""`skyherd watch`: a vehicle's camera frames from Zenoh (loopback by default), the UGVs
+detected on each (perception.watch), annotated PNGs, metrics.csv, strip.png and summary.md
+(report.watch) in `runs/<time>-watch/`, flight.mcap (record). Exit codes: 0 frames were
+processed; 1 no frame arrived before --timeout; 2 bad usage."""
 
 from __future__ import annotations
 
@@ -17,14 +10,8 @@ import os
 import signal
 
 from skyherd.perception.features import FeatureParams
-from skyherd.perception.transport import (
-    FrameSubscriber,
-    ZenohParams,
-    open_session,
-    subscriber_params,
-    zenoh_error_text,
-)
-from skyherd.perception.watch import COLUMNS, Watched, WatchParams, watch_frames
+from skyherd.perception.transport import ZenohParams, open_session, viewer_params, zenoh_error_text
+from skyherd.perception.watch import WatchParams
 from skyherd.runio import RunFolder, UsageError, ports
 from skyherd.runio.signals import CtrlC
 
@@ -99,15 +86,12 @@ def _check(args: argparse.Namespace) -> None:
 
 
 def _session(args: argparse.Namespace):
-    from skyherd.runio.address import AddressError, zenoh_endpoint
+    from skyherd.runio.address import AddressError
 
-    if args.zenoh_config:
-        zp = ZenohParams(config_file=args.zenoh_config)
-    else:
-        try:
-            zp = subscriber_params(zenoh_endpoint(args.connect))
-        except AddressError as e:
-            raise UsageError(f"--connect {e}") from e
+    try:
+        zp = viewer_params(args.connect, args.zenoh_config)
+    except AddressError as e:
+        raise UsageError(f"--connect {e}") from e
     try:
         return zp, open_session(zp)
     except ValueError as e:
@@ -119,21 +103,14 @@ def _session(args: argparse.Namespace):
         raise UsageError(f"cannot open a Zenoh session ({where}): {zenoh_error_text(e)}") from e
 
 
-def flight_key(args: argparse.Namespace) -> bytes | None:
-    """The flight key (--signing-key), None without one; a bad file is a UsageError."""
+def run(args: argparse.Namespace) -> int:
     from skyherd.flight.mavlink.signing import SigningError, load_key
 
-    if not args.signing_key:
-        return None
-    try:
-        return load_key(args.signing_key)
+    _check(args)
+    try:  # the flight key: only authentic frames and records
+        key = load_key(args.signing_key) if args.signing_key else None
     except SigningError as e:
         raise UsageError(f"--signing-key: {e}") from None
-
-
-def run(args: argparse.Namespace) -> int:
-    _check(args)
-    key = flight_key(args)
     ctrl_c = CtrlC()
     prev = signal.signal(signal.SIGINT, ctrl_c)
     try:
@@ -152,23 +129,17 @@ def run(args: argparse.Namespace) -> int:
 def _watch(args, zp: ZenohParams, session, ctrl_c: CtrlC, key: bytes | None) -> int:
     from tqdm import tqdm
 
-    from skyherd.record import LiveServer, ZenohRecorder
-    from skyherd.report.watch import finish_watch
+    from skyherd.record import LiveServer
+    from skyherd.record.watch import FlightWatch
+    from skyherd.report.watch import finish_watch, no_frame
 
-    sub = FrameSubscriber(session, args.vehicle, key=key)
-    seen, rec = Watched(), None
+    w, live = FlightWatch(session, args.vehicle, key), None
 
     def finish() -> None:
         """Summary, strip.png: from what was received, on every ending (Ctrl-C too)."""
-        sub.close()
-        session.close()
-        recorded = rec.log.counts if rec is not None and args.mcap else None
-        signed = args.signing_key if key is not None else None
-        print(finish_watch(run, sub.stats, seen, vehicle=args.vehicle, strip=args.strip,
-                           signing_key=signed, recorded=recorded))  # fmt: skip
-        print(f"run folder: {run.path}")
+        w.close()
+        finish_watch(run, w, args.strip, args.signing_key if key is not None else None)
 
-    live = None
     if args.foxglove is not None:
         try:
             live = LiveServer(args.foxglove)
@@ -178,29 +149,15 @@ def _watch(args, zp: ZenohParams, session, ctrl_c: CtrlC, key: bytes | None) -> 
         print(f"Foxglove: open ws://127.0.0.1:{live.port}")
     with RunFolder.open("watch", args, root=args.runs_dir) as run:
         run.config(zenoh=zp, feature_params=FeatureParams())
-        if args.mcap or live is not None:  # with a key: authentic records only
-            path = run.file("flight.mcap") if args.mcap else None
-            also = [live] if live is not None else []
-            rec = run.closing(ZenohRecorder(session, args.vehicle, path, also=also, key=key))
-        (run.path / "frames").mkdir()
-        run.describe("frames", f"annotated frames, PNG (one in every {args.save_every})")
-        run.describe("metrics.csv", "one row per processed frame: seq, sim time, UGVs detected, "
-                     "centre of mass, spread, latency, φ(s)")  # fmt: skip
-        metrics = run.metrics(COLUMNS)
+        w.record(run, args.mcap, live)
         run.at_end(finish, "summary")
         bar = run.closing(tqdm(total=args.frames, desc="watch", unit="frame", disable=None))
         p = WatchParams(args.frames, args.ugvs, args.timeout, args.save_every, not args.no_show)
-        frames = run.path / "frames"
-        watch_frames(sub, p, metrics, frames, lambda: ctrl_c.requested, seen, bar.update)
+        seen = w.watch(run, p, lambda: ctrl_c.requested, bar.update)
         ctrl_c.check()  # outside every lock: the run folder ends as interrupted
         if seen.processed == 0:
-            refused = sub.stats.refused
-            why = (f"{refused} refused as not signed with --signing-key {args.signing_key} (another "
-                   "flight's key, or an unsigned source?)" if refused else
-                   f"is a flight publishing? --connect {args.connect}")  # fmt: skip
-            run.fail(
-                f"no frame on skyherd/{args.vehicle}/camera/frame within {args.timeout:g} s ({why})"
-            )
+            refused = w.sub.stats.refused
+            run.fail(no_frame(args.vehicle, args.timeout, refused, args.signing_key, args.connect))
     if run.outcome == "failed":
         print(f"skyherd watch: {run.reason}")
         return 1
