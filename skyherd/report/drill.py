@@ -117,8 +117,9 @@ def drill_report(results, specs, seed: int) -> tuple[str, str]:
     return printed, drill_summary(versions, table, totals, results)
 
 
-def campaign_report(rows: list[dict], specs, n: int, through: str, seed: int, only: set,
-                    target: float) -> tuple[str, str]:  # fmt: skip
+def campaign_report(
+    rows: list[dict], specs, n: int, through: str, seed: int, only: set, target: float
+) -> tuple[str, str]:
     """(what `skyherd drill --campaign N` prints, its summary.md): safety.campaign_verdict's
     tables and bounds over the drills' rows, the way they flew, the constraint sets (`specs`:
     airframe → EnvelopeSpec), the drills that failed a check."""
@@ -127,12 +128,11 @@ def campaign_report(rows: list[dict], specs, n: int, through: str, seed: int, on
     table, closest, totals, _ = summarize(rows) if rows else ("", "", "no in-process drills", 0)
     proof = bounds(rows, target) if rows else ""
     versions = versions_line(specs)
-    printed = "\n".join([table, closest, proof, totals, f"flown through: {THROUGH_TEXT[through]}",
-                         f"constraint sets: {versions}"])  # fmt: skip
+    flown = f"flown through: {THROUGH_TEXT[through]}"
+    printed = "\n".join([table, closest, proof, totals, flown, f"constraint sets: {versions}"])
     fails = [f"- {r['drill']} ({r['airframe']}): {r['why']}" for r in rows if not drill_passed(r)]
-    summary = campaign_summary(n, through, seed, only, versions, table, closest, proof, totals,
-                               fails)  # fmt: skip
-    return printed, summary
+    facts = (versions, table, closest, proof, totals, fails)
+    return printed, campaign_summary(n, through, seed, only, *facts)
 
 
 def write_mcap(folder: Path) -> str:

@@ -93,9 +93,16 @@ def autopilot_factory(airframe: str) -> Callable[[int], Autopilot]:
     return lambda seed: make_autopilot(airframe, seed=seed)
 
 
-def drill_plan(airframe: str, spec: EnvelopeSpec, sp: SupervisorParams, *,
-               intervention: str | None = None, duration_s: float | None = None,
-               only: str | None = None, n_random: int = 0, seed: int = 0) -> DrillPlan:  # fmt: skip
+def drill_plan(
+    airframe: str,
+    spec: EnvelopeSpec,
+    sp: SupervisorParams,
+    intervention: str | None = None,
+    duration_s: float | None = None,
+    only: str | None = None,
+    n_random: int = 0,
+    seed: int = 0,
+) -> DrillPlan:
     """The scripted drills of `airframe` (those whose name contains one of the comma-separated
     `only`, if given) and `n_random` random ones drawn with `seed`; `intervention` (switch,
     project) and `duration_s` (AI time per drill [s]) replace the defaults. ValueError when

@@ -163,14 +163,7 @@ def _plan(airframe: str, args: argparse.Namespace):
     spec, sp = load_set_or_usage(airframe, args.envelope)
     try:
         return drill_plan(
-            airframe,
-            spec,
-            sp,
-            intervention=args.intervention,
-            duration_s=args.duration,
-            only=args.only,
-            n_random=args.random,
-            seed=args.seed,
+            airframe, spec, sp, args.intervention, args.duration, args.only, args.random, args.seed
         )
     except AirframeUnavailable as e:
         raise UsageError(f"{e}; try --airframe quadrotor") from e

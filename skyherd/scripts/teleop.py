@@ -1,11 +1,7 @@
-"""`skyherd teleop`: record a demonstration of a GroundAir scenario from the keyboard, or from
-a joystick or ground station's MAVLink MANUAL_CONTROL (`--mavlink ADDRESS`; `--continuous`
-keeps the stick proportional, skyherd-demo/2). Keys, sticks and the text view: hil.teleop.
-
-The run folder (`runs/<time>-teleop/`) gets config.json, summary.md and the demonstration
-(`<scenario>.npz`, unless --out says elsewhere), in the skyherd-demo format (policy.demos),
-ready for `skyherd train irl|ab|abs-dl --demos FOLDER` (name the files <scenario>.npz).
-"""
+"""`skyherd teleop`: a demonstration of a GroundAir scenario flown from the keyboard, or from
+MAVLink MANUAL_CONTROL (`--mavlink ADDRESS`, `--continuous`): hil.teleop. The run folder gets
+config.json, summary.md and `<scenario>.npz` (or --out), in the skyherd-demo format
+(policy.demos), ready for `skyherd train irl|ab|abs-dl --demos FOLDER`."""
 
 from __future__ import annotations
 
