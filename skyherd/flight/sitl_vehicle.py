@@ -10,10 +10,13 @@ import os
 import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from skyherd.flight.mavlink import EndpointConfig
-from skyherd.flight.sitl import RunStats, Sitl
 from skyherd.runio import markdown_table
+
+if TYPE_CHECKING:  # `skyherd sitl --help` imports this module: no MAVLink stack for it
+    from skyherd.flight.mavlink import EndpointConfig
+    from skyherd.flight.sitl import RunStats, Sitl
 
 
 def default_state_dir() -> Path:
