@@ -25,6 +25,7 @@ from skyherd.safety.campaign_run import (
     drill_row,
     load_set,
     run_process_drill,
+    split_row,
 )
 from skyherd.safety.drills import DrillParams
 
@@ -76,3 +77,30 @@ def run_all(jobs: list[DrillJob], workers: int = 1, backend: str = "auto",
 
     for _, row in map_unordered(run_one, jobs, backend, workers, ray_address, say=say):
         yield row
+
+
+def record_campaign(
+    jobs: list[DrillJob],
+    events,
+    metrics,
+    workers: int = 1,
+    backend: str = "auto",
+    ray_address: str | None = None,
+    say: Callable[[str], None] = print,
+    on_row: Callable[[dict], None] | None = None,
+) -> tuple[list[dict], dict[str, list]]:
+    """Every job flown (`run_all`) and recorded as it finishes: its safety events to `events`
+    (tagged with the drill), its row to `metrics` (safety.campaign_run.COLUMNS), then
+    `on_row(row)`; (the rows, each airframe's (kind, track) pairs) for the verdict and the plot."""
+    rows: list[dict] = []
+    tracks: dict[str, list] = {j.airframe: [] for j in jobs}
+    for row in run_all(jobs, workers, backend, ray_address, say=say):
+        row, drill_events, track = split_row(row)
+        for e in drill_events:
+            events.write(e)
+        tracks[row["airframe"]].append(track)
+        metrics.write(row)
+        rows.append(row)
+        if on_row is not None:
+            on_row(row)
+    return rows, tracks

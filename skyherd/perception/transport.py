@@ -389,6 +389,17 @@ def subscriber_params(connect: str | None = None, port: int = DEFAULT_PORT) -> Z
     return ZenohParams(connect=(connect or f"tcp/127.0.0.1:{port}",))
 
 
+def viewer_params(connect: str | None, config_file: str | None = None) -> ZenohParams:
+    """A viewer's session: the Zenoh config file if one is given, else a peer that connects to
+    `connect` (the one address syntax, runio.address: tcp:HOST:PORT, or Zenoh's tcp/HOST:PORT);
+    runio.AddressError for a bad address."""
+    from skyherd.runio.address import zenoh_endpoint
+
+    if config_file:
+        return ZenohParams(config_file=config_file)
+    return subscriber_params(zenoh_endpoint(connect))
+
+
 def open_session(p: ZenohParams):
     """Open a Zenoh session. Bad endpoints or config files raise ValueError with the reason."""
     import zenoh

@@ -1,6 +1,7 @@
-"""`skyherd drill`'s report: its metrics.csv rows, tables, summary.md and figures (one per
-scripted drill, the random drills' tracks, the campaign's closest approaches and tracks).
-matplotlib is imported inside the plots."""
+"""`skyherd drill`'s report: its tables, summary.md and figures (one per scripted drill, the
+random drills' tracks, the campaign's closest approaches and tracks), flight.mcap of the drills.
+matplotlib is imported inside the plots. The metrics.csv rows are safety.drill_run's (named and
+random drills) and safety.campaign_run's (the campaign)."""
 
 from __future__ import annotations
 
@@ -16,41 +17,6 @@ THROUGH_TEXT = {
     "over loopback MAVLink to the built-in vehicle, lockstep on the simulation clock",
     "process": "the in-process drill loop (safety.drills.run_drill)",
 }  # --through
-
-COLUMNS = [
-    "drill",
-    "airframe",
-    "passed",
-    "excursion_m",
-    "fallback_s",
-    "pid_s",
-    "recover_s",
-    "rejected",
-    "projected",
-    "switches",
-    "first_reason",
-    "why",
-    "constraint_set_version",
-]  # metrics.csv of `skyherd drill` (the campaign's: safety.campaign_run.COLUMNS)
-
-
-def metrics_row(r, version: str) -> dict:
-    """One drill's metrics.csv row (safety.drills.DrillResult `r`, its constraint set's version)."""
-    return {
-        "drill": r.name,
-        "airframe": r.airframe,
-        "passed": r.passed,
-        "excursion_m": round(r.excursion_m, 3),
-        "fallback_s": round(r.fallback_s, 3),
-        "pid_s": round(r.pid_s, 3),
-        "recover_s": "" if math.isnan(r.recover_s) else round(r.recover_s, 3),
-        "rejected": r.rejected,
-        "projected": r.projected,
-        "switches": r.switches,
-        "first_reason": r.reasons[0] if r.reasons else "",
-        "why": r.why,
-        "constraint_set_version": version,
-    }
 
 
 def failed_check(r) -> str:
@@ -134,6 +100,66 @@ def campaign_summary(n: int, through: str, seed: int, only: set, versions: str, 
         f"{totals}\n"
         + ("\n## Drills that failed a check\n" + "\n".join(fails[:200]) + "\n" if fails else "")
     )
+
+
+def versions_line(specs) -> str:
+    """The constraint sets flown: `specs` maps each airframe to its EnvelopeSpec."""
+    return ", ".join(f"{a}: {s.name} {s.version}" for a, s in specs.items())
+
+
+def drill_report(results, specs, seed: int) -> tuple[str, str]:
+    """(what `skyherd drill` prints, its summary.md): the drills' table, the totals, the
+    constraint sets (`specs`: airframe → EnvelopeSpec)."""
+    table = drill_table(results, seed)
+    totals = drill_totals(results)
+    versions = versions_line(specs)
+    printed = f"{table}\n{totals}\nconstraint sets: {versions}"
+    return printed, drill_summary(versions, table, totals, results)
+
+
+def campaign_report(
+    rows: list[dict], specs, n: int, through: str, seed: int, only: set, target: float
+) -> tuple[str, str]:
+    """(what `skyherd drill --campaign N` prints, its summary.md): safety.campaign_verdict's
+    tables and bounds over the drills' rows, the way they flew, the constraint sets (`specs`:
+    airframe → EnvelopeSpec), the drills that failed a check."""
+    from skyherd.safety.campaign_verdict import bounds, drill_passed, summarize
+
+    table, closest, totals, _ = summarize(rows) if rows else ("", "", "no in-process drills", 0)
+    proof = bounds(rows, target) if rows else ""
+    versions = versions_line(specs)
+    flown = f"flown through: {THROUGH_TEXT[through]}"
+    printed = "\n".join([table, closest, proof, totals, flown, f"constraint sets: {versions}"])
+    fails = [f"- {r['drill']} ({r['airframe']}): {r['why']}" for r in rows if not drill_passed(r)]
+    facts = (versions, table, closest, proof, totals, fails)
+    return printed, campaign_summary(n, through, seed, only, *facts)
+
+
+def write_mcap(folder: Path) -> str:
+    """flight.mcap of the drills (their metrics, events and envelope; record.from_run), so a
+    drill opens in Foxglove like a flight; the line that says so. A recording that fails never
+    fails the drills: the line says why."""
+    try:
+        from skyherd.record.from_run import mcap_from_run
+
+        res = mcap_from_run(folder)
+        return f"flight.mcap: {sum(res.counts.values())} messages"
+    except Exception as e:  # noqa: BLE001 - say so, keep the drills' result
+        return f"no flight.mcap ({type(e).__name__}: {e})"
+
+
+def figure_name(airframe: str, drill: str) -> str:
+    """A scripted drill's figure: <airframe>-<drill>.png, every other character a dash."""
+    slug = "".join(c if c.isalnum() else "-" for c in f"{airframe}-{drill}").strip("-")
+    return slug + ".png"
+
+
+def plot_randoms(results, specs, folder: Path) -> None:
+    """One figure of the random drills per airframe: <airframe>-random.png."""
+    for airframe, spec in specs.items():
+        rs = [r for r, _ in results if r.airframe == airframe and r.name.startswith("random")]
+        if rs:
+            plot_random(rs, spec, folder / f"{airframe}-random.png")
 
 
 _COLORS = {0: "tab:blue", 1: "tab:red", 2: "tab:orange"}

@@ -5,7 +5,7 @@ with their figures, how it ended) rendered to HTML, the run's facts from config.
 companion.json, and every figure of the folder embedded as a data: URI (no file beside it, no
 network: the page can be mailed or attached to an issue). summary.md stays the one source of
 the words; this module only lays them out. Written after the flight's ending is known
-(scripts.waysout.append_ending), so a failed or interrupted flight has its page too.
+(report.ending.append_ending), so a failed or interrupted flight has its page too.
 """
 
 from __future__ import annotations

@@ -43,6 +43,7 @@ from skyherd.runio.runfolder import (
     to_jsonable,
     versions,
 )
+from skyherd.runio.space import RESERVE_BYTES, free_bytes
 
 
 class UsageError(Exception):
@@ -60,6 +61,24 @@ class Interrupted(KeyboardInterrupt):
 
 class RunAborted(Exception):
     """Marks an exception that ended a run (`run_path` holds the folder with its summary)."""
+
+
+MIN_FREE_BYTES = 2 * RESERVE_BYTES  # a flight starts only with this much free [bytes]
+
+
+def open_run_folder(command: str, root: Path | str) -> RunFolder:
+    """The flight's run folder under `root`; UsageError (exit 2, nothing started) when it cannot
+    be written or its disk is nearly full."""
+    free = free_bytes(root) if Path(root).exists() else None
+    if free is not None and free < MIN_FREE_BYTES:
+        raise UsageError(f"--runs-dir {root}: {free // 1024} KiB free, a flight needs at least "
+                         f"{MIN_FREE_BYTES // 1024} KiB for its records: free some space or pass "
+                         "another --runs-dir")  # fmt: skip
+    try:
+        return RunFolder(command, root=root)
+    except OSError as e:
+        raise UsageError(f"--runs-dir {root}: cannot make the run folder ({e.strerror or e}): "
+                         "pass a writable --runs-dir") from None  # fmt: skip
 
 
 FILE_NOTES = {

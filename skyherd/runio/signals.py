@@ -1,5 +1,7 @@
-"""Signals kept, not raised, while a flight starts (its run folder, its children), and acted on
-at the next safe point; `interrupted` turns the signal that ended a flight into its exit code."""
+"""The signals that end a run (SIGINT, SIGTERM, SIGHUP), taken without being raised where they
+land: `KeptSignals` (`skyherd fly` while it makes its run folder and starts its children) and
+`CtrlC` (`skyherd watch` from before its Zenoh session opens until its run folder is written);
+`interrupted` turns the KeyboardInterrupt that ends a run into its exit code and words."""
 
 from __future__ import annotations
 
@@ -68,3 +70,28 @@ def interrupted(e: BaseException) -> tuple[int, str]:
         128 + signum,
         "interrupted (Ctrl-C)" if signum == signal.SIGINT else f"interrupted ({name})",
     )
+
+
+class CtrlC:
+    """SIGINT (Ctrl-C) while `skyherd watch` runs: noted (`requested`), never raised where
+    it lands.
+
+    watch takes SIGINT for the whole command, from before its Zenoh session opens until its
+    run folder is written, whatever the process inherited. A background job of a
+    non-interactive shell (`cmd &` in a script) starts with SIGINT ignored; watch used to take
+    it for its frame loop only, so a Ctrl-C during start-up (even just after metrics.csv
+    appeared) was lost and watch waited on until --timeout (the suite saw no exit 120 s after
+    SIGINT, --timeout 300). The flag is checked once the session is open and between frames:
+    the KeyboardInterrupt that ends the run is raised outside every lock and Zenoh call, and a
+    second Ctrl-C cannot cut the ending (session closed, summary.md) half-way. A plain
+    attribute, no lock: a handler may run inside another one."""
+
+    def __init__(self) -> None:
+        self.requested = False
+
+    def __call__(self, signum, frame) -> None:
+        self.requested = True
+
+    def check(self) -> None:
+        if self.requested:
+            raise KeyboardInterrupt

@@ -9,7 +9,11 @@ its decisions and events; a viewer may only watch).
 Keys are EC P-256, certificates X.509 v3 with serverAuth and clientAuth, the role as the common
 name (Zenoh's access control matches `cert_common_names`), the router's address as a subject
 alternative name (the clients verify it). Private keys are written 0600. `skyherd certs` is the
-command (docs/topology.md, "Two hosts, closed").
+command (docs/topology.md, "Two hosts, closed"): copy its folder to both hosts (each needs
+ca.pem, its own .pem/.key and its .json5; keep ca.key on neither), then
+
+    host A: skyherd sim --bind A --remote B --zenoh-config DIR/router.json5 ...
+    host B: skyherd companion --connect udpin:B:PORT --zenoh-config DIR/companion.json5 ...
 """
 
 from __future__ import annotations
@@ -175,3 +179,31 @@ def write_zenoh_configs(pki: Pki, router_host: str, port: int = ZENOH_BASE) -> d
                         + json.dumps(conf, indent=2) + "\n")  # fmt: skip
         out[role] = path
     return out
+
+
+def router_host(text: str) -> str:
+    """The router's address as the companion connects to it (an IP or a host name); ValueError
+    for a wildcard address or something that is neither."""
+    host = text.strip()
+    try:
+        ip = ipaddress.ip_address(host)
+    except ValueError:
+        if not host or any(c.isspace() for c in host):
+            raise ValueError(f"{text!r} is neither an IP address nor a host name") from None
+        return host
+    if ip.is_unspecified:
+        raise ValueError(f"{host}: give the address the companion connects to, not a wildcard")
+    return host
+
+
+def file_table(confs: dict[str, Path]) -> list[list[str]]:
+    """(file, which host to copy it to, what it is) for every file `skyherd certs` wrote;
+    `confs`: each role's Zenoh configuration (write_zenoh_configs)."""
+    rows = [["ca.pem", "both hosts", "the flight's CA certificate (trusted by every side)"],
+            ["ca.key", "neither", "the CA's private key: keep it off the flight's hosts"]]  # fmt: skip
+    for role, where in (("sim", "host A"), ("companion", "host B"), ("viewer", "a watcher")):
+        rows.append(
+            [f"{role}.pem, {role}.key", where, f"the {role}'s certificate and key (CN {role})"]
+        )
+        rows.append([confs[role].name, where, f"the {role}'s Zenoh configuration"])
+    return rows

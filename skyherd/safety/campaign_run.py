@@ -133,6 +133,14 @@ def crash_row(job: DrillJob, error: Exception) -> dict:
     }  # fmt: skip
 
 
+def split_row(row: dict) -> tuple[dict, list[dict], tuple[str, list]]:
+    """A row as it comes from its drill → (the row for metrics.csv and the verdict, which keeps
+    `_tol` (0 for a crash), its safety events tagged with the drill, (its kind, its track))."""
+    row.setdefault("_tol", 0.0)
+    events = [{"drill": row["drill"], "airframe": row["airframe"], **e} for e in row.pop("_events")]
+    return row, events, (row["kind"], row.pop("_track"))
+
+
 def fence_offset(moved: EnvelopeSpec, base: EnvelopeSpec) -> np.ndarray:
     """How far the drill's fence was moved (fixed-wing) [m], (north, east): tracks are drawn in
     the base set's frame."""

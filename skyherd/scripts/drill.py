@@ -1,24 +1,19 @@
-"""`skyherd drill`: geofence and envelope-violation drills in SITL behind the safety net.
-
-Runs the real autopilot in-process (OFFBOARD, simulation clock, as fast as possible) with an
-adversarial scripted AI per drill, prints a table, writes a run folder (config.json with the
-constraint-set version, events.jsonl, metrics.csv, summary.md, one PNG per drill) and exits 1
-if any drill fails.
+"""`skyherd drill`: geofence and envelope-violation drills behind the safety net, each judged
+by `fly`'s judge: the named and random drills in-process (safety.drill_run), or `--campaign N`
+randomized drills per airframe (mission.campaign, safety.campaign_run). A table, a run folder
+(config.json with the constraint sets, events.jsonl, metrics.csv, summary.md, figures; the
+report is report.drill's), exit 1 if any drill fails a check.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
 
-import numpy as np
-
 from skyherd.report import drill as report
-from skyherd.runio import ports
+from skyherd.runio import UsageError, args_dict, ports
 from skyherd.runio.constants import MISSION_DRILL_INSTANCE, TARGET_BOUND
 from skyherd.runio.runfolder import RunFolder
-from skyherd.scripts.cli import UsageError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -122,30 +117,21 @@ def _airframes(choice: str) -> list[str]:
     return ["quadrotor", "fixedwing"] if choice == "all" else [choice]
 
 
-def _factory(airframe: str):
-    """A function that returns a fresh autopilot (on the ground, or ready to start in air)."""
-    try:
-        from skyherd.flight.airframes_registry import AirframeUnavailable, make_autopilot
-    except ImportError:  # no registry in this installation: the quadrotor directly
-        from skyherd.flight.multirotor.autopilot import MultirotorAutopilot
+def load_set_or_usage(airframe: str, envelope: Path | None):
+    """The airframe's constraint set and supervisor parameters (safety.campaign_run.load_set);
+    UsageError naming what to fix."""
+    from skyherd.safety.campaign_run import load_set
+    from skyherd.safety.config import EnvelopeFileError
 
-        if airframe != "quadrotor":
-            raise UsageError(
-                f"no {airframe} autopilot in this installation; try --airframe quadrotor"
-            ) from None
-        return lambda seed: MultirotorAutopilot(seed=seed)
     try:
-        make_autopilot(airframe)  # fail early if unavailable
-    except AirframeUnavailable as e:
-        raise UsageError(f"{e}; try --airframe quadrotor") from e
-    return lambda seed: make_autopilot(airframe, seed=seed)
+        return load_set(airframe, envelope)
+    except EnvelopeFileError as e:
+        raise UsageError(f"{e}; fix the file or pass another --envelope") from e
+    except ValueError as e:
+        raise UsageError(str(e)) from e
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from skyherd.safety.drills import DrillParams, random_drill, run_drill, scripted_drills
-
     if args.random < 0:
         raise UsageError("--random must be >= 0")
     if args.campaign < 0 or not (1 <= args.workers <= 16):
@@ -162,109 +148,105 @@ def run(args: argparse.Namespace) -> int:
         ports.check_instance(args.instance)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    from skyherd.scripts.drill_campaign import load_set_or_usage, run_campaign
-
     if args.campaign:
-        return run_campaign(args)
+        return _campaign(args)
     if args.duration is not None and not (5.0 <= args.duration <= 600.0):
         raise UsageError("--duration must be within [5, 600] s")
-    plans = []
-    for airframe in _airframes(args.airframe):
-        spec, sp = load_set_or_usage(airframe, args.envelope)
-        if args.intervention:
-            sp = dataclasses.replace(sp, intervention=args.intervention)
-        make = _factory(airframe)
-        p = (
-            DrillParams()
-            if args.duration is None
-            else DrillParams(duration_s=args.duration, duration_fixedwing_s=args.duration)
+    plans = [_plan(airframe, args) for airframe in _airframes(args.airframe)]
+    return _drills(args, plans)
+
+
+def _plan(airframe: str, args: argparse.Namespace):
+    from skyherd.flight.airframes_registry import AirframeUnavailable
+    from skyherd.safety.drill_run import drill_plan
+
+    spec, sp = load_set_or_usage(airframe, args.envelope)
+    try:
+        return drill_plan(
+            airframe, spec, sp, args.intervention, args.duration, args.only, args.random, args.seed
         )
-        scripts = scripted_drills(spec, p)
-        if args.only:
-            keys = [k.strip() for k in args.only.split(",") if k.strip()]
-            scripts = [s for s in scripts if any(k in s.name for k in keys)]
-            if not scripts and not args.random:
-                raise UsageError(
-                    f"--only {args.only!r} matches no drill; names: {[s.name for s in scripted_drills(spec, p)]}"
-                )
-        rng = np.random.default_rng(args.seed)
-        scripts += [random_drill(k, rng, spec, p) for k in range(args.random)]
-        plans.append((airframe, spec, sp, p, make, scripts))
+    except AirframeUnavailable as e:
+        raise UsageError(f"{e}; try --airframe quadrotor") from e
+    except ValueError as e:
+        raise UsageError(f"--only {e}") from e
+
+
+def _drills(args: argparse.Namespace, plans) -> int:
+    """The named and random drills of `plans`: run folder, progress, figures, table, summary."""
+    from tqdm import tqdm
+
+    from skyherd.safety.drill_run import COLUMNS, fly_plans
 
     run_dir = RunFolder("drill", root=args.runs_dir)
-    run_dir.write_config(
-        {
-            "args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
-            "seed": args.seed,
-            "plans": [
-                {
-                    "airframe": a,
-                    "constraint_set": spec.describe(),
-                    "constraint_set_version": spec.version,
-                    "supervisor": sp,
-                    "drill": p,
-                    "drills": [s.name for s in scripts],
-                }
-                for a, spec, sp, p, _, scripts in plans
-            ],
-        }
-    )
+    plan_facts = [p.describe() for p in plans]
+    run_dir.write_config({"args": args_dict(args), "seed": args.seed, "plans": plan_facts})
     events = run_dir.events()
-    metrics = run_dir.metrics(report.COLUMNS)
-    results = []
-    total = sum(len(s[-1]) for s in plans)
-    with tqdm(total=total, desc="drills", unit="drill") as bar:
-        for airframe, spec, sp, p, make, scripts in plans:
-            for script in scripts:
-                tagged = _Tagged(events, script.name, airframe)
-                r = run_drill(script, make(args.seed), spec, sp, p, tagged)
-                results.append((r, spec))
-                metrics.write(report.metrics_row(r, spec.version))
-                if not args.no_plots and not r.name.startswith("random"):
-                    report.plot_drill(r, spec, run_dir.file(_slug(f"{airframe}-{r.name}") + ".png"))
-                bar.update(1)
+    metrics = run_dir.metrics(COLUMNS)
+    with tqdm(total=sum(len(p.scripts) for p in plans), desc="drills", unit="drill") as bar:
+
+        def plot(plan, r) -> None:
+            if not args.no_plots and not r.name.startswith("random"):
+                report.plot_drill(
+                    r, plan.spec, run_dir.file(report.figure_name(plan.airframe, r.name))
+                )
+            bar.update(1)
+
+        results = fly_plans(plans, args.seed, events, metrics, plot)
     events.close()
     metrics.close()
+    specs = {p.airframe: p.spec for p in plans}
     if not args.no_plots and args.random:
-        for airframe, spec, *_ in plans:
-            rs = [r for r, s in results if r.airframe == airframe and r.name.startswith("random")]
-            if rs:
-                report.plot_random(rs, spec, run_dir.file(f"{airframe}-random.png"))
-
-    table = report.drill_table(results, args.seed)
-    totals = report.drill_totals(results)
-    n_fail = sum(not r.passed for r, _ in results)
-    versions = ", ".join(f"{a}: {s.name} {s.version}" for a, s, *_ in plans)
-    print(table)
-    print(totals)
-    print(f"constraint sets: {versions}")
+        report.plot_randoms(results, specs, run_dir.path)
+    printed, summary = report.drill_report(results, specs, args.seed)
+    print(printed)
     print(f"run folder: {run_dir.path}")
-    run_dir.write_summary(report.drill_summary(versions, table, totals, results))
-    _mcap(run_dir.path)
-    return 1 if n_fail else 0
+    run_dir.write_summary(summary)
+    print(report.write_mcap(run_dir.path))
+    return 1 if any(not r.passed for r, _ in results) else 0
 
 
-def _mcap(folder) -> None:
-    """flight.mcap of the drills (their metrics, events and envelope; record.from_run), so a
-    drill opens in Foxglove like a flight. A recording that fails never fails the drills."""
-    try:
-        from skyherd.record.from_run import mcap_from_run
+def _campaign(args: argparse.Namespace) -> int:
+    """`--campaign N`: run folder, progress, tables, plot and summary; 0 if every drill passed
+    (safety.campaign_verdict.failed_drills), else 1."""
+    from tqdm import tqdm
 
-        res = mcap_from_run(folder)
-        print(f"flight.mcap: {sum(res.counts.values())} messages")
-    except Exception as e:  # noqa: BLE001 - say so, keep the drills' result
-        print(f"no flight.mcap ({type(e).__name__}: {e})")
+    from skyherd.mission.campaign import campaign_jobs, record_campaign
+    from skyherd.safety.campaign_run import COLUMNS
+    from skyherd.safety.campaign_verdict import failed_drills
 
-
-class _Tagged:
-    """Adds the drill and airframe to every supervisor event."""
-
-    def __init__(self, sink, drill: str, airframe: str):
-        self.sink, self.drill, self.airframe = sink, drill, airframe
-
-    def write(self, record: dict) -> None:
-        self.sink.write({"drill": self.drill, "airframe": self.airframe, **record})
-
-
-def _slug(s: str) -> str:
-    return "".join(c if c.isalnum() else "-" for c in s).strip("-")
+    airframes = _airframes(args.airframe)
+    sets = {a: load_set_or_usage(a, args.envelope) for a in airframes}
+    jobs = campaign_jobs(airframes, args.campaign, args.seed, args.envelope, args.through,
+                         args.instance)  # fmt: skip
+    only = set(args.campaign_drills)
+    if only:  # --drill: those drills of the campaign alone, as the whole campaign flies them
+        jobs = [j for j in jobs if j.index in only]
+    run_dir = RunFolder("drill", root=args.runs_dir)
+    run_dir.write_config({"args": args_dict(args),
+                          "seed": args.seed, "campaign": args.campaign, "airframes": airframes,
+                          "constraint_sets": {a: s.describe() for a, (s, _) in sets.items()},
+                          "supervisor": {a: sp for a, (_, sp) in sets.items()}})  # fmt: skip
+    events = run_dir.events()
+    metrics = run_dir.metrics(COLUMNS)
+    with tqdm(total=len(jobs), desc="campaign", unit="drill") as bar:
+        rows, tracks = record_campaign(
+            jobs,
+            events,
+            metrics,
+            args.workers,
+            args.backend,
+            args.ray_address,
+            tqdm.write,
+            lambda row: bar.update(1),
+        )
+    events.close()
+    metrics.close()
+    specs = {a: s for a, (s, _) in sets.items()}
+    if not args.no_plots and rows:
+        report.plot_campaign(rows, tracks, specs, run_dir.file("campaign.png"))
+    n, through, target = args.campaign, args.through, args.target_bound
+    printed, summary = report.campaign_report(rows, specs, n, through, args.seed, only, target)
+    print(printed)
+    print(f"run folder: {run_dir.path}")
+    run_dir.write_summary(summary)
+    return 1 if failed_drills(rows) else 0

@@ -255,20 +255,21 @@ def _refuse_wind_above_limit(args) -> None:
 
 
 def run_two_processes(args: argparse.Namespace) -> int:
-    from skyherd.scripts import waysout
+    from skyherd.runio import signals
+    from skyherd.runio.run import open_run_folder
 
     # a signal from here on is kept, never raised half-way through making the folder or
-    # starting a child, and acted on at the next safe point (waysout.KeptSignals)
-    with waysout.KeptSignals() as kept:
+    # starting a child, and acted on at the next safe point (signals.KeptSignals)
+    with signals.KeptSignals() as kept:
         sim_args, comp_args = _validate(args)
         check_children(args, sim_args, comp_args)
         envelope = _envelope(args) if args.mission in ("groundair", "shepherd") else None
         if kept.signum is not None:  # nothing made, nothing started
-            rc, why = waysout.interrupted(Interrupted(kept.signum))
+            rc, why = signals.interrupted(Interrupted(kept.signum))
             print(f"skyherd fly: INTERRUPTED: {why} before the flight started; nothing was "
                   "recorded", flush=True)  # fmt: skip
             return rc
-        folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
+        folder = open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
         return _fly(args, folder.path, folder, sim_args, comp_args, envelope, kept)
 
 
@@ -276,8 +277,8 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     """The flight in its run folder: start, supervise, stop, report; every signal kept by
     `kept` until the children run, then acted on (Launch.supervise). `envelope`: the
     constraint set (its spec, config.json's record) or None."""
-    from skyherd.runio import launch
-    from skyherd.scripts import waysout
+    from skyherd.report import ending
+    from skyherd.runio import launch, signals
     from skyherd.scripts.cli import skyherd_cmd
     from skyherd.scripts.fly_options import per_run_key
 
@@ -288,7 +289,7 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
                          "companion": comp_args, "envelope": envelope and envelope[1],
                          "signing": signing_mode(args)})  # fmt: skip
-    waysout.write_running(run_dir)
+    ending.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     recorder = None
     why = "interrupted (Ctrl-C)"
@@ -311,24 +312,24 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
             companion.go()
             rc, why = kids.supervise(args.timeout)  # acts on a signal kept until now
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (runio.launch): 128 + signum
-        rc, why = waysout.interrupted(e)
+        rc, why = signals.interrupted(e)
     finally:  # signals are kept again (Launch.__exit__): the report is written whole
         if recorder is not None:
             recorder.close()
     from skyherd.report.fly import report  # after the flight: not on the way to the launch
 
     plots: list = []  # made once the verdict and the ending are said (make_plots)
-    ok = waysout.report_safely(report, run_dir, args, rc, why, plots, why=why)  # never raises
+    ok = ending.report_safely(report, run_dir, args, rc, why, plots, why=why)  # never raises
     output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
-    lines = waysout.ending_lines(run_dir, output=output, cut=waysout.recording_cut(recorder))
-    waysout.append_ending(run_dir, lines)
+    lines = ending.ending_lines(run_dir, output=output, cut=ending.recording_cut(recorder))
+    ending.append_ending(run_dir, lines)
     make_plots(plots)
     if plots:  # report.html again, now with the figures made after the verdict
         from skyherd.report.page import write_report_html
 
         write_report_html(run_dir)
     if rc <= 128 and kept.signum is not None:  # a signal while the report was written
-        rc = waysout.interrupted(Interrupted(kept.signum))[0]
+        rc = signals.interrupted(Interrupted(kept.signum))[0]
         print(f"skyherd fly: interrupted ({signal.Signals(kept.signum).name}) after the flight "
               "ended; its report above is whole", file=sys.stderr, flush=True)  # fmt: skip
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)

@@ -94,9 +94,11 @@ def run_formation(args: argparse.Namespace) -> int:
     instances = vehicle_instances(args.instance, K)
     _ports_free(instances)
     homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
-    from skyherd.scripts import waysout
+    from skyherd.report import ending
+    from skyherd.runio import signals
+    from skyherd.runio.run import open_run_folder
 
-    folder = waysout.open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
+    folder = open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
     key = key or per_run_key(args, run_dir)  # one key for every vehicle's two links
     signing = ["--signing-key", str(key)] if key is not None else []
@@ -108,7 +110,7 @@ def run_formation(args: argparse.Namespace) -> int:
          "signing": signing_mode(args)}
     )  # fmt: skip
     atomic_write_text(run_dir / "plan.json", plan_text(plan))
-    waysout.write_running(run_dir)
+    ending.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     skipped = (
         f" (10 skipped: its companion port is the ground stations' {GCS_REMOTE_PORT})"
@@ -138,11 +140,11 @@ def run_formation(args: argparse.Namespace) -> int:
                 *signing))  # fmt: skip
             rc, why = kids.supervise(args.timeout)
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (runio.launch): 128 + signum
-        rc, why = waysout.interrupted(e)
-    ok = waysout.report_safely(formation_report, run_dir, rc, why, why=why)  # never raises
+        rc, why = signals.interrupted(e)
+    ok = ending.report_safely(formation_report, run_dir, rc, why, why=why)  # never raises
     output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
-    waysout.append_ending(
-        run_dir, waysout.ending_lines(run_dir, [f"uav{k}" for k in range(K)], output)
+    ending.append_ending(
+        run_dir, ending.ending_lines(run_dir, [f"uav{k}" for k in range(K)], output)
     )
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 

@@ -1,13 +1,7 @@
-"""`skyherd record FOLDER`: flight.mcap (Foxglove / PlotJuggler) from a run folder's files.
-
-Poses and UGVs from metrics.csv / world.csv, every decision of decisions.jsonl (φ(s), proposed
-and certified setpoints), the safety events of events.jsonl, and the fence when config.json
-names the envelope file; see record.from_run. `--also` adds another program's folder of the
-same flight (e.g. `skyherd sim`'s, for the UGVs). For a live recording see `skyherd watch`
-(it records the flight it watches) and docs/recording.md.
-
-Exit codes: 0 written; 1 nothing to record in the folder; 2 bad usage.
-"""
+"""`skyherd record FOLDER`: flight.mcap (Foxglove / PlotJuggler) from a run folder's files
+(record.from_run says which); `--also` adds another program's folder of the same flight. For a
+live recording see `skyherd watch` and docs/recording.md. Exit codes: 0 written; 1 nothing to
+record in the folder; 2 bad usage."""
 
 from __future__ import annotations
 

@@ -147,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     if rc == 0 and args.run_dir is not None and parent_gone(PARENT):
         # under `skyherd fly` whose process died (kill -9): the simulator, the last child to
         # end, says how the flight ended in summary.md
-        from skyherd.scripts.waysout import parent_died
+        from skyherd.report.ending import parent_died
 
         parent_died(run_dir, vehicles)
     return rc

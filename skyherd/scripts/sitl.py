@@ -1,37 +1,16 @@
-"""`skyherd sitl`: run one simulated vehicle with its MAVLink endpoints until interrupted.
-
-Ports for instance N: the PX4 SITL layout (CONVENTIONS.md; every number in runio/constants.py):
-an API/offboard link for MAVSDK and a ground-station link for QGroundControl and MAVProxy.
-System id 1+N. Parameters set over MAVLink persist per airframe and instance.
-"""
+"""`skyherd sitl`: run one simulated vehicle with its MAVLink endpoints until interrupted
+(flight.sitl_vehicle; ports for instance N in the PX4 SITL layout, system id 1+N; parameters
+set over MAVLink persist per airframe and instance)."""
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import signal
 import sys
 from pathlib import Path
 
 from skyherd.flight.geo import DEFAULT_HOME, Home
-
-
-def saved_params(config, airframe: str) -> dict:
-    """The parameter values a previous run saved in --state-dir (set over MAVLink) that this
-    run loads: {"file": path or None, "values": {name: value}} for config.json and the
-    start-up line."""
-    from skyherd.flight.mavlink.params import ParamFile
-
-    path = config.param_file(airframe)
-    values = ParamFile(path).load() if path is not None and path.exists() else {}
-    return {"file": str(path) if path is not None else None, "values": values}
-
-
-def default_state_dir() -> Path:
-    """Where parameters persist: $XDG_STATE_HOME/skyherd/sitl (or ~/.local/state/...)."""
-    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(base) / "skyherd" / "sitl"
+from skyherd.flight.sitl_vehicle import default_state_dir
+from skyherd.runio import UsageError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -80,10 +59,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from skyherd.flight.airframes_registry import AirframeUnavailable, make_autopilot
     from skyherd.flight.clock import SimClock
+    from skyherd.flight.faults import FaultSpecError
     from skyherd.flight.mavlink import EndpointConfig, Personality
     from skyherd.flight.sitl import Sitl
-    from skyherd.runio.runfolder import RunFolder, markdown_table
-    from skyherd.scripts.cli import UsageError
+    from skyherd.flight.sitl_vehicle import (
+        links_table,
+        run_summary,
+        run_until_stopped,
+        saved_params,
+        saved_params_line,
+    )
+    from skyherd.runio.runfolder import RunFolder
+    from skyherd.scripts.fault_options import plan_from_args
 
     if not (args.speedup == 0 or args.speedup >= 1):
         raise UsageError(f"--speedup must be 0 (as fast as possible) or >= 1, got {args.speedup}")
@@ -95,17 +82,13 @@ def run(args: argparse.Namespace) -> int:
         home = Home.parse(args.home)
     except ValueError as e:
         raise UsageError(f"--home: {e}; give LAT,LON,ALT like -35.36,149.16,584") from e
-    from skyherd.flight.faults import FaultSpecError
-    from skyherd.scripts.fault_options import plan_from_args
-
     try:
         plan = plan_from_args(args, seed=args.seed)
     except FaultSpecError as e:
         raise UsageError(str(e)) from e
-    clock = SimClock()
     try:
         ap = make_autopilot(
-            args.airframe, clock=clock, home=home, seed=args.seed, instance=args.instance,
+            args.airframe, clock=SimClock(), home=home, seed=args.seed, instance=args.instance,
             faults=plan, params_file=args.params,
         )  # fmt: skip
     except AirframeUnavailable as e:
@@ -139,52 +122,15 @@ def run(args: argparse.Namespace) -> int:
         ) from e
     except ValueError as e:  # flight.mavlink.signing.SigningError: a bad key file
         raise UsageError(str(e)) from e
-    rows = [
-        ["api / offboard", f"udp {config.api_bind[0]}:{config.api_bind[1]}", f"{config.api_remote[0]}:{config.api_remote[1]}"],
-        ["ground station", f"udp {config.gcs_bind[0]}:{config.gcs_bind[1]}", f"{config.gcs_remote[0]}:{config.gcs_remote[1]}"],
-    ]  # fmt: skip
     print(f"skyherd sitl: {args.airframe}, system id {config.system_id}, {args.personality} personality, "
           f"speed-up {args.speedup:g}, run folder {folder.path}")  # fmt: skip
-    print(markdown_table(["link", "bound to", "sends to"], rows), flush=True)
-    if saved["values"]:  # never reloaded silently
-        names = ", ".join(f"{k}={v:g}" for k, v in list(saved["values"].items())[:6])
-        more = len(saved["values"]) - 6
-        n = len(saved["values"])
-        print(f"skyherd sitl: {n} parameter{'s' if n != 1 else ''} saved in {saved['file']} "
-              f"loaded again ({names}{f', +{more} more' if more > 0 else ''}); delete that file or "
-              "give another --state-dir to start from the defaults", flush=True)  # fmt: skip
-    stats = None
-    # SIGTERM (and SIGINT, even when a shell started us in the background) end the run cleanly.
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: sitl.request_stop())
-    # A bounded run shows its progress in simulated seconds (on a terminal only).
-    bar = None
-    if args.duration is not None:
-        from tqdm import tqdm
-
-        bar = tqdm(total=round(args.duration), unit="sim s", disable=not sys.stderr.isatty())
-
-    def progress(s: Sitl) -> None:
-        if bar is not None and s.clock.t - bar.n >= 1.0:
-            bar.update(int(s.clock.t - bar.n))
-
+    print(links_table(config), flush=True)
+    if (line := saved_params_line(saved)) is not None:
+        print(line, flush=True)
     with sitl:
-        stats = sitl.run(duration_s=args.duration, on_step=progress if bar is not None else None)
-    if bar is not None:
-        bar.close()
-    sim_s = clock.t
-    ep = sitl.endpoint
-    summary = {
-        "sim_s": sim_s,
-        "steps": sitl.steps,
-        "stats": dict(ep.stats),
-        "received": dict(ep.rx_types),
-        "commands": {str(k): v for k, v in ep.rx_commands.items()},
-    }
-    if stats is not None:
-        summary["real_time_factor"] = stats.real_time_factor
-    table = markdown_table(["quantity", "value"], [[k, json.dumps(v)] for k, v in summary.items()])
+        stats = run_until_stopped(sitl, args.duration)
+    table = run_summary(sitl, stats)
     folder.write_summary("# skyherd sitl\n\n" + table)
     print(table)
-    print(f"skyherd sitl: stopped at t = {sim_s:.1f} s simulated", file=sys.stderr)
+    print(f"skyherd sitl: stopped at t = {sitl.clock.t:.1f} s simulated", file=sys.stderr)
     return 0

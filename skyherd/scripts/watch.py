@@ -1,36 +1,19 @@
-"""`skyherd watch`: subscribe to a vehicle's camera frames, detect the UGVs, save the view.
-
-Connects (Zenoh peer, loopback by default) to `skyherd/<vehicle>/camera/frame`, runs the
-detector on the newest frame each time one arrives, and writes into `runs/<time>-watch/`:
-annotated PNGs (red dot = image centre, blue dot = UGVs' centre of mass, blue circle = spread),
-`strip.png` (a frame strip), `metrics.csv` (one row per processed frame: counts, φ(s),
-latency), `config.json` and `summary.md` (link counts and detection figures). A window shows
-the annotated view only when a display exists and OpenCV has a GUI.
-
-Exit codes: 0 frames were processed; 1 no frame arrived before --timeout; 2 bad usage.
-"""
+"""`skyherd watch`: a vehicle's camera frames from Zenoh (loopback by default), the UGVs
+detected on each (perception.watch), annotated PNGs, metrics.csv, strip.png and summary.md
+(report.watch) in `runs/<time>-watch/`, flight.mcap (record). Exit codes: 0 frames were
+processed; 1 no frame arrived before --timeout; 2 bad usage."""
 
 from __future__ import annotations
 
 import argparse
 import os
 import signal
-import time
 
-import cv2
-import numpy as np
-
-from skyherd.perception.camera import CameraParams
-from skyherd.perception.detector import Detector, annotate, contact_sheet, write_png
-from skyherd.perception.features import FEATURE_NAMES, FeatureParams
-from skyherd.perception.sheet import label, legend
-from skyherd.perception.transport import (
-    FrameSubscriber,
-    ZenohParams,
-    open_session,
-    subscriber_params,
-)
-from skyherd.runio import ports
+from skyherd.perception.features import FeatureParams
+from skyherd.perception.transport import ZenohParams, open_session, viewer_params, zenoh_error_text
+from skyherd.perception.watch import WatchParams
+from skyherd.runio import RunFolder, UsageError, ports
+from skyherd.runio.signals import CtrlC
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -79,8 +62,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace) -> None:
-    from skyherd.scripts.cli import UsageError
-
     try:
         ports.check_instance(args.instance)
     except ValueError as e:
@@ -104,50 +85,13 @@ def _check(args: argparse.Namespace) -> None:
         raise UsageError(f"Zenoh config {args.zenoh_config} not found: give an existing file")
 
 
-def _camera_from(info: dict | None, shape: tuple[int, int]) -> CameraParams:
-    """Camera from the camera/info record if one arrived, else defaults at the frame's size."""
-    h, w = shape
-    if info and info.get("width_px") == w and info.get("height_px") == h:
-        return CameraParams(
-            width_px=w,
-            height_px=h,
-            hfov_rad=float(info["hfov_rad"]),
-            mount_pitch_rad=float(info.get("mount_pitch_rad", 0.0)),
-            mount_offset_frd=tuple(info.get("mount_offset_frd_m", (0.0, 0.0, 0.1))),
-        )
-    return CameraParams(width_px=w, height_px=h)
-
-
-def _try_show(img: np.ndarray, enabled: bool) -> bool:
-    """Show a window when a display exists and OpenCV has a GUI; returns whether it did."""
-    if not enabled or not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-        return False
-    try:
-        cv2.imshow("skyherd watch", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-        cv2.waitKey(1)
-        return True
-    except cv2.error:  # opencv-python-headless: no GUI
-        return False
-
-
-def zenoh_reason(e: Exception) -> str:
-    """A Zenoh error as one readable line (its message without Rust source locations)."""
-    from skyherd.perception.transport import zenoh_error_text
-
-    return zenoh_error_text(e)
-
-
 def _session(args: argparse.Namespace):
-    from skyherd.runio.address import AddressError, zenoh_endpoint
-    from skyherd.scripts.cli import UsageError
+    from skyherd.runio.address import AddressError
 
-    if args.zenoh_config:
-        zp = ZenohParams(config_file=args.zenoh_config)
-    else:
-        try:
-            zp = subscriber_params(zenoh_endpoint(args.connect))
-        except AddressError as e:
-            raise UsageError(f"--connect {e}") from e
+    try:
+        zp = viewer_params(args.connect, args.zenoh_config)
+    except AddressError as e:
+        raise UsageError(f"--connect {e}") from e
     try:
         return zp, open_session(zp)
     except ValueError as e:
@@ -156,50 +100,17 @@ def _session(args: argparse.Namespace):
             if args.zenoh_config
             else f"--connect {args.connect}"
         )
-        raise UsageError(f"cannot open a Zenoh session ({where}): {zenoh_reason(e)}") from e
-
-
-class CtrlC:
-    """SIGINT (Ctrl-C) while `skyherd watch` runs: noted (`requested`), never raised where
-    it lands.
-
-    watch takes SIGINT for the whole command, from before its Zenoh session opens until its
-    run folder is written, whatever the process inherited. A background job of a
-    non-interactive shell (`cmd &` in a script) starts with SIGINT ignored; watch used to take
-    it for its frame loop only, so a Ctrl-C during start-up (even just after metrics.csv
-    appeared) was lost and watch waited on until --timeout (the suite saw no exit 120 s after
-    SIGINT, --timeout 300). The flag is checked once the session is open and between frames:
-    the KeyboardInterrupt that ends the run is raised outside every lock and Zenoh call, and a
-    second Ctrl-C cannot cut the ending (session closed, summary.md) half-way. A plain
-    attribute, no lock: a handler may run inside another one."""
-
-    def __init__(self) -> None:
-        self.requested = False
-
-    def __call__(self, signum, frame) -> None:
-        self.requested = True
-
-    def check(self) -> None:
-        if self.requested:
-            raise KeyboardInterrupt
-
-
-def flight_key(args: argparse.Namespace) -> bytes | None:
-    """The flight key (--signing-key), None without one; a bad file is a UsageError."""
-    from skyherd.flight.mavlink.signing import SigningError, load_key
-    from skyherd.scripts.cli import UsageError
-
-    if not args.signing_key:
-        return None
-    try:
-        return load_key(args.signing_key)
-    except SigningError as e:
-        raise UsageError(f"--signing-key: {e}") from None
+        raise UsageError(f"cannot open a Zenoh session ({where}): {zenoh_error_text(e)}") from e
 
 
 def run(args: argparse.Namespace) -> int:
+    from skyherd.flight.mavlink.signing import SigningError, load_key
+
     _check(args)
-    key = flight_key(args)
+    try:  # the flight key: only authentic frames and records
+        key = load_key(args.signing_key) if args.signing_key else None
+    except SigningError as e:
+        raise UsageError(f"--signing-key: {e}") from None
     ctrl_c = CtrlC()
     prev = signal.signal(signal.SIGINT, ctrl_c)
     try:
@@ -215,60 +126,21 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGINT, prev)
 
 
-def _watch(
-    args: argparse.Namespace, zp: ZenohParams, session, ctrl_c: CtrlC, key: bytes | None
-) -> int:
+def _watch(args, zp: ZenohParams, session, ctrl_c: CtrlC, key: bytes | None) -> int:
     from tqdm import tqdm
 
-    from skyherd.runio import RunFolder, markdown_table
+    from skyherd.record import LiveServer
+    from skyherd.record.watch import FlightWatch
+    from skyherd.report.watch import finish_watch, no_frame
 
-    sub = FrameSubscriber(session, args.vehicle, key=key)
-    st = {"processed": 0, "counts": [], "all_in": [], "strip": [], "detector": None}
+    w, live = FlightWatch(session, args.vehicle, key), None
 
     def finish() -> None:
         """Summary, strip.png: from what was received, on every ending (Ctrl-C too)."""
-        stats = sub.stats
-        sub.close()
-        session.close()
-        if args.strip and st["strip"]:
-            strip = st["strip"]
-            idx = np.linspace(0, len(strip) - 1, min(args.strip, len(strip))).round().astype(int)
-            tiles = [cv2.resize(strip[i][1], None, fx=0.5, fy=0.5) for i in idx]
-            labels = [f"t = {strip[i][0]:.1f} s" for i in idx]
-            sheet = contact_sheet(label(tiles, labels), cols=4)
-            write_png(run.file("strip.png"), np.vstack([sheet, legend(sheet.shape[1], "sim time")]))
-            run.describe("strip.png", f"{len(idx)} annotated frames, sim time on each (red dot "
-                         "image centre, blue dot UGVs' centre of mass, blue circle their spread)")  # fmt: skip
-        lat = np.array(stats.latencies_s) * 1e3
-        counts, all_in = st["counts"], st["all_in"]
-        rows = [[k, v] for k, v in stats.as_dict().items()]
-        rows += [
-            ["processed", st["processed"]],
-            ["mean UGVs detected", float(np.mean(counts)) if counts else None],
-            ["all in view (fraction)", float(np.mean(all_in)) if all_in else None],
-            ["latency p50 [ms]", float(np.percentile(lat, 50)) if lat.size else None],
-            ["latency p95 [ms]", float(np.percentile(lat, 95)) if lat.size else None],
-        ]
-        table = markdown_table(["quantity", "value"], rows, missing="no frame was processed")
-        det = st["detector"]
-        cam_line = f"Camera: {det.cam}\n\nDetector: {det.p}\n" if det is not None else ""
-        rec_line = ""
-        if st.get("recorder") is not None and args.mcap:
-            counts = st["recorder"].log.counts
-            rec_line = (f"flight.mcap: {sum(counts.values())} messages on {len(counts)} channels "
-                        f"({', '.join(f'{k} {n}' for k, n in sorted(counts.items()))}).\n\n")  # fmt: skip
-        checked = (f"authenticated with the flight key ({args.signing_key}): {stats.refused} refused"
-                   if key is not None else "not authenticated (no --signing-key): any publisher's are shown")  # fmt: skip
-        run.summary(f"Frames of `skyherd/{args.vehicle}/camera/frame`, {checked}.\n\n"
-                    f"{table}\n{rec_line}{cam_line}")  # fmt: skip
-        print(table)
-        print(f"run folder: {run.path}")
+        w.close()
+        finish_watch(run, w, args.strip, args.signing_key if key is not None else None)
 
-    live = None
     if args.foxglove is not None:
-        from skyherd.record import LiveServer
-        from skyherd.scripts.cli import UsageError
-
         try:
             live = LiveServer(args.foxglove)
         except OSError as e:
@@ -277,78 +149,16 @@ def _watch(
         print(f"Foxglove: open ws://127.0.0.1:{live.port}")
     with RunFolder.open("watch", args, root=args.runs_dir) as run:
         run.config(zenoh=zp, feature_params=FeatureParams())
-        if args.mcap or live is not None:
-            path = run.file("flight.mcap") if args.mcap else None
-            rec = run.closing(_recorder(session, args.vehicle, path, live, key))
-            st["recorder"] = rec
-        (run.path / "frames").mkdir()
-        run.describe("frames", f"annotated frames, PNG (one in every {args.save_every})")
-        run.describe("metrics.csv", "one row per processed frame: seq, sim time, UGVs detected, "
-                     "centre of mass, spread, latency, φ(s)")  # fmt: skip
-        metrics = run.metrics(
-            ["seq", "t_sim", "count", "all_in_view", "com_u_px", "com_v_px", "radius_px",
-             "latency_ms", *FEATURE_NAMES]
-        )  # fmt: skip
+        w.record(run, args.mcap, live)
         run.at_end(finish, "summary")
         bar = run.closing(tqdm(total=args.frames, desc="watch", unit="frame", disable=None))
-        _loop(args, sub, st, metrics, run, bar, ctrl_c)
+        p = WatchParams(args.frames, args.ugvs, args.timeout, args.save_every, not args.no_show)
+        seen = w.watch(run, p, lambda: ctrl_c.requested, bar.update)
         ctrl_c.check()  # outside every lock: the run folder ends as interrupted
-        if st["processed"] == 0:
-            refused = sub.stats.refused
-            why = (f"{refused} refused as not signed with --signing-key {args.signing_key} (another "
-                   "flight's key, or an unsigned source?)" if refused else
-                   f"is a flight publishing? --connect {args.connect}")  # fmt: skip
-            run.fail(
-                f"no frame on skyherd/{args.vehicle}/camera/frame within {args.timeout:g} s ({why})"
-            )
+        if seen.processed == 0:
+            refused = w.sub.stats.refused
+            run.fail(no_frame(args.vehicle, args.timeout, refused, args.signing_key, args.connect))
     if run.outcome == "failed":
         print(f"skyherd watch: {run.reason}")
         return 1
     return 0
-
-
-def _loop(args, sub, st: dict, metrics, run, bar, ctrl_c: CtrlC) -> None:
-    """Detect on frames until --frames are processed, --timeout passes without one, or Ctrl-C
-    (`ctrl_c`, checked between frames; also at once, for one that came during start-up)."""
-    from skyherd.runio import atomic_write_bytes
-
-    shown = not args.no_show
-    t_last = time.monotonic()
-    while st["processed"] < args.frames and not ctrl_c.requested:
-        fr = sub.wait(0.2)
-
-        if fr is None:
-            if time.monotonic() - t_last > args.timeout:
-                break
-            continue
-        t_last = time.monotonic()
-        det_ = st["detector"]
-        if det_ is None or det_.cam.width_px != fr.image.shape[1]:
-            det_ = st["detector"] = Detector(_camera_from(sub.info, fr.image.shape[:2]), args.ugvs)
-        det = det_.detect(fr.image)
-        phi = det_.features(det, -float(fr.pos_ned[2]))
-        img = annotate(fr.image, det, scale=2)
-        com = det.measure.com_px if det.measure.com_px is not None else (np.nan, np.nan)
-        metrics.write({
-            "seq": fr.seq, "t_sim": fr.t_sim, "count": det.count,
-            "all_in_view": int(det.all_in_view), "com_u_px": float(com[0]),
-            "com_v_px": float(com[1]), "radius_px": det.measure.radius_px,
-            "latency_ms": 1e3 * fr.latency_s, **dict(zip(FEATURE_NAMES, phi.tolist())),
-        })  # fmt: skip
-        if st["processed"] % args.save_every == 0:
-            ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
-            if ok:
-                atomic_write_bytes(run.path / "frames" / f"frame_{fr.seq:06d}.png", png.tobytes())
-        st["strip"].append((fr.t_sim, img))
-        shown = _try_show(img, shown)
-        st["counts"].append(det.count)
-        st["all_in"].append(det.all_in_view)
-        st["processed"] += 1
-        bar.update(1)
-
-
-def _recorder(session, vehicle: str, path, live, key: bytes | None):
-    """A ZenohRecorder into `path` and/or the live server (with `key`: authentic records only)."""
-    from skyherd.record import ZenohRecorder
-
-    return ZenohRecorder(session, vehicle, path, also=[live] if live is not None else [], key=key)

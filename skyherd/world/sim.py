@@ -112,7 +112,7 @@ def alone_record(
     altitude_m: float,
 ) -> dict:
     """sim_stats.json's `after_companion`: what the autopilot did once the companion was gone
-    (modes: (t, mode, armed) changes), read by scripts.waysout for fly's ending lines."""
+    (modes: (t, mode, armed) changes), read by report.ending for fly's ending lines."""
     return {
         "why": why,
         "t_gone_s": round(t_gone, 3),

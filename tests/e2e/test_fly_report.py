@@ -107,8 +107,8 @@ def test_a_failed_flight_has_its_report_with_the_failed_check_first(flown, tmp_p
     import argparse
     import csv
 
+    from skyherd.report.ending import append_ending
     from skyherd.report.fly import report
-    from skyherd.scripts.waysout import append_ending
 
     run = tmp_path / flown.name
     shutil.copytree(flown, run)

@@ -151,7 +151,7 @@ def test_teleop_without_terminal_is_usage_error(tmp_path):
 
 
 def test_manual_control_mapping():
-    from skyherd.scripts.teleop import manual_control_action
+    from skyherd.hil.teleop import manual_control_action
 
     allc = tuple(range(7))
     assert manual_control_action(0, 0, 500, allc) == 0

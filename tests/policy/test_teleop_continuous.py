@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from skyherd.hil.teleop import manual_control_velocity
 from skyherd.policy.absdl.demos import from_recording
 from skyherd.policy.absdl.env import velocity_limits
 from skyherd.policy.demos import (
@@ -25,7 +26,6 @@ from skyherd.policy.demos import (
     scripted_expert,
 )
 from skyherd.scripts.cli import main
-from skyherd.scripts.teleop import manual_control_velocity
 from skyherd.task.params import TaskParams
 
 # (x, y, z, buttons) a scripted stick sends; the last one (button 1) quits

@@ -58,3 +58,24 @@ def test_the_router_denies_by_default_and_gives_each_role_only_its_keys(tmp_path
     assert client["verify_name_on_connect"] and client["connect_certificate"].endswith(
         "companion.pem"
     )
+
+
+def test_the_router_host_is_an_address_the_companion_can_reach(tmp_path):
+    """`skyherd certs --router-host`: an IP or a host name (trimmed); a wildcard or a name with
+    a space is refused with the reason; every written file has its row, its host and its use."""
+    import pytest
+
+    from skyherd.runio.tls import file_table, router_host, write_zenoh_configs
+
+    assert router_host(" 10.0.0.1 ") == "10.0.0.1" and router_host("sim-a.local") == "sim-a.local"
+    for bad in ("0.0.0.0", "::"):
+        with pytest.raises(ValueError, match="not a wildcard"):
+            router_host(bad)
+    for bad in ("a b", "  "):
+        with pytest.raises(ValueError, match="neither an IP address nor a host name"):
+            router_host(bad)
+    pki = make_pki(tmp_path / "pki", "10.0.0.1", days=1)
+    rows = file_table(write_zenoh_configs(pki, "10.0.0.1"))
+    files = {f for row in rows for f in row[0].split(", ")}
+    assert files == {p.name for p in (tmp_path / "pki").iterdir()}
+    assert dict((r[0], r[1]) for r in rows)["ca.key"] == "neither"

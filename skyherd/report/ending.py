@@ -1,7 +1,9 @@
-"""Every way out of `skyherd fly`, said in its summary: how the companion ended (a signal: what
-it handed to the autopilot), what the autopilot did alone after it (the simulator's span
-without the companion, from sim_stats.json), and which records a full disk or a read-only
-folder cut. Also the run folder's checks before anything starts (exit 2)."""
+"""How a `skyherd fly` flight ended, said in its summary.md: how the companion ended (a
+signal: what it handed to the autopilot), what the autopilot did alone after it (the
+simulator's span without the companion, from sim_stats.json), and which records a full disk or
+a read-only folder cut; the summary while the flight runs, and the one a child writes when its
+`fly` died. The run folder's checks before anything starts are runio.run.open_run_folder; the
+signals that end a flight, runio.signals."""
 
 from __future__ import annotations
 
@@ -11,27 +13,7 @@ import math
 import sys
 from pathlib import Path
 
-from skyherd.runio import RunFolder, UsageError, try_write_text
-from skyherd.runio.signals import KeptSignals, interrupted  # noqa: F401 - fly uses waysout.X
-from skyherd.runio.space import RESERVE_BYTES, free_bytes
-
-MIN_FREE_BYTES = 2 * RESERVE_BYTES  # a flight starts only with this much free [bytes]
-
-
-def open_run_folder(command: str, root: Path | str) -> RunFolder:
-    """The flight's run folder under `root`; UsageError (exit 2, nothing started) when it cannot
-    be written or its disk is nearly full."""
-    free = free_bytes(root) if Path(root).exists() else None
-    if free is not None and free < MIN_FREE_BYTES:
-        raise UsageError(f"--runs-dir {root}: {free // 1024} KiB free, a flight needs at least "
-                         f"{MIN_FREE_BYTES // 1024} KiB for its records: free some space or pass "
-                         "another --runs-dir")  # fmt: skip
-    try:
-        return RunFolder(command, root=root)
-    except OSError as e:
-        raise UsageError(f"--runs-dir {root}: cannot make the run folder ({e.strerror or e}): "
-                         "pass a writable --runs-dir") from None  # fmt: skip
-
+from skyherd.runio import try_write_text
 
 RUNNING = (
     "# skyherd fly: running\n\n**Running** (or `skyherd fly` was killed: its children then "
@@ -114,7 +96,7 @@ def stats_from_output(lines: list[str]) -> dict[str, dict]:
 
 
 def recording_cut(recorder) -> list[dict]:
-    """flight.mcap's cut (`fly`'s own recorder, scripts.fly._Recording), as `cut_records` says."""
+    """flight.mcap's cut (`fly`'s own recorder, record.flight_recording.FlightRecording), as `cut_records` says."""
     log = getattr(getattr(recorder, "recorder", None), "log", None)
     err = getattr(getattr(log, "file", None), "error", None)
     return [{"file": "flight.mcap", "error": err, "dropped": log.errors}] if err else []
