@@ -192,7 +192,6 @@ class MavlinkEndpoint:
         self.telemetry.mode_requests = self.commands  # ArduPilot: what the heartbeat shows
         self._sent_current: int | None = None
         self._drain_status = getattr(autopilot, "drain_status", None)
-        self._status_lines: list = []  # drained from the autopilot, not yet forwarded
         self.gated: set[str] = set()  # links a lockstep gate reads instead of update()
         self._handlers = {
             "HEARTBEAT": self._on_heartbeat,
@@ -232,16 +231,17 @@ class MavlinkEndpoint:
         its end, one datagram per link (links a lockstep gate reads: at the gate's mark)."""
         if readable is None:
             readable = self.poll()
+        lines = self._drain_status() if self._drain_status is not None else ()
         prog = self.ap.mission_progress
         if (
             readable
+            or lines
             or self._serving
             or prog.reached
             or prog.current != self._sent_current
             or self._clock.time_us >= self._streams_due_us
-            or (self._drain_status is not None and self._status_waiting())
         ):
-            self._work(readable)
+            self._work(readable, lines)
         if self._tlog is not None:
             self._tlog.maybe_flush()
             if self._tlog.error and not self._tlog_warned:  # a full disk: say so, keep flying
@@ -249,14 +249,10 @@ class MavlinkEndpoint:
                 self.statustext(M.MAV_SEVERITY_WARNING, self._tlog.error)
                 self._flush_links()
 
-    def _status_waiting(self) -> bool:
-        """Whether the autopilot has event lines; they wait in `_status_lines` for `_work`."""
-        self._status_lines = self._drain_status()
-        return bool(self._status_lines)
-
-    def _work(self, readable: bool) -> None:
-        """A step with something to do: requests answered, timed work, mission events, status
-        lines, due streams; then what the step sent leaves, one datagram per link."""
+    def _work(self, readable: bool, lines) -> None:
+        """A step with something to do: requests answered, timed work, mission events, the
+        autopilot's status `lines`, due streams; then what the step sent leaves, one datagram
+        per link."""
         if readable:
             for link in self.read_links():
                 for msg, addr in link.receive():
@@ -266,9 +262,8 @@ class MavlinkEndpoint:
         prog = self.ap.mission_progress  # (a mission upload may have replaced it)
         if prog.reached or prog.current != self._sent_current:
             self._mission_events(prog)
-        lines, self._status_lines = self._status_lines, []
-        if self._drain_status is not None:  # and the lines the requests just caused
-            lines = lines + self._drain_status()
+        if self._drain_status is not None:  # and the lines the requests and the work caused
+            lines = [*lines, *self._drain_status()]
         if lines:
             self._forward_status(lines)
         if self._clock.time_us >= self._streams_due_us:

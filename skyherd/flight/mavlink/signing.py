@@ -215,26 +215,30 @@ class Signing:
                 self.stats["unsigned_accepted"] += 1
                 return None
             return self._reject("unsigned")
-        if len(frame) < 10 + SIGNATURE_LEN + 2:
+        n = len(frame)
+        if n < 10 + SIGNATURE_LEN + 2:
             return self._reject("bad signature")
         h = self._key_hash.copy()
         h.update(frame[:-6])
-        expected = h.digest()[:6]
-        if not hmac.compare_digest(expected, bytes(frame[-6:])):
+        if not hmac.compare_digest(h.digest()[:6], frame[-6:]):
             return self._reject("bad signature")
-        link_id = frame[-13]
-        ts = int.from_bytes(frame[-12:-6], "little")
-        stream = (link_id, src_system, src_component)
-        last = self._streams.get(stream)
-        if last is not None and ts <= last:
+        ts = int.from_bytes(frame[n - 12 : n - 6], "little")
+        stream = (frame[n - 13], src_system, src_component)  # link id, system, component
+        streams = self._streams
+        last = streams.get(stream)
+        if last is None:
+            if ts + REPLAY_WINDOW < max(self.timestamp, now_units()):
+                return self._reject("timestamp more than a minute old")
+            streams[stream] = ts
+            if len(streams) > MAX_STREAMS:
+                streams.popitem(last=False)
+        elif ts <= last:
             return self._reject("replayed")
-        if last is None and ts + REPLAY_WINDOW < max(self.timestamp, now_units()):
-            return self._reject("timestamp more than a minute old")
-        self._streams[stream] = ts
-        self._streams.move_to_end(stream)
-        if len(self._streams) > MAX_STREAMS:
-            self._streams.popitem(last=False)
-        self.timestamp = max(self.timestamp, ts)
+        else:
+            streams[stream] = ts
+            streams.move_to_end(stream)
+        if ts > self.timestamp:
+            self.timestamp = ts
         self.stats["signed_accepted"] += 1
         return None
 
