@@ -283,3 +283,26 @@ def test_our_verify_on_pymavlink_frames_and_rekeying():
     ours = sg.Signing(KEY).sign(unsigned, link_id=5)
     (m,) = _verifier(KEY).parse_buffer(ours)
     assert m.get_signed() and m.get_type() == "HEARTBEAT" and ours[-13] == 5
+
+
+def test_a_stream_instants_batch_is_signed_frame_by_frame_and_verifies_in_pymavlink():
+    """`Codec.pack_payloads`: one clock reading for the batch, each frame its own signature and
+    the next timestamp; pymavlink reads all of them from one datagram, and our verifier refuses
+    the same datagram a second time (replays)."""
+    from skyherd.flight.mavlink.codec import Codec
+    from skyherd.flight.mavlink.payload import packer
+
+    hb, pos = packer(M.MAVLINK_MSG_ID_HEARTBEAT), packer(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
+    payloads = [hb(2, 12, 0, 0, 3), pos(1000, 1.0, 2.0, -3.0, 0.1, 0.2, 0.3), hb(2, 12, 0, 0, 4)]
+    tx = Codec(7, 1, sg.Signing(KEY), link_id=1)
+    frames = tx.pack_payloads(payloads)
+    stamps = [int.from_bytes(f[-12:-6], "little") for f in frames]
+    assert stamps == [stamps[0], stamps[0] + 1, stamps[0] + 2] and tx.signing.timestamp == stamps[2]
+    assert [f[4] for f in frames] == [0, 1, 2] and all(f[-13] == 1 for f in frames)  # seq, link
+    msgs = _verifier(KEY).parse_buffer(b"".join(frames))
+    assert [m.get_type() for m in msgs] == ["HEARTBEAT", "LOCAL_POSITION_NED", "HEARTBEAT"]
+    assert all(m.get_signed() for m in msgs) and msgs[1].z == -3.0
+    rx = Codec(255, 190, sg.Signing(KEY))
+    assert len(rx.parse(b"".join(frames))) == 3 and rx.stats.rx_rejected == 0
+    assert rx.parse(b"".join(frames)) == [] and rx.stats.rx_rejected == 3
+    assert tx.pack_payloads(payloads[:1])[0][-12:-6] != frames[0][-12:-6]  # time moves on

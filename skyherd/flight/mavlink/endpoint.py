@@ -33,6 +33,7 @@ from skyherd.flight.mavlink.offboard import (
     setpoint_from_local,
 )
 from skyherd.flight.mavlink.params import ParamFile, ParamService
+from skyherd.flight.mavlink.payload import Payload
 from skyherd.flight.mavlink.signing import Signing, load_key, save_key
 from skyherd.flight.mavlink.statustext import split_text
 from skyherd.flight.mavlink.streams import GCS_RATES_HZ, StreamScheduler
@@ -226,30 +227,53 @@ class MavlinkEndpoint:
         `readable`: whether the caller's poll found data on `read_links()` (a runner polls once
         per tick of its pacing, not per step: `Sitl.run`, `world.sim.run_worlds`); None: poll
         them here. A step with nothing arrived, nothing pending and nothing due costs a few
-        comparisons: no system call, no message built."""
+        comparisons: no system call, no message built. What the step's work sent leaves at
+        its end, one datagram per link (links a lockstep gate reads: at the gate's mark)."""
         if readable is None:
             readable = self.poll()
+        lines = self._drain_status() if self._drain_status is not None else ()
+        prog = self.ap.mission_progress
+        if (
+            readable
+            or lines
+            or self._serving
+            or prog.reached
+            or prog.current != self._sent_current
+            or self._clock.time_us >= self._streams_due_us
+        ):
+            self._work(readable, lines)
+        if self._tlog is not None:
+            self._tlog.maybe_flush()
+            if self._tlog.error and not self._tlog_warned:  # a full disk: say so, keep flying
+                self._tlog_warned = True
+                self.statustext(M.MAV_SEVERITY_WARNING, self._tlog.error)
+                self._flush_links()
+
+    def _work(self, readable: bool, lines) -> None:
+        """A step with something to do: requests answered, timed work, mission events, the
+        autopilot's status `lines`, due streams; then what the step sent leaves, one datagram
+        per link."""
         if readable:
             for link in self.read_links():
                 for msg, addr in link.receive():
                     self._dispatch(link, msg, addr)
         if self._serving:  # timed protocol work, only after a request started some
             self._serve()
-        prog = self.ap.mission_progress
+        prog = self.ap.mission_progress  # (a mission upload may have replaced it)
         if prog.reached or prog.current != self._sent_current:
             self._mission_events(prog)
-        if self._drain_status is not None and (lines := self._drain_status()):
+        if self._drain_status is not None:  # and the lines the requests and the work caused
+            lines = [*lines, *self._drain_status()]
+        if lines:
             self._forward_status(lines)
         if self._clock.time_us >= self._streams_due_us:
             self._send_streams()
+        self._flush_links()
+
+    def _flush_links(self) -> None:
         for link in self.links:  # what this step sent leaves together (a gate flushes its own)
             if link.has_held and link.name not in self.gated:
                 link.flush()
-        if self._tlog is not None:
-            self._tlog.maybe_flush()
-            if self._tlog.error and not self._tlog_warned:  # a full disk: say so, keep flying
-                self._tlog_warned = True
-                self.statustext(M.MAV_SEVERITY_WARNING, self._tlog.error)
 
     def _serve(self) -> None:
         """Commands awaiting their result, a mission upload, a parameter list: each asked
@@ -295,7 +319,7 @@ class MavlinkEndpoint:
 
     def _send_streams(self) -> None:
         t = self.ap.clock.t
-        built: dict[int, object] = {}  # a message due on both links is packed once
+        built: dict[int, Payload] = {}  # a message due on both links is packed once
         for link in self.links:
             sched = self.streams[link.name]
             if t < sched.next_due - 1e-9:
@@ -308,12 +332,16 @@ class MavlinkEndpoint:
                 due = kept
             else:
                 due = sched.due(t)
+            if not due:
+                continue
+            payloads = []
             for msg_id in due:
-                msg = built.get(msg_id)
-                if msg is None:
-                    msg = built[msg_id] = self._build(msg_id)
-                link.send(msg)
-                self.stats["tx_stream"] += 1
+                p = built.get(msg_id)
+                if p is None:
+                    p = built[msg_id] = self._build(msg_id)
+                payloads.append(p)
+            link.send_payloads(payloads)
+            self.stats["tx_stream"] += len(payloads)
         due = min([s.next_due for s in self.streams.values()])  # [s]; the links check exactly
         self._streams_due_us = math.floor(due * 1e6) - 1 if math.isfinite(due) else _NEVER_US
 

@@ -20,6 +20,7 @@ import sys
 from collections.abc import Callable
 
 from skyherd.flight.mavlink.codec import Codec, MAVLinkMessage
+from skyherd.flight.mavlink.payload import Payload
 from skyherd.flight.mavlink.signing import Signing
 
 Address = tuple[str, int]
@@ -112,6 +113,22 @@ class UdpLink:
         else:
             self._send_default(buf)
 
+    def send_payloads(self, payloads: list[Payload]) -> None:
+        """`send` of each telemetry payload to the default peers, framed and signed as one
+        batch (a stream instant's messages)."""
+        if self.muted:
+            self.stats_muted += len(payloads)
+            return
+        frames = self.codec.pack_payloads(payloads)
+        if self._on_frame is not None:
+            for buf in frames:
+                self._on_frame("out", buf)
+        if self.coalesce:
+            self._held += frames
+        else:
+            for buf in frames:
+                self._send_default(buf)
+
     @property
     def has_held(self) -> bool:
         """Frames wait for `flush()`."""
@@ -125,6 +142,9 @@ class UdpLink:
         if not self._held:
             return
         held, self._held = self._held, []
+        if sum(map(len, held)) <= PACKED_DATAGRAM:  # the common case: one datagram
+            self._send_default(b"".join(held))
+            return
         chunk = b""
         for buf in held:
             if chunk and len(chunk) + len(buf) > PACKED_DATAGRAM:

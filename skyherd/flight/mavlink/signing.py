@@ -26,7 +26,6 @@ from __future__ import annotations
 import hashlib
 import hmac
 import os
-import struct
 import time
 from collections import Counter, OrderedDict
 from dataclasses import dataclass
@@ -44,7 +43,7 @@ UNITS_PER_S = 100_000  # timestamp unit: 10 us
 REPLAY_WINDOW = 60 * UNITS_PER_S  # a new stream may be one minute behind our time
 ACCEPT_UNSIGNED = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS})
 MAX_STREAMS = 256  # streams remembered; only correctly signed frames create one
-_TAIL = struct.Struct("<BQ")  # link id, timestamp (its low 6 bytes are sent)
+_TS_MASK = (1 << 48) - 1  # a signature carries the timestamp's low 6 bytes
 
 
 class SigningError(ValueError):
@@ -177,10 +176,6 @@ class Signing:
         self._key_hash = hashlib.sha256(key) if key is not None else None  # copied per frame
         self.timestamp = max(self.timestamp, int(initial_timestamp))
 
-    def _next_timestamp(self) -> int:
-        self.timestamp = max(now_units(), self.timestamp + 1)
-        return self.timestamp
-
     def sign(self, frame: bytes, link_id: int) -> bytes:
         """The signed version of one unsigned MAVLink 2 frame (MAVLink 1 cannot be signed)."""
         if self.key is None or frame[0] != 0xFD or frame[2] & IFLAG_SIGNED:
@@ -191,17 +186,25 @@ class Signing:
         buf = bytearray(frame[:-2])
         buf[2] |= IFLAG_SIGNED  # the flag is inside the CRC: recompute it
         buf += CRC.pack(X25(bytes((msg_type.crc_extra,)), X25(bytes(buf[1:]))))
-        return bytes(buf) + self.signature(buf, link_id)
+        return self.sign_frames([bytes(buf)], link_id)[0]
 
-    def signature(self, frame: bytes, link_id: int) -> bytes:
-        """The 13 bytes that follow a frame whose header has IFLAG_SIGNED and whose CRC covers
-        it: link id, the next timestamp, the first 6 bytes of SHA-256(key + frame + both). The
-        key's hash state is computed once per key and copied, not re-hashed per frame."""
-        tail = _TAIL.pack(link_id & 0xFF, self._next_timestamp())[:7]
-        h = self._key_hash.copy()
-        h.update(frame)
-        h.update(tail)
-        return tail + h.digest()[:6]
+    def sign_frames(self, frames: list[bytes], link_id: int) -> list[bytes]:
+        """Frames whose headers have IFLAG_SIGNED and whose CRCs cover it, each followed by
+        its 13 bytes: link id, its timestamp, the first 6 bytes of SHA-256(key + frame + both).
+        One clock reading for the batch, the timestamps consecutive from max(clock, last + 1);
+        the key's hash state is computed once per key and copied, not re-hashed per frame."""
+        ts = max(now_units(), self.timestamp + 1)
+        self.timestamp = ts + len(frames) - 1
+        link = bytes((link_id & 0xFF,))
+        key_hash = self._key_hash
+        out = []
+        for frame in frames:
+            tail = link + (ts & _TS_MASK).to_bytes(6, "little")
+            h = key_hash.copy()
+            h.update(frame + tail)
+            out.append(frame + tail + h.digest()[:6])
+            ts += 1
+        return out
 
     def verify(self, frame: bytes, msg_id: int, src_system: int, src_component: int) -> str | None:
         """None if the frame is acceptable, else why it is rejected (counted in `stats`)."""
@@ -212,26 +215,30 @@ class Signing:
                 self.stats["unsigned_accepted"] += 1
                 return None
             return self._reject("unsigned")
-        if len(frame) < 10 + SIGNATURE_LEN + 2:
+        n = len(frame)
+        if n < 10 + SIGNATURE_LEN + 2:
             return self._reject("bad signature")
         h = self._key_hash.copy()
         h.update(frame[:-6])
-        expected = h.digest()[:6]
-        if not hmac.compare_digest(expected, bytes(frame[-6:])):
+        if not hmac.compare_digest(h.digest()[:6], frame[-6:]):
             return self._reject("bad signature")
-        link_id = frame[-13]
-        ts = int.from_bytes(frame[-12:-6], "little")
-        stream = (link_id, src_system, src_component)
-        last = self._streams.get(stream)
-        if last is not None and ts <= last:
+        ts = int.from_bytes(frame[n - 12 : n - 6], "little")
+        stream = (frame[n - 13], src_system, src_component)  # link id, system, component
+        streams = self._streams
+        last = streams.get(stream)
+        if last is None:
+            if ts + REPLAY_WINDOW < max(self.timestamp, now_units()):
+                return self._reject("timestamp more than a minute old")
+            streams[stream] = ts
+            if len(streams) > MAX_STREAMS:
+                streams.popitem(last=False)
+        elif ts <= last:
             return self._reject("replayed")
-        if last is None and ts + REPLAY_WINDOW < max(self.timestamp, now_units()):
-            return self._reject("timestamp more than a minute old")
-        self._streams[stream] = ts
-        self._streams.move_to_end(stream)
-        if len(self._streams) > MAX_STREAMS:
-            self._streams.popitem(last=False)
-        self.timestamp = max(self.timestamp, ts)
+        else:
+            streams[stream] = ts
+            streams.move_to_end(stream)
+        if ts > self.timestamp:
+            self.timestamp = ts
         self.stats["signed_accepted"] += 1
         return None
 
