@@ -12,11 +12,11 @@ another's, the kinds alternated (A B C, C B A, ...):
 - raw: a plain eclipse-zenoh publisher with the frame publisher's QoS, `put(image.tobytes())`
   (what a user of zenoh-python writes; Zenoh's transport optimisation moves it through shared
   memory);
-- skyherd: `FramePublisher.publish`, plain frames (version 3: a checksum pass over the pixels,
-  a CRC of the header), the image copied into the payload
-  that is published (`frame_buffer()`; the simulator's renderer draws there instead);
+- skyherd: `FramePublisher.publish`, plain frames (version 5: a CRC of the header, the pixels
+  not read), the image copied into the payload that is published (`frame_buffer()`; the
+  simulator's renderer draws there instead), the payload copied into a shared-memory buffer;
 - skyherd signed: the same with a flight key (version 4: a Poly1305 pass over the pixels under
-  a one-time key, BLAKE2b MAC over the header).
+  a one-time key, BLAKE2b MAC over the header with that digest).
 
 CPU per frame is the block process's CPU time (`time.process_time`: every thread, Zenoh's
 included) over the block, divided by its frames; the copy of the image into the published

@@ -7,33 +7,36 @@ subscriber with the key keeps only authentic info, counting the rest in `info_re
 
 Frame wire format (little-endian), then the pixel data:
 
-    magic "SKYF" | version u16 (3 plain, 4 signed) | encoding u8 (0 raw RGB, 1 JPEG) |
+    magic "SKYF" | version u16 (5 plain, 4 signed) | encoding u8 (0 raw RGB, 1 JPEG) |
     reserved u8 | stream u32 (random per publisher: a restart resets the subscriber's
     bookkeeping) | seq u64 | t_sim f64 [s] (simulation clock) | t_pub f64 [s] (publisher's wall
     clock) | pos_ned 3×f64 [m] | quat 4×f64 (w, x, y, z body→NED) | width u16 | height u16 |
     data_len u32 | nonce 16 bytes | digest 16 bytes | header_crc u32 (CRC-32 of the header
     before it)
 
-Integrity is one pass over the pixels on each side plus a check of the header. A plain frame
-(version 3) carries a checksum of the pixels as its `digest` (the sum of their little-endian
-64-bit words mod 2^64, and their length: one pass at memory speed; any one altered byte, or
-any alteration within one 8-byte word, changes it; it catches damage, not forgery) and its
-header carries its CRC. A signed frame (version 4; publisher and subscriber given the flight's
-key, `key`: the 32 bytes of the MAVLink signing key, flight.mavlink.signing) carries Poly1305
-of the pixels (OpenSSL's, about 14 GB/s) under a one-time key, BLAKE2b-256 of the frame's
-random `nonce` keyed with the flight key (fresh for every frame: Poly1305's one-time-key
-rule), and a trailer after the pixels: BLAKE2b-256 keyed with the flight key over the header as
-sent (32 bytes). Altering the header fails the MAC; altering a pixel fails the digest, which
-no one without the flight key can compute for other pixels.
+Integrity is over the header; the pixels are authenticated only when there is something to
+authenticate them against. A plain frame (version 5) carries no pixel digest (nonce and digest
+are zero): its header CRC covers the header (sequence number, stream, pose, size and length
+included), and the pixels are as intact as the link that carried them (TCP's checksum, or the
+publisher's shared memory mapped by the subscriber). Nothing touches them between the
+renderer and the put but the copy into shared memory. (Version 3 also summed the pixels: a
+second pass per side, 0.03–0.11 ms per 640×480 frame, for damage that TCP and shared memory
+do not do; issue 31 item 2.) A signed frame (version 4; publisher and subscriber given the
+flight's key, `key`: the 32 bytes of the MAVLink signing key, flight.mavlink.signing) carries
+Poly1305 of the pixels (OpenSSL's) under a one-time key, BLAKE2b-256 of the frame's random
+`nonce` keyed with the flight key (fresh for every frame: Poly1305's one-time-key rule), and a
+trailer after the pixels: BLAKE2b-256 keyed with the flight key over the header as sent (32
+bytes, the digest included). Altering the header fails the MAC; altering a pixel fails the
+digest, which no one without the flight key can compute for other pixels: the one pass over
+the pixels that authenticity costs (bench/bench_frames.py, docs/perception.md).
 
 A subscriber with a key refuses (counts as `refused`, never hands on) plain frames and frames
 whose MAC or pixel digest fails, on arrival, before their sequence number touches the books: a
-forged "next frame", or a real one with pixels altered, cannot push the real one out. Plain
-frames' pixels are checked when the frame is taken (`decode_pixels`: CorruptFrame; a signed
-frame decoded that way gives RefusedFrame). A run of refused frames is a
+forged "next frame", or a real one with pixels altered, cannot push the real one out (a
+signed frame decoded by `decode_pixels` gives RefusedFrame). A run of refused frames is a
 camera that went silent: the consumer's camera-loss path. Readers without a key (the recorder
-without one, a viewer) read both versions; they check the header CRC, and the pixels of plain
-frames only (a signed frame's digest needs the key).
+without one, a viewer) read both versions and check the header CRC (a signed frame's digest
+needs the key).
 
 Sessions: by default a Zenoh peer that listens on tcp/127.0.0.1 only (the publisher, runio.ports.zenoh_port)
 or connects to it (the subscriber), multicast scouting off: nothing to start by hand, nothing
@@ -43,15 +46,15 @@ file instead (e.g. client mode towards a router on another machine; see docs/per
 The subscriber keeps only the newest frame. It counts frames received, lost (gaps in seq),
 out of order (older than the newest, discarded; a lost frame that turns up late moves from
 lost to out-of-order), late (wall-clock age above `late_s` on arrival, same clock only),
-skipped (superseded before the consumer took them) and corrupt (bad magic, length, header CRC,
-pixel digest or image: dropped, never raised). Only the header is checked on arrival; the
-pixels are checked when the consumer takes the frame, so a corrupt frame that is superseded
-first counts as skipped.
+skipped (superseded before the consumer took them) and corrupt (bad magic, version, length,
+header CRC or image: dropped, never raised). Only the header is checked on arrival (and,
+with a key, the pixel digest); the image is decoded when the consumer takes the frame, so a
+JPEG that does not decode and is superseded first counts as skipped.
 
 The publisher writes each frame once: `frame_buffer()` hands out the (H, W, 3) pixel region of
 the payload that will be sent (the renderer draws into it: `FastRenderer.render(..., out=)`),
-`publish` computes the digest, writes the header (stamped once, at the put) and copies the
-payload into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
+`publish` writes the header in place (stamped once, at the put; signed: the pixel digest and
+the MAC first) and copies the payload into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
 `ZShmMut` takes bytes or a bytearray, not a writable view, so this one copy remains). With
 `shm_frames=0` the payload is put as is and Zenoh's transport optimisation copies it into its
 own pool: less CPU per frame, but frames dropped under DROP congestion control (seen in
@@ -83,18 +86,18 @@ from skyherd.runio.ports import ZENOH_BASE
 _HDR = struct.Struct("<4sHBBIQdd3d4dHHI16s16sI")
 HEADER_LEN = _HDR.size
 _CRC_AT = HEADER_LEN - 4  # the header CRC covers the header before it
+_CRC = struct.Struct("<I")
 MAGIC = b"SKYF"
-VERSION = 3  # plain: pixel checksum, header CRC
-VERSION_SIGNED = 4  # + digest under a one-time key from the flight key, MAC trailer
+VERSION = 5  # plain: header CRC (3, no longer read, also summed the pixels)
+VERSION_SIGNED = 4  # pixel digest under a one-time key from the flight key, MAC trailer
 NONCE_LEN = DIGEST_LEN = 16
 MAC_LEN = 32
 TRAILER_LEN = MAC_LEN  # signed frames only
 RAW, JPEG = 0, 1
 ENCODINGS = {"raw": RAW, "jpeg": JPEG}
 DEFAULT_PORT = ZENOH_BASE  # instance 0's; instance N: runio.ports.zenoh_port(N)
-CHECKSUM = b""  # the "digest key" of a plain frame: the unkeyed checksum (pixel_digest)
-_MASK64 = (1 << 64) - 1
 _NO_NONCE = bytes(NONCE_LEN)
+_NO_DIGEST = bytes(DIGEST_LEN)
 
 
 def frame_key(vehicle: str) -> str:
@@ -118,42 +121,32 @@ def frame_mac(key: bytes, header: bytes) -> bytes:
     return hashlib.blake2b(header, key=key, digest_size=MAC_LEN).digest()
 
 
-def digest_key(key: bytes | None, nonce: bytes) -> bytes:
-    """The key of a frame's pixel digest: CHECKSUM for a plain frame (`key` None), else the
-    Poly1305 key BLAKE2b-256 of the frame's nonce keyed with the flight key (one per frame)."""
-    if key is None:
-        return CHECKSUM
+def digest_key(key: bytes, nonce: bytes) -> bytes:
+    """The key of a signed frame's pixel digest: BLAKE2b-256 of the frame's nonce keyed with the
+    flight key (a Poly1305 key, one per frame)."""
     return hashlib.blake2b(nonce, key=key, digest_size=32, person=b"skyherd-pixels").digest()
 
 
 def pixel_digest(dkey: bytes, data) -> bytes:
-    """The 16-byte digest of the pixel bytes `data` (any buffer): with `dkey` CHECKSUM, the sum
-    of their little-endian 64-bit words (the last one zero-padded) mod 2^64 and their length;
-    else the Poly1305 tag under `dkey`."""
-    if dkey == CHECKSUM:
-        view = memoryview(data).cast("B")
-        n = len(view)
-        whole = n - n % 8
-        total = int(np.add.reduce(np.frombuffer(view, "<u8", whole // 8))) if whole else 0
-        if n % 8:
-            total = (total + int.from_bytes(view[whole:], "little")) & _MASK64
-        return struct.pack("<QQ", total, n)
+    """The 16-byte digest of a signed frame's pixel bytes `data` (any buffer): the Poly1305 tag
+    under `dkey` (digest_key)."""
     from cryptography.hazmat.primitives.poly1305 import Poly1305
 
     return Poly1305.generate_tag(dkey, data)
 
 
-def _pack_header(seq, t_sim, pos_ned, quat, width, height, n, encoding, stream, t_pub, nonce,
-                 digest, signed) -> bytes:  # fmt: skip
-    """The header with its CRC; t_pub None: now (wall clock)."""
+def _write_header(payload: bytearray, seq, t_sim, pos_ned, quat, width, height, n, encoding,
+                  stream, t_pub, nonce, digest, signed) -> None:  # fmt: skip
+    """Write the header and its CRC into the first HEADER_LEN bytes of `payload`; t_pub None:
+    now (wall clock)."""
     p, q = pos_ned, quat
-    head = _HDR.pack(
-        MAGIC, VERSION_SIGNED if signed else VERSION, encoding, 0, stream & 0xFFFFFFFF, seq,
-        float(t_sim), time.time() if t_pub is None else t_pub, float(p[0]), float(p[1]),
-        float(p[2]), float(q[0]), float(q[1]), float(q[2]), float(q[3]), width, height, n, nonce,
-        digest, 0,
+    _HDR.pack_into(
+        payload, 0, MAGIC, VERSION_SIGNED if signed else VERSION, encoding, 0,
+        stream & 0xFFFFFFFF, seq, float(t_sim), time.time() if t_pub is None else t_pub,
+        float(p[0]), float(p[1]), float(p[2]), float(q[0]), float(q[1]), float(q[2]),
+        float(q[3]), width, height, n, nonce, digest, 0,
     )  # fmt: skip
-    return head[:_CRC_AT] + struct.pack("<I", zlib.crc32(memoryview(head)[:_CRC_AT]))
+    _CRC.pack_into(payload, _CRC_AT, zlib.crc32(memoryview(payload)[:_CRC_AT]))
 
 
 @dataclass(frozen=True)
@@ -197,17 +190,20 @@ def seal(payload: bytearray, seq: int, t_sim: float, pos_ned, quat, width: int, 
          encoding: int = RAW, stream: int = 0, t_pub: float | None = None,
          key: bytes | None = None) -> bytearray:  # fmt: skip
     """Finish a frame in place: `payload` is HEADER_LEN bytes of room, the pixel data, and with
-    `key` TRAILER_LEN bytes of room. Computes the pixel digest (one pass), then writes the
-    header (publish time: now, unless `t_pub`) and, signed, the MAC trailer. Returns payload."""
+    `key` TRAILER_LEN bytes of room. Writes the header (publish time: now, unless `t_pub`);
+    signed, computes the pixel digest first (the one pass over the pixels) and writes the MAC
+    trailer after. Returns payload."""
     n = len(payload) - HEADER_LEN - (TRAILER_LEN if key is not None else 0)
-    nonce = _NO_NONCE if key is None else os.urandom(NONCE_LEN)
-    view = memoryview(payload)
-    digest = pixel_digest(digest_key(key, nonce), view[HEADER_LEN : HEADER_LEN + n])
-    header = _pack_header(seq, t_sim, pos_ned, quat, width, height, n, encoding, stream, t_pub,
-                          nonce, digest, key is not None)  # fmt: skip
-    payload[:HEADER_LEN] = header
+    nonce, digest = _NO_NONCE, _NO_DIGEST
     if key is not None:
-        payload[HEADER_LEN + n :] = frame_mac(key, header)
+        nonce = os.urandom(NONCE_LEN)
+        digest = pixel_digest(
+            digest_key(key, nonce), memoryview(payload)[HEADER_LEN : HEADER_LEN + n]
+        )
+    _write_header(payload, seq, t_sim, pos_ned, quat, width, height, n, encoding, stream, t_pub,
+                  nonce, digest, key is not None)  # fmt: skip
+    if key is not None:
+        payload[HEADER_LEN + n :] = frame_mac(key, memoryview(payload)[:HEADER_LEN])
     return payload
 
 
@@ -216,10 +212,10 @@ def restamp(payload: bytearray, key: bytes | None = None) -> None:
     again; the pixels and their digest are unchanged."""
     f = list(_HDR.unpack_from(payload))
     f[7] = time.time()
-    head = _HDR.pack(*f)
-    payload[:HEADER_LEN] = head[:_CRC_AT] + struct.pack("<I", zlib.crc32(head[:_CRC_AT]))
+    _HDR.pack_into(payload, 0, *f)
+    _CRC.pack_into(payload, _CRC_AT, zlib.crc32(memoryview(payload)[:_CRC_AT]))
     if key is not None:
-        payload[len(payload) - MAC_LEN :] = frame_mac(key, bytes(payload[:HEADER_LEN]))
+        payload[len(payload) - MAC_LEN :] = frame_mac(key, memoryview(payload)[:HEADER_LEN])
 
 
 def encode_frame(
@@ -258,9 +254,9 @@ class FrameHeader:
     height: int
     encoding: int
     data_len: int
-    digest: bytes  # of the pixels: a checksum (plain) or Poly1305 (signed)
+    digest: bytes  # of the pixels: Poly1305 (signed) or zeros (plain)
     t_recv: float
-    digest_key: bytes | None = None  # to check the digest with (CHECKSUM: plain; None: cannot)
+    digest_key: bytes | None = None  # to check the digest with (None: plain, or no key)
     signed: bool = False  # the digest was keyed from the flight key and the MAC checked
 
     @property
@@ -273,7 +269,7 @@ def decode_header(
 ) -> FrameHeader:
     """Header fields; a short payload, bad magic/version/length/header CRC or non-finite pose
     raise CorruptFrame. With `key`: a plain frame or a MAC that fails raise RefusedFrame (the
-    pixels are checked against the digest later, in decode_pixels)."""
+    pixels are checked against the digest later: pixel_data)."""
     if len(payload) < HEADER_LEN:
         raise CorruptFrame(f"payload of {len(payload)} bytes is shorter than the header")
     f = _HDR.unpack_from(payload)
@@ -300,22 +296,19 @@ def decode_header(
     if enc not in (RAW, JPEG):
         raise CorruptFrame(f"unknown encoding {enc}")
     t_recv = time.time() if t_recv is None else t_recv
-    dkey = digest_key(key, nonce) if key is not None or not signed else None
+    dkey = digest_key(key, nonce) if key is not None else None
     return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, digest, t_recv, dkey,
                        key is not None)  # fmt: skip
 
 
 def pixel_data(hdr: FrameHeader, payload: bytes) -> memoryview:
-    """The pixel bytes of a payload whose header is `hdr`, checked against its digest
-    (RefusedFrame for a signed frame, CorruptFrame for a plain one); a signed frame read
-    without the key is not checked (its digest needs the key)."""
+    """The pixel bytes of a payload whose header is `hdr`; a signed frame read with the key is
+    checked against its digest (RefusedFrame), any other frame has none to check."""
     data = memoryview(payload)[HEADER_LEN : HEADER_LEN + hdr.data_len]
     if hdr.digest_key is not None and not hmac.compare_digest(
         pixel_digest(hdr.digest_key, data), hdr.digest
     ):
-        if hdr.signed:
-            raise RefusedFrame("pixels do not match the signed digest")
-        raise CorruptFrame("pixel digest mismatch")
+        raise RefusedFrame("pixels do not match the signed digest")
     return data
 
 
@@ -461,7 +454,7 @@ class FramePublisher:
             raise ValueError(f"encoding must be raw or jpeg, got {encoding!r}")
         self.cam, self.encoding, self.jpeg_quality = cam, encoding, jpeg_quality
         self.mount = mount  # how the vehicle carries the camera (camera_info)
-        self.key = key  # the flight key: frames signed (version 4 + trailer), else version 3
+        self.key = key  # the flight key: frames signed (version 4 + trailer), else version 5
         self.info_every = max(1, info_every)
         self.stream = int((rng or np.random.default_rng()).integers(1, 2**32 - 1))
         self.seq = 0
@@ -477,6 +470,7 @@ class FramePublisher:
         # control more frames dropped, bench_frames.py / docs/perception.md)
         self._shm_frames = shm_frames
         self._shm = None  # zenoh.shm.ShmProvider, made at the first frame (its size is known then)
+        self._gc = None  # its allocation policy (zenoh.shm.GarbageCollect)
         self.shm_fallbacks = 0  # frames sent by copy because shared memory was not available
         self._last: bytearray | None = None  # the last payload sent (republish)
         # raw frames: two payloads, alternately filled (the last one stays whole for republish);
@@ -504,7 +498,7 @@ class FramePublisher:
         if img.ndim != 3 or img.shape[2] != 3:
             raise ValueError(f"expected an (H, W, 3) image, got {img.shape}")
         view = self.frame_buffer(*img.shape[:2])
-        if not (img.dtype == np.uint8 and np.shares_memory(img, view) and img.shape == view.shape):
+        if img is not view:  # not rendered into frame_buffer()
             view[...] = img
         payload = self._payloads[self._k][0]
         self._k ^= 1
@@ -520,11 +514,12 @@ class FramePublisher:
         if self._shm is None and self._shm_frames > 0:
             try:
                 self._shm = zenoh.shm.ShmProvider.default_backend(self._shm_frames * n)
+                self._gc = zenoh.shm.GarbageCollect()
             except Exception:  # noqa: BLE001 - no /dev/shm, too small a limit: copy instead
                 self._shm_frames = 0
         if self._shm is not None:
             try:
-                buf = self._shm.alloc(n, policy=zenoh.shm.GarbageCollect())
+                buf = self._shm.alloc(n, policy=self._gc)
             except Exception:  # noqa: BLE001 - pool exhausted by slow readers: copy this one
                 self.shm_fallbacks += 1
             else:

@@ -10,6 +10,7 @@ import pytest
 
 from skyherd.perception.camera import CameraParams
 from skyherd.perception.transport import (
+    HEADER_LEN,
     JPEG,
     RAW,
     CorruptFrame,
@@ -52,7 +53,8 @@ def test_roundtrip_raw_and_jpeg():
         lambda b: b[:10],  # truncated header
         lambda b: b"XXXX" + b[4:],  # bad magic
         lambda b: b[:-5],  # truncated pixels
-        lambda b: b[:-1] + bytes([b[-1] ^ 1]),  # flipped bit → CRC
+        lambda b: b[:40] + bytes([b[40] ^ 1]) + b[41:],  # flipped bit in the pose → header CRC
+        lambda b: b[:4] + bytes([3]) + b[5:],  # version 3 (pixel checksum): no longer read
         lambda b: b"",
     ],
 )
@@ -191,12 +193,12 @@ def test_config_file_client_mode_and_shipped_example(tmp_path):
         a.close()
 
 
-def test_corrupt_pixels_found_when_taken_keep_last_good_frame():
+def test_corrupt_image_found_when_taken_keep_last_good_frame():
     session = open_session(ZenohParams())
     sub = FrameSubscriber(session, "uav0")
     good = encode_frame(0, 0.0, POS, QUAT, IMG, stream=1)
-    bad = bytearray(encode_frame(1, 0.1, POS, QUAT, IMG, stream=1))
-    bad[-1] ^= 0xFF  # pixel damage: header fine, CRC wrong
+    bad = bytearray(encode_frame(1, 0.1, POS, QUAT, IMG, JPEG, stream=1))
+    bad[HEADER_LEN:] = bytes(len(bad) - HEADER_LEN)  # header fine, a JPEG that does not decode
     hdr = decode_header(good)
     sub._accept(hdr, good)
     assert sub.take().seq == 0
@@ -252,18 +254,15 @@ def test_frames_arrive_with_and_without_shared_memory(pub_shm, sub_shm):
         a.close()
 
 
-def test_the_plain_checksum_changes_with_any_one_byte_and_reads_any_length():
-    """The plain frame's pixel digest (a 64-bit word sum and the length): every single-byte
-    change of a buffer whose length is not a multiple of 8 (a JPEG's) changes it, the zero-padded
-    tail included, and so does a length change."""
-    from skyherd.perception.transport import CHECKSUM, pixel_digest
-
-    data = bytes(range(1, 22))  # 21 bytes: two words and a 5-byte tail
-    base = pixel_digest(CHECKSUM, data)
-    assert len(base) == 16 and pixel_digest(CHECKSUM, data + b"\0") != base
-    for i in range(len(data)):
+def test_the_header_crc_covers_every_header_byte():
+    """A plain frame (version 5) has integrity over its header only: any one bit flipped in any
+    header byte (sequence number, stream, pose, size, length, nonce, digest, the CRC itself) is
+    a CorruptFrame; the pixels after it are not summed."""
+    good = encode_frame(3, 0.3, POS, QUAT, IMG, stream=5)
+    assert good[4] == 5 and good[HEADER_LEN - 36 : HEADER_LEN - 4] == bytes(32)  # no digest
+    for i in range(HEADER_LEN):
         for bit in (0x01, 0x80):
-            bad = bytearray(data)
+            bad = bytearray(good)
             bad[i] ^= bit
-            assert pixel_digest(CHECKSUM, bytes(bad)) != base, (i, bit)
-    assert pixel_digest(CHECKSUM, b"") == bytes(16)
+            with pytest.raises(CorruptFrame):
+                decode_header(bytes(bad))
