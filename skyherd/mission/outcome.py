@@ -64,6 +64,7 @@ def write_outcome(run_dir: Path, mission, stats, frames, cut: list | None = None
     if sub is not None:  # the camera link: authenticated or not, frames refused by it
         out["camera_link"] = {"authenticated": sub.key is not None, "refused": sub.stats.refused,
                               "out_of_order": sub.stats.out_of_order,
+                              "repeated": sub.stats.repeated,
                               "info_refused": sub.stats.info_refused}  # fmt: skip
     flock = getattr(mission, "flock_sub", None)
     if flock is not None:  # the shepherd's UGV states: authenticated or not, refused

@@ -594,6 +594,7 @@ class LinkStats:
     received: int = 0
     lost: int = 0
     out_of_order: int = 0
+    repeated: int = 0  # the last frame again: re-published while the simulator waits for a close
     late: int = 0
     skipped: int = 0
     corrupt: int = 0
@@ -632,6 +633,7 @@ class FrameSubscriber:
         self._taken = True
         self._stream: int | None = None
         self._last_seq = -1
+        self._last_t_pub: float | None = None  # the last frame taken's publish stamp
         self._sub = session.declare_subscriber(frame_key(vehicle), self._on_frame)
         self._sub_info = session.declare_subscriber(info_key(vehicle), self._on_info)
 
@@ -662,6 +664,9 @@ class FrameSubscriber:
             s = self.stats
             if hdr.stream != self._stream:  # new publisher (or a restart): start afresh
                 self._stream, self._last_seq = hdr.stream, hdr.seq - 1
+            if hdr.seq == self._last_seq and hdr.t_pub == self._last_t_pub:
+                s.repeated += 1  # the same frame re-sent (lockstep patience): nothing new
+                return
             if hdr.seq <= self._last_seq:
                 s.out_of_order += 1
                 if s.lost > 0 and hdr.seq < self._last_seq:
@@ -675,7 +680,7 @@ class FrameSubscriber:
                 s.late += 1
             if len(s.latencies_s) < self.keep_latencies:
                 s.latencies_s.append(hdr.latency_s)
-            self._last_seq = hdr.seq
+            self._last_seq, self._last_t_pub = hdr.seq, hdr.t_pub
             if isinstance(body, Frame):
                 self._latest, self._pending = body, None
             else:

@@ -91,6 +91,29 @@ def test_bookkeeping_lost_out_of_order_skipped_late_restart():
     session.close()
 
 
+def test_a_republished_frame_is_repeated_not_out_of_order():
+    """The simulator re-publishes the tick's frame while it waits for a late companion (lockstep
+    patience, more often under load): the same frame again is `repeated`; another frame with
+    the same number (a forgery that came first, a different publish stamp) is out of order."""
+    session = open_session(ZenohParams())
+    sub = FrameSubscriber(session, "uav0")
+    now = time.time()
+
+    def fr(seq, t_pub):
+        return decode_frame(encode_frame(seq, seq * 0.1, POS, QUAT, IMG[:8, :8], stream=1,
+                                         t_pub=t_pub), t_recv=now)  # fmt: skip
+
+    sub.on_frame(fr(0, now))
+    assert sub.take().seq == 0
+    sub.on_frame(fr(0, now))
+    sub.on_frame(fr(0, now))
+    assert sub.take() is None  # nothing new to take
+    assert (sub.stats.received, sub.stats.repeated, sub.stats.out_of_order) == (1, 2, 0)
+    sub.on_frame(fr(0, now - 0.05))  # number 0 again, published at another instant
+    assert (sub.stats.repeated, sub.stats.out_of_order) == (2, 1)
+    session.close()
+
+
 def test_bad_session_configuration_is_a_clear_error(tmp_path):
     with pytest.raises(ValueError, match="does not exist"):
         open_session(ZenohParams(config_file=str(tmp_path / "nope.json5")))
