@@ -54,6 +54,7 @@ def test_fly_bad_usage_exits_2(tmp_path, capsys):
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     """The main job: the kept policy flies through MAVLink offboard behind the safety net."""
     args = ["fly", "--duration", "30", "--speedup", "0", "--timeout", "600", "--zenoh-port",
@@ -194,6 +195,7 @@ def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
     assert "not a readable skyherd policy" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
     """Issue 4's flight: UGVs drive a groundsim route, a classic PID follower on φ flies."""
     args = ["fly", "--pilot", "pid", "--ugvs", "groundsim:route", "--duration", "25",
