@@ -19,6 +19,7 @@ from skyherd.record import read_messages
 from skyherd.scripts.cli import main
 
 
+@pytest.mark.slow
 def test_fly_square_end_to_end(tmp_path, capsys):
     args = ["fly", "--mission", "square", "--speedup", "0", "--timeout", "600",
             "--instance", "14", "--zenoh-port", "7455", "--runs-dir", str(tmp_path)]  # fmt: skip
@@ -218,6 +219,7 @@ def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
     assert main(["fly", "--ugvs", "nowhere", "--runs-dir", str(tmp_path)]) == 2
 
 
+@pytest.mark.slow
 def test_fly_refuses_to_take_off_when_the_autopilot_disagrees_with_the_envelope(tmp_path, capsys):
     """Envelope ↔ autopilot: an offboard-loss timeout of 3 s (in range, settable by any client)
     lets a cut link run the vehicle far past the envelope's 0.3 s reaction: no take-off."""

@@ -103,6 +103,7 @@ def small():
     return train(SMALL)
 
 
+@pytest.mark.slow
 def test_learner_reproduces_its_thresholds(small):
     """Fixed seed, small budget: the composite-demonstration network keeps the team in view on
     unseen episodes, the fused ABS-DL policy (sub-task demos only) does most of the time, and
@@ -120,6 +121,7 @@ def test_learner_reproduces_its_thresholds(small):
     assert 1200 < small.samples["lateral"] <= 1920
 
 
+@pytest.mark.slow
 def test_training_is_deterministic_for_a_seed(small):
     again = train(dataclasses.replace(SMALL, dagger_rounds=0, epochs=5))
     once = train(dataclasses.replace(SMALL, dagger_rounds=0, epochs=5))
@@ -162,6 +164,7 @@ def test_wrong_shape_policy_refused_before_take_off(small, tmp_path, capsys):
     assert not runs.exists() or not any(runs.iterdir())
 
 
+@pytest.mark.slow
 def test_recorded_demonstrations_train_their_network(tmp_path, capsys):
     """A recorded demonstration (the skyherd-demo format `skyherd teleop` writes, keyboard or
     MANUAL_CONTROL; here the discrete scripted expert records it) replaces the scripted

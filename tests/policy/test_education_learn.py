@@ -98,6 +98,7 @@ def _check_explanations(pol, scenario="composite", seed=0):
         obs, *_ = env.step(a)
 
 
+@pytest.mark.slow
 def test_two_lesson_curriculum_end_to_end(tmp_path, capsys):
     cur = tmp_path / "two.toml"
     cur.write_text(TWO)
