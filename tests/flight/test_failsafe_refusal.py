@@ -7,7 +7,6 @@ stays in its failsafe; a ground station may still take over, as a PX4 user can."
 
 from __future__ import annotations
 
-import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from skyherd.flight.autopilot_api import FlightMode
@@ -28,7 +27,6 @@ def _to_failsafe(rig: Rig) -> float:
     return rig.ap.clock.t
 
 
-@pytest.mark.slow
 def test_a_companion_request_within_the_latency_is_refused():
     with Rig(INSTANCE) as rig:
         companion = Peer(0, rig.sys, COMPANION_COMPONENT)

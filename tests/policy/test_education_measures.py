@@ -53,6 +53,7 @@ def pol_of():
     return lambda arb: ModularPolicy(CUR.concept_list(), list(mods.values()), arb, {})
 
 
+@pytest.mark.slow
 def test_measures_see_the_guarded_descent(pol_of):
     """The three modules cloned from their lessons' demonstrations, 2 training episodes: the
     rule list the 3.1.0 search finds ("centre first, descend when too tight, climb when too
