@@ -107,6 +107,7 @@ def test_companion_waiting_for_its_go_ends_cleanly_when_standard_input_closes(tm
 
 
 @pytest.mark.parametrize("after_s", [0.4, 1.0, 2.0])
+@pytest.mark.slow
 def test_fly_interrupted_while_starting_stops_both_children_wall_time(tmp_path, after_s):
     """Ctrl-C to `skyherd fly` alone, at a moment of wall time (before, while or after the
     recorder starts and the companion sets up: which one depends on the machine's load): it
