@@ -34,8 +34,9 @@ test: $(STAMP) $(MAVPROXY_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
 
-# The suite without the tests marked slow (each over 10 s on 2 cores): every package's unit
-# tests and the quick end-to-end ones, in a few minutes (the time is in the README).
+# The suite without the tests marked slow (flights, drills, learner runs, SITL sessions: 3 CPU s
+# or more each): every package's unit tests and one 6 s end-to-end flight (the time is in the
+# README). An unmarked test that spends over 30 CPU s fails (tests/conftest.py): mark it slow.
 test-fast: $(STAMP) $(MAVPROXY_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q -m "not slow and not autopilot"

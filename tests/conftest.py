@@ -11,6 +11,7 @@ import ctypes
 import dataclasses
 import fcntl
 import os
+import resource
 import socket
 import struct
 
@@ -134,3 +135,44 @@ def no_process_left():
         print(f"\nleft running after the test (killed): {what}")
     else:
         pytest.fail(f"{len(left)} process(es) left running after the test (killed): {what}")
+
+
+# -- a test left in the fast suite stays fast ----------------------------------------------------
+# `make test-fast` leaves out the tests marked slow (each over 10 s on 2 cores). Wall time says
+# nothing on a loaded machine, but the CPU a test spends (this process and the children it
+# reaped: flights, learners, subprocesses of skyherd) is nearly the same under load. An unmarked
+# test that spends more than FAST_CPU_BUDGET_S from its setup to its teardown fails there, naming
+# its CPU: mark it slow. The budget is 3× the 10 s line (a test may keep both cores busy; a loaded
+# machine's shared caches add some CPU time). Only reaped children count: waiting costs nothing.
+FAST_CPU_BUDGET_S = 30.0  # [CPU s]
+
+
+_CPU_AT_START = pytest.StashKey[float]()
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process and of its children reaped so far."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    reaped = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + reaped.ru_utime + reaped.ru_stime
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    item.stash[_CPU_AT_START] = _cpu_s()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    exempt = item.get_closest_marker("slow") or item.get_closest_marker("autopilot")
+    if call.when != "teardown" or exempt or not report.passed or _CPU_AT_START not in item.stash:
+        return report
+    spent = _cpu_s() - item.stash[_CPU_AT_START]
+    if spent > FAST_CPU_BUDGET_S:
+        report.outcome = "failed"
+        report.longrepr = (
+            f"{item.nodeid} spent {spent:.1f} CPU s from setup to teardown, over the fast "
+            f"suite's {FAST_CPU_BUDGET_S:g} per test: mark it @pytest.mark.slow"
+        )
+    return report

@@ -300,7 +300,11 @@ def compare_output(doc: str, actual: str) -> list[str]:
     return problems
 
 
-@pytest.mark.parametrize("block", OUTPUTS, ids=[b.where for b in OUTPUTS])
+@pytest.mark.parametrize(
+    "block",
+    [pytest.param(b, marks=pytest.mark.slow) if " train " in b.marker else b for b in OUTPUTS],
+    ids=[b.where for b in OUTPUTS],
+)  # a learner run is slow (make test-fast leaves it out)
 def test_documented_output_is_the_real_output(block, tmp_path):
     cmd = re.match(r"<!--\s*output:\s*(.*?)\s*-->", block.marker).group(1)
     cmd = cmd.replace(".venv/bin/", f"{VENV_BIN}/")

@@ -34,8 +34,6 @@ from skyherd.flight.autopilot_api import FlightMode
 from skyherd.flight.clock import Pacer
 from skyherd.flight.lockstep import LockstepGate, LockstepParams, LockstepTimeout, collect_closes
 from skyherd.flight.mavlink.signing import load_key
-from skyherd.flight.state import VehicleState
-from skyherd.perception.mount import level_quat
 from skyherd.runio import cut_records, try_write_text
 from skyherd.runio.constants import CAMERA_HZ, PACE_S
 from skyherd.task.params import TaskParams
@@ -123,11 +121,6 @@ def alone_record(
         "armed": armed,
         "altitude_m": round(altitude_m, 3) if math.isfinite(altitude_m) else math.nan,
     }
-
-
-def level_camera_mount(state: VehicleState) -> VehicleState:
-    """The state as a 2-axis (roll, pitch) stabilised gimbal sees it: heading kept, level."""
-    return dataclasses.replace(state, quat=level_quat(state.quat))
 
 
 @dataclass

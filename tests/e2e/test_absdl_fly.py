@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from skyherd.policy.models import ABSDL_POLICY
 from skyherd.scripts.cli import main
@@ -56,6 +57,7 @@ def check_deep_policy(run: Path, min_decisions: int = 55) -> dict:
     return fig
 
 
+@pytest.mark.slow
 def test_fly_the_deep_policy(tmp_path, capsys):
     args = ["fly", "--policy", str(ABSDL_POLICY), "--duration", "30", "--speedup", "0",
             "--timeout", "600", "--instance", "88", "--zenoh-port", "7488",

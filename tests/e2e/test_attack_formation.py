@@ -11,6 +11,8 @@ import json
 import re
 from pathlib import Path
 
+import pytest
+
 from skyherd.scripts.cli import main
 from tests.e2e.test_attack_mavlink import assert_per_run_key, attacked_flight
 
@@ -47,6 +49,7 @@ def assert_signed_fleet(rc: int, run: Path) -> dict:
     return comp
 
 
+@pytest.mark.slow
 def test_a_spoofed_heartbeat_takes_one_vehicle_of_an_unsigned_formation_only(tmp_path):
     victim = INSTANCE + 1  # uav1: AUTO.LAND heartbeats to its companion port
     rc, run, _ = attacked_flight(tmp_path / "signed", "heartbeat", *_formation(tmp_path),
@@ -67,6 +70,7 @@ def test_a_spoofed_heartbeat_takes_one_vehicle_of_an_unsigned_formation_only(tmp
     assert rc != 0 and comp["outcome"] != "completed", comp
 
 
+@pytest.mark.slow
 def test_a_forced_disarm_of_a_signed_formation_vehicle_changes_no_byte_of_the_flight(tmp_path):
     """The signed, attacked formation flies byte for byte as an unsigned one nobody attacks:
     signing changes nothing in the flight and the refused DISARMs reach nothing."""

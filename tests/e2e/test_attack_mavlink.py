@@ -96,6 +96,7 @@ def assert_unsigned(run: Path) -> None:
 
 
 @pytest.mark.timeout(2400)
+@pytest.mark.slow
 def test_spoofed_heartbeat_auto_land_ends_only_an_unsigned_flight(tmp_path):
     rc, run, _ = attacked_flight(tmp_path / "signed", "heartbeat")
     assert_signed_and_untouched(rc, run)
@@ -108,6 +109,7 @@ def test_spoofed_heartbeat_auto_land_ends_only_an_unsigned_flight(tmp_path):
 
 
 @pytest.mark.timeout(2400)
+@pytest.mark.slow
 def test_forced_disarm_on_the_ground_station_port_works_only_unsigned(tmp_path):
     rc, run, report = attacked_flight(tmp_path / "signed", "disarm")
     assert_signed_and_untouched(rc, run)
@@ -121,6 +123,7 @@ def test_forced_disarm_on_the_ground_station_port_works_only_unsigned(tmp_path):
 
 
 @pytest.mark.timeout(2400)
+@pytest.mark.slow
 def test_spoofed_local_position_reaches_only_an_unsigned_companion(tmp_path):
     def spoofed_rows(run: Path) -> int:
         with open(run / "metrics.csv", newline="") as f:
@@ -136,6 +139,7 @@ def test_spoofed_local_position_reaches_only_an_unsigned_companion(tmp_path):
 
 
 @pytest.mark.timeout(2400)
+@pytest.mark.slow
 def test_mission_count_lock_is_taken_only_on_an_unsigned_vehicle(tmp_path):
     def answered(report: dict) -> int:  # the vehicle began the attacker's fence upload
         return sum(n for k, n in report["replies"].items() if k.startswith("MISSION_REQUEST"))

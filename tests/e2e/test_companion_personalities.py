@@ -61,6 +61,7 @@ def _fly_twice(tmp_path, instance: int, personality: Personality, zenoh_port: in
 
 
 @pytest.mark.timeout(600)
+@pytest.mark.slow
 def test_fly_connect_flies_the_builtin_px4_personality_twice_walltime(tmp_path):
     for tel, comp, sitl in _fly_twice(tmp_path, 70, Personality.PX4, 7463):
         assert tel.profile.name == "PX4"
@@ -73,6 +74,7 @@ def test_fly_connect_flies_the_builtin_px4_personality_twice_walltime(tmp_path):
 
 
 @pytest.mark.timeout(600)
+@pytest.mark.slow
 def test_fly_connect_flies_the_builtin_ardupilot_personality_twice_walltime(tmp_path):
     for tel, _comp, sitl in _fly_twice(tmp_path, 71, Personality.ARDUPILOT, 7464):
         assert tel.profile.name == "ArduCopter"
@@ -107,6 +109,7 @@ def test_update_telemetry_is_a_pure_step():
     ("instance", "personality", "end_mode"),
     [(72, Personality.PX4, "AUTO.LOITER"), (73, Personality.ARDUPILOT, "LAND")],
 )
+@pytest.mark.slow
 def test_the_real_autopilot_tests_missions_on_the_builtin_stand_ins(
     instance, personality, end_mode
 ):

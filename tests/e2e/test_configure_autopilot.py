@@ -42,6 +42,7 @@ def test_a_nan_or_an_int32_parameter_is_left_to_the_operator():
     assert required_values(spec, params) == {}
 
 
+@pytest.mark.slow
 def test_fly_refuses_stock_parameters_and_configures_them_when_asked(tmp_path):
     base = ["fly", "--speedup", "0", "--duration", "10", "--param", "COM_OF_LOSS_T=1",
             "--param", "MPC_XY_VEL_MAX=20", "--instance", "35", "--zenoh-port", "7435"]  # fmt: skip

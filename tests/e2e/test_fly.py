@@ -19,6 +19,7 @@ from skyherd.record import read_messages
 from skyherd.scripts.cli import main
 
 
+@pytest.mark.slow
 def test_fly_square_end_to_end(tmp_path, capsys):
     args = ["fly", "--mission", "square", "--speedup", "0", "--timeout", "600",
             "--instance", "14", "--zenoh-port", "7455", "--runs-dir", str(tmp_path)]  # fmt: skip
@@ -54,6 +55,7 @@ def test_fly_bad_usage_exits_2(tmp_path, capsys):
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     """The main job: the kept policy flies through MAVLink offboard behind the safety net."""
     args = ["fly", "--duration", "30", "--speedup", "0", "--timeout", "600", "--zenoh-port",
@@ -105,6 +107,7 @@ def test_companion_waiting_for_its_go_ends_cleanly_when_standard_input_closes(tm
 
 
 @pytest.mark.parametrize("after_s", [0.4, 1.0, 2.0])
+@pytest.mark.slow
 def test_fly_interrupted_while_starting_stops_both_children_wall_time(tmp_path, after_s):
     """Ctrl-C to `skyherd fly` alone, at a moment of wall time (before, while or after the
     recorder starts and the companion sets up: which one depends on the machine's load): it
@@ -194,6 +197,7 @@ def test_fly_groundair_bad_policy_file_exits_2(tmp_path, capsys):
     assert "not a readable skyherd policy" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
     """Issue 4's flight: UGVs drive a groundsim route, a classic PID follower on φ flies."""
     args = ["fly", "--pilot", "pid", "--ugvs", "groundsim:route", "--duration", "25",
@@ -216,6 +220,7 @@ def test_fly_pid_follower_over_a_groundsim_route(tmp_path, capsys):
     assert main(["fly", "--ugvs", "nowhere", "--runs-dir", str(tmp_path)]) == 2
 
 
+@pytest.mark.slow
 def test_fly_refuses_to_take_off_when_the_autopilot_disagrees_with_the_envelope(tmp_path, capsys):
     """Envelope ↔ autopilot: an offboard-loss timeout of 3 s (in range, settable by any client)
     lets a cut link run the vehicle far past the envelope's 0.3 s reaction: no take-off."""

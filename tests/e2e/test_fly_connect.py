@@ -10,6 +10,8 @@ take-off: tests/e2e/test_fly.py)."""
 
 import json
 
+import pytest
+
 from skyherd.flight.airframes_registry import make_autopilot
 from skyherd.flight.mavlink import EndpointConfig
 from skyherd.flight.sitl import Sitl
@@ -18,6 +20,7 @@ from skyherd.scripts.cli import main
 INSTANCE = 8  # the outside vehicle: system 9, API 14580+8 → 14548, ground station → 14550
 
 
+@pytest.mark.slow
 def test_fly_connect_flies_an_outside_autopilot_with_the_world_around_it_walltime(tmp_path):
     ap = make_autopilot("quadrotor", seed=0)
     with Sitl(ap, EndpointConfig(instance=INSTANCE), speedup=1.0).start():

@@ -9,9 +9,12 @@ camera_timeout_s (1.0 s) + one tick (0.1 s)."""
 import csv
 import json
 
+import pytest
+
 from skyherd.scripts.cli import main
 
 
+@pytest.mark.slow
 def test_a_cut_link_is_seen_and_the_autopilots_hold_is_never_undone(tmp_path):
     """A 3 s cut, longer than the vehicle's COM_OF_LOSS_T (0.5 s): the net sees it within the
     stated time; the autopilot's offboard-loss HOLD comes during the cut, and the companion,
@@ -38,6 +41,7 @@ def test_a_cut_link_is_seen_and_the_autopilots_hold_is_never_undone(tmp_path):
     assert "first failed check: modes" in (run / "summary.md").read_text()
 
 
+@pytest.mark.slow
 def test_a_lost_camera_is_seen_within_the_stated_time(tmp_path):
     args = ["fly", "--duration", "25", "--cut-camera", "30:2", "--speedup", "0",
             "--instance", "19", "--zenoh-port", "7445", "--runs-dir", str(tmp_path)]  # fmt: skip
@@ -56,6 +60,7 @@ def test_a_lost_camera_is_seen_within_the_stated_time(tmp_path):
     assert any(r["verdict"] == "fallback" and "camera" in r["reason"] for r in rows)
 
 
+@pytest.mark.slow
 def test_the_companion_never_undoes_the_autopilots_battery_failsafe(tmp_path):
     """Battery critical in the middle of the AI's flight: the autopilot switches to RTL by itself;
     the companion yields (no mode request, no setpoint), the autopilot lands, the flight ends

@@ -67,6 +67,7 @@ def test_wind_20ms_toward_the_fence_is_refused_with_the_reason(tmp_path, capsys,
     assert not (tmp_path / "runs").exists()  # nothing started, nothing written
 
 
+@pytest.mark.slow
 def test_wind_rising_to_20ms_in_flight_flies_the_fallback_inside(tmp_path):
     """12 m/s toward the fence (the limit: flown), +8 m/s from 20 s: the autopilot's WIND_COV
     estimate → the net's mean-wind guard → the autopilot's own HOLD, held to the end; the HOLD
@@ -97,6 +98,7 @@ def test_wind_rising_to_20ms_in_flight_flies_the_fallback_inside(tmp_path):
 
 
 @pytest.mark.parametrize("glitch_m", [20.0, 50.0])
+@pytest.mark.slow
 def test_gps_glitch_at_the_fence_is_caught_and_the_truth_stays_inside(tmp_path, glitch_m):
     """12 m/s toward a 35 m fence: the net is recovering from the fence row (at 53 s) when the
     estimate jumps glitch_m south (the fence seems farther) at 56 s for 10 s. Before (the

@@ -11,6 +11,7 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from skyherd.flight.mavlink.signing import Signing, load_key
@@ -49,6 +50,7 @@ def _world(run: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_fly_forced_disarm_in_the_air_exits_1_naming_the_check(tmp_path, capsys):
     """A kill switch at t = 15 s (5 s after the hand-over, ~20 m up): the vehicle falls."""
     rc, run = _fly(tmp_path, 29, "--fault", "disarm@15")
@@ -59,6 +61,7 @@ def test_fly_forced_disarm_in_the_air_exits_1_naming_the_check(tmp_path, capsys)
     assert _summary_checks(run)["armed"] == "FAIL"
 
 
+@pytest.mark.slow
 def test_fly_without_frames_exits_1_naming_the_camera(tmp_path, capsys):
     """The camera never delivers: from the hand-over the net counts it lost (a net event, the
     fallback), and the judge fails the flight on the camera."""
@@ -70,6 +73,7 @@ def test_fly_without_frames_exits_1_naming_the_camera(tmp_path, capsys):
     assert _summary_checks(run)["camera"] == "FAIL"
 
 
+@pytest.mark.slow
 def test_fly_autopilot_rtl_between_two_ticks_exits_1_wall_time(tmp_path, capsys):
     """RTL at t = 15.02 s and back to OFFBOARD at 15.07 s, between the ticks at 15.0 and 15.1.
     A second component on the onboard link asks the vehicle for 50 Hz heartbeats (as a starved
@@ -118,6 +122,7 @@ def test_fly_autopilot_rtl_between_two_ticks_exits_1_wall_time(tmp_path, capsys)
     assert _summary_checks(run)["modes"] == "FAIL"
 
 
+@pytest.mark.slow
 def test_fly_truth_beyond_the_fence_exits_1_naming_the_fence(tmp_path, capsys):
     """Issue 26's fence case with the guards on: the north fence edge 35 m out, a 10 s gust
     front of 25 m/s from the south from t = 13.9 s, 5 s after the hand-over (8.9 s since the

@@ -52,6 +52,7 @@ def test_the_landing_descends_behind_the_net_to_the_floor_band(tmp_path):
     assert int(shown) == n_policy < len(rows)
 
 
+@pytest.mark.slow
 def test_a_home_the_envelope_does_not_allow_is_refused_before_the_take_off(tmp_path):
     src = (ENVELOPE_DIR / "quadrotor_groundair.toml").read_text()
     env = tmp_path / "home_in_a_zone.toml"
@@ -73,6 +74,7 @@ def test_a_home_the_envelope_does_not_allow_is_refused_before_the_take_off(tmp_p
     "drill,keyword",
     [("lateral-fence", "field"), ("exclusion-zone", "barn"), ("nan-action", "non-finite")],
 )
+@pytest.mark.slow
 def test_a_named_drill_flies_the_missions_code_through_fly(tmp_path, drill, keyword):
     """A drill = a mission with an adversarial pilot: the drill's scripted AI flies through
     `skyherd fly` (MAVLink, lockstep, the companion's SafetyNet), the net catches the attack

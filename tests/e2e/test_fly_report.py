@@ -81,6 +81,7 @@ def flown(tmp_path_factory) -> Path:
     return run
 
 
+@pytest.mark.slow
 def test_report_html_is_one_self_contained_page_of_the_whole_flight(flown):
     page = parse(flown / REPORT)
     assert page.ids["verdict"].strip() == "skyherd fly: completed"
@@ -101,6 +102,7 @@ def test_report_html_is_one_self_contained_page_of_the_whole_flight(flown):
     assert "How it ended" in text and "20 s behind the safety net" in text
 
 
+@pytest.mark.slow
 def test_a_failed_flight_has_its_report_with_the_failed_check_first(flown, tmp_path, capsys):
     """The same records with the truth carried outside the fence: the real judge fails it and
     the page says so, the failed check in red."""
@@ -131,6 +133,7 @@ def test_a_failed_flight_has_its_report_with_the_failed_check_first(flown, tmp_p
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium on this machine (Debian: chromium)")
+@pytest.mark.slow
 def test_report_html_renders_in_headless_chromium(flown, tmp_path):
     shot = tmp_path / "report.png"
     r = subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu",
@@ -146,6 +149,7 @@ def test_report_html_renders_in_headless_chromium(flown, tmp_path):
     assert green[:400].sum() > 2000
 
 
+@pytest.mark.slow
 def test_groundair_png_shows_the_flight_on_one_time_axis(flown):
     img = cv2.imread(str(flown / "groundair.png"))
     assert img.shape[:2] == (620, 1600)
@@ -201,6 +205,7 @@ def test_write_report_html_on_an_empty_folder_says_no_summary(tmp_path):
     assert "no summary" in page.ids["verdict"] and page.imgs == []
 
 
+@pytest.mark.slow
 def test_skyherd_companion_alone_says_its_own_name(flown, tmp_path, capsys):
     """The report of `skyherd companion` run alone says "skyherd companion", not "skyherd fly"."""
     import argparse

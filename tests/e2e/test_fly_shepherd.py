@@ -6,12 +6,14 @@ import csv
 import json
 
 import numpy as np
+import pytest
 
 from skyherd.policy.shepherd.episode import run_episode
 from skyherd.policy.shepherd.selector import StrombomSelector
 from skyherd.scripts.cli import main
 
 
+@pytest.mark.slow
 def test_fly_shepherd_brings_the_flock_to_the_goal(tmp_path, capsys):
     args = ["fly", "--mission", "shepherd", "--shepherd-selector", "strombom", "--duration", "300",
             "--speedup", "0", "--timeout", "900", "--instance", "70", "--zenoh-port", "7470",

@@ -157,6 +157,7 @@ def _tracks(run):
     return {k: [r for r in rows if r["vehicle"] == str(k)] for k in range(4)}
 
 
+@pytest.mark.slow
 def test_fly_formation_k4_learned_plan_lands_every_vehicle_on_its_target(tmp_path):
     code = main(["fly", "--mission", "formation", "--agents", "4", "--speedup", "0",
                  "--instance", str(BASE), "--timeout", "900", "--runs-dir", str(tmp_path)])  # fmt: skip
@@ -210,6 +211,7 @@ def test_fly_formation_k4_learned_plan_lands_every_vehicle_on_its_target(tmp_pat
         assert st["sim_s"] - st["flight_sim_s"] < 0.2  # at most one camera period past it
 
 
+@pytest.mark.slow
 def test_fly_formation_from_a_plan_file_with_3m_cells(tmp_path):
     # a short hand-made plan: four agents step east/north in lock-step, then wait
     plan = [[[1, 5], [2, 5], [3, 5], [3, 6]], [[1, 2], [2, 2], [3, 2], [4, 2]],
@@ -232,6 +234,7 @@ def test_fly_formation_from_a_plan_file_with_3m_cells(tmp_path):
         assert math.hypot(float(last["north"]) - end[0], float(last["east"]) - end[1]) < 1.0
 
 
+@pytest.mark.slow
 def test_the_flight_is_the_same_in_one_simulator_process_or_one_per_vehicle(tmp_path):
     """A fleet (several vehicles stepped in turn by one `skyherd sim --fleet`) flies exactly as
     the same vehicles in a process each: decisions, events, metrics and every world.csv."""
@@ -324,6 +327,7 @@ def test_fly_formation_bad_usage_exits_2(tmp_path, capsys):
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
 
 
+@pytest.mark.slow
 def test_flight_out_of_time_aborts_with_exit_1_and_frees_every_port_walltime(tmp_path):
     """Wall time: --timeout is a wall-clock limit. 2 s of wall time, at speed-up 1 (the flight
     needs 37 s of simulation time, so at least 37 s of wall time on any machine)."""

@@ -233,6 +233,7 @@ def _altitudes(run):
     [("baro@12:5:5", 5.0), ("gps_glitch@12:2,0,-4:5", 4.0)],
     ids=["baro", "gps"],
 )
+@pytest.mark.slow
 def test_phi_follows_the_estimate_not_the_truth_under_an_estimate_fault(
     tmp_path, fault, offset_up_m
 ):

@@ -40,6 +40,7 @@ def _truth(run, t0, t1, R):
 
 
 @pytest.mark.timeout(600)
+@pytest.mark.slow
 def test_orbit_flight_end_to_end(tmp_path):
     argv = ["fly", "--airframe", "fixedwing", "--speedup", "0", "--instance", str(INSTANCE),
             "--zenoh-port", str(_free_port()), "--orbit-duration", "60", "--runs-dir", str(tmp_path)]  # fmt: skip
@@ -131,6 +132,7 @@ def test_orbit_bad_usage_before_flying(tmp_path, capsys):
 
 
 @pytest.mark.timeout(600)
+@pytest.mark.slow
 def test_skyherd_fly_fixedwing_command_without_landing(tmp_path):
     """`skyherd fly --airframe fixedwing` through the CLI: 20 s of orbit over the composite team,
     no landing (ends in the orbit), exit 0, the options recorded."""

@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from websockets.sync.client import connect
 
 from skyherd.record import LiveServer
@@ -101,6 +102,7 @@ def test_a_late_client_gets_every_channel_the_fence_the_last_event_then_every_de
     assert c.closed_with == 1005  # a close frame (the SDK's has no status code), not a drop (1006)
 
 
+@pytest.mark.slow
 def test_fly_foxglove_serves_a_late_client_the_fence_the_events_and_every_decision(tmp_path):
     """Through `skyherd fly --foxglove`: the client connects once the live view is announced
     (during the simulator's start and the take-off), and gets the fence, the net's events and

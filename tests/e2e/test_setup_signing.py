@@ -6,6 +6,8 @@ wall time by nature (test_fly_connect.py says why)."""
 
 import json
 
+import pytest
+
 from skyherd.flight.airframes_registry import make_autopilot
 from skyherd.flight.mavlink import EndpointConfig
 from skyherd.flight.mavlink.signing import load_key, save_key
@@ -15,6 +17,7 @@ from skyherd.scripts.cli import main
 INSTANCE = 37  # the outside vehicle: API 14580+37 → companion 14577, ground station → 14550
 
 
+@pytest.mark.slow
 def test_setup_signing_gives_an_outside_autopilot_the_key_then_flies_signed_walltime(tmp_path):
     key = tmp_path / "flight.key"
     save_key(key, bytes(range(1, 33)))

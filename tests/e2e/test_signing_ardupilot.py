@@ -23,6 +23,8 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
+import pytest
+
 from skyherd.flight.autopilot_api import FlightMode
 from skyherd.flight.mavlink import Personality
 from skyherd.flight.mavlink.signing import save_key
@@ -53,6 +55,7 @@ def attackers(*attacks: str):
             reports[a] = json.loads(out.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_a_signed_flight_on_the_ardupilot_personality_refuses_unsigned_commands_walltime(tmp_path):
     key = tmp_path / "flight.key"
     save_key(key, os.urandom(32))
@@ -83,6 +86,7 @@ def test_a_signed_flight_on_the_ardupilot_personality_refuses_unsigned_commands_
     assert stats["unsigned_accepted"] >= reports["radio-status"]["sent"] // 2, stats
 
 
+@pytest.mark.slow
 def test_the_same_unsigned_command_lands_an_unsigned_ardupilot_personality_walltime():
     with running_sitl(INSTANCE, speedup=1.0, personality=Personality.ARDUPILOT) as sitl:
         assert sitl.autopilot.mode is not FlightMode.LAND

@@ -180,6 +180,7 @@ def test_forged_next_frame_over_zenoh_never_reaches_the_books():
 
 
 @pytest.mark.timeout(2400)
+@pytest.mark.slow
 def test_forged_camera_frames_are_refused_by_a_default_flight_and_taken_without_signing(tmp_path):
     """The attacker answers each real frame with a forged next one (10 of them): with the key
     the companion refuses them and takes every real frame; without, each forgery that arrives

@@ -101,6 +101,7 @@ def test_forged_camera_info_decisions_and_events_from_another_session_are_refuse
 
 
 @pytest.mark.timeout(2400)
+@pytest.mark.slow
 def test_forged_records_from_an_attacker_reach_only_an_unsigned_flight(tmp_path):
     """tests/attacker.py `records`: at each of the first 6 decisions it sees, one forged record
     on camera/info, decision, safety/event, UGV 0's state and the clock (every record stamped
@@ -141,6 +142,7 @@ def _furthest(run) -> float:
 
 
 @pytest.mark.timeout(2400)
+@pytest.mark.slow
 def test_a_forged_ugv_state_reaches_only_an_unsigned_shepherd(tmp_path):
     """The shepherd reads the flock's states from Zenoh: signed, the attacker's UGV 0 (500 m
     north) is refused and counted (companion.json `ugv_link`); unsigned, the shepherd decides

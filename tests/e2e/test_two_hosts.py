@@ -57,6 +57,7 @@ def _zenoh_config(path, mode: str, endpoint_key: str) -> str:
     return str(path)
 
 
+@pytest.mark.slow
 def test_sim_and_companion_on_two_hosts_fly_through_a_router(two_hosts, tmp_path):
     ns_a, ns_b = two_hosts
     run = tmp_path / "run"
@@ -96,6 +97,7 @@ def _peer(ns: str, config, tag: str, *args: str, timeout_s: float = 180.0) -> di
     return json.loads(lines[-1])
 
 
+@pytest.mark.slow
 def test_a_closed_two_host_flight_mutual_tls_and_access_control_wallclock(two_hosts, tmp_path):
     """`skyherd certs` for the router's address; the flight through a router that takes only
     mutual TLS, then who may do what on that router: a plain TCP client and a certificate of

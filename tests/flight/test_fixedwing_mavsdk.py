@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mission import MissionAsync, MissionItem, MissionPlan
@@ -168,6 +169,7 @@ async def _landed(tel) -> bool:
     return await tel.landed_state() == LandedState.ON_GROUND and not await tel.armed()
 
 
+@pytest.mark.slow
 def test_mavsdk_takeoff_mission_hold_rtl_land(tmp_path):
     proc = start_sitl(tmp_path)
     track: list = []

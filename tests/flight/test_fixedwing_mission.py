@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from skyherd.flight.autopilot_api import FlightMode, LandedState, MissionCommand, MissionItem
 from skyherd.flight.fixedwing.autopilot import FixedWingAutopilot, Phase
@@ -40,6 +41,7 @@ def run_until(ap, rec, cond, limit_s):
     raise AssertionError(f"condition not met within {limit_s} s (phase {ap.phase}, mode {ap.mode})")
 
 
+@pytest.mark.slow
 def test_takeoff_mission_hold_rtl_land():
     ap = FixedWingAutopilot()
     rec = Recorder(ap)

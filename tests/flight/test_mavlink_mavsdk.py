@@ -185,6 +185,7 @@ def sitl_process(tmp_path):
         _stop(proc)
 
 
+@pytest.mark.slow
 def test_mavsdk_flies_the_sitl(sitl_process):
     proc, tmp = sitl_process
     out = asyncio.run(asyncio.wait_for(fly(print), timeout=150))

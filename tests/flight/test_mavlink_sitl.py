@@ -105,6 +105,7 @@ def test_cli_usage_errors_exit_2(tmp_path, capsys):
         assert words in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_cli_runs_fixedwing_and_reports_a_port_clash(tmp_path):
     first = subprocess.Popen([SKYHERD, "sitl", "--airframe", "fixedwing",
                               "--instance", "16", "--speedup", "1", "--duration", "30", "--no-tlog",

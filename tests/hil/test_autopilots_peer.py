@@ -305,6 +305,7 @@ class ScriptedArduCopter:
 
 
 @pytest.mark.timeout(240)
+@pytest.mark.slow
 def test_scripted_arducopter_flies_twice_with_guided_takeoff_and_brake_fallback():
     seen: dict = {}
 
@@ -650,6 +651,7 @@ class ScriptedArduPlane(ScriptedArduCopter):
 
 
 @pytest.mark.timeout(240)
+@pytest.mark.slow
 def test_scripted_arduplane_takes_off_in_takeoff_mode_and_flies_reposition_targets():
     seen = {}
 

@@ -1,17 +1,17 @@
 """The mission layer's pilots (the PID follower's signs, the policy's action map, the square's
-waypoints) and the world's stabilised camera."""
+waypoints) and the level camera mount the quadrotor's pilots see through."""
 
 import math
 
 import numpy as np
 
-from skyherd.flight.frames import euler_to_quat
+from skyherd.flight.frames import euler_to_quat, quat_to_euler
 from skyherd.flight.state import VehicleState
 from skyherd.mission.pilots import Observation, PerceptionFollower, PolicyPilot, WaypointPilot
 from skyherd.perception.camera import camera_pose, project
 from skyherd.perception.features import features_from_truth
+from skyherd.perception.mount import mounted_pose
 from skyherd.task.params import TaskParams, action_velocity_ned
-from skyherd.world.sim import level_camera_mount
 
 
 def _phi(com_u=0.5, com_v=0.5, spread=0.35, seen=1.0):
@@ -79,7 +79,8 @@ def test_policy_pilot_maps_actions_as_in_training():
 def test_stabilised_camera_keeps_heading_and_levels():
     q = euler_to_quat(0.4, -0.3, 1.2)
     s = VehicleState(0.0, np.zeros(3), np.zeros(3), q, np.zeros(3), np.zeros(3), False)
-    r, p, y = level_camera_mount(s).euler
+    level = mounted_pose(TaskParams().camera, "level", s.pos_ned, s.quat)
+    r, p, y = quat_to_euler(level.quat)
     assert abs(r) < 1e-12 and abs(p) < 1e-12 and math.isclose(y, 1.2)
 
 

@@ -41,6 +41,7 @@ def test_fast_renderer_accuracy_1000_frames():
     assert s["centroid_p95_px"] < 0.5
 
 
+@pytest.mark.slow
 def test_bullet_renderer_accuracy(world):
     # the full 1000 PyBullet frames (~10 s with ground compositing)
     rep = evaluate(

@@ -103,6 +103,14 @@ def small():
     return train(SMALL)
 
 
+@pytest.fixture(scope="module")
+def tiny():
+    """A fused policy of the learner's own shape, trained just enough to have weights (the file
+    format and the fly guard, not the learning, are under test)."""
+    return train(AbsdlParams(demo_episodes=1, dagger_rounds=0, epochs=1, eval_episodes=1, seed=0))
+
+
+@pytest.mark.slow
 def test_learner_reproduces_its_thresholds(small):
     """Fixed seed, small budget: the composite-demonstration network keeps the team in view on
     unseen episodes, the fused ABS-DL policy (sub-task demos only) does most of the time, and
@@ -120,6 +128,7 @@ def test_learner_reproduces_its_thresholds(small):
     assert 1200 < small.samples["lateral"] <= 1920
 
 
+@pytest.mark.slow
 def test_training_is_deterministic_for_a_seed(small):
     again = train(dataclasses.replace(SMALL, dagger_rounds=0, epochs=5))
     once = train(dataclasses.replace(SMALL, dagger_rounds=0, epochs=5))
@@ -128,9 +137,9 @@ def test_training_is_deterministic_for_a_seed(small):
             assert np.array_equal(a, b)
 
 
-def test_format_round_trip(small, tmp_path):
+def test_format_round_trip(tiny, tmp_path):
     path = tmp_path / "p.npz"
-    small.fused.save(path)
+    tiny.fused.save(path)
     back = load_policy(path)
     assert isinstance(back, AbsdlPolicy) and back.continuous and back.obs_dim == 14
     with np.load(path) as z:
@@ -140,7 +149,7 @@ def test_format_round_trip(small, tmp_path):
     rng = np.random.default_rng(0)
     for _ in range(20):
         o = rng.uniform(0, 1, 14)
-        assert np.allclose(back(o), small.fused(o), atol=1e-5)  # float32 on disk
+        assert np.allclose(back(o), tiny.fused(o), atol=1e-5)  # float32 on disk
         why = back.explain(o)
         assert why["module"] in ("lateral", "climb", "descend") and 0 <= why["weight"] <= 1
         assert why["weights"]["climb"] + why["weights"]["descend"] == pytest.approx(1, abs=1e-3)
@@ -148,10 +157,10 @@ def test_format_round_trip(small, tmp_path):
     assert kept.kind == "fused" and kept(np.full(14, 0.5)).shape == (3,)
 
 
-def test_wrong_shape_policy_refused_before_take_off(small, tmp_path, capsys):
+def test_wrong_shape_policy_refused_before_take_off(tiny, tmp_path, capsys):
     nets = {k: ([w[:, :10] if i == 0 else w for i, w in enumerate(W)], B)
-            for k, (W, B) in small.fused.nets.items()}  # fmt: skip
-    bad = AbsdlPolicy(nets, small.fused.meta)
+            for k, (W, B) in tiny.fused.nets.items()}  # fmt: skip
+    bad = AbsdlPolicy(nets, tiny.fused.meta)
     assert bad.obs_dim == 10
     path = tmp_path / "bad.npz"
     bad.save(path)
@@ -162,6 +171,7 @@ def test_wrong_shape_policy_refused_before_take_off(small, tmp_path, capsys):
     assert not runs.exists() or not any(runs.iterdir())
 
 
+@pytest.mark.slow
 def test_recorded_demonstrations_train_their_network(tmp_path, capsys):
     """A recorded demonstration (the skyherd-demo format `skyherd teleop` writes, keyboard or
     MANUAL_CONTROL; here the discrete scripted expert records it) replaces the scripted

@@ -98,6 +98,7 @@ def _check_explanations(pol, scenario="composite", seed=0):
         obs, *_ = env.step(a)
 
 
+@pytest.mark.slow
 def test_two_lesson_curriculum_end_to_end(tmp_path, capsys):
     cur = tmp_path / "two.toml"
     cur.write_text(TWO)
@@ -162,6 +163,7 @@ def test_two_lesson_curriculum_end_to_end(tmp_path, capsys):
     assert main(again) == 2  # another curriculum: refused
 
 
+@pytest.mark.slow
 def test_educate_is_deterministic_for_a_seed(tmp_path):
     """Two runs of one small curriculum with one seed give identical weights, the educated
     policy's and the monolithic DQN's, and identical lesson tables (docs/education.md)."""

@@ -53,6 +53,7 @@ def pol_of():
     return lambda arb: ModularPolicy(CUR.concept_list(), list(mods.values()), arb, {})
 
 
+@pytest.mark.slow
 def test_measures_see_the_guarded_descent(pol_of):
     """The three modules cloned from their lessons' demonstrations, 2 training episodes: the
     rule list the 3.1.0 search finds ("centre first, descend when too tight, climb when too
@@ -73,6 +74,7 @@ def test_measures_see_the_guarded_descent(pol_of):
     assert obj(guarded) < obj(alone) < obj(unguarded)
 
 
+@pytest.mark.slow
 def test_measures_search_refuses_a_descent_that_loses_the_team(pol_of):
     """With only too_tight to route on, the search on the task's measures keeps lateral alone:
     descending tightens the footprint but loses the team (a footprint-only objective would take

@@ -2,6 +2,8 @@
 
 import math
 
+import pytest
+
 from skyherd.policy.education.prereg import summarise, verdicts
 
 
@@ -28,6 +30,7 @@ def test_summarise_drops_nan_and_gives_standard_error():
     assert s["footprint_ratio"] == {"mean": 3.0, "se": 1.0, "n": 2}
 
 
+@pytest.mark.slow
 def test_skyherd_evaluate_reproduces_the_recorded_ab_and_expert_figures(tmp_path):
     """The command on the kept AB policy as both sides: AB and the expert give the figures of
     docs/education.md (seeds 700000-700099), equal distances fail goal 2 (the rule is a strict

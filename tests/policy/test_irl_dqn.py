@@ -35,6 +35,7 @@ def _greedy_rollout(env, policy):
 
 
 @pytest.mark.parametrize("double", [True, False])
+@pytest.mark.slow
 def test_dqn_solves_grid_goal_with_fixed_seed(tmp_path, double):
     import dataclasses
 

@@ -9,6 +9,7 @@ from skyherd.policy import load_policy
 from skyherd.scripts.cli import main
 
 
+@pytest.mark.slow
 def test_train_ab_end_to_end_tiny(tmp_path, capsys):
     out = tmp_path / "runs"
     saved = tmp_path / "p.npz"
@@ -67,6 +68,7 @@ def test_train_ab_end_to_end_tiny(tmp_path, capsys):
     assert pol.meta["learner"] == "ab_mean" and pol(np.full(14, 0.5, np.float32)) in range(7)
 
 
+@pytest.mark.slow
 def test_train_ab_is_deterministic_for_a_seed_in_process_and_in_a_pool(tmp_path):
     """Two runs of one small config with one seed (the DQN trained: steps > learning_starts)
     give identical weights and results, in the command's process or in worker processes

@@ -115,6 +115,7 @@ def test_sightings_from_a_rendered_frame_name_each_ugv_and_place_it_on_the_groun
         assert np.linalg.norm(seen[i] - truth[i]) < 0.3
 
 
+@pytest.mark.slow
 def test_fly_with_the_search_finds_the_speed_off_ugv_behind_the_net(tmp_path):
     """`skyherd fly --ugvs groundsim:speedoff --lost-ugv-search` (instance 71, Zenoh 7471, in a
     private network namespace): a search for UGV 2 starts after it escapes (20 s), sees it again

@@ -66,6 +66,7 @@ def test_without_a_shepherd_that_moves_the_flock_never_arrives():
     assert not ep.success and ep.time_to_goal_s is None
 
 
+@pytest.mark.slow
 def test_the_learned_selector_reproduces_from_its_demonstrations():
     kept = json.loads(SELECTOR_FILE.read_text())
     fit = SelectorFitParams(seeds=tuple(kept["fit"]["seeds"]))

@@ -169,7 +169,7 @@ def test_reproduce_takes_a_table_seed_and_labels_its_runs(capsys):
 def test_the_walkable_seed_is_the_first_table_without_a_hole():
     lay = generate_env(9, 0).layout()
     h, pub = SQLHyper(), Rules.published()
-    assert roitable.walkable_seed(lay, h, pub, RoiPretrain()) == (1, 0)
+    assert roitable.search_walkable_seed(lay, h, pub, RoiPretrain()) == (1, 0)
     zero_holes = roitable.walk_holes(lay, fixed_roi_table(lay, h, pub, RoiPretrain(seed=1)))
     assert zero_holes == [] and roitable.walk_holes(
         lay, fixed_roi_table(lay, h, pub, RoiPretrain())
@@ -179,3 +179,20 @@ def test_the_walkable_seed_is_the_first_table_without_a_hole():
         generate_env(25, 0).layout(), h, pub, RoiPretrain(), limit=3
     )
     assert (seed, holes) == (2, 7)  # seeds 0, 1, 2: 19, 14, 7 holes (docs/sql.md)
+
+
+def test_the_saved_walkable_seeds_are_the_searchs_and_their_tables_holes():
+    """walkable.json (write_tables) answers `reproduce sql --roi-table-seed auto` without the
+    search (K = 25, 36: all 200 seeds): one entry searched again, every entry's holes counted."""
+    h, pub, pre = SQLHyper(), Rules.published(), RoiPretrain()
+    saved = {k: roitable.saved_walkable_seed(generate_env(k, 0).layout(), h, pub, pre)
+             for k in STUDY_AGENTS}  # fmt: skip
+    assert saved == {4: (0, 0), 9: (1, 0), 16: (11, 0), 25: (175, 4), 36: (191, 18)}
+    lay = generate_env(9, 0).layout()
+    assert roitable.search_walkable_seed(lay, h, pub, pre) == saved[9]
+    assert roitable.walkable_seed(lay, h, pub, pre) == saved[9]
+    for k, (seed, holes) in saved.items():
+        lay = generate_env(k, 0).layout()
+        table = fixed_roi_table(lay, h, pub, replace(pre, seed=seed))
+        assert len(roitable.walk_holes(lay, table)) == holes
+    assert roitable.saved_walkable_seed(lay, h, pub, pre, limit=3) is None  # another search

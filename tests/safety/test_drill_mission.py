@@ -45,6 +45,7 @@ def _caught(r, kind: str) -> None:
 
 
 @pytest.mark.parametrize("airframe", ["quadrotor", "fixedwing"])
+@pytest.mark.slow
 def test_every_kind_through_the_mission_is_judged_and_caught(airframe):
     kinds = kinds_for(airframe)
     for index, kind in enumerate(kinds):
@@ -85,6 +86,7 @@ def test_the_drill_tick_is_the_flights_tick():
     assert TICK_S == pytest.approx(1.0 / WorldParams().camera_hz)
 
 
+@pytest.mark.slow
 def test_the_campaign_flies_the_mission_code(tmp_path, monkeypatch, capsys):
     """`skyherd drill --campaign` (default --through mission): every drill's decisions come
     from SingleVehicleMission, one mission per drill, and the rows say so."""

@@ -3,10 +3,13 @@ is a message on /uav0/safety/event, as in a flight, so a drill opens in Foxglove
 
 import json
 
+import pytest
+
 from skyherd.record import read_messages
 from skyherd.scripts.cli import main
 
 
+@pytest.mark.slow
 def test_a_drill_run_records_its_events_in_flight_mcap(tmp_path, capsys):
     main(["drill", "--airframe", "quadrotor", "--runs-dir", str(tmp_path)])
     (run,) = tmp_path.iterdir()

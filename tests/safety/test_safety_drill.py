@@ -30,6 +30,7 @@ from skyherd.scripts.cli import main
 SPEC, _ = load_envelope(default_envelope_path("quadrotor"))
 
 
+@pytest.mark.slow
 def test_drill_command_short_run(tmp_path, capsys):
     rc = main(
         [
@@ -113,6 +114,7 @@ def test_drill_bad_usage_exits_2(tmp_path, capsys, argv, msg):
     assert msg in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_fixedwing_drill_loiters_and_recovers(tmp_path, capsys):
     """JSBSim fixed-wing: the lateral attack ends in its HOLD loiter, then the AI flies again."""
     rc = main(
@@ -139,6 +141,7 @@ def test_fixedwing_drill_loiters_and_recovers(tmp_path, capsys):
     assert sw[1]["t"] - sw[0]["t"] == pytest.approx(6.0, abs=0.03)  # loiter hold_min_s of the set
 
 
+@pytest.mark.slow
 def test_notched_fence_drills(tmp_path, capsys):
     """A non-convex constraint set (another mission's file) through the same command."""
     env = default_envelope_path("quadrotor").with_name("quadrotor_notched.toml")
@@ -164,6 +167,7 @@ def test_notched_fence_drills(tmp_path, capsys):
     assert float(rows[0]["excursion_m"]) < -5.0  # exact clearance, not the 0 of a split
 
 
+@pytest.mark.slow
 def test_campaign_drills_hold_under_faults(tmp_path, capsys):
     """`skyherd drill --campaign`: one of each adversarial kind per airframe on the fault
     plans, judged on ground truth: no breach, no overridden failsafe, table and PNG."""

@@ -114,6 +114,7 @@ def test_watch_bad_addresses_are_one_line(argv, words, tmp_path, capsys):
     assert not (tmp_path / "runs").exists()
 
 
+@pytest.mark.slow
 def test_train_quick_sets_the_budget_that_was_not_given_and_warns_on_a_short_one(tmp_path, capsys):
     from skyherd.scripts.train_irl import QUICK
 

@@ -2,7 +2,10 @@
 
 import csv
 
+import pytest
 
+
+@pytest.mark.slow
 def test_drill_flies_one_drill_of_a_campaign_as_the_campaign_flew_it(tmp_path, capsys):
     """`skyherd drill --campaign N --drill I`: drill I of that campaign alone, the same row."""
     from skyherd.scripts.cli import main

@@ -9,6 +9,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from skyherd.flight.mavlink.signing import save_key
 from skyherd.runio import ports
 from skyherd.scripts.cli import main
@@ -31,6 +33,7 @@ def _refused(summary: str) -> int:
     return int(row.split("|")[2])
 
 
+@pytest.mark.slow
 def test_watch_takes_the_signed_vehicles_frames_with_its_key_only(tmp_path, capsys):
     key, other = tmp_path / "flight.key", tmp_path / "other.key"
     save_key(key, os.urandom(32))

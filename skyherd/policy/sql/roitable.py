@@ -10,8 +10,9 @@ loaded; any other key is pre-trained once per process and kept. Writing the save
 
     .venv/bin/python -c "from skyherd.policy.sql.roitable import write_tables; write_tables()"
 
-(K = 4 … 36; `print(*holes_lines(STUDY_AGENTS, 20), sep="\\n")` lists each table seed's walk holes
-instead of writing anything).
+(K = 4 … 36, and each K's searched walkable seed into `walkable.json`;
+`print(*holes_lines(STUDY_AGENTS, 20), sep="\\n")` lists each table seed's walk holes instead of
+writing anything).
 
 `pretrained_roi_tables` is the pre-training itself (`Q_Learning_ROI.m`), also used by the
 "per-run" switch with the run's stream.
@@ -132,15 +133,28 @@ def walk_holes(layout: Layout, q2: np.ndarray, ties_first: bool = True, max_move
 
 WALKABLE_SEARCH = 200
 """Table seeds `walkable_seed` tries (0 .. this - 1)."""
+WALKABLE_INDEX = TABLES_DIR / "walkable.json"
+"""The searched seeds of the saved formations (`write_tables`): {digest of `search_key`:
+{"agents": K, "seed": …, "holes": …}}, so `walkable_seed` does not search them again."""
 
 
-def walkable_seed(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrain,
-                  limit: int = WALKABLE_SEARCH) -> tuple[int, int]:  # fmt: skip
+def search_key(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrain,
+               limit: int) -> dict:  # fmt: skip
+    """Everything `search_walkable_seed` depends on: a table's key without its seed, the walk's
+    tie rule (in the key) and the seeds tried."""
+    key = table_key(layout, hyper, rules, pre)
+    key["pretrain"].pop("seed")
+    return {**key, "search_limit": limit}
+
+
+def search_walkable_seed(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrain,
+                         limit: int = WALKABLE_SEARCH) -> tuple[int, int]:  # fmt: skip
     """The first table seed whose greedy walks all arrive (`walk_holes` finds none), and its
     hole count (0); if none of seeds 0..limit-1 has none, the first with the fewest holes.
 
     The published code walks one table whose walks arrived (its runs: 0 walk failures); this
-    picks such a table from a property of the table alone, before any learning run uses it."""
+    picks such a table from a property of the table alone, before any learning run uses it.
+    Pre-trains up to `limit` tables (K = 25, 36: all 200, minutes)."""
     from dataclasses import replace
 
     best = (0, 10**9)
@@ -154,18 +168,43 @@ def walkable_seed(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrai
     return best
 
 
+def walkable_seed(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrain,
+                  limit: int = WALKABLE_SEARCH) -> tuple[int, int]:  # fmt: skip
+    """`search_walkable_seed`'s (seed, holes): saved (`saved_walkable_seed`), else searched."""
+    saved = saved_walkable_seed(layout, hyper, rules, pre, limit)
+    return saved if saved is not None else search_walkable_seed(layout, hyper, rules, pre, limit)
+
+
+def saved_walkable_seed(layout: Layout, hyper: SQLHyper, rules: Rules, pre: RoiPretrain,
+                        limit: int = WALKABLE_SEARCH) -> tuple[int, int] | None:  # fmt: skip
+    """The (seed, holes) of this search in `WALKABLE_INDEX`, None when it was not saved."""
+    entry = _walkable_index().get(_digest(search_key(layout, hyper, rules, pre, limit)))
+    return None if entry is None else (entry["seed"], entry["holes"])
+
+
+def _walkable_index() -> dict:
+    if not WALKABLE_INDEX.exists():
+        return {}
+    return json.loads(WALKABLE_INDEX.read_text())
+
+
 def write_tables(agents: tuple[int, ...] = STUDY_AGENTS) -> list[Path]:
     """Pre-train and save the fixed ROI tables of each K in `agents` (published rules, default
     settings, the study's 50×50 grid): table seed 0 and the first walkable seed
-    (`walkable_seed`); returns the files written."""
+    (`search_walkable_seed`, saved in `WALKABLE_INDEX`); returns the files written."""
     from skyherd.policy.sql.envfile import generate_env
 
     rules, h, out = Rules.published(), SQLHyper(), []
+    index = _walkable_index()
     for k in agents:  # table seed 0 and the first walkable one (reproduce --roi-table-seed auto)
         lay = generate_env(k, 0).layout()
-        for seed in dict.fromkeys((0, walkable_seed(lay, h, rules, RoiPretrain())[0])):
-            out.append(save_table(lay, h, rules, RoiPretrain(seed=seed)))
-    return out
+        seed, holes = search_walkable_seed(lay, h, rules, RoiPretrain())
+        key = search_key(lay, h, rules, RoiPretrain(), WALKABLE_SEARCH)
+        index[_digest(key)] = {"agents": k, "seed": seed, "holes": holes}
+        for s in dict.fromkeys((0, seed)):
+            out.append(save_table(lay, h, rules, RoiPretrain(seed=s)))
+    WALKABLE_INDEX.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
+    return [*out, WALKABLE_INDEX]
 
 
 def holes_lines(agents: tuple[int, ...], seeds: int) -> list[str]:
