@@ -46,7 +46,8 @@ def zenoh_pair():
 def test_the_companion_detects_on_the_bytes_it_received(zenoh_pair):
     """φ(s) in the companion comes from the frame as it came off the wire: a frame whose pixels
     were altered on the way changes φ; a frame damaged on the wire (bad CRC) is dropped and
-    leaves φ and the camera's last-good time as they were."""
+    leaves φ and the camera's last-good time as they were (plain frames: the CRC covers the
+    header, the link's own checksum the pixels; docs/perception.md)."""
     pub_s, sub_s = zenoh_pair
     task = TaskParams()
     pub = FramePublisher(pub_s, "uav9", task.camera, rng=np.random.default_rng(1))
@@ -72,7 +73,7 @@ def test_the_companion_detects_on_the_bytes_it_received(zenoh_pair):
     assert seen.phi[5] == 0.0 and not np.allclose(seen.phi, clean)
     after_altered = seen.phi.copy()
     bad = bytearray(encode_frame(99, 0.3, pose.pos_ned, pose.quat, image, stream=7))
-    bad[-10] ^= 0xFF  # one pixel byte flipped: the CRC no longer matches
+    bad[40] ^= 0xFF  # a byte of the header's pose flipped: the header CRC no longer matches
     pub_s.declare_publisher(frame_key("uav9")).put(bytes(bad))
     frame, status = inbox.frame_at(0.3, 20.0)
     seen.on_frame(0.3, frame, status)
