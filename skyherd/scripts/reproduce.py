@@ -113,13 +113,9 @@ def _check(args):
         raise UsageError("--window must be in 1..episodes")
     env = None
     if args.env is not None:
-        from skyherd.policy.sql.envfile import EnvSpec
+        from skyherd.scripts.train_sql import load_env
 
-        try:
-            env = EnvSpec.load(args.env)
-            env.layout()
-        except (OSError, ValueError) as e:
-            raise UsageError(f"--env {args.env}: {e}") from None
+        env = load_env(args.env)
         args.agents, args.scaling_agents = [len(env.starts)], []
     else:
         from skyherd.policy.sql.layout import formation

@@ -60,7 +60,7 @@ def _params(args: argparse.Namespace, episodes: int):
     scal = args.scalability_agents or ([4, 9] if args.quick else [4, 9, 16])
     env = None
     if args.env is not None:
-        env = _env(args)
+        env = load_env(args.env)
         agents = scal = [len(env.starts)]
     for k in (*agents, *scal):
         if k not in STARTS and args.env is None:
@@ -79,15 +79,15 @@ def _params(args: argparse.Namespace, episodes: int):
     )
 
 
-def _env(args: argparse.Namespace):
-    """The --env map (a UsageError if it cannot be read)."""
+def load_env(path: str):
+    """The --env map of `train sql` and `reproduce sql` (a UsageError if it cannot be read)."""
     from skyherd.policy.sql.envfile import EnvSpec
 
     try:
-        spec = EnvSpec.load(args.env)
+        spec = EnvSpec.load(path)
         spec.layout()
     except (OSError, ValueError) as e:
-        raise UsageError(f"--env {args.env}: {e}") from None
+        raise UsageError(f"--env {path}: {e}") from None
     return spec
 
 
