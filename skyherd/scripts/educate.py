@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.report import educate as report
@@ -24,41 +25,41 @@ from skyherd.runio.runfolder import (
     atomic_write_text,
 )
 from skyherd.scripts.cli import UsageError, quick_help
+from skyherd.scripts.options import add_options, opt
+
+
+@dataclass(frozen=True)
+class EducateOptions:
+    """The options of `skyherd educate` (scripts.options: one field, one option)."""
+
+    seeds: int = 5  # training seeds
+    seed: int = 0  # first seed
+    dqn_steps: int | None = None  # env steps per DQN solve (default 6000)
+    irl_iters: int | None = None  # IRL iterations per lesson (default 1)
+    test_episodes: int | None = None  # episodes per lesson re-test (default 10)
+    eval_episodes: int = 10  # unseen episodes per scenario in the comparison
+    baselines: tuple[Path, ...] = opt((), action="append")
+    """a `skyherd train ab|irl` run folder whose policies to compare, repeatable (default none)"""
+    no_monolith: bool = False  # skip the monolithic DQN
+    monolith_seeds: int | None = None
+    """teach the monolithic DQN on the first N seeds only (default all)"""
+    workers: int = 1  # parallel seeds
+    runs_dir: Path = Path("runs")  # where run folders go
+    from_run: tuple[Path, ...] | None = opt(None, action="append")
+    """skip teaching: report on an earlier educate run's lessons.csv and policies (e.g. with
+    --baselines that finished later); repeatable: runs of the same curriculum and
+    hyper-parameters on different seeds are reported together (default none)"""
+    save_policy: Path | None = None
+    """also copy the best educated policy (composite test) to this file"""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("curriculum", type=Path, nargs="?", default=None,
                         help="curriculum TOML (default policy/education/curricula/groundair.toml)")  # fmt: skip
-    parser.add_argument("--seeds", type=int, default=5, help="training seeds (default 5)")
-    parser.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    add_options(parser, EducateOptions)
     parser.add_argument("--quick", action="store_true",
                         help=quick_help("policy.education.teach.QUICK's DQN steps, IRL iterations "
                                         "and test episodes"))  # fmt: skip
-    parser.add_argument(
-        "--dqn-steps", type=int, default=None, help="env steps per DQN solve (default 6000)"
-    )
-    parser.add_argument(
-        "--irl-iters", type=int, default=None, help="IRL iterations per lesson (default 1)"
-    )
-    parser.add_argument(
-        "--test-episodes", type=int, default=None, help="episodes per lesson re-test (default 10)"
-    )
-    parser.add_argument("--eval-episodes", type=int, default=10,
-                        help="unseen episodes per scenario in the comparison (default 10)")  # fmt: skip
-    parser.add_argument("--baselines", type=Path, action="append", default=[],
-                        help="a `skyherd train ab|irl` run folder whose policies to compare, repeatable (default none)")  # fmt: skip
-    parser.add_argument("--no-monolith", action="store_true", help="skip the monolithic DQN")
-    parser.add_argument("--monolith-seeds", type=int, default=None,
-                        help="teach the monolithic DQN on the first N seeds only (default all)")  # fmt: skip
-    parser.add_argument("--workers", type=int, default=1, help="parallel seeds (default 1)")
-    parser.add_argument("--runs-dir", type=Path, default=Path("runs"), help="where run folders go")
-    parser.add_argument("--from-run", type=Path, action="append", default=None,
-                        help="skip teaching: report on an earlier educate run's lessons.csv and "
-                        "policies (e.g. with --baselines that finished later); repeatable: runs "
-                        "of the same curriculum and hyper-parameters on different seeds are "
-                        "reported together (default none)")  # fmt: skip
-    parser.add_argument("--save-policy", type=Path, default=None,
-                        help="also copy the best educated policy (composite test) to this file")  # fmt: skip
 
 
 def _params(args):

@@ -9,80 +9,66 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
 from itertools import chain
 from pathlib import Path
 
 from skyherd.report import reproduce as report
 from skyherd.runio.runfolder import RunFolder
 from skyherd.scripts.cli import UsageError, apply_quick, quick_help
+from skyherd.scripts.options import add_options, opt
 
 STUDIES = ("sql",)
+LEARNERS = ("sql", "sql-d", "sql-sie")
 QUICK = {"episodes": 1000, "seeds": 2, "agents": [9]}  # --quick (scripts.cli.apply_quick)
+
+
+@dataclass(frozen=True)
+class ReproduceOptions:
+    """The options of `skyherd reproduce sql` (scripts.options: one field, one option)."""
+
+    rules: tuple[str, ...] = opt(("published",), choices=("published", "intended"))
+    """rule set(s): published = the public MATLAB code, intended = the paper's text"""
+    ties: str | None = opt(None, choices=("first", "random"))
+    """greedy tie-breaking (default: first for published, random for intended)"""
+    switch: tuple[str, ...] = opt((), action="append", metavar="FIELD=VALUE")
+    """set one rule switch of every --rules set (repeatable; fields and values: docs/sql.md,
+    policy/sql/params.py Rules), e.g. --switch assign_cell=own"""
+    learners: tuple[str, ...] = opt(LEARNERS, choices=LEARNERS)  # learners to run
+    seeds: int = 10  # seeds 0..S-1 per config
+    agents: tuple[int, ...] = (9, 16)  # K
+    sharing_periods: tuple[int, ...] = (1, 20, 50)
+    """SQL-SIE sharing periods N; the first is the one compared with SQL"""
+    scaling_agents: tuple[int, ...] = opt((), nargs="*")
+    """extra K for the scaling figure, all three learners (e.g. 25 36; default none)"""
+    roi_table_seed: str = opt("auto", metavar="SEED|auto")
+    """seed of the one fixed ROI table per K that the published rules walk (Rules.roi_table
+    'fixed'); auto: per K the first seed whose greedy walks all arrive
+    (policy.sql.roitable.walkable_seed: a property of the table, found before any run; the
+    published code's runs had no walk failure); default auto; 'per-run' tables: --switch
+    roi_table=per-run"""
+    episodes: int = 10_000  # episodes per run
+    max_steps: int = 1000  # step cap per episode
+    env: str | None = None
+    """a map file (JSON, see docs/sql.md) used for every run; default: a generated map per seed
+    (and K)"""
+    backend: str = opt("auto", choices=("auto", "ray", "process"))
+    """auto: Ray if installed, else a local process pool"""
+    ray_address: str | None = None  # join this Ray cluster (default: local, loopback)
+    workers: int = 2  # local CPUs to use
+    window: int = 100  # moving-average window
+    runs_dir: str = "runs"  # where run folders go
+    reuse: tuple[str, ...] = opt((), nargs="*", metavar="RUN_FOLDER")
+    """earlier reproduce-sql run folders whose finished runs with the same settings are taken
+    over instead of run again (e.g. after an interrupted run)"""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("study", choices=STUDIES, help="which study (sql: the SQL-SIE study)")
-    parser.add_argument(
-        "--rules", nargs="+", choices=("published", "intended"), default=["published"],
-        help="rule set(s): published = the public MATLAB code, intended = the paper's text "
-        "(default: published)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--ties", choices=("first", "random"), default=None,
-        help="greedy tie-breaking (default: first for published, random for intended)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--switch", action="append", default=[], metavar="FIELD=VALUE",
-        help="set one rule switch of every --rules set (repeatable; fields and values: "
-        "docs/sql.md, policy/sql/params.py Rules), e.g. --switch assign_cell=own",
-    )  # fmt: skip
-    parser.add_argument(
-        "--learners", nargs="+", choices=("sql", "sql-d", "sql-sie"),
-        default=["sql", "sql-d", "sql-sie"], help="learners to run (all three)",
-    )  # fmt: skip
-    parser.add_argument("--seeds", type=int, default=10, help="seeds 0..S-1 per config (10)")
-    parser.add_argument("--agents", type=int, nargs="+", default=[9, 16], help="K (9 16)")
-    parser.add_argument(
-        "--sharing-periods", type=int, nargs="+", default=[1, 20, 50],
-        help="SQL-SIE sharing periods N (1 20 50); the first is the one compared with SQL",
-    )  # fmt: skip
-    parser.add_argument(
-        "--scaling-agents", type=int, nargs="*", default=[],
-        help="extra K for the scaling figure, all three learners (e.g. 25 36; default none)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--roi-table-seed", default="auto", metavar="SEED|auto",
-        help="seed of the one fixed ROI table per K that the published rules walk "
-        "(Rules.roi_table 'fixed'); auto: per K the first seed whose greedy walks all arrive "
-        "(policy.sql.roitable.walkable_seed: a property of the table, found before any run; "
-        "the published code's runs had no walk failure); default auto; 'per-run' tables: "
-        "--switch roi_table=per-run",
-    )  # fmt: skip
-    parser.add_argument("--episodes", type=int, default=10_000, help="episodes per run (10000)")
-    parser.add_argument("--max-steps", type=int, default=1000, help="step cap per episode (1000)")
-    parser.add_argument(
-        "--env", default=None,
-        help="a map file (JSON, see docs/sql.md) used for every run; default: a generated map "
-        "per seed (and K)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--backend", choices=("auto", "ray", "process"), default="auto",
-        help="auto: Ray if installed, else a local process pool (default auto)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--ray-address", default=None, help="join this Ray cluster (default: local, loopback)"
-    )
-    parser.add_argument("--workers", type=int, default=2, help="local CPUs to use (2)")
-    parser.add_argument("--window", type=int, default=100, help="moving-average window (100)")
+    add_options(parser, ReproduceOptions)
     parser.add_argument(
         "--quick", action="store_true", help=quick_help("1000 episodes, 2 seeds, K = 9")
     )
-    parser.add_argument("--runs-dir", default="runs", help="where run folders go (runs)")
-    parser.add_argument(
-        "--reuse", nargs="*", default=[], metavar="RUN_FOLDER",
-        help="earlier reproduce-sql run folders whose finished runs with the same settings are "
-        "taken over instead of run again (e.g. after an interrupted run)",
-    )  # fmt: skip
 
 
 def _specs(args, env):
@@ -127,13 +113,9 @@ def _check(args):
         raise UsageError("--window must be in 1..episodes")
     env = None
     if args.env is not None:
-        from skyherd.policy.sql.envfile import EnvSpec
+        from skyherd.scripts.train_sql import load_env
 
-        try:
-            env = EnvSpec.load(args.env)
-            env.layout()
-        except (OSError, ValueError) as e:
-            raise UsageError(f"--env {args.env}: {e}") from None
+        env = load_env(args.env)
         args.agents, args.scaling_agents = [len(env.starts)], []
     else:
         from skyherd.policy.sql.layout import formation

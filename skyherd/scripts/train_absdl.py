@@ -6,39 +6,20 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import inspect
-import re
 import shutil
-import sys
 from pathlib import Path
 
-from skyherd.scripts.cli import UsageError, quick_help
-
-
-def _field_help() -> dict[str, str]:
-    """The one-line comment beside each AbsdlParams field (its help text)."""
-    from skyherd.policy.absdl.params import AbsdlParams
-
-    src = inspect.getsource(AbsdlParams)
-    return dict(re.findall(r"^\s+(\w+): [^=]+= [^#]+# (.+)$", src, re.M))
+from skyherd.scripts.cli import UsageError, apply_quick, quick_help
+from skyherd.scripts.options import add_options, field_docs
 
 
 def add_arguments(parser: argparse.ArgumentParser, learner: str = "abs-dl") -> None:
     from skyherd.policy.absdl.params import QUICK, AbsdlParams
     from skyherd.policy.models import DEFAULT_POLICY
 
-    helps = _field_help()
-    for f in dataclasses.fields(AbsdlParams):
-        flag = "--" + f.name.replace("_", "-")
-        if f.type in ("bool", bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=f.default,
-                                help=helps.get(f.name, "") + f" (default: {'on' if f.default else 'off'})")  # fmt: skip
-        elif f.name == "hidden":
-            parser.add_argument(flag, default=",".join(map(str, f.default)),
-                                help=helps.get(f.name, "") + " (comma-separated)")  # fmt: skip
-        else:
-            typ = type(f.default)
-            parser.add_argument(flag, type=typ, default=f.default, help=helps.get(f.name, ""))
+    add_options(parser, AbsdlParams, skip=("hidden",))
+    parser.add_argument("--hidden", default=",".join(map(str, AbsdlParams.hidden)),
+                        help=field_docs(AbsdlParams)["hidden"] + " (comma-separated)")  # fmt: skip
     parser.add_argument(
         "--shield-comparison", action=argparse.BooleanOptionalAction, default=True,
         help="also train ABS-DL without the shield and report what the net changes (default: on)",
@@ -62,21 +43,17 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "abs-dl") -> N
 
 
 def params_from(args: argparse.Namespace):
+    """The run's AbsdlParams: the options, with --quick's budget where no option was given (on a
+    copy: config.json keeps the options as given)."""
     from skyherd.policy.absdl.params import QUICK, AbsdlParams
 
-    given = set(getattr(args, "_argv", None) or sys.argv[1:])
-    kw = {}
-    for f in dataclasses.fields(AbsdlParams):
-        v = getattr(args, f.name)
-        flag = "--" + f.name.replace("_", "-")
-        if args.quick and f.name in QUICK and not any(a.split("=")[0] == flag for a in given):
-            v = QUICK[f.name]
-        if f.name == "hidden":
-            try:
-                v = tuple(int(x) for x in str(v).split(",") if x)
-            except ValueError:
-                raise UsageError(f"--hidden must be comma-separated widths, got {v!r}") from None
-        kw[f.name] = v
+    budgeted = argparse.Namespace(**vars(args))
+    apply_quick(budgeted, QUICK)
+    kw = {f.name: getattr(budgeted, f.name) for f in dataclasses.fields(AbsdlParams)}
+    try:
+        kw["hidden"] = tuple(int(x) for x in str(kw["hidden"]).split(",") if x)
+    except ValueError:
+        raise UsageError(f"--hidden must be comma-separated widths, got {kw['hidden']!r}") from None
     try:
         return AbsdlParams(**kw)
     except ValueError as e:

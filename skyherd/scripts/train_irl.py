@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.report import irl as report
 from skyherd.runio import RunFolder, file_facts
 from skyherd.scripts.cli import UsageError, apply_quick, quick_help
+from skyherd.scripts.options import add_options, opt
 
 # --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
 # learning_starts, so something is learnt); any option given on the command line wins.
@@ -23,44 +25,34 @@ QUICK = {
 }  # fmt: skip
 
 
+@dataclass(frozen=True)
+class IrlOptions:
+    """The options of `skyherd train irl|ab` (scripts.options: one field, one option)."""
+
+    seeds: int = 5  # training seeds
+    seed: int = 0  # first seed
+    dqn_steps: int = 15_000  # env steps per DQN solve
+    irl_iters: int = 6  # max projection-IRL iterations
+    epsilon: float = 0.01  # IRL stop: t <= epsilon
+    gamma: float = 0.97  # discount of μ and DQN
+    demo_episodes: int = 20  # demo episodes per scenario
+    demo_epsilon: float = 0.05  # expert random-action prob
+    demo_lag: float = 0.05  # expert repeat-action prob
+    demos: Path | None = None
+    """folder of recorded demos (<scenario>.npz, e.g. from skyherd teleop) instead of the
+    scripted expert"""
+    mu_episodes: int = 20  # Monte-Carlo episodes per μ(π)
+    eval_episodes: int = 30  # test episodes per policy
+    transfer_episodes: int = 10  # episodes per groundsim behaviour for the transfer table (0: skip)
+    workers: int = 1  # parallel training processes
+    runs_dir: Path = opt(Path("runs"), aliases=("--out",))
+    """where run folders go; --out is the older name"""
+    save_policy: Path | None = None
+    """also copy the best learned policy of this learner to this file"""
+
+
 def add_arguments(parser: argparse.ArgumentParser, learner: str) -> None:
-    parser.add_argument("--seeds", type=int, default=5, help="training seeds")
-    parser.add_argument("--seed", type=int, default=0, help="first seed")
-    parser.add_argument("--dqn-steps", type=int, default=15_000, help="env steps per DQN solve")
-    parser.add_argument("--irl-iters", type=int, default=6, help="max projection-IRL iterations")
-    parser.add_argument("--epsilon", type=float, default=0.01, help="IRL stop: t <= epsilon")
-    parser.add_argument("--gamma", type=float, default=0.97, help="discount of μ and DQN")
-    parser.add_argument("--demo-episodes", type=int, default=20, help="demo episodes per scenario")
-    parser.add_argument(
-        "--demo-epsilon", type=float, default=0.05, help="expert random-action prob"
-    )
-    parser.add_argument("--demo-lag", type=float, default=0.05, help="expert repeat-action prob")
-    parser.add_argument(
-        "--demos",
-        type=Path,
-        default=None,
-        help="folder of recorded demos "
-        "(<scenario>.npz, e.g. from skyherd teleop) instead of the scripted expert",
-    )
-    parser.add_argument("--mu-episodes", type=int, default=20, help="Monte-Carlo episodes per μ(π)")
-    parser.add_argument("--eval-episodes", type=int, default=30, help="test episodes per policy")
-    parser.add_argument(
-        "--transfer-episodes",
-        type=int,
-        default=10,
-        help="episodes per groundsim behaviour for the transfer table (0: skip)",
-    )
-    parser.add_argument("--workers", type=int, default=1, help="parallel training processes")
-    parser.add_argument(
-        "--runs-dir", "--out", dest="runs_dir", type=Path, default=Path("runs"),
-        help="where run folders go; --out is the older name",
-    )  # fmt: skip
-    parser.add_argument(
-        "--save-policy",
-        type=Path,
-        default=None,
-        help="also copy the best learned policy of this learner to this file",
-    )
+    add_options(parser, IrlOptions)
     quick = ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in QUICK.items())
     parser.add_argument(
         "--quick", action="store_true",

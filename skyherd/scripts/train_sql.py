@@ -5,87 +5,48 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
 
 from skyherd.policy.sql.experiments import EXPERIMENTS
 from skyherd.report import sql as report
 from skyherd.runio.runfolder import RunFolder, atomic_write_text
 from skyherd.scripts.cli import UsageError, quick_help
+from skyherd.scripts.options import add_options, opt
+
+
+@dataclass(frozen=True)
+class SqlOptions:
+    """The options of `skyherd train sql` (scripts.options: one field, one option)."""
+
+    experiment: str = opt("all", choices=(*EXPERIMENTS, "all"))  # which experiment to run
+    seeds: tuple[int, ...] = (0, 1, 2)  # learner seeds
+    episodes: int | None = None  # training episodes per run (default 10000; --quick: 2000)
+    agents: tuple[int, ...] | None = None
+    """K values for the compare and sharing experiments (default 9 16)"""
+    scalability_agents: tuple[int, ...] | None = None
+    """K values for the scalability experiment (default 4 9 16)"""
+    share_every: int = 20  # SQL-SIE sharing period N in compare / scalability
+    sharing_periods: tuple[int, ...] = (1, 20, 50)  # sharing periods N for the sharing experiment
+    max_steps: int = 1000  # step limit per episode
+    map_seed: int = 0  # obstacle map seed
+    rules: str = opt("intended", choices=("published", "intended"))
+    """rule set: published = the public MATLAB code, intended = the paper (default: intended,
+    unlike `reproduce sql`: the published ROI walk moves agents through one another, so only the
+    intended rules give a flyable plan_K<K>.json)"""
+    ties: str | None = opt(None, choices=("first", "random"))
+    """greedy tie-breaking (default: first for published, random for intended)"""
+    env: str | None = None  # map file (JSON, docs/sql.md) for every run; K comes from the file
+    window: int | None = None  # moving-average window of curves and convergence (default 100)
+    runs_dir: str = opt("runs", aliases=("--out",))  # where run folders go; --out is the older name
 
 
 def add_arguments(parser: argparse.ArgumentParser, learner: str = "sql") -> None:
-    parser.add_argument(
-        "--experiment",
-        choices=(*EXPERIMENTS, "all"),
-        default="all",
-        help="which experiment to run (default: all)",
-    )
-    parser.add_argument(
-        "--seeds", type=int, nargs="+", default=[0, 1, 2], help="learner seeds (default: 0 1 2)"
-    )
-    parser.add_argument(
-        "--episodes",
-        type=int,
-        default=None,
-        help="training episodes per run (default 10000; --quick: 2000)",
-    )
-    parser.add_argument(
-        "--agents",
-        type=int,
-        nargs="+",
-        default=None,
-        help="K values for the compare and sharing experiments (default 9 16)",
-    )
-    parser.add_argument(
-        "--scalability-agents",
-        type=int,
-        nargs="+",
-        default=None,
-        help="K values for the scalability experiment (default 4 9 16)",
-    )
-    parser.add_argument(
-        "--share-every",
-        type=int,
-        default=20,
-        help="SQL-SIE sharing period N in compare / scalability (default 20)",
-    )
-    parser.add_argument(
-        "--sharing-periods",
-        type=int,
-        nargs="+",
-        default=[1, 20, 50],
-        help="sharing periods N for the sharing experiment (default 1 20 50)",
-    )
-    parser.add_argument("--max-steps", type=int, default=1000, help="step limit per episode")
-    parser.add_argument("--map-seed", type=int, default=0, help="obstacle map seed (default 0)")
-    parser.add_argument(
-        "--rules", choices=("published", "intended"), default="intended",
-        help="rule set: published = the public MATLAB code, intended = the paper (default: "
-        "intended, unlike `reproduce sql`: the published ROI walk moves agents through one "
-        "another, so only the intended rules give a flyable plan_K<K>.json)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--ties", choices=("first", "random"), default=None,
-        help="greedy tie-breaking (default: first for published, random for intended)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--env", default=None,
-        help="map file (JSON, docs/sql.md) for every run; K comes from the file",
-    )  # fmt: skip
-    parser.add_argument(
-        "--window",
-        type=int,
-        default=None,
-        help="moving-average window of curves and convergence (default 100)",
-    )
+    add_options(parser, SqlOptions)
     parser.add_argument(
         "--quick",
         action="store_true",
         help=quick_help("2000 episodes, K = 4 (and 4, 9 for scalability), window 20"),
     )
-    parser.add_argument(
-        "--runs-dir", "--out", dest="runs_dir", default="runs",
-        help="where run folders go (runs); --out is the older name",
-    )  # fmt: skip
 
 
 def _params(args: argparse.Namespace, episodes: int):
@@ -99,7 +60,7 @@ def _params(args: argparse.Namespace, episodes: int):
     scal = args.scalability_agents or ([4, 9] if args.quick else [4, 9, 16])
     env = None
     if args.env is not None:
-        env = _env(args)
+        env = load_env(args.env)
         agents = scal = [len(env.starts)]
     for k in (*agents, *scal):
         if k not in STARTS and args.env is None:
@@ -118,15 +79,15 @@ def _params(args: argparse.Namespace, episodes: int):
     )
 
 
-def _env(args: argparse.Namespace):
-    """The --env map (a UsageError if it cannot be read)."""
+def load_env(path: str):
+    """The --env map of `train sql` and `reproduce sql` (a UsageError if it cannot be read)."""
     from skyherd.policy.sql.envfile import EnvSpec
 
     try:
-        spec = EnvSpec.load(args.env)
+        spec = EnvSpec.load(path)
         spec.layout()
     except (OSError, ValueError) as e:
-        raise UsageError(f"--env {args.env}: {e}") from None
+        raise UsageError(f"--env {path}: {e}") from None
     return spec
 
 

@@ -1,0 +1,75 @@
+"""Command-line options generated from a frozen dataclass: one field, one option.
+
+A command declares its options once, as the fields of a frozen dataclass: the field's name gives
+the flag (`dqn_steps` → `--dqn-steps`), its default and type the option's, and the comment beside
+it (or, when longer, the docstring under it) its help; `opt(default, **kw)` hands more keywords
+to `add_argument` (choices, metavar, nargs, action) but for `aliases`, more flags of the same
+option. A tuple field takes one or more values (`nargs="+"`, its default given as a list); a bool
+field whose default is False is a flag (`store_true`), one whose default is True a `--x/--no-x`
+pair. The help shows the default (scripts.cli.DefaultsFormatter).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import textwrap
+import types
+import typing
+
+
+def opt(default, **kw) -> dataclasses.Field:
+    """A field whose option gets `kw` as `add_argument` keywords besides the generated ones."""
+    return dataclasses.field(default=default, metadata=kw)
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's help text: the docstring under the field, else the comment beside it."""
+    src = textwrap.dedent(inspect.getsource(cls))
+    lines, body = src.splitlines(), ast.parse(src).body[0].body
+    docs = {}
+    for a, b in zip(body, [*body[1:], None]):
+        if not isinstance(a, ast.AnnAssign):
+            continue
+        if isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant):
+            docs[a.target.id] = " ".join(str(b.value.value).split())
+        elif "  # " in lines[a.end_lineno - 1]:
+            docs[a.target.id] = lines[a.end_lineno - 1].split("  # ", 1)[1]
+    return docs
+
+
+def _value_type(hint) -> tuple[type, bool]:
+    """The type of one value of an option (`int` for `int`, `int | None`, `tuple[int, ...]`) and
+    whether the option takes several."""
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        hint = next(a for a in typing.get_args(hint) if a is not type(None))
+    if typing.get_origin(hint) is tuple:
+        return typing.get_args(hint)[0], True
+    return hint, False
+
+
+def add_options(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...] = ()) -> None:
+    """One option of `parser` per field of the dataclass `cls` but those in `skip` (see the
+    module's docstring)."""
+    helps = field_docs(cls)
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if f.name in skip:
+            continue
+        kw = dict(f.metadata)
+        flags = ["--" + f.name.replace("_", "-"), *kw.pop("aliases", ())]
+        kw.setdefault("help", helps.get(f.name, ""))
+        typ, several = _value_type(hints[f.name])
+        default = list(f.default) if isinstance(f.default, tuple) else f.default
+        if several and kw.get("action") != "append":
+            kw.setdefault("nargs", "+")
+        if typ is bool and default:  # a --x/--no-x pair: its help shows no default by itself
+            kw.setdefault("action", argparse.BooleanOptionalAction)
+            kw["help"] += " (default: on)"
+        elif typ is bool:
+            kw.setdefault("action", "store_true")
+        elif typ is not str:
+            kw.setdefault("type", typ)
+        parser.add_argument(*flags, dest=f.name, default=default, **kw)
