@@ -97,8 +97,15 @@ def main(spec: dict) -> dict:
     fly_out, fly_err = open(out_dir / "fly.out", "wb"), open(out_dir / "fly.err", "wb")
     argv = [sys.executable, "-m", "skyherd.scripts.cli", "fly", "--runs-dir", runs, *spec["fly"]]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    fly = subprocess.Popen(argv, stdout=fly_out, stderr=fly_err, cwd=ROOT, env=env,
-                           process_group=0)  # fmt: skip
+    # SIGINT's default, as a terminal's foreground job has it: a rig started as a background
+    # job of a non-interactive shell inherits SIGINT ignored, and a Ctrl-C before `fly`'s
+    # interpreter set its own handler was then lost (the flight flew on to its end)
+    kept = signal.signal(signal.SIGINT, signal.SIG_DFL)
+    try:
+        fly = subprocess.Popen(argv, stdout=fly_out, stderr=fly_err, cwd=ROOT, env=env,
+                               process_group=0)  # fmt: skip
+    finally:
+        signal.signal(signal.SIGINT, kept)
     t0 = time.monotonic()
     res: dict = {"trigger_t": None}
     do = spec.get("do", "")

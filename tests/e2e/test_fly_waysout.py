@@ -121,7 +121,8 @@ def test_ctrl_c_at_any_moment_is_interrupted_exit_130_and_leaves_nothing(tmp_pat
         # signal`, before the line that keeps signals could run: Python's KeyboardInterrupt,
         # exit 1 or by SIGINT (a shell's $? is then 130); nothing of skyherd ran, nothing was
         # made (seen at 0.05 s with two busy processes, and at 0.05/0.2 s at a load of 20)
-        assert "KeyboardInterrupt" in said, said
+        # (killed by SIGINT's default before the interpreter set its handler: nothing said)
+        assert "KeyboardInterrupt" in said or (res["rc"] == -2 and not said.strip()), said
         keeps = next(i for i, ln in enumerate(CLI.read_text().splitlines(), 1)
                      if "signal.signal(_sig, _keep_early)" in ln)  # fmt: skip
         before = {"__init__", "scripts/__init__"}
