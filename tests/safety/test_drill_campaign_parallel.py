@@ -67,6 +67,7 @@ def reference(tmp_path_factory) -> dict[str, tuple]:
 
 @pytest.mark.parametrize("backend", ["process", "ray"])
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # its own waits allow 600 s + 900 s (Ray's start-up under load)
 def test_a_killed_worker_loses_no_drill_and_changes_no_row(backend, reference, tmp_path):
     if backend == "ray" and not ray_available():
         pytest.skip("Ray not installed (pip install -e '.[ray]')")
