@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from skyherd.flight.geo import Home, geodetic_to_ned, ned_to_geodetic
+from skyherd.runio import ports
 from skyherd.safety.config import default_envelope_path, load_envelope
 from skyherd.safety.envelope import EnvelopeSpec, Zone
 from skyherd.safety.separation import SeparationParams
@@ -277,17 +278,11 @@ def formation_envelope(paths_ne: list[np.ndarray], params: FormationParams,
 
 
 def vehicle_instances(base: int, n: int) -> list[int]:
-    """The MAVLink instances of n formation vehicles from `base` up, skipping every instance
-    whose companion port (API_REMOTE_PORT+N, the PX4 layout) is the ground stations' GCS_REMOTE_PORT (N = 10: its
-    companion would hear every vehicle's ground-station stream; CONVENTIONS.md, "overlaps")."""
-    from skyherd.flight.mavlink.endpoint import API_REMOTE_PORT, GCS_REMOTE_PORT
-
-    out, i = [], base
-    while len(out) < n:
-        if API_REMOTE_PORT + i != GCS_REMOTE_PORT:
-            out.append(i)
-        i += 1
-    return out
+    """The MAVLink instances of n formation vehicles from `base` up: `runio.ports.disjoint_instances`,
+    whose port sets meet nowhere (instance 10 skipped, its companion port is the ground stations'
+    14550; N+40 skipped once N flies, its companion port is N's API port; CONVENTIONS.md,
+    "overlaps"). ValueError if they would go past MAX_INSTANCE."""
+    return ports.disjoint_instances(base, n)
 
 
 def field_offsets(origin: Home, homes: list[Home]) -> list[np.ndarray]:

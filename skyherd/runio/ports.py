@@ -14,7 +14,10 @@ For instance N (0..MAX_INSTANCE):
 | the simulator's Zenoh peer, we listen (TCP on 127.0.0.1) | ZENOH_BASE + N |
 
 The numbers are in runio/constants.py; instance 0 keeps the well-known defaults (PX4's and
-Zenoh's). The ranges of the instances 0..200 do not overlap one another's kinds.
+Zenoh's). Two overlaps are the PX4 layout's own (kept: it is the contract MAVSDK users know):
+instance N+40's companion port is instance N's API port, and instance 10's companion port is
+the ground stations' 14550. Vehicles flown together take their instances from
+`disjoint_instances` (or are checked by `first_clash`), whose port sets meet nowhere.
 """
 
 from __future__ import annotations
@@ -106,6 +109,45 @@ def instance_ports(n: int) -> dict[str, int]:
         "ardupilot_json_udp": json_port(n),
         "zenoh_tcp": zenoh_port(n),
     }
+
+
+def _owned(n: int) -> set[tuple[str, int]]:
+    """(protocol, port) of every port instance N binds or sends to but the shared 14550."""
+    return {("udp", api_bind_port(n)), ("udp", api_remote_port(n)), ("udp", gcs_bind_port(n)),
+            ("tcp", px4_sim_port(n)), ("udp", json_port(n)), ("tcp", zenoh_port(n))}  # fmt: skip
+
+
+def first_clash(instances: list[int]) -> tuple[int, int, int] | None:
+    """The first two of these instances that share a port, or one whose companion port is the
+    ground stations' GCS_REMOTE_PORT (then both are that instance), as (a, b, port); None if
+    their port sets are disjoint: vehicles that can fly side by side."""
+    seen: dict[tuple[str, int], int] = {}
+    for n in instances:
+        check_instance(n)
+        if api_remote_port(n) == GCS_REMOTE_PORT:
+            return n, n, GCS_REMOTE_PORT
+        owned = _owned(n)
+        for key in sorted(owned):
+            if key in seen:
+                return seen[key], n, key[1]
+        seen.update(dict.fromkeys(owned, n))
+    return None
+
+
+def disjoint_instances(base: int, n: int) -> list[int]:
+    """The first n instances from `base` up whose port sets meet nowhere (`first_clash` finds
+    none): instance 10 is skipped (its companion port is 14550), and so is N+40 once N is taken
+    (N+40's companion port is N's API port). ValueError (one line) if MAX_INSTANCE comes first."""
+    out: list[int] = []
+    for i in range(base, MAX_INSTANCE + 1):
+        if len(out) == n:
+            break
+        if first_clash([*out, i]) is None:
+            out.append(i)
+    if len(out) < n:
+        raise ValueError(f"{n} vehicles from instance {base} need instances past {MAX_INSTANCE} "
+                         "(N and N+40 share a port); pick a smaller base instance")  # fmt: skip
+    return out
 
 
 def taken_udp_port(instances: list[int], host: str = LOOPBACK) -> tuple[int, int, str] | None:
