@@ -18,7 +18,7 @@ import struct
 import numpy as np
 import pytest
 
-from skyherd.safety.config import ENVELOPE_DIR, load_envelope
+from skyherd.safety.config import ENVELOPE_DIR, default_envelope_path, load_envelope
 from skyherd.safety.envelope import circle_zone, polygon_zone
 
 CLONE_NEWNET = 0x40000000  # <sched.h>
@@ -56,6 +56,23 @@ ctypes.CDLL(None, use_errno=True).prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)  # (
 
 def pytest_report_header(config):
     return f"skyherd: network namespace: {NETWORK}"
+
+
+def pytest_sessionstart(session):
+    """numba's kernels compiled (or loaded from their cache) before the first test, by one short
+    in-process drill (the multirotor's physics, controller and mixer; the net's kernels) and a
+    step of the bridges' body. A fresh clone has no cache: its first flight compiled them (about
+    10 s of CPU) inside a lockstep tick, where the peer's wall-clock patience runs (60 s), and
+    under a load of 18 that first flight aborted ("no tick mark from the vehicle for 60 s")."""
+    from skyherd.flight.multirotor import MultirotorAutopilot
+    from skyherd.hil.bridge_physics import QuadBody
+    from skyherd.safety.drills import DrillParams, run_drill, scripted_drills
+    from skyherd.safety.supervisor import SupervisorParams
+
+    spec, _ = load_envelope(default_envelope_path("quadrotor"))
+    p = DrillParams(duration_s=4.0)
+    run_drill(scripted_drills(spec, p)[0], MultirotorAutopilot(), spec, SupervisorParams(), p)
+    QuadBody().step(0.01, np.full(4, 0.5))
 
 
 NORTH_35 = 35.0  # the judge tests' fence: its north edge [m]
