@@ -68,6 +68,10 @@ def open_worlds(setup, run_dir) -> tuple[list, object, list | None]:
     (world.fleet), or the one vehicle's (world.build.open_world) with its autopilot's
     parameters set. WorldError; the session is closed then."""
     params, endpoint = setup.world_params()
+    if setup.builtin:  # its kernels before the companion waits on this vehicle
+        from skyherd.flight.airframes_registry import warm_up
+
+        warm_up(params.airframe)
     if setup.fleet:
         from skyherd.world.fleet import open_fleet
 
