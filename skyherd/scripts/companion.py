@@ -12,163 +12,116 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.runio import JsonlWriter, RunFolder, args_dict, ports
 from skyherd.scripts.cli import UsageError, check_with
+from skyherd.scripts.options import add_options, opt
 
 
-def add_arguments(
-    parser,
-    standalone: bool = True,
-    missions: tuple[str, ...] = ("groundair", "square", "formation", "orbit", "shepherd"),
-) -> None:
+def pilot_choice(value: str) -> str:
+    """--pilot: policy, pid, or drill:NAME (a named drill of safety.drills; - for a space)."""
+    if value in ("policy", "pid") or value.startswith("drill:"):
+        return value
+    raise argparse.ArgumentTypeError(f"{value!r}: use policy, pid or drill:NAME")
+
+
+@dataclass(frozen=True)
+class LinkOptions:
+    """`skyherd companion`'s options on its own, not under `skyherd fly` (scripts.options)."""
+
+    connect: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="the autopilot's MAVLink address (pymavlink form; default "
+        f"{ports.COMPANION_ADDRESS_HELP})",
+    )
+    instance: int = opt(
+        0,
+        help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}] (system id 1+N, default "
+        f"addresses: MAVLink {ports.COMPANION_ADDRESS_HELP}, Zenoh {ports.ZENOH_ADDRESS_HELP})",
+    )
+    free_run: bool = False
+    """tick on the autopilot's clock instead of the simulator's marks (a real autopilot)"""
+    zenoh_connect: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="where the camera frames are published (tcp:HOST:PORT; default: "
+        f"{ports.ZENOH_ADDRESS_HELP} for --instance N)",
+    )
+    zenoh_config: str | None = opt(None, metavar="FILE")  # a Zenoh JSON5 configuration instead
+    signing_key: str | None = opt(None, metavar="FILE")
+    """MAVLink 2 signing key file (32 bytes) shared with the autopilot"""
+    orbit_team: str = opt("lateral", metavar="SCENARIO")
+    """--mission orbit: the UGV team's scenario the companion is briefed with (its start, speed,
+    spread)"""
+    orbit_seed: int = 0  # --mission orbit: the team's seed (the briefing)
+    orbit_no_land: bool = False  # --mission orbit: end in the orbit, no landing
+    plan: str | None = opt(None, metavar="FILE")
+    """--mission formation: the lock-step grid plan (plan.json / plan_K<K>.json); vehicle k is
+    instance N+k, its home on its start cell"""
+    cell_m: float = 2.0  # --mission formation: grid cell size [m]
+    runs_dir: str = "runs"  # where the run folder goes
+    run_dir: str | None = None  # write into this existing run folder (used by `skyherd fly`)
+    wait_go: bool = False
+    """set up, then wait for a line on standard input before the first message to the vehicle
+    (its clock starts on it): how `skyherd fly` starts the flight once its recorder listens"""
+
+
+@dataclass(frozen=True)
+class MissionOptions:
+    """The companion's mission, its options under `skyherd fly` too (scripts.options)."""
+
+    mission: str = "groundair"  # its choices and help: add_arguments
+    shepherd_selector: str = opt("learned", choices=["learned", "strombom"])
+    """--mission shepherd: the high-level selector between collect and drive: learned
+    (policy/shepherd/selector.json, fitted to Strömbom's demonstrations) or strombom (the
+    hand-written rule)"""
+    pilot: str = opt("policy", type=pilot_choice)
+    """groundair pilot: policy (the learned one), pid (the classic follower on φ(s)), or
+    drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. drill:lateral-fence
+    with --envelope safety/envelopes/quadrotor_field.toml"""
+    lost_ugv_search: bool = False
+    """groundair: when a UGV leaves the view, search for it (dead reckoning from its last
+    sighting, climbing toward the ceiling, expanding square: mission/search.py) instead of
+    leaving it to the pilot"""
+    policy: str | None = opt(None, metavar="FILE")
+    """policy file: discrete (skyherd train ab / irl / educate) or the deep continuous ABS-DL
+    policy (skyherd train abs-dl, e.g. policy/models/groundair_absdl.npz) (default: the discrete
+    AB policy the repository keeps)"""
+    envelope: str | None = opt(None, metavar="FILE")  # constraint-set TOML of the safety net
+    altitude: float | None = opt(None, metavar="M")
+    """take-off altitude above home [m] (default: 20; `fly` frames the team)"""
+    duration: float = opt(60.0, metavar="S")  # flight behind the safety net [s]
+    side: float = opt(40.0, metavar="M")  # square side [m]
+    no_camera: bool = False  # fly without camera frames (square, or no simulator)
+    setup_signing: bool = False
+    """an outside autopilot: first send it the --signing-key (SETUP_SIGNING) until it answers
+    signed, then fly signed. ArduPilot accepts unsigned messages on SERIAL0 (TCP 5760+10N in
+    SITL) whatever the key: connect to SERIAL1/2 for a protected link (docs/mavlink.md)"""
+    configure_autopilot: bool = False
+    """before the take-off, set the autopilot's parameters the safety envelope requires (e.g.
+    PX4 COM_OF_LOSS_T, ArduCopter GUID_TIMEOUT), read each back and record the change
+    (companion.json, summary.md); nothing is restored afterwards. Default: refuse to take off on
+    a mismatch, naming the parameter and the value to set"""
+
+
+MISSIONS = {
+    "groundair": "groundair: keep the UGVs in view behind the safety net",
+    "square": "square: fly a square",
+    "formation": "formation: K vehicles fly the SQL-SIE plan to their targets",
+    "orbit": "orbit: a fixed-wing orbits the team, camera on a pointed gimbal",
+    "shepherd": "shepherd: herd the UGV flock (--ugvs flock) into the goal region "
+    "(docs/shepherding.md)",
+}  # --mission: each one's help
+
+
+def add_arguments(parser, standalone: bool = True, missions: tuple[str, ...] = (*MISSIONS,)):
     if standalone:
-        parser.add_argument(
-            "--connect",
-            metavar="ADDRESS",
-            default=None,
-            help=f"the autopilot's MAVLink address (pymavlink form; default {ports.COMPANION_ADDRESS_HELP})",
-        )
-        parser.add_argument(
-            "--instance",
-            type=int,
-            default=0,
-            help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}] (system id 1+N, default "
-            f"addresses: MAVLink {ports.COMPANION_ADDRESS_HELP}, Zenoh {ports.ZENOH_ADDRESS_HELP})",
-        )
-        parser.add_argument(
-            "--free-run",
-            action="store_true",
-            help="tick on the autopilot's clock instead of the simulator's marks (a real autopilot)",
-        )
-        parser.add_argument(
-            "--zenoh-connect",
-            default=None,
-            metavar="ADDRESS",
-            help="where the camera frames are published (tcp:HOST:PORT; default: "
-            f"{ports.ZENOH_ADDRESS_HELP} for --instance N)",
-        )
-        parser.add_argument(
-            "--zenoh-config",
-            default=None,
-            metavar="FILE",
-            help="a Zenoh JSON5 configuration instead",
-        )
-        parser.add_argument(
-            "--signing-key",
-            default=None,
-            metavar="FILE",
-            help="MAVLink 2 signing key file (32 bytes) shared with the autopilot",
-        )
-        parser.add_argument(
-            "--orbit-team",
-            default="lateral",
-            metavar="SCENARIO",
-            help="--mission orbit: the UGV team's scenario the companion is briefed with (its start, speed, spread)",
-        )
-        parser.add_argument(
-            "--orbit-seed",
-            type=int,
-            default=0,
-            help="--mission orbit: the team's seed (the briefing)",
-        )
-        parser.add_argument(
-            "--orbit-no-land",
-            action="store_true",
-            help="--mission orbit: end in the orbit, no landing",
-        )
-        parser.add_argument(
-            "--plan",
-            default=None,
-            metavar="FILE",
-            help="--mission formation: the lock-step grid plan (plan.json / plan_K<K>.json); "
-            "vehicle k is instance N+k, its home on its start cell",
-        )
-        parser.add_argument(
-            "--cell-m", type=float, default=2.0, help="--mission formation: grid cell size [m]"
-        )
-        parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
-        parser.add_argument(
-            "--run-dir",
-            default=None,
-            help="write into this existing run folder (used by `skyherd fly`)",
-        )
-        parser.add_argument(
-            "--wait-go",
-            action="store_true",
-            help="set up, then wait for a line on standard input before the first message to the "
-            "vehicle (its clock starts on it): how `skyherd fly` starts the flight once its "
-            "recorder listens",
-        )
-    parser.add_argument(
-        "--mission", choices=list(missions), default="groundair",
-        help="groundair: keep the UGVs in view behind the safety net; square: fly a square"
-        + ("; formation: K vehicles fly the SQL-SIE plan to their targets" if "formation" in missions else "")
-        + ("; orbit: a fixed-wing orbits the team, camera on a pointed gimbal" if "orbit" in missions else "")
-        + ("; shepherd: herd the UGV flock (--ugvs flock) into the goal region (docs/shepherding.md)"
-           if "shepherd" in missions else ""),
-    )  # fmt: skip
-    if "shepherd" in missions:
-        parser.add_argument("--shepherd-selector", choices=["learned", "strombom"], default="learned",
-                            help="--mission shepherd: the high-level selector between collect and drive: learned "
-                            "(policy/shepherd/selector.json, fitted to Strömbom's demonstrations) or strombom "
-                            "(the hand-written rule)")  # fmt: skip
-    parser.add_argument(
-        "--pilot",
-        type=pilot_choice,
-        default="policy",
-        help="groundair pilot: policy (the learned one), pid (the classic follower on φ(s)), or "
-        "drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. "
-        "drill:lateral-fence with --envelope safety/envelopes/quadrotor_field.toml",
-    )
-    parser.add_argument("--lost-ugv-search", action="store_true",
-                        help="groundair: when a UGV leaves the view, search for it (dead reckoning from its last "
-                        "sighting, climbing toward the ceiling, expanding square: mission/search.py) instead of "
-                        "leaving it to the pilot")  # fmt: skip
-    parser.add_argument(
-        "--policy",
-        default=None,
-        metavar="FILE",
-        help="policy file: discrete (skyherd train ab / irl / educate) or the deep continuous "
-        "ABS-DL policy (skyherd train abs-dl, e.g. policy/models/groundair_absdl.npz) "
-        "(default: the discrete AB policy the repository keeps)",
-    )
-    parser.add_argument(
-        "--envelope", default=None, metavar="FILE", help="constraint-set TOML of the safety net"
-    )
-    parser.add_argument(
-        "--altitude",
-        type=float,
-        default=None,
-        metavar="M",
-        help="take-off altitude above home [m] (default: 20; `fly` frames the team)",
-    )
-    parser.add_argument(
-        "--duration", type=float, default=60.0, metavar="S", help="flight behind the safety net [s]"
-    )
-    parser.add_argument("--side", type=float, default=40.0, metavar="M", help="square side [m]")
-    parser.add_argument(
-        "--no-camera",
-        action="store_true",
-        help="fly without camera frames (square, or no simulator)",
-    )
-    parser.add_argument(
-        "--setup-signing",
-        action="store_true",
-        help="an outside autopilot: first send it the --signing-key (SETUP_SIGNING) until it "
-        "answers signed, then fly signed. ArduPilot accepts unsigned messages on SERIAL0 (TCP "
-        "5760+10N in SITL) whatever the key: connect to SERIAL1/2 for a protected link "
-        "(docs/mavlink.md)",
-    )
-    parser.add_argument(
-        "--configure-autopilot",
-        action="store_true",
-        help="before the take-off, set the autopilot's parameters the safety envelope requires "
-        "(e.g. PX4 COM_OF_LOSS_T, ArduCopter GUID_TIMEOUT), read each back and record the change "
-        "(companion.json, summary.md); nothing is restored afterwards. Default: refuse to take "
-        "off on a mismatch, naming the parameter and the value to set",
-    )
+        add_options(parser, LinkOptions)
+    said = "; ".join(MISSIONS[m] for m in missions)
+    add_options(parser, MissionOptions, mission=dict(choices=list(missions), help=said))
 
 
 def check_args(argv: list[str]) -> str | None:
@@ -224,13 +177,6 @@ def check(args) -> str:
             f"--zenoh-config {args.zenoh_config}: no such file; pass a Zenoh JSON5 file"
         )
     return address
-
-
-def pilot_choice(value: str) -> str:
-    """--pilot: policy, pid, or drill:NAME (a named drill of safety.drills; - for a space)."""
-    if value in ("policy", "pid") or value.startswith("drill:"):
-        return value
-    raise argparse.ArgumentTypeError(f"{value!r}: use policy, pid or drill:NAME")
 
 
 def zenoh_endpoint(address: str) -> str:

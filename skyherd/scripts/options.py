@@ -4,7 +4,8 @@ A command declares its options once, as the fields of a frozen dataclass: the fi
 the flag (`dqn_steps` → `--dqn-steps`), its default and type the option's, and the comment beside
 it (or, when longer, the docstring under it) its help; `opt(default, **kw)` hands more keywords
 to `add_argument` (choices, metavar, nargs, action) but for `aliases`, more flags of the same
-option. A tuple field takes one or more values (`nargs="+"`, its default given as a list); a bool
+option, and `flag`, the option's flag when it is not the field's name. A command showing a lower
+layer's parameters (which carry no argparse) gives the same keywords to `add_options` instead. A tuple field takes one or more values (`nargs="+"`, its default given as a list); a bool
 field whose default is False is a flag (`store_true`), one whose default is True a `--x/--no-x`
 pair. The help shows the default (scripts.cli.DefaultsFormatter).
 """
@@ -50,16 +51,18 @@ def _value_type(hint) -> tuple[type, bool]:
     return hint, False
 
 
-def add_options(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...] = ()) -> None:
+def add_options(
+    parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...] = (), **given: dict
+) -> None:
     """One option of `parser` per field of the dataclass `cls` but those in `skip` (see the
-    module's docstring)."""
+    module's docstring); `given[name]`: more keywords for that field's option, as `opt`'s."""
     helps = field_docs(cls)
     hints = typing.get_type_hints(cls)
     for f in dataclasses.fields(cls):
         if f.name in skip:
             continue
-        kw = dict(f.metadata)
-        flags = ["--" + f.name.replace("_", "-"), *kw.pop("aliases", ())]
+        kw = {**f.metadata, **given.get(f.name, {})}
+        flags = [kw.pop("flag", "--" + f.name.replace("_", "-")), *kw.pop("aliases", ())]
         kw.setdefault("help", helps.get(f.name, ""))
         typ, several = _value_type(hints[f.name])
         default = list(f.default) if isinstance(f.default, tuple) else f.default
