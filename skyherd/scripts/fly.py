@@ -20,74 +20,68 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.runio import args_dict, ports
 from skyherd.runio.run import Interrupted
 from skyherd.scripts.cli import UsageError
-from skyherd.scripts.fly_options import add_shared, check_signing, passed_on, signing_mode
+from skyherd.scripts.fly_options import FLY_WORLD, check_signing, passed_on, signing_mode
+from skyherd.scripts.options import add_options, opt
+from skyherd.world.setup import SimSetup
+
+
+@dataclass(frozen=True)
+class FlyOptions:
+    """`skyherd fly`'s own options (scripts.options); those it shares with `skyherd sim` are
+    world.setup.SimSetup's (scripts.fly_options), the companion's scripts.companion's."""
+
+    connect: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="fly an outside autopilot at this pymavlink address (e.g. "
+        f"{ports.companion_address(0)}, tcp:127.0.0.1:5760) instead of the built-in vehicle",
+    )
+    world_link: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="with --connect: a second MAVLink link of the autopilot for the world (UGVs, "
+        f"camera) built around it (default: {ports.GCS_STREAM} for a udp address, PORT+2 for "
+        "tcp:HOST:PORT, i.e. ArduPilot's SERIAL1)",
+    )
+    world_system: int = opt(0, metavar="ID")
+    """with --connect: the outside autopilot's MAVLink system id on the world link (0: the first
+    autopilot heard)"""
+    no_signing: bool = False
+    """fly the built-in vehicle unsigned: no per-run key; any local process can then command the
+    vehicle and forge frames (recorded in config.json and summary.md)"""
+    foxglove: int | None = opt(None, metavar="PORT")
+    """serve the flight live to Foxglove on ws://127.0.0.1:PORT (default: off)"""
+    no_record: bool = False  # do not write flight.mcap
+    runs_dir: str = "runs"  # where run folders go
+    timeout: float = 600.0  # wall-clock limit for the whole flight [s] (> 0)
+    no_zenoh: bool = opt(False, help=argparse.SUPPRESS)  # kept for old scripts
+    renderer: str = opt("fast", choices=["fast", "bullet"], help=argparse.SUPPRESS)
+
+
+OWN = ("airframe", "connect", "world_link", "world_system", "param", "signing_key", "no_signing")
+OWN += ("instance", "speedup", "free_run", "latency", "seed", "cut_link", "cut_camera")
+OWN += ("foxglove", "no_record", "runs_dir", "timeout", "zenoh_port", "no_zenoh", "ugvs")
+OWN += ("renderer",)  # fly's options before its groups' (SimSetup's and FlyOptions' fields)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_shared(parser, "--airframe", fly=True)
-    parser.add_argument("--connect", metavar="ADDRESS",
-                        help="fly an outside autopilot at this pymavlink address (e.g. "
-                        f"{ports.companion_address(0)}, "
-                        "tcp:127.0.0.1:5760) instead of the built-in vehicle")  # fmt: skip
-    parser.add_argument("--world-link", metavar="ADDRESS", default=None,
-                        help="with --connect: a second MAVLink link of the autopilot for the world (UGVs, "
-                        f"camera) built around it (default: {ports.GCS_STREAM} for a udp address, "
-                        "PORT+2 for tcp:HOST:PORT, i.e. ArduPilot's SERIAL1)")  # fmt: skip
-    parser.add_argument(
-        "--world-system",
-        type=int,
-        default=0,
-        metavar="ID",
-        help="with --connect: the outside autopilot's MAVLink system id on the world link (0: the first autopilot heard)",
-    )
-    add_shared(parser, "--param", "--signing-key", fly=True)
-    parser.add_argument(
-        "--no-signing",
-        action="store_true",
-        help="fly the built-in vehicle unsigned: no per-run key; any local process can then "
-        "command the vehicle and forge frames (recorded in config.json and summary.md)",
-    )
-    add_shared(parser, "--instance", "--speedup", "--free-run", "--latency", "--seed",
-               "--cut-link", "--cut-camera", fly=True)  # fmt: skip
-    parser.add_argument(
-        "--foxglove",
-        type=int,
-        default=None,
-        metavar="PORT",
-        help="serve the flight live to Foxglove on ws://127.0.0.1:PORT (default: off)",
-    )
-    parser.add_argument("--no-record", action="store_true", help="do not write flight.mcap")
-    add_shared(parser, "--runs-dir", fly=True)
-    parser.add_argument(
-        "--timeout",
-        type=float,
-        default=600.0,
-        help="wall-clock limit for the whole flight [s] (> 0)",
-    )
-    add_shared(parser, "--zenoh-port", fly=True)
-    parser.add_argument(
-        "--no-zenoh", action="store_true", help=argparse.SUPPRESS
-    )  # kept for old scripts
-    add_shared(parser, "--ugvs", fly=True)
-    parser.add_argument(
-        "--renderer", choices=["fast", "bullet"], default="fast", help=argparse.SUPPRESS
-    )
-    from skyherd.scripts.fault_options import add_fault_arguments
-
-    add_fault_arguments(parser.add_argument_group("faults in the simulation (flight/faults.py)"))
     from skyherd.scripts.companion import add_arguments as companion_arguments
+    from skyherd.scripts.fault_options import add_fault_arguments
+    from skyherd.scripts.fly_options import FormationOptions, OrbitOptions
 
-    companion_arguments(parser.add_argument_group("mission and companion"), standalone=False,
-                        missions=("groundair", "square", "formation", "shepherd"))  # fmt: skip
-    from skyherd.scripts.fly_options import add_formation_arguments, add_orbit_arguments
-
-    add_formation_arguments(parser.add_argument_group("formation mission"))
-    add_orbit_arguments(parser.add_argument_group("fixed-wing orbit (--airframe fixedwing)"))
+    add_options(parser, (SimSetup, FlyOptions), only=OWN, **FLY_WORLD)
+    add_fault_arguments(parser.add_argument_group("faults in the simulation (flight/faults.py)"))
+    missions = ("groundair", "square", "formation", "shepherd")
+    companion_arguments(parser.add_argument_group("mission and companion"), False, missions)
+    add_options(parser.add_argument_group("formation mission"), FormationOptions)
+    orbit = parser.add_argument_group("fixed-wing orbit (--airframe fixedwing)")
+    add_options(orbit, OrbitOptions)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -27,7 +27,6 @@ from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text
 from skyherd.scripts.cli import UsageError
-from skyherd.scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
 from skyherd.world.fleet import FleetVehicle, sim_groups, write_fleet
 
 

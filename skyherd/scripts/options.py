@@ -52,19 +52,27 @@ def _value_type(hint) -> tuple[type, bool]:
 
 
 def add_options(
-    parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...] = (), **given: dict
+    parser: argparse.ArgumentParser,
+    cls: type | tuple[type, ...],
+    skip: tuple[str, ...] = (),
+    only: tuple[str, ...] | None = None,
+    **given: dict,
 ) -> None:
-    """One option of `parser` per field of the dataclass `cls` but those in `skip` (see the
-    module's docstring); `given[name]`: more keywords for that field's option, as `opt`'s."""
-    helps = field_docs(cls)
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        if f.name in skip:
+    """One option of `parser` per field of the dataclass `cls` (or of each of several, in turn)
+    but those in `skip`, or those named in `only`, in its order (see the module's docstring);
+    `given[name]`: more keywords for that field's option, as `opt`'s."""
+    classes = cls if isinstance(cls, tuple) else (cls,)
+    fields = {f.name: (f, c) for c in classes for f in dataclasses.fields(c)}
+    helps = {c: field_docs(c) for c in classes}
+    hints = {c: typing.get_type_hints(c) for c in classes}
+    for name in only if only is not None else fields:
+        f, c = fields[name]
+        if name in skip:
             continue
-        kw = {**f.metadata, **given.get(f.name, {})}
-        flags = [kw.pop("flag", "--" + f.name.replace("_", "-")), *kw.pop("aliases", ())]
-        kw.setdefault("help", helps.get(f.name, ""))
-        typ, several = _value_type(hints[f.name])
+        kw = {**f.metadata, **given.get(name, {})}
+        flags = [kw.pop("flag", "--" + name.replace("_", "-")), *kw.pop("aliases", ())]
+        kw.setdefault("help", helps[c].get(name, ""))
+        typ, several = _value_type(hints[c][name])
         default = list(f.default) if isinstance(f.default, tuple) else f.default
         if several and kw.get("action") != "append":
             kw.setdefault("nargs", "+")
@@ -75,4 +83,4 @@ def add_options(
             kw.setdefault("action", "store_true")
         elif typ is not str:
             kw.setdefault("type", typ)
-        parser.add_argument(*flags, dest=f.name, default=default, **kw)
+        parser.add_argument(*flags, dest=name, default=default, **kw)

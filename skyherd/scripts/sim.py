@@ -10,100 +10,44 @@ measures how late the companion's setpoints act.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.runio import RunFolder, args_dict
-from skyherd.runio.constants import CAMERA_HZ
 from skyherd.runio.process import parent_gone
 from skyherd.scripts.cli import UsageError, check_with
 from skyherd.scripts.fault_options import add_fault_arguments
-from skyherd.scripts.fly_options import add_shared
+from skyherd.scripts.fly_options import WORLD
+from skyherd.scripts.options import add_options
+from skyherd.world.setup import SimSetup
 
 PARENT = os.getppid()  # the process that started this one (`skyherd fly`, a shell)
 
 
+FAULTS = ("wind", "gust", "noise", "fault")  # SimSetup's fault fields: scripts.fault_options
+
+
+@dataclass(frozen=True)
+class SimFolder:
+    """Where `skyherd sim` writes (scripts.options)."""
+
+    runs_dir: str = "runs"  # where the run folder goes
+    run_dir: str | None = None  # write into this existing run folder (used by `skyherd fly`)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_shared(parser, "--airframe", "--instance", "--seed", "--ugvs")
-    parser.add_argument(
-        "--home",
-        default=None,
-        metavar="LAT,LON,ALT",
-        help="the vehicle's home [deg, deg, m AMSL] (default: the project's default home)",
-    )
-    parser.add_argument(
-        "--ugv-start",
-        default="offboard",
-        metavar="WHEN",
-        help="when the UGVs start to drive: 'offboard' (when the vehicle is handed to the companion: "
-        "OFFBOARD for the built-in vehicle; beside --follow or --autopilot, the companion's first "
-        "decision on skyherd/<vehicle>/decision) or a simulation time [s] (default offboard)",
-    )
-    add_shared(parser, "--speedup")
-    parser.add_argument(
-        "--camera-hz",
-        type=float,
-        default=CAMERA_HZ,
-        help="camera frames per simulated second (the companion's tick) (default %(default)s)",
-    )
-    add_shared(parser, "--free-run", "--latency")
-    parser.add_argument(
-        "--duration",
-        type=float,
-        default=None,
-        metavar="S",
-        help="stop after this much simulation time [s] (default: until interrupted)",
-    )
-    add_shared(parser, "--zenoh-port")
-    parser.add_argument(
-        "--zenoh-config",
-        default=None,
-        metavar="FILE",
-        help="a Zenoh JSON5 configuration instead (e.g. a router for two hosts; docs/topology.md)",
-    )
-    parser.add_argument(
-        "--bind", default="127.0.0.1", metavar="HOST", help="address the MAVLink sockets bind to"
-    )
-    parser.add_argument(
-        "--remote",
-        default="127.0.0.1",
-        metavar="HOST",
-        help="host the companion and the ground station listen on",
-    )
-    parser.add_argument(
-        "--follow",
-        default=None,
-        metavar="ADDRESS",
-        help="no built-in vehicle: build the world (UGVs, camera) around the outside vehicle at "
-        "this MAVLink address (a second link of PX4 / ArduPilot), free-running on its clock",
-    )
-    parser.add_argument("--autopilot", choices=["builtin", "px4", "ardupilot"], default="builtin",
-                        help="builtin: skyherd's autopilot (default); px4 / ardupilot: a real one flies on skyherd's "
-                        "physics (PX4 none_iris on TCP 4560+N, ArduPilot --model JSON on UDP 9002+10N)")  # fmt: skip
-    parser.add_argument(
-        "--follow-system",
-        type=int,
-        default=0,
-        metavar="ID",
-        help="with --follow: the followed autopilot's MAVLink system id (0: the first autopilot heard)",
-    )
-    add_shared(parser, "--param")
+    world = [f.name for f in dataclasses.fields(SimSetup)]
+    add_options(parser, SimSetup, only=tuple(world[: world.index("wind")]), **WORLD)
     add_fault_arguments(parser)
-    add_shared(parser, "--signing-key", "--cut-link", "--cut-camera")
-    parser.add_argument(
-        "--fleet",
-        default=None,
-        metavar="FILE",
-        help="several built-in vehicles in this one process (with --ugvs none): a JSON list of "
-        '{"name": "uav0", "instance": N, "seed": S, "home": [LAT, LON, ALT]}; each writes into '
-        "<run folder>/<name>/, each in lockstep with its own companion (docs/formation.md)",
-    )
-    add_shared(parser, "--runs-dir")
-    parser.add_argument(
-        "--run-dir",
-        default=None,
-        help="write into this existing run folder (used by `skyherd fly`)",
+    add_options(
+        parser,
+        (SimSetup, SimFolder),
+        skip=FAULTS,
+        only=(*world[world.index("wind") :], "runs_dir", "run_dir"),
+        **WORLD,
     )
 
 
@@ -117,8 +61,6 @@ def check_args(argv: list[str]) -> str | None:
 def check(args):
     """Every check of the arguments that needs nothing started (world.setup.SimSetup.checked;
     UsageError, one line); the instance's Zenoh port and the speed-up's default filled in."""
-    from skyherd.world.setup import SimSetup
-
     try:
         setup = SimSetup.of(args).checked()
     except ValueError as e:  # world.build.WorldError, a --param refused
