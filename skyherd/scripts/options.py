@@ -41,6 +41,13 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
+def values(cls: type, args: argparse.Namespace, **more):
+    """The dataclass `cls` made of the options `add_options` generated from its fields (a field
+    with no option keeps its default) and of `more`."""
+    names = [f.name for f in dataclasses.fields(cls) if hasattr(args, f.name)]
+    return cls(**{n: getattr(args, n) for n in names}, **more)
+
+
 def _value_type(hint) -> tuple[type, bool]:
     """The type of one value of an option (`int` for `int`, `int | None`, `tuple[int, ...]`) and
     whether the option takes several."""
@@ -70,6 +77,8 @@ def add_options(
         if name in skip:
             continue
         kw = {**f.metadata, **given.get(name, {})}
+        if "flag" in kw and "choices" not in kw:  # its value named after the flag, as before
+            kw.setdefault("metavar", kw["flag"].lstrip("-").replace("-", "_").upper())
         flags = [kw.pop("flag", "--" + name.replace("_", "-")), *kw.pop("aliases", ())]
         kw.setdefault("help", helps[c].get(name, ""))
         typ, several = _value_type(hints[c][name])
