@@ -8,57 +8,54 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+from dataclasses import dataclass
 
 from skyherd.perception.features import FeatureParams
 from skyherd.perception.transport import ZenohParams, open_session, viewer_params, zenoh_error_text
 from skyherd.perception.watch import WatchParams
 from skyherd.runio import RunFolder, UsageError, ports
 from skyherd.runio.signals import CtrlC
+from skyherd.scripts.options import add_options, opt, values
+
+
+@dataclass(frozen=True)
+class WatchOptions:
+    """`skyherd watch`'s options beside perception.watch.WatchParams' (scripts.options)."""
+
+    vehicle: str = "uav0"  # vehicle name in the key
+    connect: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="the frame source, in the address syntax of every command (tcp:HOST:PORT; Zenoh's "
+        f"tcp/HOST:PORT is accepted too) (default: {ports.ZENOH_ADDRESS_HELP} for --instance N)",
+    )
+    instance: int = opt(
+        0,
+        metavar="N",
+        help=f"watch the flight of vehicle instance N in [0, {ports.MAX_INSTANCE}] (`skyherd "
+        f"fly/sim --instance N`): its simulator's {ports.ZENOH_PORT_HELP} on {ports.LOOPBACK}",
+    )
+    zenoh_config: str | None = None  # Zenoh JSON5 config file (replaces --connect)
+    signing_key: str | None = opt(None, metavar="FILE")
+    """the flight's key file (32 bytes: `skyherd fly --signing-key FILE`, or the per-run
+    <run>/signing.key): take only authentic frames and records, refuse (count) plain or forged
+    ones (default: none, frames are shown unchecked)"""
+    runs_dir: str = opt("runs", aliases=("--out",))  # where run folders go; --out is the older name
+    strip: int = 8  # frames in strip.png
+    no_show: bool = False  # never open a window
+    mcap: bool = True
+    """record the flight seen on Zenoh (frames, poses, UGVs, decisions, safety events, clock) as
+    flight.mcap in the run folder, for Foxglove / PlotJuggler"""
+    foxglove: int | None = opt(None, metavar="PORT")
+    """also serve the flight live to Foxglove at ws://127.0.0.1:PORT"""
+
+
+ORDER = ("vehicle", "connect", "instance", "zenoh_config", "signing_key", "frames", "runs_dir")
+ORDER += ("ugvs", "timeout_s", "save_every", "strip", "no_show", "mcap", "foxglove")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--vehicle", default="uav0", help="vehicle name in the key")
-    parser.add_argument(
-        "--connect",
-        default=None,
-        metavar="ADDRESS",
-        help="the frame source, in the address syntax of every command (tcp:HOST:PORT; "
-        f"Zenoh's tcp/HOST:PORT is accepted too) (default: {ports.ZENOH_ADDRESS_HELP} for --instance N)",
-    )
-    parser.add_argument("--instance", type=int, default=0, metavar="N",
-                        help=f"watch the flight of vehicle instance N in [0, {ports.MAX_INSTANCE}] "
-                        f"(`skyherd fly/sim --instance N`): its simulator's {ports.ZENOH_PORT_HELP} on "
-                        f"{ports.LOOPBACK}")  # fmt: skip
-    parser.add_argument(
-        "--zenoh-config", default=None, help="Zenoh JSON5 config file (replaces --connect)"
-    )
-    parser.add_argument("--signing-key", default=None, metavar="FILE",
-                        help="the flight's key file (32 bytes: `skyherd fly --signing-key FILE`, or the "
-                        "per-run <run>/signing.key): take only authentic frames and records, refuse "
-                        "(count) plain or forged ones (default: none, frames are shown unchecked)")  # fmt: skip
-    parser.add_argument("--frames", type=int, default=100, help="frames to process")
-    parser.add_argument(
-        "--runs-dir", "--out", dest="runs_dir", default="runs",
-        help="where run folders go; --out is the older name",
-    )  # fmt: skip
-    parser.add_argument("--ugvs", type=int, default=3, help="UGVs in the team")
-    parser.add_argument(
-        "--timeout", type=float, default=10.0, help="give up after this long without a frame [s]"
-    )
-    parser.add_argument(
-        "--save-every", type=int, default=1, help="save every k-th annotated frame as PNG"
-    )
-    parser.add_argument("--strip", type=int, default=8, help="frames in strip.png")
-    parser.add_argument("--no-show", action="store_true", help="never open a window")
-    parser.add_argument(
-        "--mcap", action=argparse.BooleanOptionalAction, default=True,
-        help="record the flight seen on Zenoh (frames, poses, UGVs, decisions, safety events, "
-        "clock) as flight.mcap in the run folder, for Foxglove / PlotJuggler",
-    )  # fmt: skip
-    parser.add_argument(
-        "--foxglove", type=int, default=None, metavar="PORT",
-        help="also serve the flight live to Foxglove at ws://127.0.0.1:PORT",
-    )  # fmt: skip
+    add_options(parser, (WatchOptions, WatchParams), only=ORDER, timeout_s=dict(flag="--timeout"))
 
 
 def _check(args: argparse.Namespace) -> None:
@@ -77,7 +74,7 @@ def _check(args: argparse.Namespace) -> None:
         raise UsageError("--ugvs must be >= 1")
     if args.save_every < 1 or args.strip < 0:
         raise UsageError("--save-every must be >= 1 and --strip >= 0")
-    if not args.timeout > 0:
+    if not args.timeout_s > 0:
         raise UsageError("--timeout must be > 0 seconds")
     if args.foxglove is not None and not 0 < args.foxglove < 65536:
         raise UsageError("--foxglove PORT must be 1..65535")
@@ -152,12 +149,14 @@ def _watch(args, zp: ZenohParams, session, ctrl_c: CtrlC, key: bytes | None) -> 
         w.record(run, args.mcap, live)
         run.at_end(finish, "summary")
         bar = run.closing(tqdm(total=args.frames, desc="watch", unit="frame", disable=None))
-        p = WatchParams(args.frames, args.ugvs, args.timeout, args.save_every, not args.no_show)
+        p = values(WatchParams, args, show=not args.no_show)
         seen = w.watch(run, p, lambda: ctrl_c.requested, bar.update)
         ctrl_c.check()  # outside every lock: the run folder ends as interrupted
         if seen.processed == 0:
             refused = w.sub.stats.refused
-            run.fail(no_frame(args.vehicle, args.timeout, refused, args.signing_key, args.connect))
+            run.fail(
+                no_frame(args.vehicle, args.timeout_s, refused, args.signing_key, args.connect)
+            )
     if run.outcome == "failed":
         print(f"skyherd watch: {run.reason}")
         return 1
