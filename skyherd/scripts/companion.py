@@ -15,6 +15,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from skyherd.mission.build import MissionChoice
 from skyherd.runio import JsonlWriter, RunFolder, args_dict, ports
 from skyherd.scripts.cli import UsageError, check_with
 from skyherd.scripts.options import add_options, opt
@@ -53,11 +54,6 @@ class LinkOptions:
     zenoh_config: str | None = opt(None, metavar="FILE")  # a Zenoh JSON5 configuration instead
     signing_key: str | None = opt(None, metavar="FILE")
     """MAVLink 2 signing key file (32 bytes) shared with the autopilot"""
-    orbit_team: str = opt("lateral", metavar="SCENARIO")
-    """--mission orbit: the UGV team's scenario the companion is briefed with (its start, speed,
-    spread)"""
-    orbit_seed: int = 0  # --mission orbit: the team's seed (the briefing)
-    orbit_no_land: bool = False  # --mission orbit: end in the orbit, no landing
     plan: str | None = opt(None, metavar="FILE")
     """--mission formation: the lock-step grid plan (plan.json / plan_K<K>.json); vehicle k is
     instance N+k, its home on its start cell"""
@@ -70,41 +66,33 @@ class LinkOptions:
 
 
 @dataclass(frozen=True)
-class MissionOptions:
-    """The companion's mission, its options under `skyherd fly` too (scripts.options)."""
+class FlightOptions:
+    """The companion's options under `skyherd fly` too that are not mission.build.MissionChoice
+    fields (scripts.options)."""
 
-    mission: str = "groundair"  # its choices and help: add_arguments
-    shepherd_selector: str = opt("learned", choices=["learned", "strombom"])
-    """--mission shepherd: the high-level selector between collect and drive: learned
-    (policy/shepherd/selector.json, fitted to Strömbom's demonstrations) or strombom (the
-    hand-written rule)"""
-    pilot: str = opt("policy", type=pilot_choice)
-    """groundair pilot: policy (the learned one), pid (the classic follower on φ(s)), or
-    drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. drill:lateral-fence
-    with --envelope safety/envelopes/quadrotor_field.toml"""
-    lost_ugv_search: bool = False
-    """groundair: when a UGV leaves the view, search for it (dead reckoning from its last
-    sighting, climbing toward the ceiling, expanding square: mission/search.py) instead of
-    leaving it to the pilot"""
-    policy: str | None = opt(None, metavar="FILE")
-    """policy file: discrete (skyherd train ab / irl / educate) or the deep continuous ABS-DL
-    policy (skyherd train abs-dl, e.g. policy/models/groundair_absdl.npz) (default: the discrete
-    AB policy the repository keeps)"""
-    envelope: str | None = opt(None, metavar="FILE")  # constraint-set TOML of the safety net
-    altitude: float | None = opt(None, metavar="M")
-    """take-off altitude above home [m] (default: 20; `fly` frames the team)"""
-    duration: float = opt(60.0, metavar="S")  # flight behind the safety net [s]
-    side: float = opt(40.0, metavar="M")  # square side [m]
     no_camera: bool = False  # fly without camera frames (square, or no simulator)
     setup_signing: bool = False
     """an outside autopilot: first send it the --signing-key (SETUP_SIGNING) until it answers
     signed, then fly signed. ArduPilot accepts unsigned messages on SERIAL0 (TCP 5760+10N in
     SITL) whatever the key: connect to SERIAL1/2 for a protected link (docs/mavlink.md)"""
-    configure_autopilot: bool = False
-    """before the take-off, set the autopilot's parameters the safety envelope requires (e.g.
-    PX4 COM_OF_LOSS_T, ArduCopter GUID_TIMEOUT), read each back and record the change
-    (companion.json, summary.md); nothing is restored afterwards. Default: refuse to take off on
-    a mismatch, naming the parameter and the value to set"""
+
+
+LINK = ("connect", "instance", "free_run", "zenoh_connect", "zenoh_config", "signing_key")
+LINK += ("orbit_team", "orbit_seed", "orbit_no_land", "plan", "cell_m", "runs_dir", "run_dir")
+LINK += ("wait_go",)  # standalone: LinkOptions' fields and MissionChoice's orbit ones
+FLIGHT = ("mission", "shepherd_selector", "pilot", "lost_ugv_search", "policy", "envelope")
+FLIGHT += ("altitude_m", "duration_s", "side_m", "no_camera", "setup_signing")
+FLIGHT += ("configure_autopilot",)  # under `skyherd fly` too
+SHOWN = {
+    "orbit_team": dict(metavar="SCENARIO"),
+    "shepherd_selector": dict(choices=["learned", "strombom"]),
+    "pilot": dict(type=pilot_choice),
+    "policy": dict(metavar="FILE"),
+    "envelope": dict(metavar="FILE"),
+    "altitude_m": dict(flag="--altitude", dest="altitude", metavar="M"),
+    "duration_s": dict(flag="--duration", dest="duration", metavar="S"),
+    "side_m": dict(flag="--side", dest="side", metavar="M"),
+}  # how the options show MissionChoice's fields
 
 
 MISSIONS = {
@@ -119,9 +107,10 @@ MISSIONS = {
 
 def add_arguments(parser, standalone: bool = True, missions: tuple[str, ...] = (*MISSIONS,)):
     if standalone:
-        add_options(parser, LinkOptions)
+        add_options(parser, (LinkOptions, MissionChoice), only=LINK, **SHOWN)
     said = "; ".join(MISSIONS[m] for m in missions)
-    add_options(parser, MissionOptions, mission=dict(choices=list(missions), help=said))
+    mission = dict(choices=list(missions), help=said)
+    add_options(parser, (MissionChoice, FlightOptions), only=FLIGHT, **SHOWN, mission=mission)
 
 
 def check_args(argv: list[str]) -> str | None:

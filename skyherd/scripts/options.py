@@ -4,7 +4,7 @@ A command declares its options once, as the fields of a frozen dataclass: the fi
 the flag (`dqn_steps` → `--dqn-steps`), its default and type the option's, and the comment beside
 it (or, when longer, the docstring under it) its help; `opt(default, **kw)` hands more keywords
 to `add_argument` (choices, metavar, nargs, action) but for `aliases`, more flags of the same
-option, and `flag`, the option's flag when it is not the field's name. A command showing a lower
+option, and `flag`, the option's flag when it is not the field's name (`dest` its attribute). A command showing a lower
 layer's parameters (which carry no argparse) gives the same keywords to `add_options` instead. A tuple field takes one or more values (`nargs="+"`, its default given as a list); a bool
 field whose default is False is a flag (`store_true`), one whose default is True a `--x/--no-x`
 pair. The help shows the default (scripts.cli.DefaultsFormatter).
@@ -92,4 +92,4 @@ def add_options(
             kw.setdefault("action", "store_true")
         elif typ is not str:
             kw.setdefault("type", typ)
-        parser.add_argument(*flags, dest=name, default=default, **kw)
+        parser.add_argument(*flags, dest=kw.pop("dest", name), default=default, **kw)
