@@ -10,7 +10,7 @@ import sys
 
 from skyherd.perception.camstream import CamstreamParams
 from skyherd.runio import ports
-from skyherd.scripts.cli import UsageError
+from skyherd.scripts.cli import UsageError, usage
 from skyherd.scripts.options import add_options, values
 
 
@@ -27,10 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from skyherd.perception.camstream import stream
 
-    try:
-        ports.check_port(args.port, "--port")
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    usage(ports.check_port, args.port, "--port")
     if not re.fullmatch(r"\d+x\d+", args.size.lower()):
         raise UsageError(f"--size {args.size}: give WxH in pixels, e.g. 320x240")
     sent = stream(values(CamstreamParams, args))

@@ -214,6 +214,14 @@ def check_with(prog: str, add_arguments, check, argv: list[str]) -> str | None:
     return None
 
 
+def usage(fn, *args):
+    """`fn(*args)`, its ValueError (a bad option's one-line reason) a UsageError: exit 2."""
+    try:
+        return fn(*args)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
 class _Version(argparse.Action):
     """--version: the package version and the code's git commit (looked up only when asked)."""
 

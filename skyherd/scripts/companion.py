@@ -17,7 +17,7 @@ from pathlib import Path
 
 from skyherd.mission.build import MissionChoice
 from skyherd.runio import JsonlWriter, RunFolder, args_dict, ports
-from skyherd.scripts.cli import UsageError, check_with
+from skyherd.scripts.cli import UsageError, check_with, usage
 from skyherd.scripts.options import add_options, opt
 
 
@@ -125,15 +125,9 @@ def check(args) -> str:
     the instance's default addresses in. Returns the autopilot's MAVLink address."""
     from skyherd.hil.link import link_address
 
-    try:
-        ports.check_instance(args.instance)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    usage(ports.check_instance, args.instance)
     address = args.connect or ports.companion_address(args.instance)
-    try:
-        link_address(address)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    usage(link_address, address)
     if args.zenoh_connect is None:
         args.zenoh_connect = ports.zenoh_address(args.instance)
     zenoh_endpoint(args.zenoh_connect)

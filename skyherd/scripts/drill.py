@@ -15,6 +15,7 @@ from skyherd.report import drill as report
 from skyherd.runio import UsageError, args_dict, ports
 from skyherd.runio.constants import MISSION_DRILL_INSTANCE, TARGET_BOUND
 from skyherd.runio.runfolder import RunFolder
+from skyherd.scripts.cli import usage
 from skyherd.scripts.options import add_options, opt
 
 
@@ -108,10 +109,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(
             f"--target-bound must be within (0, 1), e.g. 1e-3; got {args.target_bound:g}"
         )
-    try:
-        ports.check_instance(args.instance)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    usage(ports.check_instance, args.instance)
     if args.campaign:
         return _campaign(args)
     if args.duration is not None and not (5.0 <= args.duration <= 600.0):

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from skyherd.runio import args_dict, ports
 from skyherd.runio.run import Interrupted
-from skyherd.scripts.cli import UsageError
+from skyherd.scripts.cli import UsageError, usage
 from skyherd.scripts.fly_options import FLY_WORLD, check_signing, passed_on, signing_mode
 from skyherd.scripts.options import add_options, opt
 from skyherd.world.setup import SimSetup
@@ -102,10 +102,7 @@ def _check_own(args) -> None:
 
     from skyherd.flight.clock import default_speedup
 
-    try:
-        args.zenoh_port = ports.checked_zenoh_port(args.instance, args.zenoh_port)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    args.zenoh_port = usage(ports.checked_zenoh_port, args.instance, args.zenoh_port)
     args.speedup = default_speedup(args.speedup, args.free_run or args.connect is not None)
     if not (math.isfinite(args.timeout) and args.timeout > 0):
         raise UsageError(
@@ -145,10 +142,7 @@ def _validate(args) -> tuple[list[str], list[str]]:
     elif args.ugvs == FLOCK:
         raise UsageError(f"--ugvs {FLOCK} is the shepherding flock: fly it with --mission shepherd")
     if args.connect is not None:
-        try:
-            link_address(args.connect)
-        except ValueError as e:
-            raise UsageError(str(e)) from None
+        usage(link_address, args.connect)
     if args.connect is None and not (args.speedup == 0 or args.speedup >= 1):
         raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
     if args.free_run and args.speedup == 0:
@@ -166,18 +160,12 @@ def _validate(args) -> tuple[list[str], list[str]]:
     if args.policy is not None:
         from skyherd.mission.build import load_pilot_policy
 
-        try:
-            load_pilot_policy(args.policy)
-        except ValueError as e:
-            raise UsageError(str(e)) from None
+        usage(load_pilot_policy, args.policy)
     if args.pilot.startswith("drill:"):  # a named drill of the flight's envelope
         from skyherd.mission.build import drill_pilot
         from skyherd.safety.config import fly_envelope
 
-        try:
-            drill_pilot(args.pilot, fly_envelope(args.envelope, args.airframe))
-        except ValueError as e:  # safety.config.EnvelopeFileError too
-            raise UsageError(str(e)) from None
+        usage(drill_pilot, args.pilot, usage(fly_envelope, args.envelope, args.airframe))
     orbit = args.airframe == "fixedwing"  # the ground-air task, flown as an orbit
     altitude = args.altitude
     if altitude is None and args.mission == "groundair" and not orbit:
@@ -226,10 +214,7 @@ def _validate(args) -> tuple[list[str], list[str]]:
     if args.connect is not None:
         comp += ["--connect", args.connect]
         if args.mission == "groundair":
-            try:
-                follow = world_link(args.connect, args.world_link)
-            except ValueError as e:
-                raise UsageError(str(e)) from None
+            follow = usage(world_link, args.connect, args.world_link)
             sim += ["--follow", follow, "--follow-system", str(args.world_system)]
     comp += ["--zenoh-connect", f"tcp:{ports.LOOPBACK}:{args.zenoh_port}"]
     return sim, comp
@@ -352,10 +337,7 @@ def _envelope(args) -> tuple:
     """The safety net's constraint set: (its spec, config.json's record of it); UsageError."""
     from skyherd.safety.config import flight_envelope_record
 
-    try:
-        return flight_envelope_record(args.envelope, args.airframe)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    return usage(flight_envelope_record, args.envelope, args.airframe)
 
 
 SIM_STARTED = "skyherd sim: instance"  # the simulator's line once its world runs (world.serve)

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from skyherd.flight.clock import SPEEDUP_HELP
 from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
-from skyherd.runio.run import UsageError
+from skyherd.scripts.cli import usage
 from skyherd.scripts.options import opt
 
 AGENT_CHOICES = (1, 4, 9, 16)
@@ -94,10 +94,7 @@ def flight_signing(args):
 
 def check_signing(args) -> str | None:
     """The key file's absolute path (None: a per-run key, or unsigned); UsageError, one line."""
-    try:
-        return flight_signing(args).checked_key_file()
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    return usage(flight_signing(args).checked_key_file)
 
 
 def signing_mode(args) -> str:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from skyherd.report import reproduce as report
 from skyherd.runio.runfolder import RunFolder
-from skyherd.scripts.cli import UsageError, apply_quick, quick_help
+from skyherd.scripts.cli import UsageError, apply_quick, quick_help, usage
 from skyherd.scripts.options import add_options, opt
 
 STUDIES = ("sql",)
@@ -121,10 +121,7 @@ def _check(args):
         from skyherd.policy.sql.layout import formation
 
         for K in (*args.agents, *args.scaling_agents):
-            try:
-                formation(K)
-            except ValueError as e:
-                raise UsageError(str(e)) from None
+            usage(formation, K)
     if args.backend == "ray" or args.ray_address:
         from skyherd.policy.sql.sweep import ray_available
 

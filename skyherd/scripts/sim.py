@@ -18,7 +18,7 @@ from pathlib import Path
 
 from skyherd.runio import RunFolder, args_dict
 from skyherd.runio.process import parent_gone
-from skyherd.scripts.cli import UsageError, check_with
+from skyherd.scripts.cli import UsageError, check_with, usage
 from skyherd.scripts.fault_options import add_fault_arguments
 from skyherd.scripts.fly_options import WORLD
 from skyherd.scripts.options import add_options
@@ -61,10 +61,7 @@ def check_args(argv: list[str]) -> str | None:
 def check(args):
     """Every check of the arguments that needs nothing started (world.setup.SimSetup.checked;
     UsageError, one line); the instance's Zenoh port and the speed-up's default filled in."""
-    try:
-        setup = SimSetup.of(args).checked()
-    except ValueError as e:  # world.build.WorldError, a --param refused
-        raise UsageError(str(e)) from None
+    setup = usage(SimSetup.of(args).checked)  # world.build.WorldError, a --param refused
     args.zenoh_port, args.speedup = setup.zenoh_port, setup.speedup
     return setup
 

@@ -15,6 +15,7 @@ from skyherd.perception.transport import ZenohParams, open_session, viewer_param
 from skyherd.perception.watch import WatchParams
 from skyherd.runio import RunFolder, UsageError, ports
 from skyherd.runio.signals import CtrlC
+from skyherd.scripts.cli import usage
 from skyherd.scripts.options import add_options, opt, values
 
 
@@ -59,10 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check(args: argparse.Namespace) -> None:
-    try:
-        ports.check_instance(args.instance)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    usage(ports.check_instance, args.instance)
     if args.connect is not None and args.instance != 0:
         raise UsageError(f"--connect {args.connect} and --instance {args.instance} both say where "
                          "the frames come from: give one")  # fmt: skip
