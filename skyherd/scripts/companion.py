@@ -17,6 +17,7 @@ from pathlib import Path
 
 from skyherd.mission.build import MissionChoice
 from skyherd.runio import JsonlWriter, RunFolder, args_dict, ports
+from skyherd.runio.run import open_run_folder
 from skyherd.scripts.cli import UsageError, check_with, usage
 from skyherd.scripts.options import add_options, opt
 
@@ -212,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
 def _run_folder(args) -> tuple[Path, RunFolder | None]:
     """--run-dir (`skyherd fly`'s), or a run folder of its own (returned too)."""
     if args.run_dir is None:
-        folder = RunFolder("companion", root=args.runs_dir)
+        folder = open_run_folder("companion", args.runs_dir)  # UsageError: not writable
         return folder.path, folder
     if not Path(args.run_dir).is_dir():
         raise UsageError(f"--run-dir {args.run_dir} is not a folder")

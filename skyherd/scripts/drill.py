@@ -14,7 +14,7 @@ from pathlib import Path
 from skyherd.report import drill as report
 from skyherd.runio import UsageError, args_dict, ports
 from skyherd.runio.constants import MISSION_DRILL_INSTANCE, TARGET_BOUND
-from skyherd.runio.runfolder import RunFolder
+from skyherd.runio.run import open_run_folder
 from skyherd.scripts.cli import usage
 from skyherd.scripts.options import add_options, opt
 
@@ -139,7 +139,7 @@ def _drills(args: argparse.Namespace, plans) -> int:
 
     from skyherd.safety.drill_run import COLUMNS, fly_plans
 
-    run_dir = RunFolder("drill", root=args.runs_dir)
+    run_dir = open_run_folder("drill", args.runs_dir)
     plan_facts = [p.describe() for p in plans]
     run_dir.write_config({"args": args_dict(args), "seed": args.seed, "plans": plan_facts})
     events = run_dir.events()
@@ -183,7 +183,7 @@ def _campaign(args: argparse.Namespace) -> int:
     only = set(args.campaign_drills)
     if only:  # --drill: those drills of the campaign alone, as the whole campaign flies them
         jobs = [j for j in jobs if j.index in only]
-    run_dir = RunFolder("drill", root=args.runs_dir)
+    run_dir = open_run_folder("drill", args.runs_dir)
     run_dir.write_config({"args": args_dict(args),
                           "seed": args.seed, "campaign": args.campaign, "airframes": airframes,
                           "constraint_sets": {a: s.describe() for a, (s, _) in sets.items()},

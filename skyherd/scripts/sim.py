@@ -16,8 +16,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from skyherd.runio import RunFolder, args_dict
+from skyherd.runio import args_dict
 from skyherd.runio.process import parent_gone
+from skyherd.runio.run import open_run_folder
 from skyherd.scripts.cli import UsageError, check_with, usage
 from skyherd.scripts.fault_options import add_fault_arguments
 from skyherd.scripts.fly_options import WORLD
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         if not run_dir.is_dir():
             raise UsageError(f"--run-dir {run_dir} is not a folder")
     else:
-        folder = RunFolder("sim", root=args.runs_dir)
+        folder = open_run_folder("sim", args.runs_dir)  # UsageError: not writable, full
         folder.write_config({"args": args_dict(args), "world": setup.world_params()[0]})
         run_dir = folder.path
     try:

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         saved_params,
         saved_params_line,
     )
-    from skyherd.runio.runfolder import RunFolder
+    from skyherd.runio.run import open_run_folder
     from skyherd.scripts.fault_options import plan_from_args
 
     if not (args.speedup == 0 or args.speedup >= 1):
@@ -93,10 +93,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UsageError(f"--params: {e}") from e
 
-    try:
-        folder = RunFolder("sitl", root=args.runs_dir)
-    except OSError as e:  # a read-only or missing runs dir: say so, no traceback
-        raise UsageError(f"cannot create a run folder in {args.runs_dir}: {e.strerror or e}; choose another --runs-dir") from e  # fmt: skip
+    folder = open_run_folder("sitl", args.runs_dir)  # UsageError: not writable, full
     state_dir = args.state_dir if args.state_dir is not None else default_state_dir()
     config = EndpointConfig(
         instance=args.instance,
