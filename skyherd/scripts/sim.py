@@ -20,15 +20,12 @@ from skyherd.runio import args_dict
 from skyherd.runio.process import parent_gone
 from skyherd.runio.run import open_run_folder
 from skyherd.scripts.cli import UsageError, check_with, usage
-from skyherd.scripts.fault_options import add_fault_arguments
+from skyherd.scripts.fault_options import FAULTS, add_fault_arguments
 from skyherd.scripts.fly_options import WORLD
 from skyherd.scripts.options import add_options
 from skyherd.world.setup import SimSetup
 
 PARENT = os.getppid()  # the process that started this one (`skyherd fly`, a shell)
-
-
-FAULTS = ("wind", "gust", "noise", "fault")  # SimSetup's fault fields: scripts.fault_options
 
 
 @dataclass(frozen=True)

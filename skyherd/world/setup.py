@@ -58,10 +58,13 @@ class SimSetup:
     heard)"""
     param: tuple[str, ...] = ()
     """set a parameter of the built-in autopilot at start (repeatable), e.g. COM_OF_LOSS_T=3"""
-    wind: str | None = None  # the fault options (flight.faults.parse_fault_args)
-    gust: str | None = None
-    noise: str | None = None
+    # the fault options (flight.faults.parse_fault_args):
+    wind: str | None = None  # mean wind [m/s] from FROM degrees (270 = from the west); default calm
+    gust: str | None = None  # gust std [m/s] and correlation time [s, default 2]; default none
+    noise: str | None = None  # estimate noise std: position [m], velocity [m/s]; default none
     fault: tuple[str, ...] = ()
+    """timed fault, repeatable: gps_glitch@30:20,0,0:5, gps_drift@30:0.5,0,0:20, gps_loss@30:10,
+    baro@30:5:20, wind@40:16,90:10, battery@60:0.06, drain@10:300:60, disarm@25, rtl@25.02:0.05"""
     signing_key: str | None = None
     """MAVLink 2 signing key file (32 bytes): sign every frame, reject unsigned ones"""
     cut_link: tuple[str, ...] = ()
