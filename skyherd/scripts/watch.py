@@ -56,7 +56,12 @@ ORDER += ("ugvs", "timeout_s", "save_every", "strip", "no_show", "mcap", "foxglo
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_options(parser, (WatchOptions, WatchParams), only=ORDER, timeout_s=dict(flag="--timeout"))
+    add_options(
+        parser,
+        (WatchOptions, WatchParams),
+        only=ORDER,
+        timeout_s=dict(flag="--timeout", dest="timeout"),
+    )
 
 
 def _check(args: argparse.Namespace) -> None:
@@ -72,7 +77,7 @@ def _check(args: argparse.Namespace) -> None:
         raise UsageError("--ugvs must be >= 1")
     if args.save_every < 1 or args.strip < 0:
         raise UsageError("--save-every must be >= 1 and --strip >= 0")
-    if not args.timeout_s > 0:
+    if not args.timeout > 0:
         raise UsageError("--timeout must be > 0 seconds")
     if args.foxglove is not None and not 0 < args.foxglove < 65536:
         raise UsageError("--foxglove PORT must be 1..65535")
@@ -147,14 +152,12 @@ def _watch(args, zp: ZenohParams, session, ctrl_c: CtrlC, key: bytes | None) -> 
         w.record(run, args.mcap, live)
         run.at_end(finish, "summary")
         bar = run.closing(tqdm(total=args.frames, desc="watch", unit="frame", disable=None))
-        p = values(WatchParams, args, show=not args.no_show)
+        p = values(WatchParams, args, timeout_s=args.timeout, show=not args.no_show)
         seen = w.watch(run, p, lambda: ctrl_c.requested, bar.update)
         ctrl_c.check()  # outside every lock: the run folder ends as interrupted
         if seen.processed == 0:
             refused = w.sub.stats.refused
-            run.fail(
-                no_frame(args.vehicle, args.timeout_s, refused, args.signing_key, args.connect)
-            )
+            run.fail(no_frame(args.vehicle, args.timeout, refused, args.signing_key, args.connect))
     if run.outcome == "failed":
         print(f"skyherd watch: {run.reason}")
         return 1
