@@ -88,3 +88,12 @@ def make_autopilot(
     return cls(
         clock=clock, home=home, instance=instance, seed=seed, faults=faults, params=overrides
     )
+
+
+def warm_up(airframe: str) -> None:
+    """numba's kernels of `airframe`'s physics and autopilot compiled (a fresh installation:
+    about 3.5 CPU s for the quadrotor) or loaded from their cache: one step of a throwaway
+    autopilot. `skyherd sim` does it before its vehicle answers anyone, so that the compilation
+    does not fall inside a lockstep tick, where the companion's wall-clock patience runs (a
+    user's first flight under load aborted: "no tick mark from the vehicle for 60 s")."""
+    make_autopilot(airframe).step()

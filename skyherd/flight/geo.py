@@ -16,6 +16,15 @@ WGS84_E2 = WGS84_F * (2.0 - WGS84_F)  # first eccentricity squared [-]
 GRAVITY = 9.80665  # standard gravity [m/s^2]
 
 
+HOME_ALT_RANGE_M = (-500.0, 9000.0)  # a home's altitude AMSL a vehicle can be at [m]
+
+
+def home_in_range(lat_deg: float, lon_deg: float, alt_m: float) -> bool:
+    """A home's latitude, longitude [deg] and altitude AMSL [m] in range (NaN is not)."""
+    lo, hi = HOME_ALT_RANGE_M
+    return -90 <= lat_deg <= 90 and -180 <= lon_deg <= 180 and lo <= alt_m <= hi
+
+
 @dataclass(frozen=True)
 class Home:
     """Home position: latitude, longitude [deg], altitude AMSL [m], heading [rad]."""
@@ -32,7 +41,7 @@ class Home:
         if len(parts) != 3:
             raise ValueError(f"home must be LAT,LON,ALT, got {text!r}")
         lat, lon, alt = (float(p) for p in parts)
-        if not (-90 <= lat <= 90 and -180 <= lon <= 180 and math.isfinite(alt)):
+        if not home_in_range(lat, lon, alt):
             raise ValueError(f"home out of range: {text!r}")
         return Home(lat, lon, alt)
 

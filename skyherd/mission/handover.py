@@ -29,6 +29,7 @@ from skyherd.flight.autopilot_api import FlightMode, Setpoint
 from skyherd.mission.steps import MissionError, recipe
 from skyherd.mission.vehicle import VehicleLink
 from skyherd.runio.run import Interrupted
+from skyherd.runio.signals import say_ready
 
 PATIENCE_S = 3.0  # wall time to wait for a tick mark while handing over [s]
 LEFT_ALONE = (FlightMode.LAND, FlightMode.RTL)  # the autopilot lands or returns by itself
@@ -76,6 +77,7 @@ def stop_on_signals(stop: StopRequest):
     stop.waiting = True  # until the loop takes over (mission.companion): nothing flies yet
     old = {sig: signal.signal(sig, on_signal) for sig in SIGNALS}
     signal.signal(PARENT_DIED, on_signal)
+    say_ready()  # `skyherd fly` may send its SIGINT now (runio.launch)
     try:
         yield stop
     finally:

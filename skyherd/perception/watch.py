@@ -22,8 +22,9 @@ from skyherd.perception.sheet import label, legend
 from skyherd.perception.transport import Frame, FrameSubscriber
 from skyherd.runio import atomic_write_bytes
 
-COLUMNS = ["seq", "t_sim", "count", "all_in_view", "com_u_px", "com_v_px", "radius_px",
-           "latency_ms", *FEATURE_NAMES]  # fmt: skip
+COLUMNS = ["seq", "t_sim", "count", "com_u_px", "com_v_px", "radius_px", "latency_ms",
+           *FEATURE_NAMES]  # fmt: skip
+"""metrics.csv: the frame, its detections, then φ(s) (its all_in_view is the detection's)."""
 
 
 @dataclass(frozen=True)
@@ -129,8 +130,7 @@ def _process(fr: Frame, det_: Detector, metrics) -> tuple[Detections, np.ndarray
     img = annotate(fr.image, det, scale=2)
     com = det.measure.com_px if det.measure.com_px is not None else (np.nan, np.nan)
     metrics.write({
-        "seq": fr.seq, "t_sim": fr.t_sim, "count": det.count,
-        "all_in_view": int(det.all_in_view), "com_u_px": float(com[0]),
+        "seq": fr.seq, "t_sim": fr.t_sim, "count": det.count, "com_u_px": float(com[0]),
         "com_v_px": float(com[1]), "radius_px": det.measure.radius_px,
         "latency_ms": 1e3 * fr.latency_s, **dict(zip(FEATURE_NAMES, phi.tolist())),
     })  # fmt: skip

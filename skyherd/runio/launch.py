@@ -13,6 +13,13 @@ children in one order:
    passed (the autopilot's offboard-loss failsafe gets its simulation time), reports what the
    autopilot did in sim_stats.json and exits; SIGINT after `WIND_DOWN_S`, then SIGKILL.
 
+A child gets SIGINT once its own handlers are in place: interrupted while its interpreter
+starts it dies with "Fatal Python error: init_import_site" and a traceback on the terminal (seen
+with a Ctrl-C 0.6 s into a flight); while numba loads a cached kernel the KeyboardInterrupt is
+lost inside a ctypes callback and the flight flies on. Each child says on a pipe when its
+handlers are in place (runio.signals.say_ready: the companion's mission.handover, the
+simulator's world.serve) and `stop` waits for that, `READY_WAIT_S` at most.
+
 A second signal to `fly` while this runs skips to stopping the simulators at once. Children
 run in their own process group (a terminal's Ctrl-C reaches `fly` alone, which orders the
 rest) and die with their parent: their parent-death signal is SIGUSR1 (the companion: hand
@@ -25,6 +32,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -34,12 +42,14 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+from skyherd.runio.constants import READY_FD_ENV
 from skyherd.runio.signals import KeptSignals
 from skyherd.runio.space import Appender
 
 KEEP_LINES = 200  # a child's last output lines kept in memory (its log may be cut)
 COMPANION_GRACE_S = 30.0  # wall time for the companion's hand-over before SIGKILL [s]
 WIND_DOWN_S = 120.0  # wall time for a simulator's span alone with the autopilot before SIGINT [s]
+READY_WAIT_S = 10.0  # wall time a child may take to put its signal handlers in place [s]
 CHILD_POLL_S = 0.02  # a child's end is seen within this [wall s] (it ends the flight)
 PARENT_DEATH = signal.SIGUSR1  # every child's parent-death signal (module docstring)
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -52,6 +62,19 @@ class Child:
     log: Path | None
     lines: deque | None = None  # its last output lines, kept in memory (`relay`)
     relay: threading.Thread | None = None
+    ready_fd: int | None = None  # the pipe it says "I take signals" on (None: read, or none)
+    ready: bool = False  # it has said so
+
+    def wait_ready(self, wall_s: float) -> bool:
+        """Wait up to `wall_s` until the child takes signals (its byte on the pipe, or the
+        pipe closed: it ended, or never says it); True once it has said so."""
+        if self.ready_fd is None:
+            return self.ready
+        if select.select([self.ready_fd], [], [], wall_s)[0]:
+            self.ready = os.read(self.ready_fd, 1) == b"1"
+            os.close(self.ready_fd)
+            self.ready_fd = None
+        return self.ready
 
     def go(self) -> None:
         """Let a child started with `wait_go` begin (one line on its standard input)."""
@@ -105,20 +128,29 @@ def die_with_parent(sig: int):
 
 
 def start(name: str, argv: list[str], log: Path | None, wait_go: bool = False,
-          parent_death: int | None = None) -> Child:  # fmt: skip
+          parent_death: int | None = None, says_ready: bool = False) -> Child:  # fmt: skip
     """Start a child; its stdout and stderr go to `log` through this process (a pipe and a
     relay thread; the last lines kept in memory), or with `log` None are inherited (a
     progress bar).
     `wait_go`: its standard input is a pipe that `go()` writes to (`skyherd companion
     --wait-go`), otherwise empty. `parent_death`: the signal it gets if this process dies.
-    It runs in its own process group: a terminal's Ctrl-C reaches only this process."""
+    `says_ready`: `skyherd sim` or `skyherd companion`, which say on a pipe when they take
+    signals (module docstring). It runs in its own process group: a terminal's Ctrl-C reaches only this process."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     pre = die_with_parent(parent_death) if parent_death is not None else None
     piped = subprocess.PIPE if log is not None else None
-    proc = subprocess.Popen(argv, stdout=piped, stderr=subprocess.STDOUT if piped else None,
-                            stdin=subprocess.PIPE if wait_go else subprocess.DEVNULL, env=env,
-                            process_group=0, preexec_fn=pre)  # fmt: skip
-    child = Child(name, proc, log)
+    ready_r, ready_w = os.pipe() if says_ready else (None, None)
+    if says_ready:
+        env[READY_FD_ENV] = str(ready_w)
+    try:
+        proc = subprocess.Popen(argv, stdout=piped, stderr=subprocess.STDOUT if piped else None,
+                                stdin=subprocess.PIPE if wait_go else subprocess.DEVNULL, env=env,
+                                process_group=0, preexec_fn=pre,
+                                pass_fds=(ready_w,) if says_ready else ())  # fmt: skip
+    finally:
+        if says_ready:
+            os.close(ready_w)
+    child = Child(name, proc, log, ready_fd=ready_r)
     if log is not None:  # through this process: kept in memory when the folder fails
         child.lines = deque(maxlen=KEEP_LINES)
         child.relay = threading.Thread(target=relay, args=(proc.stdout, log, child.lines),
@@ -134,11 +166,13 @@ def stop(child: Child, grace_s: float = 10.0) -> int:
 
 def signal_and_wait(children: list[Child], sig: int, wall_s: float) -> list[Child]:
     """`sig` to every child still running at once, then wait up to `wall_s` for them all;
-    returns those still running."""
+    returns those still running. SIGINT goes to a child once it takes signals (`wait_ready`)."""
+    deadline = time.monotonic() + wall_s
     for c in children:
+        if sig == signal.SIGINT:  # (one that has ended: its pipe is closed, no wait)
+            c.wait_ready(min(READY_WAIT_S, max(0.0, deadline - time.monotonic())))
         if c.proc.poll() is None:
             c.proc.send_signal(sig)
-    deadline = time.monotonic() + wall_s
     late = []
     for c in children:
         try:
@@ -200,13 +234,13 @@ class Launch:
         self.signals = KeptSignals() if signals is None else signals
 
     def start_sim(self, name: str, argv: list[str], log: Path | None) -> Child:
-        child = start(name, argv, log, parent_death=PARENT_DEATH)
+        child = start(name, argv, log, parent_death=PARENT_DEATH, says_ready=True)
         self.sims.append(child)
         return child
 
     def start_companion(self, argv: list[str], log: Path | None = None,
                         wait_go: bool = False) -> Child:  # fmt: skip
-        self.companion = start("companion", argv, log, wait_go, PARENT_DEATH)
+        self.companion = start("companion", argv, log, wait_go, PARENT_DEATH, says_ready=True)
         return self.companion
 
     def __enter__(self) -> Launch:

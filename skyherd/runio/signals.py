@@ -5,8 +5,10 @@ land: `KeptSignals` (`skyherd fly` while it makes its run folder and starts its 
 
 from __future__ import annotations
 
+import os
 import signal
 
+from skyherd.runio.constants import READY_FD_ENV
 from skyherd.runio.run import Interrupted
 
 INTERRUPTS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # the ways a user ends `fly`
@@ -95,3 +97,22 @@ class CtrlC:
     def check(self) -> None:
         if self.requested:
             raise KeyboardInterrupt
+
+
+def say_ready() -> None:
+    """Tell `skyherd fly` (runio.launch) that this child's own signal handlers are in place, so
+    its SIGINT can come now: one byte on the pipe it named. Before that a SIGINT could land in
+    the interpreter's start-up (a fatal error and a traceback) or inside a ctypes callback while
+    numba loads a cached kernel (a KeyboardInterrupt printed as "Exception ignored" and lost:
+    the flight flew on). The name is not passed on to this process's own children."""
+    fd = os.environ.pop(READY_FD_ENV, None)
+    if fd is None:
+        return
+    try:
+        os.write(int(fd), b"1")
+        os.close(int(fd))
+    except (
+        OSError,
+        ValueError,
+    ):  # not a pipe of fly's (a variable left in a shell): nothing to say
+        pass

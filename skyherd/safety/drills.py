@@ -23,7 +23,7 @@ import numpy as np
 from skyherd.flight.autopilot_api import Autopilot, FlightMode, Setpoint
 from skyherd.flight.geo import GRAVITY
 from skyherd.flight.state import VehicleState
-from skyherd.safety.envelope import EnvelopeSpec
+from skyherd.safety.envelope import Dynamics, EnvelopeSpec
 from skyherd.safety.judge import (
     Check,
     Ending,
@@ -52,7 +52,7 @@ START_CLEARANCE_M = 12.0  # a random drill starts at least this far inside its b
 class DrillParams:
     """Harness settings (saved with each run)."""
 
-    policy_dt_s: float = 0.02  # AI + supervisor period [s] (the envelope's dt)
+    policy_dt_s: float = Dynamics.dt_s  # AI + supervisor period [s]: the envelope's control period
     takeoff_alt_m: float = 20.0
     duration_s: float = 35.0  # AI time per multirotor drill after hand-over [s]
     duration_fixedwing_s: float = 90.0  # a fixed-wing needs longer: loiter, turn back, recover [s]

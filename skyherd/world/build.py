@@ -8,6 +8,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from skyherd.flight.geo import home_in_range
+
 FOLLOW_CONNECT_WAIT_S = 60.0  # ArduPilot SITL opens SERIAL1 only once the companion is on SERIAL0
 FOLLOW_SYSTEM, FOLLOW_COMPONENT = 255, 190  # the world's own ids on the followed vehicle's link
 
@@ -26,7 +28,7 @@ def parse_home(text: str | None) -> tuple[float, float, float] | None:
         raise WorldError(
             f"--home {text!r}: expected LAT,LON,ALT, e.g. 47.397742,8.545594,488"
         ) from None
-    if not (-90 <= lat <= 90 and -180 <= lon <= 180 and -500 <= alt <= 9000):
+    if not home_in_range(lat, lon, alt):
         raise WorldError(f"--home {text!r}: latitude, longitude or altitude out of range")
     return lat, lon, alt
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from skyherd.flight.geo import home_in_range
 from skyherd.runio import atomic_write_text
 
 if TYPE_CHECKING:  # the simulator itself only where worlds are opened
@@ -34,14 +35,6 @@ class FleetVehicle:
     instance: int
     seed: int
     home: tuple[float, float, float]  # lat [deg], lon [deg], alt AMSL [m]
-
-
-def _home_ok(home: tuple[float, ...]) -> bool:
-    """The range checks of `--home`."""
-    if len(home) != 3 or not all(math.isfinite(x) for x in home):
-        return False
-    lat, lon, alt = home
-    return -90 <= lat <= 90 and -180 <= lon <= 180 and -500 <= alt <= 9000
 
 
 def write_fleet(path: Path, fleet: list[FleetVehicle]) -> None:
@@ -70,7 +63,7 @@ def read_fleet(path: Path) -> list[FleetVehicle]:
             ok = False
         if not ok:
             raise ValueError(f"--fleet {path}: vehicle {i} is not {ENTRY}")
-        if not _home_ok(v.home):
+        if len(v.home) != 3 or not home_in_range(*v.home):
             raise ValueError(
                 f"--fleet {path}: vehicle {i}: latitude, longitude or altitude out of range"
             )

@@ -12,6 +12,7 @@ import signal
 from collections.abc import Callable
 
 from skyherd.runio.process import parent_gone
+from skyherd.runio.signals import say_ready
 from skyherd.world.build import NoSession, WorldError, open_world, open_zenoh
 
 COMPANION_GONE = "SIGUSR1: the companion is gone (it exited)"
@@ -39,6 +40,7 @@ def watch_signals(worlds: list, parent_pid: int) -> None:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: [w.stop() for w in worlds])
     signal.signal(signal.SIGUSR1, lambda *_: companion_signal(worlds, parent_gone(parent_pid)))
+    say_ready()  # `skyherd fly` may send its SIGINT now (runio.launch)
 
 
 def serve(setup, run_dir, say: Callable[[str], None], parent_pid: int) -> int:
@@ -66,6 +68,10 @@ def open_worlds(setup, run_dir) -> tuple[list, object, list | None]:
     (world.fleet), or the one vehicle's (world.build.open_world) with its autopilot's
     parameters set. WorldError; the session is closed then."""
     params, endpoint = setup.world_params()
+    if setup.builtin:  # its kernels before the companion waits on this vehicle
+        from skyherd.flight.airframes_registry import warm_up
+
+        warm_up(params.airframe)
     if setup.fleet:
         from skyherd.world.fleet import open_fleet
 

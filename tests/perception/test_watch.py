@@ -50,6 +50,8 @@ def test_the_loop_detects_each_frame_writes_its_row_and_every_kth_png(tmp_path):
     metrics.close()
     session.close()
     assert seen.processed == 3 and seen.counts == [3, 3, 3] and all(seen.all_in)
+    header = (tmp_path / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert len(header) == len(set(header)) and "all_in_view" in header  # each column once
     rows = list(csv.DictReader(open(tmp_path / "metrics.csv")))
     assert [int(r["seq"]) for r in rows] == [0, 1, 2]
     assert [float(r["t_sim"]) for r in rows] == [0.0, 0.1, 0.2]
