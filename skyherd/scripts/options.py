@@ -65,11 +65,14 @@ def add_options(
     only: tuple[str, ...] | None = None,
     **given: dict,
 ) -> None:
-    """One option of `parser` per field of the dataclass `cls` (or of each of several, in turn)
-    but those in `skip`, or those named in `only`, in its order (see the module's docstring);
-    `given[name]`: more keywords for that field's option, as `opt`'s."""
+    """One option of `parser` per field of the dataclass `cls` (or of each of several, in turn;
+    a name two have is the first's) but those in `skip`, or those named in `only`, in its order
+    (see the module's docstring); `given[name]`: more keywords for that option, as `opt`'s."""
     classes = cls if isinstance(cls, tuple) else (cls,)
-    fields = {f.name: (f, c) for c in classes for f in dataclasses.fields(c)}
+    fields: dict[str, tuple] = {}
+    for c in classes:
+        for f in dataclasses.fields(c):
+            fields.setdefault(f.name, (f, c))
     helps = {c: field_docs(c) for c in classes}
     hints = {c: typing.get_type_hints(c) for c in classes}
     for name in only if only is not None else fields:
