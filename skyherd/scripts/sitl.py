@@ -11,7 +11,8 @@ from pathlib import Path
 
 from skyherd.flight.geo import DEFAULT_HOME, Home
 from skyherd.flight.sitl_vehicle import default_state_dir
-from skyherd.runio import UsageError
+from skyherd.runio import UsageError, ports
+from skyherd.scripts.cli import usage
 from skyherd.scripts.options import add_options, opt
 
 
@@ -56,7 +57,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from skyherd.flight.airframes_registry import AirframeUnavailable, make_autopilot
     from skyherd.flight.clock import SimClock
-    from skyherd.flight.faults import FaultSpecError
     from skyherd.flight.mavlink import EndpointConfig, Personality
     from skyherd.flight.sitl import Sitl
     from skyherd.flight.sitl_vehicle import (
@@ -71,18 +71,14 @@ def run(args: argparse.Namespace) -> int:
 
     if not (args.speedup == 0 or args.speedup >= 1):
         raise UsageError(f"--speedup must be 0 (as fast as possible) or >= 1, got {args.speedup}")
-    if not 0 <= args.instance <= 200:
-        raise UsageError(f"--instance must be in [0, 200], got {args.instance}")
+    usage(ports.check_instance, args.instance)  # one wording for every command
     if args.duration is not None and not args.duration > 0:
         raise UsageError("--duration must be a positive number of simulated seconds")
     try:
         home = Home.parse(args.home)
     except ValueError as e:
         raise UsageError(f"--home: {e}; give LAT,LON,ALT like -35.36,149.16,584") from e
-    try:
-        plan = plan_from_args(args, seed=args.seed)
-    except FaultSpecError as e:
-        raise UsageError(str(e)) from e
+    plan = usage(plan_from_args, args, args.seed)  # flight.faults.FaultSpecError
     try:
         ap = make_autopilot(
             args.airframe, clock=SimClock(), home=home, seed=args.seed, instance=args.instance,
