@@ -18,6 +18,7 @@ free-running on the autopilot's clock.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 import sys
 from dataclasses import dataclass
@@ -26,7 +27,14 @@ from pathlib import Path
 from skyherd.runio import args_dict, ports
 from skyherd.runio.run import Interrupted
 from skyherd.scripts.cli import UsageError, usage
-from skyherd.scripts.fly_options import FLY_WORLD, check_signing, passed_on, signing_mode
+from skyherd.scripts.fault_options import FAULTS
+from skyherd.scripts.fly_options import (
+    FLY_WORLD,
+    check_child,
+    check_signing,
+    child_argv,
+    signing_mode,
+)
 from skyherd.scripts.options import add_options, opt
 from skyherd.world.setup import SimSetup
 
@@ -110,25 +118,13 @@ def _check_own(args) -> None:
         )
 
 
-def check_children(args, sim_args: list[str], comp_args: list[str]) -> None:
-    """Each child's own parser and checks on the arguments fly passes it (scripts.sim and
-    scripts.companion `check_args`), before anything starts or is written: UsageError with the
-    child's one-line reason."""
-    from skyherd.scripts import companion, sim
-
-    if args.connect is None or args.mission == "groundair":  # the simulator starts
-        why = sim.check_args(sim_args)
-        if why:
-            raise UsageError(why)
-    why = companion.check_args(comp_args)
-    if why:
-        raise UsageError(why)
-
-
 def _validate(args) -> tuple[list[str], list[str]]:
-    """The children's argument lists; UsageError before anything starts or is written."""
-    from skyherd.hil.link import link_address, world_link
-    from skyherd.task.scenarios import FLOCK, TEAMS
+    """The children's argument lists, each checked by the child's own parser and checks
+    (fly_options.check_child); UsageError before anything starts or is written. fly checks
+    only what no child can know: the missions' combinations, the team, the pilot's files, the
+    wind against the constraint set, --orbit-duration."""
+    from skyherd.hil.link import world_link
+    from skyherd.task.scenarios import FLOCK
 
     if args.mission == "shepherd":
         if args.connect is not None or args.airframe != "quadrotor":
@@ -141,20 +137,19 @@ def _validate(args) -> tuple[list[str], list[str]]:
             raise UsageError(f"--mission shepherd herds --ugvs {FLOCK}, not {args.ugvs!r}")
     elif args.ugvs == FLOCK:
         raise UsageError(f"--ugvs {FLOCK} is the shepherding flock: fly it with --mission shepherd")
-    if args.connect is not None:
-        usage(link_address, args.connect)
-    if args.connect is None and not (args.speedup == 0 or args.speedup >= 1):
-        raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
-    if args.free_run and args.speedup == 0:
-        raise UsageError("--free-run needs a pacer: give --speedup >= 1")
-    if args.ugvs not in TEAMS:
-        raise UsageError(f"--ugvs {args.ugvs!r} is not a team: use one of " + ", ".join(TEAMS))
-    if not 0 < args.duration <= 36000:
-        raise UsageError("--duration must be in (0, 36000] s")
-    if args.mission == "square":
-        alt = 20.0 if args.altitude is None else args.altitude
-        if not (0 < alt <= 120 and 0 < args.side <= 500):
-            raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
+    if args.ugvs == "none":  # `skyherd sim`'s vehicle alone: no team, no camera
+        raise UsageError("--ugvs none: a mission flies over a team; give --ugvs SCENARIO")
+    orbit = args.airframe == "fixedwing"  # the ground-air task, flown as an orbit
+    sim = {d: getattr(args, d) for d in TO_SIM} | {"signing_key": check_signing(args)}
+    sim["free_run"] = args.free_run or args.connect is not None
+    if orbit:
+        sim["ugvs"] = args.orbit_scenario
+    if args.connect is not None and args.mission == "groundair":
+        sim["follow"] = usage(world_link, args.connect, args.world_link)
+        sim["follow_system"] = args.world_system
+    sim_args = child_argv("sim", **sim)
+    if args.connect is None or args.mission == "groundair":  # before the team is built below
+        check_child("sim", sim_args)
     if args.mission in ("groundair", "shepherd") and args.connect is None:
         _refuse_wind_above_limit(args)
     if args.policy is not None:
@@ -166,58 +161,43 @@ def _validate(args) -> tuple[list[str], list[str]]:
         from skyherd.safety.config import fly_envelope
 
         usage(drill_pilot, args.pilot, usage(fly_envelope, args.envelope, args.airframe))
-    orbit = args.airframe == "fixedwing"  # the ground-air task, flown as an orbit
-    altitude = args.altitude
-    if altitude is None and args.mission == "groundair" and not orbit:
+    if args.lost_ugv_search and (
+        args.mission != "groundair" or orbit or args.pilot.startswith("drill:")
+    ):
+        raise UsageError(
+            "--lost-ugv-search is for the ground-air mission's policy or pid pilot (quadrotor)"
+        )
+    comp = dict(mission=args.mission, duration=args.duration, altitude=args.altitude)
+    if orbit:
+        comp["duration"] = args.orbit_duration if args.orbit_duration is not None else 90.0
+        if not 0 < comp["duration"] <= 3600:  # the companion's --duration is not this flag
+            raise UsageError("--orbit-duration must be in (0, 3600] s")
+        comp |= dict(mission="orbit", orbit_team=args.orbit_scenario, orbit_seed=args.seed)
+        comp |= dict(orbit_no_land=args.orbit_no_land)
+    elif args.altitude is None and args.mission == "groundair":
         from skyherd.task.params import TaskParams
         from skyherd.world.team import new_team, start_altitude
 
         task = TaskParams()
-        altitude = start_altitude(task, new_team(args.ugvs, args.seed, task.n_ugvs))
-    comp = ["--mission", args.mission, "--pilot", args.pilot, "--duration", repr(args.duration),
-            "--side", repr(args.side), "--instance", str(args.instance)]  # fmt: skip
-    comp += ["--altitude", repr(altitude)] if altitude is not None else []
-    comp += ["--shepherd-selector", args.shepherd_selector] if args.mission == "shepherd" else []
-    if args.lost_ugv_search:
-        if args.mission != "groundair" or orbit or args.pilot.startswith("drill:"):
-            raise UsageError(
-                "--lost-ugv-search is for the ground-air mission's policy or pid pilot (quadrotor)"
-            )
-        comp += ["--lost-ugv-search"]
-    comp += ["--policy", str(Path(args.policy).resolve())] if args.policy else []
-    comp += ["--envelope", str(Path(args.envelope).resolve())] if args.envelope else []
-    comp += ["--configure-autopilot"] if args.configure_autopilot else []
-    comp += ["--setup-signing"] if args.setup_signing else []
-    if args.mission == "square" or args.no_camera:
-        comp += ["--no-camera"]
-    sim = ["--instance", str(args.instance), "--seed", str(args.seed), "--ugvs", args.ugvs,
-           "--speedup", repr(args.speedup), "--latency", repr(args.latency),
-           "--zenoh-port", str(args.zenoh_port)]  # fmt: skip
-    if orbit:
-        duration = args.orbit_duration if args.orbit_duration is not None else 90.0
-        if not 0 < duration <= 3600:
-            raise UsageError("--orbit-duration must be in (0, 3600] s")
-        comp[1] = "orbit"
-        comp[comp.index("--duration") + 1] = repr(duration)
-        comp += ["--orbit-team", args.orbit_scenario, "--orbit-seed", str(args.seed)]
-        comp += ["--orbit-no-land"] if args.orbit_no_land else []
-        sim[sim.index("--ugvs") + 1] = args.orbit_scenario
-        sim += ["--airframe", "fixedwing"]
-    key = check_signing(args)
-    if key is not None:
-        sim += ["--signing-key", key]
-        comp += ["--signing-key", key]
-    sim += passed_on(args)  # --param, the cuts and the faults, as given
-    if args.free_run or args.connect is not None:
-        sim += ["--free-run"]
-        comp += ["--free-run"]
-    if args.connect is not None:
-        comp += ["--connect", args.connect]
-        if args.mission == "groundair":
-            follow = usage(world_link, args.connect, args.world_link)
-            sim += ["--follow", follow, "--follow-system", str(args.world_system)]
-    comp += ["--zenoh-connect", f"tcp:{ports.LOOPBACK}:{args.zenoh_port}"]
-    return sim, comp
+        comp["altitude"] = start_altitude(task, new_team(args.ugvs, args.seed, task.n_ugvs))
+    comp |= {d: getattr(args, d) for d in TO_COMPANION} | {
+        "shepherd_selector": args.shepherd_selector if args.mission == "shepherd" else None,
+        "policy": args.policy and str(Path(args.policy).resolve()),
+        "envelope": args.envelope and str(Path(args.envelope).resolve()),
+        "no_camera": args.mission == "square" or args.no_camera,
+        "zenoh_connect": f"tcp:{ports.LOOPBACK}:{args.zenoh_port}",
+        "free_run": sim["free_run"],
+        "signing_key": sim["signing_key"],
+    }
+    comp_args = child_argv("companion", **comp)
+    check_child("companion", comp_args)
+    return sim_args, comp_args
+
+
+TO_SIM = tuple(f.name for f in dataclasses.fields(SimSetup) if f.name in OWN + FAULTS)
+"""fly's options `skyherd sim` takes as they are given (its world.setup.SimSetup fields)."""
+TO_COMPANION = ("pilot", "side", "instance", "connect", "lost_ugv_search", "configure_autopilot")
+TO_COMPANION += ("setup_signing",)  # ... and the companion's
 
 
 def _refuse_wind_above_limit(args) -> None:
@@ -240,8 +220,7 @@ def run_two_processes(args: argparse.Namespace) -> int:
     # a signal from here on is kept, never raised half-way through making the folder or
     # starting a child, and acted on at the next safe point (signals.KeptSignals)
     with signals.KeptSignals() as kept:
-        sim_args, comp_args = _validate(args)
-        check_children(args, sim_args, comp_args)
+        sim_args, comp_args = _validate(args)  # the children's own checks too
         envelope = _envelope(args) if args.mission in ("groundair", "shepherd") else None
         if kept.signum is not None:  # nothing made, nothing started
             rc, why = signals.interrupted(Interrupted(kept.signum))

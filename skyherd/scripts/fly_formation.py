@@ -40,8 +40,6 @@ def _params(args) -> FormationParams:
 def _check(args) -> None:
     if getattr(args, "connect", None) is not None:
         raise UsageError("--mission formation flies the built-in vehicles only; drop --connect")
-    if not (args.speedup == 0 or args.speedup >= 1):
-        raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
     if args.sql_seed < 0:
         raise UsageError("--sql-seed must be >= 0")
     if not 0 <= args.sims <= args.agents:
@@ -149,16 +147,14 @@ def run_formation(args: argparse.Namespace) -> int:
 
 
 def _check_children(args) -> None:
-    """The children's own checks on the options passed on to them (scripts.sim and
-    scripts.companion `check_args`; the fleet and plan files are made later): UsageError."""
-    from skyherd.scripts import companion, sim
+    """The children's own checks on the options passed on to them (fly_options.check_child;
+    the fleet and plan files are made later): UsageError."""
+    from skyherd.scripts.fly_options import check_child
 
-    why = sim.check_args(["--ugvs", "none", "--speedup", repr(args.speedup), "--latency",
-                          repr(args.latency), "--instance", str(args.instance)])  # fmt: skip
-    why = why or companion.check_args(["--mission", "formation", "--plan", "plan.json",
-                                       "--cell-m", repr(args.cell_m), "--instance", str(args.instance)])  # fmt: skip
-    if why:
-        raise UsageError(why)
+    check_child("sim", ["--ugvs", "none", "--speedup", repr(args.speedup), "--latency",
+                        repr(args.latency), "--instance", str(args.instance)])  # fmt: skip
+    check_child("companion", ["--mission", "formation", "--plan", "plan.json", "--cell-m",
+                              repr(args.cell_m), "--instance", str(args.instance)])  # fmt: skip
 
 
 def _ports_free(instances: list[int]) -> None:

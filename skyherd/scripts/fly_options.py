@@ -5,12 +5,13 @@ its line."""
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 
 from skyherd.flight.clock import SPEEDUP_HELP
 from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
-from skyherd.scripts.cli import usage
+from skyherd.scripts.cli import COMMANDS, CheckParser, UsageError, usage
 from skyherd.scripts.options import opt
 
 AGENT_CHOICES = (1, 4, 9, 16)
@@ -68,19 +69,30 @@ FLY_WORLD = {
 """... and where `skyherd fly` says it otherwise."""
 
 
-PASSED_TO_SIM = ("param", "cut_link", "cut_camera", "wind", "gust", "noise", "fault")
-"""The options `skyherd fly` hands its simulator as they were given, in this order."""
-
-
-def passed_on(args, dests: tuple[str, ...] = PASSED_TO_SIM) -> list[str]:
-    """The options `dests` as a child's argument list: a repeatable one once per item, one
-    with a value when it has one."""
+def child_argv(command: str, **values) -> list[str]:
+    """`values` (attribute → value) as `skyherd <command>`'s argument list, each with that
+    command's own flag: a flag alone for True, once per item for a list, nothing for None,
+    False or an empty list."""
+    parser = CheckParser()
+    importlib.import_module(COMMANDS[command][0]).add_arguments(parser)
+    flags = {a.dest: a.option_strings[0] for a in parser._actions if a.option_strings}
     out: list[str] = []
-    for dest in dests:
-        value = getattr(args, dest)
-        for item in value if isinstance(value, list) else [value] if value else []:
-            out += [f"--{dest.replace('_', '-')}", item]
+    for dest, value in values.items():
+        for item in value if isinstance(value, list | tuple) else [value]:
+            if item is True:
+                out.append(flags[dest])
+            elif item is not None and item is not False:
+                out += [flags[dest], str(item)]
     return out
+
+
+def check_child(command: str, argv: list[str]) -> None:
+    """`skyherd <command>`'s own parser and checks on the arguments `skyherd fly` passes it
+    (scripts.sim and scripts.companion `check_args`), starting nothing and before fly writes
+    anything: UsageError with the child's one-line reason."""
+    why = importlib.import_module(COMMANDS[command][0]).check_args(argv)
+    if why:
+        raise UsageError(why)
 
 
 def flight_signing(args):
