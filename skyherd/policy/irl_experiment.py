@@ -313,3 +313,62 @@ def transfer_rows(best: dict[str, LearnerRun], episodes: int) -> list[list]:
     return transfer_table(
         pols | reference_factories(), GROUNDSIM_SCENARIOS, episodes, TRANSFER_SEED
     )
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What `run_in_folder` returns besides the files it writes."""
+
+    runs: list[LearnerRun]  # one per learner and seed, in job order
+    baselines: dict[str, list[dict[str, float]]]  # reference policy → its test metrics per seed
+    best: dict[str, LearnerRun]  # learner → its best run (best_runs)
+    transfer: list[list] | None  # the transfer table's rows (None: not asked for)
+
+
+def run_in_folder(
+    run: Any,
+    p: ExperimentParams,
+    demos: dict[str, Demonstration],
+    workers: int = 1,
+    transfer_episodes: int = 0,
+    on_iteration: OnIteration | None = None,
+    on_result: Callable[[LearnerRun, list[LearnerRun]], None] | None = None,
+    bars: Callable[..., Any] = lambda items, **kw: items,
+    progress: bool = False,
+) -> Outcome:
+    """The whole experiment into the run folder `run` (a runio.run.Run), in order: demos/ (the
+    recorded `demos`, completed with the scripted demonstrator's), μ_E and the parameters in
+    config.json, every run (metrics.csv and events.jsonl as each ends), the baselines on the
+    same test episodes, policies/<learner>_seed<s>.npz, each learner's best run and the
+    transfer rows (`transfer_episodes` per groundsim behaviour; 0: none). `bars`: a progress
+    bar over the demonstrations and the baselines (tqdm.tqdm's signature; default none); the
+    rest as run_experiment's."""
+    (run.path / "demos").mkdir()
+    for sc in bars(needed_scenarios(p), desc="demonstrations", unit="scenario", disable=None):
+        if sc not in demos:
+            demos[sc] = scripted_demonstration(sc, p)
+        demos[sc].save(run.path / "demos" / f"{sc}.npz")
+    mu_e = expert_feature_expectations(p, demos)
+    run.config(
+        learner=p.learner, experiment=p, hyper_parameters=p.apprentice, expert=p.expert,
+        mu_expert={k: v.tolist() for k, v in mu_e.items()}, psi_names=PSI_NAMES,
+        demos={sc: d.meta["demonstrator"] for sc, d in demos.items()},
+    )  # fmt: skip
+    events, metrics = run.events(), run.metrics(METRIC_COLUMNS)
+
+    def ended(r: LearnerRun, done: list[LearnerRun]) -> None:
+        for row in r.metric_rows():
+            metrics.write(row)
+        events.write(r.event())
+        if on_result:
+            on_result(r, done)
+
+    runs = run_experiment(p, mu_e, workers, on_iteration, ended, progress)
+    facs = bars(baseline_factories(p).items(), desc="baselines", unit="policy", disable=None)
+    base = {name: baseline_metrics(make, p) for name, make in facs}
+    (run.path / "policies").mkdir()
+    for r in runs:
+        r.labelled_policy().save(run.path / "policies" / f"{r.learner}_seed{r.seed}.npz")
+    best = best_runs(runs)
+    rows = transfer_rows(best, transfer_episodes) if transfer_episodes > 0 else None
+    return Outcome(runs, base, best, rows)

@@ -222,6 +222,13 @@ def usage(fn, *args):
         raise UsageError(str(e)) from None
 
 
+def save_copy(policy, path, what: str) -> None:
+    """--save-policy: `policy` (anything with save(path)) also at `path`, its folder made."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    policy.save(path)
+    print(f"saved {what} policy → {path}")
+
+
 class _Version(argparse.Action):
     """--version: the package version and the code's git commit (looked up only when asked)."""
 

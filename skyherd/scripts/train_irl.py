@@ -14,7 +14,7 @@ from pathlib import Path
 
 from skyherd.report import irl as report
 from skyherd.runio import RunFolder, file_facts
-from skyherd.scripts.cli import UsageError, apply_quick, quick_help
+from skyherd.scripts.cli import UsageError, apply_quick, quick_help, save_copy
 from skyherd.scripts.options import add_options, opt
 
 # --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
@@ -130,27 +130,15 @@ def _experiment(args: argparse.Namespace):
 
 
 def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
+    """The experiment (policy.irl_experiment.run_in_folder) with its bars, then its report."""
     from tqdm import tqdm
 
     from skyherd.policy import irl_experiment as X
-    from skyherd.policy.groundair.env import PSI_NAMES
 
-    (run.path / "demos").mkdir()
-    for sc in tqdm(X.needed_scenarios(p), desc="demonstrations", unit="scenario", disable=None):
-        if sc not in demos:
-            demos[sc] = X.scripted_demonstration(sc, p)
-        demos[sc].save(run.path / "demos" / f"{sc}.npz")
-    mu_e = X.expert_feature_expectations(p, demos)
     print(f"experiment (seed of the hyper-parameters varies per run): {p}")
-    run.config(
-        learner=p.learner, experiment=p, hyper_parameters=p.apprentice,
-        args={k: v for k, v in vars(args).items() if not k.startswith("_")}, expert=p.expert,
-        mu_expert={k: v.tolist() for k, v in mu_e.items()}, psi_names=PSI_NAMES,
-        demos={sc: d.meta["demonstrator"] for sc, d in demos.items()}, demo_files=demo_files,
-        quick=quick, warnings=warnings,
-    )  # fmt: skip
-    n_jobs = len(X.jobs(p, mu_e))
-    events, metrics = run.events(), run.metrics(X.METRIC_COLUMNS)
+    run.config(args={k: v for k, v in vars(args).items() if not k.startswith("_")},
+               demo_files=demo_files, quick=quick, warnings=warnings)  # fmt: skip
+    n_jobs = p.seeds * len(p.learners)
     # the bar counts IRL iterations (each a DQN solve), so it moves during a run of a learner
     bar = run.closing(tqdm(total=n_jobs * args.irl_iters, desc=f"train {p.learner}",
                            unit="iter", disable=None))  # fmt: skip
@@ -162,33 +150,20 @@ def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
         bar.set_postfix(run=f"{learner}/{seed}", t=f"{t:.3g}")
 
     def on_result(r, done) -> None:
-        for row in r.metric_rows():
-            metrics.write(row)
-        events.write(r.event())
         # IRL may stop before --irl-iters: count the rest as done
         bar.update(max(0, args.irl_iters - ticks.get((r.learner, r.seed), 0)))
         bar.set_postfix(last=f"{r.learner}/{r.seed} view={r.metrics['all_in_view_frac']:.3f}")
         run.summary(report.progress_note(len(done), n_jobs))
 
     run.summary(report.progress_note(0, n_jobs))
-    results = X.run_experiment(p, mu_e, args.workers, on_iteration, on_result,
-                               progress=bar.disable is False)  # fmt: skip
+    out = X.run_in_folder(run, p, demos, args.workers, args.transfer_episodes, on_iteration,
+                          on_result, tqdm, progress=bar.disable is False)  # fmt: skip
     bar.close()
-    # baselines on the same test seeds: the demonstrator, the ideal expert, random
-    facs = tqdm(X.baseline_factories(p).items(), desc="baselines", unit="policy", disable=None)
-    base = {name: X.baseline_metrics(make, p) for name, make in facs}
-    (run.path / "policies").mkdir()
-    for r in results:
-        r.labelled_policy().save(run.path / "policies" / f"{r.learner}_seed{r.seed}.npz")
-    best = X.best_runs(results)
-    rows = X.transfer_rows(best, args.transfer_episodes) if args.transfer_episodes > 0 else None
-    table = report.write(run, [r.facts() for r in results], base, p.learner, args,
-                         warnings, quick, rows)  # fmt: skip
+    table = report.write(run, [r.facts() for r in out.runs], out.baselines, p.learner, args,
+                         warnings, quick, out.transfer)  # fmt: skip
     print(table)
     if args.save_policy is not None:
-        r = best[p.main_learner]
-        args.save_policy.parent.mkdir(parents=True, exist_ok=True)
-        r.labelled_policy().save(args.save_policy)
-        print(f"saved {p.main_learner} seed {r.seed} policy → {args.save_policy}")
+        r = out.best[p.main_learner]
+        save_copy(r.labelled_policy(), args.save_policy, f"{p.main_learner} seed {r.seed}")
     print(f"summary: {run.path / 'summary.md'}")
     return 0
