@@ -12,19 +12,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.report import educate as report
-from skyherd.runio.runfolder import (
-    CsvWriter,
-    JsonlWriter,
-    RunFolder,
-    args_dict,
-    atomic_write_text,
-)
-from skyherd.scripts.cli import UsageError, quick_help
+from skyherd.runio.runfolder import RunFolder, args_dict
+from skyherd.scripts.cli import UsageError, quick_help, save_copy
 from skyherd.scripts.options import add_options, opt
 
 
@@ -116,26 +109,17 @@ def run(args: argparse.Namespace) -> int:
     rf.write_config(
         {"curriculum": curriculum_meta(cur), "hyper_parameters": p, "args": args_dict(args)}
     )
-    pol_dir = rf.path / "policies"
-    pol_dir.mkdir()
-    n_mono = args.seeds if args.monolith_seeds is None else args.monolith_seeds
-    jobs = [course.SeedJob(Path(path), p, args.seed + s, pol_dir, s < n_mono)
-            for s in range(args.seeds)]  # fmt: skip
-    events = rf.events()
-    lessons = CsvWriter(rf.file("lessons.csv"), course.LESSON_COLUMNS)
-    results = []
-    with tqdm(total=len(jobs), desc="educate", unit="seed") as bar:
-        for out in course.teach_all(jobs, args.workers):
-            results.append(out)
-            for row in course.lesson_rows(out):
-                lessons.write(row)
-            events.write_many(course.lesson_events(out))
-            arb = out["educated"][-1]["detail"].get("arbiter", "")
+    with tqdm(total=args.seeds, desc="educate", unit="seed") as bar:
+
+        def on_seed(out) -> None:
             bar.update(1)
-            bar.set_postfix_str(f"seed {out['seed']}: {arb}"[:60])
-    lessons.close()
-    atomic_write_text(rf.file("lessons.json"), json.dumps(results, indent=1, default=float))
-    return _report(cur, p, args, results, {r["seed"]: pol_dir for r in results}, rf)
+            bar.set_postfix_str(
+                f"seed {out['seed']}: {out['educated'][-1]['detail'].get('arbiter', '')}"[:60]
+            )
+
+        results = course.teach_into(rf, path, p, args.seeds, args.seed, args.monolith_seeds,
+                                    args.workers, on_seed)  # fmt: skip
+    return _report(cur, p, args, results, {r["seed"]: rf.path / "policies" for r in results}, rf)
 
 
 def _report_only(args, cur) -> int:
@@ -156,22 +140,14 @@ def _report_only(args, cur) -> int:
 
 def _report(cur, p, args, results, pol_dirs: dict[int, Path], rf) -> int:
     """pol_dirs: seed → the policies/ folder of its run."""
-    from skyherd.policy.education.evaluation import evaluate_run
+    from skyherd.policy.education.evaluation import evaluate_into
 
     print("evaluating on unseen episodes …")
-    ev = evaluate_run(results, pol_dirs, args.baselines, args.eval_episodes, p.dqn.gamma)
-    w = JsonlWriter(rf.file("decisions.jsonl"))  # one composite test episode, the best seed's
-    w.write_many(ev.decisions)
-    w.close()
+    ev = evaluate_into(rf, results, pol_dirs, args.baselines, args.eval_episodes, p.dqn.gamma)
     summary = report.summary(cur, p, args, results, ev.comparison, ev.fidelity, rf)
     rf.write_summary(summary)
-    atomic_write_text(rf.file("results.json"), json.dumps(
-        {"lessons": results, "comparison": ev.comparison, "fidelity": ev.fidelity}, indent=1,
-        default=float))  # fmt: skip
     report.plots(rf, results, ev.comparison)
     if args.save_policy is not None:
-        args.save_policy.parent.mkdir(parents=True, exist_ok=True)
-        ev.educated[ev.best_seed].save(args.save_policy)
-        print(f"saved educated seed {ev.best_seed} policy → {args.save_policy}")
+        save_copy(ev.educated[ev.best_seed], args.save_policy, f"educated seed {ev.best_seed}")
     print(summary)
     return 0

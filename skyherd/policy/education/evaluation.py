@@ -152,3 +152,27 @@ def evaluate_run(
     fid = fidelity_totals(educated, episodes)
     best = best_seed(comparison)
     return RunEvaluation(educated, comparison, fid, best, decision_episode(educated[best]))
+
+
+def evaluate_into(
+    folder: Any,
+    results: list[dict[str, Any]],
+    policy_dirs: dict[int, Path],
+    baselines: list[Path],
+    episodes: int,
+    gamma: float,
+) -> RunEvaluation:
+    """`evaluate_run`, written into the run folder `folder` (runio.runfolder.RunFolder):
+    decisions.jsonl (one composite test episode of the best seed's policy) and results.json."""
+    import json
+
+    from skyherd.runio.runfolder import JsonlWriter, atomic_write_text
+
+    ev = evaluate_run(results, policy_dirs, baselines, episodes, gamma)
+    w = JsonlWriter(folder.file("decisions.jsonl"))
+    w.write_many(ev.decisions)
+    w.close()
+    atomic_write_text(folder.file("results.json"), json.dumps(
+        {"lessons": results, "comparison": ev.comparison, "fidelity": ev.fidelity}, indent=1,
+        default=float))  # fmt: skip
+    return ev
