@@ -276,33 +276,15 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
             recorder.close()
     from skyherd.report.fly import report  # after the flight: not on the way to the launch
 
-    plots: list = []  # made once the verdict and the ending are said (make_plots)
-    ok = ending.report_safely(report, run_dir, args, rc, why, plots, why=why)  # never raises
-    output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
-    lines = ending.ending_lines(run_dir, output=output, cut=ending.recording_cut(recorder))
-    ending.append_ending(run_dir, lines)
-    make_plots(plots)
-    if plots:  # report.html again, now with the figures made after the verdict
-        from skyherd.report.page import write_report_html
-
-        write_report_html(run_dir)
+    plots: list = []  # made once the verdict and the ending are said (ending.make_plots)
+    ok = ending.end_run(run_dir, report, args, rc, why, plots, why=why, sims=kids.sims,
+                        recorder=recorder)  # fmt: skip
+    ending.make_plots(run_dir, plots)
     if rc <= 128 and kept.signum is not None:  # a signal while the report was written
         rc = signals.interrupted(Interrupted(kept.signum))[0]
         print(f"skyherd fly: interrupted ({signal.Signals(kept.signum).name}) after the flight "
               "ended; its report above is whole", file=sys.stderr, flush=True)  # fmt: skip
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
-
-
-def make_plots(plots: list) -> None:
-    """The report's plots, (file name, call) each, after the verdict is printed: matplotlib
-    (its import and drawing) is off the way to the verdict. A plot that fails is said on
-    stderr; the flight's verdict and exit code stand."""
-    for name, plot in plots:
-        try:
-            plot()
-        except Exception as e:  # noqa: BLE001 - a plot never changes how the flight ended
-            print(f"skyherd fly: {name} was not made ({type(e).__name__}: {e})", file=sys.stderr,
-                  flush=True)  # fmt: skip
 
 
 def _key_file(child_args: list[str]) -> str | None:

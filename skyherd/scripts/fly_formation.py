@@ -138,10 +138,9 @@ def run_formation(args: argparse.Namespace) -> int:
             rc, why = kids.supervise(args.timeout)
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (runio.launch): 128 + signum
         rc, why = signals.interrupted(e)
-    ok = ending.report_safely(formation_report, run_dir, rc, why, why=why)  # never raises
-    output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
-    ending.append_ending(
-        run_dir, ending.ending_lines(run_dir, [f"uav{k}" for k in range(K)], output)
+    vehicles = [f"uav{k}" for k in range(K)]
+    ok = ending.end_run(
+        run_dir, formation_report, rc, why, why=why, sims=kids.sims, vehicles=vehicles
     )
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
