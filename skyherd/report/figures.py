@@ -7,10 +7,13 @@ tests/test_docs.py checks that every figure the README shows is listed with its 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 import shutil
 import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -87,3 +90,45 @@ def manifest(figures: dict, out: Path) -> dict:
     return {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
             "load": round(os.getloadavg()[0], 1), "cores": os.cpu_count(),
             "figures": figures}  # fmt: skip
+
+
+def fly(argv: tuple[str, ...], runs: Path, instance: int) -> Path:
+    """One flight of `skyherd fly` (a child process, as a user runs it); its run folder."""
+    before = set(runs.iterdir()) if runs.exists() else set()
+    cmd = [sys.executable, "-m", "skyherd.scripts.cli", *argv, "--instance", str(instance),
+           "--runs-dir", str(runs)]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
+    made = sorted(set(runs.iterdir()) - before)
+    if len(made) != 1:
+        raise RuntimeError(f"{command_text(argv)}: exit {r.returncode}, no run folder: "
+                           f"{(r.stderr or r.stdout)[-500:]}")  # fmt: skip
+    return made[0]
+
+
+def make_figures(out: Path, instance: int = 0) -> dict:
+    """Fly MAIN_JOB and FAILED (vehicle `instance`), copy the DRAWN figures of their run
+    folders into `out`, screenshot their SHOTS (when Chromium is there; said on stderr when
+    not) and write `out`/figures.json; returns the manifest."""
+    out.mkdir(parents=True, exist_ok=True)
+    figures = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = {}
+        for argv in (MAIN_JOB, FAILED):
+            print(f"figures: {command_text(argv)}", flush=True)
+            runs[argv] = fly(argv, Path(tmp) / "runs", instance)
+        for name, (argv, src, what) in DRAWN.items():
+            shutil.copyfile(runs[argv] / src, out / name)
+            figures[name] = {"command": command_text(argv), "file": src, "what": what,
+                             "check": "bytes"}  # fmt: skip
+        for name, (argv, what) in SHOTS.items():
+            try:
+                screenshot(runs[argv] / "report.html", out / name)
+            except RuntimeError as e:
+                print(f"figures: no {name}: {e}", file=sys.stderr)
+                continue
+            figures[name] = {"command": command_text(argv), "file": "report.html", "what": what,
+                             "check": "recorded"}  # fmt: skip
+    made = manifest(figures, out)
+    (out / MANIFEST).write_text(json.dumps(made, indent=1) + "\n", encoding="utf-8")
+    return made

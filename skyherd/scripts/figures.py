@@ -15,41 +15,10 @@ drawn figures are byte for byte what it draws today.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import shutil
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
-from skyherd.report.figures import (
-    DRAWN,
-    FAILED,
-    MAIN_JOB,
-    MANIFEST,
-    OUT,
-    ROOT,
-    SHOTS,
-    command_text,
-    manifest,
-    screenshot,
-    write_readme,
-)
-
-
-def fly(argv: tuple[str, ...], runs: Path, instance: int) -> Path:
-    """One flight of `skyherd fly` (a child process, as a user runs it); its run folder."""
-    before = set(runs.iterdir()) if runs.exists() else set()
-    cmd = [sys.executable, "-m", "skyherd.scripts.cli", *argv, "--instance", str(instance),
-           "--runs-dir", str(runs)]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
-    made = sorted(set(runs.iterdir()) - before)
-    if len(made) != 1:
-        raise RuntimeError(f"{command_text(argv)}: exit {r.returncode}, no run folder: "
-                           f"{(r.stderr or r.stdout)[-500:]}")  # fmt: skip
-    return made[0]
+from skyherd.report.figures import OUT, make_figures, write_readme
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,30 +28,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--instance", type=int, default=0, help="the flights' vehicle instance N")
     ap.add_argument("--no-readme", action="store_true", help="leave README.md as it is")
     args = ap.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
-    figures = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        runs = {}
-        for argv_ in (MAIN_JOB, FAILED):
-            print(f"figures: {command_text(argv_)}", flush=True)
-            runs[argv_] = fly(argv_, Path(tmp) / "runs", args.instance)
-        for name, (argv_, src, what) in DRAWN.items():
-            shutil.copyfile(runs[argv_] / src, args.out / name)
-            figures[name] = {"command": command_text(argv_), "file": src, "what": what,
-                             "check": "bytes"}  # fmt: skip
-        for name, (argv_, what) in SHOTS.items():
-            try:
-                screenshot(runs[argv_] / "report.html", args.out / name)
-            except RuntimeError as e:
-                print(f"figures: no {name}: {e}", file=sys.stderr)
-                continue
-            figures[name] = {"command": command_text(argv_), "file": "report.html", "what": what,
-                             "check": "recorded"}  # fmt: skip
-    made = manifest(figures, args.out)
-    (args.out / MANIFEST).write_text(json.dumps(made, indent=1) + "\n", encoding="utf-8")
+    made = make_figures(args.out, args.instance)  # report.figures: the flights, the manifest
     if not args.no_readme:
         write_readme(made)
-    print(f"figures: {', '.join(figures)} in {args.out}")
+    print(f"figures: {', '.join(made['figures'])} in {args.out}")
     return 0
 
 
