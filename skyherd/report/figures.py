@@ -15,6 +15,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -92,23 +93,9 @@ def manifest(figures: dict, out: Path) -> dict:
             "figures": figures}  # fmt: skip
 
 
-def fly(argv: tuple[str, ...], runs: Path, instance: int) -> Path:
-    """One flight of `skyherd fly` (a child process, as a user runs it); its run folder."""
-    before = set(runs.iterdir()) if runs.exists() else set()
-    cmd = [sys.executable, "-m", "skyherd.scripts.cli", *argv, "--instance", str(instance),
-           "--runs-dir", str(runs)]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
-    made = sorted(set(runs.iterdir()) - before)
-    if len(made) != 1:
-        raise RuntimeError(f"{command_text(argv)}: exit {r.returncode}, no run folder: "
-                           f"{(r.stderr or r.stdout)[-500:]}")  # fmt: skip
-    return made[0]
-
-
-def make_figures(out: Path, instance: int = 0) -> dict:
-    """Fly MAIN_JOB and FAILED (vehicle `instance`), copy the DRAWN figures of their run
-    folders into `out`, screenshot their SHOTS (when Chromium is there; said on stderr when
+def make_figures(out: Path, fly: Callable[[tuple[str, ...], Path], Path]) -> dict:
+    """Fly MAIN_JOB and FAILED (`fly(argv, runs folder)`: `skyherd fly` as a user runs it; its
+    run folder), copy the DRAWN figures of their run folders into `out`, screenshot their SHOTS (when Chromium is there; said on stderr when
     not) and write `out`/figures.json; returns the manifest."""
     out.mkdir(parents=True, exist_ok=True)
     figures = {}
@@ -116,7 +103,7 @@ def make_figures(out: Path, instance: int = 0) -> dict:
         runs = {}
         for argv in (MAIN_JOB, FAILED):
             print(f"figures: {command_text(argv)}", flush=True)
-            runs[argv] = fly(argv, Path(tmp) / "runs", instance)
+            runs[argv] = fly(argv, Path(tmp) / "runs")
         for name, (argv, src, what) in DRAWN.items():
             shutil.copyfile(runs[argv] / src, out / name)
             figures[name] = {"command": command_text(argv), "file": src, "what": what,

@@ -15,10 +15,26 @@ drawn figures are byte for byte what it draws today.
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
 from pathlib import Path
 
-from skyherd.report.figures import OUT, make_figures, write_readme
+from skyherd.report.figures import OUT, ROOT, command_text, make_figures, write_readme
+
+
+def fly(argv: tuple[str, ...], runs: Path, instance: int) -> Path:
+    """One flight of `skyherd fly` (a child process, as a user runs it); its run folder."""
+    before = set(runs.iterdir()) if runs.exists() else set()
+    cmd = [sys.executable, "-m", "skyherd.scripts.cli", *argv, "--instance", str(instance),
+           "--runs-dir", str(runs)]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=900)
+    made = sorted(set(runs.iterdir()) - before)
+    if len(made) != 1:
+        raise RuntimeError(f"{command_text(argv)}: exit {r.returncode}, no run folder: "
+                           f"{(r.stderr or r.stdout)[-500:]}")  # fmt: skip
+    return made[0]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -28,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--instance", type=int, default=0, help="the flights' vehicle instance N")
     ap.add_argument("--no-readme", action="store_true", help="leave README.md as it is")
     args = ap.parse_args(argv)
-    made = make_figures(args.out, args.instance)  # report.figures: the flights, the manifest
+    made = make_figures(args.out, lambda argv_, runs: fly(argv_, runs, args.instance))
     if not args.no_readme:
         write_readme(made)
     print(f"figures: {', '.join(made['figures'])} in {args.out}")
