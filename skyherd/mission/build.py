@@ -54,6 +54,17 @@ class MissionChoice:
     shepherd_altitude_m: float = 12.0  # --mission shepherd's default [m]: the flock feels the
     # UAV's horizontal position only; low enough for the camera to show the flock's part under it
 
+    def checked(self) -> MissionChoice:
+        """This choice, once its numbers are in range; ValueError (one line, naming the
+        option) otherwise."""
+        if not 0 < self.duration_s <= 36000:  # NaN fails too
+            raise ValueError("--duration must be in (0, 36000] s")
+        if self.altitude_m is not None and not 0 < self.altitude_m <= 120:
+            raise ValueError(f"--altitude {self.altitude_m:g}: must be in (0, 120] m above home")
+        if not 0 < self.side_m <= 500:
+            raise ValueError(f"--side {self.side_m:g}: must be in (0, 500] m")
+        return self
+
 
 def mission_choice(options) -> MissionChoice:
     """The mission `options` chose (a namespace with `skyherd companion`'s option names); an

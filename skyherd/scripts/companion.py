@@ -15,7 +15,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from skyherd.mission.build import MissionChoice
+from skyherd.mission.build import MissionChoice, mission_choice
 from skyherd.runio import JsonlWriter, RunFolder, args_dict, ports
 from skyherd.runio.run import open_run_folder
 from skyherd.scripts.cli import UsageError, check_with, usage
@@ -124,20 +124,20 @@ def check_args(argv: list[str]) -> str | None:
 def check(args) -> str:
     """Every check of the arguments that needs nothing started (UsageError, one line); fills
     the instance's default addresses in. Returns the autopilot's MAVLink address."""
+    from skyherd.flight.mavlink.signing import key_option
     from skyherd.hil.link import link_address
+    from skyherd.runio.address import zenoh_config_file, zenoh_endpoint
 
     usage(ports.check_instance, args.instance)
     address = args.connect or ports.companion_address(args.instance)
     usage(link_address, address)
     if args.zenoh_connect is None:
         args.zenoh_connect = ports.zenoh_address(args.instance)
-    zenoh_endpoint(args.zenoh_connect)
-    if not 0 < args.duration <= 36000:  # NaN fails too
-        raise UsageError("--duration must be in (0, 36000] s")
-    if args.altitude is not None and not 0 < args.altitude <= 120:
-        raise UsageError(f"--altitude {args.altitude:g}: must be in (0, 120] m above home")
-    if not 0 < args.side <= 500:
-        raise UsageError(f"--side {args.side:g}: must be in (0, 500] m")
+    try:
+        zenoh_endpoint(args.zenoh_connect)
+    except ValueError as e:
+        raise UsageError(f"--zenoh-connect {e}") from None
+    usage(mission_choice(args).checked)
     if args.mission == "formation" and args.plan is None:
         raise UsageError(
             "--mission formation needs --plan FILE (a plan_K<K>.json from `skyherd train sql`)"
@@ -150,26 +150,10 @@ def check(args) -> str:
             "--mission shepherd reads the flock on the simulator's Zenoh session: drop --no-camera"
         )
     if args.signing_key:
-        from skyherd.flight.mavlink.signing import load_key
-
-        try:
-            load_key(args.signing_key)
-        except ValueError as e:  # SigningError
-            raise UsageError(f"--signing-key: {e}") from None
-    if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
-        raise UsageError(
-            f"--zenoh-config {args.zenoh_config}: no such file; pass a Zenoh JSON5 file"
-        )
+        usage(key_option, args.signing_key)
+    if args.zenoh_config is not None:
+        usage(zenoh_config_file, args.zenoh_config)
     return address
-
-
-def zenoh_endpoint(address: str) -> str:
-    """pymavlink-style `tcp:HOST:PORT` → Zenoh's `tcp/HOST:PORT` (one address syntax)."""
-    kind, _, rest = address.partition(":")
-    host, _, port = rest.rpartition(":")
-    if kind not in ("tcp", "udp") or not host or not port.isdigit():
-        raise UsageError(f"cannot parse Zenoh address {address!r}; expected tcp:HOST:PORT")
-    return f"{kind}/{host}:{port}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -180,7 +164,8 @@ def run(args: argparse.Namespace) -> int:
     run_dir, folder = _run_folder(args)
     if args.mission == "formation":
         return _run_formation(args, run_dir, folder)
-    from skyherd.mission.build import build_mission, mission_choice
+    from skyherd.mission.build import build_mission
+    from skyherd.runio.address import zenoh_endpoint
 
     try:
         mission, plan = build_mission(mission_choice(args), run_dir, say)

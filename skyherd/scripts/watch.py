@@ -6,7 +6,6 @@ processed; 1 no frame arrived before --timeout; 2 bad usage."""
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 from dataclasses import dataclass
 
@@ -14,6 +13,7 @@ from skyherd.perception.features import FeatureParams
 from skyherd.perception.transport import ZenohParams, open_session, viewer_params, zenoh_error_text
 from skyherd.perception.watch import WatchParams
 from skyherd.runio import RunFolder, UsageError, ports
+from skyherd.runio.address import zenoh_config_file
 from skyherd.runio.signals import CtrlC
 from skyherd.scripts.cli import usage
 from skyherd.scripts.options import add_options, opt, values
@@ -81,8 +81,8 @@ def _check(args: argparse.Namespace) -> None:
         raise UsageError("--timeout must be > 0 seconds")
     if args.foxglove is not None and not 0 < args.foxglove < 65536:
         raise UsageError("--foxglove PORT must be 1..65535")
-    if args.zenoh_config and not os.path.exists(args.zenoh_config):
-        raise UsageError(f"Zenoh config {args.zenoh_config} not found: give an existing file")
+    if args.zenoh_config:
+        usage(zenoh_config_file, args.zenoh_config)
 
 
 def _session(args: argparse.Namespace):
@@ -104,13 +104,10 @@ def _session(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from skyherd.flight.mavlink.signing import SigningError, load_key
+    from skyherd.flight.mavlink.signing import key_option
 
     _check(args)
-    try:  # the flight key: only authentic frames and records
-        key = load_key(args.signing_key) if args.signing_key else None
-    except SigningError as e:
-        raise UsageError(f"--signing-key: {e}") from None
+    key = usage(key_option, args.signing_key) if args.signing_key else None  # authentic frames
     ctrl_c = CtrlC()
     prev = signal.signal(signal.SIGINT, ctrl_c)
     try:

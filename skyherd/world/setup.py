@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from dataclasses import dataclass
 
 from skyherd.runio import ports
@@ -110,17 +109,16 @@ class SimSetup:
             from skyherd.flight.params import check_assignments
 
             check_assignments(param_store(s.airframe), s.param, s.airframe)
-        if s.signing_key:
-            from skyherd.flight.mavlink.signing import SigningError, load_key
+        try:
+            from skyherd.flight.mavlink.signing import key_option
+            from skyherd.runio.address import zenoh_config_file
 
-            try:
-                load_key(s.signing_key)
-            except SigningError as e:
-                raise WorldError(f"--signing-key: {e}") from None
-        if s.zenoh_config is not None and not os.path.isfile(s.zenoh_config):
-            raise WorldError(
-                f"--zenoh-config {s.zenoh_config}: no such file; pass a Zenoh JSON5 file"
-            )
+            if s.signing_key:
+                key_option(s.signing_key)
+            if s.zenoh_config is not None:
+                zenoh_config_file(s.zenoh_config)
+        except ValueError as e:  # SigningError, AddressError: one line naming the option
+            raise WorldError(str(e)) from None
         if s.fleet:
             s.read_fleet()
         return s
