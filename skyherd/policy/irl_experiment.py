@@ -95,6 +95,33 @@ class ExperimentParams:
         """The learner the command is named after ("irl", or the first AB rule's)."""
         return "irl" if self.learner == "irl" else f"ab_{self.rules[0]}"
 
+    @classmethod
+    def of(cls, o, learner: str) -> ExperimentParams:
+        """The experiment of `skyherd train irl|ab`'s options: any object with them as
+        attributes (an argparse namespace; `rules` a comma-separated list, `no_irl` for "ab"
+        only); ValueError (one line) if they are refused."""
+        from skyherd.policy.dqn import DQNParams
+        from skyherd.policy.irl import IRLParams
+
+        if min(o.seeds, o.irl_iters, o.eval_episodes, o.mu_episodes) < 1 or o.dqn_steps < 100:
+            raise ValueError(
+                "need --seeds >= 1, --dqn-steps >= 100, --irl-iters >= 1, --eval-episodes >= 1"
+            )
+        if not (0 <= o.demo_epsilon <= 1 and 0 <= o.demo_lag <= 1 and 0 < o.gamma < 1):
+            raise ValueError("--demo-epsilon/--demo-lag must be in [0, 1] and --gamma in (0, 1)")
+        rules = tuple(r for r in getattr(o, "rules", "").split(",") if r) if learner == "ab" else ()
+        hyper = ApprenticeParams(
+            dqn=DQNParams(total_steps=o.dqn_steps, gamma=o.gamma),
+            irl=IRLParams(epsilon=o.epsilon, max_iters=o.irl_iters),
+            mu_episodes=o.mu_episodes,
+        )
+        return cls(
+            learner=learner, rules=rules, with_irl=not getattr(o, "no_irl", False),
+            seeds=o.seeds, seed=o.seed, apprentice=hyper,
+            expert=ExpertParams(epsilon=o.demo_epsilon, lag=o.demo_lag),
+            demo_episodes=o.demo_episodes, eval_episodes=o.eval_episodes,
+        )  # fmt: skip
+
 
 def budget_warnings(p: ExperimentParams, enough_steps: int) -> list[str]:
     """Budgets too short to learn anything, said out loud (printed and in summary.md);

@@ -11,13 +11,12 @@ decisions.jsonl (`skyherd explain RUN`), lessons.png, compare.png, results.json,
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.report import educate as report
 from skyherd.runio.runfolder import RunFolder, args_dict
-from skyherd.scripts.cli import UsageError, quick_help, save_copy
+from skyherd.scripts.cli import UsageError, quick_help, save_copy, usage
 from skyherd.scripts.options import add_options, opt
 
 
@@ -55,26 +54,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                         "and test episodes"))  # fmt: skip
 
 
-def _params(args):
-    from skyherd.policy.education.teach import QUICK, EduParams
-
-    p = QUICK if args.quick else EduParams()
-    over = {}
-    if args.dqn_steps is not None:
-        if args.dqn_steps < 100:
-            raise UsageError("--dqn-steps must be >= 100")
-        over["dqn"] = dataclasses.replace(p.dqn, total_steps=args.dqn_steps)
-    if args.irl_iters is not None:
-        if args.irl_iters < 1:
-            raise UsageError("--irl-iters must be >= 1")
-        over["irl_iters"] = args.irl_iters
-    if args.test_episodes is not None:
-        if args.test_episodes < 1:
-            raise UsageError("--test-episodes must be >= 1")
-        over["test_episodes"] = args.test_episodes
-    return dataclasses.replace(p, monolith=not args.no_monolith, **over)
-
-
 def run(args: argparse.Namespace) -> int:
     import matplotlib
 
@@ -87,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         CurriculumError,
         load_curriculum,
     )
-    from skyherd.policy.education.teach import curriculum_meta
+    from skyherd.policy.education.teach import curriculum_meta, params_of
 
     path = args.curriculum or DEFAULT_CURRICULUM
     try:
@@ -101,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--baselines {b}: no policies/ folder (a `skyherd train ab` run)")
     if args.from_run is not None:
         return _report_only(args, cur)
-    p = _params(args)
+    p = usage(params_of, args)
     rf = RunFolder("educate", root=args.runs_dir)
     print(f"skyherd educate: run folder {rf.path}")
     if cur.composite is not None and cur.composite.method == "measures":

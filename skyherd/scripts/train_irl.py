@@ -14,7 +14,7 @@ from pathlib import Path
 
 from skyherd.report import irl as report
 from skyherd.runio import RunFolder, file_facts
-from skyherd.scripts.cli import UsageError, apply_quick, quick_help, save_copy
+from skyherd.scripts.cli import UsageError, apply_quick, quick_help, save_copy, usage
 from skyherd.scripts.options import add_options, opt
 
 # --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
@@ -71,22 +71,10 @@ def run(args: argparse.Namespace) -> int:
 
     matplotlib.use("Agg")
     from skyherd.policy.demos import DemoFileError, load_demo
-    from skyherd.policy.irl_experiment import budget_warnings, needed_scenarios
+    from skyherd.policy.irl_experiment import ExperimentParams, budget_warnings, needed_scenarios
 
     quick = apply_quick(args, QUICK, getattr(args, "_argv", None))  # the options it set
-    if (
-        args.seeds < 1
-        or args.dqn_steps < 100
-        or args.irl_iters < 1
-        or args.eval_episodes < 1
-        or args.mu_episodes < 1
-    ):
-        raise UsageError(
-            "need --seeds >= 1, --dqn-steps >= 100, --irl-iters >= 1, --eval-episodes >= 1"
-        )
-    if not (0 <= args.demo_epsilon <= 1 and 0 <= args.demo_lag <= 1 and 0 < args.gamma < 1):
-        raise UsageError("--demo-epsilon/--demo-lag must be in [0, 1] and --gamma in (0, 1)")
-    p = _experiment(args)
+    p = usage(ExperimentParams.of, args, args.learner_name)
     warnings = budget_warnings(p, QUICK["dqn_steps"])
     for w in warnings:
         print(f"skyherd train {p.learner}: warning: {w}", file=sys.stderr)
@@ -101,32 +89,6 @@ def run(args: argparse.Namespace) -> int:
     with RunFolder.open(f"train-{p.learner}", args, root=args.runs_dir) as run:
         print(f"run folder: {run.path}")
         return _train(run, args, p, demos, demo_files, quick, warnings)
-
-
-def _experiment(args: argparse.Namespace):
-    """The experiment's parameters from the options (UsageError if they are refused)."""
-    from skyherd.policy.apprentice import ApprenticeParams
-    from skyherd.policy.demos import ExpertParams
-    from skyherd.policy.dqn import DQNParams
-    from skyherd.policy.irl import IRLParams
-    from skyherd.policy.irl_experiment import ExperimentParams
-
-    learner = args.learner_name
-    rules = tuple(r for r in getattr(args, "rules", "").split(",") if r) if learner == "ab" else ()
-    hyper = ApprenticeParams(
-        dqn=DQNParams(total_steps=args.dqn_steps, gamma=args.gamma),
-        irl=IRLParams(epsilon=args.epsilon, max_iters=args.irl_iters),
-        mu_episodes=args.mu_episodes,
-    )
-    try:
-        return ExperimentParams(
-            learner=learner, rules=rules, with_irl=not getattr(args, "no_irl", False),
-            seeds=args.seeds, seed=args.seed, apprentice=hyper,
-            expert=ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag),
-            demo_episodes=args.demo_episodes, eval_episodes=args.eval_episodes,
-        )  # fmt: skip
-    except ValueError as e:  # an unknown AB rule, no rule, --demo-episodes 0
-        raise UsageError(str(e)) from None
 
 
 def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
