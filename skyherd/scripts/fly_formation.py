@@ -14,10 +14,7 @@ import argparse
 from skyherd.flight.geo import DEFAULT_HOME
 from skyherd.mission.formation_plan import (
     FormationParams,
-    PlanError,
-    learned_plan,
-    load_plan,
-    plan_params,
+    obtain_plan,
     plan_text,
     vehicle_homes,
     vehicle_instances,
@@ -26,7 +23,7 @@ from skyherd.report.formation import formation_report
 from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text
-from skyherd.scripts.cli import UsageError
+from skyherd.scripts.cli import UsageError, usage
 from skyherd.world.fleet import FleetVehicle, sim_groups, write_fleet
 
 
@@ -53,31 +50,10 @@ def _check(args) -> None:
         )
 
 
-def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
-    """The lock-step plan (--policy-file, or learned: mission.formation_plan.learned_plan) and
-    where it came from (for config.json). UsageError if unusable."""
-    from skyherd.policy.sql import GridParams
-
-    K = args.agents
-    if args.policy_file:
-        try:
-            plan = load_plan(args.policy_file, K, GridParams().size)
-        except PlanError as e:
-            raise UsageError(f"{e}; pass a plan_K{K}.json from `skyherd train sql`") from None
-        return plan, {"source": "file", "path": str(args.policy_file)}
-    from tqdm import tqdm
-
-    try:
-        params = plan_params(K, args.sql_seed)
-        with tqdm(total=params.hyper.episodes, desc=f"train SQL-SIE K={K}", unit="ep") as bar:
-            plan = learned_plan(params, bar.update)
-    except PlanError as e:
-        raise UsageError(str(e)) from None
-    return plan, params.describe()
-
-
 def run_formation(args: argparse.Namespace) -> int:
     """Fly the formation as K simulators + one companion; 0 if every vehicle landed on its target."""
+    from tqdm import tqdm
+
     from skyherd.runio import launch
     from skyherd.scripts.cli import skyherd_cmd
     from skyherd.scripts.fly_options import check_signing, per_run_key, signing_mode
@@ -87,9 +63,9 @@ def run_formation(args: argparse.Namespace) -> int:
     key = check_signing(args)
     params = _params(args)
     K = args.agents
-    plan, plan_info = obtain_plan(args)
+    plan, plan_info = usage(obtain_plan, args.policy_file, K, args.sql_seed, tqdm)
     instances = vehicle_instances(args.instance, K)
-    _ports_free(instances)
+    usage(ports.check_ports_free, instances)  # before anything starts
     homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
     from skyherd.report import ending
     from skyherd.runio import signals
@@ -154,12 +130,3 @@ def _check_children(args) -> None:
                         repr(args.latency), "--instance", str(args.instance)])  # fmt: skip
     check_child("companion", ["--mission", "formation", "--plan", "plan.json", "--cell-m",
                               repr(args.cell_m), "--instance", str(args.instance)])  # fmt: skip
-
-
-def _ports_free(instances: list[int]) -> None:
-    """UsageError before anything starts if a vehicle's or the companion's UDP port is taken."""
-    taken = ports.taken_udp_port(instances)
-    if taken is not None:
-        inst, port, why = taken
-        raise UsageError(f"UDP port {port} of instance {inst} is taken ({why}); "
-                         "pick another --instance")  # fmt: skip
