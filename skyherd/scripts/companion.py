@@ -17,7 +17,7 @@ from pathlib import Path
 
 from skyherd.mission.build import MissionChoice, mission_choice
 from skyherd.runio import JsonlWriter, RunFolder, args_dict, ports
-from skyherd.runio.run import open_run_folder
+from skyherd.runio.run import given_or_new_run_folder
 from skyherd.scripts.cli import UsageError, check_with, usage
 from skyherd.scripts.options import add_options, opt
 
@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     from skyherd.mission.runner import fly_vehicle
 
     address = check(args)
-    run_dir, folder = _run_folder(args)
+    run_dir, folder = given_or_new_run_folder("companion", args.run_dir, args.runs_dir)
     if args.mission == "formation":
         return _run_formation(args, run_dir, folder)
     from skyherd.mission.build import build_mission
@@ -193,16 +193,6 @@ def run(args: argparse.Namespace) -> int:
 
         report(run_dir, args, rc, error)
     return rc
-
-
-def _run_folder(args) -> tuple[Path, RunFolder | None]:
-    """--run-dir (`skyherd fly`'s), or a run folder of its own (returned too)."""
-    if args.run_dir is None:
-        folder = open_run_folder("companion", args.runs_dir)  # UsageError: not writable
-        return folder.path, folder
-    if not Path(args.run_dir).is_dir():
-        raise UsageError(f"--run-dir {args.run_dir} is not a folder")
-    return Path(args.run_dir), None
 
 
 def _run_formation(args, run_dir: Path, folder: RunFolder | None) -> int:

@@ -216,12 +216,15 @@ def _refuse_wind_above_limit(args) -> None:
 def run_two_processes(args: argparse.Namespace) -> int:
     from skyherd.runio import signals
     from skyherd.runio.run import open_run_folder
+    from skyherd.safety.config import flight_envelope_record
 
     # a signal from here on is kept, never raised half-way through making the folder or
     # starting a child, and acted on at the next safe point (signals.KeptSignals)
     with signals.KeptSignals() as kept:
         sim_args, comp_args = _validate(args)  # the children's own checks too
-        envelope = _envelope(args) if args.mission in ("groundair", "shepherd") else None
+        envelope = None  # the safety net's constraint set: (its spec, config.json's record)
+        if args.mission in ("groundair", "shepherd"):
+            envelope = usage(flight_envelope_record, args.envelope, args.airframe)
         if kept.signum is not None:  # nothing made, nothing started
             rc, why = signals.interrupted(Interrupted(kept.signum))
             print(f"skyherd fly: INTERRUPTED: {why} before the flight started; nothing was "
@@ -292,13 +295,6 @@ def _key_file(child_args: list[str]) -> str | None:
     return (
         child_args[child_args.index("--signing-key") + 1] if "--signing-key" in child_args else None
     )
-
-
-def _envelope(args) -> tuple:
-    """The safety net's constraint set: (its spec, config.json's record of it); UsageError."""
-    from skyherd.safety.config import flight_envelope_record
-
-    return usage(flight_envelope_record, args.envelope, args.airframe)
 
 
 SIM_STARTED = "skyherd sim: instance"  # the simulator's line once its world runs (world.serve)

@@ -14,11 +14,10 @@ import dataclasses
 import os
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 from skyherd.runio import args_dict
 from skyherd.runio.process import parent_gone
-from skyherd.runio.run import open_run_folder
+from skyherd.runio.run import given_or_new_run_folder
 from skyherd.scripts.cli import UsageError, check_with, usage
 from skyherd.scripts.fault_options import FAULTS, add_fault_arguments
 from skyherd.scripts.fly_options import WORLD
@@ -68,14 +67,9 @@ def run(args: argparse.Namespace) -> int:
     from skyherd.world.serve import serve
 
     setup = check(args)
-    if args.run_dir is not None:
-        run_dir = Path(args.run_dir)
-        if not run_dir.is_dir():
-            raise UsageError(f"--run-dir {run_dir} is not a folder")
-    else:
-        folder = open_run_folder("sim", args.runs_dir)  # UsageError: not writable, full
+    run_dir, folder = given_or_new_run_folder("sim", args.run_dir, args.runs_dir)
+    if folder is not None:  # on its own, not under `skyherd fly`
         folder.write_config({"args": args_dict(args), "world": setup.world_params()[0]})
-        run_dir = folder.path
     try:
         vehicles = [v.name for v in setup.read_fleet()] if setup.fleet else None
         rc = serve(setup, run_dir, say, PARENT)
