@@ -10,7 +10,7 @@ import signal
 from dataclasses import dataclass
 
 from skyherd.perception.features import FeatureParams
-from skyherd.perception.transport import ZenohParams, open_session, viewer_params, zenoh_error_text
+from skyherd.perception.transport import ZenohParams, open_viewer
 from skyherd.perception.watch import WatchParams
 from skyherd.runio import RunFolder, UsageError, ports
 from skyherd.runio.address import zenoh_config_file
@@ -85,24 +85,6 @@ def _check(args: argparse.Namespace) -> None:
         usage(zenoh_config_file, args.zenoh_config)
 
 
-def _session(args: argparse.Namespace):
-    from skyherd.runio.address import AddressError
-
-    try:
-        zp = viewer_params(args.connect, args.zenoh_config)
-    except AddressError as e:
-        raise UsageError(f"--connect {e}") from e
-    try:
-        return zp, open_session(zp)
-    except ValueError as e:
-        where = (
-            f"--zenoh-config {args.zenoh_config}"
-            if args.zenoh_config
-            else f"--connect {args.connect}"
-        )
-        raise UsageError(f"cannot open a Zenoh session ({where}): {zenoh_error_text(e)}") from e
-
-
 def run(args: argparse.Namespace) -> int:
     from skyherd.flight.mavlink.signing import key_option
 
@@ -111,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     ctrl_c = CtrlC()
     prev = signal.signal(signal.SIGINT, ctrl_c)
     try:
-        zp, session = _session(args)
+        zp, session = usage(open_viewer, args.connect, args.zenoh_config)
         try:
             ctrl_c.check()  # during the session's opening: no run folder
             return _watch(args, zp, session, ctrl_c, key)
