@@ -15,6 +15,7 @@ from skyherd.report import drill as report
 from skyherd.runio import UsageError, args_dict, ports
 from skyherd.runio.constants import MISSION_DRILL_INSTANCE, TARGET_BOUND
 from skyherd.runio.run import open_run_folder
+from skyherd.safety.campaign_run import load_set
 from skyherd.scripts.cli import usage
 from skyherd.scripts.options import add_options, opt
 
@@ -82,20 +83,6 @@ def _airframes(choice: str) -> list[str]:
     return ["quadrotor", "fixedwing"] if choice == "all" else [choice]
 
 
-def load_set_or_usage(airframe: str, envelope: Path | None):
-    """The airframe's constraint set and supervisor parameters (safety.campaign_run.load_set);
-    UsageError naming what to fix."""
-    from skyherd.safety.campaign_run import load_set
-    from skyherd.safety.config import EnvelopeFileError
-
-    try:
-        return load_set(airframe, envelope)
-    except EnvelopeFileError as e:
-        raise UsageError(f"{e}; fix the file or pass another --envelope") from e
-    except ValueError as e:
-        raise UsageError(str(e)) from e
-
-
 def run(args: argparse.Namespace) -> int:
     if args.random < 0:
         raise UsageError("--random must be >= 0")
@@ -122,7 +109,7 @@ def _plan(airframe: str, args: argparse.Namespace):
     from skyherd.flight.airframes_registry import AirframeUnavailable
     from skyherd.safety.drill_run import drill_plan
 
-    spec, sp = load_set_or_usage(airframe, args.envelope)
+    spec, sp = usage(load_set, airframe, args.envelope)
     try:
         return drill_plan(
             airframe, spec, sp, args.intervention, args.duration, args.only, args.random, args.seed
@@ -177,7 +164,7 @@ def _campaign(args: argparse.Namespace) -> int:
     from skyherd.safety.campaign_verdict import failed_drills
 
     airframes = _airframes(args.airframe)
-    sets = {a: load_set_or_usage(a, args.envelope) for a in airframes}
+    sets = {a: usage(load_set, a, args.envelope) for a in airframes}
     jobs = campaign_jobs(airframes, args.campaign, args.seed, args.envelope, args.through,
                          args.instance)  # fmt: skip
     only = set(args.campaign_drills)

@@ -49,13 +49,8 @@ def params_from(args: argparse.Namespace):
 
     budgeted = argparse.Namespace(**vars(args))
     apply_quick(budgeted, QUICK)
-    kw = {f.name: getattr(budgeted, f.name) for f in dataclasses.fields(AbsdlParams)}
     try:
-        kw["hidden"] = tuple(int(x) for x in str(kw["hidden"]).split(",") if x)
-    except ValueError:
-        raise UsageError(f"--hidden must be comma-separated widths, got {kw['hidden']!r}") from None
-    try:
-        return AbsdlParams(**kw)
+        return AbsdlParams.of(budgeted)
     except ValueError as e:
         raise UsageError(f"{e}; see `skyherd train abs-dl --help`") from None
 
