@@ -46,3 +46,12 @@ def exit_now(rc: int) -> NoReturn:
         except (OSError, ValueError):  # a closed or broken pipe: nothing more can be said
             pass
     os._exit(rc)
+
+
+def say(text: str) -> None:
+    """A line on stderr that never raises (stderr may be a file on a full disk or in a
+    read-only folder: a vehicle or a companion must not stop for it)."""
+    try:
+        print(text, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass

@@ -82,11 +82,6 @@ def _check(args):
     env = None if args.env is None else usage(load_env_file, args.env)
     if env is not None:
         args.agents, args.scaling_agents = [len(env.starts)], []
-    if args.backend == "ray" or args.ray_address:
-        from skyherd.policy.sql.sweep import ray_available
-
-        if not ray_available():
-            raise UsageError("Ray is not installed: pip install -e '.[ray]' (or --backend process)")
     return usage(specs_of, args, env)
 
 
@@ -105,14 +100,11 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from skyherd.policy.sql.metrics import study_summary
-    from skyherd.policy.sql.sweep import ray_available, run_all
+    from skyherd.policy.sql.sweep import run_all
+    from skyherd.runio.parallel import chosen_backend
 
     specs = _check(args)
-    backend = args.backend
-    if backend == "auto":
-        backend = "ray" if ray_available() else "process"
-        if backend == "process":
-            print("Ray is not installed: running on a local process pool (pip install -e '.[ray]')")
+    backend = usage(chosen_backend, args.backend, args.ray_address)
     reused = _reused(args, specs)
     folder = RunFolder("reproduce-sql", root=args.runs_dir)
     for sub in ("episodes", "maps"):

@@ -12,11 +12,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import sys
 from dataclasses import dataclass
 
 from skyherd.runio import args_dict
-from skyherd.runio.process import parent_gone
+from skyherd.runio.process import parent_gone, say
 from skyherd.runio.run import given_or_new_run_folder
 from skyherd.scripts.cli import UsageError, check_with, usage
 from skyherd.scripts.fault_options import FAULTS, add_fault_arguments
@@ -82,12 +81,3 @@ def run(args: argparse.Namespace) -> int:
 
         parent_died(run_dir, vehicles)
     return rc
-
-
-def say(text: str) -> None:
-    """A line on stderr (sim.log in a run folder), never raising: a full disk or a read-only
-    folder must not stop the vehicle."""
-    try:
-        print(text, file=sys.stderr, flush=True)
-    except (OSError, ValueError):
-        pass
