@@ -19,6 +19,7 @@ import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -142,6 +143,23 @@ def needed_scenarios(p: ExperimentParams) -> list[str]:
     if p.learner == "irl":
         return ["composite"]
     return list(SUBTASKS) + (["composite"] if p.with_irl else [])
+
+
+def recorded_demos(folder: Path | None, p: ExperimentParams) -> tuple[dict, dict]:
+    """The recorded demonstrations `folder`/<scenario>.npz (e.g. from `skyherd teleop`) of the
+    scenarios the learners need (none without a folder) and their files' facts (config.json);
+    ValueError (one line, with what to do) for a missing or bad file."""
+    from skyherd.policy.demos import DemoFileError, load_demo
+    from skyherd.runio import file_facts
+
+    demos, files = {}, {}
+    for sc in needed_scenarios(p) if folder is not None else ():
+        try:
+            demos[sc] = load_demo(folder / f"{sc}.npz")
+        except DemoFileError as e:
+            raise ValueError(f"{e}; record it with `skyherd teleop --scenario {sc}`") from None
+        files[sc] = file_facts(folder / f"{sc}.npz")
+    return demos, files
 
 
 def scripted_demonstration(scenario: str, p: ExperimentParams) -> Demonstration:

@@ -167,12 +167,7 @@ def run(args: argparse.Namespace) -> int:
     from skyherd.mission.build import build_mission
     from skyherd.runio.address import zenoh_endpoint
 
-    try:
-        mission, plan = build_mission(mission_choice(args), run_dir, say)
-    except ValueError as e:
-        if folder is not None:  # no run folder for a usage error
-            shutil.rmtree(run_dir, ignore_errors=True)
-        raise UsageError(str(e)) from None
+    mission, plan = _built(folder, build_mission, mission_choice(args), run_dir, say)
     if folder is not None:
         folder.write_config({"args": args_dict(args), "plan": plan, "address": address})
     session = frames = None
@@ -199,12 +194,7 @@ def _run_formation(args, run_dir: Path, folder: RunFolder | None) -> int:
     """K vehicles (instances N..N+K-1) in lockstep, one link each (mission.runner)."""
     from skyherd.mission.runner import fly_formation, load_formation
 
-    try:
-        plan, params, homes = load_formation(args.plan, args.cell_m)
-    except ValueError as e:
-        if folder is not None:
-            shutil.rmtree(run_dir, ignore_errors=True)
-        raise UsageError(str(e)) from None
+    plan, params, homes = _built(folder, load_formation, args.plan, args.cell_m)
     if folder is not None:
         folder.write_config({"args": args_dict(args), "formation": params, "homes": homes})
     rc, error = fly_formation(
@@ -215,3 +205,14 @@ def _run_formation(args, run_dir: Path, folder: RunFolder | None) -> int:
 
         formation_report(run_dir, rc, error)
     return rc
+
+
+def _built(folder: RunFolder | None, build, *args):
+    """`build(*args)`; its ValueError a UsageError, with the companion's own run folder removed
+    (a usage error leaves no run folder)."""
+    try:
+        return build(*args)
+    except ValueError as e:
+        if folder is not None:
+            shutil.rmtree(folder.path, ignore_errors=True)
+        raise UsageError(str(e)) from None

@@ -28,13 +28,7 @@ from skyherd.runio import args_dict, ports
 from skyherd.runio.run import Interrupted
 from skyherd.scripts.cli import UsageError, usage
 from skyherd.scripts.fault_options import FAULTS
-from skyherd.scripts.fly_options import (
-    FLY_WORLD,
-    check_child,
-    check_signing,
-    child_argv,
-    signing_mode,
-)
+from skyherd.scripts.fly_options import FLY_WORLD, check_child, child_argv, flight_signing
 from skyherd.scripts.options import add_options, opt
 from skyherd.world.setup import SimSetup
 
@@ -140,7 +134,9 @@ def _validate(args) -> tuple[list[str], list[str]]:
     if args.ugvs == "none":  # `skyherd sim`'s vehicle alone: no team, no camera
         raise UsageError("--ugvs none: a mission flies over a team; give --ugvs SCENARIO")
     orbit = args.airframe == "fixedwing"  # the ground-air task, flown as an orbit
-    sim = {d: getattr(args, d) for d in TO_SIM} | {"signing_key": check_signing(args)}
+    sim = {d: getattr(args, d) for d in TO_SIM} | {
+        "signing_key": usage(flight_signing(args).checked_key_file)
+    }
     sim["free_run"] = args.free_run or args.connect is not None
     if orbit:
         sim["ugvs"] = args.orbit_scenario
@@ -241,15 +237,14 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     from skyherd.report import ending
     from skyherd.runio import launch, signals
     from skyherd.scripts.cli import skyherd_cmd
-    from skyherd.scripts.fly_options import per_run_key
 
-    key = per_run_key(args, run_dir)
+    key = flight_signing(args).per_run_key(run_dir)
     if key is not None:  # handed to both programs
         sim_args += ["--signing-key", str(key)]
         comp_args += ["--signing-key", str(key)]
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
                          "companion": comp_args, "envelope": envelope and envelope[1],
-                         "signing": signing_mode(args)})  # fmt: skip
+                         "signing": flight_signing(args).mode()})  # fmt: skip
     ending.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     recorder = None

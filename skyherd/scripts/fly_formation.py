@@ -56,11 +56,11 @@ def run_formation(args: argparse.Namespace) -> int:
 
     from skyherd.runio import launch
     from skyherd.scripts.cli import skyherd_cmd
-    from skyherd.scripts.fly_options import check_signing, per_run_key, signing_mode
+    from skyherd.scripts.fly_options import flight_signing
 
     _check(args)
     _check_children(args)
-    key = check_signing(args)
+    key = usage(flight_signing(args).checked_key_file)  # None: a per-run key, or unsigned
     params = _params(args)
     K = args.agents
     plan, plan_info = usage(obtain_plan, args.policy_file, K, args.sql_seed, tqdm)
@@ -73,14 +73,14 @@ def run_formation(args: argparse.Namespace) -> int:
 
     folder = open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
-    key = key or per_run_key(args, run_dir)  # one key for every vehicle's two links
+    key = key or flight_signing(args).per_run_key(run_dir)  # one key for every vehicle's two links
     signing = ["--signing-key", str(key)] if key is not None else []
     folder.write_config(
         {"args": args_dict(args), "mission": "formation", "formation": params,
          "plan": plan_info, "field_origin": DEFAULT_HOME, "homes": homes, "instances": instances,
          "frame": "field NED about field_origin; cell (x, y) centre at north (y-1)*cell_m, "
                   "east (x-1)*cell_m",
-         "signing": signing_mode(args)}
+         "signing": flight_signing(args).mode()}
     )  # fmt: skip
     atomic_write_text(run_dir / "plan.json", plan_text(plan))
     ending.write_running(run_dir)

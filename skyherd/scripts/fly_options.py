@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from skyherd.flight.clock import SPEEDUP_HELP
 from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
-from skyherd.scripts.cli import COMMANDS, CheckParser, UsageError, usage
+from skyherd.scripts.cli import COMMANDS, CheckParser, UsageError
 from skyherd.scripts.options import opt
 
 AGENT_CHOICES = (1, 4, 9, 16)
@@ -102,19 +102,6 @@ def flight_signing(args):
 
     return FlightSigning(args.signing_key, args.no_signing, args.connect is not None,
                          getattr(args, "setup_signing", False))  # fmt: skip
-
-
-def check_signing(args) -> str | None:
-    """The key file's absolute path (None: a per-run key, or unsigned); UsageError, one line."""
-    return usage(flight_signing(args).checked_key_file)
-
-
-def signing_mode(args) -> str:
-    return flight_signing(args).mode()
-
-
-def per_run_key(args, run_dir):
-    return flight_signing(args).per_run_key(run_dir)
 
 
 @dataclass(frozen=True)

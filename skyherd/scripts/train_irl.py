@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.report import irl as report
-from skyherd.runio import RunFolder, file_facts
-from skyherd.scripts.cli import UsageError, apply_quick, quick_help, save_copy, usage
+from skyherd.runio import RunFolder
+from skyherd.scripts.cli import apply_quick, quick_help, save_copy, usage
 from skyherd.scripts.options import add_options, opt
 
 # --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
@@ -70,22 +70,14 @@ def run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from skyherd.policy.demos import DemoFileError, load_demo
-    from skyherd.policy.irl_experiment import ExperimentParams, budget_warnings, needed_scenarios
+    from skyherd.policy.irl_experiment import ExperimentParams, budget_warnings, recorded_demos
 
     quick = apply_quick(args, QUICK, getattr(args, "_argv", None))  # the options it set
     p = usage(ExperimentParams.of, args, args.learner_name)
     warnings = budget_warnings(p, QUICK["dqn_steps"])
     for w in warnings:
         print(f"skyherd train {p.learner}: warning: {w}", file=sys.stderr)
-    demos, demo_files = {}, {}
-    for sc in needed_scenarios(p):  # before the run folder: a missing demo file is bad usage
-        if args.demos is not None:
-            try:
-                demos[sc] = load_demo(args.demos / f"{sc}.npz")
-            except DemoFileError as e:
-                raise UsageError(f"{e}; record it with `skyherd teleop --scenario {sc}`") from e
-            demo_files[sc] = file_facts(args.demos / f"{sc}.npz")
+    demos, demo_files = usage(recorded_demos, args.demos, p)  # before the run folder
     with RunFolder.open(f"train-{p.learner}", args, root=args.runs_dir) as run:
         print(f"run folder: {run.path}")
         return _train(run, args, p, demos, demo_files, quick, warnings)
