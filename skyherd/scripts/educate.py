@@ -119,10 +119,11 @@ def _report_only(args, cur) -> int:
 
 def _report(cur, p, args, results, pol_dirs: dict[int, Path], rf) -> int:
     """pol_dirs: seed → the policies/ folder of its run."""
-    from skyherd.policy.education.evaluation import evaluate_into
+    from skyherd.policy.education.evaluation import evaluate_run, write_evaluation
 
     print("evaluating on unseen episodes …")
-    ev = evaluate_into(rf, results, pol_dirs, args.baselines, args.eval_episodes, p.dqn.gamma)
+    ev = evaluate_run(results, pol_dirs, args.baselines, args.eval_episodes, p.dqn.gamma)
+    write_evaluation(rf, results, ev)  # decisions.jsonl, results.json
     summary = report.summary(cur, p, args, results, ev.comparison, ev.fidelity, rf)
     rf.write_summary(summary)
     report.plots(rf, results, ev.comparison)
