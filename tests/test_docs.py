@@ -421,7 +421,8 @@ def test_readme_figures_exist_with_their_command_and_hash():
 def test_readme_figures_are_what_their_command_draws_today(tmp_path):
     """Fly each drawn figure's command (the flight is the same on any machine at any load:
     lockstep) and compare the figure it draws, byte for byte, with the README's."""
-    from skyherd.report.figures import DRAWN, command_text, fly, sha256
+    from skyherd.report.figures import DRAWN, command_text, sha256
+    from skyherd.scripts.figures import fly
 
     manifest = _figures_manifest()
     runs: dict[tuple, Path] = {}
