@@ -139,6 +139,9 @@ def _validate(args) -> tuple[list[str], list[str]]:
     }
     sim["free_run"] = args.free_run or args.connect is not None
     if orbit:
+        if args.ugvs != "composite":  # the default: the orbit's team is its own option
+            raise UsageError(f"--ugvs {args.ugvs}: the fixed-wing's orbit flies over "
+                             "--orbit-scenario (lateral or composite); drop --ugvs")  # fmt: skip
         sim["ugvs"] = args.orbit_scenario
     if args.connect is not None and args.mission == "groundair":
         sim["follow"] = usage(world_link, args.connect, args.world_link)
