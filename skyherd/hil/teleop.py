@@ -43,7 +43,7 @@ STICK_SILENT_S = 1.0  # a stick silent for longer than this means hover [s of wa
 
 @dataclass(frozen=True)
 class TeleopParams:
-    scenario: str = "lateral"  # lateral, climb, descend or composite
+    scenario: str = "lateral"  # what to demonstrate: lateral, climb, descend or composite
     episodes: int = 1  # episodes to record
     seed: int = 0  # environment seed of the first episode
     step_s: float = 0.5  # wall seconds per step; 0 = wait for a key (a message) each step

@@ -15,24 +15,55 @@ from skyherd.runio import JsonlWriter
 
 @dataclass(frozen=True)
 class MissionChoice:
-    """What the companion flies (`skyherd companion`'s options; saved with its arguments)."""
+    """What the companion flies (`skyherd companion`'s options, their help each field's comment
+    or docstring: scripts.options; saved with its arguments)."""
 
     mission: str = "groundair"  # groundair | square | shepherd | orbit
-    altitude_m: float | None = None  # take-off altitude above home [m] (None: the mission's)
+    altitude_m: float | None = None
+    """take-off altitude above home [m] (default: 20; `fly` frames the team)"""
     duration_s: float = 60.0  # flight behind the safety net [s]
-    side_m: float = 40.0  # --mission square: the square's side [m]
-    envelope: str | None = None  # constraint-set TOML of the net (None: the mission's)
-    pilot: str = "policy"  # policy | pid | drill:NAME
-    policy: str | None = None  # the policy file (None: the kept one)
-    lost_ugv_search: bool = False  # search for a UGV that left the view
-    configure_autopilot: bool = False  # set the outside autopilot's parameters the net needs
-    shepherd_selector: str = "learned"  # learned | strombom
-    orbit_team: str = "lateral"  # --mission orbit: the UGV team's scenario briefed
-    orbit_seed: int = 0  # ... and its seed
-    orbit_no_land: bool = False  # --mission orbit: hold instead of landing at the end
+    side_m: float = 40.0  # square side [m]
+    envelope: str | None = None  # constraint-set TOML of the safety net
+    pilot: str = "policy"
+    """groundair pilot: policy (the learned one), pid (the classic follower on φ(s)), or
+    drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. drill:lateral-fence
+    with --envelope safety/envelopes/quadrotor_field.toml"""
+    policy: str | None = None
+    """policy file: discrete (skyherd train ab / irl / educate) or the deep continuous ABS-DL
+    policy (skyherd train abs-dl, e.g. policy/models/groundair_absdl.npz) (default: the discrete
+    AB policy the repository keeps)"""
+    lost_ugv_search: bool = False
+    """groundair: when a UGV leaves the view, search for it (dead reckoning from its last
+    sighting, climbing toward the ceiling, expanding square: mission/search.py) instead of
+    leaving it to the pilot"""
+    configure_autopilot: bool = False
+    """before the take-off, set the autopilot's parameters the safety envelope requires (e.g.
+    PX4 COM_OF_LOSS_T, ArduCopter GUID_TIMEOUT), read each back and record the change
+    (companion.json, summary.md); nothing is restored afterwards. Default: refuse to take off on
+    a mismatch, naming the parameter and the value to set"""
+    shepherd_selector: str = "learned"
+    """--mission shepherd: the high-level selector between collect and drive: learned
+    (policy/shepherd/selector.json, fitted to Strömbom's demonstrations) or strombom (the
+    hand-written rule)"""
+    orbit_team: str = "lateral"
+    """--mission orbit: the UGV team's scenario the companion is briefed with (its start, speed,
+    spread)"""
+    orbit_seed: int = 0  # --mission orbit: the team's seed (the briefing)
+    orbit_no_land: bool = False  # --mission orbit: end in the orbit, no landing
     groundair_altitude_m: float = 20.0  # the ground-air and square missions' default [m]
     shepherd_altitude_m: float = 12.0  # --mission shepherd's default [m]: the flock feels the
     # UAV's horizontal position only; low enough for the camera to show the flock's part under it
+
+    def checked(self) -> MissionChoice:
+        """This choice, once its numbers are in range; ValueError (one line, naming the
+        option) otherwise."""
+        if not 0 < self.duration_s <= 36000:  # NaN fails too
+            raise ValueError("--duration must be in (0, 36000] s")
+        if self.altitude_m is not None and not 0 < self.altitude_m <= 120:
+            raise ValueError(f"--altitude {self.altitude_m:g}: must be in (0, 120] m above home")
+        if not 0 < self.side_m <= 500:
+            raise ValueError(f"--side {self.side_m:g}: must be in (0, 500] m")
+        return self
 
 
 def mission_choice(options) -> MissionChoice:

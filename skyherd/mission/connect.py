@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import dataclasses
 import errno
-import sys
 import time
 from pathlib import Path
 
 from skyherd.runio import CsvWriter, UsageError
 from skyherd.runio.constants import COMPANION_COMPONENT
+from skyherd.runio.process import say
 
 
 class GaveUp(Exception):
@@ -131,11 +131,3 @@ def link_error_text(e: Exception, address: str, instance: int) -> str:
     if isinstance(e, ValueError):
         return f"--signing-key: {e}"
     return f"{e}; check --connect"
-
-
-def say(text: str) -> None:
-    """A line on stderr that never raises (stderr may be a file on a full disk)."""
-    try:
-        print(text, file=sys.stderr, flush=True)
-    except (OSError, ValueError):
-        pass

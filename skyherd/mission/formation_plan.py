@@ -24,7 +24,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -213,6 +213,28 @@ def learned_plan(
         return validate_plan(learn_plan(params, progress), K, params.grid.size)
     except ValueError as e:
         raise PlanError(f"{e}; try another --sql-seed or pass --policy-file") from None
+
+
+def obtain_plan(
+    policy_file: str | None, n_agents: int, sql_seed: int, bar: Callable[..., Any] | None = None
+) -> tuple[list[list[Cell]], dict]:
+    """The lock-step plan of `skyherd fly --mission formation`: `policy_file` (a
+    plan_K<K>.json of `skyherd train sql`), else learnt here (learned_plan, with `bar` a
+    progress bar of tqdm.tqdm's signature), and where it came from (for config.json);
+    PlanError (one line) if it is unusable."""
+    from skyherd.policy.sql import GridParams
+
+    if policy_file:
+        try:
+            plan = load_plan(policy_file, n_agents, GridParams().size)
+        except PlanError as e:
+            raise PlanError(f"{e}; pass a plan_K{n_agents}.json from `skyherd train sql`") from None
+        return plan, {"source": "file", "path": str(policy_file)}
+    params = plan_params(n_agents, sql_seed)
+    if bar is None:
+        return learned_plan(params), params.describe()
+    with bar(total=params.hyper.episodes, desc=f"train SQL-SIE K={n_agents}", unit="ep") as b:
+        return learned_plan(params, b.update), params.describe()
 
 
 def vehicle_homes(origin: Home, starts: list[Cell], cell_m: float) -> list[Home]:

@@ -419,6 +419,22 @@ def open_session(p: ZenohParams):
         raise ValueError(f"cannot open a Zenoh session ({where}): {zenoh_error_text(e)}") from e
 
 
+def open_viewer(connect: str | None, config_file: str | None = None):
+    """A viewer's (ZenohParams, open session) (viewer_params, open_session); ValueError, one
+    line naming --connect or --zenoh-config, otherwise."""
+    from skyherd.runio.address import AddressError
+
+    try:
+        p = viewer_params(connect, config_file)
+    except AddressError as e:
+        raise ValueError(f"--connect {e}") from None
+    try:
+        return p, open_session(p)
+    except ValueError as e:
+        where = f"--zenoh-config {config_file}" if config_file else f"--connect {connect}"
+        raise ValueError(f"cannot open a Zenoh session ({where}): {zenoh_error_text(e)}") from None
+
+
 def zenoh_error_text(e: Exception) -> str:
     """A Zenoh (Rust) error as one readable line: its message without the Rust source
     locations ("at /root/.cargo/.../tcp.rs:61.") and without line breaks."""

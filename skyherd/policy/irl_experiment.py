@@ -19,6 +19,7 @@ import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -95,6 +96,33 @@ class ExperimentParams:
         """The learner the command is named after ("irl", or the first AB rule's)."""
         return "irl" if self.learner == "irl" else f"ab_{self.rules[0]}"
 
+    @classmethod
+    def of(cls, o, learner: str) -> ExperimentParams:
+        """The experiment of `skyherd train irl|ab`'s options: any object with them as
+        attributes (an argparse namespace; `rules` a comma-separated list, `no_irl` for "ab"
+        only); ValueError (one line) if they are refused."""
+        from skyherd.policy.dqn import DQNParams
+        from skyherd.policy.irl import IRLParams
+
+        if min(o.seeds, o.irl_iters, o.eval_episodes, o.mu_episodes) < 1 or o.dqn_steps < 100:
+            raise ValueError(
+                "need --seeds >= 1, --dqn-steps >= 100, --irl-iters >= 1, --eval-episodes >= 1"
+            )
+        if not (0 <= o.demo_epsilon <= 1 and 0 <= o.demo_lag <= 1 and 0 < o.gamma < 1):
+            raise ValueError("--demo-epsilon/--demo-lag must be in [0, 1] and --gamma in (0, 1)")
+        rules = tuple(r for r in getattr(o, "rules", "").split(",") if r) if learner == "ab" else ()
+        hyper = ApprenticeParams(
+            dqn=DQNParams(total_steps=o.dqn_steps, gamma=o.gamma),
+            irl=IRLParams(epsilon=o.epsilon, max_iters=o.irl_iters),
+            mu_episodes=o.mu_episodes,
+        )
+        return cls(
+            learner=learner, rules=rules, with_irl=not getattr(o, "no_irl", False),
+            seeds=o.seeds, seed=o.seed, apprentice=hyper,
+            expert=ExpertParams(epsilon=o.demo_epsilon, lag=o.demo_lag),
+            demo_episodes=o.demo_episodes, eval_episodes=o.eval_episodes,
+        )  # fmt: skip
+
 
 def budget_warnings(p: ExperimentParams, enough_steps: int) -> list[str]:
     """Budgets too short to learn anything, said out loud (printed and in summary.md);
@@ -115,6 +143,23 @@ def needed_scenarios(p: ExperimentParams) -> list[str]:
     if p.learner == "irl":
         return ["composite"]
     return list(SUBTASKS) + (["composite"] if p.with_irl else [])
+
+
+def recorded_demos(folder: Path | None, p: ExperimentParams) -> tuple[dict, dict]:
+    """The recorded demonstrations `folder`/<scenario>.npz (e.g. from `skyherd teleop`) of the
+    scenarios the learners need (none without a folder) and their files' facts (config.json);
+    ValueError (one line, with what to do) for a missing or bad file."""
+    from skyherd.policy.demos import DemoFileError, load_demo
+    from skyherd.runio import file_facts
+
+    demos, files = {}, {}
+    for sc in needed_scenarios(p) if folder is not None else ():
+        try:
+            demos[sc] = load_demo(folder / f"{sc}.npz")
+        except DemoFileError as e:
+            raise ValueError(f"{e}; record it with `skyherd teleop --scenario {sc}`") from None
+        files[sc] = file_facts(folder / f"{sc}.npz")
+    return demos, files
 
 
 def scripted_demonstration(scenario: str, p: ExperimentParams) -> Demonstration:
@@ -313,3 +358,62 @@ def transfer_rows(best: dict[str, LearnerRun], episodes: int) -> list[list]:
     return transfer_table(
         pols | reference_factories(), GROUNDSIM_SCENARIOS, episodes, TRANSFER_SEED
     )
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What `run_in_folder` returns besides the files it writes."""
+
+    runs: list[LearnerRun]  # one per learner and seed, in job order
+    baselines: dict[str, list[dict[str, float]]]  # reference policy → its test metrics per seed
+    best: dict[str, LearnerRun]  # learner → its best run (best_runs)
+    transfer: list[list] | None  # the transfer table's rows (None: not asked for)
+
+
+def run_in_folder(
+    run: Any,
+    p: ExperimentParams,
+    demos: dict[str, Demonstration],
+    workers: int = 1,
+    transfer_episodes: int = 0,
+    on_iteration: OnIteration | None = None,
+    on_result: Callable[[LearnerRun, list[LearnerRun]], None] | None = None,
+    bars: Callable[..., Any] = lambda items, **kw: items,
+    progress: bool = False,
+) -> Outcome:
+    """The whole experiment into the run folder `run` (a runio.run.Run), in order: demos/ (the
+    recorded `demos`, completed with the scripted demonstrator's), μ_E and the parameters in
+    config.json, every run (metrics.csv and events.jsonl as each ends), the baselines on the
+    same test episodes, policies/<learner>_seed<s>.npz, each learner's best run and the
+    transfer rows (`transfer_episodes` per groundsim behaviour; 0: none). `bars`: a progress
+    bar over the demonstrations and the baselines (tqdm.tqdm's signature; default none); the
+    rest as run_experiment's."""
+    (run.path / "demos").mkdir()
+    for sc in bars(needed_scenarios(p), desc="demonstrations", unit="scenario", disable=None):
+        if sc not in demos:
+            demos[sc] = scripted_demonstration(sc, p)
+        demos[sc].save(run.path / "demos" / f"{sc}.npz")
+    mu_e = expert_feature_expectations(p, demos)
+    run.config(
+        learner=p.learner, experiment=p, hyper_parameters=p.apprentice, expert=p.expert,
+        mu_expert={k: v.tolist() for k, v in mu_e.items()}, psi_names=PSI_NAMES,
+        demos={sc: d.meta["demonstrator"] for sc, d in demos.items()},
+    )  # fmt: skip
+    events, metrics = run.events(), run.metrics(METRIC_COLUMNS)
+
+    def ended(r: LearnerRun, done: list[LearnerRun]) -> None:
+        for row in r.metric_rows():
+            metrics.write(row)
+        events.write(r.event())
+        if on_result:
+            on_result(r, done)
+
+    runs = run_experiment(p, mu_e, workers, on_iteration, ended, progress)
+    facs = bars(baseline_factories(p).items(), desc="baselines", unit="policy", disable=None)
+    base = {name: baseline_metrics(make, p) for name, make in facs}
+    (run.path / "policies").mkdir()
+    for r in runs:
+        r.labelled_policy().save(run.path / "policies" / f"{r.learner}_seed{r.seed}.npz")
+    best = best_runs(runs)
+    rows = transfer_rows(best, transfer_episodes) if transfer_episodes > 0 else None
+    return Outcome(runs, base, best, rows)

@@ -151,3 +151,29 @@ def append_ending(run_dir: Path, lines: list[str]) -> None:
             print(f"skyherd fly: {why}; how the flight ended is above", file=sys.stderr, flush=True)
     except (OSError, ValueError):
         pass
+
+
+def end_run(run_dir: Path, report, *args, why: str, sims, vehicles=None, recorder=None) -> bool:
+    """After a flight: `report(run_dir, *args)` (report_safely), then "How it ended" from the
+    simulators `sims` (runio.launch children: their output kept in memory), the `vehicles`
+    (ending_lines) and `fly`'s `recorder` (its cut); True: the flight completed."""
+    ok = report_safely(report, run_dir, *args, why=why)
+    output = [ln for c in sims for ln in (c.lines or ())]
+    append_ending(run_dir, ending_lines(run_dir, vehicles, output, recording_cut(recorder)))
+    return ok
+
+
+def make_plots(run_dir: Path, plots: list) -> None:
+    """The report's plots, (file name, call) each, after the verdict is printed: matplotlib
+    (its import and drawing) is off the way to the verdict; then report.html again, with them.
+    A plot that fails is said on stderr; the flight's verdict and exit code stand."""
+    for name, plot in plots:
+        try:
+            plot()
+        except Exception as e:  # noqa: BLE001 - a plot never changes how the flight ended
+            print(f"skyherd fly: {name} was not made ({type(e).__name__}: {e})", file=sys.stderr,
+                  flush=True)  # fmt: skip
+    if plots:
+        from skyherd.report.page import write_report_html
+
+        write_report_html(run_dir)

@@ -7,11 +7,15 @@ tests/test_docs.py checks that every figure the README shows is listed with its 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 import shutil
 import subprocess
+import sys
+import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -87,3 +91,31 @@ def manifest(figures: dict, out: Path) -> dict:
     return {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
             "load": round(os.getloadavg()[0], 1), "cores": os.cpu_count(),
             "figures": figures}  # fmt: skip
+
+
+def make_figures(out: Path, fly: Callable[[tuple[str, ...], Path], Path]) -> dict:
+    """Fly MAIN_JOB and FAILED (`fly(argv, runs folder)`: `skyherd fly` as a user runs it; its
+    run folder), copy the DRAWN figures of their run folders into `out`, screenshot their SHOTS (when Chromium is there; said on stderr when
+    not) and write `out`/figures.json; returns the manifest."""
+    out.mkdir(parents=True, exist_ok=True)
+    figures = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = {}
+        for argv in (MAIN_JOB, FAILED):
+            print(f"figures: {command_text(argv)}", flush=True)
+            runs[argv] = fly(argv, Path(tmp) / "runs")
+        for name, (argv, src, what) in DRAWN.items():
+            shutil.copyfile(runs[argv] / src, out / name)
+            figures[name] = {"command": command_text(argv), "file": src, "what": what,
+                             "check": "bytes"}  # fmt: skip
+        for name, (argv, what) in SHOTS.items():
+            try:
+                screenshot(runs[argv] / "report.html", out / name)
+            except RuntimeError as e:
+                print(f"figures: no {name}: {e}", file=sys.stderr)
+                continue
+            figures[name] = {"command": command_text(argv), "file": "report.html", "what": what,
+                             "check": "recorded"}  # fmt: skip
+    made = manifest(figures, out)
+    (out / MANIFEST).write_text(json.dumps(made, indent=1) + "\n", encoding="utf-8")
+    return made

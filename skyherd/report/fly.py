@@ -74,7 +74,7 @@ def _config(run_dir: Path) -> dict:
 def report(run_dir: Path, args, rc: int, why: str, later: list | None = None) -> bool:
     """Write summary.md (and plots) from the run folder; print the table; True if completed.
     With a list `later` (`skyherd fly`) the ground-air and square plots are appended to it as
-    (file name, call) to be made once the verdict is printed (scripts.fly.make_plots)."""
+    (file name, call) to be made once the verdict is printed (report.ending.make_plots)."""
     comp = {}
     if (run_dir / "companion.json").exists():
         comp = json.loads((run_dir / "companion.json").read_text())

@@ -11,6 +11,7 @@ translate it into a Zenoh endpoint (`tcp:HOST:PORT` → `tcp/HOST:PORT`); Zenoh'
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 
@@ -90,3 +91,10 @@ def zenoh_endpoint(text: str) -> str:
 def mavlink_address(text: str) -> str:
     """A checked pymavlink connection string (Zenoh's `tcp/HOST:PORT` translated too)."""
     return parse_address(text).mavlink
+
+
+def zenoh_config_file(path: str) -> str:
+    """The `--zenoh-config` file `path`, once it is a file; AddressError naming the option."""
+    if not os.path.isfile(path):
+        raise AddressError(f"--zenoh-config {path}: no such file; pass a Zenoh JSON5 file")
+    return path

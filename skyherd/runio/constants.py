@@ -18,7 +18,7 @@ JSON_STRIDE = 10  # ArduPilot's -I N moves every port by 10 N
 ZENOH_BASE = 7447  # TCP, the simulator's Zenoh peer listens on 127.0.0.1:7447+N
 MISSION_DRILL_INSTANCE = 85  # `skyherd drill --through mission`: the first vehicle instance
 LOOPBACK = "127.0.0.1"  # every socket skyherd opens binds here unless a flag says otherwise
-READY_FD_ENV = "SKYHERD_READY_FD"  # a child of `fly` writes one byte to this fd once it takes signals
+READY_FD_ENV = "SKYHERD_READY_FD"  # the fd a child of `fly` says "I take signals" on
 
 # -- MAVLink identities (CONVENTIONS.md) -------------------------------------------------------
 AUTOPILOT_COMPONENT = 1  # MAV_COMP_ID_AUTOPILOT1; the vehicle of instance N is system 1+N

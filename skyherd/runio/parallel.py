@@ -40,6 +40,20 @@ def ray_available() -> bool:
         return False
 
 
+def chosen_backend(backend: str, ray_address: str | None = None, say=print) -> str:
+    """The backend a command runs on: `backend`, or for "auto" Ray when it is installed, else
+    the process pool (said by `say`); ValueError if Ray is asked for (`backend` "ray" or a
+    `ray_address`) and not installed."""
+    if (backend == "ray" or ray_address) and not ray_available():
+        raise ValueError("Ray is not installed: pip install -e '.[ray]' (or --backend process)")
+    if backend != "auto":
+        return backend
+    if ray_available():
+        return "ray"
+    say("Ray is not installed: running on a local process pool (pip install -e '.[ray]')")
+    return "process"
+
+
 def import_ray_loopback():
     """Import ray so that a local instance listens on 127.0.0.1 only (see module doc)."""
     os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"

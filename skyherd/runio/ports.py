@@ -174,3 +174,13 @@ ZENOH_ADDRESS_HELP = f"tcp:{LOOPBACK}:{ZENOH_BASE}+N"
 
 
 GCS_STREAM = f"udpin:{LOOPBACK}:{GCS_REMOTE_PORT}"  # an autopilot's ground-station stream
+
+
+def check_ports_free(instances: list[int], host: str = LOOPBACK) -> None:
+    """ValueError (one line) if a UDP port of these instances is taken now (taken_udp_port)."""
+    taken = taken_udp_port(instances, host)
+    if taken is not None:
+        inst, port, why = taken
+        raise ValueError(
+            f"UDP port {port} of instance {inst} is taken ({why}); pick another --instance"
+        )

@@ -81,6 +81,18 @@ def open_run_folder(command: str, root: Path | str) -> RunFolder:
                          "pass a writable --runs-dir") from None  # fmt: skip
 
 
+def given_or_new_run_folder(command: str, run_dir: str | None, root: Path | str):
+    """(`run_dir`, None): the folder `skyherd fly` made for its children (UsageError unless it
+    is a folder), or a new run folder of `command` under `root` (open_run_folder): (its path,
+    it)."""
+    if run_dir is None:
+        folder = open_run_folder(command, root)
+        return folder.path, folder
+    if not Path(run_dir).is_dir():
+        raise UsageError(f"--run-dir {run_dir} is not a folder")
+    return Path(run_dir), None
+
+
 FILE_NOTES = {
     "config.json": "everything needed to repeat the run (command line, arguments, code commit, versions, input files with SHA-256)",
     "summary.md": "how the run ended, the results, this list",

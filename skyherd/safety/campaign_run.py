@@ -72,8 +72,8 @@ def load_set(airframe: str, envelope: Path | None) -> tuple[EnvelopeSpec, Superv
     try:
         spec, table = load_envelope(path)
         sp = fill_dataclass(SupervisorParams, table, "supervisor")
-    except EnvelopeFileError:
-        raise
+    except EnvelopeFileError as e:  # what to do, for the command line
+        raise EnvelopeFileError(f"{e}; fix the file or pass another --envelope") from e
     except ValueError as e:
         raise ValueError(f"constraint set {path}: {e}") from e
     if spec.airframe != airframe:

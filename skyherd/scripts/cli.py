@@ -21,12 +21,9 @@ if __name__ == "__main__":  # `python -m skyherd.scripts.cli` (fly's children, t
         signal.signal(_sig, _keep_early)
 
 import argparse  # noqa: E402
-import atexit  # noqa: E402
 import importlib  # noqa: E402
-import os  # noqa: E402
 import re  # noqa: E402
 import sys  # noqa: E402
-import threading  # noqa: E402
 from typing import NoReturn  # noqa: E402
 
 from skyherd.runio.constants import API_REMOTE_BASE, LOOPBACK, ZENOH_BASE  # noqa: E402
@@ -139,6 +136,7 @@ def examples_epilog(lines: tuple[str, ...]) -> str:
     return "examples:\n" + "\n".join(f"  {ln}" for ln in lines)
 
 
+from skyherd.runio.process import exit_now  # noqa: E402
 from skyherd.runio.run import RunAborted, UsageError  # noqa: E402  (one definition, in runio)
 
 __all__ = ["COMMANDS", "UsageError", "build_parser", "main"]
@@ -212,6 +210,21 @@ def check_with(prog: str, add_arguments, check, argv: list[str]) -> str | None:
     except UsageError as e:
         return " ".join(str(e).split())  # one line, whatever the check said
     return None
+
+
+def usage(fn, *args):
+    """`fn(*args)`, its ValueError (a bad option's one-line reason) a UsageError: exit 2."""
+    try:
+        return fn(*args)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+
+
+def save_copy(policy, path, what: str) -> None:
+    """--save-policy: `policy` (anything with save(path)) also at `path`, its folder made."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    policy.save(path)
+    print(f"saved {what} policy → {path}")
 
 
 class _Version(argparse.Action):
@@ -294,27 +307,6 @@ def _early_signal() -> int | None:
             h = signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL
             signal.signal(sig, h)
     return _EARLY[0] if _EARLY else None
-
-
-def exit_now(rc: int) -> NoReturn:
-    """End the process with `rc` once a command has returned: the atexit handlers run and
-    standard output and error are flushed, then the interpreter's teardown (freeing every
-    module and object, numba's LLVM) is skipped. It cost 0.2-0.4 s of wall time per process
-    at the end of every flight (measured), and nothing is left to write then: every run-folder
-    file is closed by the command that opened it (the tlog, mcap, CSV and JSONL writers; their
-    owners close them in `finally` or `with`). A non-daemon thread still running gets the normal
-    exit, which waits for it. `atexit._run_exitfuncs` is CPython's own step of a normal exit
-    (the handlers, last registered first)."""
-    if any(t.is_alive() and not t.daemon for t in threading.enumerate()
-           if t is not threading.main_thread()):  # fmt: skip
-        sys.exit(rc)
-    atexit._run_exitfuncs()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):  # a closed or broken pipe: nothing more can be said
-            pass
-    os._exit(rc)
 
 
 def skyherd_cmd(*args: str) -> list[str]:

@@ -12,163 +12,106 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
+from skyherd.mission.build import MissionChoice, mission_choice
 from skyherd.runio import JsonlWriter, RunFolder, args_dict, ports
-from skyherd.scripts.cli import UsageError, check_with
+from skyherd.runio.run import given_or_new_run_folder
+from skyherd.scripts.cli import UsageError, check_with, usage
+from skyherd.scripts.options import add_options, opt
 
 
-def add_arguments(
-    parser,
-    standalone: bool = True,
-    missions: tuple[str, ...] = ("groundair", "square", "formation", "orbit", "shepherd"),
-) -> None:
+def pilot_choice(value: str) -> str:
+    """--pilot: policy, pid, or drill:NAME (a named drill of safety.drills; - for a space)."""
+    if value in ("policy", "pid") or value.startswith("drill:"):
+        return value
+    raise argparse.ArgumentTypeError(f"{value!r}: use policy, pid or drill:NAME")
+
+
+@dataclass(frozen=True)
+class LinkOptions:
+    """`skyherd companion`'s options on its own, not under `skyherd fly` (scripts.options)."""
+
+    connect: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="the autopilot's MAVLink address (pymavlink form; default "
+        f"{ports.COMPANION_ADDRESS_HELP})",
+    )
+    instance: int = opt(
+        0,
+        help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}] (system id 1+N, default "
+        f"addresses: MAVLink {ports.COMPANION_ADDRESS_HELP}, Zenoh {ports.ZENOH_ADDRESS_HELP})",
+    )
+    free_run: bool = False
+    """tick on the autopilot's clock instead of the simulator's marks (a real autopilot)"""
+    zenoh_connect: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="where the camera frames are published (tcp:HOST:PORT; default: "
+        f"{ports.ZENOH_ADDRESS_HELP} for --instance N)",
+    )
+    zenoh_config: str | None = opt(None, metavar="FILE")  # a Zenoh JSON5 configuration instead
+    signing_key: str | None = opt(None, metavar="FILE")
+    """MAVLink 2 signing key file (32 bytes) shared with the autopilot"""
+    plan: str | None = opt(None, metavar="FILE")
+    """--mission formation: the lock-step grid plan (plan.json / plan_K<K>.json); vehicle k is
+    instance N+k, its home on its start cell"""
+    cell_m: float = 2.0  # --mission formation: grid cell size [m]
+    runs_dir: str = "runs"  # where the run folder goes
+    run_dir: str | None = None  # write into this existing run folder (used by `skyherd fly`)
+    wait_go: bool = False
+    """set up, then wait for a line on standard input before the first message to the vehicle
+    (its clock starts on it): how `skyherd fly` starts the flight once its recorder listens"""
+
+
+@dataclass(frozen=True)
+class FlightOptions:
+    """The companion's options under `skyherd fly` too that are not mission.build.MissionChoice
+    fields (scripts.options)."""
+
+    no_camera: bool = False  # fly without camera frames (square, or no simulator)
+    setup_signing: bool = False
+    """an outside autopilot: first send it the --signing-key (SETUP_SIGNING) until it answers
+    signed, then fly signed. ArduPilot accepts unsigned messages on SERIAL0 (TCP 5760+10N in
+    SITL) whatever the key: connect to SERIAL1/2 for a protected link (docs/mavlink.md)"""
+
+
+LINK = ("connect", "instance", "free_run", "zenoh_connect", "zenoh_config", "signing_key")
+LINK += ("orbit_team", "orbit_seed", "orbit_no_land", "plan", "cell_m", "runs_dir", "run_dir")
+LINK += ("wait_go",)  # standalone: LinkOptions' fields and MissionChoice's orbit ones
+FLIGHT = ("mission", "shepherd_selector", "pilot", "lost_ugv_search", "policy", "envelope")
+FLIGHT += ("altitude_m", "duration_s", "side_m", "no_camera", "setup_signing")
+FLIGHT += ("configure_autopilot",)  # under `skyherd fly` too
+SHOWN = {
+    "orbit_team": dict(metavar="SCENARIO"),
+    "shepherd_selector": dict(choices=["learned", "strombom"]),
+    "pilot": dict(type=pilot_choice),
+    "policy": dict(metavar="FILE"),
+    "envelope": dict(metavar="FILE"),
+    "altitude_m": dict(flag="--altitude", dest="altitude", metavar="M"),
+    "duration_s": dict(flag="--duration", dest="duration", metavar="S"),
+    "side_m": dict(flag="--side", dest="side", metavar="M"),
+}  # how the options show MissionChoice's fields
+
+
+MISSIONS = {
+    "groundair": "groundair: keep the UGVs in view behind the safety net",
+    "square": "square: fly a square",
+    "formation": "formation: K vehicles fly the SQL-SIE plan to their targets",
+    "orbit": "orbit: a fixed-wing orbits the team, camera on a pointed gimbal",
+    "shepherd": "shepherd: herd the UGV flock (--ugvs flock) into the goal region "
+    "(docs/shepherding.md)",
+}  # --mission: each one's help
+
+
+def add_arguments(parser, standalone: bool = True, missions: tuple[str, ...] = (*MISSIONS,)):
     if standalone:
-        parser.add_argument(
-            "--connect",
-            metavar="ADDRESS",
-            default=None,
-            help=f"the autopilot's MAVLink address (pymavlink form; default {ports.COMPANION_ADDRESS_HELP})",
-        )
-        parser.add_argument(
-            "--instance",
-            type=int,
-            default=0,
-            help=f"vehicle instance N in [0, {ports.MAX_INSTANCE}] (system id 1+N, default "
-            f"addresses: MAVLink {ports.COMPANION_ADDRESS_HELP}, Zenoh {ports.ZENOH_ADDRESS_HELP})",
-        )
-        parser.add_argument(
-            "--free-run",
-            action="store_true",
-            help="tick on the autopilot's clock instead of the simulator's marks (a real autopilot)",
-        )
-        parser.add_argument(
-            "--zenoh-connect",
-            default=None,
-            metavar="ADDRESS",
-            help="where the camera frames are published (tcp:HOST:PORT; default: "
-            f"{ports.ZENOH_ADDRESS_HELP} for --instance N)",
-        )
-        parser.add_argument(
-            "--zenoh-config",
-            default=None,
-            metavar="FILE",
-            help="a Zenoh JSON5 configuration instead",
-        )
-        parser.add_argument(
-            "--signing-key",
-            default=None,
-            metavar="FILE",
-            help="MAVLink 2 signing key file (32 bytes) shared with the autopilot",
-        )
-        parser.add_argument(
-            "--orbit-team",
-            default="lateral",
-            metavar="SCENARIO",
-            help="--mission orbit: the UGV team's scenario the companion is briefed with (its start, speed, spread)",
-        )
-        parser.add_argument(
-            "--orbit-seed",
-            type=int,
-            default=0,
-            help="--mission orbit: the team's seed (the briefing)",
-        )
-        parser.add_argument(
-            "--orbit-no-land",
-            action="store_true",
-            help="--mission orbit: end in the orbit, no landing",
-        )
-        parser.add_argument(
-            "--plan",
-            default=None,
-            metavar="FILE",
-            help="--mission formation: the lock-step grid plan (plan.json / plan_K<K>.json); "
-            "vehicle k is instance N+k, its home on its start cell",
-        )
-        parser.add_argument(
-            "--cell-m", type=float, default=2.0, help="--mission formation: grid cell size [m]"
-        )
-        parser.add_argument("--runs-dir", default="runs", help="where the run folder goes")
-        parser.add_argument(
-            "--run-dir",
-            default=None,
-            help="write into this existing run folder (used by `skyherd fly`)",
-        )
-        parser.add_argument(
-            "--wait-go",
-            action="store_true",
-            help="set up, then wait for a line on standard input before the first message to the "
-            "vehicle (its clock starts on it): how `skyherd fly` starts the flight once its "
-            "recorder listens",
-        )
-    parser.add_argument(
-        "--mission", choices=list(missions), default="groundair",
-        help="groundair: keep the UGVs in view behind the safety net; square: fly a square"
-        + ("; formation: K vehicles fly the SQL-SIE plan to their targets" if "formation" in missions else "")
-        + ("; orbit: a fixed-wing orbits the team, camera on a pointed gimbal" if "orbit" in missions else "")
-        + ("; shepherd: herd the UGV flock (--ugvs flock) into the goal region (docs/shepherding.md)"
-           if "shepherd" in missions else ""),
-    )  # fmt: skip
-    if "shepherd" in missions:
-        parser.add_argument("--shepherd-selector", choices=["learned", "strombom"], default="learned",
-                            help="--mission shepherd: the high-level selector between collect and drive: learned "
-                            "(policy/shepherd/selector.json, fitted to Strömbom's demonstrations) or strombom "
-                            "(the hand-written rule)")  # fmt: skip
-    parser.add_argument(
-        "--pilot",
-        type=pilot_choice,
-        default="policy",
-        help="groundair pilot: policy (the learned one), pid (the classic follower on φ(s)), or "
-        "drill:NAME, a named drill's adversarial AI flown by the same mission, e.g. "
-        "drill:lateral-fence with --envelope safety/envelopes/quadrotor_field.toml",
-    )
-    parser.add_argument("--lost-ugv-search", action="store_true",
-                        help="groundair: when a UGV leaves the view, search for it (dead reckoning from its last "
-                        "sighting, climbing toward the ceiling, expanding square: mission/search.py) instead of "
-                        "leaving it to the pilot")  # fmt: skip
-    parser.add_argument(
-        "--policy",
-        default=None,
-        metavar="FILE",
-        help="policy file: discrete (skyherd train ab / irl / educate) or the deep continuous "
-        "ABS-DL policy (skyherd train abs-dl, e.g. policy/models/groundair_absdl.npz) "
-        "(default: the discrete AB policy the repository keeps)",
-    )
-    parser.add_argument(
-        "--envelope", default=None, metavar="FILE", help="constraint-set TOML of the safety net"
-    )
-    parser.add_argument(
-        "--altitude",
-        type=float,
-        default=None,
-        metavar="M",
-        help="take-off altitude above home [m] (default: 20; `fly` frames the team)",
-    )
-    parser.add_argument(
-        "--duration", type=float, default=60.0, metavar="S", help="flight behind the safety net [s]"
-    )
-    parser.add_argument("--side", type=float, default=40.0, metavar="M", help="square side [m]")
-    parser.add_argument(
-        "--no-camera",
-        action="store_true",
-        help="fly without camera frames (square, or no simulator)",
-    )
-    parser.add_argument(
-        "--setup-signing",
-        action="store_true",
-        help="an outside autopilot: first send it the --signing-key (SETUP_SIGNING) until it "
-        "answers signed, then fly signed. ArduPilot accepts unsigned messages on SERIAL0 (TCP "
-        "5760+10N in SITL) whatever the key: connect to SERIAL1/2 for a protected link "
-        "(docs/mavlink.md)",
-    )
-    parser.add_argument(
-        "--configure-autopilot",
-        action="store_true",
-        help="before the take-off, set the autopilot's parameters the safety envelope requires "
-        "(e.g. PX4 COM_OF_LOSS_T, ArduCopter GUID_TIMEOUT), read each back and record the change "
-        "(companion.json, summary.md); nothing is restored afterwards. Default: refuse to take "
-        "off on a mismatch, naming the parameter and the value to set",
-    )
+        add_options(parser, (LinkOptions, MissionChoice), only=LINK, **SHOWN)
+    said = "; ".join(MISSIONS[m] for m in missions)
+    mission = dict(choices=list(missions), help=said)
+    add_options(parser, (MissionChoice, FlightOptions), only=FLIGHT, **SHOWN, mission=mission)
 
 
 def check_args(argv: list[str]) -> str | None:
@@ -181,26 +124,20 @@ def check_args(argv: list[str]) -> str | None:
 def check(args) -> str:
     """Every check of the arguments that needs nothing started (UsageError, one line); fills
     the instance's default addresses in. Returns the autopilot's MAVLink address."""
+    from skyherd.flight.mavlink.signing import key_option
     from skyherd.hil.link import link_address
+    from skyherd.runio.address import zenoh_config_file, zenoh_endpoint
 
-    try:
-        ports.check_instance(args.instance)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    usage(ports.check_instance, args.instance)
     address = args.connect or ports.companion_address(args.instance)
-    try:
-        link_address(address)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    usage(link_address, address)
     if args.zenoh_connect is None:
         args.zenoh_connect = ports.zenoh_address(args.instance)
-    zenoh_endpoint(args.zenoh_connect)
-    if not 0 < args.duration <= 36000:  # NaN fails too
-        raise UsageError("--duration must be in (0, 36000] s")
-    if args.altitude is not None and not 0 < args.altitude <= 120:
-        raise UsageError(f"--altitude {args.altitude:g}: must be in (0, 120] m above home")
-    if not 0 < args.side <= 500:
-        raise UsageError(f"--side {args.side:g}: must be in (0, 500] m")
+    try:
+        zenoh_endpoint(args.zenoh_connect)
+    except ValueError as e:
+        raise UsageError(f"--zenoh-connect {e}") from None
+    usage(mission_choice(args).checked)
     if args.mission == "formation" and args.plan is None:
         raise UsageError(
             "--mission formation needs --plan FILE (a plan_K<K>.json from `skyherd train sql`)"
@@ -213,33 +150,10 @@ def check(args) -> str:
             "--mission shepherd reads the flock on the simulator's Zenoh session: drop --no-camera"
         )
     if args.signing_key:
-        from skyherd.flight.mavlink.signing import load_key
-
-        try:
-            load_key(args.signing_key)
-        except ValueError as e:  # SigningError
-            raise UsageError(f"--signing-key: {e}") from None
-    if args.zenoh_config is not None and not Path(args.zenoh_config).is_file():
-        raise UsageError(
-            f"--zenoh-config {args.zenoh_config}: no such file; pass a Zenoh JSON5 file"
-        )
+        usage(key_option, args.signing_key)
+    if args.zenoh_config is not None:
+        usage(zenoh_config_file, args.zenoh_config)
     return address
-
-
-def pilot_choice(value: str) -> str:
-    """--pilot: policy, pid, or drill:NAME (a named drill of safety.drills; - for a space)."""
-    if value in ("policy", "pid") or value.startswith("drill:"):
-        return value
-    raise argparse.ArgumentTypeError(f"{value!r}: use policy, pid or drill:NAME")
-
-
-def zenoh_endpoint(address: str) -> str:
-    """pymavlink-style `tcp:HOST:PORT` → Zenoh's `tcp/HOST:PORT` (one address syntax)."""
-    kind, _, rest = address.partition(":")
-    host, _, port = rest.rpartition(":")
-    if kind not in ("tcp", "udp") or not host or not port.isdigit():
-        raise UsageError(f"cannot parse Zenoh address {address!r}; expected tcp:HOST:PORT")
-    return f"{kind}/{host}:{port}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -247,17 +161,13 @@ def run(args: argparse.Namespace) -> int:
     from skyherd.mission.runner import fly_vehicle
 
     address = check(args)
-    run_dir, folder = _run_folder(args)
+    run_dir, folder = given_or_new_run_folder("companion", args.run_dir, args.runs_dir)
     if args.mission == "formation":
         return _run_formation(args, run_dir, folder)
-    from skyherd.mission.build import build_mission, mission_choice
+    from skyherd.mission.build import build_mission
+    from skyherd.runio.address import zenoh_endpoint
 
-    try:
-        mission, plan = build_mission(mission_choice(args), run_dir, say)
-    except ValueError as e:
-        if folder is not None:  # no run folder for a usage error
-            shutil.rmtree(run_dir, ignore_errors=True)
-        raise UsageError(str(e)) from None
+    mission, plan = _built(folder, build_mission, mission_choice(args), run_dir, say)
     if folder is not None:
         folder.write_config({"args": args_dict(args), "plan": plan, "address": address})
     session = frames = None
@@ -280,26 +190,11 @@ def run(args: argparse.Namespace) -> int:
     return rc
 
 
-def _run_folder(args) -> tuple[Path, RunFolder | None]:
-    """--run-dir (`skyherd fly`'s), or a run folder of its own (returned too)."""
-    if args.run_dir is None:
-        folder = RunFolder("companion", root=args.runs_dir)
-        return folder.path, folder
-    if not Path(args.run_dir).is_dir():
-        raise UsageError(f"--run-dir {args.run_dir} is not a folder")
-    return Path(args.run_dir), None
-
-
 def _run_formation(args, run_dir: Path, folder: RunFolder | None) -> int:
     """K vehicles (instances N..N+K-1) in lockstep, one link each (mission.runner)."""
     from skyherd.mission.runner import fly_formation, load_formation
 
-    try:
-        plan, params, homes = load_formation(args.plan, args.cell_m)
-    except ValueError as e:
-        if folder is not None:
-            shutil.rmtree(run_dir, ignore_errors=True)
-        raise UsageError(str(e)) from None
+    plan, params, homes = _built(folder, load_formation, args.plan, args.cell_m)
     if folder is not None:
         folder.write_config({"args": args_dict(args), "formation": params, "homes": homes})
     rc, error = fly_formation(
@@ -310,3 +205,14 @@ def _run_formation(args, run_dir: Path, folder: RunFolder | None) -> int:
 
         formation_report(run_dir, rc, error)
     return rc
+
+
+def _built(folder: RunFolder | None, build, *args):
+    """`build(*args)`; its ValueError a UsageError, with the companion's own run folder removed
+    (a usage error leaves no run folder)."""
+    try:
+        return build(*args)
+    except ValueError as e:
+        if folder is not None:
+            shutil.rmtree(folder.path, ignore_errors=True)
+        raise UsageError(str(e)) from None

@@ -8,127 +8,79 @@ report is report.drill's), exit 1 if any drill fails a check.
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.report import drill as report
 from skyherd.runio import UsageError, args_dict, ports
 from skyherd.runio.constants import MISSION_DRILL_INSTANCE, TARGET_BOUND
-from skyherd.runio.runfolder import RunFolder
+from skyherd.runio.run import open_run_folder
+from skyherd.safety.campaign_run import load_set
+from skyherd.scripts.cli import usage
+from skyherd.scripts.options import add_options, opt
+
+
+@dataclass(frozen=True)
+class DrillOptions:
+    """The options of `skyherd drill` (scripts.options: one field, one option)."""
+
+    airframe: str = opt("quadrotor", choices=["quadrotor", "fixedwing", "all"])
+    """airframe to drill (default quadrotor)"""
+    random: int = opt(0, metavar="N")
+    """also run N random drills (random states, actions pushing toward the boundaries)"""
+    seed: int = 0  # seed of the random drills (default 0)
+    only: str | None = opt(None, metavar="NAME")
+    """run only the scripted drills whose name contains NAME (comma-separated list)"""
+    envelope: Path | None = None
+    """constraint-set TOML (default safety/envelopes/<airframe>_field.toml)"""
+    intervention: str | None = opt(None, choices=["switch", "project"])
+    """unsafe action → fallback (switch) or closest safe action first (project)"""
+    duration: float | None = None
+    """AI time per drill [s] (default 35 quadrotor, 90 fixed-wing; a drill that must end with
+    the AI flying runs at least its attack + the airframe's recovery allowance, 5 s quadrotor,
+    46 s fixed-wing)"""
+    runs_dir: Path = Path("runs")  # where run folders go (default runs/)
+    no_plots: bool = False  # skip the PNGs
+    campaign: int = opt(0, metavar="N")
+    """run N randomized adversarial drills per airframe (safety.campaign: max speed,
+    oscillation, repeat offender, link loss, GPS glitch, wind, battery, parameter sabotage)
+    instead of the named drills; --airframe all for both"""
+    campaign_drills: tuple[int, ...] = opt((), flag="--drill", metavar="INDEX")
+    """--campaign: fly only these drills of the campaign (its index, e.g. 664 for drill 0664 of
+    the summary; the same seed and N fly the same drill), e.g. to look at one that failed
+    (default: all N)"""
+    workers: int = 1
+    """--campaign: CPUs (a local Ray instance's or the process pool's; default 1: in this
+    process)"""
+    backend: str = opt("auto", choices=("auto", "ray", "process"))
+    """--campaign with --workers > 1 or --ray-address: auto = Ray if installed, else a local
+    process pool; a dead worker's drill runs again (default auto)"""
+    ray_address: str | None = opt(None, metavar="ADDR")
+    """--campaign: run the drills as tasks on this Ray cluster (default: a local instance on
+    loopback, when --workers > 1)"""
+    target_bound: float = opt(TARGET_BOUND, metavar="P")
+    """--campaign: the breach probability to bound (95 %% one-sided Clopper-Pearson); the report
+    says how many breach-free drills that needs (default 1e-3: 2,995)"""
+    through: str = opt("mission", choices=("mission", "process"))
+    """--campaign: how each drill flies. mission: `skyherd fly`'s mission code
+    (SingleVehicleMission with the drill's adversarial pilot, the same SafetyNet and judge) over
+    real loopback MAVLink to the built-in vehicle, in lockstep on the simulation clock
+    (mission.drill_link); process: the in-process drill loop (safety.drills.run_drill) (default
+    mission)"""
+    instance: int = opt(
+        MISSION_DRILL_INSTANCE,
+        help=f"--through mission: the first vehicle instance ({ports.MAVLINK_PORTS_HELP}); each "
+        f"drill running at once takes the next free one, up to N+31 (default "
+        f"{MISSION_DRILL_INSTANCE})",
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--airframe",
-        choices=["quadrotor", "fixedwing", "all"],
-        default="quadrotor",
-        help="airframe to drill (default quadrotor)",
-    )
-    parser.add_argument(
-        "--random",
-        type=int,
-        default=0,
-        metavar="N",
-        help="also run N random drills (random states, actions pushing toward the boundaries)",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the random drills (default 0)")
-    parser.add_argument(
-        "--only",
-        default=None,
-        metavar="NAME",
-        help="run only the scripted drills whose name contains NAME (comma-separated list)",
-    )
-    parser.add_argument(
-        "--envelope",
-        type=Path,
-        default=None,
-        help="constraint-set TOML (default safety/envelopes/<airframe>_field.toml)",
-    )
-    parser.add_argument(
-        "--intervention",
-        choices=["switch", "project"],
-        default=None,
-        help="unsafe action → fallback (switch) or closest safe action first (project)",
-    )
-    parser.add_argument(
-        "--duration",
-        type=float,
-        default=None,
-        help="AI time per drill [s] (default 35 quadrotor, 90 fixed-wing; a drill that must "
-        "end with the AI flying runs at least its attack + the airframe's recovery allowance, "
-        "5 s quadrotor, 46 s fixed-wing)",
-    )
-    parser.add_argument(
-        "--runs-dir", type=Path, default=Path("runs"), help="where run folders go (default runs/)"
-    )
-    parser.add_argument("--no-plots", action="store_true", help="skip the PNGs")
-    parser.add_argument(
-        "--campaign",
-        type=int,
-        default=0,
-        metavar="N",
-        help="run N randomized adversarial drills per airframe (safety.campaign: max speed, "
-        "oscillation, repeat offender, link loss, GPS glitch, wind, battery, parameter "
-        "sabotage) instead of the named drills; --airframe all for both",
-    )
-    parser.add_argument(
-        "--drill", type=int, nargs="+", default=[], metavar="INDEX", dest="campaign_drills",
-        help="--campaign: fly only these drills of the campaign (its index, e.g. 664 for drill "
-        "0664 of the summary; the same seed and N fly the same drill), e.g. to look at one "
-        "that failed (default: all N)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--workers", type=int, default=1,
-        help="--campaign: CPUs (a local Ray instance's or the process pool's; default 1: in "
-        "this process)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--backend", choices=("auto", "ray", "process"), default="auto",
-        help="--campaign with --workers > 1 or --ray-address: auto = Ray if installed, else a "
-        "local process pool; a dead worker's drill runs again (default auto)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--ray-address", default=None, metavar="ADDR",
-        help="--campaign: run the drills as tasks on this Ray cluster (default: a local "
-        "instance on loopback, when --workers > 1)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--target-bound",
-        type=float,
-        default=TARGET_BOUND,
-        metavar="P",
-        help="--campaign: the breach probability to bound (95 %% one-sided Clopper-Pearson); "
-        "the report says how many breach-free drills that needs (default 1e-3: 2,995)",
-    )
-    parser.add_argument(
-        "--through", choices=("mission", "process"), default="mission",
-        help="--campaign: how each drill flies. mission: `skyherd fly`'s mission code "
-        "(SingleVehicleMission with the drill's adversarial pilot, the same SafetyNet and "
-        "judge) over real loopback MAVLink to the built-in vehicle, in lockstep on the "
-        "simulation clock (mission.drill_link); process: the in-process drill loop "
-        "(safety.drills.run_drill) (default mission)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--instance", type=int, default=MISSION_DRILL_INSTANCE,
-        help=f"--through mission: the first vehicle instance ({ports.MAVLINK_PORTS_HELP}); each drill running at once takes the next free one, up to N+31 (default {MISSION_DRILL_INSTANCE})",
-    )  # fmt: skip
+    add_options(parser, DrillOptions)
 
 
 def _airframes(choice: str) -> list[str]:
     return ["quadrotor", "fixedwing"] if choice == "all" else [choice]
-
-
-def load_set_or_usage(airframe: str, envelope: Path | None):
-    """The airframe's constraint set and supervisor parameters (safety.campaign_run.load_set);
-    UsageError naming what to fix."""
-    from skyherd.safety.campaign_run import load_set
-    from skyherd.safety.config import EnvelopeFileError
-
-    try:
-        return load_set(airframe, envelope)
-    except EnvelopeFileError as e:
-        raise UsageError(f"{e}; fix the file or pass another --envelope") from e
-    except ValueError as e:
-        raise UsageError(str(e)) from e
 
 
 def run(args: argparse.Namespace) -> int:
@@ -144,10 +96,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(
             f"--target-bound must be within (0, 1), e.g. 1e-3; got {args.target_bound:g}"
         )
-    try:
-        ports.check_instance(args.instance)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    usage(ports.check_instance, args.instance)
     if args.campaign:
         return _campaign(args)
     if args.duration is not None and not (5.0 <= args.duration <= 600.0):
@@ -160,7 +109,7 @@ def _plan(airframe: str, args: argparse.Namespace):
     from skyherd.flight.airframes_registry import AirframeUnavailable
     from skyherd.safety.drill_run import drill_plan
 
-    spec, sp = load_set_or_usage(airframe, args.envelope)
+    spec, sp = usage(load_set, airframe, args.envelope)
     try:
         return drill_plan(
             airframe, spec, sp, args.intervention, args.duration, args.only, args.random, args.seed
@@ -177,7 +126,7 @@ def _drills(args: argparse.Namespace, plans) -> int:
 
     from skyherd.safety.drill_run import COLUMNS, fly_plans
 
-    run_dir = RunFolder("drill", root=args.runs_dir)
+    run_dir = open_run_folder("drill", args.runs_dir)
     plan_facts = [p.describe() for p in plans]
     run_dir.write_config({"args": args_dict(args), "seed": args.seed, "plans": plan_facts})
     events = run_dir.events()
@@ -215,13 +164,13 @@ def _campaign(args: argparse.Namespace) -> int:
     from skyherd.safety.campaign_verdict import failed_drills
 
     airframes = _airframes(args.airframe)
-    sets = {a: load_set_or_usage(a, args.envelope) for a in airframes}
+    sets = {a: usage(load_set, a, args.envelope) for a in airframes}
     jobs = campaign_jobs(airframes, args.campaign, args.seed, args.envelope, args.through,
                          args.instance)  # fmt: skip
     only = set(args.campaign_drills)
     if only:  # --drill: those drills of the campaign alone, as the whole campaign flies them
         jobs = [j for j in jobs if j.index in only]
-    run_dir = RunFolder("drill", root=args.runs_dir)
+    run_dir = open_run_folder("drill", args.runs_dir)
     run_dir.write_config({"args": args_dict(args),
                           "seed": args.seed, "campaign": args.campaign, "airframes": airframes,
                           "constraint_sets": {a: s.describe() for a, (s, _) in sets.items()},

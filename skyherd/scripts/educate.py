@@ -11,20 +11,12 @@ decisions.jsonl (`skyherd explain RUN`), lessons.png, compare.png, results.json,
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.report import educate as report
-from skyherd.runio.runfolder import (
-    CsvWriter,
-    JsonlWriter,
-    RunFolder,
-    args_dict,
-    atomic_write_text,
-)
-from skyherd.scripts.cli import UsageError, quick_help
+from skyherd.runio.runfolder import RunFolder, args_dict
+from skyherd.scripts.cli import UsageError, quick_help, save_copy, usage
 from skyherd.scripts.options import add_options, opt
 
 
@@ -62,26 +54,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                         "and test episodes"))  # fmt: skip
 
 
-def _params(args):
-    from skyherd.policy.education.teach import QUICK, EduParams
-
-    p = QUICK if args.quick else EduParams()
-    over = {}
-    if args.dqn_steps is not None:
-        if args.dqn_steps < 100:
-            raise UsageError("--dqn-steps must be >= 100")
-        over["dqn"] = dataclasses.replace(p.dqn, total_steps=args.dqn_steps)
-    if args.irl_iters is not None:
-        if args.irl_iters < 1:
-            raise UsageError("--irl-iters must be >= 1")
-        over["irl_iters"] = args.irl_iters
-    if args.test_episodes is not None:
-        if args.test_episodes < 1:
-            raise UsageError("--test-episodes must be >= 1")
-        over["test_episodes"] = args.test_episodes
-    return dataclasses.replace(p, monolith=not args.no_monolith, **over)
-
-
 def run(args: argparse.Namespace) -> int:
     import matplotlib
 
@@ -94,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         CurriculumError,
         load_curriculum,
     )
-    from skyherd.policy.education.teach import curriculum_meta
+    from skyherd.policy.education.teach import curriculum_meta, params_of
 
     path = args.curriculum or DEFAULT_CURRICULUM
     try:
@@ -108,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--baselines {b}: no policies/ folder (a `skyherd train ab` run)")
     if args.from_run is not None:
         return _report_only(args, cur)
-    p = _params(args)
+    p = usage(params_of, args)
     rf = RunFolder("educate", root=args.runs_dir)
     print(f"skyherd educate: run folder {rf.path}")
     if cur.composite is not None and cur.composite.method == "measures":
@@ -116,26 +88,17 @@ def run(args: argparse.Namespace) -> int:
     rf.write_config(
         {"curriculum": curriculum_meta(cur), "hyper_parameters": p, "args": args_dict(args)}
     )
-    pol_dir = rf.path / "policies"
-    pol_dir.mkdir()
-    n_mono = args.seeds if args.monolith_seeds is None else args.monolith_seeds
-    jobs = [course.SeedJob(Path(path), p, args.seed + s, pol_dir, s < n_mono)
-            for s in range(args.seeds)]  # fmt: skip
-    events = rf.events()
-    lessons = CsvWriter(rf.file("lessons.csv"), course.LESSON_COLUMNS)
-    results = []
-    with tqdm(total=len(jobs), desc="educate", unit="seed") as bar:
-        for out in course.teach_all(jobs, args.workers):
-            results.append(out)
-            for row in course.lesson_rows(out):
-                lessons.write(row)
-            events.write_many(course.lesson_events(out))
-            arb = out["educated"][-1]["detail"].get("arbiter", "")
+    with tqdm(total=args.seeds, desc="educate", unit="seed") as bar:
+
+        def on_seed(out) -> None:
             bar.update(1)
-            bar.set_postfix_str(f"seed {out['seed']}: {arb}"[:60])
-    lessons.close()
-    atomic_write_text(rf.file("lessons.json"), json.dumps(results, indent=1, default=float))
-    return _report(cur, p, args, results, {r["seed"]: pol_dir for r in results}, rf)
+            bar.set_postfix_str(
+                f"seed {out['seed']}: {out['educated'][-1]['detail'].get('arbiter', '')}"[:60]
+            )
+
+        results = course.teach_into(rf, path, p, args.seeds, args.seed, args.monolith_seeds,
+                                    args.workers, on_seed)  # fmt: skip
+    return _report(cur, p, args, results, {r["seed"]: rf.path / "policies" for r in results}, rf)
 
 
 def _report_only(args, cur) -> int:
@@ -156,22 +119,15 @@ def _report_only(args, cur) -> int:
 
 def _report(cur, p, args, results, pol_dirs: dict[int, Path], rf) -> int:
     """pol_dirs: seed → the policies/ folder of its run."""
-    from skyherd.policy.education.evaluation import evaluate_run
+    from skyherd.policy.education.evaluation import evaluate_run, write_evaluation
 
     print("evaluating on unseen episodes …")
     ev = evaluate_run(results, pol_dirs, args.baselines, args.eval_episodes, p.dqn.gamma)
-    w = JsonlWriter(rf.file("decisions.jsonl"))  # one composite test episode, the best seed's
-    w.write_many(ev.decisions)
-    w.close()
+    write_evaluation(rf, results, ev)  # decisions.jsonl, results.json
     summary = report.summary(cur, p, args, results, ev.comparison, ev.fidelity, rf)
     rf.write_summary(summary)
-    atomic_write_text(rf.file("results.json"), json.dumps(
-        {"lessons": results, "comparison": ev.comparison, "fidelity": ev.fidelity}, indent=1,
-        default=float))  # fmt: skip
     report.plots(rf, results, ev.comparison)
     if args.save_policy is not None:
-        args.save_policy.parent.mkdir(parents=True, exist_ok=True)
-        ev.educated[ev.best_seed].save(args.save_policy)
-        print(f"saved educated seed {ev.best_seed} policy → {args.save_policy}")
+        save_copy(ev.educated[ev.best_seed], args.save_policy, f"educated seed {ev.best_seed}")
     print(summary)
     return 0

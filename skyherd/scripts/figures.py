@@ -15,27 +15,12 @@ drawn figures are byte for byte what it draws today.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import shutil
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
-from skyherd.report.figures import (
-    DRAWN,
-    FAILED,
-    MAIN_JOB,
-    MANIFEST,
-    OUT,
-    ROOT,
-    SHOTS,
-    command_text,
-    manifest,
-    screenshot,
-    write_readme,
-)
+from skyherd.report.figures import OUT, ROOT, command_text, make_figures, write_readme
 
 
 def fly(argv: tuple[str, ...], runs: Path, instance: int) -> Path:
@@ -59,30 +44,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--instance", type=int, default=0, help="the flights' vehicle instance N")
     ap.add_argument("--no-readme", action="store_true", help="leave README.md as it is")
     args = ap.parse_args(argv)
-    args.out.mkdir(parents=True, exist_ok=True)
-    figures = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        runs = {}
-        for argv_ in (MAIN_JOB, FAILED):
-            print(f"figures: {command_text(argv_)}", flush=True)
-            runs[argv_] = fly(argv_, Path(tmp) / "runs", args.instance)
-        for name, (argv_, src, what) in DRAWN.items():
-            shutil.copyfile(runs[argv_] / src, args.out / name)
-            figures[name] = {"command": command_text(argv_), "file": src, "what": what,
-                             "check": "bytes"}  # fmt: skip
-        for name, (argv_, what) in SHOTS.items():
-            try:
-                screenshot(runs[argv_] / "report.html", args.out / name)
-            except RuntimeError as e:
-                print(f"figures: no {name}: {e}", file=sys.stderr)
-                continue
-            figures[name] = {"command": command_text(argv_), "file": "report.html", "what": what,
-                             "check": "recorded"}  # fmt: skip
-    made = manifest(figures, args.out)
-    (args.out / MANIFEST).write_text(json.dumps(made, indent=1) + "\n", encoding="utf-8")
+    made = make_figures(args.out, lambda argv_, runs: fly(argv_, runs, args.instance))
     if not args.no_readme:
         write_readme(made)
-    print(f"figures: {', '.join(figures)} in {args.out}")
+    print(f"figures: {', '.join(made['figures'])} in {args.out}")
     return 0
 
 

@@ -18,76 +18,72 @@ free-running on the autopilot's clock.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import signal
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.runio import args_dict, ports
 from skyherd.runio.run import Interrupted
-from skyherd.scripts.cli import UsageError
-from skyherd.scripts.fly_options import add_shared, check_signing, passed_on, signing_mode
+from skyherd.scripts.cli import UsageError, usage
+from skyherd.scripts.fault_options import FAULTS
+from skyherd.scripts.fly_options import FLY_WORLD, check_child, child_argv, flight_signing
+from skyherd.scripts.options import add_options, opt
+from skyherd.world.setup import SimSetup
+
+
+@dataclass(frozen=True)
+class FlyOptions:
+    """`skyherd fly`'s own options (scripts.options); those it shares with `skyherd sim` are
+    world.setup.SimSetup's (scripts.fly_options), the companion's scripts.companion's."""
+
+    connect: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="fly an outside autopilot at this pymavlink address (e.g. "
+        f"{ports.companion_address(0)}, tcp:127.0.0.1:5760) instead of the built-in vehicle",
+    )
+    world_link: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="with --connect: a second MAVLink link of the autopilot for the world (UGVs, "
+        f"camera) built around it (default: {ports.GCS_STREAM} for a udp address, PORT+2 for "
+        "tcp:HOST:PORT, i.e. ArduPilot's SERIAL1)",
+    )
+    world_system: int = opt(0, metavar="ID")
+    """with --connect: the outside autopilot's MAVLink system id on the world link (0: the first
+    autopilot heard)"""
+    no_signing: bool = False
+    """fly the built-in vehicle unsigned: no per-run key; any local process can then command the
+    vehicle and forge frames (recorded in config.json and summary.md)"""
+    foxglove: int | None = opt(None, metavar="PORT")
+    """serve the flight live to Foxglove on ws://127.0.0.1:PORT (default: off)"""
+    no_record: bool = False  # do not write flight.mcap
+    runs_dir: str = "runs"  # where run folders go
+    timeout: float = 600.0  # wall-clock limit for the whole flight [s] (> 0)
+    no_zenoh: bool = opt(False, help=argparse.SUPPRESS)  # kept for old scripts
+    renderer: str = opt("fast", choices=["fast", "bullet"], help=argparse.SUPPRESS)
+
+
+OWN = ("airframe", "connect", "world_link", "world_system", "param", "signing_key", "no_signing")
+OWN += ("instance", "speedup", "free_run", "latency", "seed", "cut_link", "cut_camera")
+OWN += ("foxglove", "no_record", "runs_dir", "timeout", "zenoh_port", "no_zenoh", "ugvs")
+OWN += ("renderer",)  # fly's options before its groups' (SimSetup's and FlyOptions' fields)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_shared(parser, "--airframe", fly=True)
-    parser.add_argument("--connect", metavar="ADDRESS",
-                        help="fly an outside autopilot at this pymavlink address (e.g. "
-                        f"{ports.companion_address(0)}, "
-                        "tcp:127.0.0.1:5760) instead of the built-in vehicle")  # fmt: skip
-    parser.add_argument("--world-link", metavar="ADDRESS", default=None,
-                        help="with --connect: a second MAVLink link of the autopilot for the world (UGVs, "
-                        f"camera) built around it (default: {ports.GCS_STREAM} for a udp address, "
-                        "PORT+2 for tcp:HOST:PORT, i.e. ArduPilot's SERIAL1)")  # fmt: skip
-    parser.add_argument(
-        "--world-system",
-        type=int,
-        default=0,
-        metavar="ID",
-        help="with --connect: the outside autopilot's MAVLink system id on the world link (0: the first autopilot heard)",
-    )
-    add_shared(parser, "--param", "--signing-key", fly=True)
-    parser.add_argument(
-        "--no-signing",
-        action="store_true",
-        help="fly the built-in vehicle unsigned: no per-run key; any local process can then "
-        "command the vehicle and forge frames (recorded in config.json and summary.md)",
-    )
-    add_shared(parser, "--instance", "--speedup", "--free-run", "--latency", "--seed",
-               "--cut-link", "--cut-camera", fly=True)  # fmt: skip
-    parser.add_argument(
-        "--foxglove",
-        type=int,
-        default=None,
-        metavar="PORT",
-        help="serve the flight live to Foxglove on ws://127.0.0.1:PORT (default: off)",
-    )
-    parser.add_argument("--no-record", action="store_true", help="do not write flight.mcap")
-    add_shared(parser, "--runs-dir", fly=True)
-    parser.add_argument(
-        "--timeout",
-        type=float,
-        default=600.0,
-        help="wall-clock limit for the whole flight [s] (> 0)",
-    )
-    add_shared(parser, "--zenoh-port", fly=True)
-    parser.add_argument(
-        "--no-zenoh", action="store_true", help=argparse.SUPPRESS
-    )  # kept for old scripts
-    add_shared(parser, "--ugvs", fly=True)
-    parser.add_argument(
-        "--renderer", choices=["fast", "bullet"], default="fast", help=argparse.SUPPRESS
-    )
-    from skyherd.scripts.fault_options import add_fault_arguments
-
-    add_fault_arguments(parser.add_argument_group("faults in the simulation (flight/faults.py)"))
     from skyherd.scripts.companion import add_arguments as companion_arguments
+    from skyherd.scripts.fault_options import add_fault_arguments
+    from skyherd.scripts.fly_options import FormationOptions, OrbitOptions
 
-    companion_arguments(parser.add_argument_group("mission and companion"), standalone=False,
-                        missions=("groundair", "square", "formation", "shepherd"))  # fmt: skip
-    from skyherd.scripts.fly_options import add_formation_arguments, add_orbit_arguments
-
-    add_formation_arguments(parser.add_argument_group("formation mission"))
-    add_orbit_arguments(parser.add_argument_group("fixed-wing orbit (--airframe fixedwing)"))
+    add_options(parser, (SimSetup, FlyOptions), only=OWN, **FLY_WORLD)
+    add_fault_arguments(parser.add_argument_group("faults in the simulation (flight/faults.py)"))
+    missions = ("groundair", "square", "formation", "shepherd")
+    companion_arguments(parser.add_argument_group("mission and companion"), False, missions)
+    add_options(parser.add_argument_group("formation mission"), FormationOptions)
+    orbit = parser.add_argument_group("fixed-wing orbit (--airframe fixedwing)")
+    add_options(orbit, OrbitOptions)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,10 +104,7 @@ def _check_own(args) -> None:
 
     from skyherd.flight.clock import default_speedup
 
-    try:
-        args.zenoh_port = ports.checked_zenoh_port(args.instance, args.zenoh_port)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    args.zenoh_port = usage(ports.checked_zenoh_port, args.instance, args.zenoh_port)
     args.speedup = default_speedup(args.speedup, args.free_run or args.connect is not None)
     if not (math.isfinite(args.timeout) and args.timeout > 0):
         raise UsageError(
@@ -119,25 +112,13 @@ def _check_own(args) -> None:
         )
 
 
-def check_children(args, sim_args: list[str], comp_args: list[str]) -> None:
-    """Each child's own parser and checks on the arguments fly passes it (scripts.sim and
-    scripts.companion `check_args`), before anything starts or is written: UsageError with the
-    child's one-line reason."""
-    from skyherd.scripts import companion, sim
-
-    if args.connect is None or args.mission == "groundair":  # the simulator starts
-        why = sim.check_args(sim_args)
-        if why:
-            raise UsageError(why)
-    why = companion.check_args(comp_args)
-    if why:
-        raise UsageError(why)
-
-
 def _validate(args) -> tuple[list[str], list[str]]:
-    """The children's argument lists; UsageError before anything starts or is written."""
-    from skyherd.hil.link import link_address, world_link
-    from skyherd.task.scenarios import FLOCK, TEAMS
+    """The children's argument lists, each checked by the child's own parser and checks
+    (fly_options.check_child); UsageError before anything starts or is written. fly checks
+    only what no child can know: the missions' combinations, the team, the pilot's files, the
+    wind against the constraint set, --orbit-duration."""
+    from skyherd.hil.link import world_link
+    from skyherd.task.scenarios import FLOCK
 
     if args.mission == "shepherd":
         if args.connect is not None or args.airframe != "quadrotor":
@@ -150,95 +131,72 @@ def _validate(args) -> tuple[list[str], list[str]]:
             raise UsageError(f"--mission shepherd herds --ugvs {FLOCK}, not {args.ugvs!r}")
     elif args.ugvs == FLOCK:
         raise UsageError(f"--ugvs {FLOCK} is the shepherding flock: fly it with --mission shepherd")
-    if args.connect is not None:
-        try:
-            link_address(args.connect)
-        except ValueError as e:
-            raise UsageError(str(e)) from None
-    if args.connect is None and not (args.speedup == 0 or args.speedup >= 1):
-        raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
-    if args.free_run and args.speedup == 0:
-        raise UsageError("--free-run needs a pacer: give --speedup >= 1")
-    if args.ugvs not in TEAMS:
-        raise UsageError(f"--ugvs {args.ugvs!r} is not a team: use one of " + ", ".join(TEAMS))
-    if not 0 < args.duration <= 36000:
-        raise UsageError("--duration must be in (0, 36000] s")
-    if args.mission == "square":
-        alt = 20.0 if args.altitude is None else args.altitude
-        if not (0 < alt <= 120 and 0 < args.side <= 500):
-            raise UsageError("--altitude must be in (0, 120] m and --side in (0, 500] m")
+    if args.ugvs == "none":  # `skyherd sim`'s vehicle alone: no team, no camera
+        raise UsageError("--ugvs none: a mission flies over a team; give --ugvs SCENARIO")
+    orbit = args.airframe == "fixedwing"  # the ground-air task, flown as an orbit
+    sim = {d: getattr(args, d) for d in TO_SIM} | {
+        "signing_key": usage(flight_signing(args).checked_key_file)
+    }
+    sim["free_run"] = args.free_run or args.connect is not None
+    if orbit:
+        if args.ugvs != "composite":  # the default: the orbit's team is its own option
+            raise UsageError(f"--ugvs {args.ugvs}: the fixed-wing's orbit flies over "
+                             "--orbit-scenario (lateral or composite); drop --ugvs")  # fmt: skip
+        sim["ugvs"] = args.orbit_scenario
+    if args.connect is not None and args.mission == "groundair":
+        sim["follow"] = usage(world_link, args.connect, args.world_link)
+        sim["follow_system"] = args.world_system
+    sim_args = child_argv("sim", **sim)
+    if args.connect is None or args.mission == "groundair":  # before the team is built below
+        check_child("sim", sim_args)
     if args.mission in ("groundair", "shepherd") and args.connect is None:
         _refuse_wind_above_limit(args)
     if args.policy is not None:
         from skyherd.mission.build import load_pilot_policy
 
-        try:
-            load_pilot_policy(args.policy)
-        except ValueError as e:
-            raise UsageError(str(e)) from None
+        usage(load_pilot_policy, args.policy)
     if args.pilot.startswith("drill:"):  # a named drill of the flight's envelope
         from skyherd.mission.build import drill_pilot
         from skyherd.safety.config import fly_envelope
 
-        try:
-            drill_pilot(args.pilot, fly_envelope(args.envelope, args.airframe))
-        except ValueError as e:  # safety.config.EnvelopeFileError too
-            raise UsageError(str(e)) from None
-    orbit = args.airframe == "fixedwing"  # the ground-air task, flown as an orbit
-    altitude = args.altitude
-    if altitude is None and args.mission == "groundair" and not orbit:
+        usage(drill_pilot, args.pilot, usage(fly_envelope, args.envelope, args.airframe))
+    if args.lost_ugv_search and (
+        args.mission != "groundair" or orbit or args.pilot.startswith("drill:")
+    ):
+        raise UsageError(
+            "--lost-ugv-search is for the ground-air mission's policy or pid pilot (quadrotor)"
+        )
+    comp = dict(mission=args.mission, duration=args.duration, altitude=args.altitude)
+    if orbit:
+        comp["duration"] = args.orbit_duration if args.orbit_duration is not None else 90.0
+        if not 0 < comp["duration"] <= 3600:  # the companion's --duration is not this flag
+            raise UsageError("--orbit-duration must be in (0, 3600] s")
+        comp |= dict(mission="orbit", orbit_team=args.orbit_scenario, orbit_seed=args.seed)
+        comp |= dict(orbit_no_land=args.orbit_no_land)
+    elif args.altitude is None and args.mission == "groundair":
         from skyherd.task.params import TaskParams
         from skyherd.world.team import new_team, start_altitude
 
         task = TaskParams()
-        altitude = start_altitude(task, new_team(args.ugvs, args.seed, task.n_ugvs))
-    comp = ["--mission", args.mission, "--pilot", args.pilot, "--duration", repr(args.duration),
-            "--side", repr(args.side), "--instance", str(args.instance)]  # fmt: skip
-    comp += ["--altitude", repr(altitude)] if altitude is not None else []
-    comp += ["--shepherd-selector", args.shepherd_selector] if args.mission == "shepherd" else []
-    if args.lost_ugv_search:
-        if args.mission != "groundair" or orbit or args.pilot.startswith("drill:"):
-            raise UsageError(
-                "--lost-ugv-search is for the ground-air mission's policy or pid pilot (quadrotor)"
-            )
-        comp += ["--lost-ugv-search"]
-    comp += ["--policy", str(Path(args.policy).resolve())] if args.policy else []
-    comp += ["--envelope", str(Path(args.envelope).resolve())] if args.envelope else []
-    comp += ["--configure-autopilot"] if args.configure_autopilot else []
-    comp += ["--setup-signing"] if args.setup_signing else []
-    if args.mission == "square" or args.no_camera:
-        comp += ["--no-camera"]
-    sim = ["--instance", str(args.instance), "--seed", str(args.seed), "--ugvs", args.ugvs,
-           "--speedup", repr(args.speedup), "--latency", repr(args.latency),
-           "--zenoh-port", str(args.zenoh_port)]  # fmt: skip
-    if orbit:
-        duration = args.orbit_duration if args.orbit_duration is not None else 90.0
-        if not 0 < duration <= 3600:
-            raise UsageError("--orbit-duration must be in (0, 3600] s")
-        comp[1] = "orbit"
-        comp[comp.index("--duration") + 1] = repr(duration)
-        comp += ["--orbit-team", args.orbit_scenario, "--orbit-seed", str(args.seed)]
-        comp += ["--orbit-no-land"] if args.orbit_no_land else []
-        sim[sim.index("--ugvs") + 1] = args.orbit_scenario
-        sim += ["--airframe", "fixedwing"]
-    key = check_signing(args)
-    if key is not None:
-        sim += ["--signing-key", key]
-        comp += ["--signing-key", key]
-    sim += passed_on(args)  # --param, the cuts and the faults, as given
-    if args.free_run or args.connect is not None:
-        sim += ["--free-run"]
-        comp += ["--free-run"]
-    if args.connect is not None:
-        comp += ["--connect", args.connect]
-        if args.mission == "groundair":
-            try:
-                follow = world_link(args.connect, args.world_link)
-            except ValueError as e:
-                raise UsageError(str(e)) from None
-            sim += ["--follow", follow, "--follow-system", str(args.world_system)]
-    comp += ["--zenoh-connect", f"tcp:{ports.LOOPBACK}:{args.zenoh_port}"]
-    return sim, comp
+        comp["altitude"] = start_altitude(task, new_team(args.ugvs, args.seed, task.n_ugvs))
+    comp |= {d: getattr(args, d) for d in TO_COMPANION} | {
+        "shepherd_selector": args.shepherd_selector if args.mission == "shepherd" else None,
+        "policy": args.policy and str(Path(args.policy).resolve()),
+        "envelope": args.envelope and str(Path(args.envelope).resolve()),
+        "no_camera": args.mission == "square" or args.no_camera,
+        "zenoh_connect": f"tcp:{ports.LOOPBACK}:{args.zenoh_port}",
+        "free_run": sim["free_run"],
+        "signing_key": sim["signing_key"],
+    }
+    comp_args = child_argv("companion", **comp)
+    check_child("companion", comp_args)
+    return sim_args, comp_args
+
+
+TO_SIM = tuple(f.name for f in dataclasses.fields(SimSetup) if f.name in OWN + FAULTS)
+"""fly's options `skyherd sim` takes as they are given (its world.setup.SimSetup fields)."""
+TO_COMPANION = ("pilot", "side", "instance", "connect", "lost_ugv_search", "configure_autopilot")
+TO_COMPANION += ("setup_signing",)  # ... and the companion's
 
 
 def _refuse_wind_above_limit(args) -> None:
@@ -257,13 +215,15 @@ def _refuse_wind_above_limit(args) -> None:
 def run_two_processes(args: argparse.Namespace) -> int:
     from skyherd.runio import signals
     from skyherd.runio.run import open_run_folder
+    from skyherd.safety.config import flight_envelope_record
 
     # a signal from here on is kept, never raised half-way through making the folder or
     # starting a child, and acted on at the next safe point (signals.KeptSignals)
     with signals.KeptSignals() as kept:
-        sim_args, comp_args = _validate(args)
-        check_children(args, sim_args, comp_args)
-        envelope = _envelope(args) if args.mission in ("groundair", "shepherd") else None
+        sim_args, comp_args = _validate(args)  # the children's own checks too
+        envelope = None  # the safety net's constraint set: (its spec, config.json's record)
+        if args.mission in ("groundair", "shepherd"):
+            envelope = usage(flight_envelope_record, args.envelope, args.airframe)
         if kept.signum is not None:  # nothing made, nothing started
             rc, why = signals.interrupted(Interrupted(kept.signum))
             print(f"skyherd fly: INTERRUPTED: {why} before the flight started; nothing was "
@@ -280,15 +240,14 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     from skyherd.report import ending
     from skyherd.runio import launch, signals
     from skyherd.scripts.cli import skyherd_cmd
-    from skyherd.scripts.fly_options import per_run_key
 
-    key = per_run_key(args, run_dir)
+    key = flight_signing(args).per_run_key(run_dir)
     if key is not None:  # handed to both programs
         sim_args += ["--signing-key", str(key)]
         comp_args += ["--signing-key", str(key)]
     folder.write_config({"args": args_dict(args), "argv": sys.argv, "sim": sim_args,
                          "companion": comp_args, "envelope": envelope and envelope[1],
-                         "signing": signing_mode(args)})  # fmt: skip
+                         "signing": flight_signing(args).mode()})  # fmt: skip
     ending.write_running(run_dir)
     print(f"skyherd fly: run folder {run_dir}", flush=True)
     recorder = None
@@ -318,16 +277,10 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
             recorder.close()
     from skyherd.report.fly import report  # after the flight: not on the way to the launch
 
-    plots: list = []  # made once the verdict and the ending are said (make_plots)
-    ok = ending.report_safely(report, run_dir, args, rc, why, plots, why=why)  # never raises
-    output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
-    lines = ending.ending_lines(run_dir, output=output, cut=ending.recording_cut(recorder))
-    ending.append_ending(run_dir, lines)
-    make_plots(plots)
-    if plots:  # report.html again, now with the figures made after the verdict
-        from skyherd.report.page import write_report_html
-
-        write_report_html(run_dir)
+    plots: list = []  # made once the verdict and the ending are said (ending.make_plots)
+    ok = ending.end_run(run_dir, report, args, rc, why, plots, why=why, sims=kids.sims,
+                        recorder=recorder)  # fmt: skip
+    ending.make_plots(run_dir, plots)
     if rc <= 128 and kept.signum is not None:  # a signal while the report was written
         rc = signals.interrupted(Interrupted(kept.signum))[0]
         print(f"skyherd fly: interrupted ({signal.Signals(kept.signum).name}) after the flight "
@@ -335,33 +288,11 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 
-def make_plots(plots: list) -> None:
-    """The report's plots, (file name, call) each, after the verdict is printed: matplotlib
-    (its import and drawing) is off the way to the verdict. A plot that fails is said on
-    stderr; the flight's verdict and exit code stand."""
-    for name, plot in plots:
-        try:
-            plot()
-        except Exception as e:  # noqa: BLE001 - a plot never changes how the flight ended
-            print(f"skyherd fly: {name} was not made ({type(e).__name__}: {e})", file=sys.stderr,
-                  flush=True)  # fmt: skip
-
-
 def _key_file(child_args: list[str]) -> str | None:
     """The signing key file handed to a child (None: unsigned)."""
     return (
         child_args[child_args.index("--signing-key") + 1] if "--signing-key" in child_args else None
     )
-
-
-def _envelope(args) -> tuple:
-    """The safety net's constraint set: (its spec, config.json's record of it); UsageError."""
-    from skyherd.safety.config import flight_envelope_record
-
-    try:
-        return flight_envelope_record(args.envelope, args.airframe)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
 
 
 SIM_STARTED = "skyherd sim: instance"  # the simulator's line once its world runs (world.serve)

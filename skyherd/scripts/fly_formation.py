@@ -14,10 +14,7 @@ import argparse
 from skyherd.flight.geo import DEFAULT_HOME
 from skyherd.mission.formation_plan import (
     FormationParams,
-    PlanError,
-    learned_plan,
-    load_plan,
-    plan_params,
+    obtain_plan,
     plan_text,
     vehicle_homes,
     vehicle_instances,
@@ -26,8 +23,7 @@ from skyherd.report.formation import formation_report
 from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
 from skyherd.runio.runfolder import args_dict, atomic_write_text
-from skyherd.scripts.cli import UsageError
-from skyherd.scripts.fly_options import AGENT_CHOICES, add_formation_arguments  # noqa: F401 - the options live there
+from skyherd.scripts.cli import UsageError, usage
 from skyherd.world.fleet import FleetVehicle, sim_groups, write_fleet
 
 
@@ -41,8 +37,6 @@ def _params(args) -> FormationParams:
 def _check(args) -> None:
     if getattr(args, "connect", None) is not None:
         raise UsageError("--mission formation flies the built-in vehicles only; drop --connect")
-    if not (args.speedup == 0 or args.speedup >= 1):
-        raise UsageError("--speedup must be 0 (as fast as possible) or >= 1")
     if args.sql_seed < 0:
         raise UsageError("--sql-seed must be >= 0")
     if not 0 <= args.sims <= args.agents:
@@ -56,43 +50,22 @@ def _check(args) -> None:
         )
 
 
-def obtain_plan(args) -> tuple[list[list[tuple[int, int]]], dict]:
-    """The lock-step plan (--policy-file, or learned: mission.formation_plan.learned_plan) and
-    where it came from (for config.json). UsageError if unusable."""
-    from skyherd.policy.sql import GridParams
-
-    K = args.agents
-    if args.policy_file:
-        try:
-            plan = load_plan(args.policy_file, K, GridParams().size)
-        except PlanError as e:
-            raise UsageError(f"{e}; pass a plan_K{K}.json from `skyherd train sql`") from None
-        return plan, {"source": "file", "path": str(args.policy_file)}
-    from tqdm import tqdm
-
-    try:
-        params = plan_params(K, args.sql_seed)
-        with tqdm(total=params.hyper.episodes, desc=f"train SQL-SIE K={K}", unit="ep") as bar:
-            plan = learned_plan(params, bar.update)
-    except PlanError as e:
-        raise UsageError(str(e)) from None
-    return plan, params.describe()
-
-
 def run_formation(args: argparse.Namespace) -> int:
     """Fly the formation as K simulators + one companion; 0 if every vehicle landed on its target."""
+    from tqdm import tqdm
+
     from skyherd.runio import launch
     from skyherd.scripts.cli import skyherd_cmd
-    from skyherd.scripts.fly_options import check_signing, per_run_key, signing_mode
+    from skyherd.scripts.fly_options import flight_signing
 
     _check(args)
     _check_children(args)
-    key = check_signing(args)
+    key = usage(flight_signing(args).checked_key_file)  # None: a per-run key, or unsigned
     params = _params(args)
     K = args.agents
-    plan, plan_info = obtain_plan(args)
+    plan, plan_info = usage(obtain_plan, args.policy_file, K, args.sql_seed, tqdm)
     instances = vehicle_instances(args.instance, K)
-    _ports_free(instances)
+    usage(ports.check_ports_free, instances)  # before anything starts
     homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
     from skyherd.report import ending
     from skyherd.runio import signals
@@ -100,14 +73,14 @@ def run_formation(args: argparse.Namespace) -> int:
 
     folder = open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
-    key = key or per_run_key(args, run_dir)  # one key for every vehicle's two links
+    key = key or flight_signing(args).per_run_key(run_dir)  # one key for every vehicle's two links
     signing = ["--signing-key", str(key)] if key is not None else []
     folder.write_config(
         {"args": args_dict(args), "mission": "formation", "formation": params,
          "plan": plan_info, "field_origin": DEFAULT_HOME, "homes": homes, "instances": instances,
          "frame": "field NED about field_origin; cell (x, y) centre at north (y-1)*cell_m, "
                   "east (x-1)*cell_m",
-         "signing": signing_mode(args)}
+         "signing": flight_signing(args).mode()}
     )  # fmt: skip
     atomic_write_text(run_dir / "plan.json", plan_text(plan))
     ending.write_running(run_dir)
@@ -141,31 +114,19 @@ def run_formation(args: argparse.Namespace) -> int:
             rc, why = kids.supervise(args.timeout)
     except KeyboardInterrupt as e:  # SIGINT, SIGTERM, SIGHUP (runio.launch): 128 + signum
         rc, why = signals.interrupted(e)
-    ok = ending.report_safely(formation_report, run_dir, rc, why, why=why)  # never raises
-    output = [ln for c in kids.sims for ln in (c.lines or ())]  # kept in memory
-    ending.append_ending(
-        run_dir, ending.ending_lines(run_dir, [f"uav{k}" for k in range(K)], output)
+    vehicles = [f"uav{k}" for k in range(K)]
+    ok = ending.end_run(
+        run_dir, formation_report, rc, why, why=why, sims=kids.sims, vehicles=vehicles
     )
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
 
 
 def _check_children(args) -> None:
-    """The children's own checks on the options passed on to them (scripts.sim and
-    scripts.companion `check_args`; the fleet and plan files are made later): UsageError."""
-    from skyherd.scripts import companion, sim
+    """The children's own checks on the options passed on to them (fly_options.check_child;
+    the fleet and plan files are made later): UsageError."""
+    from skyherd.scripts.fly_options import check_child
 
-    why = sim.check_args(["--ugvs", "none", "--speedup", repr(args.speedup), "--latency",
-                          repr(args.latency), "--instance", str(args.instance)])  # fmt: skip
-    why = why or companion.check_args(["--mission", "formation", "--plan", "plan.json",
-                                       "--cell-m", repr(args.cell_m), "--instance", str(args.instance)])  # fmt: skip
-    if why:
-        raise UsageError(why)
-
-
-def _ports_free(instances: list[int]) -> None:
-    """UsageError before anything starts if a vehicle's or the companion's UDP port is taken."""
-    taken = ports.taken_udp_port(instances)
-    if taken is not None:
-        inst, port, why = taken
-        raise UsageError(f"UDP port {port} of instance {inst} is taken ({why}); "
-                         "pick another --instance")  # fmt: skip
+    check_child("sim", ["--ugvs", "none", "--speedup", repr(args.speedup), "--latency",
+                        repr(args.latency), "--instance", str(args.instance)])  # fmt: skip
+    check_child("companion", ["--mission", "formation", "--plan", "plan.json", "--cell-m",
+                              repr(args.cell_m), "--instance", str(args.instance)])  # fmt: skip

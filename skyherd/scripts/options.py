@@ -4,7 +4,8 @@ A command declares its options once, as the fields of a frozen dataclass: the fi
 the flag (`dqn_steps` → `--dqn-steps`), its default and type the option's, and the comment beside
 it (or, when longer, the docstring under it) its help; `opt(default, **kw)` hands more keywords
 to `add_argument` (choices, metavar, nargs, action) but for `aliases`, more flags of the same
-option. A tuple field takes one or more values (`nargs="+"`, its default given as a list); a bool
+option, and `flag`, the option's flag when it is not the field's name (`dest` its attribute). A command showing a lower
+layer's parameters (which carry no argparse) gives the same keywords to `add_options` instead. A tuple field takes one or more values (`nargs="+"`, its default given as a list); a bool
 field whose default is False is a flag (`store_true`), one whose default is True a `--x/--no-x`
 pair. The help shows the default (scripts.cli.DefaultsFormatter).
 """
@@ -40,6 +41,13 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
+def values(cls: type, args: argparse.Namespace, **more):
+    """The dataclass `cls` made of the options `add_options` generated from its fields (a field
+    with no option keeps its default) and of `more`."""
+    names = [f.name for f in dataclasses.fields(cls) if hasattr(args, f.name)]
+    return cls(**{n: getattr(args, n) for n in names}, **more)
+
+
 def _value_type(hint) -> tuple[type, bool]:
     """The type of one value of an option (`int` for `int`, `int | None`, `tuple[int, ...]`) and
     whether the option takes several."""
@@ -50,18 +58,33 @@ def _value_type(hint) -> tuple[type, bool]:
     return hint, False
 
 
-def add_options(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...] = ()) -> None:
-    """One option of `parser` per field of the dataclass `cls` but those in `skip` (see the
-    module's docstring)."""
-    helps = field_docs(cls)
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        if f.name in skip:
+def add_options(
+    parser: argparse.ArgumentParser,
+    cls: type | tuple[type, ...],
+    skip: tuple[str, ...] = (),
+    only: tuple[str, ...] | None = None,
+    **given: dict,
+) -> None:
+    """One option of `parser` per field of the dataclass `cls` (or of each of several, in turn;
+    a name two have is the first's) but those in `skip`, or those named in `only`, in its order
+    (see the module's docstring); `given[name]`: more keywords for that option, as `opt`'s."""
+    classes = cls if isinstance(cls, tuple) else (cls,)
+    fields: dict[str, tuple] = {}
+    for c in classes:
+        for f in dataclasses.fields(c):
+            fields.setdefault(f.name, (f, c))
+    helps = {c: field_docs(c) for c in classes}
+    hints = {c: typing.get_type_hints(c) for c in classes}
+    for name in only if only is not None else fields:
+        f, c = fields[name]
+        if name in skip:
             continue
-        kw = dict(f.metadata)
-        flags = ["--" + f.name.replace("_", "-"), *kw.pop("aliases", ())]
-        kw.setdefault("help", helps.get(f.name, ""))
-        typ, several = _value_type(hints[f.name])
+        kw = {**f.metadata, **given.get(name, {})}
+        if "flag" in kw and "choices" not in kw:  # its value named after the flag, as before
+            kw.setdefault("metavar", kw["flag"].lstrip("-").replace("-", "_").upper())
+        flags = [kw.pop("flag", "--" + name.replace("_", "-")), *kw.pop("aliases", ())]
+        kw.setdefault("help", helps[c].get(name, ""))
+        typ, several = _value_type(hints[c][name])
         default = list(f.default) if isinstance(f.default, tuple) else f.default
         if several and kw.get("action") != "append":
             kw.setdefault("nargs", "+")
@@ -72,4 +95,4 @@ def add_options(parser: argparse.ArgumentParser, cls: type, skip: tuple[str, ...
             kw.setdefault("action", "store_true")
         elif typ is not str:
             kw.setdefault("type", typ)
-        parser.add_argument(*flags, dest=f.name, default=default, **kw)
+        parser.add_argument(*flags, dest=kw.pop("dest", name), default=default, **kw)

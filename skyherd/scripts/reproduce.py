@@ -15,7 +15,7 @@ from pathlib import Path
 
 from skyherd.report import reproduce as report
 from skyherd.runio.runfolder import RunFolder
-from skyherd.scripts.cli import UsageError, apply_quick, quick_help
+from skyherd.scripts.cli import UsageError, apply_quick, quick_help, usage
 from skyherd.scripts.options import add_options, opt
 
 STUDIES = ("sql",)
@@ -71,66 +71,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _specs(args, env):
-    """Every run of the study (policy.sql.reproduce.study_specs) from the checked options."""
-    from skyherd.policy.sql.params import Rules, SQLHyper
-    from skyherd.policy.sql.reproduce import study_specs
-
-    rule_sets = [Rules.named(r, args.ties, args.switches) for r in args.rules]
-    hyper = SQLHyper(episodes=args.episodes, max_steps=args.max_steps)
-    table_seed = None if args.roi_table_seed == "auto" else args.roi_table_seed
-    return study_specs(rule_sets, args.learners, args.seeds, args.agents, args.scaling_agents,
-                       args.sharing_periods, hyper, env, table_seed)  # fmt: skip
-
-
 def _check(args):
+    """The study's runs (policy.sql.reproduce.specs_of) from the options; UsageError."""
+    from skyherd.policy.sql.envfile import load_env_file
+    from skyherd.policy.sql.reproduce import specs_of
+
     apply_quick(args, QUICK)
     if args.episodes < 10 or args.max_steps < 1 or args.seeds < 1 or args.workers < 1:
         raise UsageError("need --episodes >= 10, --max-steps >= 1, --seeds >= 1, --workers >= 1")
-    if args.roi_table_seed != "auto":
-        try:
-            args.roi_table_seed = int(args.roi_table_seed)
-        except ValueError:
-            args.roi_table_seed = -1
-        if args.roi_table_seed < 0:
-            raise UsageError("--roi-table-seed must be auto or an integer >= 0")
-    from skyherd.policy.sql.params import Rules
-
-    args.switches = {}
-    for sw in args.switch:
-        field, eq, value = sw.partition("=")
-        if not eq:
-            raise UsageError(f"--switch {sw}: expected FIELD=VALUE, e.g. assign_cell=own")
-        args.switches[field.strip()] = value.strip()
-    try:
-        for rname in args.rules:
-            Rules.named(rname, args.ties, args.switches)
-    except ValueError as e:
-        raise UsageError(f"--switch: {e}") from None
-    if min(args.sharing_periods) < 1:
-        raise UsageError("sharing periods must be >= 1 (SQL-D is the no-sharing learner)")
-    if args.window < 1 or args.window > args.episodes:
-        raise UsageError("--window must be in 1..episodes")
-    env = None
-    if args.env is not None:
-        from skyherd.scripts.train_sql import load_env
-
-        env = load_env(args.env)
+    env = None if args.env is None else usage(load_env_file, args.env)
+    if env is not None:
         args.agents, args.scaling_agents = [len(env.starts)], []
-    else:
-        from skyherd.policy.sql.layout import formation
-
-        for K in (*args.agents, *args.scaling_agents):
-            try:
-                formation(K)
-            except ValueError as e:
-                raise UsageError(str(e)) from None
-    if args.backend == "ray" or args.ray_address:
-        from skyherd.policy.sql.sweep import ray_available
-
-        if not ray_available():
-            raise UsageError("Ray is not installed: pip install -e '.[ray]' (or --backend process)")
-    return env
+    return usage(specs_of, args, env)
 
 
 def _reused(args, specs) -> dict:
@@ -148,15 +100,11 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from skyherd.policy.sql.metrics import study_summary
-    from skyherd.policy.sql.sweep import ray_available, run_all
+    from skyherd.policy.sql.sweep import run_all
+    from skyherd.runio.parallel import chosen_backend
 
-    env = _check(args)
-    specs = _specs(args, env)
-    backend = args.backend
-    if backend == "auto":
-        backend = "ray" if ray_available() else "process"
-        if backend == "process":
-            print("Ray is not installed: running on a local process pool (pip install -e '.[ray]')")
+    specs = _check(args)
+    backend = usage(chosen_backend, args.backend, args.ray_address)
     reused = _reused(args, specs)
     folder = RunFolder("reproduce-sql", root=args.runs_dir)
     for sub in ("episodes", "maps"):

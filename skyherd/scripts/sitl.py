@@ -6,60 +6,57 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.flight.geo import DEFAULT_HOME, Home
 from skyherd.flight.sitl_vehicle import default_state_dir
-from skyherd.runio import UsageError
+from skyherd.runio import UsageError, ports
+from skyherd.scripts.cli import usage
+from skyherd.scripts.options import add_options, opt
+
+
+@dataclass(frozen=True)
+class SitlOptions:
+    """The options of `skyherd sitl` (scripts.options: one field, one option)."""
+
+    airframe: str = opt("quadrotor", choices=["quadrotor", "fixedwing"])
+    instance: int = 0  # vehicle instance N: system id 1+N, ports +N
+    speedup: float = 1.0
+    """simulation speed over wall time (>= 1, or 0 = as fast as possible); 1 by default, unlike
+    fly and sim: the vehicle stands alone for ground stations and MAVSDK, which expect real
+    time"""
+    home: str = f"{DEFAULT_HOME.lat_deg},{DEFAULT_HOME.lon_deg},{DEFAULT_HOME.alt_m}"
+    """home LAT,LON,ALT (degrees, degrees, metres AMSL)"""
+    personality: str = opt("px4", choices=["px4", "ardupilot"])
+    """present PX4 custom modes (default) or ArduCopter mode numbers"""
+    bind: str = "127.0.0.1"  # address the sockets bind to (default 127.0.0.1)
+    state_dir: Path | None = opt(
+        None, help=f"parameter persistence root (default {default_state_dir()})"
+    )
+    duration: float | None = None  # stop after this many simulated seconds
+    seed: int = 0
+    runs_dir: Path = opt(Path("runs"), aliases=("--runs",))
+    """where run folders go (runs); --runs is the older name"""
+    no_tlog: bool = False  # do not write telemetry.tlog
+    params: Path | None = opt(None, metavar="FILE")
+    """TOML [params] overrides at start, e.g. flight/airframes/px4_standin.toml (the PX4
+    stand-in set); default none"""
+    signing_key: Path | None = None
+    """MAVLink 2 signing key file (32 bytes): signing on (default: none, or the key a
+    SETUP_SIGNING saved in --state-dir)"""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--airframe", choices=["quadrotor", "fixedwing"], default="quadrotor")
-    parser.add_argument(
-        "--instance", type=int, default=0, help="vehicle instance N: system id 1+N, ports +N"
-    )
-    parser.add_argument(
-        "--speedup",
-        type=float,
-        default=1.0,
-        help="simulation speed over wall time (>= 1, or 0 = as fast as possible); 1 by default, "
-        "unlike fly and sim: the vehicle stands alone for ground stations and MAVSDK, which "
-        "expect real time",
-    )
-    parser.add_argument(
-        "--home",
-        default=f"{DEFAULT_HOME.lat_deg},{DEFAULT_HOME.lon_deg},{DEFAULT_HOME.alt_m}",
-        help="home LAT,LON,ALT (degrees, degrees, metres AMSL)",
-    )
-    parser.add_argument("--personality", choices=["px4", "ardupilot"], default="px4",
-                        help="present PX4 custom modes (default) or ArduCopter mode numbers")  # fmt: skip
-    parser.add_argument(
-        "--bind", default="127.0.0.1", help="address the sockets bind to (default 127.0.0.1)"
-    )
-    parser.add_argument("--state-dir", type=Path, default=None,
-                        help=f"parameter persistence root (default {default_state_dir()})")  # fmt: skip
-    parser.add_argument(
-        "--duration", type=float, default=None, help="stop after this many simulated seconds"
-    )
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument(
-        "--runs-dir", "--runs", dest="runs_dir", type=Path, default=Path("runs"),
-        help="where run folders go (runs); --runs is the older name",
-    )  # fmt: skip
-    parser.add_argument("--no-tlog", action="store_true", help="do not write telemetry.tlog")
-    parser.add_argument("--params", type=Path, default=None, metavar="FILE",
-                        help="TOML [params] overrides at start, e.g. flight/airframes/px4_standin.toml "
-                        "(the PX4 stand-in set); default none")  # fmt: skip
-    parser.add_argument("--signing-key", type=Path, default=None, help="MAVLink 2 signing key file (32 bytes): signing on (default: none, or the key a SETUP_SIGNING saved in --state-dir)")  # fmt: skip
     from skyherd.scripts.fault_options import add_fault_arguments
 
+    add_options(parser, SitlOptions)
     add_fault_arguments(parser)  # --wind --gust --noise --fault (docs/quadrotor.md, faults)
 
 
 def run(args: argparse.Namespace) -> int:
     from skyherd.flight.airframes_registry import AirframeUnavailable, make_autopilot
     from skyherd.flight.clock import SimClock
-    from skyherd.flight.faults import FaultSpecError
     from skyherd.flight.mavlink import EndpointConfig, Personality
     from skyherd.flight.sitl import Sitl
     from skyherd.flight.sitl_vehicle import (
@@ -69,23 +66,19 @@ def run(args: argparse.Namespace) -> int:
         saved_params,
         saved_params_line,
     )
-    from skyherd.runio.runfolder import RunFolder
+    from skyherd.runio.run import open_run_folder
     from skyherd.scripts.fault_options import plan_from_args
 
     if not (args.speedup == 0 or args.speedup >= 1):
         raise UsageError(f"--speedup must be 0 (as fast as possible) or >= 1, got {args.speedup}")
-    if not 0 <= args.instance <= 200:
-        raise UsageError(f"--instance must be in [0, 200], got {args.instance}")
+    usage(ports.check_instance, args.instance)  # one wording for every command
     if args.duration is not None and not args.duration > 0:
         raise UsageError("--duration must be a positive number of simulated seconds")
     try:
         home = Home.parse(args.home)
     except ValueError as e:
         raise UsageError(f"--home: {e}; give LAT,LON,ALT like -35.36,149.16,584") from e
-    try:
-        plan = plan_from_args(args, seed=args.seed)
-    except FaultSpecError as e:
-        raise UsageError(str(e)) from e
+    plan = usage(plan_from_args, args, args.seed)  # flight.faults.FaultSpecError
     try:
         ap = make_autopilot(
             args.airframe, clock=SimClock(), home=home, seed=args.seed, instance=args.instance,
@@ -96,10 +89,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UsageError(f"--params: {e}") from e
 
-    try:
-        folder = RunFolder("sitl", root=args.runs_dir)
-    except OSError as e:  # a read-only or missing runs dir: say so, no traceback
-        raise UsageError(f"cannot create a run folder in {args.runs_dir}: {e.strerror or e}; choose another --runs-dir") from e  # fmt: skip
+    folder = open_run_folder("sitl", args.runs_dir)  # UsageError: not writable, full
     state_dir = args.state_dir if args.state_dir is not None else default_state_dir()
     config = EndpointConfig(
         instance=args.instance,

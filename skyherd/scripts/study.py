@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from skyherd.scripts.cli import UsageError
+from skyherd.scripts.cli import UsageError, usage
 
 STUDIES = {
     "search": "re-acquiring a lost UGV (speed-off, camouflage): expert and policy ± the search",
@@ -72,10 +72,7 @@ def _shepherd(args, out: Path) -> str:
     from skyherd.policy.shepherd.rules import ShepherdParams
     from skyherd.report.shepherd import plot_shepherd
 
-    try:
-        flock = study.study_flock(args.agents, args.neighbours)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    flock = usage(study.study_flock, args.agents, args.neighbours)
     eps: dict = {}
     rows = study.run(args.seeds, args.first_seed, out, args.selector_file, flock, episodes=eps)
     sels = study.selectors(args.selector_file)

@@ -8,55 +8,35 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.hil.teleop import TeleopParams, record_keyboard, record_stick
 from skyherd.report.teleop import save_demo
 from skyherd.runio import RunFolder, UsageError
+from skyherd.scripts.options import add_options, opt, values
+
+
+@dataclass(frozen=True)
+class TeleopOptions:
+    """`skyherd teleop`'s options beside hil.teleop.TeleopParams' (scripts.options)."""
+
+    out: Path | None = None
+    """output .npz (default: <scenario>.npz in the run folder, ready for `skyherd train irl|ab
+    --demos FOLDER`)"""
+    runs_dir: Path = Path("runs")  # where run folders go
+    mavlink: str | None = opt(None, metavar="ADDRESS")
+    """take MANUAL_CONTROL from a joystick/ground station at ADDRESS instead of keys"""
+    continuous: bool = False
+    """with --mavlink: record the stick as a continuous velocity (ABS-DL's limits,
+    skyherd-demo/2) instead of the seven discrete actions"""
+    no_view: bool = False  # do not draw the text view
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--scenario",
-        default="lateral",
-        choices=("lateral", "climb", "descend", "composite"),
-        help="what to demonstrate",
-    )
-    parser.add_argument("--episodes", type=int, default=1, help="episodes to record")
-    parser.add_argument("--seed", type=int, default=0, help="environment seed of the first episode")
-    parser.add_argument(
-        "--step-s",
-        type=float,
-        default=0.5,
-        help="wall seconds per step; 0 = wait for a key each step",
-    )
-    parser.add_argument(
-        "--episode-s", type=float, default=60.0, help="episode length [s] (sim time)"
-    )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="output .npz (default: <scenario>.npz in the run folder, ready for "
-        "`skyherd train irl|ab --demos FOLDER`)",
-    )
-    parser.add_argument(
-        "--runs-dir", dest="runs_dir", type=Path, default=Path("runs"),
-        help="where run folders go",
-    )  # fmt: skip
-    parser.add_argument(
-        "--mavlink",
-        default=None,
-        metavar="ADDRESS",
-        help="take MANUAL_CONTROL from a joystick/ground station at ADDRESS instead of keys",
-    )
-    parser.add_argument(
-        "--continuous",
-        action="store_true",
-        help="with --mavlink: record the stick as a continuous velocity (ABS-DL's limits, "
-        "skyherd-demo/2) instead of the seven discrete actions",
-    )
-    parser.add_argument("--no-view", action="store_true", help="do not draw the text view")
+    scenarios = ("lateral", "climb", "descend", "composite")
+    add_options(parser, TeleopParams, skip=("view",), scenario=dict(choices=scenarios))
+    add_options(parser, TeleopOptions)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,9 +44,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("need --episodes >= 1, --step-s >= 0 and --episode-s > 0")
     if args.continuous and not args.mavlink:
         raise UsageError("--continuous needs --mavlink ADDRESS (keys have no proportional axis)")
-    p = TeleopParams(
-        args.scenario, args.episodes, args.seed, args.step_s, args.episode_s, not args.no_view
-    )
+    p = values(TeleopParams, args, view=not args.no_view)
     if args.mavlink:
         return _run_mavlink(args, p)
     fd = sys.stdin.fileno()

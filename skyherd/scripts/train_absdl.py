@@ -49,13 +49,8 @@ def params_from(args: argparse.Namespace):
 
     budgeted = argparse.Namespace(**vars(args))
     apply_quick(budgeted, QUICK)
-    kw = {f.name: getattr(budgeted, f.name) for f in dataclasses.fields(AbsdlParams)}
     try:
-        kw["hidden"] = tuple(int(x) for x in str(kw["hidden"]).split(",") if x)
-    except ValueError:
-        raise UsageError(f"--hidden must be comma-separated widths, got {kw['hidden']!r}") from None
-    try:
-        return AbsdlParams(**kw)
+        return AbsdlParams.of(budgeted)
     except ValueError as e:
         raise UsageError(f"{e}; see `skyherd train abs-dl --help`") from None
 
@@ -101,20 +96,13 @@ def _train(run, args, p, ab, recorded) -> int:
         bar.set_postfix_str(what, refresh=False)
         bar.update(1)
 
-    results = X.train_all(p, args.shield_comparison, recorded, tick)
-    res = results[0]
-    fused_path, base_path = run.file("absdl_fused.npz"), run.file("composite_baseline.npz")
-    res.fused.save(fused_path)
-    res.baseline.save(base_path)
-    run.describe("absdl_fused.npz", "ABS-DL: sub-task networks fused (fly with --policy)")
-    run.describe("composite_baseline.npz", "the network trained on composite demonstrations")
-    if args.save_policy is not None:
-        shutil.copyfile(fused_path, args.save_policy)
-        print(f"saved the fused policy to {args.save_policy}")
-    report.plot_curves(res.losses, run.file("curves.png"))
-    run.describe("curves.png", "training loss per epoch of every fit")
-    scores = X.evaluate_all(p, results, ab, tick)
+    results, scores = X.run_in_folder(run, p, args.shield_comparison, recorded, ab, tick)
     bar.close()
+    if args.save_policy is not None:
+        shutil.copyfile(run.file("absdl_fused.npz"), args.save_policy)
+        print(f"saved the fused policy to {args.save_policy}")
+    report.plot_curves(results[0].losses, run.file("curves.png"))
+    run.describe("curves.png", "training loss per epoch of every fit")
     report.plot_scores(scores, run.file("scores.png"))
     run.describe("scores.png", "evaluation means ± std")
     rows = report.score_rows(scores)

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.report import irl as report
-from skyherd.runio import RunFolder, file_facts
-from skyherd.scripts.cli import UsageError, apply_quick, quick_help
+from skyherd.runio import RunFolder
+from skyherd.scripts.cli import apply_quick, quick_help, save_copy, usage
 from skyherd.scripts.options import add_options, opt
 
 # --quick: a budget that shows the whole pipeline in under a minute of CPU (DQN steps above
@@ -70,87 +70,29 @@ def run(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
-    from skyherd.policy.demos import DemoFileError, load_demo
-    from skyherd.policy.irl_experiment import budget_warnings, needed_scenarios
+    from skyherd.policy.irl_experiment import ExperimentParams, budget_warnings, recorded_demos
 
     quick = apply_quick(args, QUICK, getattr(args, "_argv", None))  # the options it set
-    if (
-        args.seeds < 1
-        or args.dqn_steps < 100
-        or args.irl_iters < 1
-        or args.eval_episodes < 1
-        or args.mu_episodes < 1
-    ):
-        raise UsageError(
-            "need --seeds >= 1, --dqn-steps >= 100, --irl-iters >= 1, --eval-episodes >= 1"
-        )
-    if not (0 <= args.demo_epsilon <= 1 and 0 <= args.demo_lag <= 1 and 0 < args.gamma < 1):
-        raise UsageError("--demo-epsilon/--demo-lag must be in [0, 1] and --gamma in (0, 1)")
-    p = _experiment(args)
+    p = usage(ExperimentParams.of, args, args.learner_name)
     warnings = budget_warnings(p, QUICK["dqn_steps"])
     for w in warnings:
         print(f"skyherd train {p.learner}: warning: {w}", file=sys.stderr)
-    demos, demo_files = {}, {}
-    for sc in needed_scenarios(p):  # before the run folder: a missing demo file is bad usage
-        if args.demos is not None:
-            try:
-                demos[sc] = load_demo(args.demos / f"{sc}.npz")
-            except DemoFileError as e:
-                raise UsageError(f"{e}; record it with `skyherd teleop --scenario {sc}`") from e
-            demo_files[sc] = file_facts(args.demos / f"{sc}.npz")
+    demos, demo_files = usage(recorded_demos, args.demos, p)  # before the run folder
     with RunFolder.open(f"train-{p.learner}", args, root=args.runs_dir) as run:
         print(f"run folder: {run.path}")
         return _train(run, args, p, demos, demo_files, quick, warnings)
 
 
-def _experiment(args: argparse.Namespace):
-    """The experiment's parameters from the options (UsageError if they are refused)."""
-    from skyherd.policy.apprentice import ApprenticeParams
-    from skyherd.policy.demos import ExpertParams
-    from skyherd.policy.dqn import DQNParams
-    from skyherd.policy.irl import IRLParams
-    from skyherd.policy.irl_experiment import ExperimentParams
-
-    learner = args.learner_name
-    rules = tuple(r for r in getattr(args, "rules", "").split(",") if r) if learner == "ab" else ()
-    hyper = ApprenticeParams(
-        dqn=DQNParams(total_steps=args.dqn_steps, gamma=args.gamma),
-        irl=IRLParams(epsilon=args.epsilon, max_iters=args.irl_iters),
-        mu_episodes=args.mu_episodes,
-    )
-    try:
-        return ExperimentParams(
-            learner=learner, rules=rules, with_irl=not getattr(args, "no_irl", False),
-            seeds=args.seeds, seed=args.seed, apprentice=hyper,
-            expert=ExpertParams(epsilon=args.demo_epsilon, lag=args.demo_lag),
-            demo_episodes=args.demo_episodes, eval_episodes=args.eval_episodes,
-        )  # fmt: skip
-    except ValueError as e:  # an unknown AB rule, no rule, --demo-episodes 0
-        raise UsageError(str(e)) from None
-
-
 def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
+    """The experiment (policy.irl_experiment.run_in_folder) with its bars, then its report."""
     from tqdm import tqdm
 
     from skyherd.policy import irl_experiment as X
-    from skyherd.policy.groundair.env import PSI_NAMES
 
-    (run.path / "demos").mkdir()
-    for sc in tqdm(X.needed_scenarios(p), desc="demonstrations", unit="scenario", disable=None):
-        if sc not in demos:
-            demos[sc] = X.scripted_demonstration(sc, p)
-        demos[sc].save(run.path / "demos" / f"{sc}.npz")
-    mu_e = X.expert_feature_expectations(p, demos)
     print(f"experiment (seed of the hyper-parameters varies per run): {p}")
-    run.config(
-        learner=p.learner, experiment=p, hyper_parameters=p.apprentice,
-        args={k: v for k, v in vars(args).items() if not k.startswith("_")}, expert=p.expert,
-        mu_expert={k: v.tolist() for k, v in mu_e.items()}, psi_names=PSI_NAMES,
-        demos={sc: d.meta["demonstrator"] for sc, d in demos.items()}, demo_files=demo_files,
-        quick=quick, warnings=warnings,
-    )  # fmt: skip
-    n_jobs = len(X.jobs(p, mu_e))
-    events, metrics = run.events(), run.metrics(X.METRIC_COLUMNS)
+    run.config(args={k: v for k, v in vars(args).items() if not k.startswith("_")},
+               demo_files=demo_files, quick=quick, warnings=warnings)  # fmt: skip
+    n_jobs = p.seeds * len(p.learners)
     # the bar counts IRL iterations (each a DQN solve), so it moves during a run of a learner
     bar = run.closing(tqdm(total=n_jobs * args.irl_iters, desc=f"train {p.learner}",
                            unit="iter", disable=None))  # fmt: skip
@@ -162,33 +104,20 @@ def _train(run, args, p, demos, demo_files, quick, warnings) -> int:
         bar.set_postfix(run=f"{learner}/{seed}", t=f"{t:.3g}")
 
     def on_result(r, done) -> None:
-        for row in r.metric_rows():
-            metrics.write(row)
-        events.write(r.event())
         # IRL may stop before --irl-iters: count the rest as done
         bar.update(max(0, args.irl_iters - ticks.get((r.learner, r.seed), 0)))
         bar.set_postfix(last=f"{r.learner}/{r.seed} view={r.metrics['all_in_view_frac']:.3f}")
         run.summary(report.progress_note(len(done), n_jobs))
 
     run.summary(report.progress_note(0, n_jobs))
-    results = X.run_experiment(p, mu_e, args.workers, on_iteration, on_result,
-                               progress=bar.disable is False)  # fmt: skip
+    out = X.run_in_folder(run, p, demos, args.workers, args.transfer_episodes, on_iteration,
+                          on_result, tqdm, progress=bar.disable is False)  # fmt: skip
     bar.close()
-    # baselines on the same test seeds: the demonstrator, the ideal expert, random
-    facs = tqdm(X.baseline_factories(p).items(), desc="baselines", unit="policy", disable=None)
-    base = {name: X.baseline_metrics(make, p) for name, make in facs}
-    (run.path / "policies").mkdir()
-    for r in results:
-        r.labelled_policy().save(run.path / "policies" / f"{r.learner}_seed{r.seed}.npz")
-    best = X.best_runs(results)
-    rows = X.transfer_rows(best, args.transfer_episodes) if args.transfer_episodes > 0 else None
-    table = report.write(run, [r.facts() for r in results], base, p.learner, args,
-                         warnings, quick, rows)  # fmt: skip
+    table = report.write(run, [r.facts() for r in out.runs], out.baselines, p.learner, args,
+                         warnings, quick, out.transfer)  # fmt: skip
     print(table)
     if args.save_policy is not None:
-        r = best[p.main_learner]
-        args.save_policy.parent.mkdir(parents=True, exist_ok=True)
-        r.labelled_policy().save(args.save_policy)
-        print(f"saved {p.main_learner} seed {r.seed} policy → {args.save_policy}")
+        r = out.best[p.main_learner]
+        save_copy(r.labelled_policy(), args.save_policy, f"{p.main_learner} seed {r.seed}")
     print(f"summary: {run.path / 'summary.md'}")
     return 0

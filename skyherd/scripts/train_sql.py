@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from skyherd.policy.sql.experiments import EXPERIMENTS
 from skyherd.report import sql as report
 from skyherd.runio.runfolder import RunFolder, atomic_write_text
-from skyherd.scripts.cli import UsageError, quick_help
+from skyherd.scripts.cli import quick_help, usage
 from skyherd.scripts.options import add_options, opt
 
 
@@ -49,66 +49,12 @@ def add_arguments(parser: argparse.ArgumentParser, learner: str = "sql") -> None
     )
 
 
-def _params(args: argparse.Namespace, episodes: int):
-    """The experiment's parameters from the checked options (UsageError if K has no layout or
-    the --env map cannot be read)."""
-    from skyherd.policy.sql.experiments import ExperimentParams
-    from skyherd.policy.sql.layout import STARTS
-    from skyherd.policy.sql.params import Rules, SQLHyper
-
-    agents = args.agents or ([4] if args.quick else [9, 16])
-    scal = args.scalability_agents or ([4, 9] if args.quick else [4, 9, 16])
-    env = None
-    if args.env is not None:
-        env = load_env(args.env)
-        agents = scal = [len(env.starts)]
-    for k in (*agents, *scal):
-        if k not in STARTS and args.env is None:
-            raise UsageError(f"K={k} has no built-in layout; use K in {sorted(STARTS)}")
-    return ExperimentParams(
-        experiments=EXPERIMENTS if args.experiment == "all" else (args.experiment,),
-        seeds=tuple(args.seeds),
-        hyper=SQLHyper(episodes=episodes, max_steps=args.max_steps, share_every=args.share_every),
-        agents=tuple(agents),
-        scalability_agents=tuple(scal),
-        sharing_periods=tuple(args.sharing_periods),
-        rules=Rules.named(args.rules, args.ties),
-        map_seed=args.map_seed,
-        window=min(args.window or (20 if args.quick else 100), episodes),
-        env=env,
-    )
-
-
-def load_env(path: str):
-    """The --env map of `train sql` and `reproduce sql` (a UsageError if it cannot be read)."""
-    from skyherd.policy.sql.envfile import EnvSpec
-
-    try:
-        spec = EnvSpec.load(path)
-        spec.layout()
-    except (OSError, ValueError) as e:
-        raise UsageError(f"--env {path}: {e}") from None
-    return spec
-
-
-def _check(args: argparse.Namespace) -> None:
-    if args.episodes is not None and args.episodes < 1:
-        raise UsageError("--episodes must be >= 1")
-    if args.max_steps < 1:
-        raise UsageError("--max-steps must be >= 1")
-    if args.share_every < 1 or min(args.sharing_periods) < 1:
-        raise UsageError("sharing periods must be >= 1 (SQL-D is the no-sharing learner)")
-    if len(set(args.seeds)) != len(args.seeds) or min(args.seeds) < 0:
-        raise UsageError("--seeds must be distinct non-negative integers")
-
-
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from skyherd.policy.sql import experiments as X
 
-    _check(args)
-    p = _params(args, args.episodes or (2000 if args.quick else 10_000))
+    p = usage(X.ExperimentParams.of, args)
     folder = RunFolder("train-sql", root=args.runs_dir)
     (folder.path / "episodes").mkdir()
     folder.write_config(p.config(args.env, bool(args.quick)))

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from skyherd.scripts.cli import UsageError
+from skyherd.scripts.cli import UsageError, usage
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,9 +25,6 @@ def run(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise UsageError(f"--episodes {args.episodes}: give at least 1")
-    try:
-        table = write_transfer(args.run, args.episodes, args.seed)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    table = usage(write_transfer, args.run, args.episodes, args.seed)
     print(table)
     return 0

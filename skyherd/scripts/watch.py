@@ -6,66 +6,66 @@ processed; 1 no frame arrived before --timeout; 2 bad usage."""
 from __future__ import annotations
 
 import argparse
-import os
 import signal
+from dataclasses import dataclass
 
 from skyherd.perception.features import FeatureParams
-from skyherd.perception.transport import ZenohParams, open_session, viewer_params, zenoh_error_text
+from skyherd.perception.transport import ZenohParams, open_viewer
 from skyherd.perception.watch import WatchParams
 from skyherd.runio import RunFolder, UsageError, ports
+from skyherd.runio.address import zenoh_config_file
 from skyherd.runio.signals import CtrlC
+from skyherd.scripts.cli import usage
+from skyherd.scripts.options import add_options, opt, values
+
+
+@dataclass(frozen=True)
+class WatchOptions:
+    """`skyherd watch`'s options beside perception.watch.WatchParams' (scripts.options)."""
+
+    vehicle: str = "uav0"  # vehicle name in the key
+    connect: str | None = opt(
+        None,
+        metavar="ADDRESS",
+        help="the frame source, in the address syntax of every command (tcp:HOST:PORT; Zenoh's "
+        f"tcp/HOST:PORT is accepted too) (default: {ports.ZENOH_ADDRESS_HELP} for --instance N)",
+    )
+    instance: int = opt(
+        0,
+        metavar="N",
+        help=f"watch the flight of vehicle instance N in [0, {ports.MAX_INSTANCE}] (`skyherd "
+        f"fly/sim --instance N`): its simulator's {ports.ZENOH_PORT_HELP} on {ports.LOOPBACK}",
+    )
+    zenoh_config: str | None = None  # Zenoh JSON5 config file (replaces --connect)
+    signing_key: str | None = opt(None, metavar="FILE")
+    """the flight's key file (32 bytes: `skyherd fly --signing-key FILE`, or the per-run
+    <run>/signing.key): take only authentic frames and records, refuse (count) plain or forged
+    ones (default: none, frames are shown unchecked)"""
+    runs_dir: str = opt("runs", aliases=("--out",))  # where run folders go; --out is the older name
+    strip: int = 8  # frames in strip.png
+    no_show: bool = False  # never open a window
+    mcap: bool = True
+    """record the flight seen on Zenoh (frames, poses, UGVs, decisions, safety events, clock) as
+    flight.mcap in the run folder, for Foxglove / PlotJuggler"""
+    foxglove: int | None = opt(None, metavar="PORT")
+    """also serve the flight live to Foxglove at ws://127.0.0.1:PORT"""
+
+
+ORDER = ("vehicle", "connect", "instance", "zenoh_config", "signing_key", "frames", "runs_dir")
+ORDER += ("ugvs", "timeout_s", "save_every", "strip", "no_show", "mcap", "foxglove")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--vehicle", default="uav0", help="vehicle name in the key")
-    parser.add_argument(
-        "--connect",
-        default=None,
-        metavar="ADDRESS",
-        help="the frame source, in the address syntax of every command (tcp:HOST:PORT; "
-        f"Zenoh's tcp/HOST:PORT is accepted too) (default: {ports.ZENOH_ADDRESS_HELP} for --instance N)",
+    add_options(
+        parser,
+        (WatchOptions, WatchParams),
+        only=ORDER,
+        timeout_s=dict(flag="--timeout", dest="timeout"),
     )
-    parser.add_argument("--instance", type=int, default=0, metavar="N",
-                        help=f"watch the flight of vehicle instance N in [0, {ports.MAX_INSTANCE}] "
-                        f"(`skyherd fly/sim --instance N`): its simulator's {ports.ZENOH_PORT_HELP} on "
-                        f"{ports.LOOPBACK}")  # fmt: skip
-    parser.add_argument(
-        "--zenoh-config", default=None, help="Zenoh JSON5 config file (replaces --connect)"
-    )
-    parser.add_argument("--signing-key", default=None, metavar="FILE",
-                        help="the flight's key file (32 bytes: `skyherd fly --signing-key FILE`, or the "
-                        "per-run <run>/signing.key): take only authentic frames and records, refuse "
-                        "(count) plain or forged ones (default: none, frames are shown unchecked)")  # fmt: skip
-    parser.add_argument("--frames", type=int, default=100, help="frames to process")
-    parser.add_argument(
-        "--runs-dir", "--out", dest="runs_dir", default="runs",
-        help="where run folders go; --out is the older name",
-    )  # fmt: skip
-    parser.add_argument("--ugvs", type=int, default=3, help="UGVs in the team")
-    parser.add_argument(
-        "--timeout", type=float, default=10.0, help="give up after this long without a frame [s]"
-    )
-    parser.add_argument(
-        "--save-every", type=int, default=1, help="save every k-th annotated frame as PNG"
-    )
-    parser.add_argument("--strip", type=int, default=8, help="frames in strip.png")
-    parser.add_argument("--no-show", action="store_true", help="never open a window")
-    parser.add_argument(
-        "--mcap", action=argparse.BooleanOptionalAction, default=True,
-        help="record the flight seen on Zenoh (frames, poses, UGVs, decisions, safety events, "
-        "clock) as flight.mcap in the run folder, for Foxglove / PlotJuggler",
-    )  # fmt: skip
-    parser.add_argument(
-        "--foxglove", type=int, default=None, metavar="PORT",
-        help="also serve the flight live to Foxglove at ws://127.0.0.1:PORT",
-    )  # fmt: skip
 
 
 def _check(args: argparse.Namespace) -> None:
-    try:
-        ports.check_instance(args.instance)
-    except ValueError as e:
-        raise UsageError(str(e)) from None
+    usage(ports.check_instance, args.instance)
     if args.connect is not None and args.instance != 0:
         raise UsageError(f"--connect {args.connect} and --instance {args.instance} both say where "
                          "the frames come from: give one")  # fmt: skip
@@ -81,40 +81,19 @@ def _check(args: argparse.Namespace) -> None:
         raise UsageError("--timeout must be > 0 seconds")
     if args.foxglove is not None and not 0 < args.foxglove < 65536:
         raise UsageError("--foxglove PORT must be 1..65535")
-    if args.zenoh_config and not os.path.exists(args.zenoh_config):
-        raise UsageError(f"Zenoh config {args.zenoh_config} not found: give an existing file")
-
-
-def _session(args: argparse.Namespace):
-    from skyherd.runio.address import AddressError
-
-    try:
-        zp = viewer_params(args.connect, args.zenoh_config)
-    except AddressError as e:
-        raise UsageError(f"--connect {e}") from e
-    try:
-        return zp, open_session(zp)
-    except ValueError as e:
-        where = (
-            f"--zenoh-config {args.zenoh_config}"
-            if args.zenoh_config
-            else f"--connect {args.connect}"
-        )
-        raise UsageError(f"cannot open a Zenoh session ({where}): {zenoh_error_text(e)}") from e
+    if args.zenoh_config:
+        usage(zenoh_config_file, args.zenoh_config)
 
 
 def run(args: argparse.Namespace) -> int:
-    from skyherd.flight.mavlink.signing import SigningError, load_key
+    from skyherd.flight.mavlink.signing import key_option
 
     _check(args)
-    try:  # the flight key: only authentic frames and records
-        key = load_key(args.signing_key) if args.signing_key else None
-    except SigningError as e:
-        raise UsageError(f"--signing-key: {e}") from None
+    key = usage(key_option, args.signing_key) if args.signing_key else None  # authentic frames
     ctrl_c = CtrlC()
     prev = signal.signal(signal.SIGINT, ctrl_c)
     try:
-        zp, session = _session(args)
+        zp, session = usage(open_viewer, args.connect, args.zenoh_config)
         try:
             ctrl_c.check()  # during the session's opening: no run folder
             return _watch(args, zp, session, ctrl_c, key)
@@ -152,7 +131,7 @@ def _watch(args, zp: ZenohParams, session, ctrl_c: CtrlC, key: bytes | None) -> 
         w.record(run, args.mcap, live)
         run.at_end(finish, "summary")
         bar = run.closing(tqdm(total=args.frames, desc="watch", unit="frame", disable=None))
-        p = WatchParams(args.frames, args.ugvs, args.timeout, args.save_every, not args.no_show)
+        p = values(WatchParams, args, timeout_s=args.timeout, show=not args.no_show)
         seen = w.watch(run, p, lambda: ctrl_c.requested, bar.update)
         ctrl_c.check()  # outside every lock: the run folder ends as interrupted
         if seen.processed == 0:

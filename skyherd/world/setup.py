@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from dataclasses import dataclass
 
 from skyherd.runio import ports
@@ -16,35 +15,65 @@ from skyherd.world.build import WorldError, parse_home, parse_windows
 
 @dataclass(frozen=True)
 class SimSetup:
-    """`skyherd sim`'s parameters (docs: `skyherd sim --help`, one field per option)."""
+    """`skyherd sim`'s parameters, one field per option: its help is the field's comment or
+    docstring (scripts.options)."""
 
     airframe: str = "quadrotor"
-    instance: int = 0
-    seed: int = 0
-    ugvs: str = "composite"  # the UGV team's scenario, or "none"
-    home: str | None = None  # LAT,LON,ALT (None: the default home)
+    """the vehicle: the quadrotor (downward camera) or the JSBSim fixed-wing (its camera on a
+    pan-tilt gimbal pointed where a client sets the ROI: DO_SET_ROI_LOCATION)"""
+    instance: int = 0  # MAVLink vehicle instance N (ports, system id 1+N)
+    seed: int = 0  # seed of the vehicle, the UGV team and every random source
+    ugvs: str = "composite"
+    """UGV team: lateral, climb, descend, composite,
+    groundsim:route|convoy|random|stopgo|speedoff|camouflage, flock (flees the UAV:
+    groundsim/flock.py); none: the vehicle alone (no team, no camera, no Zenoh session)"""
+    home: str | None = None
+    """the vehicle's home [deg, deg, m AMSL] (default: the project's default home)"""
     ugv_start: str = "offboard"
+    """when the UGVs start to drive: 'offboard' (when the vehicle is handed to the companion:
+    OFFBOARD for the built-in vehicle; beside --follow or --autopilot, the companion's first
+    decision on skyherd/<vehicle>/decision) or a simulation time [s] (default offboard)"""
     speedup: float | None = None  # None: flight.clock.default_speedup
     camera_hz: float = CAMERA_HZ
-    free_run: bool = False
-    latency: float = LOCKSTEP_LATENCY_S  # [s of simulation time]
-    duration: float | None = None  # [s of simulation time]; None: until stopped
+    """camera frames per simulated second (the companion's tick)"""
+    free_run: bool = False  # do not wait for the companion (measure its lag instead)
+    latency: float = LOCKSTEP_LATENCY_S
+    """lockstep: the companion's declared compute latency [s of simulation time]"""
+    duration: float | None = None
+    """stop after this much simulation time [s] (default: until interrupted)"""
     zenoh_port: int | None = None  # None: the instance's
     zenoh_config: str | None = None
-    bind: str = LOOPBACK
-    remote: str = LOOPBACK
-    follow: str | None = None  # the outside vehicle's MAVLink address
-    autopilot: str = "builtin"  # builtin | px4 | ardupilot
+    """a Zenoh JSON5 configuration instead (e.g. a router for two hosts; docs/topology.md)"""
+    bind: str = LOOPBACK  # address the MAVLink sockets bind to
+    remote: str = LOOPBACK  # host the companion and the ground station listen on
+    follow: str | None = None
+    """no built-in vehicle: build the world (UGVs, camera) around the outside vehicle at this
+    MAVLink address (a second link of PX4 / ArduPilot), free-running on its clock"""
+    autopilot: str = "builtin"
+    """builtin: skyherd's autopilot (default); px4 / ardupilot: a real one flies on skyherd's
+    physics (PX4 none_iris on TCP 4560+N, ArduPilot --model JSON on UDP 9002+10N)"""
     follow_system: int = 0
-    param: tuple[str, ...] = ()  # NAME=VALUE of the built-in autopilot
-    wind: str | None = None  # the fault options (flight.faults.parse_fault_args)
-    gust: str | None = None
-    noise: str | None = None
+    """with --follow: the followed autopilot's MAVLink system id (0: the first autopilot
+    heard)"""
+    param: tuple[str, ...] = ()
+    """set a parameter of the built-in autopilot at start (repeatable), e.g. COM_OF_LOSS_T=3"""
+    # the fault options (flight.faults.parse_fault_args):
+    wind: str | None = None  # mean wind [m/s] from FROM degrees (270 = from the west); default calm
+    gust: str | None = None  # gust std [m/s] and correlation time [s, default 2]; default none
+    noise: str | None = None  # estimate noise std: position [m], velocity [m/s]; default none
     fault: tuple[str, ...] = ()
+    """timed fault, repeatable: gps_glitch@30:20,0,0:5, gps_drift@30:0.5,0,0:20, gps_loss@30:10,
+    baro@30:5:20, wind@40:16,90:10, battery@60:0.06, drain@10:300:60, disarm@25, rtl@25.02:0.05"""
     signing_key: str | None = None
-    cut_link: tuple[str, ...] = ()  # T:D
-    cut_camera: tuple[str, ...] = ()  # T:D
-    fleet: str | None = None  # a fleet file (world.fleet)
+    """MAVLink 2 signing key file (32 bytes): sign every frame, reject unsigned ones"""
+    cut_link: tuple[str, ...] = ()
+    """cut the companion's MAVLink link both ways at simulation time T [s] for D [s]
+    (repeatable)"""
+    cut_camera: tuple[str, ...] = ()  # stop the camera's frames at T [s] for D [s] (repeatable)
+    fleet: str | None = None
+    """several built-in vehicles in this one process (with --ugvs none): a JSON list of {"name":
+    "uav0", "instance": N, "seed": S, "home": [LAT, LON, ALT]}; each writes into <run
+    folder>/<name>/, each in lockstep with its own companion (docs/formation.md)"""
 
     @classmethod
     def of(cls, options) -> SimSetup:
@@ -80,17 +109,16 @@ class SimSetup:
             from skyherd.flight.params import check_assignments
 
             check_assignments(param_store(s.airframe), s.param, s.airframe)
-        if s.signing_key:
-            from skyherd.flight.mavlink.signing import SigningError, load_key
+        try:
+            from skyherd.flight.mavlink.signing import key_option
+            from skyherd.runio.address import zenoh_config_file
 
-            try:
-                load_key(s.signing_key)
-            except SigningError as e:
-                raise WorldError(f"--signing-key: {e}") from None
-        if s.zenoh_config is not None and not os.path.isfile(s.zenoh_config):
-            raise WorldError(
-                f"--zenoh-config {s.zenoh_config}: no such file; pass a Zenoh JSON5 file"
-            )
+            if s.signing_key:
+                key_option(s.signing_key)
+            if s.zenoh_config is not None:
+                zenoh_config_file(s.zenoh_config)
+        except ValueError as e:  # SigningError, AddressError: one line naming the option
+            raise WorldError(str(e)) from None
         if s.fleet:
             s.read_fleet()
         return s

@@ -126,8 +126,10 @@ def test_orbit_bad_usage_before_flying(tmp_path, capsys):
     assert main([*base, "--envelope", str(ENVELOPE_DIR / "quadrotor_groundair.toml")]) == 2
     assert main([*base, "--envelope", str(tmp_path / "missing.toml")]) == 2
     assert main([*base, "--mission", "square"]) == 2
+    assert main([*base, "--ugvs", "nope"]) == 2  # the orbit's team is --orbit-scenario
     err = capsys.readouterr().err
     assert "--orbit-duration" in err and "fixedwing" in err and "missing.toml" in err
+    assert "--ugvs nope: the fixed-wing's orbit flies over --orbit-scenario" in err
     assert not (tmp_path / "x").exists()
 
 

@@ -115,7 +115,7 @@ def test_exit_now_runs_atexit_flushes_output_and_waits_for_a_working_thread(tmp_
     code = f"""
 import atexit, sys, threading, time
 from pathlib import Path
-from skyherd.scripts.cli import exit_now
+from skyherd.runio.process import exit_now
 atexit.register(lambda: Path({str(done)!r}).write_text("ran"))
 sys.stdout.write("buffered, no newline")
 def work():

@@ -204,12 +204,25 @@ def test_recorded_demonstrations_train_their_network(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_the_kept_policy_is_what_the_defaults_train():
-    """policy/models/groundair_absdl.npz is `skyherd train abs-dl` with the defaults: training
-    again gives the same weights (float32 on disk)."""
+    """policy/models/groundair_absdl.npz is `skyherd train abs-dl` with the defaults. Training
+    is bit-identical for a seed on one machine (trained twice here); across machines the
+    weights drift apart (numba compiles the environment for the host CPU, torch picks its CPU
+    kernels by the host's instructions: on an AVX-512 machine max |Δw| was 0.04-1.2 against
+    the model kept from another, with ATEN_CPU_CAPABILITY / MKL_CBWR pinned too), so the kept
+    model is checked by what it does: on 40 unseen composite episodes, behind the same shield,
+    what it achieves is what the retrained one achieves (seen there: all-in-view 0.9933 and
+    0.9933, footprint 6.348 and 6.364)."""
+    p = AbsdlParams()
     kept = load_policy(ABSDL_POLICY)
-    assert kept.meta["params"] == json.loads(json.dumps(dataclasses.asdict(AbsdlParams())))
-    again = train(AbsdlParams()).fused
+    assert kept.meta["params"] == json.loads(json.dumps(dataclasses.asdict(p)))
+    again, twice = train(p).fused, train(p).fused
     for name in ("lateral", "climb", "descend"):
         for a, b in zip(again.nets[name][0] + again.nets[name][1],
-                        kept.nets[name][0] + kept.nets[name][1]):  # fmt: skip
-            assert np.array_equal(a.astype(np.float32), b.astype(np.float32))
+                        twice.nets[name][0] + twice.nets[name][1]):  # fmt: skip
+            assert np.array_equal(a, b)  # one machine: bit-identical
+    seeds = range(p.eval_seed, p.eval_seed + 40)
+    k, r = evaluate("kept", kept, seeds).mean, evaluate("again", again, seeds).mean
+    assert abs(k["all_in_view_frac"] - r["all_in_view_frac"]) <= 0.01, (k, r)
+    assert k["footprint_ratio"] == pytest.approx(r["footprint_ratio"], rel=0.03), (k, r)
+    assert k["jerk_flown"] == pytest.approx(r["jerk_flown"], rel=0.1), (k, r)
+    assert abs(k["changed"] - r["changed"]) <= 0.005, (k, r)

@@ -139,24 +139,22 @@ def test_walk_holes_name_the_entry_cells_whose_greedy_walk_never_arrives():
 def test_reproduce_takes_a_table_seed_and_labels_its_runs(capsys):
     import argparse
 
+    from skyherd.policy.sql.reproduce import specs_of
     from skyherd.scripts import reproduce
     from skyherd.scripts.cli import main
 
     p = argparse.ArgumentParser()
     reproduce.add_arguments(p)
     args = p.parse_args(["sql", "--learners", "sql-d", "--agents", "9", "--roi-table-seed", "3"])
-    reproduce._check(args)
-    specs = reproduce._specs(args, None)
+    specs = specs_of(args)
     assert {s.rules.name for s in specs} == {"published-table3"}
     assert {s.pretrain.seed for s in specs} == {3} and specs[0].key.startswith("published-table3")
     args = p.parse_args(["sql", "--rules", "published", "intended", "--roi-table-seed", "0"])
-    reproduce._check(args)
-    assert {s.rules.name for s in reproduce._specs(args, None)} == {"published", "intended"}
+    assert {s.rules.name for s in specs_of(args)} == {"published", "intended"}
     # auto (the default): per K the first table seed whose walks all arrive; intended rules
     # walk no fixed table and keep their name
     args = p.parse_args(["sql", "--learners", "sql-d", "--rules", "published", "intended"])
-    reproduce._check(args)
-    specs = reproduce._specs(args, None)
+    specs = specs_of(args)
     assert {(s.n_agents, s.rules.name, s.pretrain.seed) for s in specs} == {
         (9, "published-table1", 1), (16, "published-table11", 11),
         (9, "intended", 0), (16, "intended", 0)}  # fmt: skip

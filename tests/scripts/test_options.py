@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from skyherd.scripts.cli import Parser
-from skyherd.scripts.options import add_options, field_docs, opt
+from skyherd.scripts.options import add_options, field_docs, opt, values
 
 
 @dataclass(frozen=True)
@@ -61,3 +61,26 @@ def test_every_option_shows_its_help_and_default():
                   "decisions per second, said on two lines (default: 2.5)",
                   "the safety net on (default: on)", "--out OUT, --output OUT"):  # fmt: skip
         assert words in text
+
+
+@dataclass(frozen=True)
+class _Lower:
+    """A lower layer's parameters: no argparse in them."""
+
+    rate_hz: float = 2.0  # decisions per second
+    timeout_s: float = 10.0  # give up after this long [s]
+    show: bool = True  # a window
+
+
+def test_a_lower_layers_fields_shown_as_the_command_says_in_its_order():
+    """Several classes (a name two have is the first's), `only`'s order, a flag and dest given."""
+    p = Parser(prog="demo")
+    order = ("timeout_s", "steps", "rate_hz")
+    timeout = dict(flag="--timeout", dest="timeout")
+    add_options(p, (_Lower, _Demo), only=order, rate_hz=dict(flag="--rate"), timeout_s=timeout)
+    text = " ".join(p.format_help().split())
+    assert "[--timeout TIMEOUT] [--steps STEPS] [--rate RATE]" in text
+    assert "decisions per second (default: 2.0)" in text and "--show" not in text
+    a = p.parse_args(["--rate", "5", "--timeout", "3"])
+    assert (a.rate_hz, a.timeout, a.steps) == (5.0, 3.0, 100)
+    assert values(_Lower, a, timeout_s=a.timeout, show=False) == _Lower(5.0, 3.0, False)

@@ -75,6 +75,14 @@ def load_key(path: Path) -> bytes:
     return data
 
 
+def key_option(path) -> bytes:
+    """The key of the `--signing-key` file `path` (load_key); SigningError naming the option."""
+    try:
+        return load_key(Path(path))
+    except SigningError as e:
+        raise SigningError(f"--signing-key: {e}") from None
+
+
 def save_key(path: Path, key: bytes) -> None:
     """Write the key atomically, readable by its owner only."""
     if len(key) != KEY_LEN:
@@ -117,10 +125,7 @@ class FlightSigning:
                              "signed by default)")  # fmt: skip
         if not self.key_file:
             return None
-        try:
-            load_key(Path(self.key_file))
-        except SigningError as e:
-            raise ValueError(f"--signing-key: {e}") from None
+        key_option(self.key_file)
         return str(Path(self.key_file).resolve())
 
     def mode(self) -> str:

@@ -86,3 +86,17 @@ def evaluate_all(
     if len(results) > 1:
         actors.insert(4, ("ABS-DL trained without shield", results[1].fused, None))
     return [evaluate(n, a, seeds, r, lambda: tick("evaluate")) for n, a, r in actors]
+
+
+def run_in_folder(
+    run, p: AbsdlParams, shield_comparison: bool, recorded: dict, ab, tick: Callable[[str], None]
+) -> tuple[list[TrainResult], list[Score]]:
+    """The experiment into the run folder `run` (a runio.run.Run): every variant trained, ABS-DL's
+    fused policy (absdl_fused.npz) and the composite-demo network (composite_baseline.npz)
+    saved and described, then the evaluation; `tick(what)` per unit of `work`."""
+    results = train_all(p, shield_comparison, recorded, tick)
+    results[0].fused.save(run.file("absdl_fused.npz"))
+    results[0].baseline.save(run.file("composite_baseline.npz"))
+    run.describe("absdl_fused.npz", "ABS-DL: sub-task networks fused (fly with --policy)")
+    run.describe("composite_baseline.npz", "the network trained on composite demonstrations")
+    return results, evaluate_all(p, results, ab, tick)

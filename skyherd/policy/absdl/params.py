@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 
@@ -46,6 +47,20 @@ class AbsdlParams:
         return DemonstratorParams(
             noise_mps=self.noise_mps, delay_steps=self.delay_steps, gain_error=self.gain_error
         )
+
+    @classmethod
+    def of(cls, o) -> AbsdlParams:
+        """The parameters of `skyherd train abs-dl`'s options: any object with the fields as
+        attributes (an argparse namespace; `hidden` comma-separated widths); ValueError (one
+        line) if they are refused."""
+        kw = {f.name: getattr(o, f.name) for f in dataclasses.fields(cls)}
+        try:
+            kw["hidden"] = tuple(int(x) for x in str(kw["hidden"]).split(",") if x)
+        except ValueError:
+            raise ValueError(
+                f"--hidden must be comma-separated widths, got {kw['hidden']!r}"
+            ) from None
+        return cls(**kw)
 
     def __post_init__(self) -> None:
         if self.demo_episodes < 1 or self.epochs < 1 or self.eval_episodes < 1:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -166,3 +166,37 @@ def read_finished_runs(folders: list[Path], sha256: str) -> FinishedRuns:
         raise ValueError(f"{folders[0]}: lessons.csv has no finished seed")
     results.sort(key=lambda r: r["seed"])
     return FinishedRuns(p, cfg0["curriculum"], results, dirs)
+
+
+def teach_into(
+    folder: Any,
+    curriculum: Path,
+    p: EduParams,
+    seeds: int,
+    first_seed: int = 0,
+    monolith_seeds: int | None = None,
+    workers: int = 1,
+    on_seed: Callable[[dict[str, Any]], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Every seed's course into the run folder `folder` (runio.runfolder.RunFolder): the
+    policies into policies/, lessons.csv and events.jsonl as each seed ends (then
+    `on_seed(its result)`), lessons.json; the results in seed order. The monolithic DQN is
+    taught on the first `monolith_seeds` seeds (None: all)."""
+    from skyherd.runio.runfolder import CsvWriter, atomic_write_text
+
+    pol_dir = folder.path / "policies"
+    pol_dir.mkdir()
+    n_mono = seeds if monolith_seeds is None else monolith_seeds
+    jobs = [SeedJob(Path(curriculum), p, first_seed + s, pol_dir, s < n_mono) for s in range(seeds)]
+    events, lessons = folder.events(), CsvWriter(folder.file("lessons.csv"), LESSON_COLUMNS)
+    results = []
+    for out in teach_all(jobs, workers):
+        results.append(out)
+        for row in lesson_rows(out):
+            lessons.write(row)
+        events.write_many(lesson_events(out))
+        if on_seed:
+            on_seed(out)
+    lessons.close()
+    atomic_write_text(folder.file("lessons.json"), json.dumps(results, indent=1, default=float))
+    return results

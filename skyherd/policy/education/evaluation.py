@@ -152,3 +152,19 @@ def evaluate_run(
     fid = fidelity_totals(educated, episodes)
     best = best_seed(comparison)
     return RunEvaluation(educated, comparison, fid, best, decision_episode(educated[best]))
+
+
+def write_evaluation(folder: Any, results: list[dict[str, Any]], ev: RunEvaluation) -> None:
+    """An educate run's evaluation `ev` of `results` (evaluate_run) into the run folder
+    `folder` (runio.runfolder.RunFolder): decisions.jsonl (one composite test episode of the
+    best seed's policy) and results.json."""
+    import json
+
+    from skyherd.runio.runfolder import JsonlWriter, atomic_write_text
+
+    w = JsonlWriter(folder.file("decisions.jsonl"))
+    w.write_many(ev.decisions)
+    w.close()
+    atomic_write_text(folder.file("results.json"), json.dumps(
+        {"lessons": results, "comparison": ev.comparison, "fidelity": ev.fidelity}, indent=1,
+        default=float))  # fmt: skip

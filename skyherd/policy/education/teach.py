@@ -123,6 +123,27 @@ QUICK = EduParams(
 )
 
 
+def params_of(o) -> EduParams:
+    """The hyper-parameters of `skyherd educate`'s options: any object with them as attributes
+    (an argparse namespace; None: the default, QUICK's with `o.quick`); ValueError naming the
+    option."""
+    p = QUICK if o.quick else EduParams()
+    over: dict[str, Any] = {}
+    if o.dqn_steps is not None:
+        if o.dqn_steps < 100:
+            raise ValueError("--dqn-steps must be >= 100")
+        over["dqn"] = dataclasses.replace(p.dqn, total_steps=o.dqn_steps)
+    if o.irl_iters is not None:
+        if o.irl_iters < 1:
+            raise ValueError("--irl-iters must be >= 1")
+        over["irl_iters"] = o.irl_iters
+    if o.test_episodes is not None:
+        if o.test_episodes < 1:
+            raise ValueError("--test-episodes must be >= 1")
+        over["test_episodes"] = o.test_episodes
+    return dataclasses.replace(p, monolith=not o.no_monolith, **over)
+
+
 @dataclass
 class LessonResult:
     """What one lesson did and how every lesson taught so far scores after it."""

@@ -126,3 +126,14 @@ def generate_env(n_agents: int, seed: int, size: int = 50, density: float = 0.02
         if seen[lay.starts].all() and seen[lay.roi_id >= 0].all():
             return spec
     raise ValueError(f"no solvable map found for K={n_agents}, seed={seed}")
+
+
+def load_env_file(path: str | Path) -> EnvSpec:
+    """The map file of `--env` (`skyherd train sql`, `skyherd reproduce sql`), its layout
+    checked; ValueError naming --env."""
+    try:
+        spec = EnvSpec.load(path)
+        spec.layout()
+    except (OSError, ValueError) as e:
+        raise ValueError(f"--env {path}: {e}") from None
+    return spec

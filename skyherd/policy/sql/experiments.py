@@ -94,6 +94,40 @@ class ExperimentParams:
     window: int = 100  # moving-average window of curves and convergence [episodes]
     env: EnvSpec | None = None  # a map file's map for every run (K from the file)
 
+    @classmethod
+    def of(cls, o) -> ExperimentParams:
+        """The experiment of `skyherd train sql`'s options: any object with them as attributes
+        (an argparse namespace; None: the default, --quick's with `o.quick`); ValueError naming
+        the option."""
+        from skyherd.policy.sql.envfile import load_env_file
+        from skyherd.policy.sql.layout import STARTS
+
+        if o.episodes is not None and o.episodes < 1:
+            raise ValueError("--episodes must be >= 1")
+        if o.max_steps < 1:
+            raise ValueError("--max-steps must be >= 1")
+        if o.share_every < 1 or min(o.sharing_periods) < 1:
+            raise ValueError("sharing periods must be >= 1 (SQL-D is the no-sharing learner)")
+        if len(set(o.seeds)) != len(o.seeds) or min(o.seeds) < 0:
+            raise ValueError("--seeds must be distinct non-negative integers")
+        episodes = o.episodes or (2000 if o.quick else 10_000)
+        agents = o.agents or ([4] if o.quick else [9, 16])
+        scal = o.scalability_agents or ([4, 9] if o.quick else [4, 9, 16])
+        env = None if o.env is None else load_env_file(o.env)
+        if env is not None:
+            agents = scal = [len(env.starts)]
+        for k in (*agents, *scal):
+            if k not in STARTS and env is None:
+                raise ValueError(f"K={k} has no built-in layout; use K in {sorted(STARTS)}")
+        hyper = SQLHyper(episodes=episodes, max_steps=o.max_steps, share_every=o.share_every)
+        return cls(
+            experiments=EXPERIMENTS if o.experiment == "all" else (o.experiment,),
+            seeds=tuple(o.seeds), hyper=hyper, agents=tuple(agents),
+            scalability_agents=tuple(scal), sharing_periods=tuple(o.sharing_periods),
+            rules=Rules.named(o.rules, o.ties), map_seed=o.map_seed,
+            window=min(o.window or (20 if o.quick else 100), episodes), env=env,
+        )  # fmt: skip
+
     @property
     def tail(self) -> int:
         """Episodes at the end of a run whose mean is its final value."""

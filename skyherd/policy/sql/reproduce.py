@@ -65,3 +65,35 @@ def study_specs(
                 for seed in range(seeds):
                     specs.append(RunSpec(alg, K, n, seed, rules, hyper, pre, env=env))
     return specs
+
+
+def specs_of(o, env: EnvSpec | None = None, say: Callable[[str], object] = print) -> list[RunSpec]:
+    """Every run of `skyherd reproduce sql`'s options (any object with them as attributes: an
+    argparse namespace) on the map `env` (None: generated per seed and K), checked: ValueError
+    naming the option."""
+    from skyherd.policy.sql.layout import formation
+
+    table_seed = None
+    if o.roi_table_seed != "auto":
+        table_seed = int(o.roi_table_seed) if str(o.roi_table_seed).isdigit() else -1
+        if table_seed < 0:
+            raise ValueError("--roi-table-seed must be auto or an integer >= 0")
+    switches = {}
+    for sw in o.switch:
+        name, eq, value = sw.partition("=")
+        if not eq:
+            raise ValueError(f"--switch {sw}: expected FIELD=VALUE, e.g. assign_cell=own")
+        switches[name.strip()] = value.strip()
+    try:
+        rule_sets = [Rules.named(r, o.ties, switches) for r in o.rules]
+    except ValueError as e:
+        raise ValueError(f"--switch: {e}") from None
+    if min(o.sharing_periods) < 1:
+        raise ValueError("sharing periods must be >= 1 (SQL-D is the no-sharing learner)")
+    if o.window < 1 or o.window > o.episodes:
+        raise ValueError("--window must be in 1..episodes")
+    for K in (*o.agents, *o.scaling_agents) if env is None else ():
+        formation(K)
+    hyper = SQLHyper(episodes=o.episodes, max_steps=o.max_steps)
+    return study_specs(rule_sets, o.learners, o.seeds, o.agents, o.scaling_agents,
+                       o.sharing_periods, hyper, env, table_seed, say)  # fmt: skip
