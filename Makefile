@@ -37,9 +37,14 @@ test: $(STAMP) $(MAVPROXY_STAMP)
 # The suite without the tests marked slow (flights, drills, learner runs, SITL sessions: 3 CPU s
 # or more each): every package's unit tests and one 6 s end-to-end flight (the time is in the
 # README). An unmarked test that spends over 30 CPU s fails (tests/conftest.py): mark it slow.
+# Two pytest-xdist workers, each a session in its own network namespace (tests/conftest.py); a
+# file's tests stay on one worker (--dist loadfile), so a module's fixture is built once.
+# Bytecode is written (__pycache__, ignored by git) even where the environment sets
+# PYTHONDONTWRITEBYTECODE: without it each worker rewrote every test module's asserts again
+# (5 of its 9 CPU s of collection) and each skyherd process the tests start compiled its modules.
 test-fast: $(STAMP) $(MAVPROXY_STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/python -m pytest -q -m "not slow and not autopilot"
+	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not slow and not autopilot"
 
 # Opt-in: the production companion (`skyherd fly --connect`) against real autopilot builds named
 # by SKYHERD_PX4_BIN, SKYHERD_ARDUCOPTER_BIN, SKYHERD_ARDUPLANE_BIN (built outside this repository;

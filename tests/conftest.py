@@ -3,8 +3,11 @@
 Isolation: every vehicle sends to UDP 14550 and instance 0 owns 14540/14580/7447, so a test must
 not hear another skyherd on the machine (or be heard by it). Where the kernel lets us (root, or
 CAP_SYS_ADMIN), the test session enters its own network namespace before any test runs: only
-loopback, up, and every process the tests start inherits it. SKYHERD_TEST_NETNS=0 keeps the
-machine's namespace (the header says which one the session runs in).
+loopback, up, and every process the tests start inherits it. Under pytest-xdist (`-n 2`: make
+test-fast) each worker is a session of its own and enters its own namespace, so two tests running
+at once on the same fixed ports never meet; the controller, which runs no test, stays in the
+machine's. SKYHERD_TEST_NETNS=0 keeps the machine's namespace (the header says which one the
+session runs in).
 """
 
 import ctypes
@@ -46,9 +49,32 @@ def _own_network_namespace() -> str:
 
 
 MACHINE_NETNS_FD: int | None = None
+NETWORK = "none yet"  # set by pytest_sessionstart, before collection
 
 
-NETWORK = _own_network_namespace()
+def _xdist_controller(config) -> bool:
+    """This session hands its tests to pytest-xdist workers (each a session of its own)."""
+    return config.pluginmanager.hasplugin("dsession")
+
+
+def _workers_network_namespace(config) -> str:
+    """The controller's header line: whether each worker can enter a namespace of its own (a
+    forked child tries; this process stays in the machine's)."""
+    workers = len(config.option.tx)
+    if os.environ.get("SKYHERD_TEST_NETNS", "1") == "0":
+        return f"the machine's (SKYHERD_TEST_NETNS=0), shared by the {workers} xdist workers"
+    pid = os.fork()
+    if pid == 0:
+        libc = ctypes.CDLL(None, use_errno=True)
+        os._exit(0 if libc.unshare(CLONE_NEWNET) == 0 else ctypes.get_errno() or 1)
+    err = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+    if err:
+        return (
+            f"the machine's, shared by the {workers} xdist workers (unshare: {os.strerror(err)};"
+            " tests may meet other vehicles on 14550 and each other: run without -n)"
+        )
+    return f"each of the {workers} xdist workers its own (loopback only)"
+
 
 PR_SET_CHILD_SUBREAPER = 36  # <linux/prctl.h>: orphans of the tests' processes come back here
 ctypes.CDLL(None, use_errno=True).prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)  # (no_process_left)
@@ -59,11 +85,20 @@ def pytest_report_header(config):
 
 
 def pytest_sessionstart(session):
-    """numba's kernels compiled (or loaded from their cache) before the first test, by one short
-    in-process drill (the multirotor's physics, controller and mixer; the net's kernels) and a
-    step of the bridges' body. A fresh clone has no cache: its first flight compiled them (about
-    10 s of CPU) inside a lockstep tick, where the peer's wall-clock patience runs (60 s), and
-    under a load of 18 that first flight aborted ("no tick mark from the vehicle for 60 s")."""
+    """The network namespace (the module's docstring), then numba's kernels compiled (or loaded
+    from their cache) before the first test, by one short in-process drill (the multirotor's
+    physics, controller and mixer; the net's kernels) and a step of the bridges' body. A fresh
+    clone has no cache: its first flight compiled them (about 10 s of CPU) inside a lockstep tick,
+    where the peer's wall-clock patience runs (60 s), and under a load of 18 that first flight
+    aborted ("no tick mark from the vehicle for 60 s"). Under pytest-xdist the controller fills
+    the cache once, before it starts the workers (its own sessionstart runs last); they load it."""
+    global NETWORK
+    if _xdist_controller(session.config):
+        NETWORK = _workers_network_namespace(session.config)
+    else:
+        NETWORK = _own_network_namespace()
+    if hasattr(session.config, "workerinput"):  # an xdist worker: the controller warmed up
+        return
     from skyherd.flight.multirotor import MultirotorAutopilot
     from skyherd.hil.bridge_physics import QuadBody
     from skyherd.safety.drills import DrillParams, run_drill, scripted_drills
@@ -90,8 +125,8 @@ def north35_spec():
 
 
 # -- no test leaves a process behind -------------------------------------------------------------
-# The suite runs its tests one after another in one network namespace, and tests reuse vehicle
-# instances (instance N's ports are reused by a later test, and N+40's client port is N's API port:
+# A session (each xdist worker is one) runs its tests one after another in its own network
+# namespace, and tests reuse vehicle instances (instance N's ports are reused by a later test, and N+40's client port is N's API port:
 # CONVENTIONS.md). That is safe only while nothing a test started outlives it: a vehicle left
 # running would be heard by the next test on those ports. So every test ends with none of the
 # processes it started still alive (a grace for ones already on their way out); what is left is
