@@ -60,21 +60,25 @@ class FrameInbox:
 
     `frame_at(t)` returns (frame, "ok") for the frame stamped t, (None, "corrupt") when the
     frame for t arrived damaged (CRC, size: it is dropped, as a real link would), or
-    (None, "lost") when nothing came within the patience."""
+    (None, "lost") when nothing came within the patience. A damaged frame counts from the
+    moment it arrived, before `frame_at` was called too: the frame is published before its
+    tick mark, so it usually arrives first (counted only from the call, a damaged frame that
+    came early was missed and its tick waited the whole patience: "lost", seen under load)."""
 
     def __init__(self, subscriber):
         self.sub = subscriber
         self.ok = self.corrupt = self.lost = 0
+        self._corrupt_seen = subscriber.stats.corrupt  # damaged frames already answered for
 
     def frame_at(self, t: float, patience_s: float, v: VehicleLink | None = None):
         deadline = time.monotonic() + patience_s
-        corrupt0 = self.sub.stats.corrupt
         while True:
             fr = self.sub.wait(0.05)
             if fr is not None and abs(fr.t_sim - t) < 1e-6:
                 self.ok += 1
                 return onboard_frame(fr, v), "ok"
-            if self.sub.stats.corrupt > corrupt0:
+            if self.sub.stats.corrupt > self._corrupt_seen:  # one frame per tick in lockstep
+                self._corrupt_seen = self.sub.stats.corrupt
                 self.corrupt += 1
                 return None, "corrupt"
             if time.monotonic() > deadline:

@@ -75,7 +75,13 @@ def test_the_companion_detects_on_the_bytes_it_received(zenoh_pair):
     bad = bytearray(encode_frame(99, 0.3, pose.pos_ned, pose.quat, image, stream=7))
     bad[40] ^= 0xFF  # a byte of the header's pose flipped: the header CRC no longer matches
     pub_s.declare_publisher(frame_key("uav9")).put(bytes(bad))
+    deadline = time.monotonic() + 20.0  # it arrives before the companion asks for tick 0.3 (a
+    while inbox.sub.stats.corrupt == 0:  # frame goes out before its mark): still its answer
+        assert time.monotonic() < deadline, "the damaged frame did not arrive"
+        time.sleep(0.01)
+    asked = time.monotonic()
     frame, status = inbox.frame_at(0.3, 20.0)
+    assert time.monotonic() - asked < 10.0  # answered, not the patience waited out
     seen.on_frame(0.3, frame, status)
     assert status == "corrupt" and frame is None
     np.testing.assert_array_equal(seen.phi, after_altered)

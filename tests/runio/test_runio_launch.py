@@ -35,6 +35,7 @@ def test_sigint_waits_until_a_slow_starting_child_takes_signals(tmp_path):
     child = start("slow", [sys.executable, "-c", SLOW_START], tmp_path / "slow.log",
                   says_ready=True)  # fmt: skip
     assert stop(child, grace_s=60.0) == 0
+    child.relay.join(10)  # its last lines on their way to the log
     said = (tmp_path / "slow.log").read_text()
     assert "handled" in said and "Traceback" not in said, said
     assert child.ready and child.ready_fd is None
