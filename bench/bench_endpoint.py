@@ -81,9 +81,10 @@ def measure(instance: int, sim_s: float, rounds: int) -> dict:
     from skyherd.flight.mavlink.streams import DEFAULT_RATES_HZ
     from skyherd.flight.sitl import Sitl
     from skyherd.mission.steps import UNREAD_STREAMS
+    from skyherd.runio.ports import api_remote_port
 
     unread = {getattr(M, f"MAVLINK_MSG_ID_{n}") for n in UNREAD_STREAMS}
-    recv = receiver(14540 + instance)
+    recv = receiver(api_remote_port(instance))
     out: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
         key = Path(tmp) / "bench.key"
@@ -139,7 +140,7 @@ def measure(instance: int, sim_s: float, rounds: int) -> dict:
             dg_per_s = datagrams["formation"]["api"] / (rounds * sim_s)
             out["companion"] = companion_cost(dgs, key, rounds, len(dgs) / dg_per_s)
             out["signed"] = ep.signing.enabled
-    stop(recv, 14540 + instance)
+    stop(recv, api_remote_port(instance))
     alone = cost["autopilot"]
     out["autopilot"] = statistics.median(alone)
     for i, name in enumerate(SETS):

@@ -33,6 +33,7 @@ from skyherd.flight.airframes_registry import make_autopilot  # noqa: E402
 from skyherd.flight.clock import SimClock  # noqa: E402
 from skyherd.flight.mavlink import EndpointConfig  # noqa: E402
 from skyherd.flight.sitl import Sitl  # noqa: E402
+from skyherd.runio.ports import LOOPBACK, api_remote_port  # noqa: E402
 from skyherd.runio.runfolder import markdown_table  # noqa: E402
 
 INSTANCE = 60  # mav helper's instances: 60-64
@@ -84,7 +85,7 @@ def flood(kind: str, n: int, drain_sim_s: float = 2.0) -> dict:
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         tx.bind(("127.0.0.1", 0))
         rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # the replies' default peer
-        rx.bind(("127.0.0.1", 14540 + INSTANCE))
+        rx.bind((LOOPBACK, api_remote_port(INSTANCE)))
         rx.setblocking(False)
         rss0, rx0 = _rss_mb(), link.rx_datagrams
         worst = 0.0

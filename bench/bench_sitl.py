@@ -28,6 +28,7 @@ from skyherd.flight.airframes_registry import make_autopilot  # noqa: E402
 from skyherd.flight.clock import SimClock  # noqa: E402
 from skyherd.flight.mavlink import EndpointConfig  # noqa: E402
 from skyherd.flight.sitl import Sitl  # noqa: E402
+from skyherd.runio.ports import api_remote_port  # noqa: E402
 from skyherd.runio.runfolder import markdown_table  # noqa: E402
 
 INSTANCE = 21  # API link: 127.0.0.1:14601 → 14561
@@ -74,7 +75,9 @@ def bench_alone(sim_s: float) -> tuple[float, float]:
 
 def bench_endpoint(sim_s: float, signing_key: Path | None = None) -> dict:
     recv = subprocess.Popen(
-        [sys.executable, "-c", RECEIVER, str(14540 + INSTANCE)], stdout=subprocess.PIPE, text=True
+        [sys.executable, "-c", RECEIVER, str(api_remote_port(INSTANCE))],
+        stdout=subprocess.PIPE,
+        text=True,
     )
     assert recv.stdout.readline().strip() == "ready"
     ap = make_autopilot("quadrotor", clock=SimClock())
