@@ -1,22 +1,53 @@
-"""One entry point for `skyherd sim --autopilot px4|ardupilot`: the bridge for an autopilot.
-
-Both bridges share a small API:
-  bridge.open_port()          bind / listen on the autopilot's port (returns the bridge)
-  bridge.step_once(timeout_s) one lockstep frame; False if the autopilot did not ask/answer
-  bridge.serve(sim_duration_s=..., on_step=fn)   loop; fn(bridge) → True stops
-  bridge.t, bridge.state      simulation time [s], true VehicleState (camera, UGV world)
-  bridge.stats, bridge.port, bridge.close()
-PX4 connects to us (TCP): `serve` waits for it, or call `accept(timeout_s)` first.
+"""One entry point for `skyherd sim --autopilot px4|ardupilot`: the bridge for an autopilot, and
+`Bridge`, what both bridges are to the world that wraps them (world.bridged.BridgedWorld).
+PX4 connects to the bridge (TCP): `serve` waits for it, or call its `accept(timeout_s)` first.
 ArduPilot sends UDP packets: there is nothing to accept.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Protocol, runtime_checkable
+
 from skyherd.flight.geo import DEFAULT_HOME, Home
+from skyherd.flight.state import VehicleState
 from skyherd.hil.ardupilot_json import ArduPilotJsonBridge
 from skyherd.hil.px4_sim import Px4SimBridge
 
 AUTOPILOTS = ("px4", "ardupilot")
+
+
+@runtime_checkable
+class Bridge(Protocol):
+    """skyherd's physics as a real autopilot's simulator, in lockstep with it."""
+
+    port: int  # the autopilot's simulator port (PX4: TCP 4560+N; ArduPilot: UDP 9002+10N)
+    stats: object  # its counters (frames, answers, bad packets), for sim_stats.json
+
+    @property
+    def t(self) -> float:
+        """Simulation time [s]."""
+        ...
+
+    @property
+    def state(self) -> VehicleState:
+        """The true vehicle state (the camera's and the UGV world's)."""
+        ...
+
+    def open_port(self) -> Bridge:
+        """Bind / listen on the autopilot's port; returns the bridge."""
+        ...
+
+    def step_once(self, timeout_s: float | None = None) -> bool:
+        """One lockstep frame; False if the autopilot did not ask or answer in time."""
+        ...
+
+    def serve(self, *, sim_duration_s: float | None = None,
+              on_step: Callable[[Bridge], bool | None] | None = None) -> object:  # fmt: skip
+        """Frames until `sim_duration_s` of simulation time, or until `on_step(bridge)` is True."""
+        ...
+
+    def close(self) -> None: ...
 
 
 def make_bridge(
@@ -26,7 +57,7 @@ def make_bridge(
     seed: int = 0,
     home: Home = DEFAULT_HOME,
     speedup: float = 0.0,
-) -> Px4SimBridge | ArduPilotJsonBridge:
+) -> Bridge:
     """The bridge of `autopilot` for `airframe` ("quadrotor"; ArduPilot also "fixedwing").
 
     speedup paces PX4 (0 = as fast as it answers); ArduPilot paces itself (--speedup).

@@ -34,6 +34,14 @@ class BridgedWorld:
     def stop(self) -> None:
         self._stop.set()
 
+    def companion_gone(self, why: str) -> None:
+        """Nothing flies alone here: the autopilot is stepped only while it asks for frames, so
+        the world stops (world.protocol.SimWorld)."""
+        self.stop()
+
+    def parent_died(self, why: str) -> None:
+        self.companion_gone(why)
+
     def run(self, duration_s: float | None = None) -> dict:
         """Serve the autopilot frame by frame until `stop()` (or `duration_s` of sim time)."""
         period = 1.0 / self.p.camera_hz

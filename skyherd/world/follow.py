@@ -88,6 +88,11 @@ class FollowWorld:
             self.alone_why = why
         self._alone.set()
 
+    def parent_died(self, why: str) -> None:
+        """`skyherd fly` died: the outside autopilot flies on, followed as when the companion
+        is gone."""
+        self.companion_gone(why)
+
     def run(self, duration_s: float | None = None) -> dict:
         """Follow until `stop()` (or `duration_s` of the vehicle's time after the first sample)."""
         period = 1.0 / self.p.camera_hz

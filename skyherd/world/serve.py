@@ -14,6 +14,7 @@ from collections.abc import Callable
 from skyherd.runio.process import parent_gone
 from skyherd.runio.signals import say_ready
 from skyherd.world.build import NoSession, WorldError, open_world, open_zenoh
+from skyherd.world.protocol import SimWorld
 
 COMPANION_GONE = "SIGUSR1: the companion is gone (it exited)"
 """Why the simulator steps on alone (world.sim.World.companion_gone): `skyherd fly` sends
@@ -23,18 +24,16 @@ FLY_DIED = "SIGUSR1: `skyherd fly` died (its parent-death signal)"
 (world.sim.World.parent_died)."""
 
 
-def companion_signal(worlds: list, died: bool) -> None:
+def companion_signal(worlds: list[SimWorld], died: bool) -> None:
     """SIGUSR1 acted on: `died` (the parent `skyherd fly` is gone) or the companion exited."""
     for w in worlds:
-        if died and hasattr(w, "parent_died"):
+        if died:
             w.parent_died(FLY_DIED)
-        elif hasattr(w, "companion_gone"):
-            w.companion_gone(FLY_DIED if died else COMPANION_GONE)
         else:
-            w.stop()  # a bridged world: nothing flies alone here
+            w.companion_gone(COMPANION_GONE)
 
 
-def watch_signals(worlds: list, parent_pid: int) -> None:
+def watch_signals(worlds: list[SimWorld], parent_pid: int) -> None:
     """SIGTERM / SIGINT stop every world; SIGUSR1 calls `companion_signal` (module docstring),
     `parent_pid` the process that started this one."""
     for sig in (signal.SIGTERM, signal.SIGINT):
