@@ -42,6 +42,7 @@ from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
+from skyherd.runio import process
 from skyherd.runio.constants import READY_FD_ENV
 from skyherd.runio.signals import KeptSignals
 from skyherd.runio.space import Appender
@@ -135,7 +136,8 @@ def start(name: str, argv: list[str], log: Path | None, wait_go: bool = False,
     `wait_go`: its standard input is a pipe that `go()` writes to (`skyherd companion
     --wait-go`), otherwise empty. `parent_death`: the signal it gets if this process dies.
     `says_ready`: `skyherd sim` or `skyherd companion`, which say on a pipe when they take
-    signals (module docstring). It runs in its own process group: a terminal's Ctrl-C reaches only this process."""
+    signals (module docstring). It runs in its own process group: a terminal's Ctrl-C reaches
+    only this process."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     pre = die_with_parent(parent_death) if parent_death is not None else None
     piped = subprocess.PIPE if log is not None else None
@@ -210,11 +212,8 @@ def exit_text(rc: int) -> str:
 
 def say(text: str) -> None:
     """A line of `fly`'s on stderr at once (a child's end: seen within 20 ms, said now, not
-    after the companion's hand-over and the report)."""
-    try:
-        print(f"skyherd fly: {text}", file=sys.stderr, flush=True)
-    except (OSError, ValueError):
-        pass
+    after the companion's hand-over and the report); never raises (runio.process.say)."""
+    process.say(f"skyherd fly: {text}")
 
 
 class Launch:

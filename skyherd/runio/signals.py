@@ -111,8 +111,5 @@ def say_ready() -> None:
     try:
         os.write(int(fd), b"1")
         os.close(int(fd))
-    except (
-        OSError,
-        ValueError,
-    ):  # not a pipe of fly's (a variable left in a shell): nothing to say
-        pass
+    except (OSError, ValueError):
+        pass  # not a pipe of fly's (a variable left in a shell): nothing to say

@@ -15,8 +15,9 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-import sys
 from pathlib import Path
+
+from skyherd.runio.process import say
 
 RESERVE_BYTES = 256 * 1024  # free space kept for the run's end files [bytes]
 CHECK_BYTES = 16 * 1024  # a stream looks up the free space once per this much written [bytes]
@@ -42,10 +43,7 @@ def low_space(path: Path | str, reserve: int = RESERVE_BYTES) -> str | None:
 
 def warn(text: str) -> None:
     """One line on stderr; never raises (stderr may itself be a file on the full disk)."""
-    try:
-        print(f"skyherd: warning: {text}", file=sys.stderr, flush=True)
-    except (OSError, ValueError):
-        pass
+    say(f"skyherd: warning: {text}")
 
 
 def cut_records(writers) -> list[dict]:

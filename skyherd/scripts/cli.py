@@ -137,7 +137,7 @@ def examples_epilog(lines: tuple[str, ...]) -> str:
 
 
 from skyherd.runio.process import exit_now  # noqa: E402
-from skyherd.runio.run import RunAborted, UsageError  # noqa: E402  (one definition, in runio)
+from skyherd.runio.run import Interrupted, RunAborted, UsageError  # noqa: E402  (one definition, in runio)
 
 __all__ = ["COMMANDS", "UsageError", "build_parser", "main"]
 
@@ -280,10 +280,12 @@ def main(argv: list[str] | None = None) -> int:
     args._argv = list(argv)  # the command line as given (config.json, --quick)
     signum = _early_signal()
     if signum is not None:
-        name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
-        print(f"skyherd {args.command}: INTERRUPTED: interrupted ({name}) "
-              "before it started; nothing was done", file=sys.stderr)  # fmt: skip
-        return 128 + signum
+        from skyherd.runio.signals import interrupted
+
+        rc, why = interrupted(Interrupted(signum))
+        print(f"skyherd {args.command}: INTERRUPTED: {why} before it started; nothing was done",
+              file=sys.stderr)  # fmt: skip
+        return rc
     try:
         return int(args._module.run(args) or 0)
     except UsageError as e:
@@ -293,10 +295,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"skyherd {args.command}: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as e:
-        signum = getattr(e, "signum", signal.SIGINT)
-        name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
-        print(f"skyherd {args.command}: INTERRUPTED: interrupted ({name})", file=sys.stderr)
-        return 128 + signum
+        from skyherd.runio.signals import interrupted
+
+        rc, why = interrupted(e)
+        print(f"skyherd {args.command}: INTERRUPTED: {why}", file=sys.stderr)
+        return rc
 
 
 def _early_signal() -> int | None:

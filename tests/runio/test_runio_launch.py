@@ -20,11 +20,11 @@ from skyherd.runio.signals import say_ready
 
 # A child that starts slowly (a loaded machine), then takes SIGINT and says so, as
 # runio.signals.say_ready does: its handler writes "handled" and it exits 0.
-SLOW_START = """
+SLOW_START = f"""
 import os, signal, sys, time
 time.sleep(2.0)  # the interpreter and its imports, slowly: SIGINT now is a traceback
 signal.signal(signal.SIGINT, lambda *_: (print("handled", flush=True), os._exit(0)))
-fd = int(os.environ.pop("SKYHERD_READY_FD"))
+fd = int(os.environ.pop("{READY_FD_ENV}"))
 os.write(fd, b"1")
 os.close(fd)
 time.sleep(60)
