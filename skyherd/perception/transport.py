@@ -430,9 +430,10 @@ def open_viewer(connect: str | None, config_file: str | None = None):
         raise ValueError(f"--connect {e}") from None
     try:
         return p, open_session(p)
-    except ValueError as e:
+    except ValueError as e:  # said again with the option's name, Zenoh's own reason once
         where = f"--zenoh-config {config_file}" if config_file else f"--connect {connect}"
-        raise ValueError(f"cannot open a Zenoh session ({where}): {zenoh_error_text(e)}") from None
+        reason = zenoh_error_text(e.__cause__) if e.__cause__ is not None else str(e)
+        raise ValueError(f"cannot open a Zenoh session ({where}): {reason}") from None
 
 
 def zenoh_error_text(e: Exception) -> str:
