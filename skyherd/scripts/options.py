@@ -15,7 +15,9 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import functools
 import inspect
+import sys
 import textwrap
 import types
 import typing
@@ -26,10 +28,29 @@ def opt(default, **kw) -> dataclasses.Field:
     return dataclasses.field(default=default, metadata=kw)
 
 
+@functools.cache
+def _module_classes(module: str) -> tuple[list[str], dict[str, ast.ClassDef]]:
+    """A module's source lines and its top-level classes, parsed once per process (each
+    command's parser reads several dataclasses of one module; `inspect.getsource` parsed the
+    whole module again for each class)."""
+    src = inspect.getsource(sys.modules[module])
+    classes = {n.name: n for n in ast.parse(src).body if isinstance(n, ast.ClassDef)}
+    return src.splitlines(), classes
+
+
+def _class_body(cls: type) -> tuple[list[str], list[ast.stmt]]:
+    """The source lines holding `cls` and the statements of its body (line numbers index the
+    lines): its module's, for a top-level class; else its own source."""
+    lines, classes = _module_classes(cls.__module__)
+    if cls.__qualname__ in classes:
+        return lines, classes[cls.__qualname__].body
+    src = textwrap.dedent(inspect.getsource(cls))
+    return src.splitlines(), ast.parse(src).body[0].body
+
+
 def field_docs(cls: type) -> dict[str, str]:
     """Each field's help text: the docstring under the field, else the comment beside it."""
-    src = textwrap.dedent(inspect.getsource(cls))
-    lines, body = src.splitlines(), ast.parse(src).body[0].body
+    lines, body = _class_body(cls)
     docs = {}
     for a, b in zip(body, [*body[1:], None]):
         if not isinstance(a, ast.AnnAssign):
