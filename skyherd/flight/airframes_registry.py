@@ -95,5 +95,11 @@ def warm_up(airframe: str) -> None:
     about 3.5 CPU s for the quadrotor) or loaded from their cache: one step of a throwaway
     autopilot. `skyherd sim` does it before its vehicle answers anyone, so that the compilation
     does not fall inside a lockstep tick, where the companion's wall-clock patience runs (a
-    user's first flight under load aborted: "no tick mark from the vehicle for 60 s")."""
+    user's first flight under load aborted: "no tick mark from the vehicle for 60 s"). The
+    quadrotor's are compiled ahead of time first when they are not yet (multirotor.compiled:
+    then numba's compiler does not start in this process at all)."""
+    if airframe == "quadrotor":
+        from skyherd.flight.multirotor.compiled import ensure_built
+
+        ensure_built()
     make_autopilot(airframe).step()

@@ -60,6 +60,7 @@ from skyherd.flight.frames import wrap_pi
 from skyherd.flight.geo import DEFAULT_HOME, Home
 from skyherd.flight.geofence import ACTION_HOLD, ACTION_NAMES, ACTION_NONE, ACTION_RTL, FenceMonitor
 from skyherd.flight.multirotor import control as ctl
+from skyherd.flight.multirotor.compiled import kernels
 from skyherd.flight.multirotor.mixer import allocation_inverse
 from skyherd.flight.multirotor.params import MULTIROTOR_PARAMS
 from skyherd.flight.params import ParamStore
@@ -72,11 +73,9 @@ from skyherd.flight.quadrotor import (
     QuadrotorParams,
     WindField,
     WindModel,
-    _level_with_yaw,
 )
 from skyherd.flight.state import VehicleState
 
-_control_step = ctl.control_step_packed
 _MANUAL_MODES = (FlightMode.MANUAL, FlightMode.STABILIZED, FlightMode.ALTCTL, FlightMode.POSCTL)
 _MAX_ABS_POS = 1.0e5  # [m] setpoints farther than this are refused
 _MAX_ABS_VEL = 50.0  # [m/s]
@@ -151,7 +150,13 @@ class MultirotorAutopilot(AutopilotBase):
         self.params = ParamStore(MULTIROTOR_PARAMS)
         if params_file is not None:
             self.params.load_toml(params_file)
-        # one work array and one constant array for the compiled step; named views into them
+        # the compiled step (ahead of time, else numba's: multirotor.compiled) over one work
+        # array and one constant array; named views into them
+        compiled = kernels()
+        self._control_step, self._level_with_yaw = (
+            compiled.control_step_packed,
+            compiled.level_with_yaw,
+        )
         self._w = np.zeros(ctl.N_W)
         self._k = np.zeros(ctl.N_K)
         self._p = self._k[ctl.K_P : ctl.K_C]
@@ -315,10 +320,10 @@ class MultirotorAutopilot(AutopilotBase):
             # fly on the estimate: p_sp − p̂ = (p_sp − e_p) − p, the same for velocity
             e = inj.err.pv
             sp[0:6] -= e
-            _control_step(self._w, self._k, self._dt_sub, self._n_sub)
+            self._control_step(self._w, self._k, self._dt_sub, self._n_sub)
             sp[0:6] += e
         else:
-            _control_step(self._w, self._k, self._dt_sub, self._n_sub)
+            self._control_step(self._w, self._k, self._dt_sub, self._n_sub)
         self.clock.advance(self._dt_us)
         if self._est_on:
             self._gps_update(inj, self.clock.t)
@@ -401,7 +406,7 @@ class MultirotorAutopilot(AutopilotBase):
         if pos[2] >= 0.0:
             self._x[2] = 0.0
             self._aux[A_ON_GROUND] = 1.0
-            _level_with_yaw(self._x)
+            self._level_with_yaw(self._x)
         self._aux[2] = -self.vehicle.gravity
         self._calm = self.wind.calm
         self._aux[A_WIND : A_WIND + 3] = self.wind.sample(self.control_dt)
