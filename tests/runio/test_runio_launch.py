@@ -103,3 +103,19 @@ def test_the_simulator_says_it_once_its_handlers_are_in_place(monkeypatch):
             signal.signal(signal.SIGUSR1, old)
 
     _says_ready_with_its_handlers_in_place(monkeypatch, watching)
+
+
+SAY_BLAS = "import os; print('blas threads:', os.environ.get('OPENBLAS_NUM_THREADS'))"
+
+
+def test_children_run_openblas_without_worker_threads_unless_told(tmp_path, monkeypatch):
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    child = start("plain", [sys.executable, "-c", SAY_BLAS], tmp_path / "plain.log")
+    assert child.proc.wait(timeout=60) == 0
+    child.relay.join(timeout=10)
+    assert "blas threads: 1" in (tmp_path / "plain.log").read_text()
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")  # the user's value wins
+    child = start("told", [sys.executable, "-c", SAY_BLAS], tmp_path / "told.log")
+    assert child.proc.wait(timeout=60) == 0
+    child.relay.join(timeout=10)
+    assert "blas threads: 2" in (tmp_path / "told.log").read_text()
