@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import types
 import typing
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
@@ -86,9 +87,42 @@ def validate_mapping(table: Any, value_type: type, known: Iterable[str], where: 
     return out
 
 
+_EXACT_INT = 2**53  # an integer a float field takes as the same number
+
+
+def _plain(typ, value) -> tuple[bool, Any]:
+    """(True, the value) when `value` is one that the strict check of `typ` takes as it is (an
+    integer in a number field: as a float), for the types the configuration tables use (float,
+    int, str, bool, and each or None); else (False, None): pydantic decides, and words the error."""
+    if typing.get_origin(typ) in (typing.Union, types.UnionType):
+        args = typing.get_args(typ)
+        if value is None:
+            return type(None) in args, None
+        rest = [a for a in args if a is not type(None)]
+        return _plain(rest[0], value) if len(rest) == 1 else (False, None)
+    kind = type(value)
+    if typ is float and (kind is int and abs(value) <= _EXACT_INT):
+        return True, float(value)
+    if typ is float:
+        return kind is float and math.isfinite(value), value
+    if typ in (int, str, bool):
+        return kind is typ, value
+    return False, None
+
+
 def _validated(name: str, fields: dict, table: Any, where: str):
     """`table` checked by a strict pydantic model of `fields` (name → (type, default)); its
-    values as the model's attributes. ConfigError (one line) if it does not match."""
+    values as the model's attributes. ConfigError (one line) if it does not match. A table whose
+    every key is known and every value plain (_plain) needs no model: pydantic (~0.07 CPU s to
+    import and build the first) is imported only for the others, which it checks and words."""
+    if isinstance(table, dict) and all(k in fields for k in table):
+        values = {}
+        for k, v in table.items():
+            ok, values[k] = _plain(fields[k][0], v)
+            if not ok:
+                break
+        else:
+            return types.SimpleNamespace(**values)
     from pydantic import ValidationError, create_model
 
     model = create_model(name, __config__=STRICT, **fields)  # type: ignore[call-overload]
