@@ -29,7 +29,8 @@ from skyherd.flight.airframes_registry import PX4_STANDIN  # noqa: E402
 from skyherd.flight.autopilot_api import FlightMode, Setpoint  # noqa: E402
 from skyherd.flight.faults import parse_fault_args  # noqa: E402
 from skyherd.flight.multirotor import MultirotorAutopilot  # noqa: E402
-from skyherd.flight.quadrotor import Quadrotor, QuadrotorParams, WindModel, physics_steps  # noqa: E402
+from skyherd.flight.quadrotor import Quadrotor, QuadrotorParams, WindModel  # noqa: E402
+from skyherd.flight.quadrotor_kernels import physics_steps  # noqa: E402
 from skyherd.runio.runfolder import markdown_table  # noqa: E402
 
 

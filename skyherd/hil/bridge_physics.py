@@ -27,8 +27,8 @@ from skyherd.flight.quadrotor import (
     X_MOTOR,
     Quadrotor,
     QuadrotorParams,
-    physics_steps,
 )
+from skyherd.flight.quadrotor_kernels import physics_steps
 from skyherd.flight.state import VehicleState
 
 # out vector of `quad_step_pwm` / `QuadBody.out`: what both bridges report each frame

@@ -59,7 +59,7 @@ from skyherd.flight.faults import FaultInjector, FaultPlan, apply_switches
 from skyherd.flight.frames import wrap_pi
 from skyherd.flight.geo import DEFAULT_HOME, Home
 from skyherd.flight.geofence import ACTION_HOLD, ACTION_NAMES, ACTION_NONE, ACTION_RTL, FenceMonitor
-from skyherd.flight.multirotor import control as ctl
+from skyherd.flight.multirotor import layout as ctl  # the compiled step's arrays, by index
 from skyherd.flight.multirotor.compiled import kernels
 from skyherd.flight.multirotor.mixer import allocation_inverse
 from skyherd.flight.multirotor.params import MULTIROTOR_PARAMS

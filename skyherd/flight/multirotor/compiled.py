@@ -1,5 +1,5 @@
 """The quadrotor's two kernels that the autopilot calls (control.py's `control_step_packed`, which
-holds the mixer and the physics, and quadrotor.py's `_level_with_yaw`) compiled ahead of time
+holds the mixer and the physics, and quadrotor_kernels.py's `_level_with_yaw`) compiled ahead of time
 into one extension module, so that a process flying the built-in quadrotor (`skyherd sim`) does
 not start numba's compiler to load them from numba's cache: that start (numba's target
 registries, SciPy imported for its BLAS check, the cached objects) cost ~0.4 CPU s in every
@@ -11,8 +11,8 @@ simulator process.
                      once per change of the kernels' sources (`skyherd sim` calls it at its start,
                      airframes_registry.warm_up, as numba compiled the kernels there before)
 
-The module's file name carries a stamp of everything its machine code depends on (the three
-source files, this file, numba's and llvmlite's versions, the CPU and numba's environment), so
+The module's file name carries a stamp of everything its machine code depends on (the kernels'
+source files and those of the constants they read, this file, numba's and llvmlite's versions, the CPU and numba's environment), so
 a stale build is never loaded. numba's ahead-of-time compiler is given the host CPU's name and
 features, as its JIT has them: the same instructions, the same rounding, and the same flight to
 the byte as the JIT's kernels (docs/topology.md's hashes). A build that fails (no C compiler)
@@ -31,7 +31,8 @@ from pathlib import Path
 from types import SimpleNamespace
 
 HERE = Path(__file__).resolve().parent
-SOURCES = (HERE / "control.py", HERE / "mixer.py", HERE.parent / "quadrotor.py", Path(__file__))
+SOURCES = (HERE / "control.py", HERE / "layout.py", HERE / "mixer.py", HERE.parent / "quadrotor.py",
+           HERE.parent / "quadrotor_kernels.py", Path(__file__))  # fmt: skip
 PREFIX = "_quad_kernels_"  # the compiled module's name: PREFIX + stamp
 EXPORTS = {  # name in the compiled module → numba signature
     "control_step_packed": "void(float64[::1], float64[::1], float64, int64)",
@@ -89,7 +90,7 @@ def _built(name: str) -> Path | None:
 
 def _jit() -> SimpleNamespace:
     from skyherd.flight.multirotor.control import control_step_packed
-    from skyherd.flight.quadrotor import _level_with_yaw
+    from skyherd.flight.quadrotor_kernels import _level_with_yaw
 
     return SimpleNamespace(control_step_packed=control_step_packed, level_with_yaw=_level_with_yaw)
 
@@ -148,7 +149,7 @@ def build(name: str) -> Path:
     from numba.pycc import CC
 
     from skyherd.flight.multirotor.control import control_step_packed
-    from skyherd.flight.quadrotor import _level_with_yaw
+    from skyherd.flight.quadrotor_kernels import _level_with_yaw
 
     # the JIT's features, not the CPU model's defaults (a virtual CPU may lack some of those)
     codegen.AOTCPUCodegen._customize_tm_features = codegen.CPUCodegen._get_host_cpu_features

@@ -20,7 +20,7 @@ the physics (flight/quadrotor.py) run in turn. Nothing is allocated per substep.
             eq. 6–8); collective T = f · (−z_b) projected on the current body axis
   att. err  q_e = q⁻¹ ⊗ q_sp (shortest way), ω_sp = 2 K_att ⊙ vec(q_e) + ψ̇_ff e_z, clipped
   rate      α_sp = K_p,r (ω_sp − ω) + ∫ K_i,r (ω_sp − ω) dt − K_d,r ω̇;  τ = I α_sp + ω × I ω
-  mixer     flight/multirotor/mixer.py
+  mixer     flight/multirotor/mixer.py (its kernel, `mix`, is here)
 Integrators freeze (per axis) while the output they drive is saturated, and are reset while
 the vehicle rests on the ground.
 """
@@ -35,13 +35,79 @@ from pathlib import Path
 from numba import njit
 
 from skyherd.flight import quadrotor as _quadrotor
+from skyherd.flight import quadrotor_kernels as _quadrotor_kernels
+from skyherd.flight.multirotor import layout as _layout
 from skyherd.flight.multirotor import mixer as _mixer
-from skyherd.flight.multirotor.mixer import mix
+from skyherd.flight.multirotor.layout import (
+    C_DRAG_LIN,
+    C_DRAG_QUAD,
+    C_KATT,
+    C_KI_XY,
+    C_KI_Z,
+    C_KP_XY,
+    C_KP_Z,
+    C_KRD,
+    C_KRI,
+    C_KRP,
+    C_KV_XY,
+    C_KV_Z,
+    C_MASS,
+    C_MIX,
+    C_RATE_MAX,
+    C_RINT_MAX,
+    C_T_IDLE,
+    C_T_MAX,
+    C_T_MIN,
+    C_T_ROTOR_MAX,
+    C_TILT_MAX,
+    C_VINT_ERR,
+    C_VINT_MAX,
+    C_WDRAG_LIN,
+    C_WDRAG_QUAD,
+    C_WIND_FF_MIN,
+    C_WIND_TAU,
+    CS_F,
+    CS_PREV_OMEGA,
+    CS_QSP,
+    CS_RATE_SP,
+    CS_RINT,
+    CS_SAT,
+    CS_T,
+    CS_TAU,
+    CS_U,
+    CS_VINT,
+    CS_WIND,
+    CS_WORK,
+    K_C,
+    K_P,
+    N_K,
+    N_W,
+    SP_ARMED,
+    SP_PITCH,
+    SP_POS,
+    SP_ROLL,
+    SP_THRUST,
+    SP_VEL,
+    SP_VXY_MAX,
+    SP_VZ_DN,
+    SP_VZ_UP,
+    SP_XY_MODE,
+    SP_YAW,
+    SP_YAWRATE,
+    SP_Z_MODE,
+    W_AUX,
+    W_CS,
+    W_SP,
+    W_U,
+    W_X,
+    XY_ATT,
+    XY_POS,
+    Z_POS,
+    Z_THRUST,
+)
+from skyherd.flight.multirotor.mixer import SAT_RP, SAT_THRUST_DN, SAT_THRUST_UP, SAT_YAW
 from skyherd.flight.quadrotor import (
     A_ON_GROUND,
-    N_AUX,
-    N_P,
-    N_X,
     P_G,
     P_IXX,
     P_IYY,
@@ -50,14 +116,16 @@ from skyherd.flight.quadrotor import (
     X_POS,
     X_QUAT,
     X_VEL,
-    physics_substep,
 )
+from skyherd.flight.quadrotor_kernels import physics_substep
 
 
 def _drop_stale_cache() -> None:
     """numba's on-disk cache is keyed on this file only, but the kernels here compile in
-    flight/quadrotor.py and mixer.py too: drop this module's cache when any of them changed."""
-    deps = [Path(__file__), Path(_quadrotor.__file__), Path(_mixer.__file__)]
+    flight/quadrotor_kernels.py, with constants of quadrotor.py, layout.py and mixer.py, too:
+    drop this module's cache when any of them changed."""
+    deps = [Path(__file__), Path(_quadrotor_kernels.__file__), Path(_quadrotor.__file__),
+            Path(_layout.__file__), Path(_mixer.__file__)]  # fmt: skip
     stamp = hashlib.sha256(b"".join(p.read_bytes() for p in deps)).hexdigest()
     dirs = [Path(__file__).parent / "__pycache__"]
     if os.environ.get("NUMBA_CACHE_DIR"):
@@ -77,63 +145,59 @@ def _drop_stale_cache() -> None:
 
 _drop_stale_cache()
 
-# ---- setpoint array sp (written by the mode logic each control step)
-SP_POS = 0  # (3,) [m] NED
-SP_VEL = 3  # (3,) [m/s] velocity setpoint (velocity axes) or feed-forward (position axes)
-SP_YAW = 6  # [rad]
-SP_YAWRATE = 7  # [rad/s] feed-forward
-SP_XY_MODE = 8  # XY_POS | XY_VEL | XY_ATT
-SP_Z_MODE = 9  # Z_POS | Z_VEL | Z_THRUST
-SP_ROLL = 10  # [rad] for XY_ATT
-SP_PITCH = 11  # [rad] for XY_ATT
-SP_THRUST = 12  # [N] collective for Z_THRUST
-SP_ARMED = 13  # 1.0 armed, 0.0 motors off
-SP_VXY_MAX = 14  # [m/s] horizontal speed limit of this mode
-SP_VZ_UP = 15  # [m/s] climb limit (positive)
-SP_VZ_DN = 16  # [m/s] descent limit (positive)
-N_SP = 17
-XY_POS, XY_VEL, XY_ATT = 0.0, 1.0, 2.0
-Z_POS, Z_VEL, Z_THRUST = 0.0, 1.0, 2.0
 
-# ---- controller constants c (built from the parameters)
-C_KP_XY, C_KP_Z, C_KV_XY, C_KI_XY, C_KV_Z, C_KI_Z = 0, 1, 2, 3, 4, 5
-C_TILT_MAX = 6  # [rad]
-C_VINT_MAX = 7  # [m/s^2] velocity integrator limit
-C_KATT = 8  # (3,) [1/s]
-C_RATE_MAX = 11  # (3,) [rad/s]
-C_KRP = 14  # (3,) [1/s]
-C_KRI = 17  # (3,) [1/s^2]
-C_KRD = 20  # (3,) [-]
-C_RINT_MAX = 23  # [rad/s^2] rate integrator limit
-C_T_MIN = 24  # [N] minimum collective in flight
-C_T_MAX = 25  # [N] maximum collective
-C_T_IDLE = 26  # [N] per-rotor thrust at idle (armed)
-C_T_ROTOR_MAX = 27  # [N] per-rotor thrust at command 1
-C_MASS = 28  # [kg] mass the controller assumes
-C_MIX = 29  # (16,) allocation inverse, row-major
-C_VINT_ERR = 45  # [m/s] velocity error the integrators see is clipped to this
-C_DRAG_LIN = 46  # (2,) [N s/m] horizontal, vertical drag estimate (× MPC_DRAG_FF)
-C_DRAG_QUAD = 48  # (2,) [N s^2/m^2]
-C_WDRAG_LIN = 50  # (2,) [N s/m] body x, y drag the wind estimator inverts (airframe's)
-C_WDRAG_QUAD = 52  # (2,) [N s^2/m^2]
-C_WIND_TAU = 54  # [s] wind estimate low-pass time constant
-C_WIND_FF_MIN = 55  # [m/s] wind estimate below this is not fed forward
-N_C = 56
+# ---- mixer (mixer.py: the allocation and its saturation priority)
+@njit(cache=True, fastmath=False)
+def mix(b, t_lo, t_hi, thrust, tx, ty, tz, u, work):
+    """Write motor commands u (4,) in [0, 1]; return saturation flags (sum of SAT_*).
 
-# ---- controller memory cs
-CS_VINT = 0  # (3,) [m/s^2]
-CS_RINT = 3  # (3,) [rad/s^2]
-CS_PREV_OMEGA = 6  # (3,)
-CS_F = 9  # (3,) thrust vector setpoint [N], NED
-CS_QSP = 12  # (4,) attitude setpoint
-CS_RATE_SP = 16  # (3,)
-CS_U = 19  # (4,) last motor commands
-CS_SAT = 23  # last mixer flags
-CS_T = 24  # last collective [N]
-CS_TAU = 25  # (3,) last torque setpoint [N m], body FRD
-CS_WORK = 28  # (12,) mixer scratch
-CS_WIND = 40  # (2,) [m/s] the wind estimate ŵ (north, east)
-N_CS = 42
+    b (16,) row-major allocation inverse; t_lo, t_hi per-rotor thrust bounds [N];
+    work (12,) scratch space (no allocation on the hot path).
+    """
+    rp = work[0:4]
+    yw = work[4:8]
+    s = work[8:12]
+    flags = 0.0
+    rmax = -1e30
+    rmin = 1e30
+    for i in range(4):
+        rp[i] = b[4 * i + 1] * tx + b[4 * i + 2] * ty
+        yw[i] = b[4 * i + 3] * tz
+        rmax = max(rmax, rp[i])
+        rmin = min(rmin, rp[i])
+    avail = t_hi - t_lo
+    k = 1.0
+    if rmax - rmin > avail:
+        k = avail / (rmax - rmin)
+        flags += SAT_RP
+    hi = -1e30
+    lo = 1e30
+    for i in range(4):
+        s[i] = b[4 * i] * thrust + k * rp[i]
+        hi = max(hi, s[i])
+        lo = min(lo, s[i])
+    shift = 0.0
+    if hi > t_hi:
+        shift = t_hi - hi
+        flags += SAT_THRUST_UP
+    elif lo < t_lo:
+        shift = t_lo - lo
+        flags += SAT_THRUST_DN
+    ky = 1.0
+    for i in range(4):
+        s[i] += shift
+        if yw[i] > 1e-12:
+            ky = min(ky, (t_hi - s[i]) / yw[i])
+        elif yw[i] < -1e-12:
+            ky = min(ky, (t_lo - s[i]) / yw[i])
+    if ky < 1.0:
+        ky = max(ky, 0.0)
+        flags += SAT_YAW
+    for i in range(4):
+        ti = s[i] + ky * yw[i]
+        ti = min(max(ti, t_lo), t_hi)
+        u[i] = math.sqrt(ti / t_hi) if t_hi > 0.0 else 0.0
+    return flags
 
 
 @njit(cache=True, fastmath=False)
@@ -388,18 +452,6 @@ def control_step(x, aux, p, c, cs, sp, u, dt, n):
     for _ in range(n):
         _inner(x, aux, p, c, cs, sp, u, dt)
         physics_substep(x, aux, p, u, dt)
-
-
-# ---- packed form: one work array w and one constant array k (fewer arguments per call)
-W_X = 0
-W_AUX = W_X + N_X
-W_CS = W_AUX + N_AUX
-W_SP = W_CS + N_CS
-W_U = W_SP + N_SP
-N_W = W_U + 4
-K_P = 0
-K_C = N_P
-N_K = N_P + N_C
 
 
 @njit(cache=True, fastmath=False)
