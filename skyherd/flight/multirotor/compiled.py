@@ -1,9 +1,9 @@
 """The quadrotor's two kernels that the autopilot calls (control.py's `control_step_packed`, which
-holds the mixer and the physics, and quadrotor_kernels.py's `_level_with_yaw`) compiled ahead of time
-into one extension module, so that a process flying the built-in quadrotor (`skyherd sim`) does
-not start numba's compiler to load them from numba's cache: that start (numba's target
-registries, SciPy imported for its BLAS check, the cached objects) cost ~0.4 CPU s in every
-simulator process.
+holds the mixer and the physics, and quadrotor_kernels.py's `_level_with_yaw`) compiled ahead of
+time into one extension module, so that a process flying the built-in quadrotor (`skyherd sim`)
+neither imports numba nor starts its compiler to load them from numba's cache: that (numba's
+import, its target registries, SciPy imported for its BLAS check, the cached objects) cost
+~0.5 CPU s in every simulator process (issue 31).
 
     kernels()        the compiled module's functions when it is built for these sources on
                      this CPU, else numba's dispatchers of the same functions
@@ -12,11 +12,12 @@ simulator process.
                      airframes_registry.warm_up, as numba compiled the kernels there before)
 
 The module's file name carries a stamp of everything its machine code depends on (the kernels'
-source files and those of the constants they read, this file, numba's and llvmlite's versions, the CPU and numba's environment), so
-a stale build is never loaded. numba's ahead-of-time compiler is given the host CPU's name and
-features, as its JIT has them: the same instructions, the same rounding, and the same flight to
-the byte as the JIT's kernels (docs/topology.md's hashes). A build that fails (no C compiler)
-is said once on stderr and remembered; the kernels are then numba's JIT, as before.
+source files and those of the constants they read, this file, numba's and llvmlite's versions,
+the CPU, numba's environment, Python's version), so a stale build is never loaded. numba's
+ahead-of-time compiler is given the host CPU's name and features, as its JIT has them: the same
+instructions, the same rounding, and the same flight to the byte as the JIT's kernels
+(docs/topology.md's hashes). A build that fails (no C compiler) is said once on stderr and
+remembered; the kernels are then numba's JIT, as before.
 """
 
 from __future__ import annotations
@@ -173,9 +174,8 @@ def build(name: str) -> Path:
     return target
 
 
-if (
-    __name__ == "__main__"
-):  # ensure_built's child: `python -m skyherd.flight.multirotor.compiled NAME`
+# ensure_built's child: `python -m skyherd.flight.multirotor.compiled NAME`
+if __name__ == "__main__":
     import warnings
 
     warnings.simplefilter("ignore")  # numba.pycc's pending deprecation: nothing for a user to do
