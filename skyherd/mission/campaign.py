@@ -19,6 +19,7 @@ from pathlib import Path
 
 from skyherd.safety.campaign import drill_kind, drill_rng, make_drill
 from skyherd.safety.campaign_run import (
+    PLOT_TRACKS,
     DrillJob,
     EventSink,
     crash_row,
@@ -91,14 +92,16 @@ def record_campaign(
 ) -> tuple[list[dict], dict[str, list]]:
     """Every job flown (`run_all`) and recorded as it finishes: its safety events to `events`
     (tagged with the drill), its row to `metrics` (safety.campaign_run.COLUMNS), then
-    `on_row(row)`; (the rows, each airframe's (kind, track) pairs) for the verdict and the plot."""
+    `on_row(row)`; (the rows, each airframe's first PLOT_TRACKS (kind, track) pairs) for the
+    verdict and the plot."""
     rows: list[dict] = []
     tracks: dict[str, list] = {j.airframe: [] for j in jobs}
     for row in run_all(jobs, workers, backend, ray_address, say=say):
         row, drill_events, track = split_row(row)
         for e in drill_events:
             events.write(e)
-        tracks[row["airframe"]].append(track)
+        if len(tracks[row["airframe"]]) < PLOT_TRACKS:
+            tracks[row["airframe"]].append(track)
         metrics.write(row)
         rows.append(row)
         if on_row is not None:

@@ -35,6 +35,9 @@ COLUMNS = ["drill", "airframe", "kind", "passed", "failed_check", "min_clearance
            "restored", "end_mode", "not_recovered", "through", "decisions", "sim_s",
            "cpu_s"]  # fmt: skip
 """The campaign's metrics.csv columns, in order."""
+PLOT_TRACKS = 400
+"""Tracks per airframe the campaign keeps for its plot (the first to finish): a campaign of
+10^5 drills keeps 400 tracks in memory, not 10^5."""
 
 
 @dataclass(frozen=True)
