@@ -46,11 +46,21 @@ def _procs():
 
 
 def _worker(backend: str, parent: int) -> int | None:
-    """A worker busy with a drill: a child of the campaign (pool) or Ray's `ray::run_one`."""
-    for pid, ppid, cmd in _procs():
+    """A worker busy with a drill: a child of the campaign (pool) or Ray's `ray::run_one`
+    under it (its local instance's raylet is the campaign's child): never another campaign's."""
+    procs = {pid: (ppid, cmd) for pid, ppid, cmd in _procs()}
+
+    def under(pid: int) -> bool:
+        while pid in procs and pid > 1:
+            pid = procs[pid][0]
+            if pid == parent:
+                return True
+        return False
+
+    for pid, (ppid, cmd) in procs.items():
         if backend == "process" and ppid == parent:
             return pid
-        if backend == "ray" and cmd.startswith("ray::run_one"):
+        if backend == "ray" and cmd.startswith("ray::run_one") and under(pid):
             return pid
     return None
 
