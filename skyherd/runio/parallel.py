@@ -145,7 +145,8 @@ def _on_pool(fn, jobs, workers: int, retries: int, say):
     while todo:
         running: dict = {}  # future → index
         broken = False
-        with ProcessPoolExecutor(max_workers=workers) as pool:
+        pool = ProcessPoolExecutor(max_workers=workers)
+        try:
             while (todo or running) and not broken:
                 while todo and len(running) < _window(workers) and not broken:
                     i = todo.popleft()
@@ -162,6 +163,8 @@ def _on_pool(fn, jobs, workers: int, retries: int, say):
                         broken = True
                         continue
                     yield jobs[running.pop(f)], result
+        finally:  # a caller that stops (a signal, an error) waits for no job not yet begun
+            pool.shutdown(wait=True, cancel_futures=True)
         if broken:  # a worker died: every job in flight then runs again on a new pool
             lost = sorted(running.values())
             for i in lost:

@@ -236,6 +236,7 @@ def _campaign(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from skyherd.mission.campaign import campaign_jobs, jobs_left, record_campaign
+    from skyherd.runio.signals import KeptSignals
     from skyherd.safety.campaign_run import COLUMNS
     from skyherd.safety.campaign_verdict import failed_drills
 
@@ -254,20 +255,31 @@ def _campaign(args: argparse.Namespace) -> int:
     events = run_dir.events()
     metrics = run_dir.metrics(COLUMNS)
     wall0 = time.monotonic()
-    with tqdm(total=len(before) + len(jobs), initial=len(before), desc="campaign",
-              unit="drill") as bar:  # fmt: skip
-        rows, tracks = record_campaign(
-            jobs,
-            events,
-            metrics,
-            args.workers,
-            args.backend,
-            args.ray_address,
-            tqdm.write,
-            lambda row: bar.update(1),
-        )
-    events.close()
-    metrics.close()
+    judged = [len(before)]  # rows in metrics.csv
+
+    def on_row(row: dict, bar) -> None:
+        judged[0] += 1
+        bar.update(1)
+
+    try:  # SIGINT, SIGTERM, SIGHUP raise (whatever this process inherited): rows are kept
+        with KeptSignals() as kept, tqdm(total=len(before) + len(jobs), initial=len(before),
+                                         desc="campaign", unit="drill") as bar:  # fmt: skip
+            kept.raising()
+            rows, tracks = record_campaign(
+                jobs,
+                events,
+                metrics,
+                args.workers,
+                args.backend,
+                args.ray_address,
+                tqdm.write,
+                lambda row: on_row(row, bar),
+            )
+    except KeyboardInterrupt as e:  # every row written is kept: say how to go on
+        return _campaign_interrupted(e, run_dir, judged[0], len(before) + len(jobs))
+    finally:
+        events.close()
+        metrics.close()
     wall = time.monotonic() - wall0
     sitting = (f"this sitting: {len(rows)} drills in {wall:.0f} s of wall time "
                f"({len(rows) / max(wall, 1e-9):.2f} drills/s, {args.workers} worker"
@@ -284,3 +296,20 @@ def _campaign(args: argparse.Namespace) -> int:
     print(f"run folder: {run_dir.path}")
     run_dir.write_summary(summary)
     return 1 if failed_drills(rows) else 0
+
+
+def _campaign_interrupted(e: KeyboardInterrupt, run_dir: RunFolder, judged: int, n: int) -> int:
+    """A campaign stopped by a signal: its summary.md and a line say how many drills are judged
+    and kept and how to go on (--resume); 128 + signum."""
+    import shlex
+    import sys
+
+    from skyherd.runio.signals import interrupted
+
+    rc, why = interrupted(e)
+    go_on = f"skyherd drill --resume {shlex.quote(str(run_dir.path))}"
+    said = (f"{judged} of {n} drills judged, their rows kept in metrics.csv; go on with "
+            f"`{go_on}`")  # fmt: skip
+    run_dir.write_summary(f"# skyherd drill --campaign: INTERRUPTED\n\n{why}: {said}\n")
+    print(f"skyherd drill: INTERRUPTED: {why}: {said}", file=sys.stderr, flush=True)
+    return rc
