@@ -13,17 +13,22 @@ safety.campaign_verdict's.
 
 from __future__ import annotations
 
+import csv
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from skyherd.safety.campaign import drill_kind, drill_rng, make_drill
+from skyherd.runio.runfolder import cut_to_whole_lines, filter_jsonl
+from skyherd.safety.campaign import drill_index, drill_kind, drill_rng, make_drill
 from skyherd.safety.campaign_run import (
+    COLUMNS,
+    PLOT_TRACKS,
     DrillJob,
     EventSink,
     crash_row,
     drill_row,
     load_set,
+    row_from_csv,
     run_process_drill,
     split_row,
 )
@@ -91,16 +96,53 @@ def record_campaign(
 ) -> tuple[list[dict], dict[str, list]]:
     """Every job flown (`run_all`) and recorded as it finishes: its safety events to `events`
     (tagged with the drill), its row to `metrics` (safety.campaign_run.COLUMNS), then
-    `on_row(row)`; (the rows, each airframe's (kind, track) pairs) for the verdict and the plot."""
+    `on_row(row)`; (the rows, each airframe's first PLOT_TRACKS (kind, track) pairs) for the
+    verdict and the plot."""
     rows: list[dict] = []
     tracks: dict[str, list] = {j.airframe: [] for j in jobs}
     for row in run_all(jobs, workers, backend, ray_address, say=say):
         row, drill_events, track = split_row(row)
         for e in drill_events:
             events.write(e)
-        tracks[row["airframe"]].append(track)
+        if len(tracks[row["airframe"]]) < PLOT_TRACKS:
+            tracks[row["airframe"]].append(track)
         metrics.write(row)
         rows.append(row)
         if on_row is not None:
             on_row(row)
     return rows, tracks
+
+
+CAMPAIGN_OPTIONS = ("airframe", "campaign", "campaign_drills", "seed", "envelope", "through",
+                    "target_bound")  # fmt: skip
+"""The options that define a campaign (config.json's "args"): a resumed one flies them as the
+folder's first sitting gave them."""
+
+
+def judged_rows(folder: Path, tols: dict[str, float]) -> list[dict]:
+    """The rows an interrupted campaign's folder holds (metrics.csv cut back to its last whole
+    row: a kill mid-write), typed as their drills gave them (safety.campaign_run.row_from_csv;
+    `tols`: each airframe's fence tolerance); events.jsonl keeps only those drills' events (a
+    drill with no row flies again and writes its events again). ValueError if metrics.csv is
+    not a campaign's of this version (its columns) or a row cannot be read."""
+    metrics = folder / "metrics.csv"
+    if not metrics.exists():
+        return []
+    cut_to_whole_lines(metrics)
+    with open(metrics, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        if reader.fieldnames is not None and reader.fieldnames != COLUMNS:
+            raise ValueError(f"{metrics}: its columns are not a campaign's of this version")
+        rows = [row_from_csv(d, tols.get(d["airframe"], 0.0)) for d in reader]
+    judged = {(r["airframe"], r["drill"]) for r in rows}
+    events = folder / "events.jsonl"
+    if events.exists():
+        cut_to_whole_lines(events)
+        filter_jsonl(events, lambda e: (e.get("airframe"), e.get("drill")) in judged)
+    return rows
+
+
+def jobs_left(jobs: list[DrillJob], rows: list[dict]) -> list[DrillJob]:
+    """The jobs of a campaign that have no row yet (each drill is judged once)."""
+    done = {(r["airframe"], drill_index(r["drill"])) for r in rows}
+    return [j for j in jobs if (j.airframe, j.index) not in done]

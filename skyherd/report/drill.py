@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from skyherd.runio.runfolder import markdown_table
+from skyherd.safety.campaign_run import PLOT_TRACKS
 
 THROUGH_TEXT = {
     "mission": "the companion's mission code (mission.flight.SingleVehicleMission, DrillPilot) "
@@ -262,14 +263,14 @@ def plot_campaign(rows, tracks, specs, path: Path) -> None:
                      f"{sum(r['overridden'] for r in rs)} overridden failsafes")  # fmt: skip
         ax2 = axs[1, j]
         draw_fence(ax2, specs[a])
-        for _k, tr in tracks[a][:400]:
+        for _k, tr in tracks[a][:PLOT_TRACKS]:
             t = np.asarray(tr)
             if len(t):
                 ax2.plot(t[:, 1], t[:, 0], lw=0.3, alpha=0.4)
         ax2.set_aspect("equal")
         ax2.set_xlabel("east [m]")
         ax2.set_ylabel("north [m]")
-        ax2.set_title(f"{a}: tracks of the first {min(400, len(tracks[a]))} drills")
+        ax2.set_title(f"{a}: tracks of the first {min(PLOT_TRACKS, len(tracks[a]))} drills")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

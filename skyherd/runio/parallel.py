@@ -18,13 +18,19 @@ had not finished are submitted again (each at most `retries` more times; then `J
 
 from __future__ import annotations
 
+import itertools
 import os
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 BACKENDS = ("auto", "ray", "process")
+IN_FLIGHT_PER_WORKER = 4
+"""Jobs handed out ahead per worker: every worker stays busy, and a campaign of 10^5-10^6 jobs
+costs O(N) bookkeeping and memory (submitting all at once and waiting on every pending one per
+result is O(N^2): hours of the parent's CPU at 10^5)."""
 
 
 class JobLost(RuntimeError):
@@ -83,7 +89,7 @@ def map_unordered(fn: Callable[[Any], Any], jobs: Iterable[Any], backend: str = 
         )
     ray = start_ray(workers, ray_address, say) if use_ray else None
     if ray is not None:
-        yield from _on_ray(ray, fn, jobs, retries)
+        yield from _on_ray(ray, fn, jobs, workers, retries)
     else:
         yield from _on_pool(fn, jobs, workers, retries, say)
 
@@ -110,11 +116,22 @@ def start_ray(workers: int, address: str | None, say: Callable[[str], None] = pr
     return ray
 
 
-def _on_ray(ray, fn, jobs, retries: int):
+def _window(workers: int) -> int:
+    """Jobs in flight at once: IN_FLIGHT_PER_WORKER per worker."""
+    return IN_FLIGHT_PER_WORKER * max(1, workers)
+
+
+def _on_ray(ray, fn, jobs, workers: int, retries: int):
     try:
         task = ray.remote(num_cpus=1, max_retries=retries)(fn)
-        pending = {task.remote(j): j for j in jobs}
-        while pending:
+        cpus = int(ray.cluster_resources().get("CPU", workers))  # a cluster's, or ours
+        todo = iter(jobs)
+        pending: dict = {}
+        while True:
+            for j in itertools.islice(todo, _window(cpus) - len(pending)):
+                pending[task.remote(j)] = j
+            if not pending:
+                return
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
                 yield pending.pop(ref), ray.get(ref)
@@ -123,27 +140,36 @@ def _on_ray(ray, fn, jobs, retries: int):
 
 
 def _on_pool(fn, jobs, workers: int, retries: int, say):
-    todo = list(range(len(jobs)))  # indices not yet finished
+    todo = deque(range(len(jobs)))  # indices not yet submitted, in order
     tries = [0] * len(jobs)
     while todo:
+        running: dict = {}  # future → index
         broken = False
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            futs = {pool.submit(fn, jobs[i]): i for i in todo}
-            pending = set(futs)
-            while pending and not broken:
-                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+        pool = ProcessPoolExecutor(max_workers=workers)
+        try:
+            while (todo or running) and not broken:
+                while todo and len(running) < _window(workers) and not broken:
+                    i = todo.popleft()
+                    try:
+                        running[pool.submit(fn, jobs[i])] = i
+                    except BrokenProcessPool:
+                        todo.appendleft(i)
+                        broken = True
+                done, _ = wait(running, return_when=FIRST_COMPLETED) if running else ((), ())
                 for f in done:
-                    i = futs[f]
                     try:
                         result = f.result()
                     except BrokenProcessPool:
                         broken = True
                         continue
-                    todo.remove(i)
-                    yield jobs[i], result
-        if broken:  # a worker died: every job it had not finished runs again on a new pool
-            for i in todo:
+                    yield jobs[running.pop(f)], result
+        finally:  # a caller that stops (a signal, an error) waits for no job not yet begun
+            pool.shutdown(wait=True, cancel_futures=True)
+        if broken:  # a worker died: every job in flight then runs again on a new pool
+            lost = sorted(running.values())
+            for i in lost:
                 tries[i] += 1
                 if tries[i] > retries:
                     raise JobLost(f"job {jobs[i]!r}: its worker died {tries[i]} times")
-            say(f"a worker process died; {len(todo)} unfinished jobs run again on a new pool")
+            todo.extendleft(reversed(lost))
+            say(f"a worker process died; {len(lost)} unfinished jobs run again on a new pool")

@@ -134,6 +134,53 @@ def versions() -> dict[str, str]:
     return out
 
 
+def cut_to_whole_lines(path: Path) -> int:
+    """Cut an append-only stream (metrics.csv, events.jsonl) back to its last whole line: a
+    kill mid-write can leave part of one. The bytes cut (0: it ended on a whole line)."""
+    with open(path, "rb+") as f:
+        size = end = f.seek(0, os.SEEK_END)
+        while end > 0:
+            step = min(1 << 16, end)
+            f.seek(end - step)
+            nl = f.read(step).rfind(b"\n")
+            if nl >= 0:
+                end = end - step + nl + 1
+                break
+            end -= step
+        if end < size:
+            f.truncate(end)
+            f.flush()
+            os.fsync(f.fileno())
+    return size - end
+
+
+def filter_jsonl(path: Path, keep) -> int:
+    """Rewrite a JSON-lines file (written whole: temporary file, then rename) with the records
+    for which `keep(record)` is true; a line that is not JSON goes. The records dropped."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    dropped = 0
+    try:
+        with open(path, encoding="utf-8") as src, open(tmp, "w", encoding="utf-8") as dst:
+            for line in src:
+                try:
+                    ok = keep(json.loads(line))
+                except ValueError:
+                    ok = False
+                if ok:
+                    dst.write(line)
+                else:
+                    dropped += 1
+            dst.flush()
+            os.fsync(dst.fileno())
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    return dropped
+
+
 class JsonlWriter:
     """Append-only JSON-lines stream, flushed per record (events.jsonl). A full disk or a
     read-only folder cuts it (runio.space: a warning, `appender.dropped` counts the rest)."""
@@ -202,6 +249,14 @@ class RunFolder:
         path.mkdir(parents=True)
         self.path = path
         self.command = command
+
+    @classmethod
+    def reopen(cls, path: Path | str) -> RunFolder:
+        """An existing run folder, to go on writing in it (a resumed drill campaign)."""
+        folder = cls.__new__(cls)
+        folder.path = Path(path)
+        folder.command = json.loads((folder.path / "config.json").read_text())["command"]
+        return folder
 
     def write_config(self, config: dict[str, Any]) -> Path:
         full = {"command": self.command, "versions": versions(), **to_jsonable(config)}

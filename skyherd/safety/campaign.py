@@ -81,6 +81,11 @@ def kinds_for(airframe: str) -> tuple[str, ...]:
     return tuple(k for k in KINDS if not (airframe == "fixedwing" and k == "battery"))
 
 
+def drill_index(name: str) -> int:
+    """A campaign drill's index from its name ("gps_glitch 0042", "crashed 0042" → 42)."""
+    return int(str(name).split()[-1])
+
+
 def drill_kind(airframe: str, index: int) -> str:
     """The kind of a campaign's drill `index`: the airframe's kinds in turn."""
     ks = kinds_for(airframe)

@@ -35,6 +35,9 @@ COLUMNS = ["drill", "airframe", "kind", "passed", "failed_check", "min_clearance
            "restored", "end_mode", "not_recovered", "through", "decisions", "sim_s",
            "cpu_s"]  # fmt: skip
 """The campaign's metrics.csv columns, in order."""
+PLOT_TRACKS = 400
+"""Tracks per airframe the campaign keeps for its plot (the first to finish): a campaign of
+10^5 drills keeps 400 tracks in memory, not 10^5."""
 
 
 @dataclass(frozen=True)
@@ -131,6 +134,28 @@ def crash_row(job: DrillJob, error: Exception) -> dict:
         "overridden": 0, "not_recovered": False, "why": f"{type(error).__name__}: {error}",
         "_events": [], "_track": [],
     }  # fmt: skip
+
+
+_BOOLS = ("passed", "breach", "not_recovered")
+_INTS = ("overridden", "switches", "decisions")
+_FLOATS = ("min_clearance_m", "fallback_s", "pid_s", "autopilot_excursion_m", "sim_s", "cpu_s")
+
+
+def row_from_csv(d: dict[str, str], tol: float) -> dict:
+    """A metrics.csv row read back (a resumed campaign's) → the row as its drill gave it to the
+    verdict: booleans and numbers typed, an empty cell kept empty; `tol`: the drill's fence
+    tolerance (its airframe's set; 0 for a crash). ValueError on a cell that is not its type."""
+    row: dict = dict(d)
+    for k in _BOOLS:
+        if d[k] not in ("True", "False"):
+            raise ValueError(f"drill {d['drill']!r}: {k} {d[k]!r} is not True/False")
+        row[k] = d[k] == "True"
+    for k in _INTS:
+        row[k] = int(d[k]) if d[k] != "" else ""
+    for k in _FLOATS:
+        row[k] = float(d[k]) if d[k] != "" else ("" if k != "min_clearance_m" else math.nan)
+    row["_tol"] = 0.0 if d["kind"] == "crash" else tol
+    return row
 
 
 def split_row(row: dict) -> tuple[dict, list[dict], tuple[str, list]]:

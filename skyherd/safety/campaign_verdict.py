@@ -27,7 +27,13 @@ import numpy as np
 
 from skyherd.runio.constants import TARGET_BOUND
 from skyherd.runio.runfolder import markdown_table
-from skyherd.safety.campaign import CONFIDENCE, breach_upper_bound, drill_kind, drills_needed
+from skyherd.safety.campaign import (
+    CONFIDENCE,
+    breach_upper_bound,
+    drill_index,
+    drill_kind,
+    drills_needed,
+)
 from skyherd.safety.judge import FAILSAFE_PATH_MODES
 
 
@@ -123,7 +129,7 @@ def bounds(rows: list[dict], target: float = TARGET_BOUND) -> str:
 def _crash_kind(r: dict) -> str:
     """A crashed drill's kind, from its index (the kinds in turn, safety.campaign)."""
     try:
-        return drill_kind(r["airframe"], int(str(r["drill"]).split()[-1]))
+        return drill_kind(r["airframe"], drill_index(r["drill"]))
     except (ValueError, IndexError, KeyError):
         return ""
 

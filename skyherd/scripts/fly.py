@@ -87,14 +87,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    _check_own(args)
-    if args.airframe == "fixedwing" and args.mission != "groundair":
-        raise UsageError(f"--mission {args.mission} is for the quadrotor; a fixed-wing flies the ground-air task as an orbit (drop --mission)")  # fmt: skip
-    if args.mission == "formation":
-        from skyherd.scripts.fly_formation import run_formation
+    from skyherd.runio.signals import KeptSignals
 
-        return run_formation(args)
-    return run_two_processes(args)
+    # from its first line on a signal is kept, never raised half-way through a check, the run
+    # folder or a child's start, and acted on at the next safe point (runio.signals.KeptSignals):
+    # before the run folder that is "nothing was recorded"
+    with KeptSignals() as kept:
+        _check_own(args)
+        if args.airframe == "fixedwing" and args.mission != "groundair":
+            raise UsageError(f"--mission {args.mission} is for the quadrotor; a fixed-wing flies the ground-air task as an orbit (drop --mission)")  # fmt: skip
+        if args.mission == "formation":
+            from skyherd.scripts.fly_formation import run_formation
+
+            return run_formation(args, kept)
+        return run_two_processes(args, kept)
+
+
+def nothing_recorded(signum: int) -> int:
+    """Say that a signal (kept until now) stopped `fly` before its run folder was made; its
+    exit code (128 + signum)."""
+    from skyherd.runio.signals import interrupted
+
+    rc, why = interrupted(Interrupted(signum))
+    print(f"skyherd fly: INTERRUPTED: {why} before the flight started; nothing was recorded",
+          flush=True)  # fmt: skip
+    return rc
 
 
 def _check_own(args) -> None:
@@ -212,25 +229,19 @@ def _refuse_wind_above_limit(args) -> None:
         raise UsageError(str(e)) from None
 
 
-def run_two_processes(args: argparse.Namespace) -> int:
-    from skyherd.runio import signals
+def run_two_processes(args: argparse.Namespace, kept) -> int:
+    """Simulator and companion in lockstep; `kept`: fly's KeptSignals (keeping)."""
     from skyherd.runio.run import open_run_folder
     from skyherd.safety.config import flight_envelope_record
 
-    # a signal from here on is kept, never raised half-way through making the folder or
-    # starting a child, and acted on at the next safe point (signals.KeptSignals)
-    with signals.KeptSignals() as kept:
-        sim_args, comp_args = _validate(args)  # the children's own checks too
-        envelope = None  # the safety net's constraint set: (its spec, config.json's record)
-        if args.mission in ("groundair", "shepherd"):
-            envelope = usage(flight_envelope_record, args.envelope, args.airframe)
-        if kept.signum is not None:  # nothing made, nothing started
-            rc, why = signals.interrupted(Interrupted(kept.signum))
-            print(f"skyherd fly: INTERRUPTED: {why} before the flight started; nothing was "
-                  "recorded", flush=True)  # fmt: skip
-            return rc
-        folder = open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
-        return _fly(args, folder.path, folder, sim_args, comp_args, envelope, kept)
+    sim_args, comp_args = _validate(args)  # the children's own checks too
+    envelope = None  # the safety net's constraint set: (its spec, config.json's record)
+    if args.mission in ("groundair", "shepherd"):
+        envelope = usage(flight_envelope_record, args.envelope, args.airframe)
+    if kept.signum is not None:  # nothing made, nothing started
+        return nothing_recorded(kept.signum)
+    folder = open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
+    return _fly(args, folder.path, folder, sim_args, comp_args, envelope, kept)
 
 
 def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> int:
@@ -281,8 +292,16 @@ def _fly(args, run_dir: Path, folder, sim_args, comp_args, envelope, kept) -> in
     ok = ending.end_run(run_dir, report, args, rc, why, plots, why=why, sims=kids.sims,
                         recorder=recorder)  # fmt: skip
     ending.make_plots(run_dir, plots)
-    if rc <= 128 and kept.signum is not None:  # a signal while the report was written
-        rc = signals.interrupted(Interrupted(kept.signum))[0]
+    return after_report(ok, rc, kept)
+
+
+def after_report(ok: bool, rc: int, kept) -> int:
+    """fly's exit code once the report is written (`ok`: the flight's verdict, `rc`: how it
+    ended); a signal kept while the report was written makes it 128 + signum, said."""
+    from skyherd.runio.signals import interrupted
+
+    if rc <= 128 and kept.signum is not None:
+        rc = interrupted(Interrupted(kept.signum))[0]
         print(f"skyherd fly: interrupted ({signal.Signals(kept.signum).name}) after the flight "
               "ended; its report above is whole", file=sys.stderr, flush=True)  # fmt: skip
     return 0 if ok and rc == 0 else (rc if rc > 128 else 1)

@@ -22,7 +22,9 @@ from skyherd.mission.formation_plan import (
 from skyherd.report.formation import formation_report
 from skyherd.runio import ports
 from skyherd.runio.constants import GCS_REMOTE_PORT
+from skyherd.runio.run import Interrupted
 from skyherd.runio.runfolder import args_dict, atomic_write_text
+from skyherd.runio.signals import KeptSignals
 from skyherd.scripts.cli import UsageError, usage
 from skyherd.world.fleet import FleetVehicle, sim_groups, write_fleet
 
@@ -50,12 +52,15 @@ def _check(args) -> None:
         )
 
 
-def run_formation(args: argparse.Namespace) -> int:
-    """Fly the formation as K simulators + one companion; 0 if every vehicle landed on its target."""
+def run_formation(args: argparse.Namespace, kept: KeptSignals) -> int:
+    """Fly the formation as K simulators + one companion; 0 if every vehicle landed on its
+    target. `kept`: fly's KeptSignals (keeping); the plan (seconds to minutes when it is
+    learned) is the one part a signal stops at once."""
     from tqdm import tqdm
 
     from skyherd.runio import launch
     from skyherd.scripts.cli import skyherd_cmd
+    from skyherd.scripts.fly import after_report, nothing_recorded
     from skyherd.scripts.fly_options import flight_signing
 
     _check(args)
@@ -63,7 +68,13 @@ def run_formation(args: argparse.Namespace) -> int:
     key = usage(flight_signing(args).checked_key_file)  # None: a per-run key, or unsigned
     params = _params(args)
     K = args.agents
-    plan, plan_info = usage(obtain_plan, args.policy_file, K, args.sql_seed, tqdm)
+    try:
+        kept.raising()  # one kept so far raises now
+        plan, plan_info = usage(obtain_plan, args.policy_file, K, args.sql_seed, tqdm)
+    except Interrupted as e:
+        return nothing_recorded(e.signum)
+    finally:
+        kept.keeping()
     instances = vehicle_instances(args.instance, K)
     usage(ports.check_ports_free, instances)  # before anything starts
     homes = vehicle_homes(DEFAULT_HOME, [p[0] for p in plan], params.cell_m)
@@ -71,6 +82,8 @@ def run_formation(args: argparse.Namespace) -> int:
     from skyherd.runio import signals
     from skyherd.runio.run import open_run_folder
 
+    if kept.signum is not None:  # nothing made, nothing started
+        return nothing_recorded(kept.signum)
     folder = open_run_folder("fly", args.runs_dir)  # UsageError: not writable, full
     run_dir = folder.path
     key = key or flight_signing(args).per_run_key(run_dir)  # one key for every vehicle's two links
@@ -96,7 +109,7 @@ def run_formation(args: argparse.Namespace) -> int:
     print(f"skyherd fly: {len(groups)} simulator process{'es' if len(groups) > 1 else ''} "
           f"({', '.join(str(len(g)) for g in groups)} vehicles), logs sim<g>.log", flush=True)  # fmt: skip
     why = "interrupted (Ctrl-C)"
-    kids = launch.Launch()
+    kids = launch.Launch(kept)
     try:
         with kids:  # stopped on every way out, the companion first
             for g, group in enumerate(groups):
@@ -118,7 +131,7 @@ def run_formation(args: argparse.Namespace) -> int:
     ok = ending.end_run(
         run_dir, formation_report, rc, why, why=why, sims=kids.sims, vehicles=vehicles
     )
-    return 0 if ok and rc == 0 else (rc if rc > 128 else 1)
+    return after_report(ok, rc, kept)
 
 
 def _check_children(args) -> None:

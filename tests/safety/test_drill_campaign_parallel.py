@@ -46,11 +46,21 @@ def _procs():
 
 
 def _worker(backend: str, parent: int) -> int | None:
-    """A worker busy with a drill: a child of the campaign (pool) or Ray's `ray::run_one`."""
-    for pid, ppid, cmd in _procs():
+    """A worker busy with a drill: a child of the campaign (pool) or Ray's `ray::run_one`
+    under it (its local instance's raylet is the campaign's child): never another campaign's."""
+    procs = {pid: (ppid, cmd) for pid, ppid, cmd in _procs()}
+
+    def under(pid: int) -> bool:
+        while pid in procs and pid > 1:
+            pid = procs[pid][0]
+            if pid == parent:
+                return True
+        return False
+
+    for pid, (ppid, cmd) in procs.items():
         if backend == "process" and ppid == parent:
             return pid
-        if backend == "ray" and cmd.startswith("ray::run_one"):
+        if backend == "ray" and cmd.startswith("ray::run_one") and under(pid):
             return pid
     return None
 
@@ -114,3 +124,29 @@ def test_the_pool_reruns_what_a_dead_worker_left_and_gives_up_after_the_retries(
     assert os.path.exists(marker) and got == {(marker, v): v * v for v in range(8)}
     with pytest.raises(JobLost):
         list(map_unordered(_die_always, [1], "process", workers=1, retries=2, say=lambda s: None))
+
+
+def _die_once_at(job):
+    """Job `die` of many kills its worker the first time it runs."""
+    marker, value, die = job
+    if value == die and not os.path.exists(marker):
+        open(marker, "w").close()
+        os.kill(os.getpid(), signal.SIGKILL)
+    return os.getpid(), value * value
+
+
+@pytest.mark.parametrize(
+    "die", [0, 1_777, 2_999]
+)  # the first, one inside the window's run, the last
+def test_many_jobs_in_a_window_each_exactly_once_across_a_dead_worker(tmp_path, die):
+    """Thousands of jobs (a campaign's scale: handed out a window at a time, runio.parallel
+    IN_FLIGHT_PER_WORKER): every result once, the dead worker's jobs again on a new pool."""
+    marker = str(tmp_path / "died")
+    jobs = [(marker, v, die) for v in range(3_000)]
+    said = []
+    got = list(map_unordered(_die_once_at, jobs, "process", workers=2, say=said.append))
+    assert os.path.exists(marker)
+    assert sorted(j[1] for j, _ in got) == list(range(3_000))  # each once
+    assert all(r[1] == j[1] ** 2 for j, r in got)
+    assert len(said) == 1 and "run again on a new pool" in said[0], said
+    assert len({r[0] for _, r in got}) >= 2  # more than one worker process did the work
