@@ -17,7 +17,8 @@ the CPU, numba's environment, Python's version), so a stale build is never loade
 ahead-of-time compiler is given the host CPU's name and features, as its JIT has them: the same
 instructions, the same rounding, and the same flight to the byte as the JIT's kernels
 (docs/topology.md's hashes). A build that fails (no C compiler) is said once on stderr and
-remembered; the kernels are then numba's JIT, as before.
+remembered beside it (`<name>.failed`: delete it to try again); the kernels are then numba's JIT,
+as before.
 """
 
 from __future__ import annotations
@@ -128,7 +129,8 @@ def ensure_built(timeout_s: float = 600.0) -> bool:
     cmd = [sys.executable, "-m", "skyherd.flight.multirotor.compiled", name]
     try:
         out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
-        why = out.stderr.strip().splitlines()[-1:] if out.returncode else None
+        lines = out.stderr.strip().splitlines()
+        why = [ln for ln in lines if "Error" in ln][-1:] or lines[-1:] if out.returncode else None
     except (OSError, subprocess.TimeoutExpired) as e:
         why = [str(e)]
     if why is None and _built(name) is not None:
