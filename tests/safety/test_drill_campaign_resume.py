@@ -107,6 +107,15 @@ def _descendants(pid: int) -> list[int]:
     return out
 
 
+def _running(pid: int) -> bool:
+    """Is the process there and not a zombie (ended, its exit status not yet collected: an
+    orphan's is collected by PID 1, which in a container may never do it)?"""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 @pytest.mark.parametrize("backend,sig,rc", [("process", "SIGTERM", 143), ("ray", "SIGINT", 130)])
@@ -145,9 +154,9 @@ def test_a_signal_stops_a_campaign_with_its_workers_and_resume_finishes_it(tmp_p
     assert f"go on with `skyherd drill --resume {folder}`" in err, err[-2000:]
     assert "INTERRUPTED" in (folder / "summary.md").read_text()
     deadline = time.monotonic() + 30  # Ray's own processes end once their driver is gone
-    while time.monotonic() < deadline and any(Path(f"/proc/{k}").exists() for k in kids):
+    while time.monotonic() < deadline and any(_running(k) for k in kids):
         time.sleep(0.2)
-    left = [k for k in kids if Path(f"/proc/{k}").exists()]
+    left = [k for k in kids if _running(k)]
     assert not left, [Path(f"/proc/{k}/cmdline").read_bytes()[:80] for k in left]
     kept = len(rows(folder))
     assert 3 <= kept < n
