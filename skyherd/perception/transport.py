@@ -7,7 +7,7 @@ subscriber with the key keeps only authentic info, counting the rest in `info_re
 
 Frame wire format (little-endian), then the pixel data:
 
-    magic "SKYF" | version u16 (5 plain, 4 signed) | encoding u8 (0 raw RGB, 1 JPEG) |
+    magic "SKYF" | version u16 (5 plain, 6 signed) | encoding u8 (0 raw RGB, 1 JPEG) |
     reserved u8 | stream u32 (random per publisher: a restart resets the subscriber's
     bookkeeping) | seq u64 | t_sim f64 [s] (simulation clock) | t_pub f64 [s] (publisher's wall
     clock) | pos_ned 3×f64 [m] | quat 4×f64 (w, x, y, z body→NED) | width u16 | height u16 |
@@ -21,14 +21,19 @@ included), and the pixels are as intact as the link that carried them (TCP's che
 publisher's shared memory mapped by the subscriber). Nothing touches them between the
 renderer and the put but the copy into shared memory. (Version 3 also summed the pixels: a
 second pass per side, 0.03–0.11 ms per 640×480 frame, for damage that TCP and shared memory
-do not do; issue 31 item 2.) A signed frame (version 4; publisher and subscriber given the
+do not do; issue 31 item 2.) A signed frame (version 6; publisher and subscriber given the
 flight's key, `key`: the 32 bytes of the MAVLink signing key, flight.mavlink.signing) carries
-Poly1305 of the pixels (OpenSSL's) under a one-time key, BLAKE2b-256 of the frame's random
-`nonce` keyed with the flight key (fresh for every frame: Poly1305's one-time-key rule), and a
+the AES-GMAC of the pixels (AES-256-GCM's tag with the pixels as associated data and nothing
+encrypted, OpenSSL's) under the flight's pixel key (BLAKE2b-256 keyed with the flight key,
+derived once per key) with the first 12 bytes of the frame's random 16-byte `nonce` as GCM's
+IV (random 96-bit IVs: one repeated among 2^32 frames of a flight has a chance below 2^-32,
+NIST SP 800-38D's bound; a flight at 30 frames/s sends 2^32 frames in 4.5 years), and a
 trailer after the pixels: BLAKE2b-256 keyed with the flight key over the header as sent (32
 bytes, the digest included). Altering the header fails the MAC; altering a pixel fails the
 digest, which no one without the flight key can compute for other pixels: the one pass over
-the pixels that authenticity costs (bench/bench_frames.py, docs/perception.md).
+the pixels that authenticity costs (bench/bench_frames.py, docs/perception.md). Version 4 was
+the same with Poly1305 for the digest (about twice GMAC's CPU here, issue 31 item 2): like
+version 3, it is no longer read (CorruptFrame, "no longer read").
 
 A subscriber with a key refuses (counts as `refused`, never hands on) plain frames and frames
 whose MAC or pixel digest fails, on arrival, before their sequence number touches the books: a
@@ -64,6 +69,7 @@ tests/perception/test_perception_transport.py's two-process test, 2 runs in 15),
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import hmac
 import json
@@ -88,8 +94,9 @@ HEADER_LEN = _HDR.size
 _CRC_AT = HEADER_LEN - 4  # the header CRC covers the header before it
 _CRC = struct.Struct("<I")
 MAGIC = b"SKYF"
-VERSION = 5  # plain: header CRC (3, no longer read, also summed the pixels)
-VERSION_SIGNED = 4  # pixel digest under a one-time key from the flight key, MAC trailer
+VERSION = 5  # plain: header CRC
+VERSION_SIGNED = 6  # pixel digest (AES-GMAC) under a one-time key from the flight key, MAC trailer
+RETIRED_VERSIONS = {3: "plain, a checksum of the pixels", 4: "signed, a Poly1305 pixel digest"}
 NONCE_LEN = DIGEST_LEN = 16
 MAC_LEN = 32
 TRAILER_LEN = MAC_LEN  # signed frames only
@@ -121,18 +128,20 @@ def frame_mac(key: bytes, header: bytes) -> bytes:
     return hashlib.blake2b(header, key=key, digest_size=MAC_LEN).digest()
 
 
-def digest_key(key: bytes, nonce: bytes) -> bytes:
-    """The key of a signed frame's pixel digest: BLAKE2b-256 of the frame's nonce keyed with the
-    flight key (a Poly1305 key, one per frame)."""
-    return hashlib.blake2b(nonce, key=key, digest_size=32, person=b"skyherd-pixels").digest()
+@functools.lru_cache(maxsize=4)
+def _pixel_cipher(key: bytes):
+    """AES-256-GCM under the flight key's pixel key: BLAKE2b-256 keyed with the flight key
+    (made once per key: its key schedule is not paid per frame)."""
+    from cryptography.hazmat.primitives.ciphers.aead import AESGCM
+
+    return AESGCM(hashlib.blake2b(key=key, digest_size=32, person=b"skyherd-px-gmac").digest())
 
 
-def pixel_digest(dkey: bytes, data) -> bytes:
-    """The 16-byte digest of a signed frame's pixel bytes `data` (any buffer): the Poly1305 tag
-    under `dkey` (digest_key)."""
-    from cryptography.hazmat.primitives.poly1305 import Poly1305
-
-    return Poly1305.generate_tag(dkey, data)
+def pixel_digest(key: bytes, nonce: bytes, data) -> bytes:
+    """The 16-byte digest of a signed frame's pixel bytes `data` (any buffer, not copied): the
+    AES-GMAC tag (AES-256-GCM's tag over `data` as associated data, nothing encrypted) under
+    the flight key's pixel key, with the first 12 bytes of the frame's `nonce` as the IV."""
+    return _pixel_cipher(key).encrypt(nonce[:12], b"", data)
 
 
 def _write_header(payload: bytearray, seq, t_sim, pos_ned, quat, width, height, n, encoding,
@@ -197,9 +206,7 @@ def seal(payload: bytearray, seq: int, t_sim: float, pos_ned, quat, width: int, 
     nonce, digest = _NO_NONCE, _NO_DIGEST
     if key is not None:
         nonce = os.urandom(NONCE_LEN)
-        digest = pixel_digest(
-            digest_key(key, nonce), memoryview(payload)[HEADER_LEN : HEADER_LEN + n]
-        )
+        digest = pixel_digest(key, nonce, memoryview(payload)[HEADER_LEN : HEADER_LEN + n])
     _write_header(payload, seq, t_sim, pos_ned, quat, width, height, n, encoding, stream, t_pub,
                   nonce, digest, key is not None)  # fmt: skip
     if key is not None:
@@ -230,7 +237,7 @@ def encode_frame(
     t_pub: float | None = None,
     key: bytes | None = None,
 ) -> bytes:
-    """Frame → bytes (header + pixels; with `key`, signed: version 4 + the trailer).
+    """Frame → bytes (header + pixels; with `key`, signed: version 6 + the trailer).
     image (H, W, 3) uint8 RGB. The publish time is stamped after the pixels are encoded and
     digested, so latency measures the link, not the encoder."""
     data = encode_pixels(image, encoding, jpeg_quality)
@@ -254,9 +261,11 @@ class FrameHeader:
     height: int
     encoding: int
     data_len: int
-    digest: bytes  # of the pixels: Poly1305 (signed) or zeros (plain)
+    digest: bytes  # of the pixels: AES-GMAC (signed) or zeros (plain)
     t_recv: float
-    digest_key: bytes | None = None  # to check the digest with (None: plain, or no key)
+    nonce: bytes = _NO_NONCE  # the digest's (signed)
+    check_key: bytes | None = None  # the flight key to check the digest with (None: plain, no
+    # key, or checked already)
     signed: bool = False  # the digest was keyed from the flight key and the MAC checked
 
     @property
@@ -276,8 +285,13 @@ def decode_header(
     magic, version, enc, _, stream, seq, t_sim, t_pub = f[:8]
     pos, quat = np.array(f[8:11]), np.array(f[11:15])
     w, h, n, nonce, digest, crc = f[15:21]
-    if magic != MAGIC or version not in (VERSION, VERSION_SIGNED):
-        raise CorruptFrame(f"bad magic/version {magic!r}/{version}")
+    if magic != MAGIC:
+        raise CorruptFrame(f"bad magic {magic!r}")
+    if version in RETIRED_VERSIONS:
+        raise CorruptFrame(f"frame version {version} ({RETIRED_VERSIONS[version]}) is no longer "
+                           f"read: plain {VERSION}, signed {VERSION_SIGNED}")  # fmt: skip
+    if version not in (VERSION, VERSION_SIGNED):
+        raise CorruptFrame(f"unknown frame version {version}")
     signed = version == VERSION_SIGNED
     if key is not None and not signed:
         raise RefusedFrame("unsigned frame on an authenticated link")
@@ -296,17 +310,16 @@ def decode_header(
     if enc not in (RAW, JPEG):
         raise CorruptFrame(f"unknown encoding {enc}")
     t_recv = time.time() if t_recv is None else t_recv
-    dkey = digest_key(key, nonce) if key is not None else None
-    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, digest, t_recv, dkey,
-                       key is not None)  # fmt: skip
+    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, digest, t_recv, nonce,
+                       key, key is not None)  # fmt: skip
 
 
 def pixel_data(hdr: FrameHeader, payload: bytes) -> memoryview:
     """The pixel bytes of a payload whose header is `hdr`; a signed frame read with the key is
     checked against its digest (RefusedFrame), any other frame has none to check."""
     data = memoryview(payload)[HEADER_LEN : HEADER_LEN + hdr.data_len]
-    if hdr.digest_key is not None and not hmac.compare_digest(
-        pixel_digest(hdr.digest_key, data), hdr.digest
+    if hdr.check_key is not None and not hmac.compare_digest(
+        pixel_digest(hdr.check_key, hdr.nonce, data), hdr.digest
     ):
         raise RefusedFrame("pixels do not match the signed digest")
     return data
@@ -471,7 +484,7 @@ class FramePublisher:
             raise ValueError(f"encoding must be raw or jpeg, got {encoding!r}")
         self.cam, self.encoding, self.jpeg_quality = cam, encoding, jpeg_quality
         self.mount = mount  # how the vehicle carries the camera (camera_info)
-        self.key = key  # the flight key: frames signed (version 4 + trailer), else version 5
+        self.key = key  # the flight key: frames signed (version 6 + trailer), else version 5
         self.info_every = max(1, info_every)
         self.stream = int((rng or np.random.default_rng()).integers(1, 2**32 - 1))
         self.seq = 0
@@ -661,7 +674,7 @@ class FrameSubscriber:
             hdr = decode_header(payload, t_recv, self.key)
             if hdr.signed:  # authentic before the books: the pixels too (one cheap pass)
                 pixel_data(hdr, payload)
-                hdr = dataclasses.replace(hdr, digest_key=None)  # checked: not again at take
+                hdr = dataclasses.replace(hdr, check_key=None)  # checked: not again at take
         except RefusedFrame:
             with self._cv:
                 self.stats.refused += 1
