@@ -57,9 +57,9 @@ with a key, the pixel digest); the image is decoded when the consumer takes the 
 JPEG that does not decode and is superseded first counts as skipped.
 
 The publisher writes each frame once: `frame_buffer()` hands out the (H, W, 3) pixel region of
-the payload that will be sent (the renderer draws into it: `FastRenderer.render(..., out=)`),
-`publish` writes the header in place (stamped once, at the put; signed: the pixel digest and
-the MAC first) and copies the payload into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
+the payload that will be sent (one payload, drawn into again for every frame; the renderer
+draws into it: `FastRenderer.render(..., out=)`), `publish` writes the header in place
+(stamped once, at the put; signed: the pixel digest and the MAC first) and copies the payload into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
 `ZShmMut` takes bytes or a bytearray, not a writable view, so this one copy remains). With
 `shm_frames=0` the payload is put as is and Zenoh's transport optimisation copies it into its
 own pool: less CPU per frame, but frames dropped under DROP congestion control (seen in
