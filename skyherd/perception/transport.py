@@ -59,7 +59,8 @@ JPEG that does not decode and is superseded first counts as skipped.
 The publisher writes each frame once: `frame_buffer()` hands out the (H, W, 3) pixel region of
 the payload that will be sent (one payload, drawn into again for every frame; the renderer
 draws into it: `FastRenderer.render(..., out=)`), `publish` writes the header in place
-(stamped once, at the put; signed: the pixel digest and the MAC first) and copies the payload into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
+(stamped once, at the put; signed: the pixel digest and the MAC first) and copies the payload
+into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
 `ZShmMut` takes bytes or a bytearray, not a writable view, so this one copy remains). With
 `shm_frames=0` the payload is put as is and Zenoh's transport optimisation copies it into its
 own pool: less CPU per frame, but frames dropped under DROP congestion control (seen in
@@ -95,7 +96,7 @@ _CRC_AT = HEADER_LEN - 4  # the header CRC covers the header before it
 _CRC = struct.Struct("<I")
 MAGIC = b"SKYF"
 VERSION = 5  # plain: header CRC
-VERSION_SIGNED = 6  # pixel digest (AES-GMAC) under a one-time key from the flight key, MAC trailer
+VERSION_SIGNED = 6  # pixel digest: AES-GMAC under the flight key's pixel key; MAC trailer
 RETIRED_VERSIONS = {3: "plain, a checksum of the pixels", 4: "signed, a Poly1305 pixel digest"}
 NONCE_LEN = DIGEST_LEN = 16
 MAC_LEN = 32
@@ -264,8 +265,9 @@ class FrameHeader:
     digest: bytes  # of the pixels: AES-GMAC (signed) or zeros (plain)
     t_recv: float
     nonce: bytes = _NO_NONCE  # the digest's (signed)
-    check_key: bytes | None = None  # the flight key to check the digest with (None: plain, no
-    # key, or checked already)
+    # the flight key to check the digest with (None: plain, no key, or checked already); never
+    # in a repr, so never in a log
+    check_key: bytes | None = field(default=None, repr=False)
     signed: bool = False  # the digest was keyed from the flight key and the MAC checked
 
     @property

@@ -155,6 +155,7 @@ def test_the_pixel_digest_is_aes_gmac_under_the_flight_keys_pixel_key_and_a_fres
     assert int.from_bytes(a[4:6], "little") == VERSION_SIGNED == 6
     assert ha.digest == AESGCM(pixel_key).encrypt(ha.nonce[:12], b"", pixels)
     assert ha.nonce != hb.nonce and ha.digest != hb.digest
+    assert ha.check_key == KEY and repr(KEY) not in repr(ha)  # the flight key is never logged
 
 
 def test_a_digest_made_under_another_flights_key_is_refused_though_the_header_mac_is_good():
