@@ -15,8 +15,9 @@ another's, the kinds alternated (A B C, C B A, ...):
 - skyherd: `FramePublisher.publish`, plain frames (version 5: a CRC of the header, the pixels
   not read), the image copied into the payload that is published (`frame_buffer()`; the
   simulator's renderer draws there instead), the payload copied into a shared-memory buffer;
-- skyherd signed: the same with a flight key (version 4: a Poly1305 pass over the pixels under
-  a one-time key, BLAKE2b MAC over the header with that digest).
+- skyherd signed: the same with a flight key (version 6: an AES-GMAC pass over the pixels
+  under the flight's pixel key and a random IV, BLAKE2b MAC over the header with that digest;
+  version 4 made it a Poly1305 pass under a per-frame key).
 
 CPU per frame is the block process's CPU time (`time.process_time`: every thread, Zenoh's
 included) over the block, divided by its frames; the copy of the image into the published

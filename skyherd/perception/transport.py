@@ -7,7 +7,7 @@ subscriber with the key keeps only authentic info, counting the rest in `info_re
 
 Frame wire format (little-endian), then the pixel data:
 
-    magic "SKYF" | version u16 (5 plain, 4 signed) | encoding u8 (0 raw RGB, 1 JPEG) |
+    magic "SKYF" | version u16 (5 plain, 6 signed) | encoding u8 (0 raw RGB, 1 JPEG) |
     reserved u8 | stream u32 (random per publisher: a restart resets the subscriber's
     bookkeeping) | seq u64 | t_sim f64 [s] (simulation clock) | t_pub f64 [s] (publisher's wall
     clock) | pos_ned 3×f64 [m] | quat 4×f64 (w, x, y, z body→NED) | width u16 | height u16 |
@@ -21,14 +21,19 @@ included), and the pixels are as intact as the link that carried them (TCP's che
 publisher's shared memory mapped by the subscriber). Nothing touches them between the
 renderer and the put but the copy into shared memory. (Version 3 also summed the pixels: a
 second pass per side, 0.03–0.11 ms per 640×480 frame, for damage that TCP and shared memory
-do not do; issue 31 item 2.) A signed frame (version 4; publisher and subscriber given the
+do not do; issue 31 item 2.) A signed frame (version 6; publisher and subscriber given the
 flight's key, `key`: the 32 bytes of the MAVLink signing key, flight.mavlink.signing) carries
-Poly1305 of the pixels (OpenSSL's) under a one-time key, BLAKE2b-256 of the frame's random
-`nonce` keyed with the flight key (fresh for every frame: Poly1305's one-time-key rule), and a
+the AES-GMAC of the pixels (AES-256-GCM's tag with the pixels as associated data and nothing
+encrypted, OpenSSL's) under the flight's pixel key (BLAKE2b-256 keyed with the flight key,
+derived once per key) with the first 12 bytes of the frame's random 16-byte `nonce` as GCM's
+IV (random 96-bit IVs: one repeated among 2^32 frames of a flight has a chance below 2^-32,
+NIST SP 800-38D's bound; a flight at 30 frames/s sends 2^32 frames in 4.5 years), and a
 trailer after the pixels: BLAKE2b-256 keyed with the flight key over the header as sent (32
 bytes, the digest included). Altering the header fails the MAC; altering a pixel fails the
 digest, which no one without the flight key can compute for other pixels: the one pass over
-the pixels that authenticity costs (bench/bench_frames.py, docs/perception.md).
+the pixels that authenticity costs (bench/bench_frames.py, docs/perception.md). Version 4 was
+the same with Poly1305 for the digest (about twice GMAC's CPU here, issue 31 item 2): like
+version 3, it is no longer read (CorruptFrame, "no longer read").
 
 A subscriber with a key refuses (counts as `refused`, never hands on) plain frames and frames
 whose MAC or pixel digest fails, on arrival, before their sequence number touches the books: a
@@ -52,9 +57,10 @@ with a key, the pixel digest); the image is decoded when the consumer takes the 
 JPEG that does not decode and is superseded first counts as skipped.
 
 The publisher writes each frame once: `frame_buffer()` hands out the (H, W, 3) pixel region of
-the payload that will be sent (the renderer draws into it: `FastRenderer.render(..., out=)`),
-`publish` writes the header in place (stamped once, at the put; signed: the pixel digest and
-the MAC first) and copies the payload into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
+the payload that will be sent (one payload, drawn into again for every frame; the renderer
+draws into it: `FastRenderer.render(..., out=)`), `publish` writes the header in place
+(stamped once, at the put; signed: the pixel digest and the MAC first) and copies the payload
+into a buffer of the publisher's shared-memory pool (`shm_frames`; zenoh-python 1.10's
 `ZShmMut` takes bytes or a bytearray, not a writable view, so this one copy remains). With
 `shm_frames=0` the payload is put as is and Zenoh's transport optimisation copies it into its
 own pool: less CPU per frame, but frames dropped under DROP congestion control (seen in
@@ -64,6 +70,7 @@ tests/perception/test_perception_transport.py's two-process test, 2 runs in 15),
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import hmac
 import json
@@ -88,8 +95,9 @@ HEADER_LEN = _HDR.size
 _CRC_AT = HEADER_LEN - 4  # the header CRC covers the header before it
 _CRC = struct.Struct("<I")
 MAGIC = b"SKYF"
-VERSION = 5  # plain: header CRC (3, no longer read, also summed the pixels)
-VERSION_SIGNED = 4  # pixel digest under a one-time key from the flight key, MAC trailer
+VERSION = 5  # plain: header CRC
+VERSION_SIGNED = 6  # pixel digest: AES-GMAC under the flight key's pixel key; MAC trailer
+RETIRED_VERSIONS = {3: "plain, a checksum of the pixels", 4: "signed, a Poly1305 pixel digest"}
 NONCE_LEN = DIGEST_LEN = 16
 MAC_LEN = 32
 TRAILER_LEN = MAC_LEN  # signed frames only
@@ -121,18 +129,20 @@ def frame_mac(key: bytes, header: bytes) -> bytes:
     return hashlib.blake2b(header, key=key, digest_size=MAC_LEN).digest()
 
 
-def digest_key(key: bytes, nonce: bytes) -> bytes:
-    """The key of a signed frame's pixel digest: BLAKE2b-256 of the frame's nonce keyed with the
-    flight key (a Poly1305 key, one per frame)."""
-    return hashlib.blake2b(nonce, key=key, digest_size=32, person=b"skyherd-pixels").digest()
+@functools.lru_cache(maxsize=4)
+def _pixel_cipher(key: bytes):
+    """AES-256-GCM under the flight key's pixel key: BLAKE2b-256 keyed with the flight key
+    (made once per key: its key schedule is not paid per frame)."""
+    from cryptography.hazmat.primitives.ciphers.aead import AESGCM
+
+    return AESGCM(hashlib.blake2b(key=key, digest_size=32, person=b"skyherd-px-gmac").digest())
 
 
-def pixel_digest(dkey: bytes, data) -> bytes:
-    """The 16-byte digest of a signed frame's pixel bytes `data` (any buffer): the Poly1305 tag
-    under `dkey` (digest_key)."""
-    from cryptography.hazmat.primitives.poly1305 import Poly1305
-
-    return Poly1305.generate_tag(dkey, data)
+def pixel_digest(key: bytes, nonce: bytes, data) -> bytes:
+    """The 16-byte digest of a signed frame's pixel bytes `data` (any buffer, not copied): the
+    AES-GMAC tag (AES-256-GCM's tag over `data` as associated data, nothing encrypted) under
+    the flight key's pixel key, with the first 12 bytes of the frame's `nonce` as the IV."""
+    return _pixel_cipher(key).encrypt(nonce[:12], b"", data)
 
 
 def _write_header(payload: bytearray, seq, t_sim, pos_ned, quat, width, height, n, encoding,
@@ -197,9 +207,7 @@ def seal(payload: bytearray, seq: int, t_sim: float, pos_ned, quat, width: int, 
     nonce, digest = _NO_NONCE, _NO_DIGEST
     if key is not None:
         nonce = os.urandom(NONCE_LEN)
-        digest = pixel_digest(
-            digest_key(key, nonce), memoryview(payload)[HEADER_LEN : HEADER_LEN + n]
-        )
+        digest = pixel_digest(key, nonce, memoryview(payload)[HEADER_LEN : HEADER_LEN + n])
     _write_header(payload, seq, t_sim, pos_ned, quat, width, height, n, encoding, stream, t_pub,
                   nonce, digest, key is not None)  # fmt: skip
     if key is not None:
@@ -230,7 +238,7 @@ def encode_frame(
     t_pub: float | None = None,
     key: bytes | None = None,
 ) -> bytes:
-    """Frame → bytes (header + pixels; with `key`, signed: version 4 + the trailer).
+    """Frame → bytes (header + pixels; with `key`, signed: version 6 + the trailer).
     image (H, W, 3) uint8 RGB. The publish time is stamped after the pixels are encoded and
     digested, so latency measures the link, not the encoder."""
     data = encode_pixels(image, encoding, jpeg_quality)
@@ -254,9 +262,12 @@ class FrameHeader:
     height: int
     encoding: int
     data_len: int
-    digest: bytes  # of the pixels: Poly1305 (signed) or zeros (plain)
+    digest: bytes  # of the pixels: AES-GMAC (signed) or zeros (plain)
     t_recv: float
-    digest_key: bytes | None = None  # to check the digest with (None: plain, or no key)
+    nonce: bytes = _NO_NONCE  # the digest's (signed)
+    # the flight key to check the digest with (None: plain, no key, or checked already); never
+    # in a repr, so never in a log
+    check_key: bytes | None = field(default=None, repr=False)
     signed: bool = False  # the digest was keyed from the flight key and the MAC checked
 
     @property
@@ -276,8 +287,13 @@ def decode_header(
     magic, version, enc, _, stream, seq, t_sim, t_pub = f[:8]
     pos, quat = np.array(f[8:11]), np.array(f[11:15])
     w, h, n, nonce, digest, crc = f[15:21]
-    if magic != MAGIC or version not in (VERSION, VERSION_SIGNED):
-        raise CorruptFrame(f"bad magic/version {magic!r}/{version}")
+    if magic != MAGIC:
+        raise CorruptFrame(f"bad magic {magic!r}")
+    if version in RETIRED_VERSIONS:
+        raise CorruptFrame(f"frame version {version} ({RETIRED_VERSIONS[version]}) is no longer "
+                           f"read: plain {VERSION}, signed {VERSION_SIGNED}")  # fmt: skip
+    if version not in (VERSION, VERSION_SIGNED):
+        raise CorruptFrame(f"unknown frame version {version}")
     signed = version == VERSION_SIGNED
     if key is not None and not signed:
         raise RefusedFrame("unsigned frame on an authenticated link")
@@ -296,17 +312,16 @@ def decode_header(
     if enc not in (RAW, JPEG):
         raise CorruptFrame(f"unknown encoding {enc}")
     t_recv = time.time() if t_recv is None else t_recv
-    dkey = digest_key(key, nonce) if key is not None else None
-    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, digest, t_recv, dkey,
-                       key is not None)  # fmt: skip
+    return FrameHeader(stream, seq, t_sim, t_pub, pos, quat, w, h, enc, n, digest, t_recv, nonce,
+                       key, key is not None)  # fmt: skip
 
 
 def pixel_data(hdr: FrameHeader, payload: bytes) -> memoryview:
     """The pixel bytes of a payload whose header is `hdr`; a signed frame read with the key is
     checked against its digest (RefusedFrame), any other frame has none to check."""
     data = memoryview(payload)[HEADER_LEN : HEADER_LEN + hdr.data_len]
-    if hdr.digest_key is not None and not hmac.compare_digest(
-        pixel_digest(hdr.digest_key, data), hdr.digest
+    if hdr.check_key is not None and not hmac.compare_digest(
+        pixel_digest(hdr.check_key, hdr.nonce, data), hdr.digest
     ):
         raise RefusedFrame("pixels do not match the signed digest")
     return data
@@ -471,7 +486,7 @@ class FramePublisher:
             raise ValueError(f"encoding must be raw or jpeg, got {encoding!r}")
         self.cam, self.encoding, self.jpeg_quality = cam, encoding, jpeg_quality
         self.mount = mount  # how the vehicle carries the camera (camera_info)
-        self.key = key  # the flight key: frames signed (version 4 + trailer), else version 5
+        self.key = key  # the flight key: frames signed (version 6 + trailer), else version 5
         self.info_every = max(1, info_every)
         self.stream = int((rng or np.random.default_rng()).integers(1, 2**32 - 1))
         self.seq = 0
@@ -490,24 +505,27 @@ class FramePublisher:
         self._gc = None  # its allocation policy (zenoh.shm.GarbageCollect)
         self.shm_fallbacks = 0  # frames sent by copy because shared memory was not available
         self._last: bytearray | None = None  # the last payload sent (republish)
-        # raw frames: two payloads, alternately filled (the last one stays whole for republish);
-        # each with its (H, W, 3) pixel view
-        self._payloads: list[tuple[bytearray, np.ndarray]] = []
-        self._k = 0  # the payload the next raw frame is written into
+        # raw frames: one payload, filled again for each frame (its pages stay hot: a second one,
+        # alternately filled, cost ~0.02 ms per 640x480 frame in the bench), with its (H, W, 3)
+        # pixel view; `_drawing`: handed out by frame_buffer() since the last publish, so the
+        # last frame in it may be half overwritten (republish waits for the next publish)
+        self._frame: tuple[bytearray, np.ndarray] | None = None
+        self._drawing = False
 
     def frame_buffer(self, height: int | None = None, width: int | None = None) -> np.ndarray:
         """The (H, W, 3) uint8 pixels of the payload the next raw frame is sent in (default:
-        the camera's size). Render into it and pass it to `publish`: no copy is made."""
+        the camera's size). Render into it and pass it to `publish`: no copy is made. It is the
+        buffer of the last raw frame: from this call until the next `publish`, `republish` sends
+        nothing."""
         h = self.cam.height_px if height is None else height
         w = self.cam.width_px if width is None else width
-        if not self._payloads or self._payloads[0][1].shape[:2] != (h, w):
+        if self._frame is None or self._frame[1].shape[:2] != (h, w):
             trailer = TRAILER_LEN if self.key is not None else 0
-            self._payloads = []
-            for _ in range(2):
-                payload = bytearray(HEADER_LEN + h * w * 3 + trailer)
-                view = np.frombuffer(payload, np.uint8, h * w * 3, HEADER_LEN).reshape(h, w, 3)
-                self._payloads.append((payload, view))
-        return self._payloads[self._k][1]
+            payload = bytearray(HEADER_LEN + h * w * 3 + trailer)
+            view = np.frombuffer(payload, np.uint8, h * w * 3, HEADER_LEN).reshape(h, w, 3)
+            self._frame = (payload, view)
+        self._drawing = True
+        return self._frame[1]
 
     def _raw_payload(self, image: np.ndarray) -> bytearray:
         """The next raw payload with `image` as its pixels (copied unless it is frame_buffer())."""
@@ -517,9 +535,7 @@ class FramePublisher:
         view = self.frame_buffer(*img.shape[:2])
         if img is not view:  # not rendered into frame_buffer()
             view[...] = img
-        payload = self._payloads[self._k][0]
-        self._k ^= 1
-        return payload
+        return self._frame[0]
 
     def _put(self, payload: bytearray) -> None:
         """Send one payload through a shared-memory buffer when possible (a subscriber in
@@ -563,15 +579,16 @@ class FramePublisher:
         seal(payload, self.seq, t_sim, uav_pos_ned, uav_quat, w, h, enc, self.stream,
              key=self.key)  # fmt: skip
         self._put(payload)
-        self._last = payload
+        self._last, self._drawing = payload, False
         self.seq += 1
         return self.seq - 1
 
     def republish(self) -> bool:
         """Send the last frame again, same sequence number and pixels, stamped now (a
         subscriber that has it drops the copy as out of order). Lockstep uses it while it waits
-        for a late subscriber."""
-        if self._last is None:
+        for a late subscriber. Returns whether it was sent: not before the first frame, nor
+        while the last frame's buffer is being drawn into (frame_buffer() since)."""
+        if self._last is None or (self._drawing and self._last is self._frame[0]):
             return False
         restamp(self._last, self.key)
         self._put(self._last)
@@ -661,7 +678,7 @@ class FrameSubscriber:
             hdr = decode_header(payload, t_recv, self.key)
             if hdr.signed:  # authentic before the books: the pixels too (one cheap pass)
                 pixel_data(hdr, payload)
-                hdr = dataclasses.replace(hdr, digest_key=None)  # checked: not again at take
+                hdr = dataclasses.replace(hdr, check_key=None)  # checked: not again at take
         except RefusedFrame:
             with self._cv:
                 self.stats.refused += 1

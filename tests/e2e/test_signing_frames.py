@@ -59,7 +59,7 @@ def test_unsigned_wrong_key_and_tampered_headers_are_refused_on_arrival(make, wh
 
 def test_a_header_that_passes_its_mac_with_pixels_not_its_own_is_refused_at_take():
     """The CRC is no authentication (anyone can recompute it); the signed digest is: pixels
-    whose Poly1305 tag differs from the MAC'd digest are refused when the frame is decoded."""
+    whose AES-GMAC tag differs from the MAC'd digest are refused when the frame is decoded."""
     import dataclasses
 
     from skyherd.perception.transport import decode_pixels
@@ -135,6 +135,108 @@ def test_a_flipped_pixel_byte_over_zenoh_is_refused_and_the_good_frame_kept():
 
 def _flip(b: bytes, i: int) -> bytes:
     return b[:i] + bytes([b[i] ^ 1]) + b[i + 1 :]
+
+
+def test_the_pixel_digest_is_aes_gmac_under_the_flight_keys_pixel_key_and_a_fresh_iv():
+    """Version 6's digest, computed apart from the transport: AES-256-GCM's tag over the pixels
+    as associated data, nothing encrypted, under BLAKE2b-256 keyed with the flight key
+    (person "skyherd-px-gmac"), IV the first 12 bytes of the frame's nonce. Two frames of the
+    same pixels get other nonces, so other digests (no IV used twice)."""
+    import hashlib
+
+    from cryptography.hazmat.primitives.ciphers.aead import AESGCM
+
+    from skyherd.perception.transport import HEADER_LEN, VERSION_SIGNED
+
+    a, b = (encode_frame(8, 1.35, POS, QUAT, IMG, RAW, stream=9, key=KEY) for _ in range(2))
+    ha, hb = decode_header(a, key=KEY), decode_header(b, key=KEY)
+    pixel_key = hashlib.blake2b(key=KEY, digest_size=32, person=b"skyherd-px-gmac").digest()
+    pixels = a[HEADER_LEN : HEADER_LEN + IMG.size]
+    assert int.from_bytes(a[4:6], "little") == VERSION_SIGNED == 6
+    assert ha.digest == AESGCM(pixel_key).encrypt(ha.nonce[:12], b"", pixels)
+    assert ha.nonce != hb.nonce and ha.digest != hb.digest
+    assert ha.check_key == KEY and repr(KEY) not in repr(ha)  # the flight key is never logged
+
+
+def test_a_digest_made_under_another_flights_key_is_refused_though_the_header_mac_is_good():
+    """A header MAC'd with the flight key over a pixel digest computed under another key (as
+    one who holds only that other key, or a frame of another flight, could offer): refused."""
+    from skyherd.perception.transport import (
+        HEADER_LEN,
+        MAC_LEN,
+        _write_header,
+        decode_pixels,
+        frame_mac,
+        pixel_digest,
+    )
+
+    nonce = os.urandom(16)
+    payload = bytearray(HEADER_LEN) + IMG.tobytes() + bytearray(MAC_LEN)
+    digest = pixel_digest(OTHER, nonce, IMG.tobytes())
+    _write_header(payload, 8, 1.35, POS, QUAT, 64, 48, IMG.size, RAW, 9, None, nonce, digest,
+                  True)  # fmt: skip
+    payload[-MAC_LEN:] = frame_mac(KEY, bytes(payload[:HEADER_LEN]))
+    hdr = decode_header(bytes(payload), key=KEY)  # the header is the flight key's
+    with pytest.raises(RefusedFrame, match="digest"):
+        decode_pixels(hdr, bytes(payload))
+    assert np.array_equal(decode_frame(bytes(payload)).image, IMG)  # keyless: read as sent
+
+
+@pytest.mark.parametrize("version", [3, 4, 7])
+def test_frames_of_retired_and_unknown_versions_are_refused_with_their_reason(version):
+    """Version 4 (signed, Poly1305 pixel digest) and 3 (plain, a pixel checksum) are no longer
+    read, by a reader with the key or without; an unknown version is refused as such."""
+    from skyherd.perception.transport import CorruptFrame
+
+    signed = encode_frame(8, 1.35, POS, QUAT, IMG, RAW, stream=9, key=KEY)
+    old = signed[:4] + version.to_bytes(2, "little") + signed[6:]
+    why = "no longer read" if version in (3, 4) else "unknown frame version 7"
+    for key in (KEY, None):
+        with pytest.raises(CorruptFrame, match=why):
+            decode_frame(old, key=key)
+
+
+class _Recorder:
+    """A Zenoh session stand-in that keeps what is put (FramePublisher with shm_frames=0)."""
+
+    def __init__(self):
+        self.sent: list[bytes] = []
+
+    def declare_publisher(self, key, **_):
+        rec = self
+
+        class _Pub:
+            def put(self, payload):
+                if key.endswith("/frame"):
+                    rec.sent.append(bytes(payload))
+
+        return _Pub()
+
+
+def test_a_republished_signed_frame_is_the_sent_one_and_none_goes_while_the_next_is_drawn():
+    """The publisher draws each frame into one payload: a republish stamps the last frame anew
+    (its MAC still good, its pixels its own); once frame_buffer() has handed that payload out
+    for the next frame, republish sends nothing until the next publish."""
+    from skyherd.perception.camera import CameraParams
+
+    session = _Recorder()
+    pub = FramePublisher(session, "uav0", CameraParams(width_px=64, height_px=48), key=KEY,
+                         shm_frames=0)  # fmt: skip
+    assert not pub.republish()  # nothing published yet
+    buf = pub.frame_buffer()
+    buf[...] = IMG
+    pub.publish(0.0, POS, QUAT, buf)
+    assert pub.republish() and len(session.sent) == 2
+    first, again = (decode_frame(b, key=KEY) for b in session.sent)
+    assert again.seq == first.seq == 0 and np.array_equal(again.image, IMG)
+    assert again.t_pub >= first.t_pub
+    buf = pub.frame_buffer()
+    buf[:10] = 0  # the next frame half drawn
+    assert not pub.republish() and len(session.sent) == 2
+    pub.publish(0.1, POS, QUAT, buf)
+    assert pub.republish() and len(session.sent) == 4
+    assert all(np.array_equal(decode_frame(b, key=KEY).image[:10], 0 * IMG[:10])
+               for b in session.sent[2:])  # fmt: skip
 
 
 def test_forged_next_frame_over_zenoh_never_reaches_the_books():
