@@ -859,7 +859,7 @@ def own_flight_of(rec: DrillRecord, spec: EnvelopeSpec, net: NetRecord) -> tuple
         return -math.inf, ""
     truth = rec.truth()
     c, _ = clearances(truth, spec, None, net)
-    return own_flight(truth, c, net, JudgeParams())
+    return own_flight(truth, spec, c, net, JudgeParams())
 
 
 def recovery_allowance_s(spec: EnvelopeSpec, sp: SupervisorParams) -> float:

@@ -24,8 +24,9 @@ passes, and the first that fails is the one named:
 A drill (safety.drills, the campaign, mission.drill_link) is judged by the same function with
 what it demands of the net beyond a flight (`Expect`) and the net's own record (`NetRecord`):
 the truth is the net's to answer for up to `NetRecord.answers_until` (a yield + the stopping
-time + safety.drills.RUN_ON_S), the autopilot's own failsafe may take over (the faults are
-injected on purpose) but never be undone, the drill ends in the air, and three checks follow:
+time + safety.drills.RUN_ON_S; after a yield to RTL / LAND only on the braking path it handed
+over, `answered`), the autopilot's own failsafe may take over (the faults are injected on
+purpose) but never be undone, the drill ends in the air, and three checks follow:
 
   failsafe  the autopilot's failsafe took over where the drill expects it; after the yield its
             own HOLD stayed inside the fence (its RTL / LAND path home is reported, not failed:
@@ -187,7 +188,7 @@ def judge(truth: Truth, spec: EnvelopeSpec, changes: Sequence[ModeChange],
         ),  # fmt: skip
     ]
     if drill:
-        checks += [failsafe_check(truth, c, which, expect, net, p),
+        checks += [failsafe_check(truth, spec, c, which, expect, net, p),
                    caught_check(expect, net), recovered_check(expect, net)]  # fmt: skip
     return checks
 
@@ -309,10 +310,11 @@ def _outside_name(signed: SignedDistance, p: np.ndarray) -> str:
 
 def fence_check(truth: Truth, spec: EnvelopeSpec, c: np.ndarray, name: Callable[[int], str],
                 p: JudgeParams, net: NetRecord | None = None) -> Check:  # fmt: skip
-    """Airborne samples (a drill's: those the net answers for) at least -tolerance inside."""
+    """Airborne samples (a drill's: those the net answers for, `answered`) at least -tolerance
+    inside."""
     air = _airborne(truth, p)
     if net is not None:
-        air &= truth.t <= net.answers_until
+        air &= answered(truth, spec, net)
     if not air.any():
         return Check("fence", True, "never airborne", "no truth sample in the air", math.inf)
     tol = net.tolerance_m if net is not None else 0.0
@@ -446,10 +448,54 @@ def end_check(truth: Truth, ending: Ending, p: JudgeParams) -> Check:
 
 
 # ---- a drill's checks ----------------------------------------------------------------------
-def own_flight(truth: Truth, c: np.ndarray, net: NetRecord, p: JudgeParams) -> tuple[float, str]:
-    """The autopilot's own flight after the net stopped answering (a yield): its worst
-    excursion beyond the fence [m] (< 0: inside; -inf: none) and its mode there."""
-    own = _airborne(truth, p) & (truth.t > net.answers_until)
+FAILSAFE_PATH_MODES = ("RTL", "LAND")
+"""The autopilot's own failsafe paths (straight line home, descent): reported, not failing."""
+
+
+def answered(truth: Truth, spec: EnvelopeSpec, net: NetRecord) -> np.ndarray:
+    """The truth samples a drill's net answers for: up to `net.answers_until` (its yield + its
+    stop + safety.drills.RUN_ON_S: the momentum it handed over); after a yield to the autopilot's
+    RTL / LAND, of those only the samples on its own stop. That stop is the straight braking
+    path from the truth's position at the yield along its velocity there, as long as eq. 3's
+    reach at the fastest horizontal speed s within react_s of the yield (react_s s +
+    s^2 / (2 decel_h)), and margin_m (+ the breach tolerance) either side of it. A sample off
+    that path, in RTL / LAND, is on the autopilot's own line home: reported (`own_flight`), not
+    the net's. A vehicle that cannot stop (decel_h 0: a fixed-wing) answers for its whole window.
+    Campaign seed 0, battery 43134: yielded 4 m beside the mast at 7 m/s, flying away from it;
+    the RTL turned home through it 2 s later, 5 m off the braking path."""
+    t = truth.t
+    mask = t <= net.answers_until
+    dyn, lim = spec.dynamics, spec.limits
+    if net.yielded not in FAILSAFE_PATH_MODES or not math.isfinite(net.t_yield):
+        return mask
+    if dyn.decel_h_mps2 <= 0.0 or len(t) < 3:
+        return mask
+    xy = truth.pos_ned[:, :2]
+    k = min(int(np.searchsorted(t, net.t_yield)), len(t) - 1)
+    near = np.flatnonzero(np.abs(t - t[k]) <= dyn.react_s)
+    lo, hi = max(near[0] - 1, 0), min(near[-1] + 2, len(t))
+    v = np.gradient(xy[lo:hi], t[lo:hi], axis=0)  # the truth's horizontal velocity [m/s]
+    speed = float(np.max(np.hypot(v[:, 0], v[:, 1])))
+    if not math.isfinite(speed):  # repeated sample times: no velocity, the window is the net's
+        return mask
+    v_k = v[k - lo]
+    n_k = float(np.hypot(*v_k))
+    u = v_k / n_k if n_k > 1e-6 else np.zeros(2)
+    reach = dyn.react_s * speed + speed * speed / (2.0 * dyn.decel_h_mps2)  # eq. 3
+    rel = xy - xy[k]
+    along = np.clip(rel @ u, 0.0, reach)
+    off = np.hypot(*(rel - along[:, None] * u).T)  # distance to the braking path [m]
+    own_path = (t > t[k]) & np.isin(truth.mode, FAILSAFE_PATH_MODES)
+    return mask & ~(own_path & (off > lim.margin_m + net.tolerance_m))
+
+
+def own_flight(truth: Truth, spec: EnvelopeSpec, c: np.ndarray, net: NetRecord,
+               p: JudgeParams) -> tuple[float, str]:  # fmt: skip
+    """The autopilot's own flight after the net stopped answering (a yield; `answered`): its
+    worst excursion beyond the fence [m] (< 0: inside; -inf: none) and its mode there."""
+    if not net.yielded:
+        return -math.inf, ""
+    own = _airborne(truth, p) & ~answered(truth, spec, net)
     if not own.any():
         return -math.inf, ""
     idx = np.flatnonzero(own)
@@ -457,18 +503,14 @@ def own_flight(truth: Truth, c: np.ndarray, net: NetRecord, p: JudgeParams) -> t
     return float(-c[k]), truth.mode[k]
 
 
-FAILSAFE_PATH_MODES = ("RTL", "LAND")
-"""The autopilot's own failsafe paths (straight line home, descent): reported, not failing."""
-
-
-def failsafe_check(truth: Truth, c: np.ndarray, name: Callable[[int], str], expect: Expect,
-                   net: NetRecord, p: JudgeParams) -> Check:  # fmt: skip
+def failsafe_check(truth: Truth, spec: EnvelopeSpec, c: np.ndarray, name: Callable[[int], str],
+                   expect: Expect, net: NetRecord, p: JudgeParams) -> Check:  # fmt: skip
     if expect.failsafe and not net.yielded:
         return Check("failsafe", False, "the net never yielded",
                      "the autopilot's failsafe was expected to take over; the net never yielded")  # fmt: skip
     if not net.yielded:
         return Check("failsafe", True, "no failsafe", "the autopilot never took over")
-    x, mode = own_flight(truth, c, net, p)
+    x, mode = own_flight(truth, spec, c, net, p)
     fig = f"yielded to {net.yielded} at t = {net.t_yield:.1f} s"
     if math.isfinite(x):
         fig += f"; its own flight {-x:+.2f} m from the fence at worst ({mode})"

@@ -80,3 +80,25 @@ def test_wind_0365_seed_97_gets_its_recovery_allowance_after_the_last_fallback()
     assert r.passed, r.why
     assert r.track["mode"][-1] == 0 and r.track["t"][-1] > d.script.duration_s + 4.0
     assert any("roll" in x for x in r.reasons) and r.min_clearance_m > 4.0
+
+
+def test_seed_0_battery_rtl_turns_across_the_mast_and_barn_are_the_autopilots_path():
+    """The 100,000-drill campaign (seed 0) failed 11 battery drills, each an RTL line home
+    across the mast or the barn inside the net's run-on window after its yield (stop 41).
+    Battery 43134: yielded 4 m beside the mast at 7 m/s, flying away from it; RTL turned home
+    through it (-7.1 m). Battery 36134: the net's PID was flying home when RTL took over and
+    clipped the barn's corner (-0.3 m). Neither is on the braking path the net handed over
+    (safety.judge.answered): reported, not failed."""
+    spec, table = load_envelope(default_envelope_path("quadrotor"))
+    sp = fill_dataclass(SupervisorParams, table, "supervisor")
+    p = DrillParams()
+    for index, deep in ((43134, 6.0), (36134, 0.2)):  # the mast, the barn
+        d = make_drill("battery", index, drill_rng(0, "quadrotor", index), spec, p)
+        r = run_drill(d.script, make_vehicle(d, 0), d.spec, sp, p)
+        assert r.passed, r.why
+        assert r.yielded == "RTL" and r.overridden == 0
+        assert r.min_clearance_m > 0.0  # the samples the net answers for stayed inside
+        assert r.autopilot_excursion_mode == "RTL" and r.autopilot_excursion_m > deep
+        assert (
+            "path crossed the fence: reported" in {c.name: c for c in r.checks}["failsafe"].reason
+        )

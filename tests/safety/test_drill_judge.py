@@ -19,6 +19,7 @@ from skyherd.safety.judge import (
     ModeChange,
     NetRecord,
     Truth,
+    answered,
     clearances,
     first_failed,
     judge,
@@ -87,8 +88,66 @@ def test_after_a_yield_the_net_answers_only_until_its_stopping_time(spec):
         first_failed(checks) is by["failsafe"]
         and "own HOLD after the yield" in by["failsafe"].reason
     )
-    late = dataclasses.replace(yielded, answers_until=math.inf)  # a net that never yielded
+    late = NetRecord(("x",))  # a net that never yielded: the RTL track is its own
     assert not run(spec, truth, net=late, changes=ch)[0]["fence"].ok
+
+
+def track_truth(points, modes, t0=10.0, dt=0.02):
+    """A hand-made truth through (t, north, east) points, linear between them, at 20 m;
+    modes: (t_from, mode) in order."""
+    pts = np.asarray(points, float)
+    t = np.arange(t0, pts[-1, 0] + 1e-9, dt)
+    pos = np.stack([np.interp(t, pts[:, 0], pts[:, 1]), np.interp(t, pts[:, 0], pts[:, 2]),
+                    np.full_like(t, -20.0)], axis=1)  # fmt: skip
+    mode = tuple(next(m for tm, m in reversed(modes) if x >= tm - 1e-9) for x in t)
+    return Truth(t, pos, np.ones(len(t), bool), mode)
+
+
+RTL_AT_20 = NetRecord(("x",), "RTL", 20.0, 23.8)  # a yield at 20 s, answers up to 23.8 s
+
+
+def test_after_an_rtl_yield_the_net_answers_for_the_stop_it_handed_over(spec):
+    """The net's momentum across the fence after a yield to RTL is the net's breach: at 8 m/s
+    3 m short of the fence (north 35), the vehicle brakes at 4 m/s² along its path (8 m) and
+    overshoots 5 m, then RTL brings it home. Eq. 3's reach at 8 m/s: 0.3 x 8 + 64 / 5 = 15.2 m."""
+    run_in = track_truth([(10, -48, 0), (20, 32, 0), (22, 40, 0), (30, 0, 0)],
+                         [(10, "OFFBOARD"), (20, "RTL")])  # fmt: skip
+    ch = [ModeChange(20.0, "RTL", True, False)]
+    by, checks = run(spec, run_in, net=RTL_AT_20, changes=ch)
+    assert first_failed(checks) is by["fence"] and by["fence"].value == pytest.approx(-5.0)
+    assert answered(run_in, spec, RTL_AT_20)[run_in.t <= 23.8].all()  # all on its braking path
+
+
+def test_after_an_rtl_yield_its_turn_across_a_boundary_is_the_autopilots_path(spec):
+    """Flying east at 8 m/s, 5 m inside the fence, the net yields to RTL, which turns north
+    across the fence 1 s later (home beyond it, say): 6 m off the braking path east at the
+    breach (margin 2 m): the autopilot's line home, reported; the same track in the
+    autopilot's own HOLD fails (the failsafe check), and in OFFBOARD (the net's) the fence."""
+    turn = track_truth([(10, 30, -80), (20, 30, 0), (21, 30, 6), (23, 39, 6), (30, 39, 6)],
+                       [(10, "OFFBOARD"), (20, "RTL")])  # fmt: skip
+    ch = [ModeChange(20.0, "RTL", True, False)]
+    by, checks = run(spec, turn, net=RTL_AT_20, changes=ch)
+    assert all(c.ok for c in checks), verdict(checks)
+    assert "path crossed the fence: reported" in by["failsafe"].reason
+    assert "its own flight -4.00 m from the fence at worst (RTL)" in by["failsafe"].figure
+    mask = answered(turn, spec, RTL_AT_20)
+    assert not mask[(turn.t > 21.5) & (turn.t <= 23.8)].any() and mask[turn.t <= 20.9].all()
+    hold = Truth(turn.t, turn.pos_ned, turn.armed,
+                 tuple("HOLD" if m == "RTL" else m for m in turn.mode))  # fmt: skip
+    by, checks = run(spec, hold, net=dataclasses.replace(RTL_AT_20, yielded="HOLD"),
+                     changes=[ModeChange(20.0, "HOLD", True, False)])  # fmt: skip
+    assert first_failed(checks) is by["fence"]  # HOLD: the whole window is the net's
+    ours = Truth(turn.t, turn.pos_ned, turn.armed, ("OFFBOARD",) * len(turn.t))
+    by, checks = run(spec, ours, net=RTL_AT_20, changes=ch)
+    assert first_failed(checks) is by["fence"]  # not in RTL / LAND: the net's
+
+
+def test_a_vehicle_that_cannot_stop_answers_for_its_whole_window(spec):
+    """decel_h 0 (a fixed-wing's set): no braking path, the whole run-on window is the net's."""
+    turn = track_truth([(10, 30, -80), (20, 30, 0), (21, 30, 6), (23, 39, 6), (30, 39, 6)],
+                       [(10, "OFFBOARD"), (20, "RTL")])  # fmt: skip
+    glide = dataclasses.replace(spec, dynamics=dataclasses.replace(spec.dynamics, decel_h_mps2=0.0))
+    assert answered(turn, glide, RTL_AT_20)[turn.t <= 23.8].all()
 
 
 def test_the_net_never_undoes_the_autopilots_failsafe(spec):
