@@ -45,8 +45,8 @@ from skyherd.flight.state import VehicleState
 from skyherd.groundsim.ugv import UGVModel
 from skyherd.perception.camera import CameraParams
 from skyherd.perception.gimbal import ORBIT_CAMERA
+from skyherd.safety.compiled import kernels
 from skyherd.safety.envelope import NZ, P
-from skyherd.safety.kernels import worst_residual
 from skyherd.safety.monitor import make_z
 from skyherd.safety.supervisor import Supervisor
 
@@ -173,7 +173,7 @@ def circle_certified(geometry, centre_ne, radius_m: float, alt_m: float, reserve
     z = np.zeros(NZ)
     z[P] = (centre_ne[0], centre_ne[1], -alt_m)
     e = geometry
-    w = worst_residual(e.A, b, z, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
+    w = kernels().worst_residual(e.A, b, z, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
     return bool(w <= 0.0)
 
 

@@ -34,7 +34,6 @@ split into convex pieces; the splits are not fences, so their rows carry the pre
 from __future__ import annotations
 
 import enum
-import functools
 import math
 from dataclasses import dataclass, field
 
@@ -50,13 +49,12 @@ from skyherd.safety.geometry import (
 )
 
 
-@functools.cache
 def _kernels():
-    """The compiled kernels, imported on first use: loading or checking an envelope (`skyherd
-    fly` validating its file) does not compile numba."""
-    from skyherd.safety import kernels
+    """The compiled kernels (safety.compiled), looked up on first use: loading or checking an
+    envelope (`skyherd fly` validating its file) loads none."""
+    from skyherd.safety.compiled import kernels
 
-    return kernels
+    return kernels()
 
 
 CAMERA_TIMEOUT_S = 1.0  # the camera guard's default: no frame for longer = camera lost [s]

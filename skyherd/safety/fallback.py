@@ -14,8 +14,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import osqp
-import scipy.sparse as sp
 
 from skyherd.flight.autopilot_api import Setpoint
 from skyherd.flight.geo import GRAVITY
@@ -129,6 +127,13 @@ def selected_rows(geometry: Envelope, pos_ned: np.ndarray) -> tuple[np.ndarray, 
     return geometry.selected(r), r
 
 
+def default_algebra() -> str:
+    """osqp.default_algebra() (importing OSQP and the SciPy it needs)."""
+    import osqp
+
+    return osqp.default_algebra()
+
+
 def inside_with_margin(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> bool:
     """Every selected position row holds with its recovery margin (row_margins)."""
     sel, r = selected_rows(geometry, pos_ned)
@@ -145,12 +150,16 @@ def recovery_target(
 
     Halves the margins until feasible (a small piece may not fit them). NED [m].
     algebra: OSQP's linear-algebra backend (None: osqp.default_algebra(), which OSQP() would
-    pick too, found by trying to import each backend: ~80 µs a look-up)."""
+    pick too, found by trying to import each backend: ~80 µs a look-up). OSQP and SciPy are
+    imported here, at the first recovery, not by every companion (~0.2 CPU s)."""
+    import osqp
+    import scipy.sparse as sp
+
     sel, _ = selected_rows(geometry, pos_ned)
     A = geometry.A[sel][:, P]
     b = geometry.b[sel]
     m = row_margins(geometry, margin_m)[sel]
-    algebra = algebra or osqp.default_algebra()
+    algebra = algebra or default_algebra()
     for _ in range(8):
         prob = osqp.OSQP(algebra=algebra)
         prob.setup(
@@ -219,7 +228,14 @@ class RecoveryPID:
         self.target = np.zeros(3)
         self.integral = np.zeros(3)
         self.t_last: float | None = None
-        self.algebra = osqp.default_algebra()  # recovery_target's, looked up once
+        self._algebra: str | None = None  # recovery_target's, looked up once (algebra)
+
+    @property
+    def algebra(self) -> str:
+        """OSQP's linear-algebra backend for recovery_target, looked up at the first recovery."""
+        if self._algebra is None:
+            self._algebra = default_algebra()
+        return self._algebra
 
     def engage(self, state: VehicleState) -> None:
         self.target = recovery_target(self.geometry, state.pos_ned, self.margin, self.algebra)

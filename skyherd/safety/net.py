@@ -31,6 +31,7 @@ from skyherd.flight.autopilot_api import Autopilot, FlightMode, ModeSource, Resu
 from skyherd.flight.geo import GRAVITY
 from skyherd.flight.state import VehicleState
 from skyherd.safety.authority import NET_MODES, Authority
+from skyherd.safety.compiled import ensure_built
 from skyherd.safety.config import default_envelope_path, fill_dataclass, load_envelope
 from skyherd.safety.consistency import ParamGuard
 from skyherd.safety.fallback import inside_with_margin
@@ -252,17 +253,31 @@ class SafetyNet:
         return self.authority.request(self.wanted_mode(d))
 
 
-def warm_up(envelope, params) -> float:
-    """Run a throwaway Supervisor over the same envelope through AI, FALLBACK and PID once, so
-    that the numba kernels load and the recovery QP is built before the flight, not inside
-    the MAVLink receive thread at the first switch (a stall there, ~1 s wall, is 20 s of vehicle
-    time at 20×). Returns the wall time it took [s]."""
+def _warm_state(t: float, north_m: float) -> VehicleState:
+    return VehicleState(t=t, pos_ned=np.array([north_m, 0.0, -100.0]),
+                        vel_ned=np.array([20.0, 0.0, 0.0]), quat=np.array([1.0, 0.0, 0.0, 0.0]),
+                        omega_frd=np.zeros(3), accel_frd=np.array([0.0, 0.0, -GRAVITY]),
+                        on_ground=False)  # fmt: skip
+
+
+def warm_up(envelope, params, qp: bool = True) -> float:
+    """Build the net's kernels ahead of time when they are not yet (safety.compiled: then the
+    process loads neither numba nor its cache), then run a throwaway Supervisor over the same
+    envelope through AI, FALLBACK and PID once, so that the kernels load and the recovery QP is
+    built before the flight, not inside the MAVLink receive thread at the first switch (a stall
+    there, ~1 s wall, is 20 s of vehicle time at 20×). qp False (a companion in lockstep, whose
+    simulator waits for it: a stall costs the vehicle no time): the QP is left to the first
+    switch that needs one, and with it the import of OSQP and SciPy (~0.2 CPU s, which a flight
+    that never needs the QP does not spend). Returns the wall time it took [s]."""
     t0 = time.perf_counter()
+    ensure_built()
     sv = Supervisor(envelope, params, None)
+    if not qp:  # the kernels only: a state inside, its selected polyhedron
+        sv.update(0.0, _warm_state(0.0, 0.0), Setpoint(vel_ned=np.array([20.0, 0.0, 0.0])))
+        envelope.selected(envelope.residual(np.zeros(envelope.A.shape[1])))
+        return time.perf_counter() - t0
     for k, north in enumerate((0.0, 5000.0)):  # inside, then far outside the fence
-        st = VehicleState(t=float(k), pos_ned=np.array([north, 0.0, -100.0]),
-                vel_ned=np.array([20.0, 0.0, 0.0]), quat=np.array([1.0, 0.0, 0.0, 0.0]),
-                omega_frd=np.zeros(3), accel_frd=np.array([0.0, 0.0, -GRAVITY]), on_ground=False)  # fmt: skip
+        st = _warm_state(float(k), north)
         sv.update(float(k), st, Setpoint(vel_ned=np.array([20.0, 0.0, 0.0])))
         sv.fallback.engage(st)
         sv.fallback.command(st)

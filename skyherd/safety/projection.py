@@ -14,11 +14,9 @@ None and the caller falls back.
 from __future__ import annotations
 
 import numpy as np
-import osqp
-import scipy.sparse as sp
 
+from skyherd.safety.compiled import kernels
 from skyherd.safety.envelope import NZ, Envelope, U
-from skyherd.safety.kernels import select_mask
 
 INF = 1e30
 
@@ -36,7 +34,9 @@ def qp_cvxpy(A_u: np.ndarray, h: np.ndarray, u0: np.ndarray) -> np.ndarray | Non
 
 
 class Projector:
-    """OSQP projection onto the command rows of one envelope (set up once)."""
+    """OSQP projection onto the command rows of one envelope (set up once, at the first
+    projection the closed form does not answer: OSQP and the SciPy it needs are imported
+    then, ~0.2 CPU s, not by every companion that never needs them)."""
 
     def __init__(self, envelope: Envelope, tighten: float = 1e-4, eps: float = 1e-5):
         self.envelope = envelope
@@ -45,23 +45,34 @@ class Projector:
         self.cmd_rows = np.flatnonzero(np.any(Au != 0, axis=1))  # rows the command can change
         self.state_rows = np.flatnonzero(~np.any(Au != 0, axis=1))
         self.A_u = np.ascontiguousarray(Au[self.cmd_rows])
-        self._solver = osqp.OSQP()
-        k = len(self.cmd_rows)
-        self._solver.setup(
-            sp.csc_matrix(2.0 * np.eye(3)),
-            np.zeros(3),
-            sp.csc_matrix(self.A_u),
-            -INF * np.ones(k),
-            INF * np.ones(k),
-            verbose=False,
-            eps_abs=eps,
-            eps_rel=eps,
-            polishing=True,
-            max_iter=4000,
-            warm_starting=True,
-            check_termination=5,  # test convergence every 5 iterations (default 25)
-        )
+        self.eps = eps
+        self._solver = None  # OSQP, set up by solver() on first use
+        self._select_mask = kernels().select_mask
         self._z = np.zeros(NZ)
+
+    def solver(self):
+        """The OSQP problem over A_u (sparsity fixed; bounds and q updated per call)."""
+        if self._solver is None:
+            import osqp
+            import scipy.sparse as sp
+
+            k = len(self.cmd_rows)
+            self._solver = osqp.OSQP()
+            self._solver.setup(
+                sp.csc_matrix(2.0 * np.eye(3)),
+                np.zeros(3),
+                sp.csc_matrix(self.A_u),
+                -INF * np.ones(k),
+                INF * np.ones(k),
+                verbose=False,
+                eps_abs=self.eps,
+                eps_rel=self.eps,
+                polishing=True,
+                max_iter=4000,
+                warm_starting=True,
+                check_termination=5,  # test convergence every 5 iterations (default 25)
+            )
+        return self._solver
 
     def bounds(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
         """(A_u, h) of the selected polyhedron for state z[:8], and whether its state-only rows
@@ -71,7 +82,7 @@ class Projector:
         zs[:] = z
         zs[U] = z[3:6]  # judge pieces and faces at 'keep the current velocity'
         r = e.A @ zs - e.b
-        sel = select_mask(r, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
+        sel = self._select_mask(r, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
         state_ok = bool(np.all(r[self.state_rows] <= 0, where=sel[self.state_rows]))
         zs[U] = 0.0
         r0 = e.A[self.cmd_rows] @ zs - e.b[self.cmd_rows]  # A_x x - b
@@ -101,7 +112,7 @@ class Projector:
                 if self.envelope.worst(zz) <= 0.0:
                     return u
         # the extension object directly: the Python wrapper's bookkeeping costs ~30 µs a call
-        ext = self._solver._solver
+        ext = self.solver()._solver
         ext.update_data_vec(q=-2.0 * u0, l=None, u=hb)
         ext.solve()
         if ext.info.status_val not in (1, 2):  # solved, solved inaccurate

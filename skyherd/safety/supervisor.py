@@ -29,6 +29,7 @@ from skyherd.flight.autopilot_api import FlightMode, Setpoint
 from skyherd.flight.geo import GRAVITY
 from skyherd.flight.state import VehicleState
 from skyherd.runio.constants import POS_SPEED_MAX_MPS
+from skyherd.safety.compiled import kernels
 from skyherd.safety.envelope import CAMERA_TIMEOUT_S, NZ, Envelope
 from skyherd.safety.fallback import (
     HoverFallback,
@@ -37,7 +38,6 @@ from skyherd.safety.fallback import (
     RecoveryPID,
     inside_with_margin,
 )
-from skyherd.safety.kernels import nearest_active, worst_residual
 from skyherd.safety.monitor import Monitor, make_z
 from skyherd.safety.projection import Projector
 
@@ -295,6 +295,8 @@ class Supervisor:
         self.last_t: float | None = None
         self.stats = SupervisorStats()
         self._z = np.zeros(NZ)
+        k = kernels()  # ahead of time when built (safety.compiled), else numba's
+        self._worst_residual, self._nearest_active = k.worst_residual, k.nearest_active
         e = envelope
         self._args = (e.A, e.b, self._z, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
         self._near_args = (
@@ -369,9 +371,9 @@ class Supervisor:
             i = int(r.argmax())
             if not r[i] <= 0.0:  # NaN too
                 return Severity.FALLBACK, self._dyn_names[i], None
-        w = worst_residual(*self._args)
+        w = self._worst_residual(*self._args)
         if w <= 0.0:
-            i = nearest_active(*self._near_args)
+            i = self._nearest_active(*self._near_args)
             if i >= 0:
                 return Severity.NEAR, self.envelope.names[i], u
             return Severity.NONE, "", u

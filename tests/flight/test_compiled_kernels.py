@@ -5,6 +5,7 @@ simulator process went to importing numba and loading its cache)."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -37,7 +38,7 @@ def _flight(ap: MultirotorAutopilot) -> np.ndarray:
 
 
 def test_compiled_kernels_fly_as_numbas_jit_to_the_bit(built):
-    jit = compiled._jit()
+    jit = compiled.AOT.jit()
     assert built.control_step_packed is not jit.control_step_packed  # the compiled module's
     a, b = MultirotorAutopilot(seed=5), MultirotorAutopilot(seed=5)
     b._control_step, b._level_with_yaw = jit.control_step_packed, jit.level_with_yaw
@@ -47,16 +48,17 @@ def test_compiled_kernels_fly_as_numbas_jit_to_the_bit(built):
 
 
 def test_a_build_for_other_sources_or_settings_is_not_loaded(built, monkeypatch, tmp_path):
-    here = compiled.stamp()
+    aot = compiled.AOT
+    here = aot.stamp()
     monkeypatch.setenv("NUMBA_CPU_NAME", "generic")  # numba's JIT would compile other code
-    assert compiled.stamp() != here
+    assert aot.stamp() != here
     monkeypatch.delenv("NUMBA_CPU_NAME")
     changed = tmp_path / "control.py"
-    changed.write_bytes(compiled.SOURCES[0].read_bytes() + b"\n# changed\n")
-    monkeypatch.setattr(compiled, "SOURCES", (changed, *compiled.SOURCES[1:]))
-    assert compiled.stamp() != here
-    jit = compiled._jit()
-    assert compiled.kernels().control_step_packed is jit.control_step_packed  # numba's, not stale
+    changed.write_bytes(aot.sources[0].read_bytes() + b"\n# changed\n")
+    other = dataclasses.replace(aot, sources=(changed, *aot.sources[1:]))
+    assert other.stamp() != here
+    jit = aot.jit()
+    assert other.kernels().control_step_packed is jit.control_step_packed  # numba's, not stale
 
 
 WARM = """
