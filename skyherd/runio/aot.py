@@ -17,7 +17,7 @@ the CPU, numba's environment, Python's version), so a stale build is never loade
 ahead-of-time compiler is given the host CPU's name and features, as its JIT has them: the same
 instructions, the same rounding, and the same results to the bit as the JIT's kernels
 (docs/topology.md's hashes; tests/flight/test_compiled_kernels.py,
-tests/safety/test_safety_compiled.py). A build that fails (no C compiler) is said once on
+tests/safety/test_safety_compiled.py). A build that fails (no C compiler, tests/runio/test_aot.py) is said once on
 stderr and remembered beside it (`<name>.failed`: delete it to try again); the kernels are then
 numba's JIT, as before.
 

@@ -6,7 +6,6 @@ simulator process went to importing numba and loading its cache)."""
 from __future__ import annotations
 
 import dataclasses
-import os
 import subprocess
 import sys
 
@@ -73,19 +72,3 @@ def test_warm_up_with_the_build_imports_no_numba(built):
     out = subprocess.run([sys.executable, "-c", WARM], capture_output=True, text=True,
                          timeout=300, check=True).stdout.split()  # fmt: skip
     assert out == ["False", "False"]  # neither numba (nor the SciPy it checks for BLAS)
-
-
-NO_COMPILER = """
-from skyherd.flight.multirotor import compiled
-print(compiled.ensure_built(), compiled.ensure_built(), type(compiled.kernels().level_with_yaw).__name__)
-"""
-
-
-def test_without_a_c_compiler_it_says_so_once_and_numbas_jit_flies(tmp_path):
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), PATH=str(tmp_path / "no-compiler"))
-    out = subprocess.run([sys.executable, "-c", NO_COMPILER], env=env, capture_output=True,
-                         text=True, timeout=300, check=True)  # fmt: skip
-    assert out.stdout.split() == ["False", "False", "CPUDispatcher"]  # numba's kernels
-    said = [ln for ln in out.stderr.splitlines() if "not compiled ahead of time" in ln]
-    assert len(said) == 1 and "compiler" in said[0], out.stderr[-1000:]
-    assert len(list((tmp_path / "skyherd_aot").glob("*.failed"))) == 1  # not tried again
