@@ -8,7 +8,6 @@ import json
 import shlex
 import subprocess
 import sys
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +55,8 @@ def envelope_facts(spec: Any) -> dict[str, Any]:
 def code_version(repo: Path = REPO) -> dict[str, Any]:
     """The git commit of the code (and whether the work tree had changes), else the installed
     package version."""
+    from importlib import metadata  # here: ~0.05 CPU s that most processes never spend
+
     out: dict[str, Any] = {}
     try:
         out["package_version"] = metadata.version("skyherd")

@@ -16,7 +16,6 @@ import json
 import os
 import platform
 import sys
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -108,7 +107,10 @@ def _finite(v: Any) -> Any:
 
 
 def versions() -> dict[str, str]:
-    """Versions of Python and the packages a run depends on."""
+    """Versions of Python and the packages a run depends on (importlib.metadata, imported
+    here: ~0.05 CPU s that a process writing no config.json does not spend)."""
+    from importlib import metadata
+
     out = {"python": sys.version.split()[0], "platform": platform.platform()}
     for pkg in (
         "skyherd",

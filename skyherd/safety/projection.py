@@ -47,7 +47,6 @@ class Projector:
         self.A_u = np.ascontiguousarray(Au[self.cmd_rows])
         self.eps = eps
         self._solver = None  # OSQP, set up by solver() on first use
-        self._select_mask = kernels().select_mask
         self._z = np.zeros(NZ)
 
     def solver(self):
@@ -82,7 +81,7 @@ class Projector:
         zs[:] = z
         zs[U] = z[3:6]  # judge pieces and faces at 'keep the current velocity'
         r = e.A @ zs - e.b
-        sel = self._select_mask(r, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
+        sel = kernels().select_mask(r, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
         state_ok = bool(np.all(r[self.state_rows] <= 0, where=sel[self.state_rows]))
         zs[U] = 0.0
         r0 = e.A[self.cmd_rows] @ zs - e.b[self.cmd_rows]  # A_x x - b

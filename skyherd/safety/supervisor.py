@@ -295,8 +295,6 @@ class Supervisor:
         self.last_t: float | None = None
         self.stats = SupervisorStats()
         self._z = np.zeros(NZ)
-        k = kernels()  # ahead of time when built (safety.compiled), else numba's
-        self._worst_residual, self._nearest_active = k.worst_residual, k.nearest_active
         e = envelope
         self._args = (e.A, e.b, self._z, e.n_base, e.n_piece_end, e.piece_starts, e.zone_starts)
         self._near_args = (
@@ -371,9 +369,10 @@ class Supervisor:
             i = int(r.argmax())
             if not r[i] <= 0.0:  # NaN too
                 return Severity.FALLBACK, self._dyn_names[i], None
-        w = self._worst_residual(*self._args)
+        k = kernels()  # looked up per call: a build made after this net was, once there, is used
+        w = k.worst_residual(*self._args)
         if w <= 0.0:
-            i = self._nearest_active(*self._near_args)
+            i = k.nearest_active(*self._near_args)
             if i >= 0:
                 return Severity.NEAR, self.envelope.names[i], u
             return Severity.NONE, "", u
