@@ -19,12 +19,29 @@ VERDICT_COLOURS = {"accepted": "#2ca02c", "projected": "#f2c12e", "rejected": "#
 PHASE_SHADES = ("#f2f2f2", "#dfe8f3")  # alternating backgrounds of the phases
 
 
-def figure(size):
+def pyplot():
+    """matplotlib.pyplot on the Agg backend, imported without the property tables of its
+    artists' `set()` docstrings: matplotlib builds one per Artist class as the class is
+    defined (matplotlib.artist.kwdoc, ~0.07 CPU s of a process that only saves figures;
+    `help(Line2D.set)` in that process lists no properties). Already imported: as it is."""
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.artist as artist
 
+    kwdoc = getattr(artist, "kwdoc", None)
+    if kwdoc is not None:
+        artist.kwdoc = lambda _artist: ""
+    try:
+        import matplotlib.pyplot as plt
+    finally:
+        if kwdoc is not None:
+            artist.kwdoc = kwdoc
+    return plt
+
+
+def figure(size):
+    plt = pyplot()
     return plt, plt.figure(figsize=size)
 
 
