@@ -17,9 +17,9 @@ the CPU, numba's environment, Python's version), so a stale build is never loade
 ahead-of-time compiler is given the host CPU's name and features, as its JIT has them: the same
 instructions, the same rounding, and the same results to the bit as the JIT's kernels
 (docs/topology.md's hashes; tests/flight/test_compiled_kernels.py,
-tests/safety/test_safety_compiled.py). A build that fails (no C compiler, tests/runio/test_aot.py) is said once on
-stderr and remembered beside it (`<name>.failed`: delete it to try again); the kernels are then
-numba's JIT, as before.
+tests/safety/test_safety_compiled.py). A build that fails (no C compiler: tests/runio/test_aot.py)
+is said once on stderr and remembered beside it (`<name>.failed`: delete it to try again); the
+kernels are then numba's JIT, as before.
 
 An exported function takes exactly the types of its signature: the compiled module converts no
 argument (an array of another dtype with the same item size is read as if it were of the
@@ -106,6 +106,10 @@ class AotModule:
         if os.environ.get("NUMBA_CACHE_DIR"):
             return Path(os.environ["NUMBA_CACHE_DIR"]) / "skyherd_aot"
         return self.home
+
+    def is_built(self) -> bool:
+        """Whether the module for this stamp is there (kernels() then loads it)."""
+        return self._built(self.prefix + self.stamp()) is not None
 
     def _built(self, name: str) -> Path | None:
         d = self.cache_dir()

@@ -56,7 +56,7 @@ def kernels() -> SimpleNamespace:
 def ensure_built(timeout_s: float = 600.0) -> bool:
     """Build the compiled module when it is missing (runio.aot.AotModule.ensure_built); a new
     build is what kernels() returns from then on in this process."""
-    had = AOT._built(AOT.prefix + AOT.stamp()) is not None
+    had = AOT.is_built()
     ok = AOT.ensure_built(timeout_s)
     if ok and not had:
         kernels.cache_clear()
