@@ -57,6 +57,11 @@ _FMT_BODY = (
 )
 REPLY_FMT = "\n{" + _FMT_BODY + "}\n"
 REPLY_FMT_AIRSPEED = "\n{" + _FMT_BODY + ',"airspeed":%.9g}\n'
+# the same formats as bytes: the reply is formatted straight into the datagram's bytes
+_REPLY_B = REPLY_FMT.encode()
+_REPLY_AIRSPEED_B = REPLY_FMT_AIRSPEED.encode()
+_TIMEVAL = struct.Struct("@ll")  # struct timeval of SO_RCVTIMEO
+_UNSET = object()
 
 
 def json_port(instance: int) -> int:
@@ -135,12 +140,33 @@ class ArduPilotJsonBridge:
         self._last_fc: int | None = None
         self._reply = b""
         self._reply_wall = 0.0
+        self._timeout: object = _UNSET  # the socket's receive timeout [s] (None: forever)
+        # the quadrotor's step arguments, bound once (the model's arrays change in place)
+        self._quad = None
+        if isinstance(self.body, QuadBody):
+            b, c = self.body, self.config
+            m = b.model
+            self._quad = (c.pwm_min, c.pwm_max, m.x, m.aux, m.p, b.u, b.params.physics_dt, b.out)
 
     # ---- socket ---------------------------------------------------------------------------
     def open(self) -> ArduPilotJsonBridge:
         if self._sock is None:
             self._sock = bind_socket(socket.SOCK_DGRAM, self.host, self.port, self.instance)
+            self._timeout = _UNSET
         return self
+
+    def _wait_at_most(self, sock: socket.socket, timeout_s: float | None) -> None:
+        """Let `recvfrom` itself wait at most timeout_s (SO_RCVTIMEO; None: forever) on a
+        blocking socket: a frame is then one recvfrom and one sendto. Python's own timeout
+        would add a poll() per receive, and setting it per frame an ioctl."""
+        if self._timeout is not _UNSET and timeout_s == self._timeout:
+            return
+        self._timeout = timeout_s
+        sock.settimeout(None)
+        us = 0 if timeout_s is None else max(1, round(timeout_s * 1e6))
+        sock.setsockopt(
+            socket.SOL_SOCKET, socket.SO_RCVTIMEO, _TIMEVAL.pack(us // 1_000_000, us % 1_000_000)
+        )
 
     def open_port(self) -> ArduPilotJsonBridge:
         """The common bridge API's name for `open` (see hil/bridge_select.py)."""
@@ -197,26 +223,15 @@ class ArduPilotJsonBridge:
         self._last_fc = fc
         dt = 1.0 / rate
         body = self.body
-        if isinstance(body, QuadBody):
-            m = body.model
-            c = self.config
-            quad_step_pwm(
-                rx,
-                c.pwm_min,
-                c.pwm_max,
-                m.x,
-                m.aux,
-                m.p,
-                body.u,
-                dt,
-                body.params.physics_dt,
-                body.out,
-            )
+        quad = self._quad
+        if quad is not None:
+            pwm_min, pwm_max, x, aux, p, u, max_h, out = quad
+            quad_step_pwm(rx, pwm_min, pwm_max, x, aux, p, u, dt, max_h, out)
             body.t += dt
-            reply = (REPLY_FMT % (body.t, *body.out.tolist())).encode()
+            reply = _REPLY_B % (body.t, *out.tolist())
         else:
             body.step(dt, self._surfaces(rx))
-            reply = (REPLY_FMT_AIRSPEED % (body.t, *body.out.tolist(), body.airspeed)).encode()
+            reply = _REPLY_AIRSPEED_B % (body.t, *body.out.tolist(), body.airspeed)
         self.stats.frames += 1
         self._reply = reply
         self._reply_wall = now_wall
@@ -242,10 +257,10 @@ class ArduPilotJsonBridge:
     def step_once(self, timeout_s: float | None = 1.0) -> bool:
         """Wait up to timeout_s (wall) for one packet and answer it; True if physics stepped."""
         sock = self.open()._sock
-        sock.settimeout(timeout_s)
+        self._wait_at_most(sock, timeout_s)
         try:
             nbytes, addr = sock.recvfrom_into(self._rx)
-        except TimeoutError:
+        except (TimeoutError, BlockingIOError):  # SO_RCVTIMEO ran out (EAGAIN)
             return False
         stepped, reply = self.handle(nbytes, time.monotonic())
         if reply is not None:
@@ -265,7 +280,7 @@ class ArduPilotJsonBridge:
         on_step(bridge) runs after each physics step; returning True stops the loop.
         """
         sock = self.open()._sock
-        sock.settimeout(idle_timeout_s)
+        self._wait_at_most(sock, idle_timeout_s)
         rx, handle, sendto = self._rx, self.handle, sock.sendto
         recv, now = sock.recvfrom_into, time.monotonic
         t_end = math.inf if sim_duration_s is None else sim_duration_s
@@ -273,7 +288,7 @@ class ArduPilotJsonBridge:
         while self.body.t < t_end and self.stats.frames < n_end:
             try:
                 nbytes, addr = recv(rx)
-            except TimeoutError:
+            except (TimeoutError, BlockingIOError):  # SO_RCVTIMEO ran out (EAGAIN)
                 break
             stepped, reply = handle(nbytes, now())
             if reply is not None:
