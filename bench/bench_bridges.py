@@ -399,6 +399,7 @@ def _native_measured(path: Path, defaults: list[Path], sim_s: float = 60.0) -> d
 
     instance = 87
     mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    mav.robust_parsing = True  # SITL's SERIAL0 starts with text lines before MAVLink
     ask = mav.command_long_encode(1, 1, wire.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                   mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, 100_000, 0, 0, 0, 0, 0)  # fmt: skip
     ask = ask.pack(mav)
@@ -407,14 +408,14 @@ def _native_measured(path: Path, defaults: list[Path], sim_s: float = 60.0) -> d
         run.proc = autopilot_sitl.start_arducopter(path, instance, run.work, run.log, defaults,
                                                    speedup=0, model="+")  # fmt: skip
         link = run.link = _connect_serial0(5760 + 10 * instance)
-        link.settimeout(0.2)
+        link.settimeout(0.01)
         t_sim, asked, t_give_up = 0.0, 0.0, time.monotonic() + 120.0
         for until in (STEADY_FROM_S, sim_s):
             while t_sim < until:
                 now = time.monotonic()
                 if now > t_give_up:
                     raise RuntimeError(f"ArduCopter --model + stuck at {t_sim:.1f} s; see {run.work}")  # fmt: skip
-                if t_sim == 0.0 and now - asked > 0.5:  # until SYSTEM_TIME streams
+                if t_sim == 0.0 and now - asked > 0.01:  # until SYSTEM_TIME streams
                     link.sendall(ask)
                     asked = now
                 try:

@@ -39,8 +39,9 @@ from skyherd.flight.fixedwing.jsbsim_model import Surfaces
 from skyherd.flight.geo import DEFAULT_HOME, Home
 from skyherd.flight.quadrotor import QuadrotorParams
 from skyherd.flight.state import VehicleState
+from skyherd.hil.bridge_format import make_template, quad_frame
 from skyherd.hil.bridge_net import bind_socket
-from skyherd.hil.bridge_physics import PlaneBody, QuadBody, quad_step_pwm
+from skyherd.hil.bridge_physics import PlaneBody, QuadBody
 from skyherd.runio import ports
 
 JSON_BASE_PORT = ports.JSON_BASE  # runio.ports: every port an instance owns
@@ -60,6 +61,7 @@ REPLY_FMT_AIRSPEED = "\n{" + _FMT_BODY + ',"airspeed":%.9g}\n'
 # the same formats as bytes: the reply is formatted straight into the datagram's bytes
 _REPLY_B = REPLY_FMT.encode()
 _REPLY_AIRSPEED_B = REPLY_FMT_AIRSPEED.encode()
+_REPLY_TEMPLATE = make_template(REPLY_FMT)  # the quadrotor's reply, formatted compiled
 _TIMEVAL = struct.Struct("@ll")  # struct timeval of SO_RCVTIMEO
 _UNSET = object()
 
@@ -135,6 +137,7 @@ class ArduPilotJsonBridge:
         else:
             self.body = PlaneBody(self.home)
         self._rx = np.zeros(256, dtype=np.uint8)
+        self._tx = np.zeros(512, dtype=np.uint8)  # the compiled reply (+ its digit scratch)
         self._sock: socket.socket | None = None
         self._peer = None
         self._last_fc: int | None = None
@@ -226,9 +229,11 @@ class ArduPilotJsonBridge:
         quad = self._quad
         if quad is not None:
             pwm_min, pwm_max, x, aux, p, u, max_h, out = quad
-            quad_step_pwm(rx, pwm_min, pwm_max, x, aux, p, u, dt, max_h, out)
-            body.t += dt
-            reply = _REPLY_B % (body.t, *out.tolist())
+            t = body.t = body.t + dt
+            tx = self._tx
+            n = quad_frame(rx, pwm_min, pwm_max, x, aux, p, u, dt, max_h, out, t, _REPLY_TEMPLATE, tx)  # fmt: skip
+            # n < 0: a number the compiled conversion could not round for certain (rare)
+            reply = tx[:n].tobytes() if n >= 0 else _REPLY_B % (t, *out.tolist())
         else:
             body.step(dt, self._surfaces(rx))
             reply = _REPLY_AIRSPEED_B % (body.t, *body.out.tolist(), body.airspeed)
