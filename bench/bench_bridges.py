@@ -15,10 +15,14 @@ depend on how loaded the machine is; the socket figures are wall-clock and do.
 4. With SKYHERD_PX4_BIN / SKYHERD_ARDUCOPTER_BIN set (and run inside `unshare -n` with lo
    up): the real autopilot on the bridge, as fast as possible, for 60 s of simulated time on
    the ground (booting, its estimator converging; no client flies it): the lockstep's
-   real-time factor and each side's CPU per frame. Flights are the opt-in tests' job
-   (tests/e2e/test_bridge_autopilots.py: `skyherd fly --connect` on the bridge).
+   real-time factor and each side's CPU. ArduCopter is also flown on its own physics
+   (`--model +`, the same binary and parameters), alternated with the bridge for `--rounds`
+   rounds, and the ratio of the two real-time factors is printed against the target 0.5
+   (issue 31 item 4). Flights are the opt-in tests' job (tests/e2e/test_bridge_autopilots.py:
+   `skyherd fly --connect` on the bridge). SKYHERD_ARDUPILOT_DEFAULTS: a folder with
+   copter.parm (default: the binary's source tree). Instances 86 and 87.
 
-    .venv/bin/python bench/bench_bridges.py [--frames N]
+    .venv/bin/python bench/bench_bridges.py [--frames N] [--rounds N] [--only-autopilots]
 """
 
 from __future__ import annotations
