@@ -305,6 +305,7 @@ class _Run:
         self.proc: subprocess.Popen | None = None
         self.link: socket.socket | None = None
         self.marks: list[tuple[float, float, float]] = []  # (wall, ours CPU, autopilot CPU)
+        self.keep = True  # the folder (the autopilot's log) stays unless the run went through
         self.cpu0 = (_cpu_s(resource.RUSAGE_SELF), _cpu_s(resource.RUSAGE_CHILDREN))
         self.mark()
 
@@ -323,10 +324,14 @@ class _Run:
                 _cpu_s(resource.RUSAGE_CHILDREN) - self.cpu0[1])  # fmt: skip
 
     def close(self) -> None:
+        import shutil
+
         self.stop()
         if self.link is not None:
             self.link.close()
         self.log.close()
+        if not self.keep:
+            shutil.rmtree(self.work, ignore_errors=True)
 
     def row(self, sim_s: float, ours_total: float, theirs_total: float) -> dict:
         (w0, _, _), (w1, o1, t1), (w2, o2, t2) = self.marks
@@ -348,16 +353,21 @@ def _warm_json(bridge: ArduPilotJsonBridge) -> None:
 
 
 def _idle_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rates=None,
-                   sim_s: float = 60.0) -> dict:  # fmt: skip
+                   sim_s: float = 60.0, one_core: bool = False) -> dict:  # fmt: skip
     """The autopilot on the bridge as fast as possible for `sim_s` of simulated time: its
     real-time factor and the CPU seconds of each side (ours: this process; the autopilot's:
     the child). `fifo`: this process and the autopilot (which inherits it) at SCHED_FIFO
-    priority 1. Wall time counts from the autopilot's launch; the steady figures from
-    STEADY_FROM_S simulated on (its boot left out)."""
+    priority 1. `one_core`: both on one CPU (the autopilot inherits this process's affinity):
+    lockstep runs one side at a time, and a hand-off on one core is a plain context switch.
+    Wall time counts from the autopilot's launch; the steady figures from STEADY_FROM_S
+    simulated on (its boot left out)."""
     from skyherd.hil import autopilot_sitl
     from skyherd.hil.bridge_select import make_bridge
 
     instance = 86
+    cpus = os.sched_getaffinity(0)
+    if one_core:
+        os.sched_setaffinity(0, {max(cpus)})
     if fifo:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
     bridge = make_bridge("px4" if name == "px4" else "ardupilot", instance=instance).open_port()
@@ -379,15 +389,17 @@ def _idle_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rate
                     raise RuntimeError(f"{name} stopped answering at t = {bridge.t:.1f} s; see {run.work}")  # fmt: skip
             run.mark()
         ours, theirs = run.stop()
+        run.keep = False
     finally:
         bridge.close()
         run.close()
         if fifo:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        os.sched_setaffinity(0, cpus)
     frames = bridge.stats.frames
     row = run.row(bridge.t, ours, theirs)
     row.update({"autopilot": name, "physics": "skyherd", "priority": "fifo" if fifo else "normal",
-                "frames": frames,
+                "frames": frames, "one_core": one_core,
                 "rates": "" if rates is None else f" {rates.sim_rate_hz}/{rates.loop_rate_hz} Hz",
                 "us_per_frame_ours": round(1e6 * ours / max(1, frames), 1),
                 "us_per_frame_autopilot": round(1e6 * theirs / max(1, frames), 1)})  # fmt: skip
@@ -431,6 +443,7 @@ def _native_measured(path: Path, defaults: list[Path], sim_s: float = 60.0) -> d
                         t_sim = max(t_sim, m.time_boot_ms / 1000.0)
             run.mark()
         ours, theirs = run.stop()
+        run.keep = False
     finally:
         run.close()
     row = run.row(t_sim, ours, theirs)
@@ -454,7 +467,9 @@ def _print_row(row: dict) -> None:
     if row["physics"] == "native":
         what, who = "arducopter native (--model +)", "ours (SYSTEM_TIME reader)"
     else:
-        what, who = f"{row['autopilot']}{row['rates']} JSON {row['priority']}", "ours (bridge)"
+        where = " one core" if row["one_core"] else ""
+        what = f"{row['autopilot']}{row['rates']} JSON {row['priority']}{where}"
+        who = "ours (bridge)"
         if row["autopilot"] == "px4":
             what = f"px4 {row['priority']}"
     extra = ""
@@ -499,24 +514,30 @@ def real_autopilots(rounds: int = 3, variants: bool = False) -> list[dict]:
     defaults = _arducopter_defaults(Path(path))
     print(f"  arducopter defaults: {', '.join(str(d) for d in defaults) or 'none'} + skyherd's "
           f"frame and rates ({CopterRates().sim_rate_hz}/{CopterRates().loop_rate_hz} Hz)")  # fmt: skip
-    native, json_rows = [], []
-    for _ in range(rounds):  # alternated: the machine's load drifts over both alike
-        for row in (_native_measured(Path(path), defaults), _idle_measured("arducopter", Path(path), defaults, False)):  # fmt: skip
-            (native if row["physics"] == "native" else json_rows).append(row)
+    rows: dict[str, list[dict]] = {"native": [], "JSON": [], "JSON one core": []}
+    for _ in range(rounds):  # alternated: the machine's load drifts over all alike
+        for key in rows:
+            if key == "native":
+                row = _native_measured(Path(path), defaults)
+            else:
+                row = _idle_measured("arducopter", Path(path), defaults, False,
+                                     one_core=key == "JSON one core")  # fmt: skip
+            rows[key].append(row)
             out.append(row)
             _print_row(row)
-    for key, label in (("rtf_steady", "steady"), ("rtf", "from launch")):
-        n = sorted(r[key] for r in native)
-        j = sorted(r[key] for r in json_rows)
-        ratio = j[len(j) // 2] / n[len(n) // 2]
-        print(f"  JSON / native ({label}, medians of {rounds}): {j[len(j) // 2]:.2f}x / "
-              f"{n[len(n) // 2]:.2f}x = {ratio:.3f} (target >= 0.5: "
-              f"{'met' if ratio >= 0.5 else 'not met'}); JSON {j[0]:.2f}-{j[-1]:.2f}x, "
-              f"native {n[0]:.2f}-{n[-1]:.2f}x")  # fmt: skip
-    for key in ("autopilot_per_sim_s", "ours_per_sim_s"):
-        print(f"  CPU per simulated s, {key.split('_per')[0]}: JSON "
-              f"{sorted(r[key] for r in json_rows)[len(json_rows) // 2]:.4f} s, native "
-              f"{sorted(r[key] for r in native)[len(native) // 2]:.4f} s (medians)")  # fmt: skip
+
+    def median(key: str, field: str) -> float:
+        v = sorted(r[field] for r in rows[key])
+        return v[len(v) // 2]
+
+    for key in ("JSON", "JSON one core"):
+        for field, label in (("rtf_steady", "steady"), ("rtf", "from launch")):
+            j, n = median(key, field), median("native", field)
+            print(f"  {key} / native ({label}, medians of {rounds}): {j:.2f}x / {n:.2f}x = "
+                  f"{j / n:.3f} (target >= 0.5: {'met' if j / n >= 0.5 else 'not met'})")  # fmt: skip
+    for field in ("autopilot_per_sim_s", "ours_per_sim_s"):
+        print(f"  CPU per simulated s, {field.split('_per')[0]} (medians): "
+              + ", ".join(f"{key} {median(key, field):.4f} s" for key in rows))  # fmt: skip
     if variants:
         for fifo, rates in ((True, None), (False, CopterRates(200, 100))):
             try:

@@ -26,6 +26,7 @@ a frame_count going back means ArduPilot restarted: the physics is reset.
 
 from __future__ import annotations
 
+import ctypes
 import math
 import socket
 import struct
@@ -64,6 +65,12 @@ _REPLY_AIRSPEED_B = REPLY_FMT_AIRSPEED.encode()
 _REPLY_TEMPLATE = make_template(REPLY_FMT)  # the quadrotor's reply, formatted compiled
 _TIMEVAL = struct.Struct("@ll")  # struct timeval of SO_RCVTIMEO
 _UNSET = object()
+# connect(fd, {AF_UNSPEC}, len): how a connected UDP socket is disconnected (Python's own
+# connect takes no AF_UNSPEC address)
+_libc_connect = ctypes.CDLL(None, use_errno=True).connect
+_libc_connect.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_uint)
+_libc_connect.restype = ctypes.c_int
+_AF_UNSPEC_ADDR = bytes(16)
 
 
 def json_port(instance: int) -> int:
@@ -156,13 +163,14 @@ class ArduPilotJsonBridge:
         if self._sock is None:
             self._sock = bind_socket(socket.SOCK_DGRAM, self.host, self.port, self.instance)
             self._timeout = _UNSET
+            self._peer = None
         return self
 
     def _wait_at_most(self, sock: socket.socket, timeout_s: float | None) -> None:
         """Let `recvfrom` itself wait at most timeout_s (SO_RCVTIMEO; None: forever) on a
         blocking socket: a frame is then one recvfrom and one sendto. Python's own timeout
         would add a poll() per receive, and setting it per frame an ioctl."""
-        if self._timeout is not _UNSET and timeout_s == self._timeout:
+        if timeout_s == self._timeout:  # (_UNSET equals nothing)
             return
         self._timeout = timeout_s
         sock.settimeout(None)
@@ -261,17 +269,10 @@ class ArduPilotJsonBridge:
     # ---- loop -----------------------------------------------------------------------------
     def step_once(self, timeout_s: float | None = 1.0) -> bool:
         """Wait up to timeout_s (wall) for one packet and answer it; True if physics stepped."""
-        sock = self.open()._sock
-        self._wait_at_most(sock, timeout_s)
-        try:
-            nbytes, addr = sock.recvfrom_into(self._rx)
-        except (TimeoutError, BlockingIOError):  # SO_RCVTIMEO ran out (EAGAIN)
-            return False
-        stepped, reply = self.handle(nbytes, time.monotonic())
-        if reply is not None:
-            self._peer = addr
-            sock.sendto(reply, addr)
-        return stepped
+        sock = self._sock or self.open()._sock
+        if timeout_s != self._timeout:  # (_UNSET equals nothing)
+            self._wait_at_most(sock, timeout_s)
+        return bool(self._one_packet(sock))
 
     def serve(
         self,
@@ -286,18 +287,49 @@ class ArduPilotJsonBridge:
         """
         sock = self.open()._sock
         self._wait_at_most(sock, idle_timeout_s)
-        rx, handle, sendto = self._rx, self.handle, sock.sendto
-        recv, now = sock.recvfrom_into, time.monotonic
+        one = self._one_packet
         t_end = math.inf if sim_duration_s is None else sim_duration_s
         n_end = math.inf if max_frames is None else max_frames
         while self.body.t < t_end and self.stats.frames < n_end:
-            try:
-                nbytes, addr = recv(rx)
-            except (TimeoutError, BlockingIOError):  # SO_RCVTIMEO ran out (EAGAIN)
+            stepped = one(sock)
+            if stepped is None:  # the idle gap ran out
                 break
-            stepped, reply = handle(nbytes, now())
-            if reply is not None:
-                sendto(reply, addr)
             if stepped and on_step is not None and on_step(self):
                 break
         return self.stats
+
+    def _one_packet(self, sock: socket.socket) -> bool | None:
+        """Receive one packet and answer it: True if the physics stepped, None if the wait ran
+        out. After the first answer the socket is connected to the autopilot's address, so a
+        frame builds and parses no address (`recv_into` / `send`); the wait running out or the
+        autopilot gone (a refused send) disconnects it, so that a restarted autopilot, sending
+        from another port, is heard again."""
+        try:
+            if self._peer is not None:
+                nbytes, addr = sock.recv_into(self._rx), self._peer
+            else:
+                nbytes, addr = sock.recvfrom_into(self._rx)
+        except (TimeoutError, BlockingIOError):  # SO_RCVTIMEO ran out (EAGAIN)
+            self._disconnect(sock)
+            return None
+        except ConnectionRefusedError:  # the autopilot's port is closed (ICMP)
+            self._disconnect(sock)
+            return False
+        stepped, reply = self.handle(nbytes, time.monotonic())
+        if reply is not None:
+            if self._peer is None:
+                sock.connect(addr)
+                self._peer = addr
+            try:
+                sock.send(reply)
+            except ConnectionRefusedError:
+                self._disconnect(sock)
+        return stepped
+
+    def _disconnect(self, sock: socket.socket) -> None:
+        """Dissolve the socket's association with the autopilot (connect to AF_UNSPEC): it
+        receives from any sender again, and nothing already queued is lost."""
+        if self._peer is not None:
+            self._peer = None
+            if _libc_connect(sock.fileno(), _AF_UNSPEC_ADDR, len(_AF_UNSPEC_ADDR)) != 0:
+                raise OSError(ctypes.get_errno(), "cannot disconnect the JSON bridge's socket")
