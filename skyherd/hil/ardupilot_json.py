@@ -40,7 +40,7 @@ from skyherd.flight.fixedwing.jsbsim_model import Surfaces
 from skyherd.flight.geo import DEFAULT_HOME, Home
 from skyherd.flight.quadrotor import QuadrotorParams
 from skyherd.flight.state import VehicleState
-from skyherd.hil.bridge_format import make_template, quad_frame
+from skyherd.hil.bridge_format import compiled_for, make_template, quad_frame
 from skyherd.hil.bridge_net import bind_socket
 from skyherd.hil.bridge_physics import PlaneBody, QuadBody
 from skyherd.runio import ports
@@ -151,12 +151,15 @@ class ArduPilotJsonBridge:
         self._reply = b""
         self._reply_wall = 0.0
         self._timeout: object = _UNSET  # the socket's receive timeout [s] (None: forever)
-        # the quadrotor's step arguments, bound once (the model's arrays change in place)
+        # the quadrotor's step arguments, bound once (the model's arrays change in place), and
+        # its compiled frame for exactly their types (bridge_format.compiled_for)
         self._quad = None
         if isinstance(self.body, QuadBody):
             b, c = self.body, self.config
             m = b.model
             self._quad = (c.pwm_min, c.pwm_max, m.x, m.aux, m.p, b.u, b.params.physics_dt, b.out)
+            args = (self._rx, *self._quad[:7], 0.0, b.out, 0.0, _REPLY_TEMPLATE, self._tx)
+            self._quad_frame = compiled_for(quad_frame, args)
 
     # ---- socket ---------------------------------------------------------------------------
     def open(self) -> ArduPilotJsonBridge:
@@ -239,7 +242,7 @@ class ArduPilotJsonBridge:
             pwm_min, pwm_max, x, aux, p, u, max_h, out = quad
             t = body.t = body.t + dt
             tx = self._tx
-            n = quad_frame(rx, pwm_min, pwm_max, x, aux, p, u, dt, max_h, out, t, _REPLY_TEMPLATE, tx)  # fmt: skip
+            n = self._quad_frame(rx, pwm_min, pwm_max, x, aux, p, u, dt, max_h, out, t, _REPLY_TEMPLATE, tx)  # fmt: skip
             # n < 0: a number the compiled conversion could not round for certain (rare)
             reply = tx[:n].tobytes() if n >= 0 else _REPLY_B % (t, *out.tolist())
         else:
