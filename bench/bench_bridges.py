@@ -15,10 +15,14 @@ depend on how loaded the machine is; the socket figures are wall-clock and do.
 4. With SKYHERD_PX4_BIN / SKYHERD_ARDUCOPTER_BIN set (and run inside `unshare -n` with lo
    up): the real autopilot on the bridge, as fast as possible, for 60 s of simulated time on
    the ground (booting, its estimator converging; no client flies it): the lockstep's
-   real-time factor and each side's CPU per frame. Flights are the opt-in tests' job
-   (tests/e2e/test_bridge_autopilots.py: `skyherd fly --connect` on the bridge).
+   real-time factor and each side's CPU. ArduCopter is also flown on its own physics
+   (`--model +`, the same binary and parameters), alternated with the bridge for `--rounds`
+   rounds, and the ratio of the two real-time factors is printed against the target 0.5
+   (issue 31 item 4). Flights are the opt-in tests' job (tests/e2e/test_bridge_autopilots.py:
+   `skyherd fly --connect` on the bridge). SKYHERD_ARDUPILOT_DEFAULTS: a folder with
+   copter.parm (default: the binary's source tree). Instances 86 and 87.
 
-    .venv/bin/python bench/bench_bridges.py [--frames N]
+    .venv/bin/python bench/bench_bridges.py [--frames N] [--rounds N] [--only-autopilots]
 """
 
 from __future__ import annotations
@@ -279,59 +283,172 @@ def _cpu_s(who: int) -> float:
     return r.ru_utime + r.ru_stime
 
 
+def _proc_cpu_s(pid: int) -> float:
+    """utime + stime [s] of a running process (/proc, clock-tick resolution)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+STEADY_FROM_S = 5.0  # simulated seconds of boot left out of the steady-state figures
+
+
+class _Run:
+    """One autopilot process measured: its folder and log, its SERIAL0 link, and the wall
+    time and CPU of both sides at launch, at STEADY_FROM_S simulated and at the end."""
+
+    def __init__(self, name: str) -> None:
+        import tempfile
+
+        self.work = Path(tempfile.mkdtemp(prefix=f"skyherd-bench-{name}-"))
+        self.log = open(self.work / "autopilot.log", "wb")
+        self.proc: subprocess.Popen | None = None
+        self.link: socket.socket | None = None
+        self.marks: list[tuple[float, float, float]] = []  # (wall, ours CPU, autopilot CPU)
+        self.keep = True  # the folder (the autopilot's log) stays unless the run went through
+        self.cpu0 = (_cpu_s(resource.RUSAGE_SELF), _cpu_s(resource.RUSAGE_CHILDREN))
+        self.mark()
+
+    def mark(self) -> None:
+        theirs = _proc_cpu_s(self.proc.pid) if self.proc is not None else 0.0
+        self.marks.append((time.monotonic(), _cpu_s(resource.RUSAGE_SELF), theirs))
+
+    def stop(self) -> tuple[float, float]:
+        """Stop the autopilot; the CPU seconds (ours, the autopilot's) since launch."""
+        from skyherd.hil import autopilot_sitl
+
+        if self.proc is not None:
+            autopilot_sitl.stop(self.proc)
+            self.proc = None
+        return (_cpu_s(resource.RUSAGE_SELF) - self.cpu0[0],
+                _cpu_s(resource.RUSAGE_CHILDREN) - self.cpu0[1])  # fmt: skip
+
+    def close(self) -> None:
+        import shutil
+
+        self.stop()
+        if self.link is not None:
+            self.link.close()
+        self.log.close()
+        if not self.keep:
+            shutil.rmtree(self.work, ignore_errors=True)
+
+    def row(self, sim_s: float, ours_total: float, theirs_total: float) -> dict:
+        (w0, _, _), (w1, o1, t1), (w2, o2, t2) = self.marks
+        steady = sim_s - STEADY_FROM_S
+        return {"sim_s": round(sim_s, 1), "wall_s": round(w2 - w0, 3),
+                "rtf": round(sim_s / (w2 - w0), 2), "rtf_steady": round(steady / (w2 - w1), 2),
+                "cpu_ours_s": round(ours_total, 3), "cpu_autopilot_s": round(theirs_total, 3),
+                "ours_per_sim_s": round((o2 - o1) / steady, 4),
+                "autopilot_per_sim_s": round((t2 - t1) / steady, 4)}  # fmt: skip
+
+
+def _warm_json(bridge: ArduPilotJsonBridge) -> None:
+    """One servo packet through the bridge before the autopilot starts (numba's first call
+    stays out of the measurement), then back at rest with its counters at zero."""
+    bridge._rx[:40] = np.frombuffer(packets(1)[0], dtype=np.uint8)
+    bridge.handle(40, 0.0)
+    bridge.reset()
+    bridge.stats = type(bridge.stats)()
+
+
 def _idle_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rates=None,
-                   sim_s: float = 60.0) -> dict:  # fmt: skip
+                   sim_s: float = 60.0, one_core: bool = False) -> dict:  # fmt: skip
     """The autopilot on the bridge as fast as possible for `sim_s` of simulated time: its
     real-time factor and the CPU seconds of each side (ours: this process; the autopilot's:
-    the reaped child). `fifo`: this process and the autopilot (which inherits it) at
-    SCHED_FIFO priority 1."""
-    import tempfile
-
+    the child). `fifo`: this process and the autopilot (which inherits it) at SCHED_FIFO
+    priority 1. `one_core`: both on one CPU (the autopilot inherits this process's affinity):
+    lockstep runs one side at a time, and a hand-off on one core is a plain context switch.
+    Wall time counts from the autopilot's launch; the steady figures from STEADY_FROM_S
+    simulated on (its boot left out)."""
     from skyherd.hil import autopilot_sitl
     from skyherd.hil.bridge_select import make_bridge
 
-    instance = 75
-    work = Path(tempfile.mkdtemp(prefix=f"skyherd-bench-{name}-"))
+    instance = 86
+    cpus = os.sched_getaffinity(0)
+    if one_core:
+        os.sched_setaffinity(0, {max(cpus)})
     if fifo:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-    log = open(work / "autopilot.log", "wb")
-    proc, link = None, None
+    bridge = make_bridge("px4" if name == "px4" else "ardupilot", instance=instance).open_port()
+    if name != "px4":
+        _warm_json(bridge)
+    run = _Run(name)
     try:
-        ours0, theirs0 = _cpu_s(resource.RUSAGE_SELF), _cpu_s(resource.RUSAGE_CHILDREN)
-        bridge = make_bridge("px4" if name == "px4" else "ardupilot", instance=instance).open_port()
         if name == "px4":
-            proc = autopilot_sitl.start_px4(path, instance, work, log)
+            run.proc = autopilot_sitl.start_px4(path, instance, run.work, run.log)
             if not bridge.accept(60.0):
-                raise RuntimeError(f"PX4 did not connect; see {work}/autopilot.log")
+                raise RuntimeError(f"PX4 did not connect; see {run.work}/autopilot.log")
         else:
-            proc = autopilot_sitl.start_arducopter(path, instance, work, log, defaults, speedup=0,
-                                                   rates=rates or CopterRates())  # fmt: skip
-            link = _connect_serial0(5760 + 10 * instance)  # SITL waits for it before it runs
-        wall0 = time.monotonic()
-        while bridge.t < sim_s:
-            if not bridge.step_once(30.0):
-                raise RuntimeError(f"{name} stopped answering at t = {bridge.t:.1f} s; see {work}")
-        wall = time.monotonic() - wall0
-        frames = bridge.stats.frames
-        bridge.close()
-        autopilot_sitl.stop(proc)
-        proc = None
-        ours, theirs = (_cpu_s(resource.RUSAGE_SELF) - ours0,
-                        _cpu_s(resource.RUSAGE_CHILDREN) - theirs0)  # fmt: skip
+            run.proc = autopilot_sitl.start_arducopter(path, instance, run.work, run.log, defaults,
+                                                       speedup=0, rates=rates or CopterRates())  # fmt: skip
+            run.link = _connect_serial0(5760 + 10 * instance)  # SITL waits for it before it runs
+        for until in (STEADY_FROM_S, sim_s):
+            while bridge.t < until:
+                if not bridge.step_once(30.0):
+                    raise RuntimeError(f"{name} stopped answering at t = {bridge.t:.1f} s; see {run.work}")  # fmt: skip
+            run.mark()
+        ours, theirs = run.stop()
+        run.keep = False
     finally:
-        if proc is not None:
-            autopilot_sitl.stop(proc)
-        if link is not None:
-            link.close()
-        log.close()
+        bridge.close()
+        run.close()
         if fifo:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    return {"autopilot": name, "priority": "fifo" if fifo else "normal", "sim_s": round(sim_s, 1),
-            "wall_s": round(wall, 2), "frames": frames, "rtf": round(sim_s / wall, 2),
-            "rates": "" if rates is None else f" {rates.sim_rate_hz}/{rates.loop_rate_hz} Hz",
-            "cpu_ours_s": round(ours, 2), "cpu_autopilot_s": round(theirs, 2),
-            "us_per_frame_ours": round(1e6 * ours / max(1, frames), 1),
-            "us_per_frame_autopilot": round(1e6 * theirs / max(1, frames), 1)}  # fmt: skip
+        os.sched_setaffinity(0, cpus)
+    frames = bridge.stats.frames
+    row = run.row(bridge.t, ours, theirs)
+    row.update({"autopilot": name, "physics": "skyherd", "priority": "fifo" if fifo else "normal",
+                "frames": frames, "one_core": one_core,
+                "rates": "" if rates is None else f" {rates.sim_rate_hz}/{rates.loop_rate_hz} Hz",
+                "us_per_frame_ours": round(1e6 * ours / max(1, frames), 1),
+                "us_per_frame_autopilot": round(1e6 * theirs / max(1, frames), 1)})  # fmt: skip
+    return row
+
+
+def _native_measured(path: Path, defaults: list[Path], sim_s: float = 60.0) -> dict:
+    """The same ArduCopter binary on its own physics (`--model +`), the same parameters (the
+    defaults and skyherd's frame / rates file), as fast as possible for `sim_s` simulated:
+    its simulated time is SYSTEM_TIME.time_boot_ms on SERIAL0 (asked for at 10 Hz simulated
+    with SET_MESSAGE_INTERVAL); ours is the CPU of that reading."""
+    from skyherd.hil import autopilot_sitl
+
+    instance = 87
+    mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    mav.robust_parsing = True  # SITL's SERIAL0 starts with text lines before MAVLink
+    ask = mav.command_long_encode(1, 1, wire.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                  mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, 100_000, 0, 0, 0, 0, 0)  # fmt: skip
+    ask = ask.pack(mav)
+    run = _Run("native")
+    try:
+        run.proc = autopilot_sitl.start_arducopter(path, instance, run.work, run.log, defaults,
+                                                   speedup=0, model="+")  # fmt: skip
+        link = run.link = _connect_serial0(5760 + 10 * instance)
+        link.settimeout(0.01)
+        t_sim, asked, t_give_up = 0.0, 0.0, time.monotonic() + 120.0
+        for until in (STEADY_FROM_S, sim_s):
+            while t_sim < until:
+                now = time.monotonic()
+                if now > t_give_up:
+                    raise RuntimeError(f"ArduCopter --model + stuck at {t_sim:.1f} s; see {run.work}")  # fmt: skip
+                if t_sim == 0.0 and now - asked > 0.01:  # until SYSTEM_TIME streams
+                    link.sendall(ask)
+                    asked = now
+                try:
+                    data = link.recv(65536)
+                except TimeoutError:
+                    continue
+                for m in mav.parse_buffer(data) or ():
+                    if m.get_msgId() == mavlink.MAVLINK_MSG_ID_SYSTEM_TIME:
+                        t_sim = max(t_sim, m.time_boot_ms / 1000.0)
+            run.mark()
+        ours, theirs = run.stop()
+        run.keep = False
+    finally:
+        run.close()
+    row = run.row(t_sim, ours, theirs)
+    row.update({"autopilot": "arducopter", "physics": "native", "priority": "normal"})
+    return row
 
 
 def _connect_serial0(port: int, timeout_s: float = 60.0) -> socket.socket:
@@ -343,36 +460,93 @@ def _connect_serial0(port: int, timeout_s: float = 60.0) -> socket.socket:
         except OSError:
             if time.monotonic() > t_end:
                 raise
-            time.sleep(0.2)
+            time.sleep(0.005)
 
 
-def real_autopilots() -> list[dict]:
-    """Each real autopilot named by its variable, at normal priority and (when allowed) at
-    SCHED_FIFO: the difference is the time both sides wait for the CPU at every handoff."""
-    out = []
+def _print_row(row: dict) -> None:
+    if row["physics"] == "native":
+        what, who = "arducopter native (--model +)", "ours (SYSTEM_TIME reader)"
+    else:
+        where = " one core" if row["one_core"] else ""
+        what = f"{row['autopilot']}{row['rates']} JSON {row['priority']}{where}"
+        who = "ours (bridge)"
+        if row["autopilot"] == "px4":
+            what = f"px4 {row['priority']}"
+    extra = ""
+    if "frames" in row:
+        extra = (f"; {row['frames']} frames, per frame: ours {row['us_per_frame_ours']} us, "
+                 f"the autopilot's {row['us_per_frame_autopilot']} us")  # fmt: skip
+    print(f"  {what:<32} real-time factor {row['rtf']:6.2f}x from launch, {row['rtf_steady']:6.2f}x "
+          f"steady ({row['sim_s']} s simulated in {row['wall_s']:.2f} s wall); CPU per simulated s "
+          f"(steady): autopilot {row['autopilot_per_sim_s']:.4f} s, {who} "
+          f"{row['ours_per_sim_s']:.4f} s{extra}")  # fmt: skip
+
+
+def _arducopter_defaults(binary: Path) -> list[Path]:
+    """copter.parm: SKYHERD_ARDUPILOT_DEFAULTS, else the binary's source tree
+    (build/sitl/bin/arducopter → Tools/autotest/default_params)."""
     folder = os.environ.get("SKYHERD_ARDUPILOT_DEFAULTS")
-    defaults = [Path(folder) / "copter.parm"] if folder else []
-    for name, env in (("px4", "SKYHERD_PX4_BIN"), ("arducopter", "SKYHERD_ARDUCOPTER_BIN")):
-        path = os.environ.get(env)
-        if not path:
-            print(f"  {name}: {env} not set, skipped")
-            continue
-        # ArduCopter also at half the physics rate (SIM_RATE_HZ 200, SCHED_LOOP_RATE 100):
-        # the lockstep's cost is per frame, so half the frames per simulated second
-        runs = [(False, None), (True, None)]
-        if name == "arducopter":
-            runs.append((False, CopterRates(200, 100)))
-        for fifo, rates in runs:
+    root = Path(folder) if folder else binary.resolve().parents[3] / "Tools/autotest/default_params"
+    return [root / "copter.parm"] if (root / "copter.parm").is_file() else []
+
+
+def real_autopilots(rounds: int = 3, variants: bool = False) -> list[dict]:
+    """PX4 on the bridge at normal priority and (when allowed) SCHED_FIFO; ArduCopter on its
+    own physics and on skyherd's JSON bridge, alternated for `rounds` rounds, and their ratio
+    against the 0.5 target. `variants`: also ArduCopter at SCHED_FIFO and at 200/100 Hz."""
+    out = []
+    px4 = os.environ.get("SKYHERD_PX4_BIN")
+    if not px4:
+        print("  px4: SKYHERD_PX4_BIN not set, skipped")
+    else:
+        for fifo in (False, True):
             try:
-                row = _idle_measured(name, Path(path), defaults, fifo, rates)
+                row = _idle_measured("px4", Path(px4), [], fifo)
             except PermissionError:
-                print(f"  {name}: SCHED_FIFO not permitted, skipped")
+                print("  px4: SCHED_FIFO not permitted, skipped")
                 continue
             out.append(row)
-            print(f"  {name}{row['rates']} {row['priority']:>6}: real-time factor {row['rtf']:5.2f}x "
-                  f"({row['frames']} frames in {row['sim_s']} s simulated, {row['wall_s']:.1f} s wall); "
-                  f"CPU per frame: ours {row['us_per_frame_ours']} us, "
-                  f"the autopilot's {row['us_per_frame_autopilot']} us")  # fmt: skip
+            _print_row(row)
+    path = os.environ.get("SKYHERD_ARDUCOPTER_BIN")
+    if not path:
+        print("  arducopter: SKYHERD_ARDUCOPTER_BIN not set, skipped")
+        return out
+    defaults = _arducopter_defaults(Path(path))
+    print(f"  arducopter defaults: {', '.join(str(d) for d in defaults) or 'none'} + skyherd's "
+          f"frame and rates ({CopterRates().sim_rate_hz}/{CopterRates().loop_rate_hz} Hz)")  # fmt: skip
+    rows: dict[str, list[dict]] = {"native": [], "JSON": [], "JSON one core": []}
+    for _ in range(rounds):  # alternated: the machine's load drifts over all alike
+        for key in rows:
+            if key == "native":
+                row = _native_measured(Path(path), defaults)
+            else:
+                row = _idle_measured("arducopter", Path(path), defaults, False,
+                                     one_core=key == "JSON one core")  # fmt: skip
+            rows[key].append(row)
+            out.append(row)
+            _print_row(row)
+
+    def median(key: str, field: str) -> float:
+        v = sorted(r[field] for r in rows[key])
+        return v[len(v) // 2]
+
+    for key in ("JSON", "JSON one core"):
+        for field, label in (("rtf_steady", "steady"), ("rtf", "from launch")):
+            j, n = median(key, field), median("native", field)
+            print(f"  {key} / native ({label}, medians of {rounds}): {j:.2f}x / {n:.2f}x = "
+                  f"{j / n:.3f} (target >= 0.5: {'met' if j / n >= 0.5 else 'not met'})")  # fmt: skip
+    for field in ("autopilot_per_sim_s", "ours_per_sim_s"):
+        print(f"  CPU per simulated s, {field.split('_per')[0]} (medians): "
+              + ", ".join(f"{key} {median(key, field):.4f} s" for key in rows))  # fmt: skip
+    if variants:
+        for fifo, rates in ((True, None), (False, CopterRates(200, 100))):
+            try:
+                row = _idle_measured("arducopter", Path(path), defaults, fifo, rates)
+            except PermissionError:
+                print("  arducopter: SCHED_FIFO not permitted, skipped")
+                continue
+            out.append(row)
+            _print_row(row)
     return out
 
 
@@ -383,7 +557,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=20000, help="frames per measurement")
     ap.add_argument("--repeat", type=int, default=3, help="interleaved rounds (best kept)")
     ap.add_argument("--no-autopilots", action="store_true", help="skip the real-autopilot part")
+    ap.add_argument("--only-autopilots", action="store_true", help="only the real-autopilot part")
+    ap.add_argument("--rounds", type=int, default=3, help="ArduCopter native / JSON rounds")
+    ap.add_argument("--variants", action="store_true",
+                    help="also ArduCopter at SCHED_FIFO and at 200/100 Hz")  # fmt: skip
     args = ap.parse_args(argv)
+    if args.only_autopilots:
+        print("Real autopilots (as fast as possible, on the ground):")
+        real_autopilots(args.rounds, args.variants)
+        return 0
     n = args.frames
     best: dict[str, float] = {}
     for _ in tqdm(range(args.repeat), desc="rounds"):  # interleaved rounds, best of each
@@ -412,8 +594,8 @@ def main(argv: list[str] | None = None) -> int:
     print("PX4 interface over TCP, PX4-like peer process at 250 Hz:")
     print(f"  skyherd bridge   {tcp:10.0f}  ({tcp / 250:6.1f}x)")
     if not args.no_autopilots:
-        print("Real autopilots on skyherd's physics (as fast as possible, on the ground):")
-        real_autopilots()
+        print("Real autopilots (as fast as possible, on the ground):")
+        real_autopilots(args.rounds, args.variants)
     return 0
 
 

@@ -26,6 +26,7 @@ a frame_count going back means ArduPilot restarted: the physics is reset.
 
 from __future__ import annotations
 
+import ctypes
 import math
 import socket
 import struct
@@ -39,8 +40,9 @@ from skyherd.flight.fixedwing.jsbsim_model import Surfaces
 from skyherd.flight.geo import DEFAULT_HOME, Home
 from skyherd.flight.quadrotor import QuadrotorParams
 from skyherd.flight.state import VehicleState
+from skyherd.hil.bridge_format import compiled_for, make_template, quad_frame
 from skyherd.hil.bridge_net import bind_socket
-from skyherd.hil.bridge_physics import PlaneBody, QuadBody, quad_step_pwm
+from skyherd.hil.bridge_physics import PlaneBody, QuadBody
 from skyherd.runio import ports
 
 JSON_BASE_PORT = ports.JSON_BASE  # runio.ports: every port an instance owns
@@ -57,6 +59,18 @@ _FMT_BODY = (
 )
 REPLY_FMT = "\n{" + _FMT_BODY + "}\n"
 REPLY_FMT_AIRSPEED = "\n{" + _FMT_BODY + ',"airspeed":%.9g}\n'
+# the same formats as bytes: the reply is formatted straight into the datagram's bytes
+_REPLY_B = REPLY_FMT.encode()
+_REPLY_AIRSPEED_B = REPLY_FMT_AIRSPEED.encode()
+_REPLY_TEMPLATE = make_template(REPLY_FMT)  # the quadrotor's reply, formatted compiled
+_TIMEVAL = struct.Struct("@ll")  # struct timeval of SO_RCVTIMEO
+_UNSET = object()
+# connect(fd, {AF_UNSPEC}, len): how a connected UDP socket is disconnected (Python's own
+# connect takes no AF_UNSPEC address)
+_libc_connect = ctypes.CDLL(None, use_errno=True).connect
+_libc_connect.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_uint)
+_libc_connect.restype = ctypes.c_int
+_AF_UNSPEC_ADDR = bytes(16)
 
 
 def json_port(instance: int) -> int:
@@ -130,17 +144,43 @@ class ArduPilotJsonBridge:
         else:
             self.body = PlaneBody(self.home)
         self._rx = np.zeros(256, dtype=np.uint8)
+        self._tx = np.zeros(512, dtype=np.uint8)  # the compiled reply (+ its digit scratch)
         self._sock: socket.socket | None = None
         self._peer = None
         self._last_fc: int | None = None
         self._reply = b""
         self._reply_wall = 0.0
+        self._timeout: object = _UNSET  # the socket's receive timeout [s] (None: forever)
+        # the quadrotor's step arguments, bound once (the model's arrays change in place), and
+        # its compiled frame for exactly their types (bridge_format.compiled_for)
+        self._quad = None
+        if isinstance(self.body, QuadBody):
+            b, c = self.body, self.config
+            m = b.model
+            self._quad = (c.pwm_min, c.pwm_max, m.x, m.aux, m.p, b.u, b.params.physics_dt, b.out)
+            args = (self._rx, *self._quad[:7], 0.0, b.out, 0.0, _REPLY_TEMPLATE, self._tx)
+            self._quad_frame = compiled_for(quad_frame, args)
 
     # ---- socket ---------------------------------------------------------------------------
     def open(self) -> ArduPilotJsonBridge:
         if self._sock is None:
             self._sock = bind_socket(socket.SOCK_DGRAM, self.host, self.port, self.instance)
+            self._timeout = _UNSET
+            self._peer = None
         return self
+
+    def _wait_at_most(self, sock: socket.socket, timeout_s: float | None) -> None:
+        """Let `recvfrom` itself wait at most timeout_s (SO_RCVTIMEO; None: forever) on a
+        blocking socket: a frame is then one recvfrom and one sendto. Python's own timeout
+        would add a poll() per receive, and setting it per frame an ioctl."""
+        if timeout_s == self._timeout:  # (_UNSET equals nothing)
+            return
+        self._timeout = timeout_s
+        sock.settimeout(None)
+        us = 0 if timeout_s is None else max(1, round(timeout_s * 1e6))
+        sock.setsockopt(
+            socket.SOL_SOCKET, socket.SO_RCVTIMEO, _TIMEVAL.pack(us // 1_000_000, us % 1_000_000)
+        )
 
     def open_port(self) -> ArduPilotJsonBridge:
         """The common bridge API's name for `open` (see hil/bridge_select.py)."""
@@ -197,26 +237,17 @@ class ArduPilotJsonBridge:
         self._last_fc = fc
         dt = 1.0 / rate
         body = self.body
-        if isinstance(body, QuadBody):
-            m = body.model
-            c = self.config
-            quad_step_pwm(
-                rx,
-                c.pwm_min,
-                c.pwm_max,
-                m.x,
-                m.aux,
-                m.p,
-                body.u,
-                dt,
-                body.params.physics_dt,
-                body.out,
-            )
-            body.t += dt
-            reply = (REPLY_FMT % (body.t, *body.out.tolist())).encode()
+        quad = self._quad
+        if quad is not None:
+            pwm_min, pwm_max, x, aux, p, u, max_h, out = quad
+            t = body.t = body.t + dt
+            tx = self._tx
+            n = self._quad_frame(rx, pwm_min, pwm_max, x, aux, p, u, dt, max_h, out, t, _REPLY_TEMPLATE, tx)  # fmt: skip
+            # n < 0: a number the compiled conversion could not round for certain (rare)
+            reply = tx[:n].tobytes() if n >= 0 else _REPLY_B % (t, *out.tolist())
         else:
             body.step(dt, self._surfaces(rx))
-            reply = (REPLY_FMT_AIRSPEED % (body.t, *body.out.tolist(), body.airspeed)).encode()
+            reply = _REPLY_AIRSPEED_B % (body.t, *body.out.tolist(), body.airspeed)
         self.stats.frames += 1
         self._reply = reply
         self._reply_wall = now_wall
@@ -241,17 +272,10 @@ class ArduPilotJsonBridge:
     # ---- loop -----------------------------------------------------------------------------
     def step_once(self, timeout_s: float | None = 1.0) -> bool:
         """Wait up to timeout_s (wall) for one packet and answer it; True if physics stepped."""
-        sock = self.open()._sock
-        sock.settimeout(timeout_s)
-        try:
-            nbytes, addr = sock.recvfrom_into(self._rx)
-        except TimeoutError:
-            return False
-        stepped, reply = self.handle(nbytes, time.monotonic())
-        if reply is not None:
-            self._peer = addr
-            sock.sendto(reply, addr)
-        return stepped
+        sock = self._sock or self.open()._sock
+        if timeout_s != self._timeout:  # (_UNSET equals nothing)
+            self._wait_at_most(sock, timeout_s)
+        return bool(self._one_packet(sock))
 
     def serve(
         self,
@@ -265,19 +289,50 @@ class ArduPilotJsonBridge:
         on_step(bridge) runs after each physics step; returning True stops the loop.
         """
         sock = self.open()._sock
-        sock.settimeout(idle_timeout_s)
-        rx, handle, sendto = self._rx, self.handle, sock.sendto
-        recv, now = sock.recvfrom_into, time.monotonic
+        self._wait_at_most(sock, idle_timeout_s)
+        one = self._one_packet
         t_end = math.inf if sim_duration_s is None else sim_duration_s
         n_end = math.inf if max_frames is None else max_frames
         while self.body.t < t_end and self.stats.frames < n_end:
-            try:
-                nbytes, addr = recv(rx)
-            except TimeoutError:
+            stepped = one(sock)
+            if stepped is None:  # the idle gap ran out
                 break
-            stepped, reply = handle(nbytes, now())
-            if reply is not None:
-                sendto(reply, addr)
             if stepped and on_step is not None and on_step(self):
                 break
         return self.stats
+
+    def _one_packet(self, sock: socket.socket) -> bool | None:
+        """Receive one packet and answer it: True if the physics stepped, None if the wait ran
+        out. After the first answer the socket is connected to the autopilot's address, so a
+        frame builds and parses no address (`recv_into` / `send`); the wait running out or the
+        autopilot gone (a refused send) disconnects it, so that a restarted autopilot, sending
+        from another port, is heard again."""
+        try:
+            if self._peer is not None:
+                nbytes, addr = sock.recv_into(self._rx), self._peer
+            else:
+                nbytes, addr = sock.recvfrom_into(self._rx)
+        except (TimeoutError, BlockingIOError):  # SO_RCVTIMEO ran out (EAGAIN)
+            self._disconnect(sock)
+            return None
+        except ConnectionRefusedError:  # the autopilot's port is closed (ICMP)
+            self._disconnect(sock)
+            return False
+        stepped, reply = self.handle(nbytes, time.monotonic())
+        if reply is not None:
+            if self._peer is None:
+                sock.connect(addr)
+                self._peer = addr
+            try:
+                sock.send(reply)
+            except ConnectionRefusedError:
+                self._disconnect(sock)
+        return stepped
+
+    def _disconnect(self, sock: socket.socket) -> None:
+        """Dissolve the socket's association with the autopilot (connect to AF_UNSPEC): it
+        receives from any sender again, and nothing already queued is lost."""
+        if self._peer is not None:
+            self._peer = None
+            if _libc_connect(sock.fileno(), _AF_UNSPEC_ADDR, len(_AF_UNSPEC_ADDR)) != 0:
+                raise OSError(ctypes.get_errno(), "cannot disconnect the JSON bridge's socket")

@@ -63,13 +63,16 @@ def start_arducopter(
     speedup: float = 1.0,
     rates: CopterRates = CopterRates(),
     home: Home = DEFAULT_HOME,
+    model: str = "JSON:127.0.0.1",
 ) -> subprocess.Popen:
     """ArduCopter SITL with `--model JSON:127.0.0.1`, `-I instance`, parameters from
     `defaults` (e.g. ArduPilot's copter.parm), then skyherd's frame (copter_json_parm), then
-    `extra_parm` (an operator's own lines). speedup 0 = as fast as the physics answers."""
+    `extra_parm` (an operator's own lines). speedup 0 = as fast as the physics answers.
+    `model`: another of ArduPilot's own physics models (e.g. "+") flies the same binary and
+    parameters without skyherd's physics (bench/bench_bridges.py's yardstick)."""
     parm = workdir / "skyherd-json.parm"
     parm.write_text(copter_json_parm(rates) + extra_parm)
-    cmd = [str(binary), "--model", "JSON:127.0.0.1", "--speedup", str(speedup or 1000),
+    cmd = [str(binary), "--model", model, "--speedup", str(speedup or 1000),
            "-I", str(instance), "--home", f"{home.lat_deg},{home.lon_deg},{home.alt_m},0",
            "--defaults", ",".join(str(p) for p in [*defaults, parm]), "-w"]  # fmt: skip
     return subprocess.Popen(cmd, cwd=workdir, stdout=log, stderr=subprocess.STDOUT,

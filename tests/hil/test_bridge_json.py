@@ -213,3 +213,32 @@ def test_no_packet_no_step():
     with ArduPilotJsonBridge(instance=79) as b:
         assert not b.step_once(0.05)
         assert b.t == 0.0 and b.stats.frames == 0
+
+
+def test_a_restarted_autopilot_on_another_port_is_answered_after_a_gap():
+    """The bridge's socket is connected to the autopilot after its first answer (no address per
+    frame). When that autopilot vanishes (its port closed: the answer is refused) or the wait
+    runs out, the socket is disconnected again, and an ArduPilot restarted from another port
+    (its frame_count from 0) is heard, answered, and resets the physics."""
+    with ArduPilotJsonBridge(instance=79) as b:
+        first, second = ArduPilotJsonPeer(b.port), ArduPilotJsonPeer(b.port)
+        try:
+            for k in range(4):
+                first.sock.sendto(first.packet([1000] * 16), ("127.0.0.1", b.port))
+                if k == 3:
+                    first.close()  # gone before its answer arrives
+                assert b.step_once(5.0)
+                if k < 3:
+                    first.sock.recv(65000)
+                first.frame_count += 1
+            second.sock.sendto(second.packet([1000] * 16), ("127.0.0.1", b.port))
+            assert not b.step_once(0.2)  # refused / not its sender: nothing steps
+            th = threading.Thread(target=b.step_once, args=(5.0,))
+            th.start()
+            got = second.exchange(second.packet([1000] * 16))  # ArduPilot re-sends after 1 s
+            th.join(10)
+            assert got is not None and got["timestamp"] == pytest.approx(1 / 300)
+            assert b.stats.restarts == 1 and b.stats.frames == 5
+        finally:
+            first.close()
+            second.close()
