@@ -7,6 +7,7 @@ numba and loading its cache)."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import subprocess
 import sys
 
@@ -88,6 +89,28 @@ def test_a_build_for_other_sources_is_not_loaded(built, tmp_path):
     other = dataclasses.replace(compiled.AOT, sources=(changed, *compiled.AOT.sources[1:]))
     assert other.stamp() != compiled.AOT.stamp()
     assert other.kernels().worst_residual is compiled.AOT.jit().worst_residual  # numba's
+
+
+RACE = """
+import subprocess, sys
+from skyherd.safety import compiled
+before = compiled.kernels().worst_residual  # nothing built yet in this cache folder: numba's
+name = compiled.AOT.prefix + compiled.AOT.stamp()
+subprocess.run([sys.executable, "-m", "skyherd.runio.aot", compiled.AOT.spec, name], check=True)
+assert compiled.AOT.is_built()  # another process built it meanwhile
+print(compiled.ensure_built(), type(before) is type(compiled.kernels().worst_residual))
+"""
+
+
+def test_a_build_made_by_another_process_is_taken_up(tmp_path):
+    """Issue 31 stop 41: a suite's process had asked for the kernels (numba's, nothing built),
+    another process then built them, and ensure_built kept handing out numba's (the full suite
+    failed test_compiled_kernels_answer_as_numbas_jit_to_the_bit once)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", RACE], capture_output=True, text=True,
+                         timeout=600, env=env)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["True", "False"]  # built, and now the compiled module's
 
 
 START = """
