@@ -882,7 +882,8 @@ RECOVERY_ROUNDS = 3
 end, while the net's last switch out of AI is less than one allowance old."""
 
 RUN_ON_S = 3.0
-"""After a yield the net still answers for its stopping time + this [s] of ground truth."""
+"""After a yield the net still answers for its stopping time + this [s] of ground truth (after
+a yield to RTL / LAND only on the braking path it handed over: safety.judge.answered)."""
 
 # parameters a drill's ParamGuard watches (PX4 names; the built-in autopilots answer them)
 WATCHED_PARAMS = ("COM_OF_LOSS_T", "MPC_TILTMAX_AIR", "MPC_XY_VEL_MAX", "FW_R_LIM",
