@@ -24,13 +24,15 @@ import numpy as np
 from skyherd.runio.space import Appender, warn
 
 
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write a whole file so that readers see the old or the new content, never a part."""
+@contextlib.contextmanager
+def atomic_file(path: Path, mode: str = "wb", **open_kw):
+    """A file opened for writing whole: written to a temporary file beside `path`, synced, then
+    renamed over it, so that readers see the old or the new content, never a part."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     try:
-        with open(tmp, "wb") as f:
-            f.write(data)
+        with open(tmp, mode, **open_kw) as f:
+            yield f
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
@@ -38,6 +40,12 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
         with contextlib.suppress(OSError):  # a full disk keeps no half-written temporary file
             tmp.unlink()
         raise
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write a whole file so that readers see the old or the new content, never a part."""
+    with atomic_file(path) as f:
+        f.write(data)
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -159,27 +167,17 @@ def cut_to_whole_lines(path: Path) -> int:
 def filter_jsonl(path: Path, keep) -> int:
     """Rewrite a JSON-lines file (written whole: temporary file, then rename) with the records
     for which `keep(record)` is true; a line that is not JSON goes. The records dropped."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     dropped = 0
-    try:
-        with open(path, encoding="utf-8") as src, open(tmp, "w", encoding="utf-8") as dst:
-            for line in src:
-                try:
-                    ok = keep(json.loads(line))
-                except ValueError:
-                    ok = False
-                if ok:
-                    dst.write(line)
-                else:
-                    dropped += 1
-            dst.flush()
-            os.fsync(dst.fileno())
-        os.replace(tmp, path)
-    except OSError:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
+    with open(path, encoding="utf-8") as src, atomic_file(path, "w", encoding="utf-8") as dst:
+        for line in src:
+            try:
+                ok = keep(json.loads(line))
+            except ValueError:
+                ok = False
+            if ok:
+                dst.write(line)
+            else:
+                dropped += 1
     return dropped
 
 
