@@ -65,6 +65,8 @@ def nearest_point(
     keep = ~(h >= INF)  # NaN kept: it makes c, then s, NaN below
     A, h = np.asarray(A, float)[keep], h[keep]
     norm = np.sqrt(np.einsum("ij,ij->i", A, A))
+    if not np.all(np.isfinite(norm)):
+        return None  # NaN or infinite in a kept row of A
     if not norm.all():  # 0·x <= h: always true or never
         zero = norm == 0.0
         if (h[zero] < -tol).any():
@@ -76,7 +78,7 @@ def nearest_point(
     c = h / norm  # n_j·x <= c_j
     s = N @ x0 - c  # residuals: the distances beyond each plane
     if not np.all(np.isfinite(s)):
-        return None  # NaN or infinite in x0, A or h (h = -inf: no x satisfies the row)
+        return None  # NaN or infinite in x0 or h (h = -inf: no x satisfies the row)
 
     x = x0
     active: list[int] = []  # rows on whose plane x lies, linearly independent

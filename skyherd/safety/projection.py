@@ -24,12 +24,16 @@ from skyherd.safety.nearest import INF, nearest_point
 def qp_cvxpy(A_u: np.ndarray, h: np.ndarray, u0: np.ndarray) -> np.ndarray | None:
     """The QP stated with cvxpy: argmin ||u - u0||^2 s.t. A_u u <= h. None if infeasible.
 
-    Clarabel to 1e-12 (its default 1e-8 leaves ~1e-6 in u): the reference for exact solvers."""
+    The reference for the exact solver: rows scaled to unit normals (the same set, better
+    conditioned) and Clarabel run to 1e-11 (its default 1e-8 leaves ~1e-6 in u)."""
     import cvxpy as cp
 
+    scale = np.linalg.norm(A_u, axis=1)
+    scale[scale == 0] = 1.0
     u = cp.Variable(A_u.shape[1])
-    prob = cp.Problem(cp.Minimize(cp.sum_squares(u - u0)), [A_u @ u <= h])
-    tight = {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12, "tol_feas": 1e-12, "tol_ktratio": 1e-10}
+    cons = [(A_u / scale[:, None]) @ u <= h / scale]
+    prob = cp.Problem(cp.Minimize(cp.sum_squares(u - u0)), cons)
+    tight = {"tol_gap_abs": 1e-11, "tol_gap_rel": 1e-11, "tol_feas": 1e-11, "tol_ktratio": 1e-9}
     prob.solve(solver=cp.CLARABEL, **tight)
     if prob.status not in ("optimal", "optimal_inaccurate"):
         return None
