@@ -62,7 +62,7 @@ def nearest_point(
     """argmin ||x - x0|| over {x : A x <= h}, or None when that set is empty (or input NaN).
 
     A (m, n), h (m,), x0 (n,). Rows with h >= INF are ignored. Exact to rounding (module
-    docstring); the result satisfies A x <= h + tol |a_j| row by row."""
+    docstring); the result satisfies A x <= h + tol |a_j| row by row (to rounding)."""
     x0 = np.asarray(x0, float)
     h = np.asarray(h, float)
     keep = ~(h >= INF)  # NaN kept: it makes c, then s, NaN below
