@@ -1,4 +1,5 @@
-"""Safety-net timings: monitor check, projection QP, supervisor overhead in the SITL loop.
+"""Safety-net timings: monitor check, projection QP (exact, against OSQP and cvxpy), recovery
+target, supervisor overhead in the SITL loop.
 
     .venv/bin/python bench/bench_safety.py [--quick]
 
@@ -20,7 +21,9 @@ from skyherd.runio.runfolder import markdown_table
 from skyherd.safety.config import default_envelope_path, load_envelope
 from skyherd.safety.drills import DrillParams, toward
 from skyherd.safety.envelope import NZ, U
+from skyherd.safety.fallback import recovery_target
 from skyherd.safety.monitor import make_z
+from skyherd.safety.nearest import INF, nearest_point
 from skyherd.safety.net import SafetyNet
 from skyherd.safety.projection import Projector, qp_cvxpy
 from skyherd.safety.supervisor import Supervisor, SupervisorParams
@@ -37,6 +40,29 @@ def timed(fn, args_list) -> np.ndarray:
         fn(*a)
         out[i] = (pc() - t0) / 1e3
     return out
+
+
+def osqp_as_before(A_u: np.ndarray):
+    """The projection as the net solved it before safety.nearest: OSQP set up once over A_u
+    (eps 1e-5, polished), per call only q and the upper bounds updated through the extension
+    object. Returns solve(A_u, hb, u0) -> u (for timing and comparison only)."""
+    import osqp
+    import scipy.sparse as sp
+
+    k = len(A_u)
+    solver = osqp.OSQP()
+    solver.setup(sp.csc_matrix(2.0 * np.eye(3)), np.zeros(3), sp.csc_matrix(A_u),
+                 -INF * np.ones(k), INF * np.ones(k), verbose=False, eps_abs=1e-5,
+                 eps_rel=1e-5, polishing=True, max_iter=4000, warm_starting=True,
+                 check_termination=5)  # fmt: skip
+    ext = solver._solver
+
+    def solve(_A: np.ndarray, hb: np.ndarray, u0: np.ndarray) -> np.ndarray:
+        ext.update_data_vec(q=-2.0 * u0, l=None, u=hb)
+        ext.solve()
+        return np.array(ext.solution.x, float)
+
+    return solve
 
 
 def pct(x: np.ndarray) -> tuple[float, float]:
@@ -93,20 +119,28 @@ def main() -> None:
     pr = Projector(env)
     fixable = [z for z in bad if pr.project(z) is not None][: n // 4]
     t_proj = timed(pr.project, [(z, False) for z in fixable])
-    rows.append(["projection, direct OSQP (set up once)", *pct(t_proj), len(fixable)])
+    rows.append(["projection, exact (safety.nearest)", *pct(t_proj), len(fixable)])
     t_fast = timed(pr.project, [(z, True) for z in fixable])
-    n_closed = sum(
-        pr._single_row(z[U], np.where(pr.bounds(z)[1] < 1e29, pr.bounds(z)[1] - pr.tighten, 1e30))
-        is not None
-        for z in fixable
-    )
+    problems = []  # the solver's own input: rows, tightened bounds, proposed command
+    for z in fixable:
+        A, h, _ = pr.bounds(z)
+        problems.append((A, np.where(h < INF, h - pr.tighten, INF), z[U].copy()))
+    n_closed = sum(pr._single_row(u0, hb) is not None for _, hb, u0 in problems)
     rows.append(
         [
-            f"projection, one-row closed form first ({n_closed}/{len(fixable)}), else OSQP",
+            f"projection, one-row closed form first ({n_closed}/{len(fixable)}), else exact",
             *pct(t_fast),
             len(fixable),
         ]
     )
+    t_near = timed(nearest_point, problems)
+    rows.append(["  solver alone: safety.nearest", *pct(t_near), len(problems)])
+    osqp_solve = osqp_as_before(pr.A_u)
+    t_osqp = timed(osqp_solve, problems)
+    rows.append(
+        ["  solver alone: OSQP set up once (the net's before)", *pct(t_osqp), len(problems)]
+    )
+    n_rows = sorted({int(np.sum(hb < INF)) for _, hb, _ in problems})
     m = 30 if args.quick else 200
     cv_args = []
     for z in fixable[:m]:
@@ -117,6 +151,13 @@ def main() -> None:
     pairs = list(zip(fixable[:m], cv_args))
     agree = max(float(np.max(np.abs(pr.project(z, False) - qp_cvxpy(*a)))) for z, a in pairs)
     agree_cf = max(float(np.max(np.abs(pr.project(z, True) - qp_cvxpy(*a)))) for z, a in pairs)
+    agree_osqp = max(float(np.max(np.abs(nearest_point(*q) - osqp_solve(*q)))) for q in problems)
+    geo = spec.geometry()
+    outside = [(geo, z[:3], 6.0) for z in zs if geo.distance_outside(z[:3]) > 0][: n // 10]
+    t_rec = timed(recovery_target, outside)
+    rows.append(
+        ["recovery target (exact, margins halved until they fit)", *pct(t_rec), len(outside)]
+    )
 
     sup = Supervisor(env, SupervisorParams())
     s0 = VehicleState(
@@ -134,7 +175,10 @@ def main() -> None:
     print()
     print(markdown_table(["per call", "p50 µs", "p95 µs", "calls"], rows))
     print(
-        f"projection vs cvxpy: max |difference| OSQP {agree:.2e}, closed form first {agree_cf:.2e} m/s over {len(cv_args)} problems; p50 speed-up {np.median(t_cvx) / np.median(t_proj):.0f}x (OSQP), {np.median(t_cvx) / np.median(t_fast):.0f}x (closed form first)"
+        f"projection vs cvxpy: max |difference| exact {agree:.2e}, closed form first {agree_cf:.2e} m/s over {len(cv_args)} problems (the 1e-4 tightening of the bounds); p50 speed-up {np.median(t_cvx) / np.median(t_proj):.0f}x (exact), {np.median(t_cvx) / np.median(t_fast):.0f}x (closed form first)"
+    )
+    print(
+        f"solver alone: safety.nearest {np.median(t_near):.1f} µs p50, OSQP {np.median(t_osqp):.1f} µs p50 ({np.median(t_osqp) / np.median(t_near):.2f}x) on {len(problems)} projections over {n_rows} selected rows; max |nearest - OSQP| {agree_osqp:.1e} m/s"
     )
     print(
         f"compiled monitor vs numpy: {np.median(t_np) / np.median(t_mon):.1f}x faster at p50; 10 µs budget met at p95: {pct(t_mon)[1] <= 10}"

@@ -19,6 +19,7 @@ from skyherd.flight.autopilot_api import Setpoint
 from skyherd.flight.geo import GRAVITY
 from skyherd.flight.state import VehicleState
 from skyherd.safety.envelope import NZ, Envelope, Kind, P
+from skyherd.safety.nearest import nearest_point
 
 ZERO3 = np.zeros(3)
 
@@ -127,55 +128,28 @@ def selected_rows(geometry: Envelope, pos_ned: np.ndarray) -> tuple[np.ndarray, 
     return geometry.selected(r), r
 
 
-def default_algebra() -> str:
-    """osqp.default_algebra() (importing OSQP and the SciPy it needs)."""
-    import osqp
-
-    return osqp.default_algebra()
-
-
 def inside_with_margin(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> bool:
     """Every selected position row holds with its recovery margin (row_margins)."""
     sel, r = selected_rows(geometry, pos_ned)
     return bool((r[sel] <= -row_margins(geometry, margin_m)[sel]).all())
 
 
-def recovery_target(
-    geometry: Envelope, pos_ned: np.ndarray, margin_m: float, algebra: str | None = None
-) -> np.ndarray:
+def recovery_target(geometry: Envelope, pos_ned: np.ndarray, margin_m: float) -> np.ndarray:
     """Nearest point to pos_ned (3,) inside the fence with a margin to every position row:
 
         minimise ||p - p0||^2  s.t.  A_p p <= b - m    (rows of the selected polyhedron,
                                                          m from row_margins)
 
-    Halves the margins until feasible (a small piece may not fit them). NED [m].
-    algebra: OSQP's linear-algebra backend (None: osqp.default_algebra(), which OSQP() would
-    pick too, found by trying to import each backend: ~80 µs a look-up). OSQP and SciPy are
-    imported here, at the first recovery, not by every companion (~0.2 CPU s)."""
-    import osqp
-    import scipy.sparse as sp
-
+    solved exactly (safety.nearest). Halves the margins until feasible (a small piece may not
+    fit them); pos_ned itself if even 1/128 of them does not fit. NED [m]."""
     sel, _ = selected_rows(geometry, pos_ned)
     A = geometry.A[sel][:, P]
     b = geometry.b[sel]
     m = row_margins(geometry, margin_m)[sel]
-    algebra = algebra or default_algebra()
     for _ in range(8):
-        prob = osqp.OSQP(algebra=algebra)
-        prob.setup(
-            sp.csc_matrix(2 * np.eye(3)),
-            -2 * np.asarray(pos_ned, float),
-            sp.csc_matrix(A),
-            -1e30 * np.ones(len(b)),
-            b - m,
-            verbose=False,
-            eps_abs=1e-7,
-            eps_rel=1e-7,
-            polishing=False,
-        )
-        res = prob.solve(raise_error=False)
-        if res.info.status_val in (1, 2) and np.all(A @ res.x <= b - 0.5 * m):
-            return np.asarray(res.x, float)
+        p = nearest_point(A, b - m, pos_ned)
+        if p is not None and np.all(A @ p <= b - 0.5 * m):
+            return p
         m = m * 0.5
     return np.asarray(pos_ned, float)
 
@@ -228,17 +202,9 @@ class RecoveryPID:
         self.target = np.zeros(3)
         self.integral = np.zeros(3)
         self.t_last: float | None = None
-        self._algebra: str | None = None  # recovery_target's, looked up once (algebra)
-
-    @property
-    def algebra(self) -> str:
-        """OSQP's linear-algebra backend for recovery_target, looked up at the first recovery."""
-        if self._algebra is None:
-            self._algebra = default_algebra()
-        return self._algebra
 
     def engage(self, state: VehicleState) -> None:
-        self.target = recovery_target(self.geometry, state.pos_ned, self.margin, self.algebra)
+        self.target = recovery_target(self.geometry, state.pos_ned, self.margin)
         self.integral = np.zeros(3)
         self.t_last = None
 

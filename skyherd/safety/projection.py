@@ -3,12 +3,13 @@
     minimise  ||u - u0||^2   subject to   A_u u <= b - A_x x            (QP)
 
 over the rows of the polyhedron selected for the current state (base rows, the inclusion
-piece and the exclusion faces that the state is judged against). `qp_cvxpy` states the
-problem readably (tests compare against it); `Projector` solves it in the loop with OSQP set up
-once (sparsity fixed; unselected rows get an infinite bound) and updated per call (~25 µs,
-against ~2 ms of cvxpy overhead). The solver works to a tolerance, so the bounds are
-tightened by `tighten` and the answer is re-checked against the exact rows; a miss returns
-None and the caller falls back.
+piece and the exclusion faces that the state is judged against; unselected rows get the bound
+INF). `qp_cvxpy` states the problem readably (tests compare against it); `Projector` answers
+it in the loop with the exact solver of safety.nearest (~26 µs a solve, ~35-50 µs the whole
+projection, against ~3.5 ms of cvxpy), after the closed form for one violated row. The bounds are tightened by `tighten`
+(1e-4) so that rounding in the answer cannot put it on the wrong side of a plane, and the
+answer is re-checked against the exact rows (envelope.worst); a miss returns None and the
+caller falls back.
 """
 
 from __future__ import annotations
@@ -17,61 +18,39 @@ import numpy as np
 
 from skyherd.safety.compiled import kernels
 from skyherd.safety.envelope import NZ, Envelope, U
-
-INF = 1e30
+from skyherd.safety.nearest import INF, nearest_point
 
 
 def qp_cvxpy(A_u: np.ndarray, h: np.ndarray, u0: np.ndarray) -> np.ndarray | None:
-    """The QP stated with cvxpy: argmin ||u - u0||^2 s.t. A_u u <= h. None if infeasible."""
+    """The QP stated with cvxpy: argmin ||u - u0||^2 s.t. A_u u <= h. None if infeasible.
+
+    The reference for the exact solver: rows scaled to unit normals (the same set, better
+    conditioned) and Clarabel run to 1e-11 (its default 1e-8 leaves ~1e-6 in u)."""
     import cvxpy as cp
 
+    scale = np.linalg.norm(A_u, axis=1)
+    scale[scale == 0] = 1.0
     u = cp.Variable(A_u.shape[1])
-    prob = cp.Problem(cp.Minimize(cp.sum_squares(u - u0)), [A_u @ u <= h])
-    prob.solve(solver=cp.CLARABEL)
+    cons = [(A_u / scale[:, None]) @ u <= h / scale]
+    prob = cp.Problem(cp.Minimize(cp.sum_squares(u - u0)), cons)
+    tight = {"tol_gap_abs": 1e-11, "tol_gap_rel": 1e-11, "tol_feas": 1e-11, "tol_ktratio": 1e-9}
+    prob.solve(solver=cp.CLARABEL, **tight)
     if prob.status not in ("optimal", "optimal_inaccurate"):
         return None
     return np.asarray(u.value, float)
 
 
 class Projector:
-    """OSQP projection onto the command rows of one envelope (set up once, at the first
-    projection the closed form does not answer: OSQP and the SciPy it needs are imported
-    then, ~0.2 CPU s, not by every companion that never needs them)."""
+    """The exact projection (safety.nearest) onto the command rows of one envelope."""
 
-    def __init__(self, envelope: Envelope, tighten: float = 1e-4, eps: float = 1e-5):
+    def __init__(self, envelope: Envelope, tighten: float = 1e-4):
         self.envelope = envelope
         self.tighten = tighten
         Au = envelope.A[:, U]
         self.cmd_rows = np.flatnonzero(np.any(Au != 0, axis=1))  # rows the command can change
         self.state_rows = np.flatnonzero(~np.any(Au != 0, axis=1))
         self.A_u = np.ascontiguousarray(Au[self.cmd_rows])
-        self.eps = eps
-        self._solver = None  # OSQP, set up by solver() on first use
         self._z = np.zeros(NZ)
-
-    def solver(self):
-        """The OSQP problem over A_u (sparsity fixed; bounds and q updated per call)."""
-        if self._solver is None:
-            import osqp
-            import scipy.sparse as sp
-
-            k = len(self.cmd_rows)
-            self._solver = osqp.OSQP()
-            self._solver.setup(
-                sp.csc_matrix(2.0 * np.eye(3)),
-                np.zeros(3),
-                sp.csc_matrix(self.A_u),
-                -INF * np.ones(k),
-                INF * np.ones(k),
-                verbose=False,
-                eps_abs=self.eps,
-                eps_rel=self.eps,
-                polishing=True,
-                max_iter=4000,
-                warm_starting=True,
-                check_termination=5,  # test convergence every 5 iterations (default 25)
-            )
-        return self._solver
 
     def bounds(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
         """(A_u, h) of the selected polyhedron for state z[:8], and whether its state-only rows
@@ -93,7 +72,8 @@ class Projector:
 
         closed_form: first try the projection onto each violated half-plane alone,
         u = u0 - (a·u0 - h) a / |a|^2; if one is feasible for every row it is the QP's optimum
-        (the feasible set lies inside that half-plane). Otherwise, and when False, OSQP."""
+        (the feasible set lies inside that half-plane). Otherwise, and when False, the exact
+        solver."""
         if not np.all(np.isfinite(z[:8])):
             return None
         u0 = z[U].copy()
@@ -105,23 +85,16 @@ class Projector:
         hb = np.where(h < INF, h - self.tighten, INF)
         if closed_form:
             u = self._single_row(u0, hb)
-            if u is not None:
-                zz = z.copy()
-                zz[U] = u
-                if self.envelope.worst(zz) <= 0.0:
-                    return u
-        # the extension object directly: the Python wrapper's bookkeeping costs ~30 µs a call
-        ext = self.solver()._solver
-        ext.update_data_vec(q=-2.0 * u0, l=None, u=hb)
-        ext.solve()
-        if ext.info.status_val not in (1, 2):  # solved, solved inaccurate
-            return None
-        u = np.array(ext.solution.x, float)
+            if u is not None and self.safe(z, u):
+                return u
+        u = nearest_point(self.A_u, hb, u0)
+        return u if u is not None and self.safe(z, u) else None
+
+    def safe(self, z: np.ndarray, u: np.ndarray) -> bool:
+        """The state of z with command u passes the envelope's exact test (envelope.worst)."""
         zz = z.copy()
         zz[U] = u
-        if not (np.all(np.isfinite(u)) and self.envelope.worst(zz) <= 0.0):
-            return None
-        return u
+        return self.envelope.worst(zz) <= 0.0
 
     def _single_row(self, u0: np.ndarray, hb: np.ndarray) -> np.ndarray | None:
         r = self.A_u @ u0 - hb

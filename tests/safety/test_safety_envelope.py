@@ -240,7 +240,7 @@ def test_envelope_from_mavlink_fence_items():
         envelope_from_fence_items([(5003, lat, lon, math.nan)], DEFAULT_HOME, SPEC)
 
 
-def test_osqp_projection_matches_cvxpy_and_is_verified_safe():
+def test_projection_matches_cvxpy_and_is_verified_safe():
     pr = Projector(ENV)
     rng = np.random.default_rng(2)
     n_proj = 0
@@ -261,8 +261,8 @@ def test_osqp_projection_matches_cvxpy_and_is_verified_safe():
         zz[U] = u
         assert ENV.worst(zz) <= 0
         assert ref is not None and np.allclose(u, ref, atol=2e-3)
-        u_osqp = pr.project(z, closed_form=False)  # the general path agrees with the shortcut
-        assert u_osqp is not None and np.allclose(u_osqp, ref, atol=2e-3)
+        u_exact = pr.project(z, closed_form=False)  # the general path agrees with the shortcut
+        assert u_exact is not None and np.allclose(u_exact, ref, atol=2e-3)
     assert n_proj >= 10
     assert pr.project(z_of((0, 0, -20), att=(1.0, 0))) is None  # state-only row: nothing helps
 
