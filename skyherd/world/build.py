@@ -72,13 +72,13 @@ class NoSession:
 
 
 def open_world(params, endpoint, session, run_dir: Path, faults=None, autopilot: str = "builtin",
-               follow: str | None = None, follow_system: int = 0, pin_cpu: str = "auto"):  # fmt: skip
+               follow: str | None = None, follow_system: int = 0,
+               pin_cpu: str = "auto"):  # fmt: skip
     """The world of one vehicle (world.sim.WorldParams `params`, flight.mavlink.EndpointConfig
     `endpoint`, its signing key the flight key of the frames): a real autopilot on skyherd's
-    physics (`autopilot` px4 | ardupilot: hil bridges; `pin_cpu` ArduPilot's lockstep CPU,
-    runio.pin), the outside vehicle at the MAVLink
-    address `follow`, or the built-in vehicle with the fault plan `faults`. `session`: the
-    caller's, to close."""
+    physics (`autopilot` px4 | ardupilot: hil bridges; `pin_cpu`: the CPU of ArduPilot's
+    lockstep, runio.pin), the outside vehicle at the MAVLink address `follow`, or the built-in
+    vehicle with the fault plan `faults`. `session`: the caller's, to close."""
     from skyherd.flight.mavlink.signing import load_key
 
     key = lambda: load_key(endpoint.signing_key) if endpoint.signing_key else None  # noqa: E731

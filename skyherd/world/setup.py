@@ -120,7 +120,7 @@ class SimSetup:
                 key_option(s.signing_key)
             if s.zenoh_config is not None:
                 zenoh_config_file(s.zenoh_config)
-        except ValueError as e:  # SigningError, AddressError: one line naming the option
+        except ValueError as e:  # SigningError, AddressError, --pin-cpu: one line naming the option
             raise WorldError(str(e)) from None
         if s.fleet:
             s.read_fleet()
