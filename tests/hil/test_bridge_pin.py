@@ -11,7 +11,7 @@ import threading
 import pytest
 
 from skyherd.hil import autopilot_sitl
-from skyherd.hil.ardupilot_json import ArduPilotJsonBridge
+from skyherd.hil.ardupilot_json import ArduPilotJsonBridge, json_port
 from skyherd.hil.bridge_peers import ArduPilotJsonPeer
 from skyherd.runio.pin import choose_cpu, cpu_list
 
@@ -19,9 +19,14 @@ FRAMES = 300
 ALL = cpu_list(os.sched_getaffinity(0))
 
 
-def _allowed_list(tid: int) -> str:
-    with open(f"/proc/self/task/{tid}/status") as f:
+def _allowed_list_of(pid: int | str, tid: int) -> str:
+    """Cpus_allowed_list of thread `tid` of process `pid`, as /proc shows it."""
+    with open(f"/proc/{pid}/task/{tid}/status") as f:
         return next(ln.split(":", 1)[1].strip() for ln in f if ln.startswith("Cpus_allowed_list"))
+
+
+def _allowed_list(tid: int) -> str:
+    return _allowed_list_of("self", tid)
 
 
 def _lockstep(bridge: ArduPilotJsonBridge) -> dict:
@@ -113,3 +118,49 @@ def test_arducopter_starts_on_its_bridge_s_cpu(tmp_path):
         got = out.read_text().split(":", 1)[1].strip()
         assert got == (ALL if expected is None else str(expected)), pin
         assert _allowed_list(threading.get_native_id()) == ALL
+
+
+def test_skyherd_sim_pins_its_lockstep_thread_only(tmp_path):
+    """`skyherd sim --autopilot ardupilot` (default --pin-cpu auto) against the scripted peer:
+    in mid-run its main thread, the one that steps the lockstep, is on the chosen CPU, and the
+    threads that were running before the bridge opened (Zenoh's runtime, the interpreter's) on
+    every allowed CPU; the choice is said once and recorded in config.json and sim_stats.json.
+    (Threads the lockstep thread starts itself later inherit its CPU: Zenoh's two shared-memory
+    watchdogs, started with the camera's first frame.)"""
+    import json
+    import subprocess
+    import sys
+
+    instance, cpu = 88, choose_cpu("auto", 88)
+    run = tmp_path / "run"
+    run.mkdir()
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "skyherd.scripts.cli", "sim", "--autopilot", "ardupilot",
+         "--instance", str(instance), "--speedup", "0", "--runs-dir", str(run)],
+        stdout=open(tmp_path / "sim.log", "wb"), stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    peer = ArduPilotJsonPeer(json_port(instance))
+    try:
+        assert len(peer.run(FRAMES)) == FRAMES  # the first frames wait for the world to start
+        tasks = {}
+        for t in os.listdir(f"/proc/{sim.pid}/task"):
+            with open(f"/proc/{sim.pid}/task/{t}/comm") as f:
+                tasks[int(t)] = (f.read().strip(), _allowed_list_of(sim.pid, int(t)))
+        assert len(peer.run(FRAMES)) == 2 * FRAMES  # (all its replies so far)
+    finally:
+        peer.close()
+        sim.terminate()
+        assert sim.wait(60) == 0, (tmp_path / "sim.log").read_text()[-2000:]
+    assert tasks.pop(sim.pid)[1] == (ALL if cpu is None else str(cpu))
+    zenoh = {name for name, _ in tasks.values()} & {"app-0", "net-0", "acc-0"}
+    assert zenoh and {cpus for name, cpus in tasks.values() if not name.startswith("Watchdog")} == {
+        ALL
+    }
+    said = [
+        ln for ln in (tmp_path / "sim.log").read_text().splitlines() if "lockstep thread on" in ln
+    ]
+    assert len(said) == (0 if cpu is None else 1)
+    (folder,) = run.iterdir()
+    stats = json.loads((folder / "sim_stats.json").read_text())
+    assert stats["bridge"].endswith(f"cpu={cpu})")
+    assert json.loads((folder / "config.json").read_text())["args"]["pin_cpu"] == "auto"
