@@ -16,9 +16,10 @@ depend on how loaded the machine is; the socket figures are wall-clock and do.
    up): the real autopilot on the bridge, as fast as possible, for 60 s of simulated time on
    the ground (booting, its estimator converging; no client flies it): the lockstep's
    real-time factor and each side's CPU. ArduCopter is also flown on its own physics
-   (`--model +`, the same binary and parameters), alternated with the bridge for `--rounds`
-   rounds, and the ratio of the two real-time factors is printed against the target 0.5
-   (issue 31 item 4). Flights are the opt-in tests' job (tests/e2e/test_bridge_autopilots.py:
+   (`--model +`, the same binary and parameters), alternated for `--rounds` rounds with the
+   bridge as the product runs it (`--pin-cpu auto`: the lockstep thread and ArduCopter on one
+   CPU, runio.pin) and unpinned (`--pin-cpu off`: where the OS puts them), and the ratio of the
+   real-time factors is printed against the target 0.5 (issue 31 item 4). Flights are the opt-in tests' job (tests/e2e/test_bridge_autopilots.py:
    `skyherd fly --connect` on the bridge). SKYHERD_ARDUPILOT_DEFAULTS: a folder with
    copter.parm (default: the binary's source tree). Instances 86 and 87.
 
@@ -353,24 +354,23 @@ def _warm_json(bridge: ArduPilotJsonBridge) -> None:
 
 
 def _idle_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rates=None,
-                   sim_s: float = 60.0, one_core: bool = False) -> dict:  # fmt: skip
+                   sim_s: float = 60.0, pin: str = "auto") -> dict:  # fmt: skip
     """The autopilot on the bridge as fast as possible for `sim_s` of simulated time: its
     real-time factor and the CPU seconds of each side (ours: this process; the autopilot's:
     the child). `fifo`: this process and the autopilot (which inherits it) at SCHED_FIFO
-    priority 1. `one_core`: both on one CPU (the autopilot inherits this process's affinity):
-    lockstep runs one side at a time, and a hand-off on one core is a plain context switch.
-    Wall time counts from the autopilot's launch; the steady figures from STEADY_FROM_S
-    simulated on (its boot left out)."""
+    priority 1. `pin`: ArduCopter's lockstep pair on one CPU as `skyherd sim --pin-cpu` does
+    it ("auto", the default; "off": where the OS puts them; PX4 is not pinned). Wall time
+    counts from the autopilot's launch; the steady figures from STEADY_FROM_S simulated on
+    (its boot left out)."""
     from skyherd.hil import autopilot_sitl
     from skyherd.hil.bridge_select import make_bridge
 
     instance = 86
-    cpus = os.sched_getaffinity(0)
-    if one_core:
-        os.sched_setaffinity(0, {max(cpus)})
     if fifo:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-    bridge = make_bridge("px4" if name == "px4" else "ardupilot", instance=instance).open_port()
+    bridge = make_bridge("px4" if name == "px4" else "ardupilot", instance=instance,
+                         pin_cpu=pin).open_port()  # fmt: skip
+    cpu = getattr(bridge, "cpu", None)
     if name != "px4":
         _warm_json(bridge)
     run = _Run(name)
@@ -381,7 +381,8 @@ def _idle_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rate
                 raise RuntimeError(f"PX4 did not connect; see {run.work}/autopilot.log")
         else:
             run.proc = autopilot_sitl.start_arducopter(path, instance, run.work, run.log, defaults,
-                                                       speedup=0, rates=rates or CopterRates())  # fmt: skip
+                                                       speedup=0, rates=rates or CopterRates(),
+                                                       pin_cpu=pin)  # fmt: skip
             run.link = _connect_serial0(5760 + 10 * instance)  # SITL waits for it before it runs
         for until in (STEADY_FROM_S, sim_s):
             while bridge.t < until:
@@ -395,11 +396,10 @@ def _idle_measured(name: str, path: Path, defaults: list[Path], fifo: bool, rate
         run.close()
         if fifo:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        os.sched_setaffinity(0, cpus)
     frames = bridge.stats.frames
     row = run.row(bridge.t, ours, theirs)
     row.update({"autopilot": name, "physics": "skyherd", "priority": "fifo" if fifo else "normal",
-                "frames": frames, "one_core": one_core,
+                "frames": frames, "cpu": cpu,
                 "rates": "" if rates is None else f" {rates.sim_rate_hz}/{rates.loop_rate_hz} Hz",
                 "us_per_frame_ours": round(1e6 * ours / max(1, frames), 1),
                 "us_per_frame_autopilot": round(1e6 * theirs / max(1, frames), 1)})  # fmt: skip
@@ -422,7 +422,7 @@ def _native_measured(path: Path, defaults: list[Path], sim_s: float = 60.0) -> d
     run = _Run("native")
     try:
         run.proc = autopilot_sitl.start_arducopter(path, instance, run.work, run.log, defaults,
-                                                   speedup=0, model="+")  # fmt: skip
+                                                   speedup=0, model="+", pin_cpu="off")  # fmt: skip
         link = run.link = _connect_serial0(5760 + 10 * instance)
         link.settimeout(0.01)
         t_sim, asked, t_give_up = 0.0, 0.0, time.monotonic() + 120.0
@@ -467,7 +467,7 @@ def _print_row(row: dict) -> None:
     if row["physics"] == "native":
         what, who = "arducopter native (--model +)", "ours (SYSTEM_TIME reader)"
     else:
-        where = " one core" if row["one_core"] else ""
+        where = " unpinned" if row["cpu"] is None else f" on CPU {row['cpu']}"
         what = f"{row['autopilot']}{row['rates']} JSON {row['priority']}{where}"
         who = "ours (bridge)"
         if row["autopilot"] == "px4":
@@ -514,14 +514,15 @@ def real_autopilots(rounds: int = 3, variants: bool = False) -> list[dict]:
     defaults = _arducopter_defaults(Path(path))
     print(f"  arducopter defaults: {', '.join(str(d) for d in defaults) or 'none'} + skyherd's "
           f"frame and rates ({CopterRates().sim_rate_hz}/{CopterRates().loop_rate_hz} Hz)")  # fmt: skip
-    rows: dict[str, list[dict]] = {"native": [], "JSON": [], "JSON one core": []}
+    print(f"  load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} at the start")
+    pins = {"JSON pinned (default)": "auto", "JSON unpinned": "off"}
+    rows: dict[str, list[dict]] = {"native": []} | {key: [] for key in pins}
     for _ in range(rounds):  # alternated: the machine's load drifts over all alike
         for key in rows:
             if key == "native":
                 row = _native_measured(Path(path), defaults)
             else:
-                row = _idle_measured("arducopter", Path(path), defaults, False,
-                                     one_core=key == "JSON one core")  # fmt: skip
+                row = _idle_measured("arducopter", Path(path), defaults, False, pin=pins[key])
             rows[key].append(row)
             out.append(row)
             _print_row(row)
@@ -530,7 +531,8 @@ def real_autopilots(rounds: int = 3, variants: bool = False) -> list[dict]:
         v = sorted(r[field] for r in rows[key])
         return v[len(v) // 2]
 
-    for key in ("JSON", "JSON one core"):
+    print(f"  load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} at the end")
+    for key in pins:
         for field, label in (("rtf_steady", "steady"), ("rtf", "from launch")):
             j, n = median(key, field), median("native", field)
             print(f"  {key} / native ({label}, medians of {rounds}): {j:.2f}x / {n:.2f}x = "

@@ -22,6 +22,11 @@ that very packet (ArduPilot ramps frame_rate towards SIM_RATE_HZ); a repeated fr
 is sent again only when it is older than `resend_after_s` of wall time (answering every
 duplicate would shift lockstep by a frame; answering none deadlocks after a lost reply);
 a frame_count going back means ArduPilot restarted: the physics is reset.
+
+One CPU for the pair (runio.pin, `pin_cpu`): the thread that opens the bridge, or runs `serve`,
+is the lockstep thread and is kept on the chosen CPU while the bridge is open (its other threads,
+and the process, keep every CPU); the autopilot belongs on the same CPU (hil/autopilot_sitl.py
+starts it there; one started by hand: `taskset -c CPU arducopter ...`).
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import ctypes
 import math
 import socket
 import struct
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -44,6 +50,8 @@ from skyherd.hil.bridge_format import compiled_for, make_template, quad_frame
 from skyherd.hil.bridge_net import bind_socket
 from skyherd.hil.bridge_physics import PlaneBody, QuadBody
 from skyherd.runio import ports
+from skyherd.runio.pin import choose_cpu, cpu_list, pin_thread
+from skyherd.runio.process import say
 
 JSON_BASE_PORT = ports.JSON_BASE  # runio.ports: every port an instance owns
 PORT_STRIDE = ports.JSON_STRIDE  # ArduPilot's -I N moves every port by 10 N
@@ -114,6 +122,7 @@ class JsonStats:
     resends: int = 0  # cached replies sent again
     restarts: int = 0  # frame_count went back: physics reset
     bad_packets: int = 0  # wrong size or magic, frame_rate 0
+    cpu: int | None = None  # the CPU the lockstep thread was pinned to (None: not pinned)
 
 
 @dataclass
@@ -122,6 +131,8 @@ class ArduPilotJsonBridge:
 
     `open()` binds the socket, `step_once(timeout_s)` handles one packet, `serve()` loops;
     `state` is the true VehicleState after the last step (for the camera and the world).
+    `pin_cpu`: "auto", "off" or a CPU number for the lockstep thread (runio.pin.choose_cpu;
+    ValueError if that CPU is not allowed); `cpu` is the choice (None: not pinned).
     """
 
     airframe: str = "quadrotor"
@@ -131,12 +142,15 @@ class ArduPilotJsonBridge:
     config: JsonBridgeConfig = field(default_factory=JsonBridgeConfig)
     quad_params: QuadrotorParams | None = None
     host: str = "127.0.0.1"
+    pin_cpu: str | int = "auto"
     stats: JsonStats = field(default_factory=JsonStats, init=False)
 
     def __post_init__(self) -> None:
         if self.airframe not in AIRFRAMES:
             raise ValueError(f"airframe {self.airframe!r}: choose one of {AIRFRAMES}")
         self.port = json_port(self.instance)
+        self.cpu = choose_cpu(self.pin_cpu, self.instance)
+        self._held: tuple[int, frozenset[int]] | None = None  # (thread id, its CPUs before)
         # seed: kept for the API and the run record; the JSON physics has no noise of its
         # own (ArduPilot adds its SIM_*_RND sensor noise itself).
         if self.airframe == "quadrotor":
@@ -167,7 +181,33 @@ class ArduPilotJsonBridge:
             self._sock = bind_socket(socket.SOCK_DGRAM, self.host, self.port, self.instance)
             self._timeout = _UNSET
             self._peer = None
+            self._hold_cpu()
         return self
+
+    def _hold_cpu(self) -> None:
+        """Keep the calling thread, the lockstep's, on `cpu` (a thread held before gets its
+        CPUs back); said once. The kernel refusing: one warning, and the bridge runs unpinned."""
+        tid = threading.get_native_id()
+        if self.cpu is None or (self._held is not None and self._held[0] == tid):
+            return
+        said = self.stats.cpu is not None
+        self._let_go()
+        before = pin_thread(self.cpu, tid)
+        if before is None:  # warned: unpinned from now on
+            self.cpu = None
+            return
+        self._held, self.stats.cpu = (tid, before), self.cpu
+        if not said:
+            say(f"skyherd: ArduPilot JSON bridge (instance {self.instance}): lockstep thread on "
+                f"CPU {self.cpu} (--pin-cpu {self.pin_cpu}; allowed {cpu_list(before)}); run the "
+                f"autopilot on it too: taskset -c {self.cpu} arducopter ...")  # fmt: skip
+
+    def _let_go(self) -> None:
+        """Give the held thread its CPUs back (quietly: it may have ended)."""
+        if self._held is not None:
+            tid, before = self._held
+            self._held = None
+            pin_thread(before, tid, warn=lambda _: None)
 
     def _wait_at_most(self, sock: socket.socket, timeout_s: float | None) -> None:
         """Let `recvfrom` itself wait at most timeout_s (SO_RCVTIMEO; None: forever) on a
@@ -187,6 +227,7 @@ class ArduPilotJsonBridge:
         return self.open()
 
     def close(self) -> None:
+        self._let_go()
         if self._sock is not None:
             self._sock.close()
             self._sock = None
@@ -289,6 +330,7 @@ class ArduPilotJsonBridge:
         on_step(bridge) runs after each physics step; returning True stops the loop.
         """
         sock = self.open()._sock
+        self._hold_cpu()  # this thread runs the lockstep
         self._wait_at_most(sock, idle_timeout_s)
         one = self._one_packet
         t_end = math.inf if sim_duration_s is None else sim_duration_s

@@ -6,6 +6,10 @@ PX4 (`PX4_SIM_MODEL=none_iris`): its simulator_mavlink connects to the bridge on
 bridge on UDP 9002+10N (hil/ardupilot_json.py) and waits on SERIAL0 (TCP 5760+10N) for a
 client before it flies. Both open UDP/TCP ports: run them in a network namespace with only
 loopback up (`unshare -n sh -c 'ip link set lo up; ...'`).
+
+ArduCopter starts on the CPU its bridge's lockstep thread runs on (runio.pin.choose_cpu: the
+same instance gives the same CPU), one core for the lockstep pair. PX4 is left unpinned: each of
+its frames wakes six of its own threads in turn, not one process.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.flight.geo import DEFAULT_HOME, Home
+from skyherd.runio.pin import choose_cpu, pin_thread
 
 
 @dataclass(frozen=True)
@@ -64,19 +69,29 @@ def start_arducopter(
     rates: CopterRates = CopterRates(),
     home: Home = DEFAULT_HOME,
     model: str = "JSON:127.0.0.1",
+    pin_cpu: str | int = "auto",
 ) -> subprocess.Popen:
     """ArduCopter SITL with `--model JSON:127.0.0.1`, `-I instance`, parameters from
     `defaults` (e.g. ArduPilot's copter.parm), then skyherd's frame (copter_json_parm), then
     `extra_parm` (an operator's own lines). speedup 0 = as fast as the physics answers.
     `model`: another of ArduPilot's own physics models (e.g. "+") flies the same binary and
-    parameters without skyherd's physics (bench/bench_bridges.py's yardstick)."""
+    parameters without skyherd's physics (bench/bench_bridges.py's yardstick). `pin_cpu`: its
+    CPU as the bridge of `instance` chooses it (runio.pin.choose_cpu: auto, off or a number;
+    ValueError if not allowed); the kernel refusing: a warning, and it starts unpinned."""
     parm = workdir / "skyherd-json.parm"
     parm.write_text(copter_json_parm(rates) + extra_parm)
     cmd = [str(binary), "--model", model, "--speedup", str(speedup or 1000),
            "-I", str(instance), "--home", f"{home.lat_deg},{home.lon_deg},{home.alt_m},0",
            "--defaults", ",".join(str(p) for p in [*defaults, parm]), "-w"]  # fmt: skip
-    return subprocess.Popen(cmd, cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
-                            stdin=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+    cpu = choose_cpu(pin_cpu, instance)
+    # a child inherits the CPUs of the thread that starts it: this one, for the moment
+    before = pin_thread(cpu) if cpu is not None else None
+    try:
+        return subprocess.Popen(cmd, cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+    finally:
+        if before is not None:
+            pin_thread(before)
 
 
 def stop(proc: subprocess.Popen) -> int | None:

@@ -57,13 +57,16 @@ def make_bridge(
     seed: int = 0,
     home: Home = DEFAULT_HOME,
     speedup: float = 0.0,
+    pin_cpu: str | int = "auto",
 ) -> Bridge:
     """The bridge of `autopilot` for `airframe` ("quadrotor"; ArduPilot also "fixedwing").
 
     speedup paces PX4 (0 = as fast as it answers); ArduPilot paces itself (--speedup).
+    pin_cpu: the CPU of ArduPilot's lockstep thread (runio.pin.choose_cpu; ValueError if not
+    allowed); PX4's bridge is not pinned (PX4 is many threads, not one lockstep partner).
     """
     if autopilot == "px4":
         return Px4SimBridge(airframe, instance, seed, home, speedup=speedup)
     if autopilot == "ardupilot":
-        return ArduPilotJsonBridge(airframe, instance, seed, home)
+        return ArduPilotJsonBridge(airframe, instance, seed, home, pin_cpu=pin_cpu)
     raise ValueError(f"autopilot {autopilot!r}: choose one of {AUTOPILOTS}")

@@ -15,6 +15,7 @@ import os
 from dataclasses import dataclass
 
 from skyherd.runio import args_dict
+from skyherd.runio.pin import PIN_CHOICES, PIN_HELP
 from skyherd.runio.process import parent_gone, say
 from skyherd.runio.run import given_or_new_run_folder
 from skyherd.scripts.cli import UsageError, check_with, usage
@@ -36,7 +37,8 @@ class SimFolder:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     world = [f.name for f in dataclasses.fields(SimSetup)]
-    add_options(parser, SimSetup, only=tuple(world[: world.index("wind")]), **WORLD)
+    pin = dict(pin_cpu=dict(metavar=PIN_CHOICES, help=PIN_HELP + "; with --autopilot ardupilot"))
+    add_options(parser, SimSetup, only=tuple(world[: world.index("wind")]), **WORLD, **pin)
     add_fault_arguments(parser)
     add_options(
         parser,

@@ -72,12 +72,13 @@ class NoSession:
 
 
 def open_world(params, endpoint, session, run_dir: Path, faults=None, autopilot: str = "builtin",
-               follow: str | None = None, follow_system: int = 0):  # fmt: skip
+               follow: str | None = None, follow_system: int = 0,
+               pin_cpu: str = "auto"):  # fmt: skip
     """The world of one vehicle (world.sim.WorldParams `params`, flight.mavlink.EndpointConfig
     `endpoint`, its signing key the flight key of the frames): a real autopilot on skyherd's
-    physics (`autopilot` px4 | ardupilot: hil bridges), the outside vehicle at the MAVLink
-    address `follow`, or the built-in vehicle with the fault plan `faults`. `session`: the
-    caller's, to close."""
+    physics (`autopilot` px4 | ardupilot: hil bridges; `pin_cpu`: the CPU of ArduPilot's
+    lockstep, runio.pin), the outside vehicle at the MAVLink address `follow`, or the built-in
+    vehicle with the fault plan `faults`. `session`: the caller's, to close."""
     from skyherd.flight.mavlink.signing import load_key
 
     key = lambda: load_key(endpoint.signing_key) if endpoint.signing_key else None  # noqa: E731
@@ -87,7 +88,7 @@ def open_world(params, endpoint, session, run_dir: Path, faults=None, autopilot:
             from skyherd.world.bridged import BridgedWorld
 
             bridge = make_bridge(autopilot, params.airframe, params.instance, params.seed,
-                                 speedup=params.speedup)  # fmt: skip
+                                 speedup=params.speedup, pin_cpu=pin_cpu)  # fmt: skip
             return BridgedWorld(bridge, params, session=session, run_dir=run_dir, key=key())
         if follow:
             from skyherd.world.follow import FollowWorld

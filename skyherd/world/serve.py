@@ -86,7 +86,7 @@ def open_worlds(setup, run_dir) -> tuple[list, object, list | None]:
     )
     try:
         world = open_world(params, endpoint, session, run_dir, setup.faults(), setup.autopilot,
-                           setup.follow, setup.follow_system)  # fmt: skip
+                           setup.follow, setup.follow_system, setup.pin_cpu)  # fmt: skip
     except ValueError:
         session.close()
         raise

@@ -52,6 +52,7 @@ class SimSetup:
     autopilot: str = "builtin"
     """builtin: skyherd's autopilot (default); px4 / ardupilot: a real one flies on skyherd's
     physics (PX4 none_iris on TCP 4560+N, ArduPilot --model JSON on UDP 9002+10N)"""
+    pin_cpu: str = "auto"  # --autopilot ardupilot: the lockstep pair's CPU (runio.pin)
     follow_system: int = 0
     """with --follow: the followed autopilot's MAVLink system id (0: the first autopilot
     heard)"""
@@ -112,12 +113,14 @@ class SimSetup:
         try:
             from skyherd.flight.mavlink.signing import key_option
             from skyherd.runio.address import zenoh_config_file
+            from skyherd.runio.pin import choose_cpu
 
+            choose_cpu(s.pin_cpu, s.instance)
             if s.signing_key:
                 key_option(s.signing_key)
             if s.zenoh_config is not None:
                 zenoh_config_file(s.zenoh_config)
-        except ValueError as e:  # SigningError, AddressError: one line naming the option
+        except ValueError as e:  # SigningError, AddressError, --pin-cpu: one line naming the option
             raise WorldError(str(e)) from None
         if s.fleet:
             s.read_fleet()
