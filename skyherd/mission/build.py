@@ -97,10 +97,9 @@ def _record(run_dir: Path | None):
     )
 
 
-def build_mission(c: MissionChoice, run_dir: Path | None, say=_say_nothing, lockstep: bool = False):
+def build_mission(c: MissionChoice, run_dir: Path | None, say=_say_nothing):
     """Policy, safety net, pilot and the mission generator's owner, and its plan (ValueError,
-    one line, on bad input). With `run_dir`, the records go there; `say(line)` tells progress;
-    lockstep: flown in lockstep (the net's warm-up leaves the QP to its first use)."""
+    one line, on bad input). With `run_dir`, the records go there; `say(line)` tells progress."""
     from skyherd.mission.flight import FlightPlan, SingleVehicleMission
     from skyherd.mission.perception import Perception
     from skyherd.mission.pilots import PerceptionFollower, PolicyPilot, WaypointPilot
@@ -111,7 +110,7 @@ def build_mission(c: MissionChoice, run_dir: Path | None, say=_say_nothing, lock
     if c.mission == "orbit":
         return _orbit_mission(c, run_dir)
     if c.mission == "shepherd":
-        return _shepherd_mission(c, run_dir, lockstep)
+        return _shepherd_mission(c, run_dir)
     if c.mission == "square":
         if not (0 < altitude <= 120 and 0 < c.side_m <= 500):
             raise ValueError("--altitude must be in (0, 120] m and --side in (0, 500] m")
@@ -121,7 +120,7 @@ def build_mission(c: MissionChoice, run_dir: Path | None, say=_say_nothing, lock
         plan = FlightPlan(altitude_m=altitude, duration_s=600.0)
     else:
         plan = FlightPlan(altitude_m=altitude, duration_s=c.duration_s, decision_s=task.dt_s)
-        net = load_groundair_net(c.envelope, run_dir, lockstep)
+        net = load_groundair_net(c.envelope, run_dir)
         if c.pilot == "policy":
             pilot = PolicyPilot(load_pilot_policy(c.policy), task)
         elif c.pilot == "pid":
@@ -141,7 +140,7 @@ def build_mission(c: MissionChoice, run_dir: Path | None, say=_say_nothing, lock
                                 c.configure_autopilot, say), plan  # fmt: skip
 
 
-def _shepherd_mission(c: MissionChoice, run_dir: Path | None, lockstep: bool = False):
+def _shepherd_mission(c: MissionChoice, run_dir: Path | None):
     """The shepherd (mission/shepherd.py) behind the ground-air envelope's net; its flock reader
     is attached once the Zenoh session is open (`attach_flock`)."""
     from skyherd.mission.flight import FlightPlan, SingleVehicleMission
@@ -152,7 +151,7 @@ def _shepherd_mission(c: MissionChoice, run_dir: Path | None, lockstep: bool = F
     altitude = c.shepherd_altitude_m if c.altitude_m is None else c.altitude_m
     plan = FlightPlan(altitude_m=altitude, duration_s=c.duration_s,
                       decision_s=ShepherdParams().decision_s)  # fmt: skip
-    net = load_groundair_net(c.envelope, run_dir, lockstep)
+    net = load_groundair_net(c.envelope, run_dir)
     spec = net.spec
     pilot = ShepherdPilot(make_selector(c.shepherd_selector), lambda t: None, altitude, spec.limits,
                           spec.dynamics.tau_s)  # fmt: skip
@@ -244,9 +243,8 @@ def load_pilot_policy(path: str | None):
     return policy
 
 
-def load_groundair_net(envelope: str | None, run_dir: Path | None, lockstep: bool = False):
-    """The ground-air mission's SafetyNet (the camera is one of its inputs). lockstep: the
-    recovery QP is not built before the flight (safety.net.warm_up's qp)."""
+def load_groundair_net(envelope: str | None, run_dir: Path | None):
+    """The ground-air mission's SafetyNet (the camera is one of its inputs), warmed up."""
     from skyherd.safety.config import ENVELOPE_DIR, EnvelopeFileError
     from skyherd.safety.net import SafetyNet, warm_up
 
@@ -256,5 +254,5 @@ def load_groundair_net(envelope: str | None, run_dir: Path | None, lockstep: boo
         net = SafetyNet.load("quadrotor", path, events=events, camera=True)
     except (EnvelopeFileError, ValueError) as e:
         raise ValueError(f"{e}; fix the file or pass another --envelope") from None
-    warm_up(net.envelope, net.p, qp=not lockstep)  # now, not at the first switch in flight
+    warm_up(net.envelope, net.p)  # now, not at the first switch in flight
     return net

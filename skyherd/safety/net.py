@@ -260,22 +260,16 @@ def _warm_state(t: float, north_m: float) -> VehicleState:
                         on_ground=False)  # fmt: skip
 
 
-def warm_up(envelope, params, qp: bool = True) -> float:
+def warm_up(envelope, params) -> float:
     """Build the net's kernels ahead of time when they are not yet (safety.compiled: then the
     process loads neither numba nor its cache), then run a throwaway Supervisor over the same
-    envelope through AI, FALLBACK and PID once, so that the kernels load and the recovery QP is
-    built before the flight, not inside the MAVLink receive thread at the first switch (a stall
-    there, ~1 s wall, is 20 s of vehicle time at 20×). qp False (a companion in lockstep, whose
-    simulator waits for it: a stall costs the vehicle no time): the QP is left to the first
-    switch that needs one, and with it the import of OSQP and SciPy (~0.2 CPU s, which a flight
-    that never needs the QP does not spend). Returns the wall time it took [s]."""
+    envelope through AI, FALLBACK and PID once, so that the kernels load and the recovery's
+    nearest point (safety.nearest) is taken before the flight, not inside the MAVLink receive
+    thread at the first switch (a stall there, ~1 s wall, is 20 s of vehicle time at 20×).
+    Returns the wall time it took [s]."""
     t0 = time.perf_counter()
     ensure_built()
     sv = Supervisor(envelope, params, None)
-    if not qp:  # the kernels only: a state inside, its selected polyhedron
-        sv.update(0.0, _warm_state(0.0, 0.0), Setpoint(vel_ned=np.array([20.0, 0.0, 0.0])))
-        envelope.selected(envelope.residual(np.zeros(envelope.A.shape[1])))
-        return time.perf_counter() - t0
     for k, north in enumerate((0.0, 5000.0)):  # inside, then far outside the fence
         st = _warm_state(float(k), north)
         sv.update(float(k), st, Setpoint(vel_ned=np.array([20.0, 0.0, 0.0])))

@@ -167,8 +167,7 @@ def run(args: argparse.Namespace) -> int:
     from skyherd.mission.build import build_mission
     from skyherd.runio.address import zenoh_endpoint
 
-    mission, plan = _built(folder, build_mission, mission_choice(args), run_dir, say,
-                           not args.free_run)  # fmt: skip
+    mission, plan = _built(folder, build_mission, mission_choice(args), run_dir, say)
     if folder is not None:
         folder.write_config({"args": args_dict(args), "plan": plan, "address": address})
     session = frames = None

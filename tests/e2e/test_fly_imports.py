@@ -4,7 +4,8 @@ logs the first import of each watched package, with the Python stack that asked 
 
 - the simulator imports no numba (its kernels run compiled ahead of time: flight.multirotor.
   compiled), no SciPy, no pydantic (the default tables are plain: runio.schema), no matplotlib;
-- the companion imports no pydantic and no matplotlib;
+- the companion imports no pydantic, no matplotlib, no OSQP and no SciPy (its net's projection
+  and recovery target are exact: safety.nearest);
 - `fly` imports matplotlib only to draw its plots after the verdict (report.ending.make_plots),
   no pydantic;
 - none of them imports torch or pandas.
@@ -21,7 +22,7 @@ import pytest
 
 from skyherd.flight.multirotor import compiled
 
-WATCHED = ("numba", "scipy", "pydantic", "matplotlib", "torch", "pandas")
+WATCHED = ("numba", "scipy", "osqp", "pydantic", "matplotlib", "torch", "pandas")
 
 HOOK = f"""
 import json, os, sys, traceback
@@ -75,8 +76,8 @@ def test_the_simulator_imports_no_numba_scipy_pydantic_or_plotting(imports):
 
 
 @pytest.mark.slow
-def test_the_companion_imports_no_pydantic_or_plotting(imports):
-    assert not set(imports["companion"]) & {"pydantic", "matplotlib"}, {
+def test_the_companion_imports_no_pydantic_plotting_osqp_or_scipy(imports):
+    assert not set(imports["companion"]) & {"pydantic", "matplotlib", "osqp", "scipy"}, {
         m: s[-6:] for m, s in imports["companion"].items()
     }
 

@@ -116,16 +116,14 @@ def test_a_build_made_by_another_process_is_taken_up(tmp_path):
 START = """
 import sys
 from skyherd.mission.build import MissionChoice, build_mission
-build_mission(MissionChoice(), None, lockstep=sys.argv[1] == "lockstep")
+build_mission(MissionChoice(), None)
 print("numba" in sys.modules, "osqp" in sys.modules, "scipy" in sys.modules)
 """
 
 
 def test_the_companions_net_starts_without_numba_osqp_or_scipy(built):
-    def start(how: str) -> list[str]:
-        return subprocess.run([sys.executable, "-c", START, how], capture_output=True, text=True,
-                              timeout=300, check=True).stdout.split()  # fmt: skip
-
-    assert start("lockstep") == ["False", "False", "False"]
-    # the warm-up runs the projection and the recovery target: exact, no OSQP (safety.nearest)
-    assert start("free-running") == ["False", "False", "False"]
+    """The warm-up runs the net through AI, FALLBACK and PID: its kernels compiled ahead of time
+    (no numba), the projection and the recovery target exact (safety.nearest: no OSQP, no SciPy)."""
+    out = subprocess.run([sys.executable, "-c", START], capture_output=True, text=True,
+                         timeout=300, check=True).stdout.split()  # fmt: skip
+    assert out == ["False", "False", "False"]
