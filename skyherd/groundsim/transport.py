@@ -8,6 +8,8 @@ the size does not matter.
 With the flight's key (the 32-byte MAVLink signing key; `skyherd fly` signs by default) every
 record carries "mac" (runio.mac: keyed BLAKE2b-256 of the record without it); a subscriber given
 the key refuses (counts in `refused`, never keeps) a record without it or whose MAC fails.
+Signed, a record is its canonical JSON (keys sorted, compact) with "mac" as the last member,
+checked over the received bytes (runio.mac.payload_ok).
 Without a key the records are as before, with no "mac".
 
 Sessions come from `perception.transport.open_session` (loopback peer by default).
@@ -22,7 +24,7 @@ import threading
 import numpy as np
 
 from skyherd.groundsim.ugv import UGVStates
-from skyherd.runio.mac import record_ok, sign_record
+from skyherd.runio.mac import payload_ok, sign_record
 
 
 def state_key(ugv_id: int | str) -> str:
@@ -73,7 +75,8 @@ class UGVStateSubscriber:
 
     def _on_sample(self, sample) -> None:
         try:
-            rec = json.loads(sample.payload.to_bytes().decode())
+            payload = sample.payload.to_bytes()
+            rec = json.loads(payload.decode())
             i = int(rec["id"])
             pos = [float(x) for x in rec["pos_ned"]]
             ok = len(pos) == 3 and all(math.isfinite(x) for x in pos)
@@ -84,7 +87,7 @@ class UGVStateSubscriber:
             with self._lock:
                 self.corrupt += 1
             return
-        if self.key is not None and not record_ok(rec, self.key):
+        if self.key is not None and not payload_ok(payload, rec, self.key):
             with self._lock:
                 self.refused += 1
             return

@@ -106,7 +106,12 @@ def test_zenoh_recorder_records_every_key_of_a_flight_in_another_session(tmp_pat
     assert got.complete
     c = got.counts()
     assert c["/uav0/camera/image"] == n and c["/uav0/pose"] == n and c["/tf"] == n
-    assert c["/ugvs"] == 3 * n and c["/uav0/decision"] == n and c["/uav0/phi"] == n
+    assert c["/uav0/decision"] == n and c["/uav0/phi"] == n
+    # the three states of each time in one scene (the first time: UGV 0 alone, then 1 and 2,
+    # while the recorder learns how many there are); every state drawn once
+    scenes = [(m.t, [e.id for e in _scene(m.data).entities]) for m in got.topic("/ugvs")]
+    assert scenes[:2] == [(0.0, ["ugv0"]), (0.0, ["ugv1", "ugv2"])]
+    assert scenes[2:] == [(pytest.approx(0.1 * k), ["ugv0", "ugv1", "ugv2"]) for k in range(1, n)]
     assert c["/uav0/safety/event"] == 1 and c["/uav0/log"] == 1 and c["/sim/clock"] == n
     assert [m.t for m in got.topic("/sim/clock")] == pytest.approx([0.1 * k for k in range(n)])
     assert [m.t for m in got.topic("/uav0/camera/image")] == pytest.approx(
@@ -121,6 +126,18 @@ def test_zenoh_recorder_records_every_key_of_a_flight_in_another_session(tmp_pat
     start = jpg.index(b"\xff\xd8")
     im = cv2.imdecode(np.frombuffer(jpg[start:], np.uint8), cv2.IMREAD_COLOR)
     assert im is not None and im.shape == (60, 80, 3)
+
+
+def _scene(data: bytes):
+    """A foxglove.SceneUpdate decoded from its bytes with the schema foxglove publishes."""
+    from foxglove import messages as fm
+
+    schema = fm.SceneUpdate.get_schema()
+    fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+    pool = descriptor_pool.DescriptorPool()
+    for fd in fds.file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name)).FromString(data)
 
 
 def _proto_class(schema: dict):
