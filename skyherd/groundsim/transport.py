@@ -40,15 +40,19 @@ class UGVStatePublisher:
         self.key = key  # the flight key: records carry "mac"
 
     def publish(self, t_sim: float, states: UGVStates) -> None:
+        # Python numbers once per call (one numpy scalar per field and UGV costs more)
+        pos, heading = np.asarray(states.pos_ne).tolist(), np.asarray(states.heading).tolist()
+        speed = np.asarray(states.speed).tolist()
+        camouflaged = np.asarray(states.camouflaged).tolist()
         for i, pub in enumerate(self._pubs):
             rec = {
                 "id": i,
                 "seq": self.seq,
                 "t_sim": float(t_sim),
-                "pos_ned": [float(states.pos_ne[i, 0]), float(states.pos_ne[i, 1]), 0.0],
-                "heading_rad": float(states.heading[i]),
-                "speed_mps": float(states.speed[i]),
-                "camouflaged": bool(states.camouflaged[i]),
+                "pos_ned": [float(pos[i][0]), float(pos[i][1]), 0.0],
+                "heading_rad": float(heading[i]),
+                "speed_mps": float(speed[i]),
+                "camouflaged": bool(camouflaged[i]),
             }
             pub.put(sign_record(rec, self.key))
         self.seq += 1
