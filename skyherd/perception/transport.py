@@ -74,6 +74,7 @@ import functools
 import hashlib
 import hmac
 import json
+import logging
 import math
 import os
 import re
@@ -89,6 +90,8 @@ import numpy as np
 from skyherd.perception.camera import CameraParams
 from skyherd.runio.mac import record_ok, sign_record
 from skyherd.runio.ports import ZENOH_BASE
+
+log = logging.getLogger(__name__)
 
 _HDR = struct.Struct("<4sHBBIQdd3d4dHHI16s16sI")
 HEADER_LEN = _HDR.size
@@ -504,6 +507,7 @@ class FramePublisher:
         self._shm = None  # zenoh.shm.ShmProvider, made at the first frame (its size is known then)
         self._gc = None  # its allocation policy (zenoh.shm.GarbageCollect)
         self.shm_fallbacks = 0  # frames sent by copy because shared memory was not available
+        self.shm_error: str | None = None  # why shared memory is off (_shm_off), if it is
         self._last: bytearray | None = None  # the last payload sent (republish)
         # raw frames: one payload, filled again for each frame (its pages stay hot: a second one,
         # alternately filled, cost ~0.02 ms per 640x480 frame in the bench), with its (H, W, 3)
@@ -548,18 +552,35 @@ class FramePublisher:
             try:
                 self._shm = zenoh.shm.ShmProvider.default_backend(self._shm_frames * n)
                 self._gc = zenoh.shm.GarbageCollect()
-            except Exception:  # noqa: BLE001 - no /dev/shm, too small a limit: copy instead
-                self._shm_frames = 0
+            except Exception as e:  # noqa: BLE001 - no /dev/shm, too small a limit: copy instead
+                self._shm_off(e)
+            except BaseException as e:  # a Rust panic in Zenoh (pyo3's PanicException)
+                self._shm_off(e, reraise=True)
         if self._shm is not None:
             try:
                 buf = self._shm.alloc(n, policy=self._gc)
             except Exception:  # noqa: BLE001 - pool exhausted by slow readers: copy this one
+                self.shm_fallbacks += 1
+            except BaseException as e:  # the segment could not be made: copy from now on
+                self._shm_off(e, reraise=True)
                 self.shm_fallbacks += 1
             else:
                 buf[0:n] = payload
                 self._pub.put(buf)
                 return
         self._pub.put(payload)
+
+    def _shm_off(self, e: BaseException, reraise: bool = False) -> None:
+        """Shared memory off for the rest of the flight, frames sent by copy, the reason kept
+        (`shm_error`) and said once. Zenoh reports a segment it cannot make (e.g. its pages
+        cannot be locked: RLIMIT_MEMLOCK, 8 MiB for a user without CAP_IPC_LOCK, is less than
+        `shm_frames` 640×480 frames) as a Rust panic, which pyo3 raises as a BaseException:
+        with `reraise`, anything else of that kind (KeyboardInterrupt, SystemExit) goes on."""
+        if reraise and type(e).__name__ != "PanicException":
+            raise e
+        self._shm, self._gc, self._shm_frames = None, None, 0
+        self.shm_error = f"{type(e).__name__}: {e}"
+        log.warning("camera frames: shared memory off, frames sent by copy (%s)", self.shm_error)
 
     def publish(
         self, t_sim: float, uav_pos_ned: np.ndarray, uav_quat: np.ndarray, image: np.ndarray

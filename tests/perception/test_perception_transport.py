@@ -295,3 +295,61 @@ def test_the_header_crc_covers_every_header_byte():
             bad[i] ^= bit
             with pytest.raises(CorruptFrame):
                 decode_header(bytes(bad))
+
+
+# A process that cannot lock a shared-memory segment's pages (a user without CAP_IPC_LOCK and
+# a small RLIMIT_MEMLOCK: here a user namespace of its own, the limit lowered) publishes frames.
+NO_LOCKED_MEMORY = r"""
+import ctypes, json, os, resource, sys, time
+CLONE_NEWUSER = 0x10000000  # <sched.h>: capabilities in the machine's namespace are gone
+if ctypes.CDLL(None, use_errno=True).unshare(CLONE_NEWUSER) != 0 and os.geteuid() == 0:
+    print(json.dumps({"skip": os.strerror(ctypes.get_errno())}))
+    sys.exit(0)
+limit, w, h = (int(x) for x in sys.argv[2:5])
+resource.setrlimit(resource.RLIMIT_MEMLOCK, (limit, limit))
+import numpy as np  # (after the unshare: a process with threads, numpy's, cannot make one)
+from skyherd.perception.camera import CameraParams
+from skyherd.perception.transport import FramePublisher, FrameSubscriber, ZenohParams, open_session
+port = int(sys.argv[1])
+a = open_session(ZenohParams(listen=(f"tcp/127.0.0.1:{port}",)))
+b = open_session(ZenohParams(connect=(f"tcp/127.0.0.1:{port}",)))
+sub = FrameSubscriber(b, "uav7")
+pub = FramePublisher(a, "uav7", CameraParams(width_px=w, height_px=h))
+assert pub.wait_for_subscriber(10.0)
+img = (np.arange(h * w * 3) % 251).astype(np.uint8).reshape(h, w, 3)
+for k in range(3):
+    pub.publish(0.5 * k, np.array([1.0, 2.0, -30.0]), np.array([1.0, 0, 0, 0]), img)
+    deadline = time.monotonic() + 10.0
+    while sub.stats.received + sub.stats.lost <= k and time.monotonic() < deadline:
+        time.sleep(0.005)
+fr = sub.latest()
+print(json.dumps({"seq": fr.seq, "same": bool(np.array_equal(fr.image, img)),
+                  "fallbacks": pub.shm_fallbacks, "error": pub.shm_error}))
+b.close()
+a.close()
+"""
+
+
+@pytest.mark.parametrize(
+    "limit,size,fallbacks,error",
+    [
+        (256 << 10, (320, 240), 0, "ZError"),  # the pool itself refused: an exception
+        (8 << 20, (640, 480), 1, "PanicException"),  # its segment, at the first frame: a panic
+    ],
+)
+def test_frames_go_by_copy_when_shared_memory_cannot_be_locked(limit, size, fallbacks, error):
+    """Zenoh cannot make a shared-memory pool whose pages it cannot lock (a user without
+    CAP_IPC_LOCK whose RLIMIT_MEMLOCK, 8 MiB by default, is below the pool): at the pool it
+    raises, at the first frame's segment it panics (a Rust panic: a BaseException in Python,
+    which crashed the simulator before). Either way the publisher turns shared memory off,
+    says why, and sends every frame by copy."""
+    argv = [str(free_port()), str(limit), str(size[0]), str(size[1])]
+    out = subprocess.run([sys.executable, "-c", NO_LOCKED_MEMORY, *argv], capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    res = __import__("json").loads(out.stdout.strip().splitlines()[-1])
+    if "skip" in res:
+        pytest.skip(f"no user namespace for the test's process ({res['skip']})")
+    assert res["seq"] == 2 and res["same"]  # every frame arrived, by copy
+    assert res["fallbacks"] == fallbacks and res["error"].startswith(error)
+    assert "shared memory off" in out.stderr
