@@ -1,4 +1,5 @@
-"""Cost of signing (issue 27): per MAVLink message and per camera frame, signed vs unsigned.
+"""Cost of signing (issue 27): per MAVLink message and per camera frame, signed vs unsigned;
+per signed JSON record, issue 31's one encoding vs issue 27's two.
 
     PYTHONPATH=. .venv/bin/python bench/bench_signing.py [--rounds 7] [--messages 20000] [--frames 200]
 
@@ -9,11 +10,20 @@ Frames: `encode_frame` of a camera-sized raw frame (build) and `decode_header` +
 the pixels + keyed BLAKE2b over header and digest; perception/transport.py). CPU time
 (time.process_time: what the machine's load does not change), A and B alternated round by
 round in one run; the table gives the median per round and the ratio signed / unsigned.
+
+JSON records (runio.mac; a UGV state as groundsim.transport sends it, `--messages` a round):
+"sign" makes the payload, "check" parses it and checks its MAC. Issue 27's way, written out
+here: the sorted compact JSON encoded to MAC it, then the record with "mac" encoded again;
+checked by re-encoding the parsed record (`record_ok`). Issue 31's: `sign_record` (the
+canonical body encoded once, "mac" spliced in) and `payload_ok` (the MAC over the received
+bytes). Same rounds, alternated; the second table gives the ratio new / old.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import os
 import statistics
 import time
@@ -25,6 +35,10 @@ from skyherd.flight.mavlink.signing import Signing
 from skyherd.perception.camera import CameraParams
 from skyherd.perception.transport import RAW, decode_header, decode_pixels, encode_frame
 from skyherd.runio import markdown_table
+from skyherd.runio.mac import payload_ok, record_ok, sign_record
+
+UGV_STATE = {"id": 1, "seq": 517, "t_sim": 51.7, "pos_ned": [23.418734, -11.093256, 0.0],
+             "heading_rad": 1.2593871, "speed_mps": 1.8461913, "camouflaged": False}  # fmt: skip
 
 
 def _cpu(fn, n: int) -> float:
@@ -66,6 +80,22 @@ def frame_cases(key: bytes | None):
     return build, check_decode, cam
 
 
+def record_cases(key: bytes, new: bool):
+    """(sign, check) of one UGV state: issue 31's way (new) or issue 27's (old)."""
+    if new:
+        payload = sign_record(UGV_STATE, key)
+        return (lambda: sign_record(UGV_STATE, key),
+                lambda: payload_ok(payload, json.loads(payload.decode()), key))  # fmt: skip
+
+    def sign_old() -> bytes:
+        body = json.dumps(UGV_STATE, sort_keys=True, separators=(",", ":")).encode()
+        mac = hashlib.blake2b(body, key=key, digest_size=32).hexdigest()
+        return json.dumps({**UGV_STATE, "mac": mac}).encode()
+
+    payload = sign_old()
+    return sign_old, lambda: record_ok(json.loads(payload.decode()), key)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -83,6 +113,11 @@ def main(argv=None) -> int:
     samples: dict[tuple[str, bool], list[float]] = {
         (n, s): [] for n in names for s in (False, True)
     }
+    rec = {False: record_cases(key, False), True: record_cases(key, True)}
+    rec_names = ["JSON record sign (UGV state)", "JSON record parse + check"]
+    rec_samples: dict[tuple[str, bool], list[float]] = {
+        (n, s): [] for n in rec_names for s in (False, True)
+    }
     for r in range(a.rounds):
         for signed in (False, True) if r % 2 == 0 else (True, False):  # alternated A/B
             pack, pack_parse = mav[signed]
@@ -91,6 +126,9 @@ def main(argv=None) -> int:
             samples[(names[1], signed)].append(_cpu(pack_parse, a.messages // 2))
             samples[(names[2], signed)].append(_cpu(build, a.frames))
             samples[(names[3], signed)].append(_cpu(check, a.frames))
+            new = signed  # the record cases alternate with the same A/B order
+            for name, fn in zip(rec_names, rec[new], strict=True):
+                rec_samples[(name, new)].append(_cpu(fn, a.messages))
     rows = []
     for n in names:
         u = statistics.median(samples[(n, False)]) * 1e6
@@ -100,6 +138,15 @@ def main(argv=None) -> int:
     print(
         f"(median of {a.rounds} alternated rounds; {a.messages} messages, {a.frames} frames a round)"
     )
+    rows = []
+    for n in rec_names:
+        old = statistics.median(rec_samples[(n, False)]) * 1e6
+        new = statistics.median(rec_samples[(n, True)]) * 1e6
+        rows.append([n, f"{old:.2f}", f"{new:.2f}", f"{new / old:.2f}"])
+    print()
+    print(markdown_table(["per record", "issue 27: two encodings [µs CPU]",
+                          "issue 31: one [µs CPU]", "ratio"], rows))  # fmt: skip
+    print(f"(median of {a.rounds} alternated rounds; {a.messages} records a round)")
     return 0
 
 

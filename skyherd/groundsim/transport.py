@@ -8,6 +8,8 @@ the size does not matter.
 With the flight's key (the 32-byte MAVLink signing key; `skyherd fly` signs by default) every
 record carries "mac" (runio.mac: keyed BLAKE2b-256 of the record without it); a subscriber given
 the key refuses (counts in `refused`, never keeps) a record without it or whose MAC fails.
+Signed, a record is its canonical JSON (keys sorted, compact) with "mac" as the last member,
+checked over the received bytes (runio.mac.payload_ok).
 Without a key the records are as before, with no "mac".
 
 Sessions come from `perception.transport.open_session` (loopback peer by default).
@@ -22,7 +24,7 @@ import threading
 import numpy as np
 
 from skyherd.groundsim.ugv import UGVStates
-from skyherd.runio.mac import record_ok, sign_record
+from skyherd.runio.mac import payload_ok, sign_record
 
 
 def state_key(ugv_id: int | str) -> str:
@@ -38,15 +40,19 @@ class UGVStatePublisher:
         self.key = key  # the flight key: records carry "mac"
 
     def publish(self, t_sim: float, states: UGVStates) -> None:
+        # Python numbers once per call (one numpy scalar per field and UGV costs more)
+        pos, heading = np.asarray(states.pos_ne).tolist(), np.asarray(states.heading).tolist()
+        speed = np.asarray(states.speed).tolist()
+        camouflaged = np.asarray(states.camouflaged).tolist()
         for i, pub in enumerate(self._pubs):
             rec = {
                 "id": i,
                 "seq": self.seq,
                 "t_sim": float(t_sim),
-                "pos_ned": [float(states.pos_ne[i, 0]), float(states.pos_ne[i, 1]), 0.0],
-                "heading_rad": float(states.heading[i]),
-                "speed_mps": float(states.speed[i]),
-                "camouflaged": bool(states.camouflaged[i]),
+                "pos_ned": [float(pos[i][0]), float(pos[i][1]), 0.0],
+                "heading_rad": float(heading[i]),
+                "speed_mps": float(speed[i]),
+                "camouflaged": bool(camouflaged[i]),
             }
             pub.put(sign_record(rec, self.key))
         self.seq += 1
@@ -73,7 +79,8 @@ class UGVStateSubscriber:
 
     def _on_sample(self, sample) -> None:
         try:
-            rec = json.loads(sample.payload.to_bytes().decode())
+            payload = sample.payload.to_bytes()
+            rec = json.loads(payload.decode())
             i = int(rec["id"])
             pos = [float(x) for x in rec["pos_ned"]]
             ok = len(pos) == 3 and all(math.isfinite(x) for x in pos)
@@ -84,7 +91,7 @@ class UGVStateSubscriber:
             with self._lock:
                 self.corrupt += 1
             return
-        if self.key is not None and not record_ok(rec, self.key):
+        if self.key is not None and not payload_ok(payload, rec, self.key):
             with self._lock:
                 self.refused += 1
             return

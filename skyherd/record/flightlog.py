@@ -6,6 +6,8 @@
     log.phi(t, values)                        φ(s) alone (when there is no decision record)
     log.event(t, record)                      safety-net event (JSON and a log line)
     log.ugvs(t, states)                       UGV states (list of dicts or a UGVStates)
+    log.ugv_entities(t, entities)             the same, from entities already drawn
+                                              (messages.ugv_entity: the Zenoh recorder)
     log.geometry(t, spec_or_polylines)        fence and envelope as lines
     log.clock(t)                              simulation time
     log.advertise(vehicle)                    open every channel now (a live view shows them all
@@ -24,6 +26,7 @@ import threading
 from typing import Any, Protocol
 
 import numpy as np
+from foxglove.messages import SceneUpdate
 
 from skyherd.record import messages as m
 
@@ -63,6 +66,7 @@ class FlightLog:
         self.counts: dict[str, int] = {}  # topic → messages written
         self.errors = 0  # sink writes that raised (counted, skipped)
         self._handles: dict[tuple[int, str], Any] = {}
+        self._specs: dict[tuple[str, str], m.ChannelSpec] = {}  # (kind, vehicle) → its channel
         self._last_pos: dict[str, np.ndarray] = {}
         self._lock = threading.Lock()  # Zenoh callbacks arrive on several threads
         self.closed = False
@@ -86,7 +90,9 @@ class FlightLog:
 
     # -- plumbing ---------------------------------------------------------------------
     def _emit(self, kind: str, vehicle: str, t: float, data: bytes) -> None:
-        spec = m.channel(kind, vehicle)
+        spec = self._specs.get((kind, vehicle))
+        if spec is None:  # made once per channel (a schema each time costs ~1.5 µs a message)
+            spec = self._specs[(kind, vehicle)] = m.channel(kind, vehicle)
         t_ns = m.ns(t)
         with self._lock:
             if self.closed:
@@ -159,6 +165,10 @@ class FlightLog:
 
     def ugvs(self, t: float, states: Any) -> None:
         self._emit("ugvs", "", t, m.ugv_scene(t, ugv_records(states)).encode())
+
+    def ugv_entities(self, t: float, entities: list) -> None:
+        """UGVs already drawn (messages.ugv_entity, stamped t) as one /ugvs scene."""
+        self._emit("ugvs", "", t, SceneUpdate(entities=entities).encode())
 
     def geometry(self, t: float, spec: Any = None, *, polylines=None, entity: str = "fence",
                  rgba=m.GREEN) -> None:  # fmt: skip

@@ -257,29 +257,57 @@ def setpoint_scene(t: float, origin_ned, proposed: dict | None, certified: dict 
     return fm.SceneUpdate(entities=[ent])
 
 
+_UGV_SIZE = _v3((1.2, 0.8, 0.6))
+_UGV_COLOURS = {False: _color(BLUE), True: _color(ORANGE)}  # camouflaged: orange
+_IDENTITY = _quat((1.0, 0.0, 0.0, 0.0))
+
+
+def _finite3(p) -> tuple[float, float, float] | None:
+    """Three finite floats from a point (a list or tuple of numbers: plain floats; anything
+    else as numpy reads it), or None if it is not three finite numbers."""
+    if type(p) in (list, tuple) and len(p) == 3 and all(type(v) in (float, int) for v in p):
+        n, e, d = float(p[0]), float(p[1]), float(p[2])
+    else:
+        a = np.asarray(p, dtype=float)
+        if a.shape != (3,):
+            return None
+        n, e, d = a.tolist()
+    return (n, e, d) if math.isfinite(n) and math.isfinite(e) and math.isfinite(d) else None
+
+
+def ugv_entity(ts: fm.Timestamp, u: dict, index: int) -> fm.SceneEntity | None:
+    """A UGV state as an entity `ugv<id>` (`ugv<index>` without "id"): a 1.2 × 0.8 × 0.6 m box
+    at pos_ned turned by heading_rad, an arrow, its id 1.5 m above (blue, orange while
+    camouflaged); None if pos_ned is not three finite numbers. Plain floats and the constant
+    parts made once: the recorder draws 3,000 of these a flight (issue 31)."""
+    p = _finite3(u["pos_ned"])
+    if p is None:
+        return None
+    yaw = float(u.get("heading_rad", 0.0) or 0.0)
+    c, s = math.cos(yaw / 2), math.sin(yaw / 2)  # as _yaw_quat: ±inf raises, NaN → identity
+    q = fm.Quaternion(w=c, x=0.0, y=0.0, z=s) if math.isfinite(c) else _IDENTITY
+    pose = fm.Pose(position=fm.Vector3(x=p[0], y=p[1], z=p[2]), orientation=q)
+    label = fm.Pose(position=fm.Vector3(x=p[0], y=p[1], z=p[2] - 1.5), orientation=_IDENTITY)
+    colour = _UGV_COLOURS[bool(u.get("camouflaged"))]
+    ugv_id = u.get("id", index)
+    return fm.SceneEntity(
+        timestamp=ts, frame_id=NED, id=f"ugv{ugv_id}",
+        cubes=[fm.CubePrimitive(pose=pose, size=_UGV_SIZE, color=colour)],
+        arrows=[fm.ArrowPrimitive(pose=pose, shaft_length=1.0, shaft_diameter=0.1,
+                                  head_length=0.4, head_diameter=0.3, color=colour)],
+        texts=[fm.TextPrimitive(pose=label, billboard=True, font_size=14, scale_invariant=True,
+                                color=colour, text=f"ugv {ugv_id}")],
+    )  # fmt: skip
+
+
 def ugv_scene(t: float, ugvs: list[dict]) -> fm.SceneUpdate:
-    """One entity per UGV: a 1 m cube at pos_ned turned by heading_rad, an arrow, its id."""
-    ents = []
+    """One entity per UGV (`ugv_entity`; a state without a finite position is left out)."""
+    ts = stamp(t)
+    ents: list[fm.SceneEntity] = []
     for u in ugvs:
-        p = np.asarray(u["pos_ned"], dtype=float)
-        if p.shape != (3,) or not all(map(math.isfinite, p.tolist())):
-            continue
-        yaw = float(u.get("heading_rad", 0.0) or 0.0)
-        rgba = ORANGE if u.get("camouflaged") else BLUE
-        q = _yaw_quat(yaw)
-        pose = fm.Pose(position=_v3(p), orientation=q)
-        label = (p[0] + 0.0, p[1] + 0.0, p[2] - 1.5)  # 1.5 m above (as p + (0, 0, -1.5) adds)
-        ents.append(
-            fm.SceneEntity(
-                timestamp=stamp(t), frame_id=NED, id=f"ugv{u.get('id', len(ents))}",
-                cubes=[fm.CubePrimitive(pose=pose, size=_v3((1.2, 0.8, 0.6)), color=_color(rgba))],
-                arrows=[fm.ArrowPrimitive(pose=pose, shaft_length=1.0, shaft_diameter=0.1,
-                                          head_length=0.4, head_diameter=0.3, color=_color(rgba))],
-                texts=[fm.TextPrimitive(pose=_pose(label), billboard=True,
-                                        font_size=14, scale_invariant=True, color=_color(rgba),
-                                        text=f"ugv {u.get('id', len(ents))}")],
-            )
-        )  # fmt: skip
+        e = ugv_entity(ts, u, len(ents))
+        if e is not None:
+            ents.append(e)
     return fm.SceneUpdate(entities=ents)
 
 

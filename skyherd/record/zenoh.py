@@ -6,14 +6,16 @@ Keys → channels (record.messages):
     skyherd/<vehicle>/camera/frame   → /<vehicle>/camera/image (JPEG as received; raw frames
                                        are JPEG-encoded) and /<vehicle>/pose (the frame header's
                                        pose), stamped with the header's simulation time
-    skyherd/ugv/*/state              → /ugvs (one entity per UGV, replaced on each state)
+    skyherd/ugv/*/state              → /ugvs (one entity per UGV, replaced on each state; the
+                                       states of one simulation time in one message)
     skyherd/<vehicle>/decision       → /<vehicle>/decision, /<vehicle>/phi, /<vehicle>/setpoint
     skyherd/<vehicle>/safety/event   → /<vehicle>/safety/event and /<vehicle>/log
     skyherd/sim/clock                → /sim/clock
 
-A payload that does not parse (or, with the flight's key, is not authentic) is counted in
-`corrupt[key kind]` and skipped; at close the counts go into the file as the MCAP metadata
-record "skyherd zenoh" (authenticated, received, corrupt: JSON strings).
+A payload that does not parse (or, with the flight's key, is not authentic: runio.mac, checked
+over the received bytes) is counted in `corrupt[key kind]` and skipped; at close the counts go
+into the file as the MCAP metadata record "skyherd zenoh" (authenticated, received, corrupt:
+JSON strings).
 """
 
 from __future__ import annotations
@@ -21,13 +23,15 @@ from __future__ import annotations
 import json
 import math
 import struct
+import threading
 from pathlib import Path
 from typing import Any
 
+from skyherd.record import messages as m
 from skyherd.record.flightlog import FlightLog
 from skyherd.record.mcap_file import FlightRecorder
 from skyherd.runio.constants import CLOCK_KEY
-from skyherd.runio.mac import record_ok
+from skyherd.runio.mac import payload_ok
 
 ZENOH_METADATA = "skyherd zenoh"  # the MCAP metadata record of the counts, written at close
 
@@ -41,7 +45,11 @@ def clock_time(payload: bytes) -> float:
         if math.isfinite(f) and 0 <= f < 3.2e7:
             return f
         return struct.unpack("<Q", payload)[0] / 1e6
-    rec = json.loads(payload.decode())
+    return record_time(json.loads(payload.decode()))
+
+
+def record_time(rec: Any) -> float:
+    """Simulation time [s] from a parsed JSON clock sample (see `clock_time`)."""
     if isinstance(rec, int | float):
         return float(rec)
     if "time_us" in rec:
@@ -77,6 +85,11 @@ class ZenohRecorder:
         self.log.advertise(vehicle)  # a live view shows every channel before the first message
         self.received: dict[str, int] = {}
         self.corrupt: dict[str, int] = {}
+        # UGV states of one simulation time, drawn as one scene (`_ugv`)
+        self._ugv_lock = threading.Lock()
+        self._ugv_t: float | None = None
+        self._ugv_batch: dict[str, Any] = {}  # id → its entity at _ugv_t (messages.ugv_entity)
+        self._ugv_ids: set[str] = set()  # every UGV heard from
         v = vehicle
         self._subs = [
             session.declare_subscriber(f"skyherd/{v}/camera/frame", self._wrap("frame", self._frame)),
@@ -107,39 +120,67 @@ class ZenohRecorder:
             self.log.frame(hdr.t_sim, decode_pixels(hdr, payload).image, vehicle=self.vehicle)
         self.log.pose(hdr.t_sim, hdr.pos_ned, hdr.quat, vehicle=self.vehicle)
 
-    def _json(self, payload: bytes) -> dict[str, Any]:
+    def _record(self, payload: bytes) -> dict[str, Any]:
+        """The JSON object of a payload; with the flight key only an authentic one."""
         rec = json.loads(payload.decode())
         if not isinstance(rec, dict):
             raise ValueError("not a JSON object")
-        return rec
-
-    def _authentic(self, rec: dict) -> dict:
-        if self.key is not None and not record_ok(rec, self.key):
+        if self.key is not None and not payload_ok(payload, rec, self.key):
             raise ValueError("record MAC does not match the flight key")
         return rec
 
     def _ugv(self, payload: bytes) -> None:
-        rec = self._authentic(self._json(payload))
-        self.log.ugvs(_t(rec), [rec])
+        """A UGV state joins the others of its simulation time; they are drawn as one scene
+        (one /ugvs message, an entity per UGV: what Foxglove shows from one message per state)
+        once every UGV heard from so far is in, or when a state of another time (or a second
+        one of the same UGV) comes, or at close. Nothing is dropped or merged away."""
+        rec = self._record(payload)
+        t = _t(rec)
+        ugv = str(rec.get("id"))
+        with self._ugv_lock:
+            if self._ugv_batch and (t != self._ugv_t or ugv in self._ugv_batch):
+                self._draw_ugvs()
+            # drawn now: a state that does not draw (a bad heading) is counted as it arrives
+            entity = m.ugv_entity(m.stamp(t), rec, len(self._ugv_batch))
+            if entity is None:  # no finite position: nothing to show
+                return
+            self._ugv_t = t
+            self._ugv_batch[ugv] = entity
+            self._ugv_ids.add(ugv)
+            if len(self._ugv_batch) == len(self._ugv_ids):
+                self._draw_ugvs()
+
+    def _draw_ugvs(self) -> None:
+        """The pending states as one scene (under _ugv_lock)."""
+        batch, self._ugv_batch = self._ugv_batch, {}
+        if batch and self._ugv_t is not None:
+            self.log.ugv_entities(self._ugv_t, list(batch.values()))
 
     def _decision(self, payload: bytes) -> None:
-        rec = self._authentic(self._json(payload))
+        rec = self._record(payload)
         self.log.decision(_t(rec), rec, vehicle=self.vehicle)
 
     def _event(self, payload: bytes) -> None:
-        rec = self._authentic(self._json(payload))
+        rec = self._record(payload)
         self.log.event(_t(rec), rec, vehicle=self.vehicle)
 
     def _clock(self, payload: bytes) -> None:
-        if self.key is not None:
-            self._authentic(self._json(payload))
-        self.log.clock(clock_time(payload))
+        if self.key is None:
+            t = clock_time(payload)
+        else:  # signed: a JSON object, parsed once
+            t = record_time(self._record(payload))
+        self.log.clock(t)
 
     def close(self) -> None:
         for s in self._subs:
             try:
                 s.undeclare()
             except Exception:  # noqa: BLE001 - already closed with its session
+                pass
+        with self._ugv_lock:
+            try:
+                self._draw_ugvs()  # the last time's states, if they were not all in
+            except Exception:  # noqa: BLE001 - a recorder never stops a flight
                 pass
         file = getattr(self.log, "file", None)
         if file is not None:  # what came and what was refused, in the file itself

@@ -90,7 +90,9 @@ def test_fly_groundair_policy_keeps_the_team_in_view(tmp_path, capsys):
     assert sum('"pilot": "policy"' in x for x in recorded) == decisions
     assert rec.complete and counts["/uav0/decision"] == len(recorded)
     frames = sum(1 for _ in open(run / "world.csv")) - 1
-    assert counts["/uav0/camera/image"] >= 0.9 * frames and counts["/ugvs"] >= 0.9 * 3 * frames
+    assert (
+        counts["/uav0/camera/image"] >= 0.9 * frames and counts["/ugvs"] >= 0.9 * frames
+    )  # a scene of all UGVs a frame
 
 
 def test_companion_waiting_for_its_go_ends_cleanly_when_standard_input_closes(tmp_path):

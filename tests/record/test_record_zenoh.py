@@ -106,7 +106,12 @@ def test_zenoh_recorder_records_every_key_of_a_flight_in_another_session(tmp_pat
     assert got.complete
     c = got.counts()
     assert c["/uav0/camera/image"] == n and c["/uav0/pose"] == n and c["/tf"] == n
-    assert c["/ugvs"] == 3 * n and c["/uav0/decision"] == n and c["/uav0/phi"] == n
+    assert c["/uav0/decision"] == n and c["/uav0/phi"] == n
+    # the three states of each time in one scene (the first time: UGV 0 alone, then 1 and 2,
+    # while the recorder learns how many there are); every state drawn once
+    scenes = [(m.t, [e.id for e in _scene(m.data).entities]) for m in got.topic("/ugvs")]
+    assert scenes[:2] == [(0.0, ["ugv0"]), (0.0, ["ugv1", "ugv2"])]
+    assert scenes[2:] == [(pytest.approx(0.1 * k), ["ugv0", "ugv1", "ugv2"]) for k in range(1, n)]
     assert c["/uav0/safety/event"] == 1 and c["/uav0/log"] == 1 and c["/sim/clock"] == n
     assert [m.t for m in got.topic("/sim/clock")] == pytest.approx([0.1 * k for k in range(n)])
     assert [m.t for m in got.topic("/uav0/camera/image")] == pytest.approx(
@@ -123,6 +128,18 @@ def test_zenoh_recorder_records_every_key_of_a_flight_in_another_session(tmp_pat
     assert im is not None and im.shape == (60, 80, 3)
 
 
+def _scene(data: bytes):
+    """A foxglove.SceneUpdate decoded from its bytes with the schema foxglove publishes."""
+    from foxglove import messages as fm
+
+    schema = fm.SceneUpdate.get_schema()
+    fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+    pool = descriptor_pool.DescriptorPool()
+    for fd in fds.file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name)).FromString(data)
+
+
 def _proto_class(schema: dict):
     """A protobuf class from an advertised channel's schema (base64 FileDescriptorSet)."""
     import base64
@@ -132,6 +149,66 @@ def _proto_class(schema: dict):
     for fd in fds.file:
         pool.Add(fd)
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(schema["schemaName"]))
+
+
+class _Session:
+    """Enough of a Zenoh session for the recorder: its callbacks by key, fed by hand."""
+
+    def __init__(self):
+        self.callbacks = {}
+
+    def declare_subscriber(self, key, cb):
+        self.callbacks[key] = cb
+        return self
+
+    def undeclare(self):
+        pass
+
+
+class _Sample:
+    def __init__(self, payload: bytes):
+        self.payload = self
+        self._b = payload
+
+    def to_bytes(self) -> bytes:
+        return self._b
+
+
+def test_ugv_states_of_one_time_make_one_scene_and_every_authentic_state_is_drawn_once(tmp_path):
+    from skyherd.runio.mac import record_mac, sign_record
+
+    key = bytes(range(32))
+    session = _Session()
+    rec = ZenohRecorder(session, "uav0", tmp_path / "flight.mcap", key=key)
+    feed = session.callbacks["skyherd/ugv/*/state"]
+
+    def state(i: int, t: float, heading: float = 0.1) -> dict:
+        return {"id": i, "seq": round(10 * t), "t_sim": t, "pos_ned": [float(i), t, 0.0],
+                "heading_rad": heading, "speed_mps": 1.0, "camouflaged": i == 2}  # fmt: skip
+
+    sent = [(0, 0.0), (1, 0.0), (2, 0.0), (0, 0.1), (1, 0.1), (2, 0.1),
+            (0, 0.2), (2, 0.2),  # UGV 1 silent: its time is drawn when the next one starts
+            (0, 0.3), (0, 0.3), (1, 0.3), (2, 0.3),  # UGV 0 twice: both drawn
+            (0, 0.4)]  # fmt: skip
+    for i, t in sent:
+        feed(_Sample(sign_record(state(i, t), key)))
+    old = state(1, 0.4)  # an older writer's record (spaced, its own key order): still authentic
+    feed(_Sample(json.dumps({**old, "mac": record_mac(key, old)}).encode()))
+    feed(_Sample(sign_record(state(2, 0.4), bytes(32))))  # another key: refused
+    feed(_Sample(sign_record(state(2, 0.4, heading=float("inf")), key)))  # cannot be drawn
+    feed(_Sample(sign_record(state(2, 0.4), key)[:-3] + b'0"}'))  # altered mac: refused
+    rec.close()  # draws 0.4's two states: UGV 2 never came right
+    assert rec.received == {"ugv": len(sent) + 1} and rec.corrupt == {"ugv": 3}
+    scenes = [
+        (round(m.t, 3), [e.id for e in _scene(m.data).entities])
+        for m in read_messages(tmp_path / "flight.mcap").topic("/ugvs")
+    ]
+    assert scenes == [(0.0, ["ugv0"]), (0.0, ["ugv1", "ugv2"]), (0.1, ["ugv0", "ugv1", "ugv2"]),
+                      (0.2, ["ugv0", "ugv2"]), (0.3, ["ugv0"]), (0.3, ["ugv0", "ugv1", "ugv2"]),
+                      (0.4, ["ugv0", "ugv1"])]  # fmt: skip
+    ent = _scene(read_messages(tmp_path / "flight.mcap").topic("/ugvs")[2].data).entities[2]
+    assert ent.cubes[0].pose.position.x == 2.0 and ent.cubes[0].color.r == 1.0  # orange
+    assert ent.texts[0].text == "ugv 2" and ent.timestamp.nanos == 100_000_000
 
 
 def test_live_server_serves_frames_and_poses_to_a_websocket_client():
