@@ -25,9 +25,12 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-from skyherd.flight.mavlink.link import Address, UdpLink
 from skyherd.runio.constants import LOCKSTEP_LATENCY_S
+
+if TYPE_CHECKING:  # LockstepParams alone (world.setup's checks) needs no MAVLink stack
+    from skyherd.flight.mavlink.link import Address, UdpLink
 
 NS_PER_US = 1000
 

@@ -9,9 +9,12 @@ enclosing circle of ≤ 3 points has a closed form.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 from skyherd.perception.camera import CameraParams
-from skyherd.perception.features import FeatureParams
+
+if TYPE_CHECKING:  # min_circle alone (world.team's start altitude in `skyherd fly`): no OpenCV
+    from skyherd.perception.features import FeatureParams
 
 
 def min_circle(pts: list[tuple[float, float]]) -> tuple[float, float, float]:
@@ -61,6 +64,8 @@ class LevelCamera:
     """Precomputed constants of a level, heading-0 downward camera."""
 
     def __init__(self, cam: CameraParams, fparams: FeatureParams | None = None):
+        from skyherd.perception.features import FeatureParams
+
         fparams = fparams or FeatureParams()
         if cam.mount_pitch_rad != 0.0:
             raise ValueError("the fast path assumes a straight-down camera (mount_pitch_rad = 0)")

@@ -153,10 +153,11 @@ class SimSetup:
         return speedup
 
     def world_params(self):
-        """(world.sim.WorldParams, flight.mavlink.EndpointConfig) of the vehicle."""
+        """(world.params.WorldParams, flight.mavlink.config.EndpointConfig) of the vehicle: the
+        records alone, not the simulator or the endpoint that run them."""
         from skyherd.flight.lockstep import LockstepParams
-        from skyherd.flight.mavlink import EndpointConfig
-        from skyherd.world.sim import WorldParams
+        from skyherd.flight.mavlink.config import EndpointConfig
+        from skyherd.world.params import WorldParams
 
         try:
             params = WorldParams(

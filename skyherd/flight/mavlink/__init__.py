@@ -11,13 +11,14 @@ __all__ = ["EndpointConfig", "MavlinkEndpoint", "Personality"]
 
 def __getattr__(name: str):
     """The endpoint's names, imported when first asked for (PEP 562): a module of the package
-    (`flight.mavlink.wire`, the frame layout) can be imported without the whole endpoint."""
-    if name in ("EndpointConfig", "MavlinkEndpoint"):
-        from skyherd.flight.mavlink import endpoint
+    (`flight.mavlink.wire`, the frame layout) or the endpoint's configuration can be imported
+    without the whole endpoint."""
+    if name in ("EndpointConfig", "Personality"):  # the configuration alone (flight.mavlink.config)
+        from skyherd.flight.mavlink import config
 
-        return getattr(endpoint, name)
-    if name == "Personality":
-        from skyherd.flight.mavlink.modes import Personality
+        return getattr(config, name)
+    if name == "MavlinkEndpoint":
+        from skyherd.flight.mavlink.endpoint import MavlinkEndpoint
 
-        return Personality
+        return MavlinkEndpoint
     raise AttributeError(f"module 'skyherd.flight.mavlink' has no attribute {name!r}")

@@ -16,16 +16,16 @@ import math
 import select
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from skyherd.flight.autopilot_api import Autopilot
 from skyherd.flight.mavlink.commands import Cmd, CommandService, mode_source, refusal_result
+from skyherd.flight.mavlink.config import EndpointConfig
 from skyherd.flight.mavlink.link import Address, UdpLink
 from skyherd.flight.mavlink.mission import MISSION, FenceShape, MissionService
-from skyherd.flight.mavlink.modes import Personality, mode_of_packed
+from skyherd.flight.mavlink.modes import mode_of_packed
 from skyherd.flight.mavlink.offboard import (
     SetpointError,
     manual_from_msg,
@@ -39,75 +39,14 @@ from skyherd.flight.mavlink.statustext import split_text
 from skyherd.flight.mavlink.streams import GCS_RATES_HZ, StreamScheduler
 from skyherd.flight.mavlink.telemetry import Identity, TelemetryBuilder
 from skyherd.flight.mavlink.tlog import TlogWriter
-from skyherd.runio import ports
 
 M = mavlink
 log = logging.getLogger(__name__)
 
-# Port layout (CONVENTIONS.md, contract): for instance N.
-API_BIND_PORT, API_REMOTE_PORT = ports.API_BIND_BASE, ports.API_REMOTE_BASE
-GCS_BIND_PORT, GCS_REMOTE_PORT = ports.GCS_BIND_BASE, ports.GCS_REMOTE_PORT
 COMPONENT_ID = M.MAV_COMP_ID_AUTOPILOT1
 _NEVER_US = 1 << 62  # a due time no simulation reaches [us]
+DEFAULT_CONFIG = EndpointConfig()  # flight.mavlink.config
 MAV_TYPES = {"quadrotor": M.MAV_TYPE_QUADROTOR, "fixedwing": M.MAV_TYPE_FIXED_WING}
-
-
-@dataclass(frozen=True)
-class EndpointConfig:
-    """Where and how the endpoint talks.
-
-    instance      vehicle instance N: system id 1+N, ports offset by N
-    personality   PX4 custom modes (default) or ArduCopter mode numbers
-    bind_host     address both sockets bind to (127.0.0.1 unless opted out)
-    remote_host   where the default peers (MAVSDK, the ground station: runio/ports.py) listen
-    state_dir     parameter persistence root (None: parameters are not saved)
-    tlog          write every frame in and out to this .tlog file (None: no log)
-    signing_key   MAVLink 2 signing key file (32 bytes): signing on from the start. None:
-                  the vehicle's own key file (`key_file`) if a SETUP_SIGNING stored one
-    """
-
-    instance: int = 0
-    personality: Personality = Personality.PX4
-    bind_host: str = "127.0.0.1"
-    remote_host: str = "127.0.0.1"
-    state_dir: Path | None = None
-    tlog: Path | None = None
-    params_per_update: int = 40
-    signing_key: Path | None = None
-
-    def __post_init__(self) -> None:
-        ports.check_instance(self.instance, "instance")
-
-    @property
-    def system_id(self) -> int:
-        return 1 + self.instance
-
-    @property
-    def api_bind(self) -> Address:
-        return (self.bind_host, API_BIND_PORT + self.instance)
-
-    @property
-    def api_remote(self) -> Address:
-        return (self.remote_host, API_REMOTE_PORT + self.instance)
-
-    @property
-    def gcs_bind(self) -> Address:
-        return (self.bind_host, GCS_BIND_PORT + self.instance)
-
-    @property
-    def gcs_remote(self) -> Address:
-        return (self.remote_host, GCS_REMOTE_PORT)
-
-    def param_file(self, airframe: str) -> Path | None:
-        if self.state_dir is None:
-            return None
-        return Path(self.state_dir) / f"{airframe}-{self.instance}" / "params.json"
-
-    def key_file(self, airframe: str) -> Path | None:
-        """Where SETUP_SIGNING stores this vehicle's key (None: kept in memory only)."""
-        if self.state_dir is None:
-            return None
-        return Path(self.state_dir) / f"{airframe}-{self.instance}" / "signing.key"
 
 
 class MavlinkEndpoint:
@@ -116,7 +55,7 @@ class MavlinkEndpoint:
     def __init__(
         self,
         autopilot: Autopilot,
-        config: EndpointConfig = EndpointConfig(),
+        config: EndpointConfig = DEFAULT_CONFIG,
         on_fence: Callable[[list[FenceShape]], None] | None = None,
     ):
         self.ap = autopilot

@@ -7,25 +7,10 @@ ArduCopter puts its mode number in `custom_mode` directly.
 
 from __future__ import annotations
 
-import enum
-
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from skyherd.flight.autopilot_api import FlightMode
-
-
-class Personality(enum.Enum):
-    """How the vehicle presents itself: `px4` (MAV_AUTOPILOT_PX4) or `ardupilot`."""
-
-    PX4 = "px4"
-    ARDUPILOT = "ardupilot"
-
-    @property
-    def mav_autopilot(self) -> int:
-        if self is Personality.PX4:
-            return mavlink.MAV_AUTOPILOT_PX4
-        return mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
-
+from skyherd.flight.mavlink.config import Personality
 
 # PX4 main modes and AUTO sub modes (px4_custom_mode.h).
 PX4_MAIN = {
