@@ -38,7 +38,7 @@ def record_flight(zenoh_port: int, path: Path | None, foxglove: int | None, *,
     on its port) and returns None when `give_up()` becomes True first (a signal came, or a
     child ended: the caller says which), or when it cannot start (said on stderr)."""
     try:
-        from skyherd.flight.mavlink.signing import load_key
+        from skyherd.flight.mavlink.keys import load_key
 
         key = load_key(Path(key_file)) if key_file else None
         from skyherd.perception.transport import subscriber_params

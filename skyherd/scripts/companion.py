@@ -124,8 +124,8 @@ def check_args(argv: list[str]) -> str | None:
 def check(args) -> str:
     """Every check of the arguments that needs nothing started (UsageError, one line); fills
     the instance's default addresses in. Returns the autopilot's MAVLink address."""
-    from skyherd.flight.mavlink.signing import key_option
-    from skyherd.hil.link import link_address
+    from skyherd.flight.mavlink.keys import key_option
+    from skyherd.hil.addresses import link_address
     from skyherd.runio.address import zenoh_config_file, zenoh_endpoint
 
     usage(ports.check_instance, args.instance)

@@ -134,6 +134,7 @@ def _validate(args) -> tuple[list[str], list[str]]:
     (fly_options.check_child); UsageError before anything starts or is written. fly checks
     only what no child can know: the missions' combinations, the team, the pilot's files, the
     wind against the constraint set, --orbit-duration."""
+    from skyherd.hil.addresses import world_link
     from skyherd.task.scenarios import FLOCK
 
     if args.mission == "shepherd":
@@ -160,8 +161,6 @@ def _validate(args) -> tuple[list[str], list[str]]:
                              "--orbit-scenario (lateral or composite); drop --ugvs")  # fmt: skip
         sim["ugvs"] = args.orbit_scenario
     if args.connect is not None and args.mission == "groundair":
-        from skyherd.hil.link import world_link  # an outside autopilot's: only with --connect
-
         sim["follow"] = usage(world_link, args.connect, args.world_link)
         sim["follow_system"] = args.world_system
     sim_args = child_argv("sim", **sim)

@@ -96,9 +96,9 @@ def check_child(command: str, argv: list[str]) -> None:
 
 
 def flight_signing(args):
-    """How the flight is signed (flight.mavlink.signing.FlightSigning), from --signing-key,
+    """How the flight is signed (flight.mavlink.keys.FlightSigning), from --signing-key,
     --no-signing, --connect and --setup-signing."""
-    from skyherd.flight.mavlink.signing import FlightSigning
+    from skyherd.flight.mavlink.keys import FlightSigning
 
     return FlightSigning(args.signing_key, args.no_signing, args.connect is not None,
                          getattr(args, "setup_signing", False))  # fmt: skip

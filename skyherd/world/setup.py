@@ -111,7 +111,7 @@ class SimSetup:
 
             check_assignments(param_store(s.airframe), s.param, s.airframe)
         try:
-            from skyherd.flight.mavlink.signing import key_option
+            from skyherd.flight.mavlink.keys import key_option
             from skyherd.runio.address import zenoh_config_file
             from skyherd.runio.pin import choose_cpu
 

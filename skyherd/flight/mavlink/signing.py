@@ -17,25 +17,31 @@ Outgoing timestamps are max(wall clock, last + 1): strictly increasing across al
 Signing times are wall time by the spec (peers compare them with their own clocks), unlike
 every other time of the endpoint.
 
-A key file holds exactly 32 raw bytes, mode 0600, written atomically. A key of 32 zero bytes
-means "signing off" (SETUP_SIGNING with it disables signing, as ArduPilot does).
+A key of 32 zero bytes means "signing off" (SETUP_SIGNING with it disables signing, as ArduPilot
+does). The key files and how a flight is signed are flight.mavlink.keys' (re-exported here).
 """
 
 from __future__ import annotations
 
 import hashlib
 import hmac
-import os
 import time
 from collections import Counter, OrderedDict
-from dataclasses import dataclass
-from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from skyherd.flight.mavlink.keys import (  # noqa: F401  (their home before keys')
+    KEY_LEN,
+    PER_RUN_KEY_FILE,
+    FlightSigning,
+    SigningError,
+    key_from_passphrase,
+    key_option,
+    load_key,
+    save_key,
+)
 from skyherd.flight.mavlink.wire import CRC, X25
 
-KEY_LEN = 32
 SIGNATURE_LEN = 13
 IFLAG_SIGNED = 0x01
 EPOCH_2015_S = 1420070400  # Unix time of 2015-01-01 00:00:00 UTC
@@ -46,106 +52,9 @@ MAX_STREAMS = 256  # streams remembered; only correctly signed frames create one
 _TS_MASK = (1 << 48) - 1  # a signature carries the timestamp's low 6 bytes
 
 
-class SigningError(ValueError):
-    """A key or key file that cannot be used; the message says why."""
-
-
 def now_units() -> int:
     """The signing clock: wall time in 10 us units since 2015-01-01 UTC."""
     return int((time.time() - EPOCH_2015_S) * UNITS_PER_S)
-
-
-def key_from_passphrase(text: str) -> bytes:
-    """The 32-byte key MAVProxy and QGroundControl derive from a passphrase: SHA-256 of it."""
-    return hashlib.sha256(text.encode("utf-8")).digest()
-
-
-def load_key(path: Path) -> bytes:
-    """The key in `path` (exactly 32 raw bytes). Raises SigningError with what to do."""
-    path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise SigningError(f"cannot read signing key {path}: {e.strerror or e}") from e
-    if len(data) != KEY_LEN:
-        raise SigningError(
-            f"signing key {path} holds {len(data)} bytes, a key file holds exactly {KEY_LEN} "
-            "(e.g. head -c 32 /dev/urandom > FILE)"
-        )
-    return data
-
-
-def key_option(path) -> bytes:
-    """The key of the `--signing-key` file `path` (load_key); SigningError naming the option."""
-    try:
-        return load_key(Path(path))
-    except SigningError as e:
-        raise SigningError(f"--signing-key: {e}") from None
-
-
-def save_key(path: Path, key: bytes) -> None:
-    """Write the key atomically, readable by its owner only."""
-    if len(key) != KEY_LEN:
-        raise SigningError(f"a signing key has {KEY_LEN} bytes, got {len(key)}")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    try:
-        os.write(fd, key)
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
-
-
-PER_RUN_KEY_FILE = "signing.key"  # a flight's own key in its run folder
-
-
-@dataclass(frozen=True)
-class FlightSigning:
-    """How one flight signs its MAVLink links and its Zenoh records: with a key file given
-    (`key_file`), unsigned (`off`), or with a new key per run. A per-run key is for the built-in
-    vehicles only: an outside autopilot (`outside`) signs with its own key, or not at all.
-    `setup`: give the outside autopilot the key file first (SETUP_SIGNING)."""
-
-    key_file: str | None = None
-    off: bool = False
-    outside: bool = False
-    setup: bool = False
-
-    def checked_key_file(self) -> str | None:
-        """The key file's absolute path, its key read (None: a per-run key, or unsigned);
-        ValueError naming the option otherwise."""
-        if self.key_file and self.off:
-            raise ValueError("--signing-key and --no-signing contradict each other: drop one")
-        if self.setup and (not self.outside or not self.key_file):
-            raise ValueError("--setup-signing gives an outside autopilot your key: it needs "
-                             "--connect ADDRESS and --signing-key FILE (the built-in vehicle is "
-                             "signed by default)")  # fmt: skip
-        if not self.key_file:
-            return None
-        key_option(self.key_file)
-        return str(Path(self.key_file).resolve())
-
-    def mode(self) -> str:
-        """How the flight is signed, as its config.json and summary.md say it."""
-        if self.key_file:
-            return f"key file {Path(self.key_file).resolve()}"
-        if self.off:
-            return "off (--no-signing)"
-        if self.outside:
-            return "off (outside autopilot: give --signing-key FILE with the autopilot's key)"
-        return "on (per-run key)"
-
-    def per_run_key(self, run_dir: Path) -> Path | None:
-        """With the built-in vehicle(s) and neither a key file nor `off`: a new key
-        `<run>/signing.key` (32 random bytes, mode 0600) for every program of the flight."""
-        if self.key_file or self.off or self.outside:
-            return None
-        path = Path(run_dir) / PER_RUN_KEY_FILE
-        save_key(path, os.urandom(KEY_LEN))
-        return path
 
 
 def is_signed(frame: bytes) -> bool:
