@@ -7,7 +7,10 @@ logs the first import of each watched package, with the Python stack that asked 
 - the companion imports no pydantic, no matplotlib, no OSQP and no SciPy (its net's projection
   and recovery target are exact: safety.nearest);
 - `fly` imports matplotlib only to draw its plots after the verdict (report.ending.make_plots),
-  no pydantic;
+  no pydantic; its checks of the children's arguments build the simulator's parameter records
+  (world.params, flight.mavlink.config), read keys (flight.mavlink.keys) and check addresses
+  (hil.addresses) without the simulator's stack: no world.sim or world.scene, no MAVLink
+  endpoint or link, no pymavlink, and OpenCV only for the recorder's frames;
 - none of them imports torch or pandas.
 """
 
@@ -22,7 +25,9 @@ import pytest
 
 from skyherd.flight.multirotor import compiled
 
-WATCHED = ("numba", "scipy", "osqp", "pydantic", "matplotlib", "torch", "pandas")
+WATCHED = ("numba", "scipy", "osqp", "pydantic", "matplotlib", "torch", "pandas", "cv2")
+WATCHED += ("pymavlink", "skyherd.world.sim", "skyherd.world.scene")
+WATCHED += ("skyherd.flight.mavlink.endpoint", "skyherd.hil.link")  # modules: full names
 
 HOOK = f"""
 import json, os, sys, traceback
@@ -87,6 +92,21 @@ def test_fly_imports_matplotlib_only_for_its_plots_after_the_verdict(imports):
     assert "matplotlib" in imports["fly"]  # the plots were made
     assert "make_plots" in imports["fly"]["matplotlib"]  # ... after the verdict, not before
     assert "pydantic" not in imports["fly"]
+
+
+@pytest.mark.slow
+def test_fly_checks_its_children_without_the_simulators_stack(imports):
+    """fly's checks (world.setup.SimSetup.checked, the companion's check) and its recorder
+    import neither the simulator's world nor the MAVLink stack; OpenCV only for the recorder's
+    frames (record.flightlog's JPEGs), never for a check."""
+    sim_stack = {"pymavlink", "skyherd.world.sim", "skyherd.world.scene"}
+    sim_stack |= {"skyherd.flight.mavlink.endpoint", "skyherd.hil.link"}
+    assert not set(imports["fly"]) & sim_stack, {
+        m: s[-8:] for m, s in imports["fly"].items() if m in sim_stack
+    }
+    assert "_recorder" in imports["fly"]["cv2"], imports["fly"]["cv2"][-8:]
+    assert "_validate" not in imports["fly"]["cv2"], imports["fly"]["cv2"][-8:]
+    assert {"cv2", "pymavlink", "skyherd.world.sim"} <= set(imports["sim"])  # the hook saw them
 
 
 @pytest.mark.slow
