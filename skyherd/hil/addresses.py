@@ -9,12 +9,12 @@ from __future__ import annotations
 from skyherd.runio.address import Address, AddressError, parse_address
 from skyherd.runio.ports import GCS_STREAM
 
-LINK_SCHEMES = ("udpin", "udpout", "udp", "tcp", "serial")  # what this link opens (no tcpin)
+LINK_SCHEMES = ("udpin", "udpout", "udp", "tcp", "serial")  # what hil.link opens (no tcpin)
 
 
 def link_address(text: str) -> Address:
-    """`text` parsed by the one address parser (runio.address) and checked to be a link this
-    module opens; AddressError (a ValueError, one line) otherwise."""
+    """`text` parsed by the one address parser (runio.address) and checked to be a link
+    hil.link opens; AddressError (a ValueError, one line) otherwise."""
     addr = parse_address(text)
     if addr.scheme not in LINK_SCHEMES:
         raise AddressError(
