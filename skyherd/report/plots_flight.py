@@ -9,6 +9,7 @@ track.png (fixed-wing orbit): the orbit inside the fence, its altitude and what 
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -19,30 +20,46 @@ VERDICT_COLOURS = {"accepted": "#2ca02c", "projected": "#f2c12e", "rejected": "#
 PHASE_SHADES = ("#f2f2f2", "#dfe8f3")  # alternating backgrounds of the phases
 
 
-def pyplot():
-    """matplotlib.pyplot on the Agg backend, imported without the property tables of its
-    artists' `set()` docstrings: matplotlib builds one per Artist class as the class is
-    defined (matplotlib.artist.kwdoc, ~0.07 CPU s of a process that only saves figures;
-    `help(Line2D.set)` in that process lists no properties). Already imported: as it is."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+@contextmanager
+def _without_set_docstrings():
+    """Imports inside it skip the property tables of the artists' `set()` docstrings: matplotlib
+    builds one per Artist class as the class is defined (matplotlib.artist.kwdoc, ~0.07 CPU s of
+    a process that only saves figures; `help(Line2D.set)` in that process lists no properties).
+    Classes already defined are as they were; matplotlib's kwdoc is back on leaving."""
     import matplotlib.artist as artist
 
     kwdoc = getattr(artist, "kwdoc", None)
     if kwdoc is not None:
         artist.kwdoc = lambda _artist: ""
     try:
-        import matplotlib.pyplot as plt
+        yield
     finally:
         if kwdoc is not None:
             artist.kwdoc = kwdoc
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend, imported `_without_set_docstrings`. Already
+    imported: as it is."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    with _without_set_docstrings():
+        import matplotlib.pyplot as plt
     return plt
 
 
 def figure(size):
-    plt = pyplot()
-    return plt, plt.figure(figsize=size)
+    """A matplotlib Figure of `size` inches on the Agg canvas, without pyplot: no figure
+    manager, no global state to close, and pyplot's import (backend selection) not paid.
+    matplotlib is imported `_without_set_docstrings`."""
+    with _without_set_docstrings():
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size)
+    FigureCanvasAgg(fig)
+    return fig
 
 
 def phase_spans(track_rows: list[dict], column: str = "phase") -> list[tuple[float, float, str]]:
@@ -170,7 +187,7 @@ def _ugvs(world: list[dict]) -> int:
     return sum(1 for k in (world[0] if world else {}) if k.startswith("ugv") and k.endswith("_n"))
 
 
-def _time_panels(plt, fig, grid, n: int):
+def _time_panels(fig, grid, n: int):
     """n time axes stacked in `grid` sharing x; the last two (the strips) thin."""
     from matplotlib.gridspec import GridSpecFromSubplotSpec
 
@@ -179,12 +196,12 @@ def _time_panels(plt, fig, grid, n: int):
     axes = [fig.add_subplot(sub[0])]
     axes += [fig.add_subplot(sub[i], sharex=axes[0]) for i in range(1, n)]
     for ax in axes[:-1]:
-        plt.setp(ax.get_xticklabels(), visible=False)
+        ax.xaxis.set_tick_params(labelbottom=False)
     axes[-1].set_xlabel("simulation time [s]")
     return axes
 
 
-def _finish(plt, fig, axes, decisions, authority: dict, t_end: float, path: Path) -> Path:
+def _finish(fig, axes, decisions, authority: dict, t_end: float, path: Path) -> Path:
     """The time panels' common end: the verdict strip (axes[2]), the AI's start and end, the
     time span; the figure saved to `path`."""
     verdict_strip(axes[2], decisions, t_end)
@@ -192,7 +209,6 @@ def _finish(plt, fig, axes, decisions, authority: dict, t_end: float, path: Path
     axes[0].set_xlim(0, max(t_end, 1.0))
     fig.subplots_adjust(left=0.05, right=0.99, top=0.88, bottom=0.22)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -200,10 +216,10 @@ def plot_groundair(run_dir: Path, decisions, track_rows, world, envelope, author
     """groundair.png (module docstring)."""
     from matplotlib.gridspec import GridSpec
 
-    plt, fig = figure((16, 6.2))
+    fig = figure((16, 6.2))
     gs = GridSpec(1, 3, figure=fig, width_ratios=[1, 1, 1.7], wspace=0.28)
     team, fence = fig.add_subplot(gs[0]), fig.add_subplot(gs[1])
-    alt, feat, net, modes = _time_panels(plt, fig, gs[2], 4)
+    alt, feat, net, modes = _time_panels(fig, gs[2], 4)
     track = _track(track_rows)
     t_dec = np.array([float(d["t"]) for d in decisions])
     t0 = t_dec[0] if len(t_dec) else 0.0
@@ -242,7 +258,7 @@ def plot_groundair(run_dir: Path, decisions, track_rows, world, envelope, author
     if feat.get_legend_handles_labels()[0]:
         feat.legend(fontsize=7, loc="lower left")
     t_end = float(track[-1, 0]) if len(track) else 1.0
-    return _finish(plt, fig, [alt, feat, net, modes], decisions, authority, t_end,
+    return _finish(fig, [alt, feat, net, modes], decisions, authority, t_end,
                    run_dir / "groundair.png")  # fmt: skip
 
 
@@ -251,10 +267,10 @@ def plot_orbit(run_dir: Path, world, track_rows, plan: dict, t_est, envelope, au
     """track.png of the fixed-wing orbit (module docstring)."""
     from matplotlib.gridspec import GridSpec
 
-    plt, fig = figure((16, 7))
+    fig = figure((16, 7))
     gs = GridSpec(1, 2, figure=fig, width_ratios=[1, 1.5], wspace=0.2)
     ax = fig.add_subplot(gs[0])
-    alt, seen, net, modes = _time_panels(plt, fig, gs[1], 4)
+    alt, seen, net, modes = _time_panels(fig, gs[1], 4)
     n_ugv = _ugvs(world)
     w = np.array([[float(r["t"]), float(r["north"]), float(r["east"]), float(r["down"])]
                   for r in world]).reshape(-1, 4)  # fmt: skip
@@ -293,5 +309,5 @@ def plot_orbit(run_dir: Path, world, track_rows, plan: dict, t_est, envelope, au
         seen.legend(fontsize=7, loc="lower right")
     seen.set_ylabel("UGVs detected\n(camera)")
     t_end = float(w[-1, 0]) if len(w) else 1.0
-    return _finish(plt, fig, [alt, seen, net, modes], decisions, authority, t_end,
+    return _finish(fig, [alt, seen, net, modes], decisions, authority, t_end,
                    run_dir / "track.png")  # fmt: skip
