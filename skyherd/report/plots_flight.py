@@ -81,9 +81,12 @@ def shade_phases(axes, spans, label_ax=None) -> None:
     """Each phase a background band on every time axis; its name over `label_ax` (a phase
     shorter than 2 % of the flight is shaded, unnamed: its name would cover its neighbour's)."""
     whole = max((s[1] for s in spans), default=0.0) - min((s[0] for s in spans), default=0.0)
-    for k, (t0, t1, ph) in enumerate(spans):
-        for ax in axes:
-            ax.axvspan(t0, t1, color=PHASE_SHADES[k % 2], zorder=0, lw=0)
+    runs = [(t0, t1 - t0) for t0, t1, _ in spans]
+    shades = [PHASE_SHADES[k % 2] for k in range(len(spans))]
+    for ax in axes if spans else ():  # bands the axes' height: one collection per axis
+        ax.broken_barh(runs, (0, 1), color=shades, lw=0, zorder=0,
+                       transform=ax.get_xaxis_transform())  # fmt: skip
+    for t0, t1, ph in spans:
         if label_ax is not None and t1 - t0 >= 0.02 * whole:
             label_ax.text((t0 + t1) / 2, 1.02, ph, transform=label_ax.get_xaxis_transform(),
                           ha="center", va="bottom", fontsize=7, rotation=30, clip_on=False)  # fmt: skip
@@ -142,9 +145,11 @@ def mode_strip(ax, track_rows: list[dict]) -> None:
     names: dict[str, int] = {}
     spans = phase_spans(track_rows, "mode")
     whole = max((s[1] for s in spans), default=0.0) - min((s[0] for s in spans), default=0.0)
+    colours = [cmap(names.setdefault(mode, len(names)) % cmap.N) for _, _, mode in spans]
+    if spans:  # one collection, a colour per run: drawn as the runs one by one, cheaper
+        ax.broken_barh([(t0, max(t1 - t0, 1e-3)) for t0, t1, _ in spans], (0, 1), color=colours,
+                       lw=0)  # fmt: skip
     for t0, t1, mode in spans:
-        k = names.setdefault(mode, len(names))
-        ax.broken_barh([(t0, max(t1 - t0, 1e-3))], (0, 1), color=cmap(k % cmap.N), lw=0)
         if t1 - t0 >= 0.04 * whole:
             ax.text((t0 + t1) / 2, 0.5, mode, ha="center", va="center", fontsize=7)
     ax.set_yticks([])
@@ -201,6 +206,37 @@ def _time_panels(fig, grid, n: int):
     return axes
 
 
+def ticks_once(fig) -> None:
+    """Each axis's ticks placed and written once, where and as its default locator and formatter
+    put them in the figure's final view: matplotlib asks the locator and formatter again at each
+    layout step of the drawing (a few dozen times in a figure of 6 axes) and makes a Tick (three
+    lines, two texts) for each location it gets, the ones outside the view too. Call it when the
+    figure is complete (limits, aspect, size, margins): the picture is the one drawn without it.
+    An axis not linear, or whose formatter writes an offset or a multiplier (its corner text),
+    keeps its own."""
+    from matplotlib.ticker import FixedFormatter, FixedLocator
+
+    for ax in fig.axes:
+        ax.apply_aspect()  # the view limits an equal aspect ("datalim") sets at drawing
+    done = set()
+    for axis in (a for ax in fig.axes for a in (ax.xaxis, ax.yaxis)):
+        if id(axis.major) in done:  # axes sharing x share their locator and formatter
+            continue
+        done.add(id(axis.major))
+        locator, formatter = axis.get_major_locator(), axis.get_major_formatter()
+        if axis.get_scale() != "linear" or isinstance(locator, FixedLocator):
+            continue  # set_yticks([]) (the strips) is fixed already
+        locs = list(locator())
+        labels = formatter.format_ticks(locs)  # written as they are among all the locations
+        if formatter.get_offset():
+            continue
+        lo, hi = sorted(axis.get_view_interval())
+        tol = (hi - lo) * 1e-10  # matplotlib's own: a tick at the view's edge is drawn
+        keep = [k for k, x in enumerate(locs) if lo - tol <= x <= hi + tol]
+        axis.set_major_locator(FixedLocator([locs[k] for k in keep]))
+        axis.set_major_formatter(FixedFormatter([labels[k] for k in keep]))
+
+
 def _finish(fig, axes, decisions, authority: dict, t_end: float, path: Path) -> Path:
     """The time panels' common end: the verdict strip (axes[2]), the AI's start and end, the
     time span; the figure saved to `path`."""
@@ -208,6 +244,7 @@ def _finish(fig, axes, decisions, authority: dict, t_end: float, path: Path) -> 
     mark_start_end(axes, authority.get("t_start"), authority.get("t_end"))
     axes[0].set_xlim(0, max(t_end, 1.0))
     fig.subplots_adjust(left=0.05, right=0.99, top=0.88, bottom=0.22)
+    ticks_once(fig)
     fig.savefig(path, dpi=100)
     return path
 
