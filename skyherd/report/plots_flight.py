@@ -83,7 +83,7 @@ def shade_phases(axes, spans, label_ax=None) -> None:
     whole = max((s[1] for s in spans), default=0.0) - min((s[0] for s in spans), default=0.0)
     runs = [(t0, t1 - t0) for t0, t1, _ in spans]
     shades = [PHASE_SHADES[k % 2] for k in range(len(spans))]
-    for ax in axes if spans else ():  # bands the axes' height: one collection per axis
+    for ax in axes if spans else ():  # one collection per axis, the bands its whole height
         ax.broken_barh(runs, (0, 1), color=shades, lw=0, zorder=0,
                        transform=ax.get_xaxis_transform())  # fmt: skip
     for t0, t1, ph in spans:
@@ -146,7 +146,7 @@ def mode_strip(ax, track_rows: list[dict]) -> None:
     spans = phase_spans(track_rows, "mode")
     whole = max((s[1] for s in spans), default=0.0) - min((s[0] for s in spans), default=0.0)
     colours = [cmap(names.setdefault(mode, len(names)) % cmap.N) for _, _, mode in spans]
-    if spans:  # one collection, a colour per run: drawn as the runs one by one, cheaper
+    if spans:  # one collection, a colour per run: the pixels of one per run, at less cost
         ax.broken_barh([(t0, max(t1 - t0, 1e-3)) for t0, t1, _ in spans], (0, 1), color=colours,
                        lw=0)  # fmt: skip
     for t0, t1, mode in spans:
