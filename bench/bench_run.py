@@ -80,8 +80,11 @@ print(u.user + u.system - t.user - t.system)
 
 
 def plot_cpu_s(tree: Path, run: Path, env: dict) -> float:
-    """CPU [s] of groundair.png made again from `run` by `tree`'s report in a fresh process."""
+    """CPU [s] of groundair.png made again from `run` by `tree`'s report in a fresh process,
+    with OpenBLAS as `fly` runs it (scripts/cli.py: no worker threads; with them, matplotlib's
+    import cost ~0.1 CPU s more on an idle machine, 0.26 against 0.15, less on a loaded one)."""
     out = Path(tempfile.mkdtemp(prefix="skyherd-benchplot-"))
+    env = {"OPENBLAS_NUM_THREADS": "1", **env}
     text = subprocess.run([sys.executable, "-c", REDRAW, str(run), str(out)], cwd=tree, env=env,
                           capture_output=True, text=True, check=True).stdout  # fmt: skip
     return float(text.split()[-1])

@@ -9,6 +9,7 @@ track.png (fixed-wing orbit): the orbit inside the fence, its altitude and what 
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -19,30 +20,46 @@ VERDICT_COLOURS = {"accepted": "#2ca02c", "projected": "#f2c12e", "rejected": "#
 PHASE_SHADES = ("#f2f2f2", "#dfe8f3")  # alternating backgrounds of the phases
 
 
-def pyplot():
-    """matplotlib.pyplot on the Agg backend, imported without the property tables of its
-    artists' `set()` docstrings: matplotlib builds one per Artist class as the class is
-    defined (matplotlib.artist.kwdoc, ~0.07 CPU s of a process that only saves figures;
-    `help(Line2D.set)` in that process lists no properties). Already imported: as it is."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+@contextmanager
+def _without_set_docstrings():
+    """Imports inside it skip the property tables of the artists' `set()` docstrings: matplotlib
+    builds one per Artist class as the class is defined (matplotlib.artist.kwdoc, ~0.07 CPU s of
+    a process that only saves figures; `help(Line2D.set)` in that process lists no properties).
+    Classes already defined are as they were; matplotlib's kwdoc is back on leaving."""
     import matplotlib.artist as artist
 
     kwdoc = getattr(artist, "kwdoc", None)
     if kwdoc is not None:
         artist.kwdoc = lambda _artist: ""
     try:
-        import matplotlib.pyplot as plt
+        yield
     finally:
         if kwdoc is not None:
             artist.kwdoc = kwdoc
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend, imported `_without_set_docstrings`. Already
+    imported: as it is."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    with _without_set_docstrings():
+        import matplotlib.pyplot as plt
     return plt
 
 
 def figure(size):
-    plt = pyplot()
-    return plt, plt.figure(figsize=size)
+    """A matplotlib Figure of `size` inches on the Agg canvas, without pyplot: no figure
+    manager, no global state to close, and pyplot's import (backend selection) not paid.
+    matplotlib is imported `_without_set_docstrings`."""
+    with _without_set_docstrings():
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size)
+    FigureCanvasAgg(fig)
+    return fig
 
 
 def phase_spans(track_rows: list[dict], column: str = "phase") -> list[tuple[float, float, str]]:
@@ -64,9 +81,12 @@ def shade_phases(axes, spans, label_ax=None) -> None:
     """Each phase a background band on every time axis; its name over `label_ax` (a phase
     shorter than 2 % of the flight is shaded, unnamed: its name would cover its neighbour's)."""
     whole = max((s[1] for s in spans), default=0.0) - min((s[0] for s in spans), default=0.0)
-    for k, (t0, t1, ph) in enumerate(spans):
-        for ax in axes:
-            ax.axvspan(t0, t1, color=PHASE_SHADES[k % 2], zorder=0, lw=0)
+    runs = [(t0, t1 - t0) for t0, t1, _ in spans]
+    shades = [PHASE_SHADES[k % 2] for k in range(len(spans))]
+    for ax in axes if spans else ():  # one collection per axis, the bands its whole height
+        ax.broken_barh(runs, (0, 1), color=shades, lw=0, zorder=0,
+                       transform=ax.get_xaxis_transform())  # fmt: skip
+    for t0, t1, ph in spans:
         if label_ax is not None and t1 - t0 >= 0.02 * whole:
             label_ax.text((t0 + t1) / 2, 1.02, ph, transform=label_ax.get_xaxis_transform(),
                           ha="center", va="bottom", fontsize=7, rotation=30, clip_on=False)  # fmt: skip
@@ -125,9 +145,11 @@ def mode_strip(ax, track_rows: list[dict]) -> None:
     names: dict[str, int] = {}
     spans = phase_spans(track_rows, "mode")
     whole = max((s[1] for s in spans), default=0.0) - min((s[0] for s in spans), default=0.0)
+    colours = [cmap(names.setdefault(mode, len(names)) % cmap.N) for _, _, mode in spans]
+    if spans:  # one collection, a colour per run: the pixels of one per run, at less cost
+        ax.broken_barh([(t0, max(t1 - t0, 1e-3)) for t0, t1, _ in spans], (0, 1), color=colours,
+                       lw=0)  # fmt: skip
     for t0, t1, mode in spans:
-        k = names.setdefault(mode, len(names))
-        ax.broken_barh([(t0, max(t1 - t0, 1e-3))], (0, 1), color=cmap(k % cmap.N), lw=0)
         if t1 - t0 >= 0.04 * whole:
             ax.text((t0 + t1) / 2, 0.5, mode, ha="center", va="center", fontsize=7)
     ax.set_yticks([])
@@ -170,7 +192,7 @@ def _ugvs(world: list[dict]) -> int:
     return sum(1 for k in (world[0] if world else {}) if k.startswith("ugv") and k.endswith("_n"))
 
 
-def _time_panels(plt, fig, grid, n: int):
+def _time_panels(fig, grid, n: int):
     """n time axes stacked in `grid` sharing x; the last two (the strips) thin."""
     from matplotlib.gridspec import GridSpecFromSubplotSpec
 
@@ -179,20 +201,51 @@ def _time_panels(plt, fig, grid, n: int):
     axes = [fig.add_subplot(sub[0])]
     axes += [fig.add_subplot(sub[i], sharex=axes[0]) for i in range(1, n)]
     for ax in axes[:-1]:
-        plt.setp(ax.get_xticklabels(), visible=False)
+        ax.xaxis.set_tick_params(labelbottom=False)
     axes[-1].set_xlabel("simulation time [s]")
     return axes
 
 
-def _finish(plt, fig, axes, decisions, authority: dict, t_end: float, path: Path) -> Path:
+def ticks_once(fig) -> None:
+    """Each axis's ticks placed and written once, where and as its default locator and formatter
+    put them in the figure's final view: matplotlib asks the locator and formatter again at each
+    layout step of the drawing (a few dozen times in a figure of 6 axes) and makes a Tick (three
+    lines, two texts) for each location it gets, the ones outside the view too. Call it when the
+    figure is complete (limits, aspect, size, margins): the picture is the one drawn without it.
+    An axis not linear, or whose formatter writes an offset or a multiplier (its corner text),
+    keeps its own."""
+    from matplotlib.ticker import FixedFormatter, FixedLocator
+
+    for ax in fig.axes:
+        ax.apply_aspect()  # the view limits an equal aspect ("datalim") sets at drawing
+    done = set()
+    for axis in (a for ax in fig.axes for a in (ax.xaxis, ax.yaxis)):
+        if id(axis.major) in done:  # axes sharing x share their locator and formatter
+            continue
+        done.add(id(axis.major))
+        locator, formatter = axis.get_major_locator(), axis.get_major_formatter()
+        if axis.get_scale() != "linear" or isinstance(locator, FixedLocator):
+            continue  # set_yticks([]) (the strips) is fixed already
+        locs = list(locator())
+        labels = formatter.format_ticks(locs)  # written as they are among all the locations
+        if formatter.get_offset():
+            continue
+        lo, hi = sorted(axis.get_view_interval())
+        tol = (hi - lo) * 1e-10  # matplotlib's own: a tick at the view's edge is drawn
+        keep = [k for k, x in enumerate(locs) if lo - tol <= x <= hi + tol]
+        axis.set_major_locator(FixedLocator([locs[k] for k in keep]))
+        axis.set_major_formatter(FixedFormatter([labels[k] for k in keep]))
+
+
+def _finish(fig, axes, decisions, authority: dict, t_end: float, path: Path) -> Path:
     """The time panels' common end: the verdict strip (axes[2]), the AI's start and end, the
     time span; the figure saved to `path`."""
     verdict_strip(axes[2], decisions, t_end)
     mark_start_end(axes, authority.get("t_start"), authority.get("t_end"))
     axes[0].set_xlim(0, max(t_end, 1.0))
     fig.subplots_adjust(left=0.05, right=0.99, top=0.88, bottom=0.22)
+    ticks_once(fig)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -200,10 +253,10 @@ def plot_groundair(run_dir: Path, decisions, track_rows, world, envelope, author
     """groundair.png (module docstring)."""
     from matplotlib.gridspec import GridSpec
 
-    plt, fig = figure((16, 6.2))
+    fig = figure((16, 6.2))
     gs = GridSpec(1, 3, figure=fig, width_ratios=[1, 1, 1.7], wspace=0.28)
     team, fence = fig.add_subplot(gs[0]), fig.add_subplot(gs[1])
-    alt, feat, net, modes = _time_panels(plt, fig, gs[2], 4)
+    alt, feat, net, modes = _time_panels(fig, gs[2], 4)
     track = _track(track_rows)
     t_dec = np.array([float(d["t"]) for d in decisions])
     t0 = t_dec[0] if len(t_dec) else 0.0
@@ -242,7 +295,7 @@ def plot_groundair(run_dir: Path, decisions, track_rows, world, envelope, author
     if feat.get_legend_handles_labels()[0]:
         feat.legend(fontsize=7, loc="lower left")
     t_end = float(track[-1, 0]) if len(track) else 1.0
-    return _finish(plt, fig, [alt, feat, net, modes], decisions, authority, t_end,
+    return _finish(fig, [alt, feat, net, modes], decisions, authority, t_end,
                    run_dir / "groundair.png")  # fmt: skip
 
 
@@ -251,10 +304,10 @@ def plot_orbit(run_dir: Path, world, track_rows, plan: dict, t_est, envelope, au
     """track.png of the fixed-wing orbit (module docstring)."""
     from matplotlib.gridspec import GridSpec
 
-    plt, fig = figure((16, 7))
+    fig = figure((16, 7))
     gs = GridSpec(1, 2, figure=fig, width_ratios=[1, 1.5], wspace=0.2)
     ax = fig.add_subplot(gs[0])
-    alt, seen, net, modes = _time_panels(plt, fig, gs[1], 4)
+    alt, seen, net, modes = _time_panels(fig, gs[1], 4)
     n_ugv = _ugvs(world)
     w = np.array([[float(r["t"]), float(r["north"]), float(r["east"]), float(r["down"])]
                   for r in world]).reshape(-1, 4)  # fmt: skip
@@ -293,5 +346,5 @@ def plot_orbit(run_dir: Path, world, track_rows, plan: dict, t_est, envelope, au
         seen.legend(fontsize=7, loc="lower right")
     seen.set_ylabel("UGVs detected\n(camera)")
     t_end = float(w[-1, 0]) if len(w) else 1.0
-    return _finish(plt, fig, [alt, seen, net, modes], decisions, authority, t_end,
+    return _finish(fig, [alt, seen, net, modes], decisions, authority, t_end,
                    run_dir / "track.png")  # fmt: skip
