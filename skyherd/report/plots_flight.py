@@ -283,7 +283,8 @@ def plot_groundair(run_dir: Path, decisions, track_rows, world, envelope, author
         alt.plot(track[:, 0], -track[:, 3], "k-", lw=1.2, label="altitude (autopilot's estimate)")
     altitude_limits(alt, envelope)
     alt.set_ylabel("altitude above\nhome [m]")
-    alt.legend(fontsize=7, loc="upper right")
+    if alt.get_legend_handles_labels()[0]:  # nothing to name (no track, no limits): no box
+        alt.legend(fontsize=7, loc="upper right")
     if decisions:
         phi = np.array([d["phi"] for d in decisions if d.get("phi") is not None]).reshape(-1, 8)
         tp = np.array([float(d["t"]) for d in decisions if d.get("phi") is not None])
@@ -337,7 +338,8 @@ def plot_orbit(run_dir: Path, world, track_rows, plan: dict, t_est, envelope, au
         alt.axhline(plan["altitude_m"], color="k", ls=":", lw=1, label="planned h")
     altitude_limits(alt, envelope)
     alt.set_ylabel("altitude above\nhome [m]")
-    alt.legend(fontsize=7, loc="upper right")
+    if alt.get_legend_handles_labels()[0]:  # nothing to name (no track, no limits): no box
+        alt.legend(fontsize=7, loc="upper right")
     if sight:
         ts = np.array([float(r["t"]) for r in sight])
         seen.plot(ts, [int(r["detected"]) for r in sight], "-", color="tab:green", lw=0.8,

@@ -4,6 +4,8 @@ orbit's track.png are drawn with every panel, its labels, legends and strips; th
 
 from __future__ import annotations
 
+import warnings
+
 import cv2
 import numpy as np
 import pytest
@@ -96,10 +98,14 @@ def test_groundair_png_has_its_panels_labels_legends_and_strips(tmp_path, figure
 
 
 def test_groundair_png_without_records_is_still_drawn(tmp_path, figures):
-    """No decision, no track, no envelope: the panels, empty."""
-    path = plot_groundair(tmp_path, [], [], [], None, {})
+    """No decision, no track, no envelope: the panels, empty, without an empty legend box
+    (matplotlib warned "No artists with labels found to put in legend")."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        path = plot_groundair(tmp_path, [], [], [], None, {})
     assert cv2.imread(str(path)).shape[:2] == (620, 1600)
     assert len(figures[0].axes) == 6
+    assert all(ax.get_legend() is None for ax in figures[0].axes)
 
 
 def test_orbit_track_png_has_its_panels(tmp_path, figures):
