@@ -27,7 +27,8 @@ from skyherd.runio.space import Appender, warn
 @contextlib.contextmanager
 def atomic_file(path: Path, mode: str = "wb", **open_kw):
     """A file opened for writing whole: written to a temporary file beside `path`, synced, then
-    renamed over it, so that readers see the old or the new content, never a part."""
+    renamed over it, so that readers see the old or the new content, never a part. `open_kw`
+    go to `open` (encoding, or an `opener` that sets the file's mode as it is made)."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     try:
@@ -36,8 +37,8 @@ def atomic_file(path: Path, mode: str = "wb", **open_kw):
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except OSError:
-        with contextlib.suppress(OSError):  # a full disk keeps no half-written temporary file
+    except BaseException:  # a full disk, the caller's error, a signal: no temporary file kept
+        with contextlib.suppress(OSError):
             tmp.unlink()
         raise
 

@@ -12,6 +12,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from skyherd.runio.runfolder import atomic_file
+
 KEY_LEN = 32
 
 
@@ -53,14 +55,13 @@ def save_key(path: Path, key: bytes) -> None:
         raise SigningError(f"a signing key has {KEY_LEN} bytes, got {len(key)}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    try:
-        os.write(fd, key)
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
+    with atomic_file(path, "wb", opener=_owner_only) as f:
+        f.write(key)
+
+
+def _owner_only(path: str, flags: int) -> int:
+    """`open`'s opener for a key file: made readable and writable by its owner only."""
+    return os.open(path, flags, 0o600)
 
 
 PER_RUN_KEY_FILE = "signing.key"  # a flight's own key in its run folder
