@@ -175,6 +175,13 @@ def draw_fence(ax, envelope: dict | None) -> None:
                     ha="center", va="center")  # fmt: skip
 
 
+def legend(ax, loc: str) -> None:
+    """The axis's legend (7 pt) at `loc`; none when the axis names nothing (no empty box, and
+    no warning from matplotlib)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, loc=loc)
+
+
 def altitude_limits(ax, envelope: dict | None, floor: bool = True) -> None:
     lim = (envelope or {}).get("limits") or {}
     if lim.get("ceiling_m") is not None:
@@ -274,8 +281,7 @@ def plot_groundair(run_dir: Path, decisions, track_rows, world, envelope, author
     fence.set(xlabel="east [m]", ylabel="north [m]", title="the whole flight inside the fence")
     for ax in (team, fence):
         ax.set_aspect("equal", adjustable="datalim")
-        if ax.get_legend_handles_labels()[0]:  # the fence's corners hold its zones: "best"
-            ax.legend(fontsize=7, loc="upper left" if ax is team else "best")
+        legend(ax, "upper left" if ax is team else "best")  # the fence's corners hold its zones
     spans = phase_spans(track_rows)
     shade_phases([alt, feat, net], spans, label_ax=alt)
     mode_strip(modes, track_rows)
@@ -283,8 +289,7 @@ def plot_groundair(run_dir: Path, decisions, track_rows, world, envelope, author
         alt.plot(track[:, 0], -track[:, 3], "k-", lw=1.2, label="altitude (autopilot's estimate)")
     altitude_limits(alt, envelope)
     alt.set_ylabel("altitude above\nhome [m]")
-    if alt.get_legend_handles_labels()[0]:  # nothing to name (no track, no limits): no box
-        alt.legend(fontsize=7, loc="upper right")
+    legend(alt, "upper right")
     if decisions:
         phi = np.array([d["phi"] for d in decisions if d.get("phi") is not None]).reshape(-1, 8)
         tp = np.array([float(d["t"]) for d in decisions if d.get("phi") is not None])
@@ -293,8 +298,7 @@ def plot_groundair(run_dir: Path, decisions, track_rows, world, envelope, author
             feat.plot(tp, phi[:, 2], "b-", label="spread (φ3)")
     feat.set_ylim(-0.05, 1.1)
     feat.set_ylabel("feature [0..1]")
-    if feat.get_legend_handles_labels()[0]:
-        feat.legend(fontsize=7, loc="lower left")
+    legend(feat, "lower left")
     t_end = float(track[-1, 0]) if len(track) else 1.0
     return _finish(fig, [alt, feat, net, modes], decisions, authority, t_end,
                    run_dir / "groundair.png")  # fmt: skip
@@ -338,8 +342,7 @@ def plot_orbit(run_dir: Path, world, track_rows, plan: dict, t_est, envelope, au
         alt.axhline(plan["altitude_m"], color="k", ls=":", lw=1, label="planned h")
     altitude_limits(alt, envelope)
     alt.set_ylabel("altitude above\nhome [m]")
-    if alt.get_legend_handles_labels()[0]:  # nothing to name (no track, no limits): no box
-        alt.legend(fontsize=7, loc="upper right")
+    legend(alt, "upper right")
     if sight:
         ts = np.array([float(r["t"]) for r in sight])
         seen.plot(ts, [int(r["detected"]) for r in sight], "-", color="tab:green", lw=0.8,
