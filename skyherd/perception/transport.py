@@ -552,17 +552,15 @@ class FramePublisher:
             try:
                 self._shm = zenoh.shm.ShmProvider.default_backend(self._shm_frames * n)
                 self._gc = zenoh.shm.GarbageCollect()
-            except Exception as e:  # noqa: BLE001 - no /dev/shm, too small a limit: copy instead
+            except BaseException as e:  # no /dev/shm, too small a limit: copy instead
                 self._shm_off(e)
-            except BaseException as e:  # a Rust panic in Zenoh (pyo3's PanicException)
-                self._shm_off(e, reraise=True)
         if self._shm is not None:
             try:
                 buf = self._shm.alloc(n, policy=self._gc)
             except Exception:  # noqa: BLE001 - pool exhausted by slow readers: copy this one
                 self.shm_fallbacks += 1
             except BaseException as e:  # the segment could not be made: copy from now on
-                self._shm_off(e, reraise=True)
+                self._shm_off(e)
                 self.shm_fallbacks += 1
             else:
                 buf[0:n] = payload
@@ -570,13 +568,13 @@ class FramePublisher:
                 return
         self._pub.put(payload)
 
-    def _shm_off(self, e: BaseException, reraise: bool = False) -> None:
+    def _shm_off(self, e: BaseException) -> None:
         """Shared memory off for the rest of the flight, frames sent by copy, the reason kept
         (`shm_error`) and said once. Zenoh reports a segment it cannot make (e.g. its pages
         cannot be locked: RLIMIT_MEMLOCK, 8 MiB for a user without CAP_IPC_LOCK, is less than
         `shm_frames` 640×480 frames) as a Rust panic, which pyo3 raises as a BaseException:
-        with `reraise`, anything else of that kind (KeyboardInterrupt, SystemExit) goes on."""
-        if reraise and type(e).__name__ != "PanicException":
+        any other BaseException (KeyboardInterrupt, SystemExit) goes on."""
+        if not isinstance(e, Exception) and type(e).__name__ != "PanicException":
             raise e
         self._shm, self._gc, self._shm_frames = None, None, 0
         self.shm_error = f"{type(e).__name__}: {e}"
