@@ -10,11 +10,22 @@ WebSocket server, both with Foxglove's well-known schemas, stamped in simulation
 The layer sits just above runio; it imports perception (frame wire format, feature names).
 """
 
-from skyherd.record.flightlog import FlightLog
-from skyherd.record.live import LiveServer
-from skyherd.record.mcap_file import FlightRecorder
-from skyherd.record.read import read_messages
-from skyherd.record.zenoh import ZenohRecorder
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from skyherd.record.flightlog import FlightLog
+
+_WHERE = {  # each name's module, imported when the name is first asked for (PEP 562): a
+    # process imports only what it uses (`skyherd fly` records, it never reads a file back)
+    "FlightLog": "flightlog",
+    "FlightRecorder": "mcap_file",
+    "LiveServer": "live",
+    "ZenohRecorder": "zenoh",
+    "read_messages": "read",
+}
 
 __all__ = [
     "FlightLog",
@@ -26,12 +37,22 @@ __all__ = [
 ]
 
 
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module 'skyherd.record' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"skyherd.record.{_WHERE[name]}"), name)
+
+
 def open_recording(path, foxglove_port: int | None = None, **mcap_options) -> FlightLog:
     """The one call a command makes: a FlightRecorder at `path` (e.g. run.file("flight.mcap")),
     also feeding a live Foxglove server on 127.0.0.1:`foxglove_port` when one is given
     (`--foxglove PORT`). Closing it closes both."""
+    from skyherd.record.mcap_file import FlightRecorder
+
     if foxglove_port is None:
         return FlightRecorder(path, **mcap_options)
+    from skyherd.record.live import LiveServer
+
     live = LiveServer(foxglove_port)
     rec = FlightRecorder(path, also=[live], **mcap_options)
     rec.advertise()  # the live view shows every channel before the first message

@@ -42,7 +42,7 @@ def record_flight(zenoh_port: int, path: Path | None, foxglove: int | None, *,
 
         key = load_key(Path(key_file)) if key_file else None
         from skyherd.perception.transport import subscriber_params
-        from skyherd.record import LiveServer, ZenohRecorder
+        from skyherd.record.zenoh import ZenohRecorder
 
         deadline = time.monotonic() + START_PATIENCE_S
         while ready is not None and not ready() and time.monotonic() < deadline:
@@ -53,7 +53,11 @@ def record_flight(zenoh_port: int, path: Path | None, foxglove: int | None, *,
         session = connect(dataclasses.replace(params, mode="client"))
         if session is None:  # it gave up
             return None
-        also = [LiveServer(foxglove)] if foxglove is not None else []
+        also = []
+        if foxglove is not None:  # the live view's module only then (foxglove's server)
+            from skyherd.record.live import LiveServer
+
+            also = [LiveServer(foxglove)]
         if also:
             print(
                 f"skyherd fly: live view on {also[0].url} (Foxglove: open connection)", flush=True

@@ -6,6 +6,8 @@ logs the first import of each watched package, with the Python stack that asked 
   compiled), no SciPy, no pydantic (the default tables are plain: runio.schema), no matplotlib;
 - the companion imports no pydantic, no matplotlib, no OSQP and no SciPy (its net's projection
   and recovery target are exact: safety.nearest);
+- `fly`'s recorder imports neither the MCAP reader (record.read) nor, without --foxglove, the
+  live view (record.live);
 - `fly` imports matplotlib only to draw its plots after the verdict (report.ending.make_plots),
   no pydantic; its checks of the children's arguments build the simulator's parameter records
   (world.params, flight.mavlink.config), read keys (flight.mavlink.keys) and check addresses
@@ -28,6 +30,7 @@ from skyherd.flight.multirotor import compiled
 WATCHED = ("numba", "scipy", "osqp", "pydantic", "matplotlib", "torch", "pandas", "cv2")
 WATCHED += ("pymavlink", "skyherd.world.sim", "skyherd.world.scene")
 WATCHED += ("skyherd.flight.mavlink.endpoint", "skyherd.hil.link")  # modules: full names
+WATCHED += ("skyherd.record.read", "skyherd.record.live")
 
 HOOK = f"""
 import json, os, sys, traceback
@@ -107,6 +110,15 @@ def test_fly_checks_its_children_without_the_simulators_stack(imports):
     assert "_recorder" in imports["fly"]["cv2"], imports["fly"]["cv2"][-8:]
     assert "_validate" not in imports["fly"]["cv2"], imports["fly"]["cv2"][-8:]
     assert {"cv2", "pymavlink", "skyherd.world.sim"} <= set(imports["sim"])  # the hook saw them
+
+
+@pytest.mark.slow
+def test_fly_records_without_the_reader_or_the_live_view(imports):
+    """fly writes flight.mcap and reads nothing back (record.read); without --foxglove it
+    starts no live view (record.live): skyherd.record imports each name when it is asked for."""
+    assert not set(imports["fly"]) & {"skyherd.record.read", "skyherd.record.live"}, {
+        m: s[-8:] for m, s in imports["fly"].items() if m.startswith("skyherd.record")
+    }
 
 
 @pytest.mark.slow
