@@ -67,7 +67,7 @@ class FlightLog:
         self.errors = 0  # sink writes that raised (counted, skipped)
         self._handles: dict[tuple[int, str], Any] = {}
         self._specs: dict[tuple[str, str], m.ChannelSpec] = {}  # (kind, vehicle) → its channel
-        self._last_pos: dict[str, np.ndarray] = {}
+        self._last_pos: dict[str, tuple[float, float, float]] = {}  # vehicle → its position
         self._lock = threading.Lock()  # Zenoh callbacks arrive on several threads
         self.closed = False
         self._events: dict[str, int] = {}  # vehicle → safety events so far
@@ -122,12 +122,13 @@ class FlightLog:
     def pose(self, t: float, pos_ned, quat_wxyz=(1.0, 0.0, 0.0, 0.0), *,
              vehicle: str = "uav0") -> None:  # fmt: skip
         """Vehicle position [m] NED and attitude (w, x, y, z) body → NED."""
-        p = np.asarray(pos_ned, dtype=float)
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
+        p = m.finite3(pos_ned)
+        if p is None:  # not three finite numbers: nothing to show
             return
         self._last_pos[vehicle] = p
-        self._emit("pose", vehicle, t, m.pose_in_frame(t, p, quat_wxyz).encode())
-        self._emit("tf", vehicle, t, m.transforms(t, p, quat_wxyz, vehicle).encode())
+        pose, tf = m.pose_and_transforms(t, p, quat_wxyz, vehicle)
+        self._emit("pose", vehicle, t, pose.encode())
+        self._emit("tf", vehicle, t, tf.encode())
 
     def phi(self, t: float, values, *, vehicle: str = "uav0", names=None) -> None:
         v = [float(x) for x in values]

@@ -247,15 +247,32 @@ def pose_in_frame(t: float, pos_ned, quat_wxyz) -> fm.PoseInFrame:
 
 def transforms(t: float, pos_ned, quat_wxyz, vehicle: str) -> fm.FrameTransforms:
     """`world` (north-west-up) → `ned` (180° about north), and `ned` → the vehicle's body."""
-    ts = stamp(t)
+    return _transforms(stamp(t), _v3(pos_ned), _quat(quat_wxyz), vehicle)
+
+
+_ORIGIN = _v3((0, 0, 0))
+_WORLD_TO_NED = _quat((0, 1, 0, 0))  # 180° about north
+
+
+def _transforms(ts: fm.Timestamp, pos: fm.Vector3, q: fm.Quaternion,
+                vehicle: str) -> fm.FrameTransforms:  # fmt: skip
     return fm.FrameTransforms(
         transforms=[
             fm.FrameTransform(timestamp=ts, parent_frame_id=WORLD, child_frame_id=NED,
-                              translation=_v3((0, 0, 0)), rotation=_quat((0, 1, 0, 0))),
+                              translation=_ORIGIN, rotation=_WORLD_TO_NED),
             fm.FrameTransform(timestamp=ts, parent_frame_id=NED, child_frame_id=vehicle,
-                              translation=_v3(pos_ned), rotation=_quat(quat_wxyz)),
+                              translation=pos, rotation=q),
         ]
     )  # fmt: skip
+
+
+def pose_and_transforms(t: float, pos_ned, quat_wxyz,
+                        vehicle: str) -> tuple[fm.PoseInFrame, fm.FrameTransforms]:  # fmt: skip
+    """`pose_in_frame` and `transforms` of one pose, made from one stamp, position and
+    quaternion (the vehicle's pose at each camera frame: 1,000 a flight)."""
+    ts, pos, q = stamp(t), _v3(pos_ned), _quat(quat_wxyz)
+    pose = fm.PoseInFrame(timestamp=ts, frame_id=NED, pose=fm.Pose(position=pos, orientation=q))
+    return pose, _transforms(ts, pos, q, vehicle)
 
 
 def setpoint_scene(t: float, origin_ned, proposed: dict | None, certified: dict | None,
@@ -281,7 +298,7 @@ _UGV_COLOURS = {False: _color(BLUE), True: _color(ORANGE)}  # camouflaged: orang
 _IDENTITY = _quat((1.0, 0.0, 0.0, 0.0))
 
 
-def _finite3(p) -> tuple[float, float, float] | None:
+def finite3(p) -> tuple[float, float, float] | None:
     """Three finite floats from a point (a list or tuple of numbers: plain floats; anything
     else as numpy reads it), or None if it is not three finite numbers."""
     if type(p) in (list, tuple) and len(p) == 3 and all(type(v) in (float, int) for v in p):
@@ -299,7 +316,7 @@ def ugv_entity(ts: fm.Timestamp, u: dict, index: int) -> fm.SceneEntity | None:
     at pos_ned turned by heading_rad, an arrow, its id 1.5 m above (blue, orange while
     camouflaged); None if pos_ned is not three finite numbers. Plain floats and the constant
     parts made once: the recorder draws 3,000 of these a flight (issue 31)."""
-    p = _finite3(u["pos_ned"])
+    p = finite3(u["pos_ned"])
     if p is None:
         return None
     yaw = float(u.get("heading_rad", 0.0) or 0.0)

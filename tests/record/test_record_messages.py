@@ -102,3 +102,52 @@ def test_setpoint_arrows_are_numpys_to_the_bit():
             got = m._arrow_to((1.0, 2.0, -3.0), v, m.GREEN, s)
             assert (got is None) == (want is None), v
             assert got is None or got.encode() == want.encode(), v
+
+
+def _pose_numpy(t, pos_ned, quat_wxyz, vehicle) -> list[bytes] | None:
+    """FlightLog.pose's two messages as it made them: numpy's checks, each message whole."""
+    p = np.asarray(pos_ned, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        return None
+    ts = m.stamp(t)
+    tf = m.fm.FrameTransforms(transforms=[
+        m.fm.FrameTransform(timestamp=ts, parent_frame_id=m.WORLD, child_frame_id=m.NED,
+                            translation=m._v3((0, 0, 0)), rotation=m._quat((0, 1, 0, 0))),
+        m.fm.FrameTransform(timestamp=ts, parent_frame_id=m.NED, child_frame_id=vehicle,
+                            translation=m._v3(p), rotation=m._quat(quat_wxyz)),
+    ])  # fmt: skip
+    return [m.pose_in_frame(t, p, quat_wxyz).encode(), tf.encode()]
+
+
+class _Sink:
+    def __init__(self):
+        self.data: list[bytes] = []
+
+    def channel(self, spec):
+        return spec.topic
+
+    def write(self, handle, t_ns, data):
+        self.data.append(data)
+
+    def close(self):
+        pass
+
+
+def test_a_pose_is_recorded_as_before():
+    """FlightLog.pose (finite3, pose_and_transforms: one stamp, position and quaternion for
+    both messages) writes the bytes it wrote with numpy's checks and two builders."""
+    from skyherd.record.flightlog import FlightLog
+
+    rng = np.random.default_rng(33)
+    poses = [(rng.normal(size=3) * 50, rng.normal(size=4)) for _ in range(2000)]
+    poses += [(list(rng.normal(size=3)), tuple(rng.normal(size=4))) for _ in range(500)]
+    poses += [([1, 2, 3], (1, 0, 0, 0)), ((0.0, -0.0, -20.0), [0.0, 0.0, 0.0, 0.0]),
+              ([1.0, math.nan, 0.0], (1, 0, 0, 0)), ([1.0, 2.0], (1, 0, 0, 0)),
+              (np.zeros((1, 3)), (1, 0, 0, 0)), ([True, 2, 3.5], [math.nan, 0, 0, 1]),
+              ([math.inf, 0, 0], (1, 0, 0, 0)), ((5.0, 6.0, -7.0), (0.5, math.inf, 0, 0))]  # fmt: skip
+    for i, (p, q) in enumerate(poses):
+        t = i * 0.1
+        sink = _Sink()
+        FlightLog(sink).pose(t, p, q, vehicle="uav1")
+        want = _pose_numpy(t, p, q, "uav1")
+        assert sink.data == (want or []), (p, q)
