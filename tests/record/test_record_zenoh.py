@@ -211,6 +211,58 @@ def test_ugv_states_of_one_time_make_one_scene_and_every_authentic_state_is_draw
     assert ent.texts[0].text == "ugv 2" and ent.timestamp.nanos == 100_000_000
 
 
+def _frame(t: float, north: float) -> bytes:
+    from skyherd.perception.transport import encode_frame
+
+    image = np.zeros((6, 8, 3), np.uint8)
+    return encode_frame(round(10 * t), t, np.array([north, 0.0, -20.0]), np.array([1.0, 0, 0, 0]),
+                        image)  # fmt: skip
+
+
+def _decision(t: float) -> bytes:
+    return json.dumps({"t": t, "certified": {"vel_ned": [2.0, 0.0, 0.0]}}).encode()
+
+
+def test_the_recorders_thread_records_the_samples_in_the_order_they_came(tmp_path):
+    """Each key's callback only queues the sample's bytes; the recorder's thread records the
+    queue in arrival order: a decision's setpoint arrow starts at the pose of the frame that
+    came before it. close() records what is still queued."""
+    session = _Session()
+    rec = ZenohRecorder(session, "uav0", tmp_path / "flight.mcap")
+    frame, decision = (session.callbacks[f"skyherd/uav0/{k}"] for k in ("camera/frame", "decision"))
+    frame(_Sample(_frame(0.0, 1.0)))
+    decision(_Sample(_decision(0.0)))
+    frame(_Sample(_frame(0.1, 5.0)))
+    decision(_Sample(_decision(0.1)))
+    session.callbacks["skyherd/sim/clock"](_Sample(b'{"t_sim": 0.1}'))
+    rec.close()
+    assert rec.received == {"frame": 2, "decision": 2, "clock": 1} and not rec.corrupt
+    got = read_messages(tmp_path / "flight.mcap")
+    arrows = [_scene(m.data).entities[0].arrows[0] for m in got.topic("/uav0/setpoint")]
+    assert [a.pose.position.x for a in arrows] == [1.0, 5.0]  # from the frame before each
+    assert [m.t for m in got.topic("/sim/clock")] == [0.1]
+
+
+def test_a_full_queue_drops_and_counts_what_comes_never_holding_zenoh(tmp_path, monkeypatch):
+    """Samples that come while QUEUE wait (the recorder's thread behind) are dropped and
+    counted in the file's metadata: the callback returns at once."""
+    from mcap.reader import make_reader
+
+    monkeypatch.setattr(ZenohRecorder, "QUEUE", 3)
+    monkeypatch.setattr(ZenohRecorder, "BATCH_S", 60.0)  # the thread takes none before close()
+    session = _Session()
+    rec = ZenohRecorder(session, "uav0", tmp_path / "flight.mcap")
+    for k in range(5):
+        session.callbacks["skyherd/sim/clock"](_Sample(json.dumps({"t_sim": k / 10}).encode()))
+    rec.close()
+    assert rec.received == {"clock": 3} and rec.dropped == 2
+    clock = read_messages(tmp_path / "flight.mcap").topic("/sim/clock")
+    assert [m.t for m in clock] == [0.0, 0.1, 0.2]
+    with open(tmp_path / "flight.mcap", "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert meta["skyherd zenoh"]["dropped"] == "2"
+
+
 def test_live_server_serves_frames_and_poses_to_a_websocket_client():
     from websockets.sync.client import connect
 
