@@ -21,6 +21,7 @@ recorder can never stop a flight.
 
 from __future__ import annotations
 
+import collections
 import math
 import threading
 from typing import Any, Protocol
@@ -67,7 +68,8 @@ class FlightLog:
         self.errors = 0  # sink writes that raised (counted, skipped)
         self._handles: dict[tuple[int, str], Any] = {}
         self._specs: dict[tuple[str, str], m.ChannelSpec] = {}  # (kind, vehicle) → its channel
-        self._last_pos: dict[str, tuple[float, float, float]] = {}  # vehicle → its position
+        # vehicle → its newest poses' (time, position): a decision is drawn from its own time's
+        self._poses: dict[str, collections.deque] = {}
         self._lock = threading.Lock()  # Zenoh callbacks arrive on several threads
         self.closed = False
         self._events: dict[str, int] = {}  # vehicle → safety events so far
@@ -87,6 +89,20 @@ class FlightLog:
                         self._handles[(i, spec.topic)] = s.channel(spec)
                     except Exception:  # noqa: BLE001 - a recorder never stops a flight
                         self.errors += 1
+
+    POSES = 64  # poses kept per vehicle for `_position` (6.4 s of 10 Hz camera frames)
+
+    def _position(self, vehicle: str, t: float):
+        """The vehicle's position at time t: its newest pose not later than t (a decision is
+        drawn from the pose it was made from, also when the next frame's pose came first: the
+        Zenoh recorder's keys race), else the newest; None before any pose."""
+        poses = self._poses.get(vehicle)
+        if not poses:
+            return None
+        for tp, p in reversed(poses):
+            if tp <= t:
+                return p
+        return poses[-1][1]
 
     # -- plumbing ---------------------------------------------------------------------
     def _emit(self, kind: str, vehicle: str, t: float, data: bytes) -> None:
@@ -125,7 +141,7 @@ class FlightLog:
         p = m.finite3(pos_ned)
         if p is None:  # not three finite numbers: nothing to show
             return
-        self._last_pos[vehicle] = p
+        self._poses.setdefault(vehicle, collections.deque(maxlen=self.POSES)).append((t, p))
         pose, tf = m.pose_and_transforms(t, p, quat_wxyz, vehicle)
         self._emit("pose", vehicle, t, pose.encode())
         self._emit("tf", vehicle, t, tf.encode())
@@ -144,7 +160,7 @@ class FlightLog:
         if record.get("phi") is not None:
             self.phi(t, record["phi"], vehicle=vehicle)
         prop, cert = record.get("proposed"), record.get("certified")
-        scene = m.setpoint_scene(t, self._last_pos.get(vehicle), prop, cert, vehicle)
+        scene = m.setpoint_scene(t, self._position(vehicle, t), prop, cert, vehicle)
         self._emit("setpoint", vehicle, t, scene.encode())
         pos = (cert or {}).get("pos_ned")
         if pos is not None and np.all(np.isfinite(np.asarray(pos, dtype=float))):

@@ -223,23 +223,24 @@ def _decision(t: float) -> bytes:
     return json.dumps({"t": t, "certified": {"vel_ned": [2.0, 0.0, 0.0]}}).encode()
 
 
-def test_the_recorders_thread_records_the_samples_in_the_order_they_came(tmp_path):
+def test_the_recorders_thread_records_the_queue_and_draws_each_decision_from_its_own_pose(tmp_path):
     """Each key's callback only queues the sample's bytes; the recorder's thread records the
-    queue in arrival order: a decision's setpoint arrow starts at the pose of the frame that
-    came before it. close() records what is still queued."""
+    queue in arrival order (close() what is still queued). A decision's setpoint arrow starts
+    at the pose of its own time, also when the next frame came first (the keys race)."""
     session = _Session()
     rec = ZenohRecorder(session, "uav0", tmp_path / "flight.mcap")
     frame, decision = (session.callbacks[f"skyherd/uav0/{k}"] for k in ("camera/frame", "decision"))
     frame(_Sample(_frame(0.0, 1.0)))
+    frame(_Sample(_frame(0.1, 5.0)))  # before the decision of 0.0
     decision(_Sample(_decision(0.0)))
-    frame(_Sample(_frame(0.1, 5.0)))
     decision(_Sample(_decision(0.1)))
+    decision(_Sample(_decision(0.25)))  # its frame not (yet) come: the newest before it
     session.callbacks["skyherd/sim/clock"](_Sample(b'{"t_sim": 0.1}'))
     rec.close()
-    assert rec.received == {"frame": 2, "decision": 2, "clock": 1} and not rec.corrupt
+    assert rec.received == {"frame": 2, "decision": 3, "clock": 1} and not rec.corrupt
     got = read_messages(tmp_path / "flight.mcap")
     arrows = [_scene(m.data).entities[0].arrows[0] for m in got.topic("/uav0/setpoint")]
-    assert [a.pose.position.x for a in arrows] == [1.0, 5.0]  # from the frame before each
+    assert [a.pose.position.x for a in arrows] == [1.0, 5.0, 5.0]
     assert [m.t for m in got.topic("/sim/clock")] == [0.1]
 
 
