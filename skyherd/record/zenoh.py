@@ -103,8 +103,6 @@ class ZenohRecorder:
         self.dropped = 0  # samples that came while QUEUE were waiting
         self._queue: collections.deque[tuple[Any, bytes]] = collections.deque()
         self._closing = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="skyherd-recorder", daemon=True)
-        self._thread.start()
         v = vehicle
         self._subs = [
             session.declare_subscriber(f"skyherd/{v}/camera/frame", self._queued("frame", self._frame)),
@@ -113,6 +111,10 @@ class ZenohRecorder:
             session.declare_subscriber(f"skyherd/{v}/safety/event", self._queued("event", self._event)),
             session.declare_subscriber(CLOCK_KEY, self._queued("clock", self._clock)),
         ]  # fmt: skip
+        # started once subscribed (what came meanwhile waits in the queue): no thread is left
+        # running when a subscription fails
+        self._thread = threading.Thread(target=self._run, name="skyherd-recorder", daemon=True)
+        self._thread.start()
 
     QUEUE = 1024  # samples waiting for the recorder's thread, at most (~0.3 s of a flight at --speedup 0)
     BATCH_S = 0.01  # [wall s] between the recorder thread's batches
