@@ -19,6 +19,7 @@ from skyherd.flight.mavlink.signing import IFLAG_SIGNED, SIGNATURE_LEN, Signing,
 from skyherd.flight.mavlink.wire import CRC, HDR_V2, STX_V2, X25
 
 MAVLinkMessage = mavlink.MAVLink_message
+_new_object = object.__new__
 
 
 class _Layout:
@@ -43,10 +44,34 @@ class _Layout:
             self.groups = [(starts[o], lengths[o]) for o in orders]
         self.chars = [i for i, t in enumerate(cls.fieldtypes) if t == "char"]  # declaration order
         self.wire_values = _wire_getter(cls)
+        self._attributes(cls)
 
-    def message(self, payload: bytes):
+    def _attributes(self, cls) -> None:
+        """What pymavlink's generated `__init__` leaves on an object of the class, in its order:
+        the base's bookkeeping, then each field (a char field as its raw bytes `_NAME_raw`, then
+        NAME, those bytes up to the first NUL as text). `decoded` fills a copy of `template`."""
+        names = cls.fieldnames
+        raw = {names[i]: f"_{names[i]}_raw" for i in self.chars}
+        self.keys = tuple(raw.get(name, name) for name in names)  # where each field goes
+        self.texts = tuple(raw.items())  # (NAME, _NAME_raw)
+        self.template = {
+            "_header": None, "_payload": None, "_msgbuf": None, "_crc": None,
+            "_fieldnames": names, "_type": cls.msgname, "_signed": False, "_link_id": None,
+            "_instances": None, "_instance_field": cls.instance_field,
+            "_instance_offset": cls.instance_offset,
+        }  # fmt: skip  (_signed stays False: pymavlink's parser holds no key, we check signatures)
+        for name in names:
+            if name in raw:
+                self.template[raw[name]] = None
+            self.template[name] = None
+
+    def fields(self, payload: bytes) -> list | tuple:
+        """The field values of a full-size payload, in declaration order, char fields with their
+        trailing NULs stripped: the arguments of the class's `__init__`."""
         t = self.unpack(payload)
         if self.flat:
+            if not self.chars:
+                return self.order(t)
             fields = list(self.order(t))
         else:
             fields = [
@@ -55,7 +80,26 @@ class _Layout:
             ]
         for i in self.chars:
             fields[i] = fields[i].rstrip(b"\x00")
-        return self.cls(*fields)
+        return fields
+
+    def message(self, payload: bytes):
+        return self.cls(*self.fields(payload))
+
+    def decoded(self, payload: bytes, header, msgbuf: bytearray, crc_at: int) -> MAVLinkMessage:
+        """The object pymavlink's `decode` gives for one frame (`msgbuf`, its checksum at
+        `crc_at`, its `payload` made full size, its `header`), attribute for attribute, without
+        the class's `__init__` chain: a copy of `template` with the fields filled in."""
+        attrs = self.template.copy()
+        attrs["_header"] = header
+        attrs["_payload"] = msgbuf[6:crc_at]  # as pymavlink's decode sets it
+        attrs["_msgbuf"] = msgbuf
+        attrs["_crc"] = msgbuf[crc_at] | msgbuf[crc_at + 1] << 8
+        attrs.update(zip(self.keys, self.fields(payload)))
+        for name, raw in self.texts:
+            attrs[name] = attrs[raw].split(b"\x00", 1)[0].decode("ascii", errors="replace")
+        m = _new_object(self.cls)
+        m.__dict__ = attrs
+        return m
 
 
 def _wire_getter(cls):
@@ -194,14 +238,8 @@ def _decode(datagram: bytes, i: int, end: int, sig: int, lay: _Layout) -> MAVLin
         payload += bytes(lay.size - plen)  # MAVLink 2 trailing-zero truncation
     elif plen > lay.size:
         payload = payload[: lay.size]
-    m = lay.message(payload)
-    buf = bytearray(datagram[i:end])
-    m._signed = False  # pymavlink's parser holds no key: the signature is ours to check
-    m._msgbuf = buf
-    m._payload = buf[6 : stop - i]  # as pymavlink's decode sets it
-    m._crc = datagram[stop] | datagram[stop + 1] << 8
-    m._header = mavlink.MAVLink_header(lay.msg_id, incompat, compat, plen, seq, src_sys, src_comp)
-    return m
+    header = mavlink.MAVLink_header(lay.msg_id, incompat, compat, plen, seq, src_sys, src_comp)
+    return lay.decoded(payload, header, bytearray(datagram[i:end]), stop - i)
 
 
 @dataclass
