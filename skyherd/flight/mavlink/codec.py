@@ -54,12 +54,13 @@ class _Layout:
         raw = {names[i]: f"_{names[i]}_raw" for i in self.chars}
         self.keys = tuple(raw.get(name, name) for name in names)  # where each field goes
         self.texts = tuple(raw.items())  # (NAME, _NAME_raw)
+        # _signed stays False: pymavlink's parser holds no key (signatures are ours to check)
         self.template = {
             "_header": None, "_payload": None, "_msgbuf": None, "_crc": None,
             "_fieldnames": names, "_type": cls.msgname, "_signed": False, "_link_id": None,
             "_instances": None, "_instance_field": cls.instance_field,
             "_instance_offset": cls.instance_offset,
-        }  # fmt: skip  (_signed stays False: pymavlink's parser holds no key, we check signatures)
+        }  # fmt: skip
         for name in names:
             if name in raw:
                 self.template[raw[name]] = None
