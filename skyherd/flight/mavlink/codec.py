@@ -33,6 +33,8 @@ class _Layout:
         self.msg_id = cls.id
         self.size = cls.unpacker.size
         self.unpack = cls.unpacker.unpack
+        self.unpack_from = cls.unpacker.unpack_from
+        self.zeros = bytes(self.size)  # a truncated payload's dropped trailing zeros, and more
         self.pack_payload = cls.unpacker.pack
         self.extra = bytes((cls.crc_extra,))
         orders, lengths = cls.orders, cls.lengths
@@ -66,10 +68,9 @@ class _Layout:
                 self.template[raw[name]] = None
             self.template[name] = None
 
-    def fields(self, payload: bytes) -> list | tuple:
-        """The field values of a full-size payload, in declaration order, char fields with their
-        trailing NULs stripped: the arguments of the class's `__init__`."""
-        t = self.unpack(payload)
+    def fields(self, t: tuple) -> list | tuple:
+        """The field values of an unpacked payload `t`, in declaration order, char fields with
+        their trailing NULs stripped: the arguments of the class's `__init__`."""
         if self.flat:
             if not self.chars:
                 return self.order(t)
@@ -84,18 +85,18 @@ class _Layout:
         return fields
 
     def message(self, payload: bytes):
-        return self.cls(*self.fields(payload))
+        return self.cls(*self.fields(self.unpack(payload)))
 
-    def decoded(self, payload: bytes, header, msgbuf: bytearray, crc_at: int) -> MAVLinkMessage:
+    def decoded(self, t: tuple, header, msgbuf: bytearray, crc_at: int) -> MAVLinkMessage:
         """The object pymavlink's `decode` gives for one frame (`msgbuf`, its checksum at
-        `crc_at`, its `payload` made full size, its `header`), attribute for attribute, without
+        `crc_at`, its payload unpacked `t`, its `header`), attribute for attribute, without
         the class's `__init__` chain: a copy of `template` with the fields filled in."""
         attrs = self.template.copy()
         attrs["_header"] = header
         attrs["_payload"] = msgbuf[6:crc_at]  # as pymavlink's decode sets it
         attrs["_msgbuf"] = msgbuf
         attrs["_crc"] = msgbuf[crc_at] | msgbuf[crc_at + 1] << 8
-        attrs.update(zip(self.keys, self.fields(payload)))
+        attrs.update(zip(self.keys, self.fields(t)))
         for name, raw in self.texts:
             attrs[name] = attrs[raw].split(b"\x00", 1)[0].decode("ascii", errors="replace")
         m = _new_object(self.cls)
@@ -185,7 +186,11 @@ def parse_unsigned_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
     A datagram of telemetry decoded here costs a few µs a frame; pymavlink's byte-wise
     parser, tens: with K vehicles' streams that parser was the companion's largest cost."""
     spans = _scan_v2(datagram, signed=False)
-    return None if spans is None else [_decode(datagram, *sp) for sp in spans]
+    return (
+        None
+        if spans is None
+        else [_decode(datagram[i:end], sig, lay) for i, end, sig, lay in spans]
+    )
 
 
 def parse_signed_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
@@ -196,7 +201,7 @@ def parse_signed_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
     spans = _scan_v2(datagram, signed=True)
     if spans is None or any(sig == 0 for _, _, sig, _ in spans):
         return None
-    return [_decode(datagram, *sp) for sp in spans]
+    return [_decode(datagram[i:end], sig, lay) for i, end, sig, lay in spans]
 
 
 _Span = tuple[int, int, int, _Layout]  # start, end (signature included), signature length, layout
@@ -230,17 +235,16 @@ def _scan_v2(datagram: bytes, signed: bool) -> list[_Span] | None:
     return out
 
 
-def _decode(datagram: bytes, i: int, end: int, sig: int, lay: _Layout) -> MAVLinkMessage:
-    """One scanned frame as pymavlink's parser (without a key of its own) decodes it."""
-    _, plen, incompat, compat, seq, src_sys, src_comp, lo, hi = HDR_V2.unpack_from(datagram, i)
-    stop = end - sig - 2  # the payload ends here
-    payload = datagram[i + 10 : stop]
-    if plen < lay.size:
-        payload += bytes(lay.size - plen)  # MAVLink 2 trailing-zero truncation
-    elif plen > lay.size:
-        payload = payload[: lay.size]
+def _decode(frame: bytes, sig: int, lay: _Layout) -> MAVLinkMessage:
+    """One scanned frame (`sig`: its signature's length) as pymavlink's parser (without a key
+    of its own) decodes it."""
+    _, plen, incompat, compat, seq, src_sys, src_comp, _, _ = HDR_V2.unpack_from(frame)
+    crc_at = 10 + plen
+    # the payload, then zeros: a truncated one gets its dropped trailing zeros back, a longer one
+    # (extensions this dialect does not know) is read up to the size we know
+    t = lay.unpack_from(frame[10:crc_at] + lay.zeros)
     header = mavlink.MAVLink_header(lay.msg_id, incompat, compat, plen, seq, src_sys, src_comp)
-    return lay.decoded(payload, header, bytearray(datagram[i:end]), stop - i)
+    return lay.decoded(t, header, bytearray(frame), crc_at)
 
 
 @dataclass
@@ -336,7 +340,7 @@ class Codec:
                 for i, end, sig, lay in spans:
                     frame = datagram[i:end]
                     if sg.verify(frame, lay.msg_id, frame[5], frame[6]) is None:
-                        out.append(_decode(datagram, i, end, sig, lay))
+                        out.append(_decode(frame, sig, lay))
                     else:
                         self.stats.rx_rejected += 1
                 self.stats.rx_frames += len(out)
