@@ -45,13 +45,15 @@ class _Layout:
             starts = [sum(lengths[:o]) for o in range(len(lengths))]
             self.groups = [(starts[o], lengths[o]) for o in orders]
         self.chars = [i for i, t in enumerate(cls.fieldtypes) if t == "char"]  # declaration order
+        # unpacked payload → field values: for a message of plain numbers, one C call
+        self.fields = self.order if self.flat and not self.chars else self._fields
         self.wire_values = _wire_getter(cls)
         self._attributes(cls)
 
     def _attributes(self, cls) -> None:
         """What pymavlink's generated `__init__` leaves on an object of the class, in its order:
         the base's bookkeeping, then each field (a char field as its raw bytes `_NAME_raw`, then
-        NAME, those bytes up to the first NUL as text). `decoded` fills a copy of `template`."""
+        NAME, those bytes up to the first NUL as text). `_decode` fills a copy of `template`."""
         names = cls.fieldnames
         raw = {names[i]: f"_{names[i]}_raw" for i in self.chars}
         self.keys = tuple(raw.get(name, name) for name in names)  # where each field goes
@@ -68,12 +70,10 @@ class _Layout:
                 self.template[raw[name]] = None
             self.template[name] = None
 
-    def fields(self, t: tuple) -> list | tuple:
+    def _fields(self, t: tuple) -> list:
         """The field values of an unpacked payload `t`, in declaration order, char fields with
         their trailing NULs stripped: the arguments of the class's `__init__`."""
         if self.flat:
-            if not self.chars:
-                return self.order(t)
             fields = list(self.order(t))
         else:
             fields = [
@@ -86,22 +86,6 @@ class _Layout:
 
     def message(self, payload: bytes):
         return self.cls(*self.fields(self.unpack(payload)))
-
-    def decoded(self, t: tuple, header, msgbuf: bytearray, crc_at: int) -> MAVLinkMessage:
-        """The object pymavlink's `decode` gives for one frame (`msgbuf`, its checksum at
-        `crc_at`, its payload unpacked `t`, its `header`), attribute for attribute, without
-        the class's `__init__` chain: a copy of `template` with the fields filled in."""
-        attrs = self.template.copy()
-        attrs["_header"] = header
-        attrs["_payload"] = msgbuf[6:crc_at]  # as pymavlink's decode sets it
-        attrs["_msgbuf"] = msgbuf
-        attrs["_crc"] = msgbuf[crc_at] | msgbuf[crc_at + 1] << 8
-        attrs.update(zip(self.keys, self.fields(t)))
-        for name, raw in self.texts:
-            attrs[name] = attrs[raw].split(b"\x00", 1)[0].decode("ascii", errors="replace")
-        m = _new_object(self.cls)
-        m.__dict__ = attrs
-        return m
 
 
 def _wire_getter(cls):
@@ -186,11 +170,7 @@ def parse_unsigned_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
     A datagram of telemetry decoded here costs a few µs a frame; pymavlink's byte-wise
     parser, tens: with K vehicles' streams that parser was the companion's largest cost."""
     spans = _scan_v2(datagram, signed=False)
-    return (
-        None
-        if spans is None
-        else [_decode(datagram[i:end], sig, lay) for i, end, sig, lay in spans]
-    )
+    return None if spans is None else [_decode(datagram[i:end], lay) for i, end, _, lay in spans]
 
 
 def parse_signed_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
@@ -201,7 +181,7 @@ def parse_signed_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
     spans = _scan_v2(datagram, signed=True)
     if spans is None or any(sig == 0 for _, _, sig, _ in spans):
         return None
-    return [_decode(datagram[i:end], sig, lay) for i, end, sig, lay in spans]
+    return [_decode(datagram[i:end], lay) for i, end, _, lay in spans]
 
 
 _Span = tuple[int, int, int, _Layout]  # start, end (signature included), signature length, layout
@@ -235,16 +215,29 @@ def _scan_v2(datagram: bytes, signed: bool) -> list[_Span] | None:
     return out
 
 
-def _decode(frame: bytes, sig: int, lay: _Layout) -> MAVLinkMessage:
-    """One scanned frame (`sig`: its signature's length) as pymavlink's parser (without a key
-    of its own) decodes it."""
+def _decode(frame: bytes, lay: _Layout) -> MAVLinkMessage:
+    """One scanned frame as pymavlink's parser (without a key of its own) decodes it, attribute
+    for attribute, without the class's `__init__` chain: a copy of the layout's `template`
+    with the frame's bookkeeping and the payload's fields filled in."""
     _, plen, incompat, compat, seq, src_sys, src_comp, _, _ = HDR_V2.unpack_from(frame)
     crc_at = 10 + plen
+    msgbuf = bytearray(frame)
+    attrs = lay.template.copy()
+    attrs["_header"] = mavlink.MAVLink_header(
+        lay.msg_id, incompat, compat, plen, seq, src_sys, src_comp
+    )
+    attrs["_payload"] = msgbuf[6:crc_at]  # as pymavlink's decode sets it
+    attrs["_msgbuf"] = msgbuf
+    attrs["_crc"] = frame[crc_at] | frame[crc_at + 1] << 8
     # the payload, then zeros: a truncated one gets its dropped trailing zeros back, a longer one
     # (extensions this dialect does not know) is read up to the size we know
     t = lay.unpack_from(frame[10:crc_at] + lay.zeros)
-    header = mavlink.MAVLink_header(lay.msg_id, incompat, compat, plen, seq, src_sys, src_comp)
-    return lay.decoded(t, header, bytearray(frame), crc_at)
+    attrs.update(zip(lay.keys, lay.fields(t)))
+    for name, raw in lay.texts:
+        attrs[name] = attrs[raw].split(b"\x00", 1)[0].decode("ascii", errors="replace")
+    m = _new_object(lay.cls)
+    m.__dict__ = attrs
+    return m
 
 
 @dataclass
@@ -337,10 +330,10 @@ class Codec:
             spans = _scan_v2(datagram, signed=True)
             if spans is not None:
                 out = []
-                for i, end, sig, lay in spans:
+                for i, end, _, lay in spans:
                     frame = datagram[i:end]
                     if sg.verify(frame, lay.msg_id, frame[5], frame[6]) is None:
-                        out.append(_decode(frame, sig, lay))
+                        out.append(_decode(frame, lay))
                     else:
                         self.stats.rx_rejected += 1
                 self.stats.rx_frames += len(out)
