@@ -43,6 +43,12 @@ def atomic_file(path: Path, mode: str = "wb", **open_kw):
         raise
 
 
+def owner_only(path: str, flags: int) -> int:
+    """`open`'s opener for a secret (a key file): made readable and writable by its owner only,
+    as it is created (`atomic_file(path, opener=owner_only)`: never a moment readable by others)."""
+    return os.open(path, flags, 0o600)
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write a whole file so that readers see the old or the new content, never a part."""
     with atomic_file(path) as f:
