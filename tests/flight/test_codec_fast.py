@@ -10,7 +10,9 @@ from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from skyherd.flight.mavlink.codec import (
+    _LAYOUTS,
     Codec,
+    frame_unsigned_v2,
     pack_unsigned_v2,
     parse_signed_v2,
     parse_unsigned_v2,
@@ -237,3 +239,26 @@ def test_a_message_out_of_range_fails_as_pymavlink_does():
         m.pack(mav)
     with pytest.raises(struct.error):
         pack_unsigned_v2(m, 0, 3, 1)
+
+
+def test_layouts_are_the_dialects_classes_only():
+    """Layouts are made on first use, for the dialect's own classes: a subclass (or another
+    dialect's class of the same id) is framed by pymavlink, as before; an unknown id has none."""
+
+    class Custom(M.MAVLink_heartbeat_message):
+        pass
+
+    mav = M.MAVLink(None, srcSystem=1, srcComponent=1)
+    mine = Custom(2, 12, 0, 0, 3, 3)
+    assert frame_unsigned_v2(mine, 0, 1, 1) is None
+    assert Codec(1, 1).pack(mine) == bytes(Custom(2, 12, 0, 0, 3, 3).pack(mav))
+    hb = M.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3)
+    assert frame_unsigned_v2(hb, 0, 1, 1) == bytes(
+        hb.pack(M.MAVLink(None, srcSystem=1, srcComponent=1))
+    )
+    assert (
+        _LAYOUTS.known(0xFFFFFF) is None
+        and _LAYOUTS.known(M.MAVLINK_MSG_ID_HEARTBEAT).cls is M.MAVLink_heartbeat_message
+    )
+    with pytest.raises(KeyError):
+        _LAYOUTS[0xFFFFFF]

@@ -111,8 +111,31 @@ def _wire_getter(cls):
     return values
 
 
-_LAYOUTS = {msg_id: _Layout(cls) for msg_id, cls in mavlink.mavlink_map.items()}
-_BY_CLASS = {lay.cls: lay for lay in _LAYOUTS.values()}
+class _Layouts(dict):
+    """Message id → its `_Layout`, each made on first use: a flight speaks a dozen of the
+    dialect's 300 messages, and making them all cost every process importing this ~3 ms.
+    `layouts[msg_id]` raises KeyError for an id the dialect does not know, `known` gives None."""
+
+    def __missing__(self, msg_id: int) -> _Layout:
+        lay = self[msg_id] = _Layout(mavlink.mavlink_map[msg_id])
+        _BY_CLASS[lay.cls] = lay
+        return lay
+
+    def known(self, msg_id: int) -> _Layout | None:
+        return self[msg_id] if msg_id in mavlink.mavlink_map else None
+
+
+_LAYOUTS = _Layouts()
+_BY_CLASS: dict[type, _Layout] = {}  # the dialect's message classes whose layout was made
+
+
+def _layout_of(cls: type) -> _Layout | None:
+    """The layout of one of the dialect's message classes; None for any other class (pymavlink
+    frames it), a subclass or another dialect's class of the same id included."""
+    lay = _BY_CLASS.get(cls)
+    if lay is None and mavlink.mavlink_map.get(getattr(cls, "id", None)) is cls:
+        lay = _LAYOUTS[cls.id]
+    return lay
 
 
 def decode_payload(p: Payload) -> MAVLinkMessage:
@@ -128,7 +151,7 @@ def frame_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int
     It costs a third of pymavlink's `_pack`, which builds a header object and an X.25
     accumulator in Python per frame: with K vehicles' streams that was a simulator's largest
     cost after the physics."""
-    lay = _BY_CLASS.get(type(msg))
+    lay = _layout_of(type(msg))
     if lay is None:
         return None
     return _frame_of(lay, lay.pack_payload(*lay.wire_values(msg)), seq, src_sys, src_comp)
@@ -204,7 +227,8 @@ def _scan_v2(datagram: bytes, signed: bool) -> list[_Span] | None:
         end = i + 12 + datagram[i + 1]
         if end + sig > n:
             return None
-        lay = _LAYOUTS.get(datagram[i + 7] | datagram[i + 8] << 8 | datagram[i + 9] << 16)
+        msg_id = datagram[i + 7] | datagram[i + 8] << 8 | datagram[i + 9] << 16
+        lay = _LAYOUTS.get(msg_id) or _LAYOUTS.known(msg_id)  # (made on first use)
         if lay is None:
             return None
         crc = datagram[end - 2] | datagram[end - 1] << 8
@@ -276,7 +300,7 @@ class Codec:
             lay = _LAYOUTS[msg.msg_id]
             payload = msg.data
         else:
-            lay = _BY_CLASS.get(type(msg))
+            lay = _layout_of(type(msg))
             if lay is None:  # a class the dialect does not know: pymavlink frames it
                 return self._pymavlink_pack(msg)
             payload = lay.pack_payload(*lay.wire_values(msg))
