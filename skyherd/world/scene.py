@@ -15,6 +15,7 @@ each own one `Scene`, so every world honours every option the same way.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -27,11 +28,20 @@ from skyherd.perception.mount import mounted_pose
 from skyherd.perception.render_fast import FastRenderer
 from skyherd.runio import CsvWriter
 from skyherd.runio.constants import CLOCK_KEY
-from skyherd.runio.mac import sign_record
+from skyherd.runio.mac import sign_body, sign_record
 from skyherd.task.params import TaskParams
 from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
 
 TRUTH_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
+
+
+def clock_payload(t: float, key: bytes | None) -> bytes:
+    """The clock record {"t_sim": t} as sent, signed with `key` unless None. Signed, its
+    canonical body (runio.mac) is written directly: json's encoder doubled its cost."""
+    t = float(t)
+    if key is not None and math.isfinite(t):
+        return sign_body(b'{"t_sim":%r}' % t, key)
+    return sign_record({"t_sim": t}, key)  # json writes NaN and Infinity
 
 
 def during(windows: tuple[tuple[float, float], ...], t: float) -> bool:
@@ -136,7 +146,7 @@ class Scene:
                     seq = self.publisher.publish(t, uav.pos_ned, uav.quat, image)
                     self.frames += 1
             self._ugv_pub.publish(t, ugvs)
-            self._clock_pub.put(sign_record({"t_sim": t}, self._key))
+            self._clock_pub.put(clock_payload(t, self._key))
         if finite:  # world.csv is the judge's truth: no row for a position nobody knows
             self.write_truth(t, state, mode, armed, ugvs)
         return seq
