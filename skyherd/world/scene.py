@@ -26,11 +26,11 @@ from skyherd.groundsim.ugv import UGVModel
 from skyherd.perception.camera import UAVPose
 from skyherd.perception.mount import mounted_pose
 from skyherd.perception.render_fast import FastRenderer
-from skyherd.runio import CsvWriter
+from skyherd.runio import CsvWriter, to_jsonable
 from skyherd.runio.constants import CLOCK_KEY
 from skyherd.runio.mac import sign_body, sign_record
 from skyherd.task.params import TaskParams
-from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
+from skyherd.world.team import new_team, team_states, ugv_columns
 
 TRUTH_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
 
@@ -83,6 +83,7 @@ class Scene:
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = TRUTH_COLUMNS + ugv_columns(n_ugvs)
+        self._ugv_cells = 2 * n_ugvs  # world.csv's north, east of each UGV
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
         self.truth_t = -np.inf  # time of world.csv's last row [s]
         self.handed_over = False  # the companion's first decision heard (listen_for_hand_over)
@@ -175,9 +176,14 @@ class Scene:
         if ugvs is None and self.team is not None:
             ugvs = team_states(self.team)
         v = state.vel_ned if state.vel_ned is not None else np.full(3, np.nan)
-        self.truth.write(truth_row(t, state.pos_ned, ugvs, vn=v[0], ve=v[1], vd=v[2], mode=mode,
-                                   armed="" if armed is None else int(armed),
-                                   team_t="" if self.team_t is None else round(self.team_t, 6)))  # fmt: skip
+        # the cells in the header's order as plain Python values (a row every camera instant:
+        # no dict, no conversion per cell)
+        row = [to_jsonable(t), *np.asarray(state.pos_ned).tolist(), *np.asarray(v).tolist(), mode,
+               "" if armed is None else int(armed),
+               "" if self.team_t is None else to_jsonable(round(self.team_t, 6))]  # fmt: skip
+        ugv_ne = [] if ugvs is None else np.asarray(ugvs.pos_ne).ravel().tolist()
+        ugv_ne += [""] * (self._ugv_cells - len(ugv_ne))  # a UGV missing from `ugvs`: empty
+        self.truth.write_values(row + ugv_ne[: self._ugv_cells])
         self.truth_t = t
 
     def republish(self) -> None:
