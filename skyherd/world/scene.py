@@ -129,7 +129,7 @@ class Scene:
         it, else the autopilot's report); mode / armed as the autopilot says ("" / None when
         the world cannot know); offboard: the vehicle is in OFFBOARD now (starts a team parked
         until "offboard"). Returns the published frame's sequence number, or None."""
-        finite = bool(np.all(np.isfinite(state.pos_ned)))  # an estimate not yet known: NaN
+        finite = bool(np.isfinite(state.pos_ned).all())  # an estimate not yet known: NaN
         self.move_team(t, offboard, state.pos_ned[:2] if finite else None)
         ugvs = None if self.team is None else team_states(self.team)
         seq = None
