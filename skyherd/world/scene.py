@@ -38,10 +38,9 @@ TRUTH_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed"
 def clock_payload(t: float, key: bytes | None) -> bytes:
     """The clock record {"t_sim": t} as sent, signed with `key` unless None. Signed, its
     canonical body (runio.mac) is written directly: json's encoder doubled its cost."""
-    t = float(t)
-    if key is not None and math.isfinite(t):
-        return sign_body(b'{"t_sim":%r}' % t, key)
-    return sign_record({"t_sim": t}, key)  # json writes NaN and Infinity
+    if key is not None and isinstance(t, float) and math.isfinite(t):  # numpy's too: a float
+        return sign_body(b'{"t_sim":%r}' % float(t), key)
+    return sign_record({"t_sim": t}, key)  # an int as an int; json writes NaN and Infinity
 
 
 def during(windows: tuple[tuple[float, float], ...], t: float) -> bool:

@@ -152,7 +152,7 @@ def test_a_body_written_by_its_writer_signs_as_its_record_and_the_clock_as_befor
         body = json.dumps(rec, sort_keys=True, separators=(",", ":")).encode()
         assert sign_body(body, KEY) == sign_record(rec, KEY)
     rng = random.Random(6)
-    times = [0.0, -0.0, 0.1, 99.9, 1e-7, 1e16, np.float64(2.5), math.nan, math.inf, -math.inf]
+    times = [0.0, -0.0, 0.1, 99.9, 1e-7, 1e16, np.float64(2.5), 3, math.nan, math.inf, -math.inf]
     times += [rng.uniform(0, 1e4) for _ in range(2000)] + [k / 10 for k in range(2000)]
     for t in times:
         for key in (KEY, None):
