@@ -233,6 +233,13 @@ class CsvWriter:
             self._w.writerow([to_jsonable(row.get(k, "")) for k in self.columns])
         self._flush()
 
+    def write_values(self, values: list) -> None:
+        """One row given as its cells in the header's order, plain values (str, int, float, bool
+        or None) that are written as they are: no dict, no conversion per cell (world.csv's row
+        at every camera instant)."""
+        self._w.writerow(values)
+        self._flush()
+
     def _flush(self) -> None:
         self.appender.write(self._buf.getvalue())
         self._buf.seek(0)
