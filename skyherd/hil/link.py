@@ -310,8 +310,8 @@ class MavlinkLink:
     def flush_log(self) -> None:
         """Write the tlog records `defer_log` held, in the order they were sent and received."""
         held, self._unlogged = self._unlogged, []
-        for stamp_us, items in held:
-            self.tlog.write_many(_frames(items), stamp_us)
+        if held:
+            self.tlog.write_stamped([(stamp_us, _frames(items)) for stamp_us, items in held])
 
     def close(self) -> None:
         self.transport.close()

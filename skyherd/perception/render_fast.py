@@ -22,7 +22,6 @@ from skyherd.groundsim.ugv import (
     MARKER_COLOURS,
     UGVModel,
     UGVStates,
-    marker_corners_ned,
 )
 from skyherd.perception.camera import CameraParams, camera_pose, check_pose, project
 
@@ -50,23 +49,30 @@ class FastRenderer:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._bg = np.empty((cam.height_px, cam.width_px, 3), dtype=np.uint8)
         self._bg[:] = GROUND_RGB
-
-    def _hull_corners(self, states: UGVStates) -> np.ndarray:
-        """(N, 8, 3) NED corners of each hull box [m]."""
+        # the corners of a UGV as (forward, right) signs around a square, and the half sizes
+        # [m] along them: the hull's (its ground square; the top one repeats it) and the
+        # marker's (groundsim.ugv.marker_corners_ned's order and arithmetic)
         m = self.model
-        c, s = np.cos(states.heading), np.sin(states.heading)
-        fwd = np.stack([c, s], -1)
-        right = np.stack([-s, c], -1)
-        signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], dtype=float)
-        ne = states.pos_ne[:, None, :] + (
-            0.5 * m.length_m * signs[None, :, 0:1] * fwd[:, None, :]
-            + 0.5 * m.width_m * signs[None, :, 1:2] * right[:, None, :]
-        )
-        out = np.empty((states.n, 8, 3))
-        out[:, :4, :2] = ne
-        out[:, 4:, :2] = ne
-        out[:, :4, 2] = 0.0
-        out[:, 4:, 2] = -m.height_m
+        fwd, right = np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, -1.0, 1.0])
+        self._hull_half = (0.5 * m.length_m * fwd, 0.5 * m.width_m * right)
+        self._marker_signs, self._marker_half = (fwd, right), 0.5 * m.marker_size_m
+        self._lim = 4.0 * (cam.width_px + cam.height_px)  # keep fixed-point coordinates in range
+
+    def _corners(self, states: UGVStates) -> np.ndarray:
+        """(N, 12, 3) NED corners [m] of each UGV: its hull box's 8 (the ground square's 4, then
+        the top's), then its top marker's 4 (the values of groundsim.ugv.marker_corners_ned)."""
+        c, s = np.cos(states.heading)[:, None], np.sin(states.heading)[:, None]  # (N, 1)
+        n, e = states.pos_ne[:, 0:1], states.pos_ne[:, 1:2]
+        # a corner: the centre + its offsets along the heading (cos, sin) and to the right
+        # (−sin, cos)
+        out = np.empty((states.n, 12, 3))
+        a, b = self._hull_half
+        out[:, :4, 0], out[:, :4, 1] = n + (a * c - b * s), e + (a * s + b * c)
+        out[:, 4:8, :2] = out[:, :4, :2]
+        out[:, :4, 2], out[:, 4:8, 2] = 0.0, -self.model.height_m
+        (f, r), h = self._marker_signs, self._marker_half
+        out[:, 8:, 0], out[:, 8:, 1] = n + h * (f * c - r * s), e + h * (f * s + r * c)
+        out[:, 8:, 2] = -self.model.marker_top_m
         return out
 
     def render(self, uav, ugv_states: UGVStates, out: np.ndarray | None = None) -> np.ndarray:
@@ -83,22 +89,21 @@ class FastRenderer:
                 raise ValueError(f"out must be {self._bg.shape} uint8, got {out.shape} {out.dtype}")
             img = out
             img[...] = self._bg
-        hull_uv, hz = project(cam, pose, self._hull_corners(ugv_states))
-        mark_uv, mz = project(cam, pose, marker_corners_ned(ugv_states, self.model))
-        lim = 4.0 * (cam.width_px + cam.height_px)  # keep fixed-point coordinates in range
+        uv, depth = project(cam, pose, self._corners(ugv_states))
+        # a polygon is drawn when each of its corners is before the near plane (behind the
+        # camera: NaN) and not far out of the image (the fixed-point coordinates' range)
+        drawn = (depth > cam.near_m) & (np.abs(uv - cam.centre_px).max(axis=2) < self._lim)
+        hulls, markers = drawn[:, :8].all(axis=1).tolist(), drawn[:, 8:].all(axis=1).tolist()
+        px = np.round(uv * _SCALE)  # fixed point, made int32 for the polygons drawn
         for i in range(ugv_states.n):
-            if (hz[i] > cam.near_m).all() and np.abs(hull_uv[i] - cam.centre_px).max() < lim:
-                pts = np.round((hull_uv[i] + 0.0) * _SCALE).astype(np.int32)
-                cv2.fillConvexPoly(img, cv2.convexHull(pts), BODY_RGB, cv2.LINE_AA, _SHIFT)
+            if hulls[i]:
+                pts = cv2.convexHull(px[i, :8].astype(np.int32))
+                cv2.fillConvexPoly(img, pts, BODY_RGB, cv2.LINE_AA, _SHIFT)
+        camouflaged = np.asarray(ugv_states.camouflaged).tolist()
         for i in range(ugv_states.n):
-            if (mz[i] > cam.near_m).all() and np.abs(mark_uv[i] - cam.centre_px).max() < lim:
-                colour = (
-                    GROUND_RGB
-                    if ugv_states.camouflaged[i]
-                    else MARKER_COLOURS[i % len(MARKER_COLOURS)]
-                )
-                pts = np.round(mark_uv[i] * _SCALE).astype(np.int32)
-                cv2.fillConvexPoly(img, pts, colour, cv2.LINE_AA, _SHIFT)
+            if markers[i]:
+                colour = GROUND_RGB if camouflaged[i] else MARKER_COLOURS[i % len(MARKER_COLOURS)]
+                cv2.fillConvexPoly(img, px[i, 8:].astype(np.int32), colour, cv2.LINE_AA, _SHIFT)
         if self.params.noise_std > 0:
             noise = self.rng.normal(0.0, self.params.noise_std, img.shape)
             img[...] = np.clip(img + noise, 0, 255).astype(np.uint8)

@@ -11,11 +11,13 @@ events (safety.events). Without a key a record is sent as it was, with no "mac".
 
 One encoding per record on each side (issue 31): `sign_record` encodes the canonical body once,
 MACs those bytes and sends them with `,"mac":"<64 hex>"` spliced in as the last member, so the
-payload is the body's bytes plus the mac. `payload_ok` checks such a payload over the received
-bytes (the body is the payload with that last member cut out: no re-encoding); a payload of any
-other shape (an older writer's spaced JSON, another tool's key order, a second or misplaced
-"mac") is checked as before, by re-encoding the parsed record (`record_ok`). Both checks MAC the
-same canonical bytes, so either side can be old or new: the MAC is unchanged on the wire.
+payload is the body's bytes plus the mac (`sign_body` signs a body its writer made itself: the
+UGV states and the clock, fixed records written without json's encoder, tested equal to it).
+`payload_ok` checks such a payload over the received bytes (the body is the payload with that
+last member cut out: no re-encoding); a payload of any other shape (an older writer's spaced
+JSON, another tool's key order, a second or misplaced "mac") is checked as before, by
+re-encoding the parsed record (`record_ok`). Both checks MAC the same canonical bytes, so either
+side can be old or new: the MAC is unchanged on the wire.
 
 Why the byte check accepts nothing the re-encoding check refuses: it accepts only when the MAC
 of the cut-out body is right, i.e. (without the key) the body is a canonical body some signer
@@ -59,7 +61,12 @@ def sign_record(rec: dict, key: bytes | None, sort_keys: bool = False) -> bytes:
     the record as it is (keys in its order unless sort_keys)."""
     if key is None:
         return json.dumps(rec, sort_keys=sort_keys).encode()
-    body = _body(rec)
+    return sign_body(_body(rec), key)
+
+
+def sign_body(body: bytes, key: bytes) -> bytes:
+    """The signed payload of a record whose canonical body is `body` (a writer that makes its
+    fixed records' bodies itself, e.g. groundsim.transport, signs them so)."""
     tag = _mac(key, body).encode()
     if body == b"{}":
         return b'{"' + MAC_FIELD.encode() + b'":"' + tag + b'"}'

@@ -43,6 +43,12 @@ def atomic_file(path: Path, mode: str = "wb", **open_kw):
         raise
 
 
+def owner_only(path: str, flags: int) -> int:
+    """`open`'s opener for a secret (a key file): made readable and writable by its owner only,
+    as it is created (`atomic_file(path, opener=owner_only)`: never a moment readable by others)."""
+    return os.open(path, flags, 0o600)
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write a whole file so that readers see the old or the new content, never a part."""
     with atomic_file(path) as f:
@@ -225,6 +231,13 @@ class CsvWriter:
         """Several rows, flushed once (a tick's samples of every vehicle)."""
         for row in rows:  # a key outside the header is left out; a missing column is empty
             self._w.writerow([to_jsonable(row.get(k, "")) for k in self.columns])
+        self._flush()
+
+    def write_values(self, values: list) -> None:
+        """One row given as its cells in the header's order, plain values (str, int, float, bool
+        or None) that are written as they are: no dict, no conversion per cell (world.csv's row
+        at every camera instant)."""
+        self._w.writerow(values)
         self._flush()
 
     def _flush(self) -> None:

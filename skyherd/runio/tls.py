@@ -21,11 +21,11 @@ from __future__ import annotations
 import datetime as dt
 import ipaddress
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from skyherd.runio.constants import ZENOH_BASE
+from skyherd.runio.runfolder import atomic_file, atomic_write_bytes, atomic_write_text, owner_only
 
 ROLES = ("sim", "companion", "viewer")
 """The identities of a flight: the simulator (the Zenoh router), the onboard computer, and a
@@ -51,10 +51,10 @@ class Pki:
 
 
 def _write_private(path: Path, data: bytes) -> None:
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as f:
+    """A private key, whole or not at all (a kill mid-write keeps the old file), owner-only from
+    its first byte (a new file each time: an old file's wider mode is not inherited)."""
+    with atomic_file(path, "wb", opener=owner_only) as f:
         f.write(data)
-    os.chmod(path, 0o600)  # an existing file keeps its mode on O_CREAT: set it
 
 
 def _san(host: str):
@@ -100,7 +100,7 @@ def make_pki(folder: Path, router_host: str, days: int = 365, roles=ROLES) -> Pk
                                      encipher_only=False, decipher_only=False), critical=True)
         .sign(ca_key, hashes.SHA256())
     )  # fmt: skip
-    (folder / "ca.pem").write_bytes(ca_cert.public_bytes(serialization.Encoding.PEM))
+    atomic_write_bytes(folder / "ca.pem", ca_cert.public_bytes(serialization.Encoding.PEM))
     _write_private(folder / "ca.key", pem_key(ca_key))
     pki = Pki(folder, folder / "ca.pem")
     for role in roles:
@@ -117,7 +117,7 @@ def make_pki(folder: Path, router_host: str, days: int = 365, roles=ROLES) -> Pk
                                                   ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False)
             .sign(ca_key, hashes.SHA256())
         )  # fmt: skip
-        pki.cert(role).write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+        atomic_write_bytes(pki.cert(role), cert.public_bytes(serialization.Encoding.PEM))
         _write_private(pki.key(role), pem_key(key))
     return pki
 
@@ -175,8 +175,8 @@ def write_zenoh_configs(pki: Pki, router_host: str, port: int = ZENOH_BASE) -> d
                         ("viewer", "viewer.json5")):  # fmt: skip
         path = pki.folder / fname
         conf = zenoh_config(pki, role, router_host, port)
-        path.write_text(f"// skyherd certs: the {role}'s side of a closed two-host flight\n"
-                        + json.dumps(conf, indent=2) + "\n")  # fmt: skip
+        atomic_write_text(path, f"// skyherd certs: the {role}'s side of a closed two-host "
+                          f"flight\n{json.dumps(conf, indent=2)}\n")  # fmt: skip
         out[role] = path
     return out
 

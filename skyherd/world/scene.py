@@ -15,6 +15,7 @@ each own one `Scene`, so every world honours every option the same way.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -25,13 +26,21 @@ from skyherd.groundsim.ugv import UGVModel
 from skyherd.perception.camera import UAVPose
 from skyherd.perception.mount import mounted_pose
 from skyherd.perception.render_fast import FastRenderer
-from skyherd.runio import CsvWriter
+from skyherd.runio import CsvWriter, to_jsonable
 from skyherd.runio.constants import CLOCK_KEY
-from skyherd.runio.mac import sign_record
+from skyherd.runio.mac import sign_body, sign_record
 from skyherd.task.params import TaskParams
-from skyherd.world.team import new_team, team_states, truth_row, ugv_columns
+from skyherd.world.team import new_team, team_states, ugv_columns
 
 TRUTH_COLUMNS = ["t", "north", "east", "down", "vn", "ve", "vd", "mode", "armed", "team_t"]
+
+
+def clock_payload(t: float, key: bytes | None) -> bytes:
+    """The clock record {"t_sim": t} as sent, signed with `key` unless None. Signed, its
+    canonical body (runio.mac) is written directly: json's encoder doubled its cost."""
+    if key is not None and isinstance(t, float) and math.isfinite(t):  # numpy's too: a float
+        return sign_body(b'{"t_sim":%r}' % float(t), key)
+    return sign_record({"t_sim": t}, key)  # an int as an int; json writes NaN and Infinity
 
 
 def during(windows: tuple[tuple[float, float], ...], t: float) -> bool:
@@ -73,6 +82,7 @@ class Scene:
             self._clock_pub = session.declare_publisher(CLOCK_KEY)
         self.run_dir = Path(run_dir) if run_dir is not None else None
         cols = TRUTH_COLUMNS + ugv_columns(n_ugvs)
+        self._ugv_cells = 2 * n_ugvs  # world.csv's north, east of each UGV
         self.truth = CsvWriter(self.run_dir / "world.csv", cols) if self.run_dir else None
         self.truth_t = -np.inf  # time of world.csv's last row [s]
         self.handed_over = False  # the companion's first decision heard (listen_for_hand_over)
@@ -118,7 +128,7 @@ class Scene:
         it, else the autopilot's report); mode / armed as the autopilot says ("" / None when
         the world cannot know); offboard: the vehicle is in OFFBOARD now (starts a team parked
         until "offboard"). Returns the published frame's sequence number, or None."""
-        finite = bool(np.all(np.isfinite(state.pos_ned)))  # an estimate not yet known: NaN
+        finite = bool(np.isfinite(state.pos_ned).all())  # an estimate not yet known: NaN
         self.move_team(t, offboard, state.pos_ned[:2] if finite else None)
         ugvs = None if self.team is None else team_states(self.team)
         seq = None
@@ -136,7 +146,7 @@ class Scene:
                     seq = self.publisher.publish(t, uav.pos_ned, uav.quat, image)
                     self.frames += 1
             self._ugv_pub.publish(t, ugvs)
-            self._clock_pub.put(sign_record({"t_sim": t}, self._key))
+            self._clock_pub.put(clock_payload(t, self._key))
         if finite:  # world.csv is the judge's truth: no row for a position nobody knows
             self.write_truth(t, state, mode, armed, ugvs)
         return seq
@@ -165,9 +175,14 @@ class Scene:
         if ugvs is None and self.team is not None:
             ugvs = team_states(self.team)
         v = state.vel_ned if state.vel_ned is not None else np.full(3, np.nan)
-        self.truth.write(truth_row(t, state.pos_ned, ugvs, vn=v[0], ve=v[1], vd=v[2], mode=mode,
-                                   armed="" if armed is None else int(armed),
-                                   team_t="" if self.team_t is None else round(self.team_t, 6)))  # fmt: skip
+        # the cells in the header's order as plain Python values (a row every camera instant:
+        # no dict, no conversion per cell)
+        row = [to_jsonable(t), *np.asarray(state.pos_ned).tolist(), *np.asarray(v).tolist(), mode,
+               "" if armed is None else int(armed),
+               "" if self.team_t is None else to_jsonable(round(self.team_t, 6))]  # fmt: skip
+        ugv_ne = [] if ugvs is None else np.asarray(ugvs.pos_ne).ravel().tolist()
+        ugv_ne += [""] * (self._ugv_cells - len(ugv_ne))  # a UGV missing from `ugvs`: empty
+        self.truth.write_values(row + ugv_ne[: self._ugv_cells])
         self.truth_t = t
 
     def republish(self) -> None:

@@ -47,11 +47,3 @@ def start_altitude(task: TaskParams, team) -> float:
 def ugv_columns(n_ugvs: int) -> list[str]:
     """world.csv's UGV columns: ugv<i>_n, ugv<i>_e [m]."""
     return [f"ugv{i}_{ax}" for i in range(n_ugvs) for ax in ("n", "e")]
-
-
-def truth_row(t: float, pos_ned, ugvs: UGVStates | None, **extra) -> dict:
-    """One world.csv row: the vehicle's true position, the UGVs', and `extra` columns."""
-    row = {"t": t, "north": pos_ned[0], "east": pos_ned[1], "down": pos_ned[2], **extra}
-    for i in range(0 if ugvs is None else ugvs.n):
-        row[f"ugv{i}_n"], row[f"ugv{i}_e"] = ugvs.pos_ne[i, 0], ugvs.pos_ne[i, 1]
-    return row

@@ -1,5 +1,6 @@
 """UGV states over Zenoh (`skyherd/ugv/<id>/state`) between two real sessions on loopback."""
 
+import json
 import socket
 import time
 
@@ -46,3 +47,32 @@ def test_ugv_states_over_zenoh():
     finally:
         b.close()
         a.close()
+
+
+def test_a_state_payload_is_the_record_runio_mac_signs():
+    """The signed body written directly is runio.mac's encoding of the record, whatever the
+    numbers (NaN and ±inf, which JSON writes its own way, by the record); unsigned: as before."""
+    import math
+    import random
+
+    from skyherd.groundsim.transport import state_payload
+    from skyherd.runio.mac import payload_ok, sign_record
+
+    key = bytes(range(32))
+    awkward = [0.0, -0.0, 5e-324, 1e-300, 1e16, 1e22, 0.1 + 0.2, -2.5, 3, np.float64(7.25),
+               math.nan, math.inf, -math.inf]  # fmt: skip
+    rng = random.Random(5)
+    for k in range(3000):
+        nums = [rng.choice(awkward) if rng.random() < 0.3 else rng.uniform(-1e3, 1e3)
+                for _ in range(5)]  # fmt: skip
+        t, n, e, heading, speed = nums
+        ugv, seq, camouflaged = k % 4, rng.randrange(10**6), rng.random() < 0.5
+        rec = {"id": ugv, "seq": seq, "t_sim": float(t), "pos_ned": [float(n), float(e), 0.0],
+               "heading_rad": float(heading), "speed_mps": float(speed),
+               "camouflaged": camouflaged}  # fmt: skip
+        for signing in (key, None):
+            got = state_payload(signing, ugv, seq, t, n, e, heading, speed, np.bool_(camouflaged))
+            assert got == sign_record(rec, signing), (nums, signing)
+        if all(map(math.isfinite, nums)):  # a signed body written directly verifies
+            payload = state_payload(key, ugv, seq, *nums, camouflaged)
+            assert payload_ok(payload, json.loads(payload), key)

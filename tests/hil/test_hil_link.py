@@ -128,6 +128,44 @@ def test_tlog_never_records_setup_signing_the_frame_that_carries_the_key(tmp_pat
     assert got == [("HEARTBEAT", 255), ("HEARTBEAT", 7)]
 
 
+def test_tlog_write_stamped_is_write_many_per_group_in_one_write(tmp_path):
+    """A lockstep tick's held records (flush_log) go out as one write and one flush, the same
+    bytes as one write_many per (stamp, frames) group; SETUP_SIGNING still dropped."""
+    from skyherd.flight.mavlink.tlog import TlogWriter
+
+    mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    frames = [
+        bytes(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 0, i).pack(mav)) for i in range(5)
+    ]
+    key = bytes(mav.setup_signing_encode(1, 1, list(range(32)), 123).pack(mav))
+    groups = [(1_000_000, frames[:2]), (1_000_250, [key]), (1_000_500, frames[2:])]
+    one = TlogWriter(tmp_path / "one.tlog")
+    for stamp_us, fr in groups:
+        one.write_many(fr, stamp_us)
+    one.close()
+    w = TlogWriter(tmp_path / "batch.tlog")
+    calls = []
+    real = w._f
+
+    class Counting:
+        def write(self, data):
+            calls.append("write")
+            return real.write(data)
+
+        def flush(self):
+            calls.append("flush")
+            return real.flush()
+
+        def close(self):
+            return real.close()
+
+    w._f = Counting()
+    w.write_stamped(groups)
+    assert calls == ["write", "flush"] and w.records == 5
+    w.close()
+    assert (tmp_path / "batch.tlog").read_bytes() == (tmp_path / "one.tlog").read_bytes()
+
+
 def test_busy_port_and_refused_tcp_give_clear_errors():
     port = _free_udp_port()
     a = MavlinkLink.open(f"udpin:127.0.0.1:{port}")

@@ -11,7 +11,9 @@ import json
 import math
 import random
 
-from skyherd.runio.mac import payload_ok, record_mac, record_ok, sign_record
+import numpy as np
+
+from skyherd.runio.mac import payload_ok, record_mac, record_ok, sign_body, sign_record
 
 KEY = bytes(range(32))
 OTHER = bytes(range(1, 33))
@@ -141,3 +143,17 @@ def test_non_finite_numbers_sign_and_verify_as_before():
     p = sign_record(rec, KEY)
     assert b"Infinity" in p and b"NaN" in p and payload_ok(p, json.loads(p), KEY)
     assert json.loads(p)["mac"] == _old_mac(KEY, rec)
+
+
+def test_a_body_written_by_its_writer_signs_as_its_record_and_the_clock_as_before():
+    from skyherd.world.scene import clock_payload
+
+    for rec in RECORDS:
+        body = json.dumps(rec, sort_keys=True, separators=(",", ":")).encode()
+        assert sign_body(body, KEY) == sign_record(rec, KEY)
+    rng = random.Random(6)
+    times = [0.0, -0.0, 0.1, 99.9, 1e-7, 1e16, np.float64(2.5), 3, math.nan, math.inf, -math.inf]
+    times += [rng.uniform(0, 1e4) for _ in range(2000)] + [k / 10 for k in range(2000)]
+    for t in times:
+        for key in (KEY, None):
+            assert clock_payload(t, key) == sign_record({"t_sim": t}, key), (t, key)

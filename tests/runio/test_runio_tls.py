@@ -2,8 +2,10 @@
 router's access-control rules (what each role may publish). The rules at work, over real TLS
 between two network namespaces: tests/e2e/test_two_hosts.py."""
 
+import os
 import stat
 
+import pytest
 from cryptography import x509
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
@@ -79,3 +81,25 @@ def test_the_router_host_is_an_address_the_companion_can_reach(tmp_path):
     files = {f for row in rows for f in row[0].split(", ")}
     assert files == {p.name for p in (tmp_path / "pki").iterdir()}
     assert dict((r[0], r[1]) for r in rows)["ca.key"] == "neither"
+
+
+def test_a_new_pki_over_an_old_one_replaces_each_key_whole_and_owner_only(tmp_path, monkeypatch):
+    """Keys are written through runio's atomic_file: a folder made again gets new keys that are
+    0600 even where the old file had a wider mode, and a write that fails keeps the old key
+    whole with no temporary file beside it (a kill or a full disk mid-write)."""
+    pki = make_pki(tmp_path, "10.0.0.1", roles=("companion",))
+    old = pki.key("companion").read_bytes()
+    pki.key("companion").chmod(0o644)
+    again = make_pki(tmp_path, "10.0.0.1", roles=("companion",))
+    assert again.key("companion").read_bytes() != old
+    assert stat.S_IMODE(again.key("companion").stat().st_mode) == 0o600
+    kept = again.key("companion").read_bytes()
+
+    def full_disk(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full_disk)
+    with pytest.raises(OSError):
+        make_pki(tmp_path, "10.0.0.1", roles=("companion",))
+    assert (tmp_path / "ca.key").exists() and again.key("companion").read_bytes() == kept
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []

@@ -19,6 +19,7 @@ from skyherd.flight.mavlink.signing import IFLAG_SIGNED, SIGNATURE_LEN, Signing,
 from skyherd.flight.mavlink.wire import CRC, HDR_V2, STX_V2, X25
 
 MAVLinkMessage = mavlink.MAVLink_message
+_new_object = object.__new__
 
 
 class _Layout:
@@ -32,6 +33,8 @@ class _Layout:
         self.msg_id = cls.id
         self.size = cls.unpacker.size
         self.unpack = cls.unpacker.unpack
+        self.unpack_from = cls.unpacker.unpack_from
+        self.zeros = bytes(self.size)  # a truncated payload's dropped trailing zeros, and more
         self.pack_payload = cls.unpacker.pack
         self.extra = bytes((cls.crc_extra,))
         orders, lengths = cls.orders, cls.lengths
@@ -42,10 +45,34 @@ class _Layout:
             starts = [sum(lengths[:o]) for o in range(len(lengths))]
             self.groups = [(starts[o], lengths[o]) for o in orders]
         self.chars = [i for i, t in enumerate(cls.fieldtypes) if t == "char"]  # declaration order
+        # unpacked payload → field values: for a message of plain numbers, one C call
+        self.fields = self.order if self.flat and not self.chars else self._fields
         self.wire_values = _wire_getter(cls)
+        self._attributes(cls)
 
-    def message(self, payload: bytes):
-        t = self.unpack(payload)
+    def _attributes(self, cls) -> None:
+        """What pymavlink's generated `__init__` leaves on an object of the class, in its order:
+        the base's bookkeeping, then each field (a char field as its raw bytes `_NAME_raw`, then
+        NAME, those bytes up to the first NUL as text). `_decode` fills a copy of `template`."""
+        names = cls.fieldnames
+        raw = {names[i]: f"_{names[i]}_raw" for i in self.chars}
+        self.keys = tuple(raw.get(name, name) for name in names)  # where each field goes
+        self.texts = tuple(raw.items())  # (NAME, _NAME_raw)
+        # _signed stays False: pymavlink's parser holds no key (signatures are ours to check)
+        self.template = {
+            "_header": None, "_payload": None, "_msgbuf": None, "_crc": None,
+            "_fieldnames": names, "_type": cls.msgname, "_signed": False, "_link_id": None,
+            "_instances": None, "_instance_field": cls.instance_field,
+            "_instance_offset": cls.instance_offset,
+        }  # fmt: skip
+        for name in names:
+            if name in raw:
+                self.template[raw[name]] = None
+            self.template[name] = None
+
+    def _fields(self, t: tuple) -> list:
+        """The field values of an unpacked payload `t`, in declaration order, char fields with
+        their trailing NULs stripped: the arguments of the class's `__init__`."""
         if self.flat:
             fields = list(self.order(t))
         else:
@@ -55,7 +82,10 @@ class _Layout:
             ]
         for i in self.chars:
             fields[i] = fields[i].rstrip(b"\x00")
-        return self.cls(*fields)
+        return fields
+
+    def message(self, payload: bytes):
+        return self.cls(*self.fields(self.unpack(payload)))
 
 
 def _wire_getter(cls):
@@ -81,8 +111,31 @@ def _wire_getter(cls):
     return values
 
 
-_LAYOUTS = {msg_id: _Layout(cls) for msg_id, cls in mavlink.mavlink_map.items()}
-_BY_CLASS = {lay.cls: lay for lay in _LAYOUTS.values()}
+class _Layouts(dict):
+    """Message id → its `_Layout`, each made on first use: a flight speaks a dozen of the
+    dialect's 300 messages, and making them all cost every process importing this ~3 ms.
+    `layouts[msg_id]` raises KeyError for an id the dialect does not know, `known` gives None."""
+
+    def __missing__(self, msg_id: int) -> _Layout:
+        lay = self[msg_id] = _Layout(mavlink.mavlink_map[msg_id])
+        _BY_CLASS[lay.cls] = lay
+        return lay
+
+    def known(self, msg_id: int) -> _Layout | None:
+        return self[msg_id] if msg_id in mavlink.mavlink_map else None
+
+
+_LAYOUTS = _Layouts()
+_BY_CLASS: dict[type, _Layout] = {}  # the dialect's message classes whose layout was made
+
+
+def _layout_of(cls: type) -> _Layout | None:
+    """The layout of one of the dialect's message classes; None for any other class (pymavlink
+    frames it), a subclass or another dialect's class of the same id included."""
+    lay = _BY_CLASS.get(cls)
+    if lay is None and mavlink.mavlink_map.get(getattr(cls, "id", None)) is cls:
+        lay = _LAYOUTS[cls.id]
+    return lay
 
 
 def decode_payload(p: Payload) -> MAVLinkMessage:
@@ -98,7 +151,7 @@ def frame_unsigned_v2(msg: MAVLinkMessage, seq: int, src_sys: int, src_comp: int
     It costs a third of pymavlink's `_pack`, which builds a header object and an X.25
     accumulator in Python per frame: with K vehicles' streams that was a simulator's largest
     cost after the physics."""
-    lay = _BY_CLASS.get(type(msg))
+    lay = _layout_of(type(msg))
     if lay is None:
         return None
     return _frame_of(lay, lay.pack_payload(*lay.wire_values(msg)), seq, src_sys, src_comp)
@@ -140,7 +193,7 @@ def parse_unsigned_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
     A datagram of telemetry decoded here costs a few µs a frame; pymavlink's byte-wise
     parser, tens: with K vehicles' streams that parser was the companion's largest cost."""
     spans = _scan_v2(datagram, signed=False)
-    return None if spans is None else [_decode(datagram, *sp) for sp in spans]
+    return None if spans is None else [_decode(datagram[i:end], lay) for i, end, _, lay in spans]
 
 
 def parse_signed_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
@@ -151,7 +204,7 @@ def parse_signed_v2(datagram: bytes) -> list[MAVLinkMessage] | None:
     spans = _scan_v2(datagram, signed=True)
     if spans is None or any(sig == 0 for _, _, sig, _ in spans):
         return None
-    return [_decode(datagram, *sp) for sp in spans]
+    return [_decode(datagram[i:end], lay) for i, end, _, lay in spans]
 
 
 _Span = tuple[int, int, int, _Layout]  # start, end (signature included), signature length, layout
@@ -174,7 +227,8 @@ def _scan_v2(datagram: bytes, signed: bool) -> list[_Span] | None:
         end = i + 12 + datagram[i + 1]
         if end + sig > n:
             return None
-        lay = _LAYOUTS.get(datagram[i + 7] | datagram[i + 8] << 8 | datagram[i + 9] << 16)
+        msg_id = datagram[i + 7] | datagram[i + 8] << 8 | datagram[i + 9] << 16
+        lay = _LAYOUTS.get(msg_id) or _LAYOUTS.known(msg_id)  # (made on first use)
         if lay is None:
             return None
         crc = datagram[end - 2] | datagram[end - 1] << 8
@@ -185,22 +239,28 @@ def _scan_v2(datagram: bytes, signed: bool) -> list[_Span] | None:
     return out
 
 
-def _decode(datagram: bytes, i: int, end: int, sig: int, lay: _Layout) -> MAVLinkMessage:
-    """One scanned frame as pymavlink's parser (without a key of its own) decodes it."""
-    _, plen, incompat, compat, seq, src_sys, src_comp, lo, hi = HDR_V2.unpack_from(datagram, i)
-    stop = end - sig - 2  # the payload ends here
-    payload = datagram[i + 10 : stop]
-    if plen < lay.size:
-        payload += bytes(lay.size - plen)  # MAVLink 2 trailing-zero truncation
-    elif plen > lay.size:
-        payload = payload[: lay.size]
-    m = lay.message(payload)
-    buf = bytearray(datagram[i:end])
-    m._signed = False  # pymavlink's parser holds no key: the signature is ours to check
-    m._msgbuf = buf
-    m._payload = buf[6 : stop - i]  # as pymavlink's decode sets it
-    m._crc = datagram[stop] | datagram[stop + 1] << 8
-    m._header = mavlink.MAVLink_header(lay.msg_id, incompat, compat, plen, seq, src_sys, src_comp)
+def _decode(frame: bytes, lay: _Layout) -> MAVLinkMessage:
+    """One scanned frame as pymavlink's parser (without a key of its own) decodes it, attribute
+    for attribute, without the class's `__init__` chain: a copy of the layout's `template`
+    with the frame's bookkeeping and the payload's fields filled in."""
+    _, plen, incompat, compat, seq, src_sys, src_comp, _, _ = HDR_V2.unpack_from(frame)
+    crc_at = 10 + plen
+    msgbuf = bytearray(frame)
+    attrs = lay.template.copy()
+    attrs["_header"] = mavlink.MAVLink_header(
+        lay.msg_id, incompat, compat, plen, seq, src_sys, src_comp
+    )
+    attrs["_payload"] = msgbuf[6:crc_at]  # as pymavlink's decode sets it
+    attrs["_msgbuf"] = msgbuf
+    attrs["_crc"] = frame[crc_at] | frame[crc_at + 1] << 8
+    # the payload, then zeros: a truncated one gets its dropped trailing zeros back, a longer one
+    # (extensions this dialect does not know) is read up to the size we know
+    t = lay.unpack_from(frame[10:crc_at] + lay.zeros)
+    attrs.update(zip(lay.keys, lay.fields(t)))
+    for name, raw in lay.texts:
+        attrs[name] = attrs[raw].split(b"\x00", 1)[0].decode("ascii", errors="replace")
+    m = _new_object(lay.cls)
+    m.__dict__ = attrs
     return m
 
 
@@ -240,7 +300,7 @@ class Codec:
             lay = _LAYOUTS[msg.msg_id]
             payload = msg.data
         else:
-            lay = _BY_CLASS.get(type(msg))
+            lay = _layout_of(type(msg))
             if lay is None:  # a class the dialect does not know: pymavlink frames it
                 return self._pymavlink_pack(msg)
             payload = lay.pack_payload(*lay.wire_values(msg))
@@ -294,10 +354,10 @@ class Codec:
             spans = _scan_v2(datagram, signed=True)
             if spans is not None:
                 out = []
-                for i, end, sig, lay in spans:
+                for i, end, _, lay in spans:
                     frame = datagram[i:end]
                     if sg.verify(frame, lay.msg_id, frame[5], frame[6]) is None:
-                        out.append(_decode(datagram, i, end, sig, lay))
+                        out.append(_decode(frame, lay))
                     else:
                         self.stats.rx_rejected += 1
                 self.stats.rx_frames += len(out)

@@ -12,7 +12,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from skyherd.runio.runfolder import atomic_file
+from skyherd.runio.runfolder import atomic_file, owner_only
 
 KEY_LEN = 32
 
@@ -55,13 +55,8 @@ def save_key(path: Path, key: bytes) -> None:
         raise SigningError(f"a signing key has {KEY_LEN} bytes, got {len(key)}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_file(path, "wb", opener=_owner_only) as f:
+    with atomic_file(path, "wb", opener=owner_only) as f:
         f.write(key)
-
-
-def _owner_only(path: str, flags: int) -> int:
-    """`open`'s opener for a key file: made readable and writable by its owner only."""
-    return os.open(path, flags, 0o600)
 
 
 PER_RUN_KEY_FILE = "signing.key"  # a flight's own key in its run folder

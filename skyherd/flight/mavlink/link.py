@@ -87,13 +87,15 @@ class UdpLink:
                 continue
             self.rx_datagrams += 1
             msgs = self.codec.parse(data)
-            if msgs:
-                if self.codec.authentic(msgs):  # never an unsigned sender on a signed link
-                    self.peer = (addr[0], addr[1])
-                if self._on_frame is not None:  # each parsed frame, never the raw datagram
-                    for m in msgs:
-                        self._on_frame("in", bytes(m.get_msgbuf()))
-            out.extend((m, (addr[0], addr[1])) for m in msgs)
+            if not msgs:
+                continue
+            sender = (addr[0], addr[1])
+            if self.codec.authentic(msgs):  # never an unsigned sender on a signed link
+                self.peer = sender
+            if self._on_frame is not None:  # each parsed frame, never the raw datagram
+                for m in msgs:
+                    self._on_frame("in", bytes(m.get_msgbuf()))
+            out.extend((m, sender) for m in msgs)
         return out
 
     def send(self, msg: MAVLinkMessage, to: Address | None = None, force: bool = False) -> None:

@@ -94,11 +94,19 @@ class TlogWriter:
         """Append frames (one datagram's, one send's) as one write, each with the same stamp
         (`stamp_us`, default now); with `flush_interval_s` 0 they are flushed together before
         this returns."""
+        if self._f is not None:
+            self.write_stamped([(self._stamp_us() if stamp_us is None else stamp_us, frames)])
+
+    def write_stamped(self, groups: list[tuple[int, list[bytes]]]) -> None:
+        """`write_many` of several (stamp [µs], frames) groups in order, as one write (and with
+        `flush_interval_s` 0 one flush): a lockstep tick's held records cost one system call."""
         if self._f is None:
             return
-        stamp = _STAMP.pack(self._stamp_us() if stamp_us is None else stamp_us)
         # SETUP_SIGNING (id 256) exists only in MAVLink 2: bytes 7..9 of a v2 frame hold its id
-        kept = [stamp + f for f in frames if f[7:10] != _SIGNING_ID_V2 or f[0] != 0xFD]
+        kept = []
+        for stamp_us, frames in groups:
+            stamp = _STAMP.pack(stamp_us)
+            kept += [stamp + f for f in frames if f[7:10] != _SIGNING_ID_V2 or f[0] != 0xFD]
         if not kept:
             return
         data = b"".join(kept)
