@@ -22,9 +22,10 @@ shared-memory buffer goes back to the simulator's pool), and the recorder's own 
 the queue every BATCH_S of wall time, in the order the samples came (a decision after the frame
 it answered). In batches the recording costs a third less CPU than in each key's callback (in
 a 100 s flight of 6,000 samples, 0.52 -> 0.35 s: a GIL hand-over per sample, and the caches
-cold each time). A sample that comes while QUEUE are waiting is dropped and counted
-(`dropped`, in the metadata record when any was): the recorder never holds Zenoh's threads
-back (a frame's buffer with them), nor grows without bound.
+cold each time). A sample that comes while QUEUE samples or QUEUE_BYTES are waiting is dropped
+and counted (`dropped`, in the metadata record when any was): the recorder never holds Zenoh's
+threads back (a frame's buffer with them), nor grows without bound (camera frames are most of
+the bytes: 230 kB raw at 320x240, 2.8 MB at 1280x720).
 """
 
 from __future__ import annotations
@@ -100,8 +101,10 @@ class ZenohRecorder:
         self._ugv_t: float | None = None
         self._ugv_batch: dict[str, Any] = {}  # id → its entity at _ugv_t (messages.ugv_entity)
         self._ugv_ids: set[str] = set()  # every UGV heard from
-        self.dropped = 0  # samples that came while QUEUE were waiting
+        self.dropped = 0  # samples that came while the queue was full (QUEUE, QUEUE_BYTES)
         self._queue: collections.deque[tuple[Any, bytes]] = collections.deque()
+        self._queued_bytes = 0
+        self._queue_lock = threading.Lock()  # Zenoh's threads append, the recorder's takes
         self._closing = threading.Event()
         v = vehicle
         self._subs = [
@@ -116,7 +119,10 @@ class ZenohRecorder:
         self._thread = threading.Thread(target=self._run, name="skyherd-recorder", daemon=True)
         self._thread.start()
 
-    QUEUE = 1024  # samples waiting for the recorder's thread, at most (~0.3 s of a flight at --speedup 0)
+    # waiting for the recorder's thread, at most: half a minute of `make run`'s samples at
+    # --speedup 0 (6,000 in ~3 s of wall time), 570 raw 320x240 frames
+    QUEUE = 65536  # samples
+    QUEUE_BYTES = 128 << 20  # payload bytes
     BATCH_S = 0.01  # [wall s] between the recorder thread's batches
 
     def _queued(self, kind: str, fn):
@@ -124,10 +130,14 @@ class ZenohRecorder:
         how = (kind, fn)
 
         def cb(sample) -> None:
-            if len(self._queue) >= self.QUEUE:
-                self.dropped += 1
-                return
-            self._queue.append((how, sample.payload.to_bytes()))
+            payload = sample.payload.to_bytes()
+            with self._queue_lock:
+                if (len(self._queue) >= self.QUEUE
+                        or self._queued_bytes + len(payload) > self.QUEUE_BYTES):  # fmt: skip
+                    self.dropped += 1
+                    return
+                self._queue.append((how, payload))
+                self._queued_bytes += len(payload)
 
         return cb
 
@@ -137,8 +147,10 @@ class ZenohRecorder:
             self._drain()
 
     def _drain(self) -> None:
-        while self._queue:
-            (kind, fn), payload = self._queue.popleft()
+        with self._queue_lock:  # the whole queue taken at once: the callbacks never wait long
+            batch, self._queue = self._queue, collections.deque()
+            self._queued_bytes = 0
+        for (kind, fn), payload in batch:
             try:
                 fn(payload)
             except Exception:  # noqa: BLE001 - bad input on the wire is counted, never raised

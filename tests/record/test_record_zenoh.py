@@ -264,6 +264,29 @@ def test_a_full_queue_drops_and_counts_what_comes_never_holding_zenoh(tmp_path, 
     assert meta["skyherd zenoh"]["dropped"] == "2"
 
 
+def test_the_queue_is_bounded_in_bytes_too_so_big_frames_cannot_grow_it(tmp_path, monkeypatch):
+    """QUEUE_BYTES bounds what waits as well as QUEUE: with room for two of these payloads the
+    third and fourth are dropped (counted), a small one after them still fits; once the
+    thread took the queue there is room again."""
+    monkeypatch.setattr(ZenohRecorder, "QUEUE_BYTES", 250)
+    monkeypatch.setattr(ZenohRecorder, "BATCH_S", 60.0)  # the thread takes none before close()
+    session = _Session()
+    rec = ZenohRecorder(session, "uav0", tmp_path / "flight.mcap")
+    clock = session.callbacks["skyherd/sim/clock"]
+    pad = " " * 90  # JSON allows the whitespace: each payload ~110 bytes
+    for k in range(4):
+        clock(_Sample(json.dumps({"t_sim": k / 10}).encode() + pad.encode()))
+    clock(_Sample(b'{"t_sim": 0.5}'))
+    assert rec.dropped == 2
+    rec._drain()
+    clock(_Sample(json.dumps({"t_sim": 0.6}).encode() + pad.encode()))
+    rec.close()
+    assert rec.received == {"clock": 4} and rec.dropped == 2
+    assert [m.t for m in read_messages(tmp_path / "flight.mcap").topic("/sim/clock")] == [
+        0.0, 0.1, 0.5, 0.6
+    ]  # fmt: skip
+
+
 def test_live_server_serves_frames_and_poses_to_a_websocket_client():
     from websockets.sync.client import connect
 
