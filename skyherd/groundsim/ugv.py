@@ -79,20 +79,32 @@ def marker_points_ned(states: UGVStates, model: UGVModel) -> np.ndarray:
     return out
 
 
+# a square's corners in order around it, as (forward, right) signs
+_SQUARE_FWD, _SQUARE_RIGHT = np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, -1.0, 1.0])
+
+
+def corners_ned(states: UGVStates, model: UGVModel) -> np.ndarray:
+    """(N, 12, 3) NED corners [m] of each UGV: its hull box's 8 (the ground square's 4, then the
+    top's), then its top marker's 4, each square in order around it. One pass for the team: the
+    fast renderer projects these at every camera frame."""
+    c, s = np.cos(states.heading)[:, None], np.sin(states.heading)[:, None]  # (N, 1)
+    n, e = states.pos_ne[:, 0:1], states.pos_ne[:, 1:2]
+    f, r = _SQUARE_FWD, _SQUARE_RIGHT
+    # a corner: the centre + its offsets along the heading (cos, sin) and to the right (−sin, cos)
+    out = np.empty((states.n, 12, 3))
+    a, b = 0.5 * model.length_m * f, 0.5 * model.width_m * r
+    out[:, :4, 0], out[:, :4, 1] = n + (a * c - b * s), e + (a * s + b * c)
+    out[:, 4:8, :2] = out[:, :4, :2]
+    out[:, :4, 2], out[:, 4:8, 2] = 0.0, -model.height_m
+    h = 0.5 * model.marker_size_m
+    out[:, 8:, 0], out[:, 8:, 1] = n + h * (f * c - r * s), e + h * (f * s + r * c)
+    out[:, 8:, 2] = -model.marker_top_m
+    return out
+
+
 def marker_corners_ned(states: UGVStates, model: UGVModel) -> np.ndarray:
     """Corners of each top marker, (N, 4, 3) NED [m], in order around the square."""
-    h = 0.5 * model.marker_size_m
-    c, s = np.cos(states.heading), np.sin(states.heading)
-    fwd = np.stack([c, s], axis=-1)  # (N, 2) heading unit vector (north, east)
-    right = np.stack([-s, c], axis=-1)
-    signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], dtype=float)  # (fwd, right)
-    ne = states.pos_ne[:, None, :] + h * (
-        signs[None, :, 0:1] * fwd[:, None, :] + signs[None, :, 1:2] * right[:, None, :]
-    )
-    out = np.empty((states.n, 4, 3))
-    out[..., :2] = ne
-    out[..., 2] = -model.marker_top_m
-    return out
+    return corners_ned(states, model)[:, 8:]
 
 
 def initial_states(pos_ne: np.ndarray, heading: np.ndarray | None = None) -> UGVStates:

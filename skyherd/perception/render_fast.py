@@ -22,6 +22,7 @@ from skyherd.groundsim.ugv import (
     MARKER_COLOURS,
     UGVModel,
     UGVStates,
+    corners_ned,
 )
 from skyherd.perception.camera import CameraParams, camera_pose, check_pose, project
 
@@ -49,31 +50,7 @@ class FastRenderer:
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._bg = np.empty((cam.height_px, cam.width_px, 3), dtype=np.uint8)
         self._bg[:] = GROUND_RGB
-        # the corners of a UGV as (forward, right) signs around a square, and the half sizes
-        # [m] along them: the hull's (its ground square; the top one repeats it) and the
-        # marker's (groundsim.ugv.marker_corners_ned's order and arithmetic)
-        m = self.model
-        fwd, right = np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, -1.0, 1.0])
-        self._hull_half = (0.5 * m.length_m * fwd, 0.5 * m.width_m * right)
-        self._marker_signs, self._marker_half = (fwd, right), 0.5 * m.marker_size_m
         self._lim = 4.0 * (cam.width_px + cam.height_px)  # keep fixed-point coordinates in range
-
-    def _corners(self, states: UGVStates) -> np.ndarray:
-        """(N, 12, 3) NED corners [m] of each UGV: its hull box's 8 (the ground square's 4, then
-        the top's), then its top marker's 4 (the values of groundsim.ugv.marker_corners_ned)."""
-        c, s = np.cos(states.heading)[:, None], np.sin(states.heading)[:, None]  # (N, 1)
-        n, e = states.pos_ne[:, 0:1], states.pos_ne[:, 1:2]
-        # a corner: the centre + its offsets along the heading (cos, sin) and to the right
-        # (−sin, cos)
-        out = np.empty((states.n, 12, 3))
-        a, b = self._hull_half
-        out[:, :4, 0], out[:, :4, 1] = n + (a * c - b * s), e + (a * s + b * c)
-        out[:, 4:8, :2] = out[:, :4, :2]
-        out[:, :4, 2], out[:, 4:8, 2] = 0.0, -self.model.height_m
-        (f, r), h = self._marker_signs, self._marker_half
-        out[:, 8:, 0], out[:, 8:, 1] = n + h * (f * c - r * s), e + h * (f * s + r * c)
-        out[:, 8:, 2] = -self.model.marker_top_m
-        return out
 
     def render(self, uav, ugv_states: UGVStates, out: np.ndarray | None = None) -> np.ndarray:
         """Frame (H, W, 3) uint8 RGB, drawn into `out` when given (e.g. the frame publisher's
@@ -89,7 +66,7 @@ class FastRenderer:
                 raise ValueError(f"out must be {self._bg.shape} uint8, got {out.shape} {out.dtype}")
             img = out
             img[...] = self._bg
-        uv, depth = project(cam, pose, self._corners(ugv_states))
+        uv, depth = project(cam, pose, corners_ned(ugv_states, self.model))
         # a polygon is drawn when each of its corners is before the near plane (behind the
         # camera: NaN) and not far out of the image (the fixed-point coordinates' range)
         drawn = (depth > cam.near_m) & (np.abs(uv - cam.centre_px).max(axis=2) < self._lim)

@@ -11,6 +11,7 @@ from skyherd.groundsim.ugv import (
     MARKER_COLOURS,
     UGVModel,
     UGVStates,
+    corners_ned,
     marker_corners_ned,
 )
 from skyherd.perception.camera import CameraParams, UAVPose, camera_pose, project
@@ -33,13 +34,27 @@ def reference_hull_corners(states: UGVStates, m: UGVModel) -> np.ndarray:
     return out
 
 
+def reference_marker_corners(states: UGVStates, m: UGVModel) -> np.ndarray:
+    h = 0.5 * m.marker_size_m
+    c, s = np.cos(states.heading), np.sin(states.heading)
+    fwd, right = np.stack([c, s], axis=-1), np.stack([-s, c], axis=-1)
+    signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], dtype=float)
+    ne = states.pos_ne[:, None, :] + h * (
+        signs[None, :, 0:1] * fwd[:, None, :] + signs[None, :, 1:2] * right[:, None, :]
+    )
+    out = np.empty((states.n, 4, 3))
+    out[..., :2] = ne
+    out[..., 2] = -m.marker_top_m
+    return out
+
+
 def reference_render(cam: CameraParams, m: UGVModel, uav, states: UGVStates) -> np.ndarray:
     """Each UGV's hull, then each marker, projected, checked and drawn one by one."""
     pose = camera_pose(cam, uav.pos_ned, uav.quat)
     img = np.empty((cam.height_px, cam.width_px, 3), np.uint8)
     img[:] = GROUND_RGB
     hull_uv, hz = project(cam, pose, reference_hull_corners(states, m))
-    mark_uv, mz = project(cam, pose, marker_corners_ned(states, m))
+    mark_uv, mz = project(cam, pose, reference_marker_corners(states, m))
     lim = 4.0 * (cam.width_px + cam.height_px)
     for i in range(states.n):
         if (hz[i] > cam.near_m).all() and np.abs(hull_uv[i] - cam.centre_px).max() < lim:
@@ -67,14 +82,16 @@ def random_scene(rng: np.random.Generator, n: int):
 
 
 def test_corners_are_the_hull_and_marker_corners():
+    """groundsim.ugv.corners_ned (what the renderer projects) gives, to the bit, the hull and
+    marker corners of each UGV computed on their own."""
     rng = np.random.default_rng(3)
     m = UGVModel(length_m=1.3, width_m=0.9, height_m=0.5, marker_size_m=0.8)
-    r = FastRenderer(CAMERAS[0], m)
     for n in range(7):
         _, states = random_scene(rng, n)
-        got = r._corners(states)
+        got = corners_ned(states, m)
         assert np.array_equal(got[:, :8], reference_hull_corners(states, m))
-        assert np.array_equal(got[:, 8:], marker_corners_ned(states, m))
+        assert np.array_equal(got[:, 8:], reference_marker_corners(states, m))
+        assert np.array_equal(marker_corners_ned(states, m), reference_marker_corners(states, m))
 
 
 @pytest.mark.parametrize("cam", CAMERAS)
